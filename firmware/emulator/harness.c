@@ -1,0 +1,263 @@
+/* labrig-emu: the real compiled bridge firmware under simavr, UART0 on a pty, the ADC fed
+ * by a DC servo plant model and the MCP4822 decoded from SPI + CS.
+ *
+ *   labrig-emu --fw build/uno/labrig_bridge.elf [--board uno|mega] [plant options]
+ *
+ * Prints the pty path as the first line of stdout, then serves until SIGINT/SIGTERM.
+ * The simulation is paced to real time (--speed 1) so host timeouts and the firmware's
+ * watchdog behave as on the bench; --speed 0 runs free.
+ *
+ * Analog front end as in docs/hardware.md: bridge output u = (VA - VB) * 2.4414 with
+ * channel B at mid-scale, so u = (wordA - wordB) * 10 V / 4096; sensors of +-10 V map onto
+ * 0..5 V by (s + 10) / 4. A2 (input pot / reference) carries the bridge output u.
+ * Closed loop: the harness snoops host->board CONFIGURE frames (the emulated patch panel)
+ * for the loop mode and gains, unless --loop open|closed forces them. */
+#include <errno.h>
+#include <getopt.h>
+#include <math.h>
+#include <signal.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+#include <unistd.h>
+
+#include "sim_avr.h"
+#include "sim_elf.h"
+#include "sim_irq.h"
+#include "sim_io.h"
+#include "avr_adc.h"
+#include "avr_spi.h"
+#include "avr_ioport.h"
+#include "avr_uart.h"
+#include "uart_pty.h"
+
+#include "plant.h"
+#include "lr_proto.h"
+
+static avr_t *avr;
+static uart_pty_t pty;
+static plant_t plant;
+static volatile sig_atomic_t stop_flag;
+static double sim_t;                 /* plant time, s */
+static uint16_t word_a = 0, word_b = 0;  /* MCP4822 powers up shut down: 0 V on both */
+static int on_a = 0, on_b = 0;
+static uint8_t spi_bytes[4];
+static int spi_n;
+static FILE *dac_log;
+static int loop_forced = -1;
+static lr_decoder_t snoop;
+static const double DT = 10e-6;
+
+static double now_s(void) { return (double)avr->cycle / (double)avr->frequency; }
+
+static void advance(void)
+{
+    double t = now_s();
+    while (sim_t + DT <= t) { plant_step(&plant, DT); sim_t += DT; }
+}
+
+static double bridge_out(void)
+{
+    double va = on_a ? word_a * 2.048 * 2 / 4096.0 : 0.0;   /* gain 2x */
+    double vb = on_b ? word_b * 2.048 * 2 / 4096.0 : 0.0;
+    return (va - vb) * (5.0 / 2.048) / 2.0;                    /* bipolar stage: +-5 V */
+}
+
+/* ADC conversion started: give it the sensor voltage of that instant */
+static void adc_trigger(struct avr_irq_t *irq, uint32_t value, void *param)
+{
+    (void)irq; (void)param;
+    union { avr_adc_mux_t mux; uint32_t v; } e = {.v = value};
+    if (e.mux.kind != ADC_MUX_SINGLE || e.mux.src > 2) return;
+    advance();
+    double s = e.mux.src == 0 ? plant_tacho_v(&plant) : e.mux.src == 1 ? plant_pos_v(&plant) : plant.u;
+    double vin = (s + 10.0) / 4.0;
+    if (vin < 0) vin = 0;
+    if (vin > 5.0) vin = 5.0;
+    /* simavr scales by 1023/Vref where the chip uses 1024/Vref: compensate */
+    uint32_t mv = (uint32_t)(vin * 1000.0 * 1024.0 / 1023.0 + 0.5);
+    avr_raise_irq(avr_io_getirq(avr, AVR_IOCTL_ADC_GETIRQ, ADC_IRQ_ADC0 + e.mux.src), mv);
+}
+
+static void spi_out(struct avr_irq_t *irq, uint32_t value, void *param)
+{
+    (void)irq; (void)param;
+    if (spi_n < 4) spi_bytes[spi_n++] = (uint8_t)value;
+}
+
+static void cs_pin(struct avr_irq_t *irq, uint32_t value, void *param)
+{
+    (void)irq; (void)param;
+    if (!value) { spi_n = 0; return; }          /* falling edge: a new word starts */
+    if (spi_n == 2) {                             /* rising edge latches (LDAC tied low) */
+        uint16_t cmd = (uint16_t)(spi_bytes[0] << 8 | spi_bytes[1]);
+        int ch = cmd >> 15, active = (cmd >> 12) & 1;
+        uint16_t w = cmd & 0x0FFF;
+        advance();
+        if (ch == 0) {
+            int changed = (w != word_a) || (active != on_a);
+            word_a = w; on_a = active;
+            if (changed && dac_log) { fprintf(dac_log, "%.6f %u\n", now_s(), w); fflush(dac_log); }
+        } else {
+            word_b = w; on_b = active;
+        }
+        plant.u = bridge_out();
+    }
+    spi_n = 0;
+}
+
+/* host -> board bytes: the patch panel follows the loop mode of each CONFIGURE */
+static void uart_in(struct avr_irq_t *irq, uint32_t value, void *param)
+{
+    (void)irq; (void)param;
+    lr_frame_t f;
+    if (lr_decoder_feed(&snoop, (uint8_t)value, &f) && f.type == LR_CONFIGURE &&
+        f.body_len >= LR_CONFIGURE_FIXED && loop_forced < 0) {
+        advance();
+        plant.p.closed = f.body[0] == LR_LOOP_CLOSED;
+        plant.p.kp = lr_get16(f.body + 24) / 100.0;
+        plant.p.kv = lr_get16(f.body + 26) / 100.0;
+    }
+}
+
+static void on_signal(int sig) { (void)sig; stop_flag = 1; }
+
+static void usage(void)
+{
+    fprintf(stderr,
+        "usage: labrig-emu --fw FILE.elf [--board uno|mega] [--speed X] [--dac-log FILE]\n"
+        "  [--link PATH] [--loop auto|open|closed] [--kp G] [--kv G]\n"
+        "  [--R ohm] [--L H] [--J kgm2] [--B Nms] [--K Nm/A] [--Ka V/V] [--Vmax V] [--N ratio]\n"
+        "  [--Kt V/(rad/s)] [--Kpot V/rad] [--pos-offset V] [--noise-tacho V] [--noise-pos V]\n"
+        "  [--Tc Nm] [--seed N]\n");
+}
+
+int main(int argc, char **argv)
+{
+    /* defaults: configs/rig_default.toml */
+    plant_params_t p = {.R = 8.0, .L = 0.0085, .J = 5.2245e-5, .B = 1.0e-5, .K = 0.05, .Ka = 5.0,
+                        .Vmax = 13.0, .N = 30.0, .Kt = 0.026, .Kpot = 0.5, .pos_offset = -4.0,
+                        .noise_tacho = 0.010, .noise_pos = 0.004, .Tc = 0.0, .closed = 0,
+                        .kp = 10.0, .kv = 1.0, .seed = 1};
+    const char *fw = NULL, *board = "uno", *dac_log_path = NULL, *link = NULL;
+    double speed = 1.0;
+    static struct option opts[] = {
+        {"fw", 1, 0, 'f'}, {"board", 1, 0, 'b'}, {"speed", 1, 0, 's'}, {"dac-log", 1, 0, 'd'},
+        {"link", 1, 0, 'l'}, {"loop", 1, 0, 'o'}, {"kp", 1, 0, 1}, {"kv", 1, 0, 2},
+        {"R", 1, 0, 3}, {"L", 1, 0, 4}, {"J", 1, 0, 5}, {"B", 1, 0, 6}, {"K", 1, 0, 7},
+        {"Ka", 1, 0, 8}, {"Vmax", 1, 0, 9}, {"N", 1, 0, 10}, {"Kt", 1, 0, 11}, {"Kpot", 1, 0, 12},
+        {"pos-offset", 1, 0, 13}, {"noise-tacho", 1, 0, 14}, {"noise-pos", 1, 0, 15},
+        {"Tc", 1, 0, 16}, {"seed", 1, 0, 17}, {"help", 0, 0, 'h'}, {0, 0, 0, 0}};
+    int c;
+    while ((c = getopt_long_only(argc, argv, "", opts, NULL)) != -1) {
+        double v = optarg ? atof(optarg) : 0;
+        switch (c) {
+        case 'f': fw = optarg; break;
+        case 'b': board = optarg; break;
+        case 's': speed = v; break;
+        case 'd': dac_log_path = optarg; break;
+        case 'l': link = optarg; break;
+        case 'o':
+            loop_forced = !strcmp(optarg, "closed") ? 1 : !strcmp(optarg, "open") ? 0 : -1;
+            break;
+        case 1: p.kp = v; break;
+        case 2: p.kv = v; break;
+        case 3: p.R = v; break;
+        case 4: p.L = v; break;
+        case 5: p.J = v; break;
+        case 6: p.B = v; break;
+        case 7: p.K = v; break;
+        case 8: p.Ka = v; break;
+        case 9: p.Vmax = v; break;
+        case 10: p.N = v; break;
+        case 11: p.Kt = v; break;
+        case 12: p.Kpot = v; break;
+        case 13: p.pos_offset = v; break;
+        case 14: p.noise_tacho = v; break;
+        case 15: p.noise_pos = v; break;
+        case 16: p.Tc = v; break;
+        case 17: p.seed = (uint64_t)strtoull(optarg, NULL, 10); break;
+        default: usage(); return 2;
+        }
+    }
+    if (!fw || (strcmp(board, "uno") && strcmp(board, "mega")) || p.L <= 0 || p.J <= 0 || p.N == 0) {
+        usage();
+        return 2;
+    }
+    if (loop_forced >= 0) p.closed = loop_forced;
+    plant_init(&plant, &p);
+    lr_decoder_init(&snoop);
+
+    /* simavr and uart_pty chat on stdout; stdout is reserved for the pty path */
+    fflush(stdout);
+    int out_fd = dup(1);
+    dup2(2, 1);
+
+    elf_firmware_t f;
+    memset(&f, 0, sizeof f);
+    if (elf_read_firmware(fw, &f) != 0) {
+        fprintf(stderr, "labrig-emu: cannot read firmware %s\n", fw);
+        return 1;
+    }
+    const char *mcu = !strcmp(board, "mega") ? "atmega2560" : "atmega328p";
+    avr = avr_make_mcu_by_name(mcu);
+    if (!avr) { fprintf(stderr, "labrig-emu: simavr has no %s\n", mcu); return 1; }
+    avr_init(avr);
+    f.frequency = 16000000;
+    avr_load_firmware(avr, &f);
+    avr->frequency = 16000000;
+    avr->vcc = avr->avcc = avr->aref = 5000;   /* mV: the ADC scales by them */
+    avr->log = LOG_ERROR;
+
+    if (dac_log_path && !(dac_log = fopen(dac_log_path, "w"))) {
+        fprintf(stderr, "labrig-emu: cannot write %s: %s\n", dac_log_path, strerror(errno));
+        return 1;
+    }
+    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_ADC_GETIRQ, ADC_IRQ_OUT_TRIGGER), adc_trigger, NULL);
+    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_SPI_GETIRQ(0), SPI_IRQ_OUTPUT), spi_out, NULL);
+    int cs = !strcmp(board, "mega") ? 0 : 2;   /* Mega D53 = PB0, Uno D10 = PB2 */
+    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('B'), cs), cs_pin, NULL);
+    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_INPUT), uart_in, NULL);
+
+    uart_pty_init(avr, &pty);
+    uart_pty_connect(&pty, '0');
+    if (link) {
+        unlink(link);
+        if (symlink(pty.pty.slavename, link) != 0)
+            fprintf(stderr, "labrig-emu: cannot link %s: %s\n", link, strerror(errno));
+    }
+    fflush(stdout);
+    dprintf(out_fd, "%s\n", pty.pty.slavename);
+    close(out_fd);
+
+    struct sigaction sa;
+    memset(&sa, 0, sizeof sa);
+    sa.sa_handler = on_signal;
+    sigaction(SIGINT, &sa, NULL);
+    sigaction(SIGTERM, &sa, NULL);
+    signal(SIGPIPE, SIG_IGN);
+
+    struct timespec t0, tn;
+    clock_gettime(CLOCK_MONOTONIC, &t0);
+    uint64_t c0 = avr->cycle;
+    int state = cpu_Running;
+    while (!stop_flag && state != cpu_Done && state != cpu_Crashed) {
+        for (int k = 0; k < 2000 && state != cpu_Done && state != cpu_Crashed; k++)
+            state = avr_run(avr);
+        if (speed > 0) {
+            clock_gettime(CLOCK_MONOTONIC, &tn);
+            double wall = (tn.tv_sec - t0.tv_sec) + (tn.tv_nsec - t0.tv_nsec) * 1e-9;
+            double ahead = (double)(avr->cycle - c0) / avr->frequency / speed - wall;
+            if (ahead > 0.001) {
+                struct timespec ts = {(time_t)ahead, (long)((ahead - (time_t)ahead) * 1e9)};
+                nanosleep(&ts, NULL);
+            }
+        }
+    }
+    if (state == cpu_Crashed) fprintf(stderr, "labrig-emu: firmware crashed\n");
+    if (link) unlink(link);
+    if (dac_log) fclose(dac_log);
+    fflush(stderr);
+    _exit(state == cpu_Crashed ? 1 : 0);   /* uart_pty_stop() can hang: do not call it */
+}

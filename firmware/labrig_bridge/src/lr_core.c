@@ -1,0 +1,334 @@
+/* labrig bridge core; see lr_core.h and firmware/PROTOCOL.md. */
+#include "lr_core.h"
+#include "lr_hal.h"
+
+typedef struct {
+    uint32_t index;
+    uint16_t dac, tacho, pos, ref;
+} sample_t;
+
+typedef struct {
+    uint8_t loop, waveform, n_levels;
+    uint16_t rate_hz, dac_zero, dac_min, dac_max, watchdog_ms;
+    uint32_t n_samples, lead_in, segment;
+    uint16_t levels[LR_MAX_LEVELS];
+} config_t;
+
+static config_t cfg;
+static uint8_t board, tx_seq;
+static const char *fw_name;
+static uint16_t max_rate;
+static lr_decoder_t dec;
+static lr_counters_t ctr;
+static uint32_t last_rx_ms;
+
+/* shared with the ISRs */
+static volatile uint8_t state;
+static volatile uint16_t dac_now;
+static volatile uint8_t acquiring;
+static volatile uint8_t ring_head, ring_tail;
+static sample_t ring[LR_RING];
+static sample_t cur;
+/* waveform generator state, advanced once per tick (no division in the ISR) */
+static uint32_t tick_index, lead_left, seg_left;
+static uint8_t level_idx;
+
+static uint16_t lim_lo(void) { return (uint16_t)(LR_DAC_ZERO - LR_FW_LIMIT_COUNTS); }
+static uint16_t lim_hi(void) { return (uint16_t)(LR_DAC_ZERO + LR_FW_LIMIT_COUNTS); }
+
+/* The only path to the DAC: every word is clamped to the configured and the firmware
+ * limits, whatever called it. */
+static void dac_set(uint16_t w)
+{
+    uint16_t lo = cfg.dac_min > lim_lo() ? cfg.dac_min : lim_lo();
+    uint16_t hi = cfg.dac_max < lim_hi() ? cfg.dac_max : lim_hi();
+    if (w < lo) w = lo;
+    if (w > hi) w = hi;
+    dac_now = w;
+    hal_dac_write(w);
+}
+
+static void send(uint8_t type, const uint8_t *body, uint16_t len)
+{
+    static uint8_t wire[LR_MAX_WIRE];   /* main loop only: static keeps it off the stack */
+    size_t n = lr_frame_build(type, tx_seq++, body, len, wire);
+    if (n) hal_tx_write(wire, (uint16_t)n);
+}
+
+static void send_error(uint8_t code, const char *text)
+{
+    uint8_t b[48];
+    uint16_t n = 1;
+    b[0] = code;
+    while (*text && n < sizeof b) b[n++] = (uint8_t)*text++;
+    send(LR_ERROR, b, n);
+}
+
+static void send_ack(uint8_t type, uint8_t seq)
+{
+    uint8_t b[2] = {type, seq};
+    send(LR_ACK, b, 2);
+}
+
+void lr_core_send_hello(void)
+{
+    uint8_t b[64];
+    b[0] = LR_PROTOCOL_VERSION;
+    b[1] = board;
+    lr_put16(b + 2, 0x000F);          /* capabilities: square|step|staircase|constant */
+    lr_put16(b + 4, max_rate);
+    b[6] = LR_BATCH; b[7] = 12; b[8] = 10; b[9] = 3; b[10] = LR_MAX_LEVELS;
+    lr_put16(b + 11, LR_DAC_ZERO);
+    lr_put16(b + 13, lim_lo());
+    lr_put16(b + 15, lim_hi());
+    lr_put16(b + 17, LR_WATCHDOG_MS_DEFAULT);
+    uint16_t n = 19;
+    for (const char *p = fw_name; *p && n < sizeof b; p++) b[n++] = (uint8_t)*p;
+    send(LR_HELLO, b, n);
+}
+
+/* Stop sampling and put the output at 0 V; safe from the main loop at any time. */
+static void stop_and_zero(void)
+{
+    hal_timer_stop();
+    uint8_t s = hal_lock();
+    dac_set(cfg.dac_zero);
+    if (state == LR_STATE_RUNNING || state == LR_STATE_FINISHING) state = LR_STATE_CONFIGURED;
+    ring_tail = ring_head;
+    acquiring = 0;
+    hal_unlock(s);
+}
+
+void lr_core_init(uint8_t board_id, const char *fw_id, uint16_t max_rate_hz)
+{
+    board = board_id; fw_name = fw_id; max_rate = max_rate_hz;
+    cfg.dac_zero = LR_DAC_ZERO; cfg.dac_min = lim_lo(); cfg.dac_max = lim_hi();
+    cfg.watchdog_ms = LR_WATCHDOG_MS_DEFAULT;
+    state = LR_STATE_IDLE;
+    lr_decoder_init(&dec);
+    dac_set(LR_DAC_ZERO);   /* 0 V at reset, before anything else can happen */
+    last_rx_ms = hal_millis();
+}
+
+static int configure(const uint8_t *b, uint16_t len)
+{
+    if (len < LR_CONFIGURE_FIXED) return LR_ERR_BAD_FRAME;
+    config_t c;
+    c.loop = b[0]; c.waveform = b[1];
+    c.rate_hz = lr_get16(b + 2);
+    c.n_samples = lr_get32(b + 4);
+    c.lead_in = lr_get32(b + 8);
+    c.segment = lr_get32(b + 12);
+    c.dac_zero = lr_get16(b + 16);
+    c.dac_min = lr_get16(b + 18);
+    c.dac_max = lr_get16(b + 20);
+    c.watchdog_ms = lr_get16(b + 22);
+    /* b[24..27]: loop gains, for the record and the emulator's patch panel */
+    c.n_levels = b[28];
+    if (c.n_levels < 1 || c.n_levels > LR_MAX_LEVELS || len != LR_CONFIGURE_FIXED + 2u * c.n_levels)
+        return LR_ERR_BAD_FRAME;
+    if (c.loop > LR_LOOP_CLOSED || c.waveform > LR_WAVE_STAIRCASE || c.n_samples == 0 ||
+        c.watchdog_ms < 50)
+        return LR_ERR_BAD_CONFIG;
+    if ((c.waveform == LR_WAVE_SQUARE || c.waveform == LR_WAVE_STAIRCASE) && c.segment == 0)
+        return LR_ERR_BAD_CONFIG;
+    if (c.waveform == LR_WAVE_SQUARE && c.n_levels != 2) return LR_ERR_BAD_CONFIG;
+    if (c.rate_hz < LR_MIN_RATE_HZ || c.rate_hz > max_rate) return LR_ERR_RATE;
+    if (c.dac_min > c.dac_max || c.dac_min < lim_lo() || c.dac_max > lim_hi() ||
+        c.dac_zero < c.dac_min || c.dac_zero > c.dac_max)
+        return LR_ERR_LIMIT;
+    for (uint8_t i = 0; i < c.n_levels; i++) {
+        c.levels[i] = lr_get16(b + LR_CONFIGURE_FIXED + 2 * i);
+        if (c.levels[i] < c.dac_min || c.levels[i] > c.dac_max) return LR_ERR_LIMIT;
+    }
+    cfg = c;
+    return 0;
+}
+
+static void handle(const lr_frame_t *f)
+{
+    int err;
+    switch (f->type) {
+    case LR_HELLO_REQ:
+        lr_core_send_hello();
+        break;
+    case LR_HEARTBEAT:
+        break;
+    case LR_CONFIGURE:
+        if (state == LR_STATE_RUNNING || state == LR_STATE_FINISHING) {
+            send_error(LR_ERR_BUSY, "configure while running");
+            break;
+        }
+        err = configure(f->body, f->body_len);
+        if (err) {
+            state = LR_STATE_IDLE;
+            send_error((uint8_t)err, err == LR_ERR_LIMIT ? "level beyond output limit" :
+                       err == LR_ERR_RATE ? "sample rate out of range" : "bad configure");
+        } else {
+            uint8_t s = hal_lock();
+            dac_set(cfg.dac_zero);
+            hal_unlock(s);
+            state = LR_STATE_CONFIGURED;
+            send_ack(f->type, f->seq);
+        }
+        break;
+    case LR_START:
+        if (state != LR_STATE_CONFIGURED) {
+            send_error(state == LR_STATE_IDLE ? LR_ERR_NOT_CONFIGURED : LR_ERR_BUSY,
+                       state == LR_STATE_IDLE ? "start before configure" : "already running");
+            break;
+        }
+        {
+            uint8_t s = hal_lock();
+            tick_index = 0; lead_left = cfg.lead_in; seg_left = cfg.segment; level_idx = 0;
+            ring_head = ring_tail = 0; acquiring = 0;
+            ctr.sample_overruns = ctr.ring_overflows = 0;
+            state = LR_STATE_RUNNING;
+            hal_unlock(s);
+        }
+        send_ack(f->type, f->seq);   /* ack first: the first SAMPLES frame follows it */
+        hal_timer_start(cfg.rate_hz);
+        break;
+    case LR_STOP:
+    case LR_ZERO:
+        stop_and_zero();
+        send_ack(f->type, f->seq);
+        break;
+    case LR_STATUS_REQ: {
+        uint8_t b[29];
+        lr_put32(b, ctr.samples_sent);
+        lr_put32(b + 4, dec.frames_ok);
+        lr_put32(b + 8, dec.crc_errors);
+        lr_put32(b + 12, dec.framing_errors + ctr.rx_overruns);
+        lr_put32(b + 16, ctr.watchdog_trips);
+        lr_put32(b + 20, ctr.sample_overruns + ctr.ring_overflows);
+        b[24] = state;
+        lr_put16(b + 25, dac_now);
+        lr_put16(b + 27, 0);
+        send(LR_STATUS, b, 29);
+        break;
+    }
+    default:
+        send_error(LR_ERR_BAD_FRAME, "unknown message type");
+    }
+}
+
+/* Timer ISR: one sample period. */
+void lr_core_tick(void)
+{
+    if (state != LR_STATE_RUNNING) return;
+    if (tick_index >= cfg.n_samples) {
+        hal_timer_stop();
+        dac_set(cfg.dac_zero);      /* end of experiment: back to 0 V */
+        state = LR_STATE_FINISHING;
+        return;
+    }
+    uint16_t w;
+    if (lead_left) {
+        lead_left--;
+        w = cfg.dac_zero;
+    } else {
+        w = cfg.levels[level_idx];
+        if (cfg.segment && --seg_left == 0) {
+            seg_left = cfg.segment;
+            if (cfg.waveform == LR_WAVE_SQUARE) level_idx ^= 1;
+            else if (cfg.waveform == LR_WAVE_STAIRCASE && level_idx + 1 < cfg.n_levels) level_idx++;
+        }
+    }
+    if (acquiring) {
+        /* the previous conversions are still running: this period is lost (the host
+         * sees a gap in the sample index); the waveform keeps its timing */
+        ctr.sample_overruns++;
+        dac_set(w);
+        tick_index++;
+        return;
+    }
+    dac_set(w);
+    cur.index = tick_index++;
+    cur.dac = dac_now;
+    acquiring = 1;
+    hal_adc_start();
+}
+
+/* ADC ISR: the three channels of the current sample are in. */
+void lr_core_sample_done(uint16_t tacho, uint16_t pos, uint16_t ref)
+{
+    if (!acquiring) return;
+    acquiring = 0;
+    uint8_t next = (uint8_t)((ring_head + 1) & (LR_RING - 1));
+    if (next == ring_tail) { ctr.ring_overflows++; return; }
+    cur.tacho = tacho; cur.pos = pos; cur.ref = ref;
+    ring[ring_head] = cur;
+    ring_head = next;
+}
+
+void lr_core_rx_overrun(void) { ctr.rx_overruns++; }
+
+static void send_samples(uint8_t finishing)
+{
+    for (;;) {
+        uint8_t head = ring_head, tail = ring_tail;
+        uint8_t avail = (uint8_t)((head - tail) & (LR_RING - 1));
+        if (avail == 0) return;
+        /* a frame holds consecutive indices only */
+        uint8_t n = 1;
+        while (n < avail && n < LR_BATCH &&
+               ring[(tail + n) & (LR_RING - 1)].index == ring[tail].index + n)
+            n++;
+        if (n < LR_BATCH && n == avail && !finishing) return;  /* wait for a full batch */
+        /* worst case of a full SAMPLES frame on the wire; else keep polling RX instead */
+        if (hal_tx_free() < 4 + 5 + LR_BATCH * LR_SAMPLE_BYTES + 3) return;
+        uint8_t b[5 + LR_BATCH * LR_SAMPLE_BYTES];
+        lr_put32(b, ring[tail].index);
+        b[4] = n;
+        for (uint8_t i = 0; i < n; i++) {
+            const sample_t *s = &ring[(tail + i) & (LR_RING - 1)];
+            uint8_t *p = b + 5 + i * LR_SAMPLE_BYTES;
+            lr_put16(p, s->dac); lr_put16(p + 2, s->tacho);
+            lr_put16(p + 4, s->pos); lr_put16(p + 6, s->ref);
+        }
+        ring_tail = (uint8_t)((tail + n) & (LR_RING - 1));
+        send(LR_SAMPLES, b, (uint16_t)(5 + n * LR_SAMPLE_BYTES));
+        ctr.samples_sent += n;
+    }
+}
+
+void lr_core_poll(void)
+{
+    int c;
+    lr_frame_t f;
+    /* bounded so a flood of input cannot starve the sender */
+    for (uint8_t k = 0; k < 64 && (c = hal_rx_read()) >= 0; k++) {
+        if (lr_decoder_feed(&dec, (uint8_t)c, &f)) {
+            last_rx_ms = hal_millis();
+            handle(&f);
+        }
+    }
+    uint8_t st = state;
+    if (st == LR_STATE_RUNNING) {
+        send_samples(0);
+    } else if (st == LR_STATE_FINISHING && !acquiring) {
+        send_samples(1);
+        if (ring_head == ring_tail) {
+            uint8_t b[8];
+            lr_put32(b, cfg.n_samples);
+            lr_put32(b + 4, ctr.sample_overruns + ctr.ring_overflows);
+            send(LR_DONE, b, 8);
+            state = LR_STATE_CONFIGURED;
+        }
+    }
+    /* host-silence watchdog: armed while running or while the output is not at zero */
+    st = state;
+    if ((st == LR_STATE_RUNNING || st == LR_STATE_FINISHING || dac_now != cfg.dac_zero) &&
+        (uint32_t)(hal_millis() - last_rx_ms) > cfg.watchdog_ms) {
+        stop_and_zero();
+        ctr.watchdog_trips++;
+        last_rx_ms = hal_millis();
+        send_error(LR_ERR_WATCHDOG, "host silent: output set to 0 V");
+    }
+}
+
+uint8_t lr_core_state(void) { return state; }
+uint16_t lr_core_dac_word(void) { return dac_now; }
+const lr_counters_t *lr_core_counters(void) { return &ctr; }
+const lr_decoder_t *lr_core_decoder(void) { return &dec; }

@@ -1,0 +1,48 @@
+/* labrig bridge core: command handling, waveform generation, sampling scheduler and
+ * safety (hard output limit, host-silence watchdog, 0 V at reset/stop/end). */
+#ifndef LR_CORE_H
+#define LR_CORE_H
+#include <stdint.h>
+#include "lr_proto.h"
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+/* DAC word that gives 0 V after the bipolar stage (12-bit MCP4822 at gain 2x: 2048). */
+#ifndef LR_DAC_ZERO
+#define LR_DAC_ZERO 2048
+#endif
+/* Firmware hard limit, counts either side of LR_DAC_ZERO: 1126 = +-2.75 V on the
+ * +-5 V stage, 10 % above the default rig's 2.5 V host limit so a calibration gain
+ * of a few percent still fits, but nowhere near the amplifier's full input range. */
+#ifndef LR_FW_LIMIT_COUNTS
+#define LR_FW_LIMIT_COUNTS 1126
+#endif
+#ifndef LR_WATCHDOG_MS_DEFAULT
+#define LR_WATCHDOG_MS_DEFAULT 500
+#endif
+#define LR_RING 32  /* samples buffered between the ADC ISR and the sender (power of 2) */
+#define LR_MIN_RATE_HZ 50
+
+enum { LR_STATE_IDLE = 0, LR_STATE_CONFIGURED = 1, LR_STATE_RUNNING = 2, LR_STATE_FINISHING = 3 };
+
+typedef struct {
+    uint32_t samples_sent, rx_overruns, watchdog_trips, sample_overruns, ring_overflows;
+} lr_counters_t;
+
+void lr_core_init(uint8_t board_id, const char *fw_id, uint16_t max_rate_hz);
+void lr_core_tick(void);                                    /* timer ISR */
+void lr_core_sample_done(uint16_t tacho, uint16_t pos, uint16_t ref); /* ADC ISR */
+void lr_core_poll(void);                                    /* main loop */
+void lr_core_send_hello(void);
+void lr_core_rx_overrun(void);                              /* UART ISR saw DOR/FE */
+uint8_t lr_core_state(void);
+uint16_t lr_core_dac_word(void);                            /* last word written */
+const lr_counters_t *lr_core_counters(void);
+const lr_decoder_t *lr_core_decoder(void);
+
+#ifdef __cplusplus
+}
+#endif
+#endif

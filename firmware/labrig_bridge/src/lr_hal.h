@@ -1,0 +1,33 @@
+/* The small hardware layer the core needs. The sketch implements it for AVR
+ * (labrig_bridge.ino); the host unit tests implement it with plain memory. */
+#ifndef LR_HAL_H
+#define LR_HAL_H
+#include <stdint.h>
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+/* Start a DAC update of the output channel (non-blocking; called from the timer ISR
+ * and from the main loop with interrupts off). The word is already limit-checked. */
+void hal_dac_write(uint16_t word);
+/* Start one acquisition (tacho, pos, ref); the HAL calls lr_core_sample_done() from
+ * its ADC interrupt when all three conversions are in. Never blocks. */
+void hal_adc_start(void);
+/* Next received byte, or -1 if none waiting. */
+int hal_rx_read(void);
+/* Bytes of space in the transmit queue; hal_tx_write() blocks only beyond that. */
+uint16_t hal_tx_free(void);
+void hal_tx_write(const uint8_t *data, uint16_t len);
+uint32_t hal_millis(void);
+/* Sampling timer at rate_hz (validated by the core), first tick one period later. */
+void hal_timer_start(uint16_t rate_hz);
+void hal_timer_stop(void);
+/* Critical sections around data shared with the ISRs. */
+uint8_t hal_lock(void);
+void hal_unlock(uint8_t saved);
+
+#ifdef __cplusplus
+}
+#endif
+#endif

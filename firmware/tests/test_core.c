@@ -1,0 +1,420 @@
+/* Host unit tests of the portable core: protocol against firmware/test_vectors.json,
+ * then the bridge state machine through a fake HAL. Prints "N passed, N failed". */
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include "lr_proto.h"
+#include "lr_core.h"
+#include "lr_hal.h"
+#include "jsonmini.h"
+
+static int passed, failed;
+#define CHECK(cond, ...) do { if (cond) passed++; else { failed++; \
+    printf("FAIL %s:%d: ", __FILE__, __LINE__); printf(__VA_ARGS__); printf("\n"); } } while (0)
+
+static size_t unhex(const char *h, uint8_t *out, size_t cap)
+{
+    size_t n = strlen(h) / 2;
+    if (n > cap) { fprintf(stderr, "hex too long\n"); exit(2); }
+    for (size_t i = 0; i < n; i++) { unsigned v; sscanf(h + 2 * i, "%2x", &v); out[i] = (uint8_t)v; }
+    return n;
+}
+
+/* ---------------- fake HAL ---------------- */
+static uint8_t txbuf[1 << 20];
+static size_t txlen;
+static uint8_t rxq[1 << 16];
+static size_t rxhead, rxtail;
+static uint32_t now_ms;
+static int timer_on, adc_pending, adc_auto = 1;
+static uint16_t dac_hw, dac_min_seen = 0xFFFF, dac_max_seen;
+static uint16_t adc_vals[3] = {100, 200, 300};
+
+void hal_dac_write(uint16_t w)
+{
+    dac_hw = w;
+    if (w < dac_min_seen) dac_min_seen = w;
+    if (w > dac_max_seen) dac_max_seen = w;
+}
+void hal_adc_start(void)
+{
+    if (adc_auto) lr_core_sample_done(adc_vals[0], adc_vals[1], adc_vals[2]);
+    else adc_pending = 1;
+}
+int hal_rx_read(void) { return rxtail < rxhead ? rxq[rxtail++] : -1; }
+uint16_t hal_tx_free(void) { return 1000; }
+void hal_tx_write(const uint8_t *d, uint16_t n)
+{
+    if (txlen + n > sizeof txbuf) txlen = 0;
+    memcpy(txbuf + txlen, d, n); txlen += n;
+}
+uint32_t hal_millis(void) { return now_ms; }
+void hal_timer_start(uint16_t r) { (void)r; timer_on = 1; }
+void hal_timer_stop(void) { timer_on = 0; }
+uint8_t hal_lock(void) { return 0; }
+void hal_unlock(uint8_t s) { (void)s; }
+
+static void host_send(uint8_t type, uint8_t seq, const uint8_t *body, size_t len)
+{
+    uint8_t wire[LR_MAX_WIRE];
+    size_t n = lr_frame_build(type, seq, body, len, wire);
+    memcpy(rxq + rxhead, wire, n); rxhead += n;
+}
+
+/* decode everything the board sent since the last call */
+typedef struct { uint8_t type, seq; uint8_t body[LR_MAX_BODY]; uint16_t len; } msg_t;
+static msg_t msgs[4096];
+static int nmsgs;
+static lr_decoder_t hostdec;
+static size_t txdone;
+static void collect(void)
+{
+    lr_frame_t f;
+    for (; txdone < txlen; txdone++)
+        if (lr_decoder_feed(&hostdec, txbuf[txdone], &f) && nmsgs < 4096) {
+            msgs[nmsgs].type = f.type; msgs[nmsgs].seq = f.seq; msgs[nmsgs].len = f.body_len;
+            memcpy(msgs[nmsgs].body, f.body, f.body_len); nmsgs++;
+        }
+}
+static int find(uint8_t type) { for (int i = 0; i < nmsgs; i++) if (msgs[i].type == type) return i; return -1; }
+
+static void reset_all(void)
+{
+    txlen = txdone = 0; rxhead = rxtail = 0; nmsgs = 0; now_ms = 0; timer_on = 0;
+    adc_auto = 1; adc_pending = 0; dac_min_seen = 0xFFFF; dac_max_seen = 0;
+    lr_decoder_init(&hostdec);
+    lr_core_init(1, "labrig-fw test", 4000);
+}
+
+static size_t cfg_body(uint8_t *b, uint8_t loop, uint8_t wave, uint16_t rate, uint32_t n,
+                       uint32_t lead, uint32_t seg, uint16_t lo, uint16_t hi, uint16_t wd,
+                       const uint16_t *lv, uint8_t nl)
+{
+    b[0] = loop; b[1] = wave; lr_put16(b + 2, rate); lr_put32(b + 4, n); lr_put32(b + 8, lead);
+    lr_put32(b + 12, seg); lr_put16(b + 16, 2048); lr_put16(b + 18, lo); lr_put16(b + 20, hi);
+    lr_put16(b + 22, wd); lr_put16(b + 24, 1000); lr_put16(b + 26, 100); b[28] = nl;
+    for (int i = 0; i < nl; i++) lr_put16(b + 29 + 2 * i, lv[i]);
+    return 29 + 2u * nl;
+}
+
+/* run the timer for n ticks with the main loop polled after each, heartbeat every 100 ms */
+static void run_ticks(int n, int heartbeat)
+{
+    for (int i = 0; i < n; i++) {
+        if (timer_on) lr_core_tick();
+        if (i % 1 == 0) now_ms++;
+        if (heartbeat && now_ms % 100 == 0) host_send(LR_HEARTBEAT, 0, NULL, 0);
+        lr_core_poll();
+    }
+}
+
+/* ---------------- vector tests ---------------- */
+static void test_vectors(const char *path)
+{
+    FILE *fp = fopen(path, "rb");
+    CHECK(fp != NULL, "open %s", path);
+    if (!fp) return;
+    fseek(fp, 0, SEEK_END); long sz = ftell(fp); fseek(fp, 0, SEEK_SET);
+    char *text = malloc((size_t)sz + 1);
+    size_t got = fread(text, 1, (size_t)sz, fp); text[got] = 0; fclose(fp);
+    jnode_t *root = json_parse(text);
+    CHECK(root != NULL, "parse json");
+    if (!root) { free(text); return; }
+    static uint8_t a[4096], b[4096], c[4096];
+
+    for (jnode_t *v = json_get(root, "crc16_ccitt_false")->child; v; v = v->next) {
+        jnode_t *asc = json_get(v, "ascii"), *hx = json_get(v, "hex");
+        size_t n = asc ? strlen(asc->str) : unhex(hx->str, a, sizeof a);
+        if (asc) memcpy(a, asc->str, n);
+        unsigned want; sscanf(json_get(v, "crc")->str, "%x", &want);
+        CHECK(lr_crc16(a, n) == want, "crc of %s: %04x want %04x", asc ? asc->str : "hex", lr_crc16(a, n), want);
+    }
+    for (jnode_t *v = json_get(root, "cobs")->child; v; v = v->next) {
+        size_t nd = unhex(json_get(v, "decoded")->str, a, sizeof a);
+        size_t ne = unhex(json_get(v, "encoded")->str, b, sizeof b);
+        size_t m = lr_cobs_encode(a, nd, c);
+        CHECK(m == ne && !memcmp(c, b, ne), "cobs encode of %zu bytes", nd);
+        int k = lr_cobs_decode(b, ne, c, sizeof c);
+        CHECK(k == (int)nd && !memcmp(c, a, nd), "cobs decode of %zu bytes", nd);
+    }
+    for (jnode_t *v = json_get(root, "cobs_invalid")->child; v; v = v->next) {
+        size_t n = unhex(v->str, a, sizeof a);
+        CHECK(lr_cobs_decode(a, n, c, sizeof c) < 0, "invalid cobs %s rejected", v->str);
+    }
+    for (jnode_t *v = json_get(root, "frames")->child; v; v = v->next) {
+        const char *name = json_get(v, "name")->str;
+        uint8_t type = (uint8_t)json_get(v, "type")->num, seq = (uint8_t)json_get(v, "seq")->num;
+        size_t nb = unhex(json_get(v, "body")->str, a, sizeof a);
+        size_t nw = unhex(json_get(v, "wire")->str, b, sizeof b);
+        size_t m = lr_frame_build(type, seq, a, nb, c);
+        CHECK(m == nw && !memcmp(b, c, nw), "build frame %s", name);
+        lr_decoder_t d; lr_frame_t f; int nf = 0;
+        lr_decoder_init(&d);
+        for (size_t i = 0; i < nw; i++)
+            if (lr_decoder_feed(&d, b[i], &f)) {
+                nf++;
+                CHECK(f.type == type && f.seq == seq && f.body_len == nb && !memcmp(f.body, a, nb),
+                      "decode frame %s", name);
+            }
+        CHECK(nf == 1, "frame %s decoded once", name);
+    }
+    for (jnode_t *v = json_get(root, "reject")->child; v; v = v->next) {
+        const char *name = json_get(v, "name")->str, *kind = json_get(v, "error")->str;
+        size_t nw = unhex(json_get(v, "wire")->str, b, sizeof b);
+        lr_decoder_t d; lr_frame_t f; int nf = 0;
+        lr_decoder_init(&d);
+        for (size_t i = 0; i < nw; i++) nf += lr_decoder_feed(&d, b[i], &f);
+        CHECK(nf == 0, "reject %s", name);
+        if (!strcmp(kind, "crc")) CHECK(d.crc_errors == 1 && d.framing_errors == 0, "%s counted as crc", name);
+        else if (!strcmp(kind, "framing")) CHECK(d.framing_errors == 1 && d.crc_errors == 0, "%s counted as framing", name);
+        else CHECK(d.framing_errors + d.crc_errors == 1, "%s counted once", name);
+    }
+    {
+        jnode_t *s = json_get(root, "stream");
+        size_t nw = unhex(json_get(s, "wire")->str, b, sizeof b);
+        lr_decoder_t d; lr_frame_t f;
+        lr_decoder_init(&d);
+        jnode_t *want = json_get(s, "frames")->child;
+        int nf = 0;
+        for (size_t i = 0; i < nw; i++)
+            if (lr_decoder_feed(&d, b[i], &f)) {
+                nf++;
+                size_t nb = want ? unhex(json_get(want, "body")->str, a, sizeof a) : 0;
+                CHECK(want && f.type == (uint8_t)json_get(want, "type")->num && f.body_len == nb &&
+                      !memcmp(f.body, a, nb), "stream frame %d", nf);
+                if (want) want = want->next;
+            }
+        CHECK(nf == (int)json_len(json_get(s, "frames")), "stream frame count %d", nf);
+        CHECK(d.crc_errors == (uint32_t)json_get(s, "crc_errors")->num &&
+              d.framing_errors == (uint32_t)json_get(s, "framing_errors")->num,
+              "stream error counts %u %u", d.crc_errors, d.framing_errors);
+    }
+    json_free(root);
+    free(text);
+}
+
+/* ---------------- core tests ---------------- */
+static int expect_square(uint32_t i, uint32_t lead, uint32_t half, uint16_t hi, uint16_t lo)
+{
+    if (i < lead) return 2048;
+    return ((i - lead) / half) % 2 == 0 ? hi : lo;
+}
+
+static void test_hello_and_zero_at_reset(void)
+{
+    dac_hw = 4095;
+    reset_all();
+    CHECK(dac_hw == 2048, "0 V at reset (word %u)", dac_hw);
+    host_send(LR_HELLO_REQ, 9, NULL, 0);
+    lr_core_poll(); collect();
+    int k = find(LR_HELLO);
+    CHECK(k >= 0 && msgs[k].body[0] == LR_PROTOCOL_VERSION && lr_get16(msgs[k].body + 4) == 4000,
+          "HELLO answers HELLO_REQ");
+}
+
+static void test_square_run(void)
+{
+    reset_all();
+    uint8_t b[128];
+    uint16_t lv[2] = {2663, 1433};
+    size_t n = cfg_body(b, 0, LR_WAVE_SQUARE, 1000, 4500, 500, 1000, 1024, 3072, 500, lv, 2);
+    host_send(LR_CONFIGURE, 1, b, n);
+    host_send(LR_START, 2, NULL, 0);
+    lr_core_poll();
+    CHECK(timer_on, "timer started");
+    run_ticks(6000, 1);
+    collect();
+    uint32_t next = 0, bad = 0;
+    int done = 0, acks = 0;
+    for (int i = 0; i < nmsgs; i++) {
+        if (msgs[i].type == LR_ACK) acks++;
+        if (msgs[i].type == LR_DONE) { done++; CHECK(lr_get32(msgs[i].body) == 4500 && lr_get32(msgs[i].body + 4) == 0, "DONE body"); }
+        if (msgs[i].type != LR_SAMPLES) continue;
+        uint32_t first = lr_get32(msgs[i].body);
+        uint8_t cnt = msgs[i].body[4];
+        if (first != next) bad++;
+        for (int j = 0; j < cnt; j++) {
+            uint16_t w = lr_get16(msgs[i].body + 5 + 8 * j);
+            if (w != expect_square(first + j, 500, 1000, 2663, 1433)) bad++;
+            if (lr_get16(msgs[i].body + 5 + 8 * j + 2) != 100) bad++;
+        }
+        next = first + cnt;
+    }
+    CHECK(acks == 2, "CONFIGURE and START acked (%d)", acks);
+    CHECK(next == 4500 && bad == 0, "4500 samples in order with the planned square (next %u, bad %u)", next, bad);
+    CHECK(done == 1, "one DONE (%d)", done);
+    CHECK(dac_hw == 2048 && !timer_on, "0 V and timer off after the end");
+    CHECK(lr_core_counters()->watchdog_trips == 0, "no watchdog trip with heartbeats");
+}
+
+static void test_staircase(void)
+{
+    reset_all();
+    uint8_t b[128];
+    uint16_t lv[4] = {2048, 2458, 2867, 1638};
+    size_t n = cfg_body(b, 1, LR_WAVE_STAIRCASE, 500, 2000, 250, 300, 1024, 3072, 500, lv, 4);
+    host_send(LR_CONFIGURE, 1, b, n);
+    host_send(LR_START, 2, NULL, 0);
+    lr_core_poll();
+    run_ticks(2200, 1);
+    collect();
+    uint32_t bad = 0, total = 0;
+    for (int i = 0; i < nmsgs; i++) {
+        if (msgs[i].type != LR_SAMPLES) continue;
+        uint32_t first = lr_get32(msgs[i].body);
+        for (int j = 0; j < msgs[i].body[4]; j++) {
+            uint32_t k = first + j;
+            uint16_t want = k < 250 ? 2048 : lv[(k - 250) / 300 > 3 ? 3 : (k - 250) / 300];
+            if (lr_get16(msgs[i].body + 5 + 8 * j) != want) bad++;
+            total++;
+        }
+    }
+    CHECK(total == 2000 && bad == 0, "staircase holds the last level (total %u, bad %u)", total, bad);
+}
+
+static void test_limits(void)
+{
+    reset_all();
+    uint8_t b[128];
+    uint16_t lv[2] = {3500, 1433};  /* 3500 is beyond dac_max */
+    size_t n = cfg_body(b, 0, LR_WAVE_SQUARE, 1000, 100, 0, 10, 1024, 3072, 500, lv, 2);
+    host_send(LR_CONFIGURE, 1, b, n);
+    host_send(LR_START, 2, NULL, 0);
+    lr_core_poll(); collect();
+    int k = find(LR_ERROR);
+    CHECK(k >= 0 && msgs[k].body[0] == LR_ERR_LIMIT, "level beyond the limit refused");
+    CHECK(k >= 0 && k + 1 < nmsgs && msgs[k + 1].type == LR_ERROR && msgs[k + 1].body[0] == LR_ERR_NOT_CONFIGURED,
+          "START after a refused CONFIGURE refused");
+    CHECK(!timer_on && dac_hw == 2048, "output stays at 0 V");
+
+    reset_all();
+    uint16_t lv2[2] = {2100, 2000};
+    n = cfg_body(b, 0, LR_WAVE_SQUARE, 1000, 100, 0, 10, 0, 4095, 500, lv2, 2);  /* limits beyond firmware's */
+    host_send(LR_CONFIGURE, 1, b, n);
+    lr_core_poll(); collect();
+    k = find(LR_ERROR);
+    CHECK(k >= 0 && msgs[k].body[0] == LR_ERR_LIMIT, "limits wider than the firmware's refused");
+
+    reset_all();
+    n = cfg_body(b, 0, LR_WAVE_SQUARE, 9000, 100, 0, 10, 1024, 3072, 500, lv2, 2);
+    host_send(LR_CONFIGURE, 1, b, n);
+    lr_core_poll(); collect();
+    k = find(LR_ERROR);
+    CHECK(k >= 0 && msgs[k].body[0] == LR_ERR_RATE, "rate above max refused");
+}
+
+static void test_watchdog(void)
+{
+    reset_all();
+    uint8_t b[128];
+    uint16_t lv[1] = {2600};
+    size_t n = cfg_body(b, 0, LR_WAVE_CONSTANT, 1000, 100000, 0, 0, 1024, 3072, 300, lv, 1);
+    host_send(LR_CONFIGURE, 1, b, n);
+    host_send(LR_START, 2, NULL, 0);
+    lr_core_poll();
+    run_ticks(250, 0);
+    CHECK(dac_hw == 2600 && timer_on, "running before the watchdog time");
+    run_ticks(100, 0);
+    collect();
+    int k = find(LR_ERROR);
+    CHECK(k >= 0 && msgs[k].body[0] == LR_ERR_WATCHDOG, "watchdog error sent");
+    CHECK(dac_hw == 2048 && !timer_on, "silent host: output 0 V (word %u)", dac_hw);
+    CHECK(lr_core_counters()->watchdog_trips == 1, "watchdog trip counted");
+}
+
+static void test_overrun_gap(void)
+{
+    reset_all();
+    uint8_t b[128];
+    uint16_t lv[1] = {2300};
+    size_t n = cfg_body(b, 0, LR_WAVE_CONSTANT, 1000, 100, 0, 0, 1024, 3072, 500, lv, 1);
+    host_send(LR_CONFIGURE, 1, b, n);
+    host_send(LR_START, 2, NULL, 0);
+    lr_core_poll();
+    adc_auto = 0;
+    for (int i = 0; i < 120; i++) {
+        if (timer_on) lr_core_tick();
+        /* conversions of sample 40 overrun into the next period */
+        if (adc_pending && i != 40) { adc_pending = 0; lr_core_sample_done(1, 2, 3); }
+        now_ms++;
+        lr_core_poll();
+    }
+    collect();
+    uint32_t got = 0, next = 0, gaps = 0;
+    for (int i = 0; i < nmsgs; i++) {
+        if (msgs[i].type != LR_SAMPLES) continue;
+        uint32_t first = lr_get32(msgs[i].body);
+        if (first != next) gaps += first - next;
+        got += msgs[i].body[4];
+        next = first + msgs[i].body[4];
+    }
+    CHECK(got == 99 && gaps == 1, "overrun gives exactly one gap (got %u, gaps %u)", got, gaps);
+    int k = find(LR_DONE);
+    CHECK(k >= 0 && lr_get32(msgs[k].body + 4) == 1, "DONE reports the lost sample");
+}
+
+static void test_stop_and_garbage(void)
+{
+    reset_all();
+    uint8_t b[128];
+    uint16_t lv[1] = {2500};
+    size_t n = cfg_body(b, 0, LR_WAVE_STEP, 1000, 100000, 10, 0, 1024, 3072, 500, lv, 1);
+    /* trailing garbage without a delimiter would swallow the next frame: the host
+     * prefixes commands with a 0x00, as here */
+    const uint8_t junk[] = {0x13, 0x37, 0xFF, 0x00, 0x05, 0x01, 0x00};
+    memcpy(rxq + rxhead, junk, sizeof junk); rxhead += sizeof junk;
+    host_send(LR_CONFIGURE, 1, b, n);
+    host_send(LR_START, 2, NULL, 0);
+    lr_core_poll();
+    run_ticks(100, 1);
+    CHECK(dac_hw == 2500, "step applied after the lead-in");
+    host_send(LR_STOP, 3, NULL, 0);
+    lr_core_poll();
+    CHECK(dac_hw == 2048 && !timer_on, "STOP returns the output to 0 V");
+    CHECK(lr_core_decoder()->framing_errors >= 1, "garbage counted, commands still understood");
+}
+
+static void test_fuzz(void)
+{
+    reset_all();
+    srand(1);
+    uint8_t b[128];
+    for (int round = 0; round < 3000; round++) {
+        int r = rand() % 4;
+        if (r == 0) {  /* random bytes */
+            for (int i = 0; i < 40; i++) rxq[rxhead++] = (uint8_t)rand();
+        } else if (r == 1) {  /* a random but valid-CRC frame of random type */
+            size_t len = (size_t)(rand() % 60);
+            for (size_t i = 0; i < len; i++) b[i] = (uint8_t)rand();
+            host_send((uint8_t)(rand() % 10), 0, b, len);
+        } else if (r == 2) {  /* a plausible CONFIGURE with random levels, then START */
+            uint16_t lv[3] = {(uint16_t)(rand() % 4096), (uint16_t)(rand() % 4096), (uint16_t)(rand() % 4096)};
+            size_t n = cfg_body(b, (uint8_t)(rand() % 3), (uint8_t)(rand() % 5), (uint16_t)(rand() % 6000),
+                                (uint32_t)(rand() % 500), (uint32_t)(rand() % 50), (uint32_t)(rand() % 30),
+                                (uint16_t)(rand() % 4096), (uint16_t)(rand() % 4096), (uint16_t)(rand() % 1000),
+                                lv, (uint8_t)(1 + rand() % 3));
+            host_send(LR_CONFIGURE, 0, b, n);
+            host_send(LR_START, 0, NULL, 0);
+        }
+        run_ticks(20, rand() % 2);
+        if (rxhead > sizeof rxq - 4096) { rxhead = rxtail = 0; }
+        if (txlen > sizeof txbuf / 2) { txlen = txdone = 0; }
+    }
+    CHECK(dac_min_seen >= 2048 - LR_FW_LIMIT_COUNTS && dac_max_seen <= 2048 + LR_FW_LIMIT_COUNTS,
+          "fuzzed commands never drive the DAC past the firmware limit (%u..%u)", dac_min_seen, dac_max_seen);
+}
+
+int main(int argc, char **argv)
+{
+    test_vectors(argc > 1 ? argv[1] : "test_vectors.json");
+    test_hello_and_zero_at_reset();
+    test_square_run();
+    test_staircase();
+    test_limits();
+    test_watchdog();
+    test_overrun_gap();
+    test_stop_and_garbage();
+    test_fuzz();
+    printf("%d passed, %d failed\n", passed, failed);
+    return failed ? 1 : 0;
+}

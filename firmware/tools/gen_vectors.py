@@ -1,0 +1,120 @@
+#!/usr/bin/env python3
+"""Regenerate firmware/test_vectors.json.
+
+The CRC check value and the COBS cases are independent of this code (the CRC catalogue's
+check value, the classic COBS examples); the frames are produced by the Python codec and
+checked byte for byte by the C tests, so the two implementations cannot drift apart.
+Run from the repository root: ``python3 firmware/tools/gen_vectors.py``.
+"""
+import json
+import pathlib
+import sys
+
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[2]))
+from labrig.bridge import protocol as p  # noqa: E402
+
+H = bytes.hex
+out = {"_comment": "labrig bridge protocol test vectors; see firmware/PROTOCOL.md. "
+                   "Hex strings; 'wire' includes the trailing 0x00 delimiter."}
+
+out["crc16_ccitt_false"] = [
+    {"ascii": "123456789", "crc": "29b1"},   # catalogue check value
+    {"ascii": "", "crc": "ffff"},
+    {"ascii": "A", "crc": "b915"},
+    {"hex": "00", "crc": f"{p.crc16(bytes(1)):04x}"},
+    {"hex": H(bytes(range(256))), "crc": f"{p.crc16(bytes(range(256))):04x}"},
+]
+assert p.crc16(b"123456789") == 0x29B1 and p.crc16(b"A") == 0xB915
+
+r254 = bytes(range(1, 255))
+cobs = [
+    ("", "01"), ("00", "0101"), ("0000", "010101"), ("001100", "01021101"),
+    ("11220033", "0311220233"), ("11223344", "0511223344"), ("11000000", "0211010101"),
+    (H(r254), "ff" + H(r254)),
+    (H(bytes(range(0, 255))), "01ff" + H(r254)),
+    (H(bytes(range(1, 256))), "ff" + H(r254) + "02ff"),
+    (H(bytes(range(2, 256)) + b"\x00"), "ff" + H(bytes(range(2, 256))) + "0101"),
+    (H(bytes(range(3, 256)) + b"\x00\x01"), "fe" + H(bytes(range(3, 256))) + "0201"),
+]
+for dec, enc in cobs:
+    assert p.cobs_encode(bytes.fromhex(dec)).hex() == enc, dec
+out["cobs"] = [{"decoded": d, "encoded": e} for d, e in cobs]
+out["cobs_invalid"] = ["00", "05112233", "0311", "0300ff"]
+
+cfg = dict(loop="open", waveform="square", sample_rate_hz=1000, n_samples=4500,
+           lead_in_samples=500, segment_samples=2000, dac_zero=2048, dac_min=1024,
+           dac_max=3072, watchdog_ms=500, levels=[2663, 1433])
+cfg_st = dict(loop="closed", waveform="staircase", sample_rate_hz=500, n_samples=2000,
+              lead_in_samples=250, segment_samples=250, dac_zero=2048, dac_min=1024,
+              dac_max=3072, watchdog_ms=300, levels=[2048, 2458, 2867, 1638],
+              position_gain=10.0, velocity_gain=1.0)
+hello = (bytes([1, 1]) + (15).to_bytes(2, "little") + (4000).to_bytes(2, "little")
+         + bytes([10, 12, 10, 3, 32]) + b"".join(v.to_bytes(2, "little") for v in (2048, 922, 3174, 500))
+         + b"labrig-fw 1.0.0 uno")
+rows = [[2048 + i, 512 + i, 300 - i, 1023 - i] for i in range(10)]
+frames = [
+    ("HELLO_REQ", p.HELLO_REQ, 0, b"", {}),
+    ("CONFIGURE square", p.CONFIGURE, 1, p.configure_body(**cfg), p.parse_configure(p.configure_body(**cfg))),
+    ("CONFIGURE staircase closed", p.CONFIGURE, 2, p.configure_body(**cfg_st),
+     p.parse_configure(p.configure_body(**cfg_st))),
+    ("START", p.START, 3, b"", {}),
+    ("STOP", p.STOP, 4, b"", {}),
+    ("HEARTBEAT", p.HEARTBEAT, 255, b"", {}),
+    ("STATUS_REQ", p.STATUS_REQ, 6, b"", {}),
+    ("ZERO", p.ZERO, 7, b"", {}),
+    ("ACK", p.ACK, 0, bytes([p.START, 3]), {"type": p.START, "seq": 3}),
+    ("HELLO", p.HELLO, 1, hello, p.parse_hello(hello)),
+    ("SAMPLES", p.SAMPLES, 2, p.samples_body(123456, rows), {"first_index": 123456, "rows": rows}),
+    ("SAMPLES zeros", p.SAMPLES, 0, p.samples_body(0, [[0, 0, 0, 0]]), {"first_index": 0, "rows": [[0, 0, 0, 0]]}),
+    ("STATUS", p.STATUS, 3, bytes.fromhex("a0860100" "05000000" "02000000" "01000000" "01000000"
+                                         "00000000" "02" "0008" "0000"), None),
+    ("DONE", p.DONE, 4, bytes.fromhex("94110000" "00000000"), {"n_samples": 4500, "samples_lost": 0}),
+    ("ERROR", p.ERROR, 5, bytes([6]) + b"host silent: output set to 0 V",
+     {"code": 6, "name": "WATCHDOG", "text": "host silent: output set to 0 V"}),
+]
+fr = []
+for name, t, seq, body, fields in frames:
+    if fields is None:
+        fields = p.parse_status(body)
+    fr.append({"name": name, "type": t, "seq": seq, "body": H(body),
+               "wire": H(p.encode_frame(t, seq, body)), "fields": fields})
+out["frames"] = fr
+
+good = p.encode_frame(p.SAMPLES, 2, p.samples_body(123456, rows))
+flip = bytearray(good); flip[20] ^= 0x04
+crcswap = bytearray(p.cobs_decode(good[:-1])); crcswap[-2:] = crcswap[-1:-3:-1]
+long_raw = bytes([p.ERROR, 0]) + bytes([0x41]) * (p.MAX_BODY + 1)
+long_raw += p.crc16(long_raw).to_bytes(2, "big")
+short_raw = bytes([p.HEARTBEAT, 0])
+reject = [
+    ("bit flip in a sample", H(bytes(flip)), "crc"),
+    ("CRC bytes swapped", H(p.cobs_encode(bytes(crcswap)) + b"\x00"), "crc"),
+    ("truncated (delimiter inside a COBS block)", H(good[:30] + b"\x00"), "framing"),
+    ("last byte dropped", H(good[:-2] + b"\x00"), "any"),
+    ("two bytes only", H(p.cobs_encode(short_raw) + b"\x00"), "framing"),
+    ("body longer than MAX_BODY with a valid CRC", H(p.cobs_encode(long_raw) + b"\x00"), "framing"),
+    ("COBS code past the end", "0511223300", "framing"),
+    ("garbage", H(b"\x13\x37garbage!\xff\xfe" + b"\x00"), "any"),
+]
+for name, wire, kind in reject:
+    d = p.StreamDecoder()
+    assert d.feed(bytes.fromhex(wire)) == [], name
+    if kind == "crc":
+        assert d.crc_errors == 1 and d.framing_errors == 0, name
+    elif kind == "framing":
+        assert d.framing_errors == 1 and d.crc_errors == 0, name
+out["reject"] = [{"name": n, "wire": w, "error": k} for n, w, k in reject]
+
+# a stream: garbage, a frame, a corrupted frame, empty frames, a frame split by noise
+f1 = p.encode_frame(p.HELLO, 1, hello)
+f2 = p.encode_frame(p.ACK, 2, bytes([3, 3]))
+stream = b"\xaa\x55\x01" + b"\x00" + f1 + bytes(flip) + b"\x00\x00" + f2 + b"\x07\x08"
+d = p.StreamDecoder()
+got = d.feed(stream)
+out["stream"] = {"wire": H(stream), "frames": [{"type": f.type, "seq": f.seq, "body": H(f.body)} for f in got],
+                 "crc_errors": d.crc_errors, "framing_errors": d.framing_errors}
+assert len(got) == 2
+
+path = pathlib.Path(__file__).resolve().parents[1] / "test_vectors.json"
+path.write_text(json.dumps(out, indent=1) + "\n")
+print(f"wrote {path}")

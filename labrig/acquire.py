@@ -1,0 +1,97 @@
+"""Sweeps: run a plan on any bridge, save each run atomically as it finishes.
+
+The same code drives the simulated rig and the serial bridge. On every exit path
+(normal end, error, Ctrl-C) the bridge is stopped and zeroed; every run finished
+before an interruption stays on disk, complete.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+import pandas as pd
+
+from .bridge.base import Bridge, Experiment
+from .errors import RigError, UserError
+from .runs import Run, make_meta, run_exists, write_run
+
+
+def acquire(bridge: Bridge, exp: Experiment, rig, progress: Callable[[int], None] | None = None,
+            timeout: float = 5.0) -> Run:
+    """Configure, start and stream one experiment; return it as a Run (not yet saved)."""
+    bridge.configure(exp)
+    bridge.start()
+    blocks = []
+    got = 0
+    while True:
+        blk = bridge.read(timeout=timeout)
+        if blk is None:
+            break
+        blocks.append(blk)
+        got += len(blk.index)
+        if progress:
+            progress(len(blk.index))
+        if got >= exp.n_samples:
+            break
+    bridge.stop()
+    if not blocks:
+        raise RigError(f"experiment '{exp.name}': the bridge returned no samples")
+    idx = np.concatenate([b.index for b in blocks])
+    cols = {"t": idx / exp.sample_rate_hz,
+            "u": np.concatenate([b.u for b in blocks]),
+            "tacho": np.concatenate([b.tacho for b in blocks]),
+            "pos": np.concatenate([b.pos for b in blocks])}
+    if blocks[0].ref is not None:
+        cols["ref"] = np.concatenate([b.ref for b in blocks])
+    meta = make_meta(sample_rate_hz=exp.sample_rate_hz, experiment=exp.to_sidecar(),
+                     sensors=rig.sensors_sidecar(), rig=rig.rig_sidecar(),
+                     source=bridge.source, bridge=bridge.counters())
+    return Run(name=exp.name, data=pd.DataFrame(cols), meta=meta)
+
+
+def check_plan(plan: list[Experiment], rig) -> None:
+    """Refuse a plan beyond the configured output limit before anything moves."""
+    limit = rig.bridge.output_limit_v
+    for exp in plan:
+        if exp.peak_v() > limit + 1e-9:
+            raise UserError(f"plan experiment '{exp.name}': peak {exp.peak_v():.3g} V exceeds "
+                            f"the output limit {limit:g} V (rig bridge.output_limit_v)")
+
+
+def sweep(bridge: Bridge, plan: list[Experiment], rig, outdir: Path | str, *,
+          resume: bool = False, on_start=None, on_progress=None, on_done=None) -> list[Path]:
+    """Run every experiment of ``plan`` on ``bridge`` and write it to ``outdir``.
+
+    With ``resume`` the runs already complete in ``outdir`` are skipped; without it
+    an existing run is an error (nothing is overwritten silently).
+    """
+    check_plan(plan, rig)
+    outdir = Path(outdir)
+    todo = []
+    for exp in plan:
+        if run_exists(outdir, exp.name):
+            if resume:
+                continue
+            raise UserError(f"{outdir / exp.name}.json exists; use --resume to continue this "
+                            "sweep or choose an empty output folder")
+        todo.append(exp)
+    written: list[Path] = []
+    try:
+        bridge.open()
+        for exp in todo:
+            if on_start:
+                on_start(exp)
+            run = acquire(bridge, exp, rig, progress=on_progress)
+            written.append(write_run(run, outdir, overwrite=resume))
+            if on_done:
+                on_done(exp, run)
+    finally:
+        # every exit path: Ctrl-C, a rig fault, a full disk -- leave the output at 0 V
+        try:
+            bridge.stop()
+        except Exception:
+            pass
+        bridge.zero()
+        bridge.close()
+    return written

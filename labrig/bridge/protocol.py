@@ -1,0 +1,270 @@
+"""Frame codec of the labrig bridge protocol (see ``firmware/PROTOCOL.md``).
+
+A frame on the wire is ``COBS(type, seq, body..., crc_hi, crc_lo) + b"\\x00"``; the CRC is
+CRC-16/CCITT-FALSE over type, seq and body. Multi-byte body fields are little-endian.
+The same layout is implemented in C in ``firmware/labrig_bridge/src/lr_proto.c``; both
+are checked against ``firmware/test_vectors.json``.
+"""
+from __future__ import annotations
+
+import struct
+from dataclasses import dataclass
+
+import numpy as np
+
+PROTOCOL_VERSION = 1
+MAX_BODY = 200
+MAX_RAW = MAX_BODY + 4
+BATCH = 10
+MAX_LEVELS = 32
+
+# host -> board
+HELLO_REQ, CONFIGURE, START, STOP, HEARTBEAT, STATUS_REQ, ZERO = 0x01, 0x02, 0x03, 0x04, 0x05, 0x06, 0x07
+# board -> host
+ACK, HELLO, SAMPLES, STATUS, DONE, ERROR = 0x80, 0x81, 0x82, 0x83, 0x84, 0x85
+
+TYPE_NAMES = {
+    HELLO_REQ: "HELLO_REQ", CONFIGURE: "CONFIGURE", START: "START", STOP: "STOP",
+    HEARTBEAT: "HEARTBEAT", STATUS_REQ: "STATUS_REQ", ZERO: "ZERO", ACK: "ACK",
+    HELLO: "HELLO", SAMPLES: "SAMPLES", STATUS: "STATUS", DONE: "DONE", ERROR: "ERROR",
+}
+LOOPS = {"open": 0, "closed": 1}
+WAVEFORMS = {"constant": 0, "square": 1, "step": 2, "staircase": 3}
+ERROR_CODES = {1: "BAD_FRAME", 2: "BAD_CONFIG", 3: "LIMIT", 4: "NOT_CONFIGURED",
+               5: "BUSY", 6: "WATCHDOG", 7: "RATE"}
+BOARDS = {1: "uno", 2: "mega"}
+STATES = {0: "idle", 1: "configured", 2: "running", 3: "finishing"}
+
+_CONFIGURE_FIXED = struct.Struct("<BBHIIIHHHHHHB")  # 29 bytes, then n_levels x u16
+
+
+class FrameError(ValueError):
+    """A frame that must be rejected (bad COBS, too short, too long, bad CRC)."""
+
+
+def crc16(data: bytes, crc: int = 0xFFFF) -> int:
+    """CRC-16/CCITT-FALSE (poly 0x1021, init 0xFFFF, no reflection, no final xor)."""
+    for b in data:
+        crc ^= b << 8
+        for _ in range(8):
+            crc = ((crc << 1) ^ 0x1021) & 0xFFFF if crc & 0x8000 else (crc << 1) & 0xFFFF
+    return crc
+
+
+def cobs_encode(data: bytes) -> bytes:
+    """Consistent Overhead Byte Stuffing, canonical form, without the delimiter."""
+    out = bytearray([0])
+    code_at, code = 0, 1
+    for i, b in enumerate(data):
+        if b == 0:
+            out[code_at] = code
+            code_at, code = len(out), 1
+            out.append(0)
+        else:
+            out.append(b)
+            code += 1
+            if code == 0xFF:
+                out[code_at] = code
+                code = 1
+                if i + 1 < len(data):
+                    code_at = len(out)
+                    out.append(0)
+                else:
+                    return bytes(out)
+    out[code_at] = code
+    return bytes(out)
+
+
+def cobs_decode(data: bytes) -> bytes:
+    """Inverse of :func:`cobs_encode`; raises :class:`FrameError` on malformed input."""
+    out = bytearray()
+    i, n = 0, len(data)
+    while i < n:
+        code = data[i]
+        i += 1
+        if code == 0 or i + code - 1 > n:
+            raise FrameError("malformed COBS block")
+        block = data[i:i + code - 1]
+        if 0 in block:
+            raise FrameError("zero byte inside a COBS block")
+        out += block
+        i += code - 1
+        if code != 0xFF and i < n:
+            out.append(0)
+    return bytes(out)
+
+
+@dataclass(frozen=True)
+class Frame:
+    """One decoded frame: message ``type``, sender's sequence number ``seq``, ``body``."""
+
+    type: int
+    seq: int
+    body: bytes
+
+    @property
+    def name(self) -> str:
+        return TYPE_NAMES.get(self.type, f"0x{self.type:02X}")
+
+
+def encode_frame(type_: int, seq: int, body: bytes = b"") -> bytes:
+    """Whole wire frame, trailing ``0x00`` delimiter included."""
+    if len(body) > MAX_BODY:
+        raise ValueError(f"body of {len(body)} bytes exceeds {MAX_BODY}")
+    raw = bytes([type_ & 0xFF, seq & 0xFF]) + bytes(body)
+    return cobs_encode(raw + crc16(raw).to_bytes(2, "big")) + b"\x00"
+
+
+def decode_frame(wire: bytes) -> Frame:
+    """Decode one frame (with or without its trailing delimiter); raise on any fault."""
+    if wire.endswith(b"\x00"):
+        wire = wire[:-1]
+    if b"\x00" in wire:
+        raise FrameError("delimiter inside frame")
+    raw = cobs_decode(wire)
+    if len(raw) < 4:
+        raise FrameError("frame too short")
+    if len(raw) > MAX_RAW:
+        raise FrameError("frame too long")
+    if crc16(raw[:-2]) != int.from_bytes(raw[-2:], "big"):
+        raise FrameError("CRC mismatch")
+    return Frame(raw[0], raw[1], bytes(raw[2:-2]))
+
+
+class StreamDecoder:
+    """Split a byte stream into valid frames; count and skip everything else.
+
+    After garbage or a corrupted frame it resynchronises on the next ``0x00``. Back-to-back
+    delimiters (empty frames) are used to flush a link and are not errors.
+
+    Attributes
+    ----------
+    frames_ok, crc_errors, framing_errors : int
+        Valid frames, frames with a CRC mismatch, and other rejected frames (bad COBS,
+        too short, too long).
+    """
+
+    def __init__(self) -> None:
+        self._buf = bytearray()
+        self._overflow = False
+        self.frames_ok = 0
+        self.crc_errors = 0
+        self.framing_errors = 0
+
+    def feed(self, data: bytes) -> list[Frame]:
+        """Feed received bytes; return the valid frames they complete, in order."""
+        frames = []
+        start = 0
+        while True:
+            end = data.find(b"\x00", start)
+            if end < 0:
+                chunk = data[start:]
+                if len(self._buf) + len(chunk) > 2 * MAX_RAW:
+                    self._overflow = True   # keep memory bounded while skipping garbage
+                    self._buf.clear()
+                else:
+                    self._buf += chunk
+                return frames
+            self._buf += data[start:end]
+            start = end + 1
+            wire, overflow = bytes(self._buf), self._overflow
+            self._buf.clear()
+            self._overflow = False
+            if overflow:
+                self.framing_errors += 1
+                continue
+            if not wire:
+                continue
+            try:
+                frames.append(decode_frame(wire))
+                self.frames_ok += 1
+            except FrameError as e:
+                if "CRC" in str(e):
+                    self.crc_errors += 1
+                else:
+                    self.framing_errors += 1
+
+
+# ---- message bodies -----------------------------------------------------------------
+
+def configure_body(*, loop: str, waveform: str, sample_rate_hz: int, n_samples: int,
+                   lead_in_samples: int, segment_samples: int, dac_zero: int, dac_min: int,
+                   dac_max: int, watchdog_ms: int, levels: list[int],
+                   position_gain: float = 0.0, velocity_gain: float = 0.0) -> bytes:
+    """Body of a CONFIGURE message; all levels and limits in DAC words."""
+    if not 1 <= len(levels) <= MAX_LEVELS:
+        raise ValueError(f"1..{MAX_LEVELS} levels, got {len(levels)}")
+    head = _CONFIGURE_FIXED.pack(
+        LOOPS[loop], WAVEFORMS[waveform], int(sample_rate_hz), int(n_samples),
+        int(lead_in_samples), int(segment_samples), int(dac_zero), int(dac_min), int(dac_max),
+        int(watchdog_ms), int(round(position_gain * 100)) & 0xFFFF,
+        int(round(velocity_gain * 100)) & 0xFFFF, len(levels))
+    return head + struct.pack(f"<{len(levels)}H", *[int(v) for v in levels])
+
+
+def parse_configure(body: bytes) -> dict:
+    """Inverse of :func:`configure_body`."""
+    f = _CONFIGURE_FIXED.unpack_from(body)
+    keys = ("loop", "waveform", "sample_rate_hz", "n_samples", "lead_in_samples",
+            "segment_samples", "dac_zero", "dac_min", "dac_max", "watchdog_ms",
+            "position_gain", "velocity_gain", "n_levels")
+    d = dict(zip(keys, f))
+    d["loop"] = {v: k for k, v in LOOPS.items()}[d["loop"]]
+    d["waveform"] = {v: k for k, v in WAVEFORMS.items()}[d["waveform"]]
+    d["position_gain"] /= 100.0
+    d["velocity_gain"] /= 100.0
+    n = d.pop("n_levels")
+    d["levels"] = list(struct.unpack_from(f"<{n}H", body, _CONFIGURE_FIXED.size))
+    if len(body) != _CONFIGURE_FIXED.size + 2 * n:
+        raise FrameError("CONFIGURE length does not match its level count")
+    return d
+
+
+def parse_hello(body: bytes) -> dict:
+    """HELLO: protocol version, board, capabilities, limits, firmware id."""
+    (ver, board, caps, max_rate, batch, dac_bits, adc_bits, n_adc, max_levels, dac_zero,
+     fw_min, fw_max, wd_ms) = struct.unpack_from("<BBHHBBBBBHHHH", body)
+    return {"protocol": ver, "board": BOARDS.get(board, str(board)), "capabilities": caps,
+            "max_rate_hz": max_rate, "batch": batch, "dac_bits": dac_bits,
+            "adc_bits": adc_bits, "n_adc": n_adc, "max_levels": max_levels,
+            "dac_zero": dac_zero, "fw_dac_min": fw_min, "fw_dac_max": fw_max,
+            "watchdog_ms_default": wd_ms, "firmware": body[19:].decode("ascii", "replace")}
+
+
+def samples_body(first_index: int, rows) -> bytes:
+    """SAMPLES body from rows of (dac, tacho, pos, ref) words."""
+    rows = np.asarray(rows, dtype="<u2").reshape(-1, 4)
+    return struct.pack("<IB", first_index, len(rows)) + rows.tobytes()
+
+
+def parse_samples(body: bytes) -> tuple[int, np.ndarray]:
+    """Return ``(first_index, words)`` with ``words`` of shape (n, 4): dac, tacho, pos, ref."""
+    if len(body) < 5:
+        raise FrameError("SAMPLES too short")
+    first, n = struct.unpack_from("<IB", body)
+    if len(body) != 5 + 8 * n or n == 0:
+        raise FrameError("SAMPLES length does not match its count")
+    return first, np.frombuffer(body, dtype="<u2", offset=5).reshape(n, 4).astype(np.int64)
+
+
+def parse_status(body: bytes) -> dict:
+    vals = struct.unpack_from("<IIIIIIBH", body)
+    keys = ("samples_sent", "rx_frames_ok", "rx_crc_errors", "rx_overruns",
+            "watchdog_trips", "sample_overruns", "state", "dac_word")
+    d = dict(zip(keys, vals))
+    d["state"] = STATES.get(d["state"], str(d["state"]))
+    return d
+
+
+def parse_done(body: bytes) -> dict:
+    n, lost = struct.unpack_from("<II", body)
+    return {"n_samples": n, "samples_lost": lost}
+
+
+def parse_error(body: bytes) -> dict:
+    return {"code": body[0], "name": ERROR_CODES.get(body[0], str(body[0])),
+            "text": body[1:].decode("ascii", "replace")}
+
+
+def parse_ack(body: bytes) -> dict:
+    return {"type": body[0], "seq": body[1]}

@@ -1,0 +1,110 @@
+"""The simulated rig: the bridge interface backed by the truth integrator.
+
+Hidden effects, sensor noise, ADC/DAC quantisation, clipping and offsets come from
+the rig file; everything random is seeded (the rig's noise seed plus a per-
+experiment offset), so the same sweep is byte-identical every time.
+"""
+from __future__ import annotations
+
+import zlib
+
+import numpy as np
+
+from ..errors import UserError
+from ..model.effects import get_effect
+from ..model.servo import ServoParams
+from ..model.truth import simulate_truth
+from .base import Bridge, Experiment, SampleBlock
+
+
+def quantise(v: np.ndarray, bits: int, lo: float, hi: float) -> np.ndarray:
+    """What an ADC/DAC of ``bits`` over [lo, hi] makes of ``v`` (clipped, mid-tread)."""
+    q = (hi - lo) / 2 ** bits
+    code = np.clip(np.round((np.asarray(v) - lo) / q), 0, 2 ** bits - 1)
+    return lo + code * q
+
+
+class SimRig(Bridge):
+    """A simulated MS150 rig behind the bridge interface."""
+
+    source = "sim"
+    block = 100  # samples per block, like the board's batched frames
+
+    def __init__(self, rig, seed: int | None = None, substeps: int = 20):
+        self.rig = rig
+        self.seed = rig.noise.seed if seed is None else seed
+        self.substeps = substeps
+        self.params = ServoParams.from_rig(rig)
+        self.effects = [get_effect(n) for n in rig.effects]
+        self._exp: Experiment | None = None
+        self._data: dict | None = None
+        self._pos = 0
+        self._output_v = 0.0
+        self._count = {"samples": 0, "experiments": 0}
+
+    def open(self) -> dict:
+        return {"firmware": "labrig-sim", "capabilities": ["open", "closed", "square", "step",
+                                                          "staircase", "constant"]}
+
+    def configure(self, exp: Experiment) -> None:
+        limit = self.rig.bridge.output_limit_v
+        if exp.peak_v() > limit + 1e-9:
+            raise UserError(f"experiment '{exp.name}': peak {exp.peak_v():.3g} V exceeds the "
+                            f"bridge output limit {limit:g} V (rig bridge.output_limit_v)")
+        self._exp = exp
+        self._data = None
+
+    def start(self) -> None:
+        if self._exp is None:
+            raise UserError("start() before configure()")
+        self._data = self._acquire(self._exp)
+        self._pos = 0
+        self._count["experiments"] += 1
+
+    def read(self, timeout: float = 2.0) -> SampleBlock | None:
+        d = self._data
+        if d is None or self._pos >= len(d["u"]):
+            self._output_v = 0.0
+            return None
+        s = slice(self._pos, min(self._pos + self.block, len(d["u"])))
+        self._pos = s.stop
+        self._count["samples"] += s.stop - s.start
+        self._output_v = float(d["u"][s.stop - 1])
+        return SampleBlock(index=np.arange(s.start, s.stop), u=d["u"][s], tacho=d["tacho"][s],
+                           pos=d["pos"][s], ref=d["ref"][s] if d["ref"] is not None else None)
+
+    def stop(self) -> None:
+        self._data = None
+        self.zero()
+
+    def zero(self) -> None:
+        self._output_v = 0.0
+
+    @property
+    def output_v(self) -> float:
+        """The voltage the bridge is applying now (0 V whenever idle)."""
+        return self._output_v
+
+    def counters(self) -> dict:
+        return {"firmware": "labrig-sim", "dropped_samples": 0, "crc_errors": 0,
+                "samples": self._count["samples"]}
+
+    # -- the physics behind it ----------------------------------------------------
+    def _acquire(self, exp: Experiment) -> dict:
+        rig, br = self.rig, self.rig.bridge
+        dt = 1.0 / exp.sample_rate_hz
+        t = np.arange(exp.n_samples) * dt
+        u = quantise(exp.waveform_at(t), br.dac_bits, *br.dac_range_v)
+        sim = simulate_truth(self.params, u, dt, effects=self.effects,
+                             effect_params=rig.effects, loop=exp.loop,
+                             kp=exp.position_gain, kv=exp.velocity_gain,
+                             substeps=self.substeps, rail_v=rig.amplifier.output_limit_v)
+        # one stream per experiment name: adding an experiment never changes the others
+        rng = np.random.default_rng([self.seed, zlib.crc32(exp.name.encode())])
+        s = rig.sensors
+        tacho = s.tacho_v_per_rad_s * sim["w"] + rng.normal(0, rig.noise.tacho_v, len(t))
+        pos = s.pos_v_per_rad * sim["theta"] + s.pos_offset_v + rng.normal(0, rig.noise.pos_v, len(t))
+        lo, hi = br.adc_range_v
+        ref = quantise(u, br.adc_bits, lo, hi) if exp.loop == "closed" else None
+        return {"t": t, "u": u, "tacho": quantise(tacho, br.adc_bits, lo, hi),
+                "pos": quantise(pos, br.adc_bits, lo, hi), "ref": ref, "truth": sim}

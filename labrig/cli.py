@@ -1,0 +1,92 @@
+"""The command line: parse arguments, call the core, map errors to exit codes.
+
+Exit codes (design.md 3.2): 0 success, 2 user error, 1 rig or runtime fault,
+130 interrupted. This is the only place that turns exceptions into exit codes.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import traceback
+from pathlib import Path
+
+from . import __version__
+from .errors import LabrigError, UserError
+
+COMMANDS = {}
+
+
+def command(name, help):
+    """Register ``func(args)`` as a subcommand; ``func.configure(parser)`` adds options."""
+    def deco(func):
+        COMMANDS[name] = (func, help)
+        return func
+    return deco
+
+
+def emit_json(obj) -> None:
+    """Exactly one JSON object on stdout (progress and logs go to stderr)."""
+    from .runs import _json_default
+
+    sys.stdout.write(json.dumps(obj, indent=2, default=_json_default, allow_nan=False) + "\n")
+
+
+def _float_opt(text: str) -> float:
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got '{text}'") from None
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message):  # argparse's own errors are user errors too: exit 2
+        self.print_usage(sys.stderr)
+        raise UserError(message)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = _Parser(prog="labrig", description="DC-servo lab: acquire, analyse, identify, diagnose.")
+    p.add_argument("--version", action="version", version=f"labrig {__version__}")
+    p.add_argument("--debug", action="store_true", help="show tracebacks")
+    sub = p.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+    from . import commands  # noqa: F401  (registers the subcommands)
+
+    for name, (func, help_) in COMMANDS.items():
+        sp = sub.add_parser(name, help=help_, description=(func.__doc__ or help_).strip())
+        sp.add_argument("--debug", action="store_true", help="show tracebacks")
+        func.configure(sp)
+        sp.set_defaults(func=func)
+    return p
+
+
+def main(argv=None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    debug = "--debug" in argv
+    try:
+        parser = build_parser()
+        args = parser.parse_args(argv)
+        if not getattr(args, "func", None):
+            parser.print_help(sys.stderr)
+            return 2
+        return int(args.func(args) or 0)
+    except KeyboardInterrupt:
+        print("labrig: interrupted; finished runs are kept, the output is at 0 V", file=sys.stderr)
+        return 130
+    except LabrigError as exc:
+        if debug:
+            traceback.print_exc()
+        print(f"labrig: error: {exc}", file=sys.stderr)
+        return exc.exit_code
+    except BrokenPipeError:
+        return 1
+    except Exception as exc:  # a bug: say so plainly, keep the traceback behind --debug
+        if debug:
+            traceback.print_exc()
+        print(f"labrig: internal error: {type(exc).__name__}: {exc} "
+              "(rerun with --debug and report it)", file=sys.stderr)
+        return 1
+
+
+def run() -> None:
+    sys.exit(main())

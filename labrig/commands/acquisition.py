@@ -1,0 +1,115 @@
+"""``labrig sweep`` and ``labrig import``."""
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+from ..cli import command, _float_opt
+from ..errors import UserError
+from .progress import Progress
+
+
+@command("sweep", "acquire a sweep on the board (--port) or the simulated rig (--sim)")
+def cmd_sweep(args):
+    """Acquire a sweep: one run per experiment of the plan, each written atomically as it
+    finishes. Interrupting keeps every finished run; --resume continues."""
+    from ..acquire import sweep
+    from ..config import load_plan, load_rig
+
+    rig = load_rig(args.rig)
+    plan = load_plan(args.plan, rig)
+    if args.sim == bool(args.port):
+        raise UserError("give exactly one of --sim or --port DEV")
+    if args.sim:
+        from ..bridge.sim import SimRig
+
+        bridge = SimRig(rig, seed=args.seed)
+        if args.realtime:
+            bridge = _Paced(bridge)
+    else:
+        from ..bridge.serial import SerialBridge
+
+        bridge = SerialBridge(args.port, rig)
+    total = sum(e.n_samples for e in plan)
+    with Progress("sweep", total=total, unit="samples") as bar:
+        written = sweep(bridge, plan, rig, args.output, resume=args.resume,
+                        on_start=lambda e: bar.describe(e.name),
+                        on_progress=bar.advance,
+                        on_done=lambda e, r: bar.log(f"wrote {Path(args.output) / e.name}.csv"))
+    print(f"{len(written)} run(s) written to {args.output}"
+          + (f" ({len(plan) - len(written)} already there)" if args.resume else ""))
+    return 0
+
+
+def _configure_sweep(p):
+    src = p.add_mutually_exclusive_group()
+    src.add_argument("--port", help="serial device of the bridge, e.g. /dev/ttyACM0")
+    src.add_argument("--sim", action="store_true", help="use the simulated rig")
+    p.add_argument("--rig", help="rig file (TOML or mystery rig); default configs/rig_default.toml")
+    p.add_argument("--plan", help="sweep plan (TOML); default configs/plan_default.toml")
+    p.add_argument("-o", "--output", required=True, help="output folder for the runs")
+    p.add_argument("--resume", action="store_true", help="skip runs already complete in -o")
+    p.add_argument("--seed", type=int, help="noise seed of the simulated rig (default: rig file)")
+    p.add_argument("--realtime", action="store_true", help="pace the simulated rig to real time")
+
+
+cmd_sweep.configure = _configure_sweep
+
+
+class _Paced:
+    """Wraps a bridge so that blocks arrive at the real sample rate (--realtime)."""
+
+    def __init__(self, inner):
+        self._inner = inner
+        self.source = inner.source
+
+    def __getattr__(self, name):
+        return getattr(self._inner, name)
+
+    def read(self, timeout=2.0):
+        import time
+
+        blk = self._inner.read(timeout)
+        if blk is not None:
+            time.sleep(len(blk.index) / self._inner._exp.sample_rate_hz)
+        return blk
+
+
+@command("import", "bring a scope/DAQ export or another lab's CSV in as a run")
+def cmd_import(args):
+    """Import a foreign CSV as a labrig run. Map columns with --map TARGET=COLUMN: t, u and
+    speed (rad/s or rpm) and/or pos (rad or deg), or raw volts tacho=/pos= with gains."""
+    from ..importer import import_csv, parse_map
+
+    mapping = parse_map(args.map)
+    path = import_csv(args.src, args.output, mapping, speed_unit=args.speed_unit,
+                      pos_unit=args.pos_unit, time_unit=args.time_unit,
+                      tacho_gain=args.tacho_gain, pos_gain=args.pos_gain,
+                      pos_offset=args.pos_offset, gear_ratio=args.gear_ratio,
+                      amplifier_gain=args.amplifier_gain, name=args.name,
+                      waveform=args.waveform, loop=args.loop, overwrite=args.overwrite)
+    print(f"wrote {path} and {path.with_suffix('.json').name}")
+    return 0
+
+
+def _configure_import(p):
+    p.add_argument("src", help="the CSV to import")
+    p.add_argument("-o", "--output", required=True, help="output folder")
+    p.add_argument("--map", required=True,
+                   help="TARGET=COLUMN,...: targets t, u, speed, pos, tacho, ref, current")
+    p.add_argument("--speed-unit", default="rad/s", help="rad/s (default) or rpm")
+    p.add_argument("--pos-unit", default="rad", help="rad (default) or deg")
+    p.add_argument("--time-unit", default="s", help="s (default) or ms")
+    p.add_argument("--tacho-gain", type=_float_opt, help="V per rad/s, for tacho= in volts")
+    p.add_argument("--pos-gain", type=_float_opt, help="V per rad, for pos= in volts")
+    p.add_argument("--pos-offset", type=_float_opt, default=0.0, help="pot volts at 0 rad")
+    p.add_argument("--gear-ratio", type=_float_opt, default=1.0, help="motor/output (default 1)")
+    p.add_argument("--amplifier-gain", type=_float_opt, default=1.0)
+    p.add_argument("--name", help="run name (default: the source file's stem)")
+    p.add_argument("--waveform", default="custom",
+                   choices=["square", "step", "staircase", "custom"])
+    p.add_argument("--loop", default="open", choices=["open", "closed"])
+    p.add_argument("--overwrite", action="store_true", help="replace an existing run")
+
+
+cmd_import.configure = _configure_import

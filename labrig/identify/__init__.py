@@ -1,0 +1,1 @@
+"""Problem-agnostic optimisers for system identification (JFO, PSO, CO)."""

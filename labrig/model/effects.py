@@ -1,0 +1,342 @@
+"""The effect catalogue: physical effects as small composable objects.
+
+Each effect knows its name, its parameters (with units, bounds and a readable
+description), how to guess them from data, and *where* it enters the servo
+simulation (its ``stage``):
+
+``input``     maps the amplifier's input voltage (deadband, offset, asymmetry)
+``drive``     maps the armature voltage Ka*u (saturation)
+``friction``  gives a friction torque level for the Karnopp stick-slip rule
+``output``    acts on the output-shaft angle seen by the pot (backlash)
+``delay``     shifts the input in time (transport delay)
+
+The simulators (``labrig.model.truth`` and ``labrig.model.simulate``) call these
+hooks with numpy arrays vectorised over a population of candidates, so the same
+object serves the simulated rig, the identifiers and the diagnosis.
+
+Writing your own effect (an exercise-sheet-sized example)::
+
+    from labrig.model.effects import Effect, Param
+
+    class MyCoulomb(Effect):
+        '''Dry friction of the brushes and bearings: a constant torque against motion.'''
+        name = "my_coulomb"
+        stage = "friction"
+        params = (Param("tc_nm", "N m", 1e-5, 0.2, "Coulomb friction torque"),)
+
+        def friction(self, w, tc_nm):
+            # torque level opposing motion; the simulator applies the stick-slip rule
+            return tc_nm, tc_nm          # (kinetic, breakaway)
+
+        def initial_guess(self, runs, plant):
+            return {"tc_nm": 0.02 * plant.stall_torque(runs)}
+
+and use it with ``labrig identify DIR --effects my_effects.py:MyCoulomb``.
+"""
+from __future__ import annotations
+
+import importlib.util
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import UserError
+
+STAGES = ("input", "drive", "friction", "output", "delay")
+
+
+@dataclass(frozen=True)
+class Param:
+    """One effect parameter: name, unit, physical bounds and a description."""
+
+    name: str
+    unit: str
+    lower: float
+    upper: float
+    doc: str = ""
+    log: bool = True  # search in log space (positive, spans decades)
+
+
+class Effect:
+    """Base class of every effect. Subclasses set ``name``, ``stage``, ``params``
+    and implement the hook of their stage:
+
+    - ``input``/``drive``: ``apply(v, **p) -> v'`` (elementwise on arrays)
+    - ``friction``: ``friction(w, **p) -> (kinetic, breakaway)`` torque levels >= 0
+    - ``output``: ``output(state, x, **p) -> (state', y)`` a stateful map of the
+      output-shaft angle x (the play operator for backlash)
+    - ``delay``: ``delay_s(**p) -> seconds``
+
+    ``initial_guess(runs, plant)`` returns a starting value for every parameter
+    from data (``plant`` is a ``ServoParams`` with helper methods).
+    """
+
+    name: str = "effect"
+    stage: str = "input"
+    params: tuple = ()
+    #: one line: what the effect is in the rig
+    summary: str = ""
+    #: where it shows in the residuals of a model that lacks it
+    signature: str = ""
+    #: the experiment that would confirm it
+    experiment: str = ""
+
+    def param_names(self) -> list[str]:
+        return [p.name for p in self.params]
+
+    def initial_guess(self, runs, plant) -> dict:
+        return {p.name: math.sqrt(p.lower * p.upper) if p.log and p.lower > 0
+                else 0.5 * (p.lower + p.upper) for p in self.params}
+
+    def describe(self) -> str:
+        ps = ", ".join(f"{p.name} [{p.unit}]" for p in self.params)
+        return f"{self.name} ({self.stage}; {ps}): {self.summary}"
+
+    def __repr__(self):
+        return f"<effect {self.name}>"
+
+
+def _run_amplitudes(runs) -> np.ndarray:
+    amps = [r.amplitude for r in runs if r.loop == "open"]
+    return np.array(amps or [1.0])
+
+
+class Deadband(Effect):
+    """Amplifier dead zone / brush voltage drop: ``v = sign(u) max(|u| - d, 0)``.
+
+    Physics: the SA150D's input stage and the brushes need a threshold voltage before
+    any current flows. Residual signature of a linear model: tau unchanged, apparent
+    gain w/V rises with amplitude, the speed-vs-voltage line meets zero speed at
+    u = d, small amplitudes barely move. Same steady state as Coulomb friction; the
+    transients differ (deadband does not brake a coast-down).
+    """
+
+    name = "deadband"
+    stage = "input"
+    params = (Param("d_v", "V", 1e-3, 2.0, "dead-zone half width at the bridge input"),)
+    summary = "a dead zone of the amplifier input: below d volts the motor gets nothing"
+    signature = ("apparent gain rises with amplitude; speed-vs-voltage line crosses zero "
+                 "speed at u = d; coast-downs are exponential (not braked)")
+    experiment = "a slow voltage ramp through zero: the speed stays at 0 until |u| = d"
+
+    def apply(self, v, d_v):
+        return np.sign(v) * np.maximum(np.abs(v) - d_v, 0.0)
+
+    def initial_guess(self, runs, plant):
+        return {"d_v": 0.05 * float(np.min(_run_amplitudes(runs)))}
+
+
+class Saturation(Effect):
+    """Amplifier rail: ``v_arm = clip(Ka u, -vmax, vmax)``.
+
+    Physics: the amplifier cannot drive the armature beyond its supply rail. Residual
+    signature: identical steady speeds for every amplitude above the limit, apparent
+    gain w/V falling as 1/A, the largest errors at the largest amplitudes.
+    """
+
+    name = "saturation"
+    stage = "drive"
+    params = (Param("vmax_v", "V", 0.1, 100.0, "armature voltage limit of the amplifier"),)
+    summary = "the amplifier's output rail: the armature voltage cannot exceed vmax"
+    signature = ("steady speed the same for all large amplitudes; apparent gain falls "
+                 "as 1/A; errors grow with amplitude")
+    experiment = "a staircase of constant inputs: the speed stops rising at the rail"
+
+    def apply(self, v, vmax_v):
+        return np.clip(v, -vmax_v, vmax_v)
+
+    def initial_guess(self, runs, plant):
+        return {"vmax_v": 0.8 * plant.Ka * float(np.max(_run_amplitudes(runs)))}
+
+
+class CoulombFriction(Effect):
+    """Dry friction ``Tc sign(w)`` with stiction through a Karnopp stick band.
+
+    Physics: brushes and bearings rub with a torque nearly independent of speed;
+    at rest the rotor stays stuck until the drive torque exceeds the breakaway
+    ``ts = tc`` (set ``stiction`` for ts > tc). Residual signature: apparent tau too
+    short, a kink where w crosses 0, coast-downs that stop in finite time, relative
+    error ~1/A.
+    """
+
+    name = "coulomb_friction"
+    stage = "friction"
+    params = (Param("tc_nm", "N m", 1e-6, 1.0, "Coulomb (kinetic) friction torque"),)
+    summary = "dry friction of brushes and bearings: a constant torque against motion"
+    signature = ("apparent gain rises with amplitude like a deadband, but reversals "
+                 "decelerate faster into zero speed and leave it later, with a kink at w = 0")
+    experiment = ("a coast-down from speed with the amplifier off (the speed falls "
+                  "linearly and stops in finite time) or a slow ramp in both directions")
+
+    def friction(self, w, tc_nm):
+        return tc_nm, tc_nm
+
+    def initial_guess(self, runs, plant):
+        return {"tc_nm": 0.03 * plant.K * plant.Ka * float(np.min(_run_amplitudes(runs))) / plant.R}
+
+
+class Stiction(Effect):
+    """Coulomb friction plus a higher breakaway torque (Karnopp): ``ts = tc*(1 + s)``."""
+
+    name = "stiction"
+    stage = "friction"
+    params = (Param("tc_nm", "N m", 1e-6, 1.0, "Coulomb friction torque"),
+              Param("excess", "-", 0.01, 3.0, "breakaway excess: ts = tc (1 + excess)"))
+    summary = "static friction: starting from rest needs more torque than keeping moving"
+    signature = "a delay before each start from rest, near the breakaway voltage only"
+    experiment = "a very slow ramp from rest: the motor jumps into motion at breakaway"
+
+    def friction(self, w, tc_nm, excess):
+        return tc_nm, tc_nm * (1.0 + excess)
+
+    def initial_guess(self, runs, plant):
+        g = CoulombFriction().initial_guess(runs, plant)
+        return {"tc_nm": g["tc_nm"], "excess": 0.5}
+
+
+class Backlash(Effect):
+    """Gear play: a play operator of half-gap ``a`` on the output-shaft angle.
+
+    Physics: the gear teeth have clearance; at each reversal the motor turns through
+    the gap before the output shaft follows. Residual signature: position only — a
+    flat segment of width 2a at every reversal; the tacho (on the motor) is unaffected.
+    """
+
+    name = "backlash"
+    stage = "output"
+    params = (Param("a_rad", "rad", 1e-4, 0.5, "half the gear play, at the output shaft"),)
+    summary = "play in the gearbox: the output shaft lags the motor by up to the gap"
+    signature = ("position error only, a constant offset of about 2a after each "
+                 "reversal; speed residual unaffected")
+    experiment = "reverse slowly and watch the output pot stand still while the motor turns"
+
+    def output(self, state, x, a_rad):
+        y = np.clip(state, x - a_rad, x + a_rad)
+        return y, y
+
+    def initial_guess(self, runs, plant):
+        return {"a_rad": math.radians(1.0)}
+
+
+class Delay(Effect):
+    """Transport delay ``u(t - Td)``: conversion latency, filters, the ZOH itself.
+
+    Residual signature: error spikes right after each edge, about ``-Td dy/dt``; the
+    residual-input cross-correlation peaks at a small positive lag.
+    """
+
+    name = "delay"
+    stage = "delay"
+    params = (Param("td_s", "s", 1e-5, 0.1, "transport delay"),)
+    summary = "a pure time delay between the bridge output and the motor's response"
+    signature = "error spikes right after each edge; cross-correlation peak at small lag"
+    experiment = "a single fast step at a high sample rate: the response starts late"
+
+    def delay_s(self, td_s):
+        return td_s
+
+    def initial_guess(self, runs, plant):
+        return {"td_s": 1.0 / max(r.fs for r in runs) if runs else 1e-3}
+
+
+class Offset(Effect):
+    """Amplifier input offset ``u + u0``: drift of the SA150D's zero."""
+
+    name = "offset"
+    stage = "input"
+    params = (Param("u0_v", "V", -0.5, 0.5, "input offset voltage", log=False),)
+    summary = "an offset at the amplifier input: the motor creeps at zero command"
+    signature = "same-sign residual in both half-periods; drift at zero command"
+    experiment = "command 0 V for a while: the motor creeps"
+
+    def apply(self, v, u0_v):
+        return v + u0_v
+
+    def initial_guess(self, runs, plant):
+        return {"u0_v": 0.0}
+
+
+class Asymmetry(Effect):
+    """Different gains in the two directions: ``u (1 + k)`` for u > 0, ``u (1 - k)`` below."""
+
+    name = "asymmetry"
+    stage = "input"
+    params = (Param("k", "-", -0.3, 0.3, "relative gain difference between directions",
+                    log=False),)
+    summary = "the amplifier or motor is stronger in one direction than the other"
+    signature = "residual sign alternates with direction, grows with amplitude"
+    experiment = "equal positive and negative steps: the steady speeds differ"
+
+    def apply(self, v, k):
+        return np.where(v >= 0, v * (1.0 + k), v * (1.0 - k))
+
+    def initial_guess(self, runs, plant):
+        return {"k": 0.0}
+
+
+CATALOGUE: dict[str, type[Effect]] = {cls.name: cls for cls in (
+    Deadband, CoulombFriction, Saturation, Backlash, Delay, Stiction, Offset, Asymmetry)}
+
+
+def _check_effect_class(cls, where: str) -> type[Effect]:
+    if not (isinstance(cls, type) and issubclass(cls, Effect)):
+        raise UserError(f"{where}: not a subclass of labrig.model.effects.Effect")
+    if cls.stage not in STAGES:
+        raise UserError(f"{where}: stage {cls.stage!r} is not one of {', '.join(STAGES)}")
+    hook = {"input": "apply", "drive": "apply", "friction": "friction",
+            "output": "output", "delay": "delay_s"}[cls.stage]
+    if getattr(cls, hook, None) is None:
+        raise UserError(f"{where}: a '{cls.stage}' effect must define {hook}()")
+    for p in cls.params:
+        if not p.lower < p.upper:
+            raise UserError(f"{where}: parameter {p.name} has lower >= upper")
+    return cls
+
+
+def load_user_effect(spec: str) -> type[Effect]:
+    """``path/to/file.py:ClassName`` -> the effect class, checked."""
+    file, _, clsname = spec.rpartition(":")
+    path = Path(file)
+    if not path.exists():
+        raise UserError(f"--effects: file '{file}' not found (expected FILE.py:ClassName)")
+    modname = f"labrig_user_{path.stem}_{abs(hash(str(path.resolve())))}"
+    spec_ = importlib.util.spec_from_file_location(modname, path)
+    module = importlib.util.module_from_spec(spec_)
+    try:
+        spec_.loader.exec_module(module)
+    except Exception as exc:  # the user's file: report, don't crash
+        raise UserError(f"{file}: failed to import ({type(exc).__name__}: {exc})") from None
+    cls = getattr(module, clsname, None)
+    if cls is None:
+        raise UserError(f"{file}: no class '{clsname}'")
+    return _check_effect_class(cls, spec)
+
+
+def get_effect(name: str) -> Effect:
+    """An effect instance by catalogue name or ``file.py:ClassName``."""
+    if ":" in name and name.split(":")[0].endswith(".py"):
+        return load_user_effect(name)()
+    try:
+        return CATALOGUE[name]()
+    except KeyError:
+        raise UserError(f"unknown effect '{name}'; the catalogue has "
+                        f"{', '.join(CATALOGUE)} (or give FILE.py:ClassName)") from None
+
+
+def parse_effects(text: str | None) -> list[Effect]:
+    """``"deadband,coulomb_friction"`` -> effect instances; at most one per stage
+    for friction, output and delay (they do not compose)."""
+    if not text:
+        return []
+    effects = [get_effect(s.strip()) for s in text.split(",") if s.strip()]
+    names = [e.name for e in effects]
+    for n in names:
+        if names.count(n) > 1:
+            raise UserError(f"--effects: '{n}' given twice")
+    for stage in ("friction", "output", "delay"):
+        same = [e.name for e in effects if e.stage == stage]
+        if len(same) > 1:
+            raise UserError(f"--effects: {' and '.join(same)} both act as {stage}; pick one")
+    return effects

@@ -1,0 +1,131 @@
+"""The DC servo (physics.md 1): armature + rotor + gear + sensors, as python-control
+objects, open loop and with the position/tacho loop of the paper's eq. 29 set-up.
+
+States x = [i (A), w (rad/s, motor), theta_m (rad, motor)]; input: the bridge voltage
+(open loop) or the reference voltage (closed loop).
+
+Closed loop (analog, in the SA150D set-up): amplifier input
+``e = Kp (r - Kpot theta_out) - Kv Kt w`` with theta_out = theta_m / N.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, replace, asdict
+
+import control
+import numpy as np
+
+PLANT_NAMES = ("R", "L", "J", "B", "K")
+PLANT_UNITS = {"R": "ohm", "L": "H", "J": "kg m^2", "B": "N m s/rad", "K": "N m/A"}
+
+
+@dataclass
+class ServoParams:
+    """Everything the model needs: plant (R, L, J, B, K) and the known rig constants."""
+
+    R: float
+    L: float
+    J: float
+    B: float
+    K: float
+    Ka: float = 1.0          # amplifier gain (armature V per bridge V)
+    N: float = 1.0           # gear ratio
+    Kt: float = 0.026        # tacho V per rad/s
+    Kpot: float = 1.0        # pot V per rad (output shaft)
+
+    @classmethod
+    def from_rig(cls, rig, **override) -> "ServoParams":
+        p = rig.plant
+        base = cls(R=p.R, L=p.L, J=p.J, B=p.B, K=p.K, Ka=rig.amplifier.gain,
+                   N=rig.gear_ratio, Kt=rig.sensors.tacho_v_per_rad_s,
+                   Kpot=rig.sensors.pos_v_per_rad)
+        return replace(base, **override)
+
+    def plant_dict(self) -> dict:
+        return {k: getattr(self, k) for k in PLANT_NAMES}
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+    # -- identifiable combinations (physics.md 2) --------------------------------
+    @property
+    def km(self) -> float:
+        """Steady motor speed per bridge volt: Ka K / (B R + K^2)."""
+        return self.Ka * self.K / (self.B * self.R + self.K ** 2)
+
+    @property
+    def poles(self) -> np.ndarray:
+        a2, a1, a0 = self.J * self.L, self.J * self.R + self.B * self.L, self.B * self.R + self.K ** 2
+        return np.roots([a2, a1, a0])
+
+    @property
+    def tau_m(self) -> float:
+        """Mechanical (slow) time constant from the exact poles."""
+        return float(-1.0 / np.max(np.real(self.poles)))
+
+    @property
+    def tau_e(self) -> float:
+        """Electrical (fast) time constant from the exact poles."""
+        return float(-1.0 / np.min(np.real(self.poles)))
+
+    @property
+    def tau_m_approx(self) -> float:
+        """The paper's first-order tau_m = J R / (B R + K^2)."""
+        return self.J * self.R / (self.B * self.R + self.K ** 2)
+
+    def stall_torque(self, runs=None, volts: float = 1.0) -> float:
+        return self.K * self.Ka * volts / self.R
+
+    # -- state-space models -------------------------------------------------------
+    def A_open(self) -> np.ndarray:
+        R, L, J, B, K = self.R, self.L, self.J, self.B, self.K
+        return np.array([[-R / L, -K / L, 0.0], [K / J, -B / J, 0.0], [0.0, 1.0, 0.0]])
+
+    def B_open(self) -> np.ndarray:
+        return np.array([[self.Ka / self.L], [0.0], [0.0]])
+
+    def C_out(self) -> np.ndarray:
+        """Outputs: [w (rad/s), theta_out (rad)]."""
+        return np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0 / self.N]])
+
+    def open_loop(self) -> control.StateSpace:
+        """u (bridge V) -> [w, theta_out]."""
+        return control.ss(self.A_open(), self.B_open(), self.C_out(), np.zeros((2, 1)),
+                          inputs=["u"], outputs=["w", "theta"], states=["i", "w", "theta_m"])
+
+    def closed_loop(self, kp: float, kv: float) -> control.StateSpace:
+        """r (bridge V) -> [w, theta_out] with e = kp (r - Kpot theta) - kv Kt w.
+
+        Built by python-control's feedback composition of the plant with the
+        sensor gains, so the loop is exactly the one in the paper's Fig. 3/eq. 29.
+        """
+        plant = self.open_loop()
+        sensors = control.ss([], [], [], [[kv * self.Kt, kp * self.Kpot]],
+                             inputs=["w", "theta"], outputs=["fb"])
+        pre = control.ss([], [], [], [[kp]], inputs=["r"], outputs=["rk"])
+        summ = control.summing_junction(inputs=["rk", "-fb"], output="u")
+        return control.interconnect([plant, sensors, pre, summ], inplist=["r"],
+                                    outlist=["w", "theta"])
+
+    def A_closed(self, kp: float, kv: float) -> np.ndarray:
+        A = self.A_open().copy()
+        b = self.B_open()[:, 0]
+        # u = kp r - kv Kt w - kp Kpot theta_m / N
+        A[:, 1] -= b * kv * self.Kt
+        A[:, 2] -= b * kp * self.Kpot / self.N
+        return A
+
+    def B_closed(self, kp: float) -> np.ndarray:
+        return self.B_open() * kp
+
+    def speed_tf(self) -> control.TransferFunction:
+        """W/U = Ka K / (J L s^2 + (J R + B L) s + B R + K^2)."""
+        return control.tf([self.Ka * self.K],
+                          [self.J * self.L, self.J * self.R + self.B * self.L,
+                           self.B * self.R + self.K ** 2])
+
+    def position_step_info(self, kp: float, kv: float) -> dict:
+        """Rise time, settling time and overshoot of the closed position loop."""
+        sys = self.closed_loop(kp, kv)
+        info = control.step_info(sys[1, 0])
+        return {"rise_time_s": float(info["RiseTime"]), "settling_time_s": float(info["SettlingTime"]),
+                "overshoot_percent": float(info["Overshoot"])}

@@ -1,0 +1,86 @@
+"""Sweeps on the simulated rig: valid runs, atomic writes, interruption keeps runs."""
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from labrig.acquire import sweep
+from labrig.bridge.sim import SimRig
+from labrig.runs import read_dataset, read_run
+from conftest import ROOT, labrig, make_rig, square_plan
+
+
+def test_cli_sweep_writes_valid_runs(tmp_path):
+    labrig("sweep", "--sim", "-o", tmp_path / "ds", check=0)
+    runs = read_dataset(tmp_path / "ds")
+    assert [r.name for r in runs if r.loop == "open"] == ["sq_1.20V", "sq_1.50V", "sq_2.00V", "sq_2.50V"]
+    assert any(r.loop == "closed" and r.ref is not None for r in runs)
+    r = runs[-1]
+    assert r.meta["source"] == "sim" and r.meta["bridge"]["dropped_samples"] == 0
+    assert r.u[0] == 0 and r.amplitude == pytest.approx(2.5, abs=0.01)
+    # a second sweep into the same folder refuses; --resume skips finished runs
+    p = labrig("sweep", "--sim", "-o", tmp_path / "ds")
+    assert p.returncode == 2 and "--resume" in p.stderr
+    labrig("sweep", "--sim", "-o", tmp_path / "ds", "--resume", check=0)
+
+
+def test_same_seed_same_data(tmp_path):
+    rig = make_rig()
+    plan = square_plan(amps=(1.5,), periods=0.5)
+    sweep(SimRig(rig), plan, rig, tmp_path / "a")
+    sweep(SimRig(rig), plan, rig, tmp_path / "b")
+    assert (tmp_path / "a" / "sq_1.50V.csv").read_bytes() == (tmp_path / "b" / "sq_1.50V.csv").read_bytes()
+
+
+class Exploding(SimRig):
+    """A rig whose third experiment is interrupted mid-stream."""
+
+    def read(self, timeout=2.0):
+        if self._count["experiments"] == 3 and self._pos > 1000:
+            raise KeyboardInterrupt
+        return super().read(timeout)
+
+
+def test_interrupted_sweep_keeps_finished_runs_and_zeroes(tmp_path):
+    rig = make_rig()
+    bridge = Exploding(rig)
+    with pytest.raises(KeyboardInterrupt):
+        sweep(bridge, square_plan(), rig, tmp_path / "ds")
+    assert bridge.output_v == 0.0
+    names = sorted(p.name for p in (tmp_path / "ds").iterdir())
+    assert names == ["sq_1.20V.csv", "sq_1.20V.json", "sq_1.50V.csv", "sq_1.50V.json"]
+    for r in read_dataset(tmp_path / "ds"):
+        assert len(r) == 8500
+
+
+def test_plan_beyond_output_limit_refused(tmp_path):
+    rig = make_rig()
+    p = labrig("sweep", "--sim", "-o", tmp_path / "o", "--plan", tmp_path / "p.toml")
+    (tmp_path / "p.toml").write_text("[[experiment]]\namplitude_v = 4.0\n")
+    p = labrig("sweep", "--sim", "-o", tmp_path / "o", "--plan", tmp_path / "p.toml")
+    assert p.returncode == 2 and "exceeds the output limit 2.5 V" in p.stderr
+    assert not (tmp_path / "o").exists()
+
+
+def test_ctrl_c_on_the_cli(tmp_path):
+    plan = tmp_path / "p.toml"
+    plan.write_text("[defaults]\nlead_in_s = 0.1\nduration_s = 0.6\n"
+                    "[[experiment]]\namplitudes_v = [1.0, 1.5, 2.0, 2.5]\n")
+    proc = subprocess.Popen([sys.executable, "-m", "labrig", "sweep", "--sim", "--realtime",
+                             "--plan", plan, "-o", tmp_path / "ds"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.time() + 30
+    while time.time() < deadline and not (tmp_path / "ds" / "sq_1.50V.json").exists():
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGINT)
+    out, err = proc.communicate(timeout=30)
+    assert proc.returncode == 130, err
+    assert "Traceback" not in err and "interrupted" in err
+    runs = read_dataset(tmp_path / "ds")
+    assert 2 <= len(runs) < 4
+    assert all(len(r) == 600 for r in runs)
+    assert not [p for p in (tmp_path / "ds").iterdir() if p.suffix == ".tmp"]
