@@ -29,21 +29,31 @@ def acquire(bridge: Bridge, exp: Experiment, rig, progress: Callable[[int], None
         if blk is None:
             break
         blocks.append(blk)
-        got += len(blk.index)
         if progress:
-            progress(len(blk.index))
+            progress(int(blk.index[-1]) + 1 - got)
+        got = int(blk.index[-1]) + 1
         if got >= exp.n_samples:
             break
     bridge.stop()
     if not blocks:
         raise RigError(f"experiment '{exp.name}': the bridge returned no samples")
-    idx = np.concatenate([b.index for b in blocks])
-    cols = {"t": idx / exp.sample_rate_hz,
-            "u": np.concatenate([b.u for b in blocks]),
-            "tacho": np.concatenate([b.tacho for b in blocks]),
-            "pos": np.concatenate([b.pos for b in blocks])}
+    idx = np.concatenate([b.index for b in blocks]).astype(np.int64)
+    raw = {"u": np.concatenate([b.u for b in blocks]),
+           "tacho": np.concatenate([b.tacho for b in blocks]),
+           "pos": np.concatenate([b.pos for b in blocks])}
     if blocks[0].ref is not None:
-        cols["ref"] = np.concatenate([b.ref for b in blocks])
+        raw["ref"] = np.concatenate([b.ref for b in blocks])
+    n = int(idx[-1]) + 1
+    full = np.arange(n)
+    cols = {"t": full / exp.sample_rate_hz}
+    # a dropped sample must not shift time: fill it by interpolation and flag it in
+    # the 'gap' column, so the run stays uniform and nobody mistakes it for data
+    for k, v in raw.items():
+        cols[k] = v if len(idx) == n else np.interp(full, idx, v)
+    if len(idx) != n:
+        gap = np.ones(n, dtype=np.int8)
+        gap[idx] = 0
+        cols["gap"] = gap
     meta = make_meta(sample_rate_hz=exp.sample_rate_hz, experiment=exp.to_sidecar(),
                      sensors=rig.sensors_sidecar(), rig=rig.rig_sidecar(),
                      source=bridge.source, bridge=bridge.counters())

@@ -63,6 +63,10 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     debug = "--debug" in argv
+    if not debug:  # wild candidates overflow on purpose during a search; not news for users
+        import warnings
+
+        warnings.simplefilter("ignore", RuntimeWarning)
     try:
         parser = build_parser()
         args = parser.parse_args(argv)

@@ -71,7 +71,7 @@ def test_saturation_signature(p):
 
 def test_coulomb_friction_stops_in_finite_time(p):
     u = np.r_[np.full(1500, 2.0), np.zeros(1500)]
-    w_f = run_with(p, "coulomb_friction", {"tc_nm": 0.004}, u)["w"]
+    w_f = run_with(p, "coulomb_friction", {"tc_v": 0.13}, u)["w"]
     w_0 = simulate_truth(p, u, DT)["w"]
     stop = np.argmax(w_f[1500:] == 0)
     assert 0 < stop < 1000 and np.all(w_f[1500 + stop:] == 0)   # stuck for good, no chatter
@@ -103,7 +103,7 @@ def test_convergence_halving_the_step_changes_less_than_adc_quantum(p):
     q_tacho = rig.bridge.adc_quantum_v / rig.sensors.tacho_v_per_rad_s
     q_pos = rig.bridge.adc_quantum_v / rig.sensors.pos_v_per_rad
     effs = [get_effect("coulomb_friction"), get_effect("backlash"), get_effect("deadband")]
-    prm = {"coulomb_friction": {"tc_nm": 0.004}, "backlash": {"a_rad": 0.02}, "deadband": {"d_v": 0.2}}
+    prm = {"coulomb_friction": {"tc_v": 0.13}, "backlash": {"a_rad": 0.02}, "deadband": {"d_v": 0.2}}
     u = np.r_[np.zeros(200), np.full(2000, 1.5), np.full(2000, -1.5), np.zeros(1000)]
     a = simulate_truth(p, u, DT, effects=effs, effect_params=prm, substeps=20)
     b = simulate_truth(p, u, DT, effects=effs, effect_params=prm, substeps=40)

@@ -61,7 +61,7 @@ static double bridge_out(void)
 {
     double va = on_a ? word_a * 2.048 * 2 / 4096.0 : 0.0;   /* gain 2x */
     double vb = on_b ? word_b * 2.048 * 2 / 4096.0 : 0.0;
-    return (va - vb) * (5.0 / 2.048) / 2.0;                    /* bipolar stage: +-5 V */
+    return (va - vb) * (5.0 / 2.048);          /* bipolar stage: (VA - VB) * 2.441, +-5 V */
 }
 
 /* ADC conversion started: give it the sensor voltage of that instant */

@@ -53,23 +53,27 @@ class Experiment:
         return int(round(self.total_s * self.sample_rate_hz))
 
     def waveform_at(self, t: np.ndarray) -> np.ndarray:
-        """The commanded bridge voltage at times ``t`` (s), as the board generates it."""
-        t = np.asarray(t, dtype=float)
-        tt = t - self.lead_in_s
-        out = np.zeros_like(t)
-        on = tt >= 0
+        """The commanded bridge voltage at times ``t`` (s), as the board generates it.
+
+        Computed on integer sample counts, like the firmware, so an edge falls on
+        exactly the same sample on the board and in the simulated rig.
+        """
+        fs = self.sample_rate_hz
+        k = np.round(np.asarray(t, dtype=float) * fs).astype(np.int64)
+        kk = k - int(round(self.lead_in_s * fs))
+        out = np.zeros(k.shape)
         if self.waveform == "square":
-            phase = np.mod(tt * self.frequency_hz, 1.0)
-            out = np.where(phase < 0.5, self.amplitude_v, -self.amplitude_v) + self.offset_v
-        elif self.waveform == "step":
-            out = np.full_like(t, self.amplitude_v + self.offset_v)
-        elif self.waveform == "constant":
-            out = np.full_like(t, self.amplitude_v + self.offset_v)
+            period = int(round(fs / self.frequency_hz))
+            half = period // 2
+            out = np.where(np.mod(kk, period) < half, self.amplitude_v, -self.amplitude_v) + self.offset_v
+        elif self.waveform in ("step", "constant"):
+            out = np.full(k.shape, self.amplitude_v + self.offset_v)
         elif self.waveform == "staircase":
-            k = np.clip((tt // self.step_s).astype(int), 0, max(len(self.levels) - 1, 0))
+            per = int(round(self.step_s * fs))
+            idx = np.clip(kk // per, 0, max(len(self.levels) - 1, 0))
             lv = np.asarray(self.levels, dtype=float) if self.levels else np.zeros(1)
-            out = lv[k] + self.offset_v
-        return np.where(on, out, 0.0)
+            out = lv[idx] + self.offset_v
+        return np.where(kk >= 0, out, 0.0)
 
     def peak_v(self) -> float:
         if self.waveform == "staircase":

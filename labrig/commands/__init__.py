@@ -1,2 +1,5 @@
 """Subcommands, one module each; importing them registers them with the CLI."""
 from . import acquisition  # noqa: F401
+from . import analysis  # noqa: F401
+from . import identification  # noqa: F401
+from . import hardware  # noqa: F401

@@ -22,14 +22,15 @@ Writing your own effect (an exercise-sheet-sized example)::
         '''Dry friction of the brushes and bearings: a constant torque against motion.'''
         name = "my_coulomb"
         stage = "friction"
-        params = (Param("tc_nm", "N m", 1e-5, 0.2, "Coulomb friction torque"),)
+        params = (Param("tc_v", "V", 1e-3, 2.0, "friction as the input voltage that balances it"),)
 
-        def friction(self, w, tc_nm):
-            # torque level opposing motion; the simulator applies the stick-slip rule
-            return tc_nm, tc_nm          # (kinetic, breakaway)
+        def friction(self, plant, tc_v):
+            # torque levels opposing motion; the simulator applies the stick-slip rule
+            t = tc_v * plant.Ka * plant.K / plant.R   # stall torque of tc_v volts
+            return t, t                               # (kinetic, breakaway)
 
         def initial_guess(self, runs, plant):
-            return {"tc_nm": 0.02 * plant.stall_torque(runs)}
+            return {"tc_v": 0.1}
 
 and use it with ``labrig identify DIR --effects my_effects.py:MyCoulomb``.
 """
@@ -64,7 +65,9 @@ class Effect:
     and implement the hook of their stage:
 
     - ``input``/``drive``: ``apply(v, **p) -> v'`` (elementwise on arrays)
-    - ``friction``: ``friction(w, **p) -> (kinetic, breakaway)`` torque levels >= 0
+    - ``friction``: ``friction(plant, **p) -> (kinetic, breakaway)`` torque levels >= 0
+      (``plant`` has R, K, Ka, maybe arrays over candidates); the simulator applies
+      the Karnopp stick-slip rule with them
     - ``output``: ``output(state, x, **p) -> (state', y)`` a stateful map of the
       output-shaft angle x (the play operator for backlash)
     - ``delay``: ``delay_s(**p) -> seconds``
@@ -156,25 +159,33 @@ class CoulombFriction(Effect):
 
     Physics: brushes and bearings rub with a torque nearly independent of speed;
     at rest the rotor stays stuck until the drive torque exceeds the breakaway
-    ``ts = tc`` (set ``stiction`` for ts > tc). Residual signature: apparent tau too
-    short, a kink where w crosses 0, coast-downs that stop in finite time, relative
-    error ~1/A.
+    torque (equal to Tc here; ``stiction`` makes it larger). Residual signature:
+    apparent tau too short, a kink where w crosses 0, coast-downs that stop in
+    finite time, relative error ~1/A.
+
+    The parameter is the friction expressed in volts at the bridge input,
+    ``tc_v = Tc R / (Ka K)``: the input whose stall torque just balances it. Tc in
+    N m is not identifiable from speed and position alone (it scales with R and J
+    along the model's symmetry, physics.md 2); tc_v is, and it is directly comparable
+    with a deadband.
     """
 
     name = "coulomb_friction"
     stage = "friction"
-    params = (Param("tc_nm", "N m", 1e-6, 1.0, "Coulomb (kinetic) friction torque"),)
+    params = (Param("tc_v", "V", 1e-3, 5.0, "Coulomb friction as the bridge voltage that balances "
+                    "it at stall (Tc = tc_v Ka K / R)"),)
     summary = "dry friction of brushes and bearings: a constant torque against motion"
     signature = ("apparent gain rises with amplitude like a deadband, but reversals "
                  "decelerate faster into zero speed and leave it later, with a kink at w = 0")
     experiment = ("a coast-down from speed with the amplifier off (the speed falls "
                   "linearly and stops in finite time) or a slow ramp in both directions")
 
-    def friction(self, w, tc_nm):
-        return tc_nm, tc_nm
+    def friction(self, plant, tc_v):
+        t = tc_v * plant.Ka * plant.K / plant.R
+        return t, t
 
     def initial_guess(self, runs, plant):
-        return {"tc_nm": 0.03 * plant.K * plant.Ka * float(np.min(_run_amplitudes(runs))) / plant.R}
+        return {"tc_v": 0.05 * float(np.min(_run_amplitudes(runs)))}
 
 
 class Stiction(Effect):
@@ -182,18 +193,19 @@ class Stiction(Effect):
 
     name = "stiction"
     stage = "friction"
-    params = (Param("tc_nm", "N m", 1e-6, 1.0, "Coulomb friction torque"),
-              Param("excess", "-", 0.01, 3.0, "breakaway excess: ts = tc (1 + excess)"))
+    params = (Param("tc_v", "V", 1e-3, 5.0, "Coulomb friction as a bridge voltage (see coulomb_friction)"),
+              Param("excess", "-", 0.01, 3.0, "breakaway excess: Ts = Tc (1 + excess)"))
     summary = "static friction: starting from rest needs more torque than keeping moving"
     signature = "a delay before each start from rest, near the breakaway voltage only"
     experiment = "a very slow ramp from rest: the motor jumps into motion at breakaway"
 
-    def friction(self, w, tc_nm, excess):
-        return tc_nm, tc_nm * (1.0 + excess)
+    def friction(self, plant, tc_v, excess):
+        t = tc_v * plant.Ka * plant.K / plant.R
+        return t, t * (1.0 + excess)
 
     def initial_guess(self, runs, plant):
         g = CoulombFriction().initial_guess(runs, plant)
-        return {"tc_nm": g["tc_nm"], "excess": 0.5}
+        return {"tc_v": g["tc_v"], "excess": 0.5}
 
 
 class Backlash(Effect):
@@ -274,6 +286,16 @@ class Asymmetry(Effect):
 
     def initial_guess(self, runs, plant):
         return {"k": 0.0}
+
+
+#: input-stage effects act in this order (then any user effects), in every simulator
+INPUT_ORDER = ("offset", "asymmetry", "deadband")
+
+
+def ordered(effects) -> list:
+    """Effects in the canonical order every simulator applies them."""
+    rank = {n: i for i, n in enumerate(INPUT_ORDER)}
+    return sorted(effects, key=lambda e: rank.get(e.name, len(rank)))
 
 
 CATALOGUE: dict[str, type[Effect]] = {cls.name: cls for cls in (

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .effects import Effect
+from .effects import Effect, ordered
 from .servo import ServoParams
 
 
@@ -50,7 +50,7 @@ def simulate_truth(p: ServoParams, u: np.ndarray, dt: float, *, effects=(),
     n = len(u)
     h = dt / substeps
     by_stage: dict[str, list[tuple[Effect, dict]]] = {}
-    for e in effects:
+    for e in ordered(effects):
         by_stage.setdefault(e.stage, []).append((e, effect_params.get(e.name, {})))
     td = sum(e.delay_s(**ep) for e, ep in by_stage.get("delay", []))
     fric = by_stage.get("friction", [])
@@ -87,7 +87,7 @@ def simulate_truth(p: ServoParams, u: np.ndarray, dt: float, *, effects=(),
             if fric:
                 tc, ts = 0.0, 0.0
                 for e, ep in fric:
-                    a, b = e.friction(w, **ep)
+                    a, b = e.friction(p, **ep)
                     tc, ts = tc + float(a), ts + float(b)
                 w = _karnopp_step(w, tnf, tc, ts, h / J)
             else:

@@ -1,0 +1,192 @@
+"""Run the real compiled bridge firmware under simavr with a plant model of the rig.
+
+``Emulator(board, rig)`` builds what is missing (``make -C firmware``), starts the C
+harness ``firmware/build/emulator/labrig-emu`` and exposes its pseudo-terminal as
+``emu.pty``, which :class:`labrig.bridge.serial.SerialBridge` opens like a USB port::
+
+    with Emulator("uno", rig) as emu:
+        with SerialBridge(emu.pty, rig) as bridge:
+            ...
+"""
+from __future__ import annotations
+
+import os
+import shutil
+import signal
+import subprocess
+import tempfile
+import time
+from pathlib import Path
+
+from labrig.errors import RigError, UserError
+
+FIRMWARE_DIR = Path(os.environ.get("LABRIG_FIRMWARE_DIR",
+                                   Path(__file__).resolve().parents[2] / "firmware"))
+APT_PACKAGES = "gcc-avr avr-libc arduino-core-avr simavr libsimavr-dev libsimavrparts1"
+BOARDS = ("uno", "mega")
+
+# configs/rig_default.toml, for attributes a rig object lacks
+_DEFAULTS = {"R": 8.0, "L": 0.0085, "J": 5.2245e-5, "B": 1.0e-5, "K": 0.05, "Ka": 5.0, "Vmax": 13.0,
+             "N": 30.0, "Kt": 0.026, "Kpot": 0.5, "pos-offset": -4.0, "noise-tacho": 0.010,
+             "noise-pos": 0.004, "Tc": 0.0, "seed": 1}
+
+
+def _get(obj, *path, default=None):
+    for name in path:
+        if obj is None:
+            return default
+        obj = obj.get(name) if isinstance(obj, dict) else getattr(obj, name, None)
+    return default if obj is None else obj
+
+
+def missing_tools() -> list[str]:
+    """What is missing to build and run the emulator (empty when all is there)."""
+    missing = [t for t in ("make", "gcc", "avr-gcc", "avr-objcopy", "avr-size") if not shutil.which(t)]
+    if not Path("/usr/share/arduino/hardware/arduino/avr/cores/arduino/Arduino.h").exists():
+        missing.append("arduino-core-avr")
+    if not Path("/usr/include/simavr/sim_avr.h").exists():
+        missing.append("libsimavr-dev")
+    if not Path("/usr/lib/avr/include/avr/io.h").exists():
+        missing.append("avr-libc")
+    return missing
+
+
+def build(board: str = "uno") -> tuple[Path, Path]:
+    """Build (incrementally) the firmware for ``board`` and the harness.
+
+    Returns
+    -------
+    (elf, harness) : tuple of Path
+
+    Raises
+    ------
+    RigError
+        With the exact apt packages to install when the toolchain is missing, or the tail of
+        the compiler output when the build fails.
+    """
+    if board not in BOARDS:
+        raise UserError(f"unknown board {board!r}: uno or mega")
+    missing = missing_tools()
+    if missing:
+        raise RigError(f"cannot build the emulator: {', '.join(missing)} missing; install with: "
+                       f"apt-get install -y --no-install-recommends {APT_PACKAGES}")
+    r = subprocess.run(["make", "-C", str(FIRMWARE_DIR), "--no-print-directory", board, "emulator"],
+                       capture_output=True, text=True)
+    if r.returncode != 0:
+        tail = "\n".join((r.stdout + r.stderr).strip().splitlines()[-15:])
+        raise RigError(f"firmware build failed (make -C {FIRMWARE_DIR} {board} emulator):\n{tail}")
+    return (FIRMWARE_DIR / "build" / board / "labrig_bridge.elf",
+            FIRMWARE_DIR / "build" / "emulator" / "labrig-emu")
+
+
+def plant_args(rig) -> list[str]:
+    """Harness command-line options for the plant of ``rig`` (defaults where it says nothing)."""
+    v = dict(_DEFAULTS)
+    for key, path in {"R": ("plant", "R"), "L": ("plant", "L"), "J": ("plant", "J"), "B": ("plant", "B"),
+                      "K": ("plant", "K"), "Ka": ("amplifier", "gain"),
+                      "Vmax": ("amplifier", "output_limit_v"), "N": ("gear_ratio",),
+                      "Kt": ("sensors", "tacho_v_per_rad_s"), "Kpot": ("sensors", "pos_v_per_rad"),
+                      "pos-offset": ("sensors", "pos_offset_v"), "noise-tacho": ("noise", "tacho_v"),
+                      "noise-pos": ("noise", "pos_v"), "seed": ("noise", "seed")}.items():
+        got = _get(rig, *path)
+        if isinstance(got, (int, float)):
+            v[key] = got
+    tc_v = _get(rig, "effects", "coulomb_friction", "tc_v")
+    if isinstance(tc_v, (int, float)):  # the catalogue gives friction in bridge volts
+        v["Tc"] = tc_v * v["Ka"] * v["K"] / v["R"]
+    return [a for k, val in v.items() for a in (f"--{k}", repr(val) if k != "seed" else str(int(val)))]
+
+
+class Emulator:
+    """The firmware for ``board`` running under simavr, its UART on ``self.pty``.
+
+    Parameters
+    ----------
+    board : {"uno", "mega"}
+    rig : object, optional
+        Rig configuration for the plant (``rig.plant.R`` ...); defaults of the default rig.
+    speed : float
+        1.0 paces the simulation to real time (host timeouts and the watchdog as on the
+        bench); 0 runs as fast as the machine allows.
+    dac_log : str or Path, optional
+        File where the harness logs every change of the DAC output word
+        (``<simulated seconds> <word>`` per line).
+    loop : {"open", "closed"}, optional
+        Force the plant's loop; by default it follows each CONFIGURE (the patch panel).
+    """
+
+    def __init__(self, board: str = "uno", rig=None, *, speed: float = 1.0, dac_log=None,
+                 loop: str | None = None, extra_args: tuple = ()):
+        self.board, self.rig, self.speed = board, rig, speed
+        self.dac_log = str(dac_log) if dac_log else None
+        self.loop, self.extra_args = loop, tuple(extra_args)
+        self.proc: subprocess.Popen | None = None
+        self.pty: str | None = None
+        self._log = None
+
+    def command(self) -> list[str]:
+        elf, harness = build(self.board)
+        cmd = [str(harness), "--fw", str(elf), "--board", self.board, "--speed", repr(self.speed)]
+        cmd += plant_args(self.rig)
+        if self.dac_log:
+            cmd += ["--dac-log", self.dac_log]
+        if self.loop:
+            cmd += ["--loop", self.loop]
+        return cmd + list(self.extra_args)
+
+    def start(self, timeout: float = 10.0) -> str:
+        """Start the harness; return the pty path (its first line of stdout)."""
+        cmd = self.command()
+        # stderr to a file: simavr chats there and an unread pipe would stall it
+        self._log = tempfile.NamedTemporaryFile(prefix="labrig-emu-", suffix=".log", delete=False)
+        self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=self._log, text=True,
+                                     start_new_session=True)
+        deadline = time.monotonic() + timeout
+        line = self.proc.stdout.readline().strip()
+        if not line.startswith("/dev/") or time.monotonic() > deadline:
+            self.stop()
+            raise RigError(f"emulator did not start: {self.log_text()[-500:]}")
+        self.pty = line
+        return line
+
+    def log_text(self) -> str:
+        """What the harness wrote to stderr so far."""
+        try:
+            return Path(self._log.name).read_text(errors="replace") if self._log else ""
+        except OSError:
+            return ""
+
+    def alive(self) -> bool:
+        return self.proc is not None and self.proc.poll() is None
+
+    def stop(self) -> None:
+        """Stop the harness (SIGTERM, then SIGKILL after 3 s); never raises."""
+        p, self.proc = self.proc, None
+        if p is not None:
+            try:
+                if p.poll() is None:
+                    p.send_signal(signal.SIGTERM)
+                    try:
+                        p.wait(3)
+                    except subprocess.TimeoutExpired:
+                        p.kill()
+                        p.wait(3)
+            except Exception:
+                pass
+            if p.stdout:
+                p.stdout.close()
+        if self._log is not None:
+            self._log.close()
+            try:
+                os.unlink(self._log.name)
+            except OSError:
+                pass
+            self._log = None
+
+    def __enter__(self) -> "Emulator":
+        self.start()
+        return self
+
+    def __exit__(self, *exc) -> bool:
+        self.stop()
+        return False

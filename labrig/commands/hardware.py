@@ -1,0 +1,43 @@
+"""``labrig emulate``: the real firmware under simavr, its UART on a pseudo-terminal."""
+from __future__ import annotations
+
+import signal
+import sys
+import time
+
+from ..cli import command
+
+
+@command("emulate", "run the real firmware under simavr and serve it on a pty")
+def cmd_emulate(args):
+    """Build (if needed) and run the compiled bridge firmware in simavr, with the ADC fed
+    by a plant model of the rig. Prints the pty path as the first line of stdout, then
+    serves until interrupted: `labrig sweep --port <pty> -o DIR` runs the whole lab on it."""
+    from ..bridge.emulate import Emulator
+    from ..config import load_rig
+
+    rig = load_rig(args.rig)
+    emu = Emulator(board=args.board, rig=rig, speed=args.speed)
+    pty = emu.start()
+    print(pty, flush=True)
+    print(f"labrig emulate: {args.board} firmware in simavr on {pty}; Ctrl-C to stop",
+          file=sys.stderr, flush=True)
+    signal.signal(signal.SIGTERM, lambda *a: (_ for _ in ()).throw(KeyboardInterrupt()))
+    try:
+        while emu.alive():
+            time.sleep(0.2)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        emu.stop()
+    return 0
+
+
+def _configure(p):
+    p.add_argument("--board", default="uno", choices=["uno", "mega"])
+    p.add_argument("--rig", help="rig file for the plant model (default configs/rig_default.toml)")
+    p.add_argument("--speed", type=float, default=1.0,
+                   help="1 = real time (default, timeouts as on the bench); 0 = as fast as possible")
+
+
+cmd_emulate.configure = _configure

@@ -1,0 +1,201 @@
+"""``labrig identify``: fit R, L, J, B, K (+ effects) with JFO, PSO or CO."""
+from __future__ import annotations
+
+import sys
+import tomllib
+from pathlib import Path
+
+from ..cli import command, emit_json
+from ..errors import ConfigError, UserError
+from .progress import Progress
+
+
+def parse_assignments(text: str | None, opt: str, pair: bool = False) -> dict:
+    """``R=8,L=0.0085`` -> dict; with ``pair``: ``R=1:20`` -> {"R": (1, 20)}."""
+    out = {}
+    for item in filter(None, (s.strip() for s in (text or "").split(","))):
+        key, sep, val = item.partition("=")
+        if not sep:
+            raise UserError(f"{opt}: '{item}' is not NAME=VALUE")
+        try:
+            if pair:
+                lo, sep2, hi = val.partition(":")
+                if not sep2:
+                    raise ValueError
+                out[key.strip()] = (float(lo), float(hi))
+            else:
+                out[key.strip()] = float(val)
+        except ValueError:
+            raise UserError(f"{opt}: '{item}' needs {'LOW:HIGH numbers' if pair else 'a number'}") from None
+    return out
+
+
+def load_identify_config(path) -> dict:
+    """An optional TOML with [bounds] (name = [lo, hi]), [fixed] and effects = [...]."""
+    if not path:
+        return {}
+    path = Path(path)
+    if not path.exists():
+        raise ConfigError(f"{path}: identify config not found")
+    try:
+        doc = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{path}: not valid TOML ({exc})") from None
+    bad = set(doc) - {"bounds", "fixed", "effects"}
+    if bad:
+        raise ConfigError(f"{path}: unknown key '{sorted(bad)[0]}'; expected bounds, fixed, effects")
+    return {"bounds": {k: tuple(v) for k, v in doc.get("bounds", {}).items()},
+            "fixed": dict(doc.get("fixed", {})), "effects": doc.get("effects", [])}
+
+
+def common_model_options(p):
+    p.add_argument("data", nargs="+", help="folder(s) of runs, or run files")
+    p.add_argument("--effects", help="effects by catalogue name or FILE.py:Class, comma separated")
+    p.add_argument("--fix", help="fixed parameters, e.g. R=8.2,L=0.009 (SI units)")
+    p.add_argument("--bounds", help="search bounds, e.g. R=1:20,deadband.d_v=0:1")
+    p.add_argument("--config", help="TOML with [bounds], [fixed] and effects = [...]")
+    p.add_argument("--weights", default="p=1,q=1", help="position and speed weights (default p=1,q=1)")
+
+
+@command("identify", "fit the servo model (R, L, J, B, K + effects) with JFO, PSO or CO")
+def cmd_identify(args):
+    """Identify the DC-servo model on a data set. Reports the identifiable combinations
+    (Km, tau_m, tau_e) first, then R, L, J, B, K with identifiability warnings."""
+    from ..identify.engine import identify
+    from ..identify.modelfile import load_model, model_start, save_model
+    from ..model.effects import parse_effects
+    from ..runs import read_dataset
+
+    runs = read_dataset(args.data)
+    cfg = load_identify_config(args.config)
+    start, effects_text = None, args.effects
+    if args.model:
+        model = load_model(args.model)
+        start = model_start(model)
+        prev = model.get("effects", [])
+        new = [s for s in (args.effects or "").split(",") if s.strip() and s.strip() not in prev]
+        effects_text = ",".join(prev + new)
+    if not effects_text and cfg.get("effects"):
+        effects_text = ",".join(cfg["effects"])
+    effects = parse_effects(effects_text)
+    for e in effects:
+        if ":" in (effects_text or ""):
+            for spec in effects_text.split(","):
+                if spec.endswith(f":{type(e).__name__}"):
+                    e.spec = spec.strip()
+    bounds = {**cfg.get("bounds", {}), **parse_assignments(args.bounds, "--bounds", pair=True)}
+    fixed = {**cfg.get("fixed", {}), **parse_assignments(args.fix, "--fix")}
+    w = parse_assignments(args.weights, "--weights")
+    if set(w) - {"p", "q"}:
+        raise UserError("--weights: only p (position) and q (speed)")
+    methods = ["jfo", "pso", "co"] if args.method == "all" else [args.method]
+    dataset = {"paths": [str(Path(d)) for d in args.data], "runs": [r.name for r in runs]}
+    results = []
+    for m in methods:
+        iters = args.iters if m != "co" else 1
+        with Progress(f"identify {m}", total=iters if m != "co" else args.starts) as bar:
+            def cb(it, best, bar=bar):
+                bar.update(it)
+                bar.note(f"best fitness {best:.4g}")
+            res = identify(runs, m, effects, seed=args.seed, bounds=bounds, fixed=fixed,
+                           p=w.get("p", 1.0), q=w.get("q", 1.0), pop=args.pop, iters=args.iters,
+                           starts=args.starts, polish=args.polish, start=start, callback=cb,
+                           dataset=dataset)
+        results.append(res)
+    best = min(results, key=lambda r: r.fitness)
+    if args.output:
+        save_model(best.model_dict(), args.output)
+    if args.figures:
+        from ..report.identify_plots import plot_convergence
+
+        Path(args.figures).mkdir(parents=True, exist_ok=True)
+        plot_convergence(results, Path(args.figures) / "convergence.png")
+    if args.json:
+        if len(results) == 1:
+            emit_json(results[0].to_dict())
+        else:
+            emit_json({**best.to_dict(), "method": "all", "best": best.method,
+                       "results": {r.method: r.to_dict() for r in results}})
+    else:
+        print(format_identification(results))
+        if args.output:
+            print(f"\nmodel saved to {args.output}")
+    return 0
+
+
+def _configure(p):
+    common_model_options(p)
+    p.add_argument("--method", default="co", choices=["jfo", "pso", "co", "all"],
+                   help="identifier (default co; all = the paper's Table 2 side by side)")
+    p.add_argument("--seed", type=int, help="random seed (recorded; same seed, same result)")
+    p.add_argument("--model", help="start from a saved model (its effects are kept)")
+    p.add_argument("-o", "--output", help="save the model (best method) as JSON")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument("--pop", type=int, default=50, help="population of JFO/PSO (default 50)")
+    p.add_argument("--iters", type=int, default=200, help="iterations of JFO/PSO (default 200)")
+    p.add_argument("--starts", type=int, default=8, help="CO multi-starts (default 8)")
+    p.add_argument("--polish", action="store_true", help="polish JFO/PSO results with CO")
+    p.add_argument("--figures", help="folder for the convergence plot")
+
+
+cmd_identify.configure = _configure
+
+
+def _fmt(v, unit=""):
+    if v is None:
+        return "-"
+    return f"{v:.4g}{(' ' + unit) if unit else ''}"
+
+
+def format_identification(results) -> str:
+    """The paper's Table 2, done right: combinations first, then R..K, side by side."""
+    from ..model.servo import PLANT_NAMES, PLANT_UNITS
+
+    heads = [r.method for r in results]
+    rows = [("identifiable", None)]
+    for key, label in (("km", "Km (rad/s per V)"), ("tau_m_s", "tau_m (s)"), ("tau_e_s", "tau_e (s)")):
+        rows.append((label, [_interval(r.identifiable.get(key)) for r in results]))
+    rows.append(("parameters", None))
+    for n in PLANT_NAMES:
+        rows.append((f"{n} ({PLANT_UNITS[n]})",
+                     [_fmt(r.params[n]) + ("" if r.identifiable.get("parameters", {}).get(n, {}).get("identifiable", True) else " ?")
+                      for r in results]))
+    for r in results[:1]:
+        for e, ps in r.effect_params.items():
+            for k in ps:
+                rows.append((f"{e}.{k}", [_fmt(x.params.get(f"{e}.{k}")) for x in results]))
+    rows.append(("fit", None))
+    rows.append(("fitness (eq. 26)", [_fmt(r.fitness) for r in results]))
+    rows.append(("rmse/noise speed", [_fmt(r.metrics["rmse_over_noise"].get("speed")) for r in results]))
+    rows.append(("rmse/noise position", [_fmt(r.metrics["rmse_over_noise"].get("position")) for r in results]))
+    rows.append(("fit % speed", [_fmt(r.metrics["fit_percent"].get("speed")) for r in results]))
+    rows.append(("fit % position", [_fmt(r.metrics["fit_percent"].get("position")) for r in results]))
+    infos = [r.step_info() for r in results]
+    rows.append(("closed-loop step", None))
+    rows.append(("rise time (s)", [_fmt(i["rise_time_s"]) for i in infos]))
+    rows.append(("settling time (s)", [_fmt(i["settling_time_s"]) for i in infos]))
+    rows.append(("overshoot (%)", [_fmt(i["overshoot_percent"]) for i in infos]))
+    rows.append(("nfev / seconds", [f"{r.result.nfev} / {r.seconds:.1f}" for r in results]))
+    rows.append(("seed", [str(r.result.seed) for r in results]))
+    w0 = max(len(a) for a, _ in rows) + 2
+    w1 = max(24, *(len(c) + 2 for _, cs in rows if cs for c in cs))
+    lines = ["".ljust(w0) + "".join(h.ljust(w1) for h in heads)]
+    for label, cells in rows:
+        if cells is None:
+            lines.append(f"-- {label} " + "-" * (w0 + w1 * len(heads) - len(label) - 4))
+        else:
+            lines.append(label.ljust(w0) + "".join(c.ljust(w1) for c in cells))
+    warns = {w for r in results for w in r.identifiable.get("warnings", [])}
+    for w in sorted(warns):
+        lines.append(f"\nwarning: {w}")
+    if any("?" in c for _, cs in rows if cs for c in cs):
+        lines.append("? = not identifiable from these data alone (see the warning); the "
+                     "combinations above are.")
+    return "\n".join(lines)
+
+
+def _interval(d):
+    if not d:
+        return "-"
+    lo, hi = d["interval95"]
+    return f"{d['value']:.4g} [{lo:.3g}, {hi:.3g}]"

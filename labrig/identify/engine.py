@@ -1,0 +1,207 @@
+"""Identification: fit the servo model (R, L, J, B, K + chosen effects) to a data set
+with JFO, PSO or CO, then report fit quality and identifiability.
+
+``identify(runs, method=...)`` is the thin public function; the optimisers live in
+``jellyfish.py``, ``pso.py`` and ``local.py`` and share one result type.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import UserError
+from ..model.effects import Effect
+from ..model.servo import PLANT_NAMES, ServoParams
+from .identifiability import analyse_identifiability
+from .jellyfish import jellyfish
+from .local import local, polish as _polish
+from .objective import Objective, Space, build_space
+from .pso import pso
+from .result import IdentResult
+
+
+def _run_jfo(obj, lo, hi, x0, o):
+    return jellyfish(obj.fitness_batch, lo, hi, pop=o["pop"], iters=o["iters"], seed=o["seed"],
+                     rule=o.get("rule", "paper"), callback=o.get("callback"))
+
+
+def _run_pso(obj, lo, hi, x0, o):
+    return pso(obj.fitness_batch, lo, hi, pop=o["pop"], iters=o["iters"], seed=o["seed"],
+               callback=o.get("callback"))
+
+
+def _run_co(obj, lo, hi, x0, o):
+    res = local(obj.residuals, lo, hi, x0=x0, starts=o["starts"], seed=o["seed"],
+                jac_batch=obj.residuals_jac_batch, max_nfev=o.get("max_nfev"),
+                callback=o.get("callback"))
+    res.fun = float(np.sqrt(res.fun))  # local reports the mean square; fitness is its root
+    return res
+
+
+#: method name -> runner(objective, lower, upper, x0, options) -> IdentResult
+METHODS = {"jfo": _run_jfo, "pso": _run_pso, "co": _run_co}
+
+
+@dataclass
+class Identification:
+    """An identified model and everything known about how good it is."""
+
+    method: str
+    effects: list[Effect]
+    space: Space
+    params: dict                      # every parameter, physical units
+    result: IdentResult
+    metrics: dict
+    identifiable: dict
+    seconds: float
+    constants: dict
+    dataset: dict = field(default_factory=dict)
+
+    @property
+    def plant(self) -> dict:
+        return {k: self.params[k] for k in PLANT_NAMES}
+
+    @property
+    def effect_params(self) -> dict:
+        out = {}
+        for e in self.effects:
+            out[e.name] = {p.name: self.params[f"{e.name}.{p.name}"] for p in e.params}
+        return out
+
+    @property
+    def fitness(self) -> float:
+        return self.metrics["fitness"]
+
+    def servo(self) -> ServoParams:
+        c = self.constants
+        return ServoParams(**self.plant, Ka=c["Ka"], N=c["N"], Kt=c["Kt"], Kpot=c["Kpot"])
+
+    def step_info(self) -> dict:
+        c = self.constants
+        try:
+            return self.servo().position_step_info(c["kp"], c["kv"])
+        except Exception:  # an unstable identified loop has no step metrics
+            return {"rise_time_s": None, "settling_time_s": None, "overshoot_percent": None}
+
+    def to_dict(self) -> dict:
+        """The JSON of design.md 3.2."""
+        return {"method": self.method, "effects": [e.name for e in self.effects],
+                "params": self.plant, "effect_params": self.effect_params,
+                "fixed": sorted(self.space.fixed),
+                "fitness": self.metrics["fitness"],
+                "rmse_over_noise": self.metrics["rmse_over_noise"],
+                "fit_percent": self.metrics["fit_percent"],
+                "identifiable": self.identifiable, "nfev": int(self.result.nfev),
+                "nit": int(self.result.nit), "seconds": round(self.seconds, 3),
+                "seed": self.result.seed, "message": self.result.message,
+                "history": [float(h) for h in self.result.history],
+                "step_info": self.step_info(), "noise": self.metrics["noise"],
+                "per_run": self.metrics["per_run"]}
+
+    def model_dict(self) -> dict:
+        """What ``-o model.json`` saves, for compare/diagnose/identify --model."""
+        from .modelfile import FORMAT
+
+        return {"format": FORMAT, "structure": "dc-servo", "method": self.method,
+                "effects": [getattr(e, "spec", e.name) for e in self.effects],
+                "params": self.plant, "effect_params": self.effect_params,
+                "constants": self.constants, "fitness": self.metrics["fitness"],
+                "rmse_over_noise": self.metrics["rmse_over_noise"],
+                "fit_percent": self.metrics["fit_percent"], "noise": self.metrics["noise"],
+                "seed": self.result.seed, "nfev": int(self.result.nfev),
+                "identifiable": {k: self.identifiable[k] for k in ("km", "tau_m_s", "tau_e_s")},
+                "dataset": self.dataset}
+
+
+def dataset_constants(runs) -> dict:
+    """Known rig constants from the runs' sidecars (the first run speaks for all)."""
+    r0 = runs[0]
+    closed = [r for r in runs if r.loop == "closed"]
+    exp = closed[0].experiment if closed else {}
+    return {"Ka": float(r0.meta.get("rig", {}).get("amplifier_gain", 1.0)), "N": r0.gear_ratio,
+            "Kt": float(r0.sensors.get("tacho_v_per_rad_s", 1.0)),
+            "Kpot": float(r0.sensors.get("pos_v_per_rad", 1.0)),
+            "kp": float(exp.get("position_gain", 2.0)), "kv": float(exp.get("velocity_gain", 0.15))}
+
+
+def initial_point(space: Space, effects, runs, constants, start: dict | None) -> dict:
+    """A physical starting point: the start model where given, else the middle of the
+    (log) box for the plant and each effect's data-driven guess."""
+    mid = {n: float(np.sqrt(lo * hi)) if lg else 0.5 * (lo + hi)
+           for n, lo, hi, lg in zip(space.names, space.lower, space.upper, space.log)}
+    point = dict(mid)
+    if start:
+        point.update({k: v for k, v in start.items() if k in point})
+    plant = ServoParams(**{k: point[k] for k in PLANT_NAMES}, Ka=constants["Ka"],
+                        N=constants["N"], Kt=constants["Kt"], Kpot=constants["Kpot"])
+    for e in effects:
+        guess = e.initial_guess(runs, plant)
+        for p in e.params:
+            key = f"{e.name}.{p.name}"
+            if not (start and key in start):
+                point[key] = float(guess[p.name])
+    point.update(space.fixed)
+    return point
+
+
+def identify(runs, method: str = "co", effects: list[Effect] = (), *, seed: int | None = None,
+             bounds: dict | None = None, fixed: dict | None = None, p: float = 1.0,
+             q: float = 1.0, pop: int = 50, iters: int = 200, starts: int = 8,
+             polish: bool = False, start: dict | None = None, callback=None,
+             dataset: dict | None = None, identifiability: bool = True,
+             max_nfev: int | None = None) -> Identification:
+    """Fit the servo model to ``runs``.
+
+    Parameters
+    ----------
+    runs : list of Run
+    method : {"jfo", "pso", "co"}
+    effects : list of Effect
+    seed : int, optional
+        Recorded in the result; the same seed reproduces the fit exactly.
+    bounds, fixed : dict
+        ``{name: (lower, upper)}`` and ``{name: value}``; names are R, L, J, B, K
+        and ``effect.param``.
+    p, q : float
+        Weights of position and speed (each already divided by its noise level).
+    start : dict, optional
+        Physical parameters to start from (a saved model): CO starts there, JFO and
+        PSO are polished from the better of their result and the start.
+    """
+    if method not in METHODS:
+        raise UserError(f"--method: unknown method '{method}'; choose {', '.join(METHODS)} or all")
+    if not runs:
+        raise UserError("the data set is empty: give a folder with at least one run")
+    t0 = time.perf_counter()
+    effects = list(effects)
+    space = build_space(effects, bounds, fixed)
+    obj = Objective(runs, effects, space, p=p, q=q)
+    constants = dataset_constants(runs)
+    lo, hi = space.search_bounds()
+    x0 = space.to_search(initial_point(space, effects, runs, constants, start))
+    seed = int(np.random.default_rng().integers(2 ** 31)) if seed is None else int(seed)
+    opts = {"pop": pop, "iters": iters, "seed": seed, "starts": starts, "callback": callback,
+            "max_nfev": max_nfev}
+    try:
+        res = METHODS[method](obj, lo, hi, x0 if (start or method == "co") else None, opts)
+    except ValueError as exc:  # the optimisers name the bad argument
+        raise UserError(str(exc)) from None
+    name = method
+    if method != "co" and (polish or start):
+        best = res
+        if start is not None and np.sqrt(np.mean(obj.residuals(x0) ** 2) * obj.m) < res.fun:
+            best = IdentResult(x=x0, fun=float(res.fun), nfev=res.nfev, nit=res.nit,
+                               history=res.history, seed=res.seed, method=method)
+        res = _polish(best, obj.residuals, lo, hi, jac_batch=obj.residuals_jac_batch)
+        res.fun = float(np.sqrt(res.fun))
+        name = f"{method}+co"
+    res.nfev = max(int(res.nfev), obj.nfev)
+    phys = space.to_physical(res.x[None, :])[0]
+    metrics = obj.metrics(phys)
+    ident = analyse_identifiability(obj, res.x, constants["Ka"]) if identifiability else {}
+    return Identification(method=name, effects=effects, space=space,
+                          params=space.as_dict(phys), result=res, metrics=metrics,
+                          identifiable=ident, seconds=time.perf_counter() - t0,
+                          constants=constants, dataset=dataset or {})

@@ -1,0 +1,235 @@
+"""The identification objective (the paper's eq. 26, made dimensionless).
+
+Each channel's residual is divided by its noise level, estimated from the data, so
+the weights p (position) and q (speed) are pure numbers and ``rmse_over_noise``
+of 1.0 means the model explains everything the noise allows:
+
+    fitness = sqrt( (p sum (theta_m - theta_s)^2 / s_theta^2
+                    + q sum (w_m - w_s)^2 / s_w^2) / (N_theta + N_w) )
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import UserError
+from ..model.effects import Effect, get_effect
+from ..model.servo import PLANT_NAMES
+from ..model.simulate import Simulator, prepare
+
+#: generic plant bounds (SI units); wide enough for bench servos from 10 W to 1 kW
+DEFAULT_BOUNDS = {"R": (0.1, 100.0), "L": (1e-5, 1.0), "J": (1e-7, 1e-1),
+                  "B": (1e-9, 1e-1), "K": (1e-3, 2.0)}
+
+
+def noise_level(y: np.ndarray) -> float:
+    """Noise standard deviation of a sampled signal.
+
+    Second differences remove ramps and steady motion; the median absolute deviation
+    ignores the few large values at edges; the floor is the quantisation noise
+    q/sqrt(12) with q the signal's smallest step (a quiet quantised signal shows no
+    scatter at all, yet it is only known to within q).
+    """
+    y = np.asarray(y, float)
+    d2 = np.diff(y, 2)
+    sigma = 1.4826 * np.median(np.abs(d2 - np.median(d2))) / np.sqrt(6.0)
+    levels = np.unique(np.round(y, 12))
+    steps = np.diff(levels)
+    steps = steps[steps > 1e-12]
+    q = float(np.percentile(steps, 5)) if len(steps) else 0.0
+    return float(max(sigma, q / np.sqrt(12.0), 1e-12))
+
+
+@dataclass
+class Space:
+    """The search space: plant and effect parameters, fixed ones removed.
+
+    Positive parameters spanning decades are searched as log10; the optimisers see
+    only the free coordinates in ``lower``/``upper``.
+    """
+
+    names: list[str]               # all parameter names: R..K then "effect.param"
+    lower: np.ndarray              # physical bounds of every parameter
+    upper: np.ndarray
+    log: np.ndarray                # bool per parameter
+    fixed: dict = field(default_factory=dict)  # name -> physical value
+
+    @property
+    def free(self) -> list[str]:
+        return [n for n in self.names if n not in self.fixed]
+
+    @property
+    def free_idx(self) -> np.ndarray:
+        return np.array([i for i, n in enumerate(self.names) if n not in self.fixed], int)
+
+    def _fwd(self, v, idx):
+        return np.where(self.log[idx], np.log10(np.maximum(v, 1e-300)), v)
+
+    def search_bounds(self):
+        i = self.free_idx
+        return self._fwd(self.lower[i], i), self._fwd(self.upper[i], i)
+
+    def to_search(self, physical: dict) -> np.ndarray:
+        i = self.free_idx
+        v = np.array([physical[self.names[k]] for k in i], float)
+        lo, hi = self.lower[i], self.upper[i]
+        return self._fwd(np.clip(v, lo, hi), i)
+
+    def to_physical(self, X: np.ndarray) -> np.ndarray:
+        """(P, D_free) search coordinates -> (P, D_all) physical values."""
+        X = np.atleast_2d(X)
+        out = np.empty((X.shape[0], len(self.names)))
+        i = self.free_idx
+        out[:, i] = np.where(self.log[i], 10.0 ** X, X)
+        for n, v in self.fixed.items():
+            out[:, self.names.index(n)] = v
+        return out
+
+    def as_dict(self, row: np.ndarray) -> dict:
+        return {n: float(v) for n, v in zip(self.names, row)}
+
+
+def build_space(effects: list[Effect], bounds: dict | None = None, fixed: dict | None = None) -> Space:
+    bounds, fixed = dict(bounds or {}), dict(fixed or {})
+    names, lo, hi, log = [], [], [], []
+    for n in PLANT_NAMES:
+        names.append(n)
+        a, b = bounds.pop(n, DEFAULT_BOUNDS[n])
+        lo.append(a), hi.append(b), log.append(True)
+    for e in effects:
+        for p in e.params:
+            key = f"{e.name}.{p.name}"
+            a, b = bounds.pop(key, (p.lower, p.upper))
+            names.append(key), lo.append(a), hi.append(b), log.append(bool(p.log and a > 0))
+    if bounds:
+        raise UserError(f"--bounds: unknown parameter '{sorted(bounds)[0]}'; the model has "
+                        f"{', '.join(names)}")
+    for n, v in fixed.items():
+        if n not in names:
+            raise UserError(f"--fix: unknown parameter '{n}'; the model has {', '.join(names)}")
+    for n, a, b in zip(names, lo, hi):
+        if not a < b:
+            raise UserError(f"--bounds: {n} has lower {a:g} >= upper {b:g}")
+    if len(fixed) >= len(names):
+        raise UserError("--fix: every parameter is fixed; nothing left to identify")
+    return Space(names, np.array(lo, float), np.array(hi, float), np.array(log), fixed)
+
+
+class Objective:
+    """Population-vectorised residuals and fitness of a model on a data set."""
+
+    def __init__(self, runs, effects: list[Effect], space: Space, p: float = 1.0,
+                 q: float = 1.0, substeps: int = 16):
+        if not runs:
+            raise UserError("the data set is empty: give a folder with at least one run")
+        self.runs = prepare(runs)
+        self.effects = list(effects)
+        self.space = space
+        self.p, self.q = float(p), float(q)
+        if self.p < 0 or self.q < 0 or self.p + self.q == 0:
+            raise UserError("weights: p and q must be >= 0 and not both 0")
+        self.sim = Simulator(self.runs, self.effects, substeps=substeps)
+        ws = [noise_level(r.w) for r in self.runs if r.w is not None]
+        ts = [noise_level(r.theta) for r in self.runs if r.theta is not None]
+        self.sigma_w = float(np.median(ws)) if ws else 1.0
+        self.sigma_theta = float(np.median(ts)) if ts else 1.0
+        self.use_w = bool(ws) and self.q > 0
+        self.use_theta = bool(ts) and self.p > 0
+        self.n_w = sum(len(r.u) for r in self.runs if r.w is not None) if self.use_w else 0
+        self.n_theta = sum(len(r.u) for r in self.runs if r.theta is not None) if self.use_theta else 0
+        self.m = self.n_w + self.n_theta
+        self.nfev = 0
+        self._weights = [(r.w, np.sqrt(self.q) / self.sigma_w if self.use_w and r.w is not None else 0.0,
+                          r.theta, np.sqrt(self.p) / self.sigma_theta
+                          if self.use_theta and r.theta is not None else 0.0) for r in self.runs]
+
+    # -- parameters -------------------------------------------------------------------
+    def split(self, phys: np.ndarray):
+        """(P, D_all) physical -> plant (P, 5), {effect: {param: (P,)}}."""
+        plant = phys[:, :5]
+        ep, k = {}, 5
+        for e in self.effects:
+            ep[e.name] = {}
+            for prm in e.params:
+                ep[e.name][prm.name] = phys[:, k]
+                k += 1
+        return plant, ep
+
+    def simulate_physical(self, phys: np.ndarray) -> list[dict]:
+        plant, ep = self.split(np.atleast_2d(phys))
+        return self.sim.simulate(plant, ep)
+
+    # -- residuals ----------------------------------------------------------------------
+    def _stack(self, sims) -> np.ndarray:
+        parts = []
+        for r, s in zip(self.runs, sims):
+            if self.use_theta and r.theta is not None:
+                parts.append(np.sqrt(self.p) * (r.theta[None, :] - s["theta"]) / self.sigma_theta)
+            if self.use_w and r.w is not None:
+                parts.append(np.sqrt(self.q) * (r.w[None, :] - s["w"]) / self.sigma_w)
+        R = np.concatenate(parts, axis=1)
+        # a wild candidate (unstable, overflowing) must not poison the optimiser's sums
+        return np.clip(np.nan_to_num(R, nan=1e6, posinf=1e6, neginf=-1e6), -1e6, 1e6)
+
+    def residuals_batch(self, X: np.ndarray) -> np.ndarray:
+        """(P, D_free) search points -> (P, m) normalised residuals."""
+        X = np.atleast_2d(X)
+        self.nfev += X.shape[0]
+        with np.errstate(all="ignore"):
+            return self._stack(self.simulate_physical(self.space.to_physical(X)))
+
+    def residuals(self, x: np.ndarray) -> np.ndarray:
+        return self.residuals_batch(x[None, :])[0] / np.sqrt(self.m)
+
+    def residuals_jac_batch(self, X: np.ndarray) -> np.ndarray:
+        return self.residuals_batch(X) / np.sqrt(self.m)
+
+    def fitness_batch(self, X: np.ndarray) -> np.ndarray:
+        """(P, D_free) -> (P,) fitness; the fused kernel never stores trajectories."""
+        X = np.atleast_2d(X)
+        self.nfev += X.shape[0]
+        plant, ep = self.split(self.space.to_physical(X))
+        with np.errstate(all="ignore"):
+            f = np.sqrt(self.sim.sse(plant, ep, self._weights) / self.m)
+        return np.where(np.isfinite(f), f, np.inf)
+
+    # -- adequacy measures (physics.md 5) --------------------------------------------
+    def metrics(self, phys_row: np.ndarray) -> dict:
+        sims = self.simulate_physical(phys_row[None, :])
+        return adequacy(self.runs, sims, self.sigma_w, self.sigma_theta, self.p, self.q)
+
+
+def adequacy(runs, sims, sigma_w, sigma_theta, p=1.0, q=1.0, index=0) -> dict:
+    """fitness, rmse_over_noise (overall/per channel/per run) and fit_percent."""
+    sq = {"speed": [], "position": []}
+    meas = {"speed": [], "position": []}
+    per_run = {}
+    for r, s in zip(runs, sims):
+        entry = {}
+        for ch, y, yh, sig in (("speed", r.w, s["w"][index], sigma_w),
+                               ("position", r.theta, s["theta"][index], sigma_theta)):
+            if y is None:
+                continue
+            e = (y - yh) / sig
+            sq[ch].append(e ** 2)
+            meas[ch].append((y, yh))
+            entry[ch] = float(np.sqrt(np.mean(e ** 2)))
+        per_run[r.name] = entry
+    out = {"rmse_over_noise": {}, "fit_percent": {}, "per_run": per_run,
+           "noise": {"speed_rad_s": sigma_w, "position_rad": sigma_theta}}
+    tot, n = 0.0, 0
+    for ch, w in (("speed", q), ("position", p)):
+        if not sq[ch]:
+            continue
+        e2 = np.concatenate(sq[ch])
+        out["rmse_over_noise"][ch] = float(np.sqrt(np.mean(e2)))
+        tot += w * e2.sum()
+        n += len(e2)
+        y = np.concatenate([a for a, _ in meas[ch]])
+        yh = np.concatenate([b for _, b in meas[ch]])
+        out["fit_percent"][ch] = float(100 * (1 - np.linalg.norm(y - yh) / np.linalg.norm(y - y.mean())))
+    allsq = np.concatenate([np.concatenate(v) for v in sq.values() if v])
+    out["rmse_over_noise"]["overall"] = float(np.sqrt(np.mean(allsq)))
+    out["fitness"] = float(np.sqrt(tot / n))
+    return out

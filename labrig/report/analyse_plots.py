@@ -1,0 +1,161 @@
+"""Figures of ``labrig analyse`` (matplotlib, Agg backend, PNG).
+
+- ``edges_<run>.png``: every edge of a run, speed against time from the edge, with
+  the first-order fit and the 63 % point;
+- ``speed_vs_voltage.png``: steady speed per level with its spread, the fitted line
+  and the deadband;
+- ``km_vs_amplitude.png``: the paper's Km = w/V against amplitude with the
+  tolerance band that decides the gain trend.
+"""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+MAX_EDGES = 16  # per figure; more edges would make unreadable panels
+
+
+def plot_analysis(res, figdir: Path) -> list[Path]:
+    """Write every figure of an :class:`~labrig.analyse.AnalysisResult`; return the paths."""
+    figdir = Path(figdir)
+    figdir.mkdir(parents=True, exist_ok=True)
+    out = []
+    for ra in res.runs:
+        if getattr(ra, "skipped", None) is None and getattr(ra, "edges", None):
+            p = plot_edges(ra, figdir / f"edges_{ra.name}.png")
+            if p:
+                ra.figure = str(p)
+                out.append(p)
+    out.append(plot_speed_vs_voltage(res, figdir / "speed_vs_voltage.png"))
+    out.append(plot_km_vs_amplitude(res, figdir / "km_vs_amplitude.png"))
+    return out
+
+
+def plot_edges(ra, path: Path) -> Path | None:
+    """One panel per edge: measured speed, first-order fit, 63 % point."""
+    edges = [e for e in ra.edges if e._plot is not None][:MAX_EDGES]
+    if not edges:
+        return None
+    n = len(edges)
+    ncol = min(4, n)
+    nrow = math.ceil(n / ncol)
+    fig, axes = plt.subplots(nrow, ncol, figsize=(3.6 * ncol, 2.8 * nrow), squeeze=False)
+    src = "tacho" if ra.sensor == "tacho" else "pot (derivative, smoothed)"
+    for ax, e in zip(axes.flat, edges):
+        d = e._plot
+        s, w, fit = d["s"], d["w"], d["fit"]
+        ax.plot(s, w, ".", ms=2, color="0.5", label=f"speed ({src})")
+        ax.plot(s, fit, "-", color="C3", lw=1.4, label="first-order fit")
+        ax.axvline(0, color="0.7", lw=0.8)
+        if e.tau63_s is not None:
+            y63 = e.speed_from + (1 - math.exp(-1)) * (e.speed_to - e.speed_from)
+            ax.plot([e.tau63_s], [y63], "o", mfc="none", color="C0", label="63 % point")
+        ax.set_title(f"{e.v_from:+.2f} -> {e.v_to:+.2f} V at {e.t_s:.2f} s\n"
+                     f"tau {e.tau_s * 1e3:.0f} ms, 63 %: "
+                     + (f"{e.tau63_s * 1e3:.0f} ms" if e.tau63_s is not None else "-"),
+                     fontsize=8)
+        ax.set_xlim(s[0], min(s[-1], 8 * e.tau_s))
+        ax.tick_params(labelsize=7)
+        ax.grid(alpha=0.3)
+    for ax in axes.flat[n:]:
+        ax.axis("off")
+    for ax in axes[-1]:
+        ax.set_xlabel("time from edge (s)", fontsize=8)
+    for ax in axes[:, 0]:
+        ax.set_ylabel("motor speed (rad/s)", fontsize=8)
+    axes.flat[0].legend(fontsize=7, loc="best")
+    more = f" (first {MAX_EDGES} of {len(ra.edges)})" if len(ra.edges) > MAX_EDGES else ""
+    fig.suptitle(f"{ra.name}: edges and first-order fits{more}", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def plot_speed_vs_voltage(res, path: Path) -> Path:
+    """Steady speed against input voltage, the fitted line(s) and the deadband."""
+    fig, ax = plt.subplots(figsize=(6.4, 4.6))
+    lv = [L for L in res.levels if L.speed is not None]
+    mov = [L for L in lv if L.moving]
+    rest = [L for L in lv if not L.moving]
+    if mov:
+        ax.errorbar([L.v for L in mov], [L.speed for L in mov],
+                    yerr=[L.spread or 0.0 for L in mov], fmt="o", ms=4, capsize=3,
+                    color="C0", label="steady speed (spread)")
+    if rest:
+        ax.plot([L.v for L in rest], [L.speed for L in rest], "x", color="0.4",
+                label="at rest")
+    line = res.line
+    vmax = max([abs(L.v) for L in lv] + [0.1])
+    if line.km is not None and line.intercepts:
+        for key, sgn in (("fwd", 1), ("rev", -1)):
+            c = line.intercepts.get(key)
+            if c is None:
+                continue
+            # start each branch where it meets zero speed (the deadband edge), not at 0 V
+            v0 = -c / line.km if line.km else 0.0
+            v0 = v0 if v0 * sgn > 0 else 0.0
+            vv = np.linspace(v0, sgn * vmax * 1.05, 50)
+            ax.plot(vv, line.km * vv + c, "-", color="C3", lw=1,
+                    label=f"fit: slope {line.km:.4g} rad/s per V" if key == "fwd" or
+                    "fwd" not in line.intercepts else None)
+    if res.deadband_v is not None and res.deadband_v > 0:
+        ax.axvspan(-res.deadband_v, res.deadband_v, color="C1", alpha=0.2,
+                   label=f"deadband \u00b1{res.deadband_v:.3f} V")
+    if res.breakaway_v is not None:
+        for sgn in (1, -1):
+            ax.axvline(sgn * res.breakaway_v, color="C2", ls="--", lw=1,
+                       label=f"breakaway {res.breakaway_v:.3g} V" if sgn > 0 else None)
+    ax.axhline(0, color="0.6", lw=0.8)
+    ax.axvline(0, color="0.6", lw=0.8)
+    ax.set_xlabel("input voltage Vm (V)")
+    ax.set_ylabel("steady motor speed (rad/s)")
+    ax.set_title(f"Speed against voltage — km {_fmt(res.km, '.4g')} rad/s per V, "
+                 f"deadband {_fmt(res.deadband_v, '.3f')} V", fontsize=10)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8, loc="upper left")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def plot_km_vs_amplitude(res, path: Path) -> Path:
+    """The paper's Km = w/V per level against |V|, both directions, tolerance band."""
+    fig, ax = plt.subplots(figsize=(6.4, 4.2))
+    pts = [L for L in res.levels if L.km_paper is not None and L.moving]
+    for sgn, mk, lab in ((1, "o", "forward"), (-1, "s", "reverse")):
+        p = [L for L in pts if np.sign(L.v) == sgn]
+        if p:
+            ax.plot([abs(L.v) for L in p], [L.km_paper for L in p], mk, mfc="none",
+                    label=lab)
+    kb = res.trend.get("km_by_amplitude", [])
+    if kb:
+        a, k = np.array(kb).T
+        ax.plot(a, k, "-", color="0.3", lw=1, label="mean per amplitude")
+        m = float(np.mean(k))
+        thr = res.trend.get("threshold", res.tolerance)
+        ax.axhspan(m * (1 - thr / 2), m * (1 + thr / 2), color="C2", alpha=0.15,
+                   label=f"constant band ({100 * thr:.1f} % over the range)")
+    if res.km is not None and res.line.region == "linear":
+        ax.axhline(res.km, color="C3", ls="--", lw=1, label=f"incremental km {res.km:.4g}")
+    ax.set_xlabel("amplitude |Vm| (V)")
+    ax.set_ylabel("Km = w / Vm (rad/s per V)")
+    ax.set_ylim(bottom=0)
+    ax.set_title(f"Km against amplitude: {res.gain_trend}", fontsize=10)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8, loc="lower right")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def _fmt(x, fmt):
+    return "-" if x is None else format(x, fmt)

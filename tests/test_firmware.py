@@ -1,0 +1,238 @@
+"""Firmware tests: host unit tests of the C core, AVR builds, and the real compiled
+firmware under simavr driven through SerialBridge over a pty (end to end, link faults,
+watchdog, a vanishing board). Needs gcc-avr, avr-libc, arduino-core-avr, simavr,
+libsimavr-dev, libsimavrparts1."""
+from __future__ import annotations
+
+import os
+import random
+import select
+import subprocess
+import threading
+import time
+import tty
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from labrig.bridge.base import Experiment
+from labrig.bridge.emulate import APT_PACKAGES, FIRMWARE_DIR, Emulator, missing_tools
+from labrig.bridge.serial import SerialBridge, bridge_settings, volts_to_dac_word
+from labrig.errors import RigError, UserError
+
+_missing = missing_tools()
+pytestmark = [
+    pytest.mark.firmware,
+    pytest.mark.skipif(bool(_missing), reason=f"firmware toolchain missing ({', '.join(_missing)}): "
+                                              f"apt-get install {APT_PACKAGES}"),
+]
+
+RIG = {"bridge": {"sample_rate_hz": 1000.0, "output_limit_v": 2.5, "dac_bits": 12,
+                  "dac_range_v": [-5.0, 5.0], "adc_bits": 10, "adc_range_v": [-10.0, 10.0],
+                  "watchdog_ms": 500, "calibration": {}}}
+LSB = 10.0 / 4096
+
+
+def _make(*targets):
+    return subprocess.run(["make", "-C", str(FIRMWARE_DIR), "--no-print-directory", *targets],
+                          capture_output=True, text=True, timeout=300)
+
+
+def test_core_unit_tests_pass():
+    r = _make("test")
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert " passed, 0 failed" in r.stdout
+
+
+def test_both_boards_build_and_report_size():
+    r = _make("uno", "mega")
+    assert r.returncode == 0, r.stdout + r.stderr
+    for board in ("uno", "mega"):
+        assert (FIRMWARE_DIR / "build" / board / "labrig_bridge.hex").exists()
+        assert f"{board}: flash " in r.stdout and "RAM" in r.stdout
+
+
+def _plan(exp, idx):
+    """The planned output at sample ``idx``. Evaluated half a sample late because
+    Experiment.waveform_at rounds exact segment edges either way (0.7 - 0.2 < 0.5 in
+    floating point); the board switches exactly at the edge sample."""
+    return exp.waveform_at((idx + 0.5) / exp.sample_rate_hz)
+
+
+def _run(bridge, exp, timeout=2.0):
+    bridge.configure(exp)
+    bridge.start()
+    blocks = []
+    while (b := bridge.read(timeout)) is not None:
+        blocks.append(b)
+    bridge.stop()
+    idx = np.concatenate([b.index for b in blocks])
+    u = np.concatenate([b.u for b in blocks])
+    return idx, u, blocks
+
+
+def test_end_to_end_square_wave():
+    exp = Experiment(name="sq_1.50V", amplitude_v=1.5, frequency_hz=1.0, lead_in_s=0.25, periods=1.75)
+    with Emulator("uno", RIG) as emu, SerialBridge(emu.pty, RIG) as bridge:
+        assert bridge.hello["firmware"].startswith("labrig-fw")
+        idx, u, blocks = _run(bridge, exp)
+        c = bridge.counters()
+    assert c["dropped_samples"] == 0 and c["crc_errors"] == 0
+    assert np.array_equal(idx, np.arange(exp.n_samples))
+    plan = _plan(exp, idx)
+    assert np.max(np.abs(u - plan)) <= LSB          # the plan, to one DAC step
+    tacho = np.concatenate([b.tacho for b in blocks])
+    # the motor answers: fast positive during the first high half, negative in the low one
+    assert tacho[600:740].mean() > 2.0 and tacho[1100:1240].mean() < -2.0
+
+
+def test_refuses_beyond_output_limit():
+    with Emulator("uno", RIG) as emu, SerialBridge(emu.pty, RIG) as bridge:
+        with pytest.raises(UserError, match="2.5 V"):
+            bridge.configure(Experiment(name="too_big", amplitude_v=3.0))
+
+
+class FaultyProxy:
+    """A pty between host and board that corrupts and drops board->host bytes."""
+
+    def __init__(self, board_pty: str, p_flip: float, p_drop: float, seed: int = 7):
+        self.board = os.open(board_pty, os.O_RDWR | os.O_NOCTTY)
+        tty.setraw(self.board)
+        self.master, self.slave = os.openpty()
+        tty.setraw(self.slave)   # keep a slave fd open so the master never sees EIO
+        self.path = os.ttyname(self.slave)
+        self.rng = random.Random(seed)
+        self.p_flip, self.p_drop = p_flip, p_drop
+        self.flipped = self.dropped = 0
+        self._stop = False
+        self.thread = threading.Thread(target=self._pump, daemon=True)
+        self.thread.start()
+
+    def _write_all(self, fd, data):
+        while data:   # blocking fds: a short write is retried, nothing is lost
+            n = os.write(fd, data)
+            data = data[n:]
+
+    def _pump(self):
+        while not self._stop:
+            r, _, _ = select.select([self.board, self.master], [], [], 0.05)
+            if self.board in r:
+                out = bytearray()
+                for b in os.read(self.board, 4096):
+                    x = self.rng.random()
+                    if x < self.p_drop:
+                        self.dropped += 1
+                        continue
+                    if x < self.p_drop + self.p_flip:
+                        b ^= 1 << self.rng.randrange(8)
+                        self.flipped += 1
+                    out.append(b)
+                self._write_all(self.master, bytes(out))
+            if self.master in r:
+                self._write_all(self.board, os.read(self.master, 4096))
+
+    def close(self):
+        self._stop = True
+        self.thread.join(2)
+        for fd in (self.board, self.master, self.slave):
+            os.close(fd)
+
+
+def test_link_faults_detected_counted_never_a_wrong_sample():
+    exp = Experiment(name="sq_2.00V", amplitude_v=2.0, frequency_hz=1.0, lead_in_s=0.2, periods=2.5)
+    with Emulator("uno", RIG) as emu:
+        proxy = FaultyProxy(emu.pty, p_flip=1 / 1500, p_drop=1 / 1500)
+        try:
+            with SerialBridge(proxy.path, RIG) as bridge:
+                idx, u, _ = _run(bridge, exp)
+                c = bridge.counters()
+        finally:
+            proxy.close()
+    assert proxy.flipped + proxy.dropped > 10
+    assert c["crc_errors"] + c["framing_errors"] > 0
+    assert c["dropped_samples"] == exp.n_samples - len(idx) > 0
+    assert np.all(np.diff(idx) > 0)
+    # every sample that got through is the one the board took: its DAC word is the plan's
+    s = bridge_settings(RIG)
+    want = np.array([volts_to_dac_word(v, s) for v in _plan(exp, idx)])
+    got = np.rint((u + 5.0) / LSB)
+    assert np.array_equal(got, want)
+
+
+def test_silent_host_trips_watchdog_to_zero(tmp_path):
+    log = tmp_path / "dac.log"
+    exp = Experiment(name="hold", waveform="constant", amplitude_v=1.0, lead_in_s=0.0, duration_s=10.0)
+    with Emulator("uno", RIG, dac_log=log) as emu, SerialBridge(emu.pty, RIG) as bridge:
+        bridge.configure(exp)
+        bridge.start()
+        assert bridge.read() is not None
+        time.sleep(1.5)                       # the host goes silent: no heartbeats
+        with pytest.raises(RigError, match="WATCHDOG"):
+            while bridge.read() is not None:
+                pass
+        bridge.stop()
+        assert bridge.counters()["board_watchdog_trips"] == 1
+    words = [int(line.split()[1]) for line in log.read_text().split("\n") if line.strip()]
+    s = bridge_settings(RIG)
+    assert volts_to_dac_word(1.0, s) in words
+    assert words[-1] == volts_to_dac_word(0.0, s) == 2048
+
+
+def test_board_vanishing_mid_stream_raises_rig_error():
+    exp = Experiment(name="long", waveform="square", amplitude_v=1.0, frequency_hz=1.0, duration_s=20.0)
+    emu = Emulator("uno", RIG)
+    emu.start()
+    try:
+        bridge = SerialBridge(emu.pty, RIG)
+        bridge.open()
+        bridge.configure(exp)
+        bridge.start()
+        for _ in range(5):
+            assert bridge.read() is not None
+        emu.stop()                            # the board is unplugged
+        t0 = time.monotonic()
+        with pytest.raises(RigError) as err:
+            while bridge.read(timeout=1.0) is not None:
+                pass
+        assert time.monotonic() - t0 < 5
+        msg = str(err.value)
+        assert ("no data from" in msg or "lost" in msg) and "\n" not in msg
+        bridge.zero()                         # must not raise on a dead link
+        bridge.close()
+    finally:
+        emu.stop()
+
+
+def test_cli_sweep_on_emulated_board_then_board_vanishes(tmp_path):
+    """`labrig sweep --port` against the real firmware: runs that `labrig analyse` reads;
+    the board vanishing mid-sweep gives exit 1, one clear line, and intact finished runs."""
+    import sys
+
+    from labrig.runs import read_dataset
+
+    plan = tmp_path / "plan.toml"
+    plan.write_text("[defaults]\nlead_in_s = 0.3\n[[experiment]]\namplitudes_v = [1.2, 2.0, 2.5]\n"
+                    "frequency_hz = 0.5\nperiods = 1\n")
+    with Emulator("uno", speed=1.0) as emu:
+        proc = subprocess.Popen([sys.executable, "-m", "labrig", "sweep", "--port", emu.pty,
+                                 "--plan", str(plan), "-o", str(tmp_path / "ds")],
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        deadline = time.time() + 30
+        while time.time() < deadline and not (tmp_path / "ds" / "sq_2.00V.json").exists():
+            time.sleep(0.05)
+        time.sleep(0.5)       # the third run is now streaming
+        emu.stop()            # ... and the board disappears
+        out, err = proc.communicate(timeout=30)
+    assert proc.returncode == 1, err
+    assert "Traceback" not in err and err.strip().splitlines()[-1].startswith("labrig: error:")
+    runs = read_dataset(tmp_path / "ds")
+    assert [r.name for r in runs] == ["sq_1.20V", "sq_2.00V"]
+    for r in runs:
+        assert len(r) == 2300 and r.meta["bridge"]["dropped_samples"] == 0
+        assert r.meta["source"] == "serial"
+    # the finished runs are real data: the analyser reads them
+    from labrig.analyse import analyse
+
+    res = analyse([tmp_path / "ds"]).to_dict()
+    assert res["km"] is not None and 80 < res["km"] < 115
