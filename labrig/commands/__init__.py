@@ -3,3 +3,4 @@ from . import acquisition  # noqa: F401
 from . import analysis  # noqa: F401
 from . import identification  # noqa: F401
 from . import hardware  # noqa: F401
+from . import loop  # noqa: F401

@@ -1,0 +1,121 @@
+"""Figures of the missing-physics loop: model vs measurement, residuals by regime,
+whiteness tests, and the error ladder."""
+from __future__ import annotations
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from ..residuals import REGIME_TEXT  # noqa: E402
+
+REGIME_COLOURS = {"start": "tab:green", "reversal": "tab:red", "accel": "tab:orange",
+                  "steady": "tab:blue", "coast": "tab:purple", "rest": "0.7"}
+
+
+def _fit_percent(y, yh):
+    return 100 * (1 - np.linalg.norm(y - yh) / max(np.linalg.norm(y - y.mean()), 1e-300))
+
+
+def plot_run_comparison(rr: dict, path, title: str = ""):
+    """One run: measured vs simulated (fit % in the legend), residuals in noise units
+    with the +-1 noise band and the stretches that leave it shaded by regime, and the
+    residual autocorrelation / input cross-correlation with their 99 % bands."""
+    chans = list(rr["channels"])
+    fig = plt.figure(figsize=(12, 3.2 * len(chans) + 2.8))
+    gs = fig.add_gridspec(2 * len(chans) + 1, 2, height_ratios=[3, 2] * len(chans) + [2.2])
+    t = rr["t"]
+    units = {"speed": "rad/s (motor)", "position": "rad (output)"}
+    for i, ch in enumerate(chans):
+        c = rr["channels"][ch]
+        ax = fig.add_subplot(gs[2 * i, :])
+        ax.plot(t, c["measured"], color="0.25", lw=1.0, label="measured")
+        ax.plot(t, c["simulated"], color="tab:red", lw=1.0, ls="--",
+                label=f"model (fit {_fit_percent(c['measured'], c['simulated']):.1f} %)")
+        ax.set_ylabel(f"{ch}\n{units[ch]}")
+        ax.legend(loc="upper right", fontsize=8)
+        ax.grid(alpha=0.3)
+        ax.set_xlim(t[0], t[-1])
+        ax2 = fig.add_subplot(gs[2 * i + 1, :], sharex=ax)
+        ax2.plot(t, c["residual"], color="0.3", lw=0.6)
+        ax2.axhspan(-1, 1, color="tab:green", alpha=0.15, label="noise band (+-1 sigma)")
+        seen = set()
+        for s in c["stretches"]:
+            reg = s["regime"]
+            lbl = REGIME_TEXT.get(reg, reg) if reg not in seen else None
+            seen.add(reg)
+            ax2.axvspan(t[s["start"]], t[min(s["stop"], len(t) - 1)],
+                        color=REGIME_COLOURS.get(reg, "0.5"), alpha=0.25, label=lbl)
+        ax2.set_ylabel("residual /\nnoise")
+        ax2.grid(alpha=0.3)
+        ax2.legend(loc="upper right", fontsize=7, ncol=4)
+    ax2.set_xlabel("time (s)")
+    # whiteness of the first channel's residual
+    c = rr["channels"][chans[0]]
+    a = fig.add_subplot(gs[-1, 0])
+    lags = np.arange(1, len(c["autocorr"]) + 1)
+    a.bar(lags, c["autocorr"], color="0.4")
+    a.axhspan(-c["band"], c["band"], color="tab:blue", alpha=0.2)
+    a.set_title(f"{chans[0]} residual autocorrelation (99 % band; simulation residuals are "
+                "coloured even for a good model)", fontsize=8)
+    a.set_xlabel("lag (samples)")
+    b = fig.add_subplot(gs[-1, 1])
+    ks, cc = c["crosscorr"]
+    b.bar(ks, cc, color="0.4")
+    b.axhspan(-c["band"], c["band"], color="tab:blue", alpha=0.2)
+    b.set_title("cross-correlation with input changes (peaks at lag > 0: delay or "
+                "unmodelled dynamics)", fontsize=8)
+    b.set_xlabel("lag (samples)")
+    fig.suptitle(title or f"{rr['name']}: model vs measurement", fontsize=11)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def plot_ladder(steps: list[dict], path):
+    """The error ladder: rmse/noise after each added effect, against the noise floor."""
+    fig, ax = plt.subplots(figsize=(7, 4))
+    x = np.arange(len(steps))
+    for ch, mk in (("overall", "o-"), ("speed", "s--"), ("position", "^--")):
+        y = [s["rmse_over_noise"].get(ch, np.nan) for s in steps]
+        ax.plot(x, y, mk, label=ch, lw=2 if ch == "overall" else 1)
+    ax.axhline(1.0, color="k", ls=":", label="noise floor")
+    ax.set_yscale("log")
+    ax.set_xticks(x, [s["label"] for s in steps], rotation=15)
+    ax.set_ylabel("rmse / noise")
+    ax.set_title("The error ladder: adding the missing physics")
+    for xi, s in zip(x, steps):
+        ax.annotate(f"{s['rmse_over_noise']['overall']:.2f}", (xi, s["rmse_over_noise"]["overall"]),
+                    textcoords="offset points", xytext=(6, 6), fontsize=9)
+    ax.grid(alpha=0.3, which="both")
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def plot_regimes(table: dict, path, title="Where the model fails"):
+    """rmse/noise by regime for each channel, with the share of time."""
+    chans = list(table["by_regime"])
+    fig, axes = plt.subplots(1, len(chans), figsize=(5 * len(chans), 3.5), squeeze=False)
+    for ax, ch in zip(axes[0], chans):
+        regs = table["by_regime"][ch]
+        names = list(regs)
+        vals = [regs[n]["rmse_over_noise"] for n in names]
+        ax.bar([REGIME_TEXT[n] for n in names], vals,
+               color=[REGIME_COLOURS[n] for n in names])
+        ax.axhline(1.0, color="k", ls=":")
+        ax.set_title(ch)
+        ax.set_ylabel("rmse / noise")
+        ax.tick_params(axis="x", rotation=30, labelsize=8)
+        for i, n in enumerate(names):
+            ax.annotate(f"{100 * regs[n]['share_of_time']:.0f}% of time", (i, vals[i]),
+                        ha="center", fontsize=7, textcoords="offset points", xytext=(0, 3))
+    fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
