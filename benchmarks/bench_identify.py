@@ -92,8 +92,9 @@ def population(P: int, seed: int = 0):
 
 
 # -- the references ------------------------------------------------------------------------
-def reference_linear(rd, cand) -> tuple[float, float]:
-    """One candidate on every run, the python-control way. Returns (build s, forced_response s)."""
+def reference_linear(rd, cand, keep=None) -> tuple[float, float]:
+    """One candidate on every run, the python-control way. Returns (build s, forced_response s);
+    the speed trajectories are appended to ``keep`` when given."""
     import control
 
     from labrig.model.servo import ServoParams
@@ -105,8 +106,10 @@ def reference_linear(rd, cand) -> tuple[float, float]:
         sys_ = sp.closed_loop(r.kp, r.kv) if r.loop == "closed" else sp.open_loop()
         T = np.arange(len(r.u)) * r.dt
         t1 = time.perf_counter()
-        control.forced_response(sys_, T=T, U=r.u, X0=[0.0, 0.0, r.theta0 * r.N])
+        out = control.forced_response(sys_, T=T, U=r.u, X0=[0.0, 0.0, r.theta0 * r.N])
         t2 = time.perf_counter()
+        if keep is not None:
+            keep.append(np.asarray(out.outputs)[0])
         t_build += t1 - t0
         t_fr += t2 - t1
     return t_build, t_fr
@@ -136,11 +139,36 @@ def user_loop(R, L, J, B, K, tc_v, u, dt, loop, Ka, N, Kt, Kpot, kp, kv, theta0)
     return w_out, th_out
 
 
-def reference_coulomb(rd, cand, tc_v) -> float:
+def reference_coulomb(rd, cand, tc_v, keep=None) -> float:
     t0 = time.perf_counter()
     for r in rd:
-        user_loop(*cand, tc_v, r.u, r.dt, r.loop, r.Ka, r.N, r.Kt, r.Kpot, r.kp, r.kv, r.theta0)
+        w, _ = user_loop(*cand, tc_v, r.u, r.dt, r.loop, r.Ka, r.N, r.Kt, r.Kpot, r.kp, r.kv,
+                         r.theta0)
+        if keep is not None:
+            keep.append(w)
     return time.perf_counter() - t0
+
+
+def user_ivp(R, L, J, B, K, tc_v, u, dt, Ka, N, theta0):
+    """The other thing a user writes: scipy solve_ivp (RK45, max_step = dt), open loop."""
+    from scipy.integrate import solve_ivp
+
+    Tc = tc_v * Ka * K / R
+    n = len(u)
+
+    def f(t, x):
+        i, w, th = x
+        v = Ka * u[min(int(t / dt), n - 1)]
+        return [(v - R * i - K * w) / L, (K * i - B * w - Tc * np.sign(w)) / J, w]
+
+    T = np.arange(n) * dt
+    return solve_ivp(f, (0.0, T[-1]), [0.0, 0.0, theta0 * N], t_eval=T, max_step=dt).y[1]
+
+
+def rms_over_noise(refs, sims, sigma_w) -> float:
+    """RMS speed difference reference - labrig over all runs, in units of the speed noise."""
+    d = np.concatenate([a - b for a, b in zip(refs, sims)])
+    return float(np.sqrt(np.mean(d ** 2)) / sigma_w)
 
 
 # -- labrig ------------------------------------------------------------------------------------
@@ -203,11 +231,11 @@ def diagnose_available() -> bool:
 
 def bench_diagnose(folder: Path) -> dict:
     t0 = time.perf_counter()
-    p = subprocess.run([sys.executable, "-m", "labrig", "diagnose", str(folder)],
+    p = subprocess.run([sys.executable, "-m", "labrig", "diagnose", str(folder), "--seed", str(SEED)],
                        capture_output=True, text=True)
     wall = time.perf_counter() - t0
     return {"seconds": round(wall, 2), "returncode": p.returncode,
-            "command": f"labrig diagnose SWEEP (subprocess, includes interpreter start)",
+            "command": f"labrig diagnose SWEEP --seed {SEED} (subprocess: includes interpreter start)",
             "stderr_tail": p.stderr.strip().splitlines()[-3:] if p.returncode else []}
 
 
@@ -217,7 +245,12 @@ def main(argv=None) -> int:
     ap.add_argument("--quick", action="store_true",
                     help="fewer repeats and reference candidates (a smoke run, minutes less)")
     ap.add_argument("-o", "--output", default=str(Path(__file__).with_name("results.json")))
+    ap.add_argument("--markdown", metavar="RESULTS_JSON",
+                    help="only print the Markdown results table of a saved results file")
     args = ap.parse_args(argv)
+    if args.markdown:
+        print(markdown(json.loads(Path(args.markdown).read_text())))
+        return 0
 
     n_ref_lin = 2 if args.quick else 5
     n_ref_nl = 1 if args.quick else 3
@@ -302,7 +335,36 @@ def main(argv=None) -> int:
                           "sample, Tc*np.sign(w) friction, loop closed by hand",
                   "candidates_timed": n_ref_nl, "per_candidate_s": statistics.median(nl)}
         ref_nl["cand_per_s"] = 1.0 / ref_nl["per_candidate_s"]
-        res["reference"] = {"linear": ref_lin, "coulomb": ref_nl}
+        # how close each reference is to labrig's simulation (candidate 0), so the reader
+        # sees both compute the same physics to within the measurement noise
+        from labrig.identify.objective import noise_level
+        sigma_w = float(np.median([noise_level(r.w) for r in rd]))
+        keep: list = []
+        reference_linear(rd, plant[0], keep)
+        ref_lin["rms_speed_diff_over_noise"] = rms_over_noise(
+            keep, [o["w"][0] for o in sim_lin.simulate(plant[:1])], sigma_w)
+        keep = []
+        reference_coulomb(rd, plant[0], tc_v[0], keep)
+        labw = [o["w"][0] for o in sim_nl.simulate(plant[:1], {"coulomb_friction": {"tc_v": tc_v[:1]}})]
+        ref_nl["rms_speed_diff_over_noise"] = rms_over_noise(keep, labw, sigma_w)
+        # solve_ivp, on the first open-loop run only (on a closed-loop run the sign(w)
+        # friction at rest makes RK45 crawl: minutes per run in a trial)
+        k_open = next(k for k, r in enumerate(rd) if r.loop == "open")
+        r = rd[k_open]
+        t0 = time.perf_counter()
+        w_ivp = user_ivp(*plant[0], tc_v[0], r.u, r.dt, r.Ka, r.N, r.theta0)
+        t_ivp = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        user_loop(*plant[0], tc_v[0], r.u, r.dt, r.loop, r.Ka, r.N, r.Kt, r.Kpot, r.kp, r.kv,
+                  r.theta0)
+        t_eul = time.perf_counter() - t0
+        ref_ivp = {"what": "scipy solve_ivp RK45, max_step=dt, Tc*np.sign(w); one open-loop run "
+                           "of one candidate (informative, not the reference of the ratio)",
+                   "run": r.name, "seconds": t_ivp, "euler_loop_same_run_s": t_eul,
+                   "slower_than_euler_loop": t_ivp / t_eul,
+                   "rms_speed_diff_over_noise": rms_over_noise([w_ivp], [labw[k_open]], sigma_w)}
+        res["reference"] = {"linear": ref_lin, "coulomb": ref_nl, "coulomb_solve_ivp": ref_ivp,
+                            "sigma_w_rad_s": sigma_w}
         res["ratio"] = {
             "linear_simulate": lab["linear"]["simulate"]["cand_per_s"] / ref_lin["cand_per_s"],
             "linear_sse": lab["linear"]["sse"]["cand_per_s"] / ref_lin["cand_per_s"],
@@ -360,6 +422,12 @@ def print_table(res: dict) -> None:
               f"{s['linear'][k]['cand_per_s']:>12.0f}{s['coulomb'][k]['cand_per_s']:>12.0f}")
     print(f"{'ratio simulate / reference':<58}{r['linear_simulate']:>12.0f}{r['coulomb_simulate']:>12.0f}")
     print(f"{'ratio sse / reference':<58}{r['linear_sse']:>12.0f}{r['coulomb_sse']:>12.0f}")
+    print(f"{'reference vs labrig speed, RMS / noise (candidate 0)':<58}"
+          f"{ref['linear']['rms_speed_diff_over_noise']:>12.2f}"
+          f"{ref['coulomb']['rms_speed_diff_over_noise']:>12.2f}")
+    iv = ref["coulomb_solve_ivp"]
+    print(f"solve_ivp on {iv['run']}: {iv['seconds']:.2f} s = {iv['slower_than_euler_loop']:.0f}x the "
+          f"Euler loop on the same run")
     print(f"first call (this process) s: {s['first_call_s']['linear']} / {s['first_call_s']['coulomb']};"
           f" cold numba compile s: {s['cold_compile_s']}")
     print(f"\n{'figure':<26}{'measured':>12}  {'target':<10}result")
@@ -367,6 +435,32 @@ def print_table(res: dict) -> None:
         val = "-" if v["value"] is None else (f"{v['value']:.0f}x" if k.startswith("ratio")
                                               else f"{v['value']:.2f} s")
         print(f"{k:<26}{val:>12}  {v['target']:<10}{v['result']}")
+
+
+def markdown(res: dict) -> str:
+    """The results table for the READMEs."""
+    ref, s, r = res["reference"], res["simulator"], res["ratio"]
+    v = res["verdict"]
+    L, C = s["linear"]["simulate"]["cand_per_s"], s["coulomb"]["simulate"]["cand_per_s"]
+    lines = [
+        "| figure | measured | target | result |",
+        "|---|---|---|---|",
+        f"| candidate simulations/s, linear: labrig `Simulator.simulate` (P={s['population']}) vs "
+        f"python-control reference | {L:.0f}/s vs {ref['linear']['cand_per_s']:.2f}/s = "
+        f"**{r['linear_simulate']:.0f}x** | >= 500x | {v['ratio_linear']['result']} |",
+        f"| candidate simulations/s, coulomb_friction: labrig vs python Euler loop | "
+        f"{C:.0f}/s vs {ref['coulomb']['cand_per_s']:.2f}/s = **{r['coulomb_simulate']:.0f}x** "
+        f"| >= 200x | {v['ratio_coulomb']['result']} |",
+    ]
+    for key, label in (("jfo_linear_s", "JFO 50 x 200, linear"),
+                       ("jfo_coulomb_s", "JFO 50 x 200, + coulomb_friction"),
+                       ("co_linear_s", "CO multi-start (starts=8), linear"),
+                       ("co_coulomb_s", "CO multi-start (starts=8), + coulomb_friction"),
+                       ("diagnose_s", "`labrig diagnose` on the sweep")):
+        val = v[key]["value"]
+        lines.append(f"| {label} | {'not measured' if val is None else f'**{val:.2f} s**'} | "
+                     f"{v[key]['target']} s | {v[key]['result']} |")
+    return "\n".join(lines)
 
 
 if __name__ == "__main__":

@@ -100,7 +100,7 @@ def cmd_identify(args):
             res = identify(runs, m, effects, seed=args.seed, bounds=bounds, fixed=fixed,
                            p=w.get("p", 1.0), q=w.get("q", 1.0), pop=args.pop, iters=args.iters,
                            starts=args.starts, polish=args.polish, start=start, callback=cb,
-                           dataset=dataset)
+                           dataset=dataset, rule=args.rule)
         results.append(res)
     best = min(results, key=lambda r: r.fitness)
     if args.output:
@@ -135,6 +135,9 @@ def _configure(p):
     p.add_argument("--iters", type=int, default=200, help="iterations of JFO/PSO (default 200)")
     p.add_argument("--starts", type=int, default=8, help="CO multi-starts (default 8)")
     p.add_argument("--polish", action="store_true", help="polish JFO/PSO results with CO")
+    p.add_argument("--rule", default="paper", choices=["paper", "reference"],
+                   help="JFO passive/active test: the paper's (|c|) or the authors' MATLAB "
+                        "code's (signed c, half the passive moves)")
     p.add_argument("--figures", help="folder for the convergence plot")
 
 
@@ -197,5 +200,7 @@ def format_identification(results) -> str:
 def _interval(d):
     if not d:
         return "-"
+    if not d.get("interval95"):
+        return f"{d['value']:.4g} ? (not seen by these data)"
     lo, hi = d["interval95"]
     return f"{d['value']:.4g} [{lo:.3g}, {hi:.3g}]"

@@ -151,7 +151,7 @@ def identify(runs, method: str = "co", effects: list[Effect] = (), *, seed: int 
              q: float = 1.0, pop: int = 50, iters: int = 200, starts: int = 8,
              polish: bool = False, start: dict | None = None, callback=None,
              dataset: dict | None = None, identifiability: bool = True,
-             max_nfev: int | None = None) -> Identification:
+             max_nfev: int | None = None, rule: str = "paper") -> Identification:
     """Fit the servo model to ``runs``.
 
     Parameters
@@ -183,7 +183,7 @@ def identify(runs, method: str = "co", effects: list[Effect] = (), *, seed: int 
     x0 = space.to_search(initial_point(space, effects, runs, constants, start))
     seed = int(np.random.default_rng().integers(2 ** 31)) if seed is None else int(seed)
     opts = {"pop": pop, "iters": iters, "seed": seed, "starts": starts, "callback": callback,
-            "max_nfev": max_nfev}
+            "max_nfev": max_nfev, "rule": rule}
     try:
         res = METHODS[method](obj, lo, hi, x0 if (start or method == "co") else None, opts)
     except ValueError as exc:  # the optimisers name the bad argument

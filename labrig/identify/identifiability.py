@@ -109,13 +109,15 @@ def analyse_identifiability(objective, x_search: np.ndarray, Ka: float) -> dict:
                         "direction": "(R, L, J, B, K) -> (R/l, L/l, l*J, l*B, K) for any l > 0 "
                                      "leaves the fit unchanged (exact symmetry of the model)"}
             null.append(symmetry)
-    for k, r in enumerate(rel):
-        if r < PRACTICAL:
-            kind = "structurally" if r < STRUCTURAL else "practically"
-            null.append({"relative_singular_value": float(r), "kind": kind,
-                         "direction": readable_direction(Vt[k], free)})
     plant_free = [n for n in free if n in PLANT_NAMES]
     rank = structural_rank(pd, plant_free)
+    structural_nullity = len(plant_free) - rank
+    small = [k for k, r in enumerate(rel) if r < PRACTICAL]
+    for j, k in enumerate(small):
+        kind = "structurally" if rel[k] < STRUCTURAL or j >= len(small) - structural_nullity \
+            else "practically"
+        null.append({"relative_singular_value": float(rel[k]), "kind": kind,
+                     "direction": readable_direction(Vt[k], free)})
     if rank < len(plant_free):
         warnings.append(
             f"structurally unidentifiable: the data fix only {rank} combinations of the "
@@ -123,10 +125,11 @@ def analyse_identifiability(objective, x_search: np.ndarray, Ka: float) -> dict:
             "below are one member of a family of equally good fits. To pin them down: "
             "measure the armature current too, or fix R and L (locked-rotor test: --fix R=..,L=..), "
             "or fix K (back-EMF test) and R.")
-    for k, r in enumerate(rel):
-        if STRUCTURAL <= r < PRACTICAL:
-            warnings.append(f"practically unidentifiable direction (sigma/sigma1 = {r:.1e}): "
-                            f"{readable_direction(Vt[k], free)}")
+    # directions beyond what the structure explains are worth a word each
+    extra = [k for k in small if rel[k] >= STRUCTURAL][: max(0, len(small) - structural_nullity)]
+    for k in extra:
+        warnings.append(f"practically unidentifiable direction (sigma/sigma1 = {rel[k]:.1e}): "
+                        f"{readable_direction(Vt[k], free)}")
     if any(n == "L" for n in plant_free) and pd["L"] / pd["R"] < 0.5 * objective.runs[0].dt:
         warnings.append("tau_e = L/R is shorter than half a sample period: the electrical pole "
                         "is barely visible at this sample rate (sample faster or fix L)")
@@ -150,10 +153,17 @@ def analyse_identifiability(objective, x_search: np.ndarray, Ka: float) -> dict:
             G[:, k] /= pd[n]
     var = np.einsum("ij,jk,ik->i", G, cov, G)
     sdl = np.sqrt(np.clip(var, 0, None))
+    nullspace = Vt[rel < PRACTICAL]
     comb = {}
-    for (key, unit), v, s in zip((("km", "rad/s per V"), ("tau_m_s", "s"), ("tau_e_s", "s")), base, sdl):
-        comb[key] = {"value": float(v), "interval95": [float(v * np.exp(-1.96 * s)),
-                                                        float(v * np.exp(1.96 * s))], "unit": unit}
+    for (key, unit), v, s, g in zip((("km", "rad/s per V"), ("tau_m_s", "s"), ("tau_e_s", "s")),
+                                    base, sdl, G):
+        # a combination that moves along an unidentifiable direction has no interval
+        # (the pseudo-inverse would silently drop that direction and claim precision)
+        leak = float(np.max(np.abs(nullspace @ g)) / max(np.linalg.norm(g), 1e-300)) if len(nullspace) else 0.0
+        ok = leak < 0.01
+        comb[key] = {"value": float(v), "unit": unit, "identifiable": ok,
+                     "interval95": [float(v * np.exp(-1.96 * s)), float(v * np.exp(1.96 * s))]
+                     if ok else None}
     params = {}
     for k, n in enumerate(free):
         v = pd[n]

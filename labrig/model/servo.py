@@ -126,6 +126,10 @@ class ServoParams:
     def position_step_info(self, kp: float, kv: float) -> dict:
         """Rise time, settling time and overshoot of the closed position loop."""
         sys = self.closed_loop(kp, kv)
-        info = control.step_info(sys[1, 0])
+        # an explicit time grid: python-control's automatic one fails on the stiff
+        # electrical pole of an identified model (tau_e can be microseconds)
+        slow = np.min(np.abs(np.real(np.linalg.eigvals(self.A_closed(kp, kv)))))
+        T = np.linspace(0.0, 12.0 / max(slow, 1e-6), 6001)
+        info = control.step_info(sys[1, 0], T=T)
         return {"rise_time_s": float(info["RiseTime"]), "settling_time_s": float(info["SettlingTime"]),
                 "overshoot_percent": float(info["Overshoot"])}

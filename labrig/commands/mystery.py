@@ -1,0 +1,74 @@
+"""``labrig mystery new | reveal | check``: simulated rigs with hidden physics for labs."""
+from __future__ import annotations
+
+import argparse
+import sys
+
+from ..cli import command, emit_json
+from ..errors import UserError
+
+
+@command("mystery", "mystery rigs for the lab: new (student file), reveal, check (grading)")
+def cmd_mystery(args):
+    """Mystery rigs: `new --seed N -o FILE.mystery` draws a simulated rig with 1-2 hidden
+    effects (use it with `labrig sweep --sim --rig FILE.mystery`); `reveal FILE` shows the
+    truth (instructor); `check FILE MODEL.json` grades a model against it. The file is
+    obfuscated against casual reading, not encrypted."""
+    from .. import mystery as m
+
+    if args.action == "new":
+        doc = m.new_mystery(args.seed)
+        path = m.write_mystery(doc, args.output, seed=args.seed, overwrite=args.force)
+        n = len(doc["effects"])
+        print(f"wrote {path}: mystery rig {args.seed} ({n} hidden effect{'s' * (n != 1)}); "
+              f"acquire with `labrig sweep --sim --rig {path} -o runs`")
+        return 0
+    if args.action == "reveal":
+        res = m.reveal(args.file)
+        if args.json:
+            emit_json(res)
+        else:
+            print(m.format_reveal(res))
+        return 0
+    if args.action == "check":
+        res = m.check(args.file, args.model, tolerance=args.tolerance / 100.0)
+        if args.blind:
+            res = m.blind(res)
+        if args.json:
+            emit_json(res)
+        else:
+            print(m.format_check(res, blind_mode=args.blind))
+        return 0
+    raise UserError("mystery: give an action: new, reveal or check "
+                    "(e.g. `labrig mystery new --seed 7 -o lab.mystery`)")
+
+
+def _configure(p):
+    from ..cli import _float_opt
+
+    sub = p.add_subparsers(dest="action", metavar="ACTION")
+    dbg = dict(action="store_true", default=argparse.SUPPRESS, help="show tracebacks")
+
+    pn = sub.add_parser("new", help="draw a mystery rig and write it (not plain text)")
+    pn.add_argument("--seed", type=int, required=True, help="which mystery (same seed, same rig)")
+    pn.add_argument("-o", "--output", required=True, help="file to write, ending in .mystery")
+    pn.add_argument("--force", action="store_true", help="replace an existing file")
+    pn.add_argument("--debug", **dbg)
+
+    pr = sub.add_parser("reveal", help="show the hidden truth (instructor)")
+    pr.add_argument("file", help="a .mystery file")
+    pr.add_argument("--json", action="store_true", help="print one JSON object")
+    pr.add_argument("--debug", **dbg)
+
+    pc = sub.add_parser("check", help="grade a model.json against the hidden truth")
+    pc.add_argument("file", help="a .mystery file")
+    pc.add_argument("model", help="a model saved by `labrig identify -o` or `labrig diagnose -o`")
+    pc.add_argument("--json", action="store_true", help="print one JSON object")
+    pc.add_argument("--blind", action="store_true",
+                    help="student self-check: say how many effects are missing, not which")
+    pc.add_argument("--tolerance", type=_float_opt, default=20.0,
+                    help="parameter error (%%) within which an effect passes (default 20)")
+    pc.add_argument("--debug", **dbg)
+
+
+cmd_mystery.configure = _configure

@@ -1,0 +1,433 @@
+"""Mystery rigs: simulated rigs with hidden physics, for the missing-physics lab.
+
+``new_mystery(seed)`` draws a rig: the default MS150 rig with its plant parameters
+perturbed (each of R, L, J, B, K by up to +-20 %) and one or two hidden effects from
+the catalogue (deadband, coulomb_friction, saturation, backlash, delay) at sizes a
+student can detect with the default sweep. ``write_mystery`` stores it in a file that a
+student cannot read by opening it; ``labrig sweep --sim --rig FILE`` uses it like any rig
+file (``labrig.config.load_rig`` calls ``read_mystery`` for the ``.mystery`` suffix).
+``reveal`` shows the truth to the instructor and ``check`` grades a student's
+model.json against it.
+
+File format (``labrig-mystery/1``)::
+
+    labrig-mystery/1
+    salt <32 hex digits>
+    <base64 text, 76 columns>
+
+The payload is JSON -> zlib -> XOR with a SHA-256 counter keystream of a fixed key and
+the salt -> base64. **This is obfuscation against casual reading (a student opening the
+file in an editor, or grep), not security**: the key is in this source file and anyone
+who reads it can decode a mystery file. Do not use it to hide anything that matters.
+A SHA-256 digest of the JSON inside the payload detects a damaged or edited file.
+"""
+from __future__ import annotations
+
+import base64
+import binascii
+import copy
+import hashlib
+import json
+import math
+import tomllib
+import zlib
+from pathlib import Path
+
+import numpy as np
+
+from .errors import ConfigError, UserError
+
+HEADER = "labrig-mystery/1"
+_KEY = b"labrig mystery rig: obfuscation, not encryption"
+SUFFIX = ".mystery"
+
+#: effects a mystery rig may hide, with the range (uniform) of their parameter, chosen
+#: so that the default sweep shows them clearly above the noise
+HIDDEN_EFFECTS = {
+    "deadband": ("d_v", 0.2, 0.4),
+    "coulomb_friction": ("tc_v", 0.15, 0.35),
+    "saturation": ("vmax_v", 7.0, 9.0),
+    "backlash": ("a_rad", 0.03, 0.05),
+    "delay": ("td_s", 0.008, 0.015),
+}
+#: relative perturbation of each plant parameter (uniform in +-PLANT_SPREAD)
+PLANT_SPREAD = 0.20
+#: ... but Km and tau_m, which a student measures first, stay within +-this of the default
+COMBINATION_SPREAD = 0.25
+_PLANT_KEYS = {"R": "R_ohm", "L": "L_h", "J": "J_kgm2", "B": "B_nms_per_rad", "K": "K_nm_per_a"}
+#: parameter error (relative) within which an identified effect passes
+PASS_TOLERANCE = 0.20
+
+
+# -- drawing a rig ------------------------------------------------------------------
+
+def _default_doc() -> dict:
+    from .config import _packaged
+
+    path = _packaged("rig_default.toml")
+    return tomllib.loads(path.read_text(encoding="utf-8"))
+
+
+def _derived(plant: dict, doc: dict) -> dict:
+    """Km, tau_m, tau_e and the top speed of the default plan for a plant section."""
+    R, L, J, B, K = (plant[_PLANT_KEYS[k]] for k in "RLJBK")
+    Ka = doc["amplifier"]["gain"]
+    den = B * R + K * K
+    km = Ka * K / den
+    # the two poles of J L s^2 + (J R + B L) s + (B R + K^2)
+    a, b, c = J * L, J * R + B * L, den
+    disc = math.sqrt(max(b * b - 4 * a * c, 0.0))
+    p_slow, p_fast = (-b + disc) / (2 * a), (-b - disc) / (2 * a)
+    return {"km_rad_s_per_v": km, "tau_m_s": -1.0 / p_slow, "tau_e_s": -1.0 / p_fast,
+            "tau_m_first_order_s": J * R / den}
+
+
+def _plausible(doc: dict) -> bool:
+    """The default plan stays inside the amplifier rail and the sensors' ranges, and the
+    closed position loop of the default plan (Kp 2.0, Kv 0.15) is well damped."""
+    from .model.servo import ServoParams
+
+    p = doc["plant"]
+    amp, sens, br = doc["amplifier"], doc["sensors"], doc["bridge"]
+    d = _derived(p, doc)
+    if amp["gain"] * br["output_limit_v"] > amp["output_limit_v"]:
+        return False
+    # the identifiable combinations stay near the MS150's (Km 97 rad/s/V, tau_m 0.16 s)
+    d0 = _derived(_default_doc()["plant"], doc)
+    for k in ("km_rad_s_per_v", "tau_m_s"):
+        if abs(d[k] / d0[k] - 1.0) > COMBINATION_SPREAD:
+            return False
+    adc_hi = min(abs(v) for v in br["adc_range_v"])
+    top_speed = d["km_rad_s_per_v"] * br["output_limit_v"]
+    if sens["tacho_v_per_rad_s"] * top_speed > 0.9 * adc_hi:
+        return False
+    # open loop +-2.5 V square, 0.25 Hz: the output shaft travels about w * 2 s / N
+    travel = top_speed * 2.0 / doc["rig"]["gear_ratio"]
+    lo, hi = br["adc_range_v"]
+    pos_hi = sens["pos_offset_v"] + sens["pos_v_per_rad"] * travel
+    if not (0.9 * lo < sens["pos_offset_v"] and pos_hi < 0.9 * hi):
+        return False
+    sp = ServoParams(R=p["R_ohm"], L=p["L_h"], J=p["J_kgm2"], B=p["B_nms_per_rad"],
+                     K=p["K_nm_per_a"], Ka=amp["gain"], N=doc["rig"]["gear_ratio"],
+                     Kt=sens["tacho_v_per_rad_s"], Kpot=sens["pos_v_per_rad"])
+    eig = np.linalg.eigvals(sp.A_closed(2.0, 0.15))
+    if np.any(eig.real >= 0):
+        return False
+    # damping of the slowest complex pair (if any) at least 0.4
+    for z in eig:
+        if abs(z.imag) > 1e-9 and -z.real / abs(z) < 0.4:
+            return False
+    return True
+
+
+def _sig(x: float, digits: int = 3) -> float:
+    return float(f"{x:.{digits}g}")
+
+
+def new_mystery(seed: int) -> dict:
+    """A mystery rig document (the dict a rig TOML parses to), drawn from ``seed``.
+
+    Same seed, same rig. The hidden truth is in ``doc["effects"]`` and ``doc["plant"]``;
+    ``doc["rig"]["name"]`` says only "mystery rig <seed>".
+    """
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+        raise UserError(f"--seed must be a whole number >= 0, got {seed!r}")
+    rng = np.random.default_rng([seed, 0x6D797374])  # "myst"
+    base = _default_doc()
+    doc = copy.deepcopy(base)
+    for _ in range(1000):
+        for k, key in _PLANT_KEYS.items():
+            f = 1.0 + rng.uniform(-PLANT_SPREAD, PLANT_SPREAD)
+            doc["plant"][key] = _sig(base["plant"][key] * f, 4)
+        if _plausible(doc):
+            break
+    else:  # pragma: no cover - the default rig itself is plausible
+        doc["plant"] = dict(base["plant"])
+    n = 1 + int(rng.integers(0, 2))
+    names = sorted(rng.choice(sorted(HIDDEN_EFFECTS), size=n, replace=False).tolist())
+    effects = {}
+    for name in names:
+        pname, lo, hi = HIDDEN_EFFECTS[name]
+        effects[name] = {pname: _sig(rng.uniform(lo, hi))}
+    doc["effects"] = effects
+    doc["rig"]["name"] = f"mystery rig {seed}"
+    doc["noise"]["seed"] = int(rng.integers(1, 2 ** 31))
+    return doc
+
+
+# -- the file -------------------------------------------------------------------------
+
+def _keystream(salt: bytes, n: int) -> bytes:
+    out = bytearray()
+    counter = 0
+    while len(out) < n:
+        out += hashlib.sha256(_KEY + salt + counter.to_bytes(8, "big")).digest()
+        counter += 1
+    return bytes(out[:n])
+
+
+def _xor(data: bytes, salt: bytes) -> bytes:
+    ks = _keystream(salt, len(data))
+    return bytes(a ^ b for a, b in zip(data, ks))
+
+
+def write_mystery(doc: dict, path: Path | str, seed: int | None = None,
+                  overwrite: bool = False) -> Path:
+    """Write a mystery rig file (obfuscated, not encrypted: see the module docstring).
+
+    ``seed`` is recorded for ``reveal``. An existing file is only replaced with
+    ``overwrite=True``. The write is atomic (temp file + rename).
+    """
+    from .config import rig_from_dict
+    from .runs import _atomic_write
+
+    path = Path(path)
+    if path.suffix != SUFFIX:
+        raise UserError(f"{path}: a mystery rig file must end in '{SUFFIX}' "
+                        f"(e.g. {path.with_suffix(SUFFIX).name}) so that --rig recognises it")
+    if path.exists() and not overwrite:
+        raise UserError(f"{path}: already exists; choose another name or pass --force")
+    rig_from_dict(doc, str(path))  # never write a rig that cannot be loaded
+    body = json.dumps({"rig": doc, "seed": seed}, sort_keys=True).encode()
+    payload = json.dumps({"sha256": hashlib.sha256(body).hexdigest(),
+                          "body": body.decode()}).encode()
+    digest = hashlib.sha256(_KEY + body).digest()
+    salt = digest[:16]
+    blob = base64.b64encode(_xor(zlib.compress(payload, 9), salt)).decode()
+    lines = [HEADER, f"salt {salt.hex()}"] + [blob[i:i + 76] for i in range(0, len(blob), 76)]
+    path.parent.mkdir(parents=True, exist_ok=True)
+    _atomic_write(path, "\n".join(lines) + "\n")
+    return path
+
+
+def load_mystery(path: Path | str) -> dict:
+    """Decode a mystery file -> ``{"rig": doc, "seed": N | None}``; a damaged file is a
+    ``ConfigError`` (exit 2) naming the file and what is wrong."""
+    path = Path(path)
+    if not path.exists():
+        raise ConfigError(f"{path}: mystery rig file not found")
+    bad = f"{path}: not a valid mystery rig file"
+    try:
+        text = path.read_text(encoding="ascii")
+    except (UnicodeDecodeError, OSError):
+        raise ConfigError(f"{bad} (not text); ask for a fresh copy") from None
+    lines = text.split("\n")
+    if not lines or lines[0].strip() != HEADER:
+        raise ConfigError(f"{bad} (first line is not '{HEADER}'); make one with "
+                          "`labrig mystery new --seed N -o FILE.mystery`")
+    try:
+        tag, hexsalt = lines[1].split()
+        if tag != "salt":
+            raise ValueError
+        salt = bytes.fromhex(hexsalt)
+        blob = base64.b64decode("".join(s.strip() for s in lines[2:]), validate=True)
+        payload = json.loads(zlib.decompress(_xor(blob, salt)))
+        body = payload["body"].encode()
+        if hashlib.sha256(body).hexdigest() != payload["sha256"]:
+            raise ValueError("checksum")
+        doc = json.loads(body)
+        if not isinstance(doc.get("rig"), dict):
+            raise ValueError("no rig")
+    except (ValueError, IndexError, KeyError, TypeError, binascii.Error, zlib.error,
+            UnicodeDecodeError, AttributeError):
+        raise ConfigError(f"{bad} (damaged or edited: the contents do not decode); "
+                          "ask for a fresh copy") from None
+    return doc
+
+
+def read_mystery(path: Path | str) -> dict:
+    """The rig document of a mystery file, as ``labrig.config.load_rig`` expects it."""
+    return load_mystery(path)["rig"]
+
+
+# -- reveal ---------------------------------------------------------------------------
+
+def reveal(path: Path | str) -> dict:
+    """The hidden truth of a mystery file, with the default rig for comparison."""
+    from .config import rig_from_dict
+    from .model.effects import get_effect
+
+    m = load_mystery(path)
+    doc = m["rig"]
+    rig_from_dict(doc, str(path))
+    base = _default_doc()
+    plant = {k: {"value": doc["plant"][key], "default": base["plant"][key],
+                 "change_percent": 100.0 * (doc["plant"][key] / base["plant"][key] - 1.0)}
+             for k, key in _PLANT_KEYS.items()}
+    effects = {}
+    for name, ps in doc.get("effects", {}).items():
+        e = get_effect(name)
+        effects[name] = {"params": ps, "summary": e.summary, "signature": e.signature,
+                         "experiment": e.experiment,
+                         "units": {p.name: p.unit for p in e.params}}
+    return {"file": str(path), "seed": m.get("seed"), "name": doc["rig"].get("name"),
+            "plant": plant, "derived": _derived(doc["plant"], doc),
+            "derived_default": _derived(base["plant"], base), "effects": effects,
+            "noise": doc.get("noise", {})}
+
+
+def format_reveal(r: dict) -> str:
+    d, d0 = r["derived"], r["derived_default"]
+    units = {"R": "ohm", "L": "H", "J": "kg m^2", "B": "N m s/rad", "K": "N m/A"}
+    out = [f"{r['file']}: {r['name']} (seed {r['seed']})", "",
+           "plant (truth; default rig in brackets):"]
+    for k, v in r["plant"].items():
+        out.append(f"  {k:<3}{v['value']:>12.4g} {units[k]:<10} ({v['default']:.4g}, "
+                   f"{v['change_percent']:+.1f} %)")
+    out += ["", "what a fit should find (identifiable combinations):",
+            f"  Km     {d['km_rad_s_per_v']:8.2f} rad/s per V  (default {d0['km_rad_s_per_v']:.2f})",
+            f"  tau_m  {1e3 * d['tau_m_s']:8.1f} ms           (default {1e3 * d0['tau_m_s']:.1f})",
+            f"  tau_e  {1e3 * d['tau_e_s']:8.2f} ms           (default {1e3 * d0['tau_e_s']:.2f})",
+            "", "hidden effects:"]
+    if not r["effects"]:
+        out.append("  none")
+    for name, e in r["effects"].items():
+        ps = ", ".join(f"{k} = {v:g} {e['units'][k]}" for k, v in e["params"].items())
+        out += [f"  {name}: {ps}", f"      {e['summary']}",
+                f"      shows as: {e['signature']}", f"      confirm with: {e['experiment']}"]
+    return "\n".join(out)
+
+
+# -- check ----------------------------------------------------------------------------
+
+def _model_effects(model: dict) -> dict:
+    """name -> params of a model file's effects (user effects by their class name)."""
+    eps = model.get("effect_params") or {}
+    out = {}
+    for spec in model.get("effects") or []:
+        name = str(spec)
+        if name in eps:
+            out[name] = eps[name]
+            continue
+        # a user effect "file.py:Class": its params are stored under the effect's name
+        cands = [k for k in eps if k not in out and k not in (model.get("effects") or [])]
+        out[name] = eps[cands[0]] if cands else {}
+    return {k: {p: v for p, v in (ps or {}).items() if isinstance(v, (int, float))}
+            for k, ps in out.items()}
+
+
+def _km_tau(params: dict, ka: float):
+    R, L, J, B, K = (params[k] for k in "RLJBK")
+    den = B * R + K * K
+    return ka * K / den, J * R / den
+
+
+def check(path: Path | str, model_path: Path | str, tolerance: float = PASS_TOLERANCE) -> dict:
+    """Grade a model file against a mystery rig's hidden truth.
+
+    An effect is *found* when the model has it by name, or has another effect with the
+    same parameter (e.g. ``stiction`` or a user-written Coulomb friction for
+    ``coulomb_friction``: both have ``tc_v``). Found effects pass when every parameter
+    is within ``tolerance`` (relative) of the truth. Score: per hidden effect 1 point
+    for finding it and 1 for its parameters; minus 0.5 for every extra effect; as a
+    percentage of the maximum.
+    """
+    truth = load_mystery(path)["rig"]
+    model_path = Path(model_path)
+    if not model_path.exists():
+        raise UserError(f"{model_path}: model file not found (make one with "
+                        f"`labrig identify DIR -o {model_path.name}`)")
+    try:
+        model = json.loads(model_path.read_text(encoding="utf-8"))
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise UserError(f"{model_path}: not a valid model file ({exc})") from None
+    if not isinstance(model, dict) or not isinstance(model.get("params"), dict):
+        raise UserError(f"{model_path}: no 'params'; is this a model saved by "
+                        "`labrig identify -o`?")
+    hidden = truth.get("effects", {})
+    have = _model_effects(model)
+    used: set[str] = set()
+    effects = {}
+    for name, tparams in hidden.items():
+        match = name if name in have else next(
+            (m for m, ps in have.items() if m not in used and set(tparams) <= set(ps)), None)
+        if match is None:
+            effects[name] = {"status": "missed", "as": None, "params": {}, "pass": False,
+                             "verdict": f"{name}: missed — the model has no {name} "
+                                        f"({', '.join(f'{k} = {v:g}' for k, v in tparams.items())})"}
+            continue
+        used.add(match)
+        perr = {}
+        for k, tv in tparams.items():
+            mv = have[match].get(k)
+            err = None if mv is None else 100.0 * (mv - tv) / tv
+            perr[k] = {"truth": tv, "model": mv, "error_percent": err,
+                       "pass": err is not None and abs(err) <= 100 * tolerance}
+        ok = all(p["pass"] for p in perr.values())
+        alias = "" if match == name else f" (as {match})"
+        detail = ", ".join(f"{k} {p['model']:.3g} vs {p['truth']:.3g} ({p['error_percent']:+.0f} %)"
+                           if p["model"] is not None else f"{k} missing" for k, p in perr.items())
+        effects[name] = {"status": "found", "as": match, "params": perr, "pass": ok,
+                         "verdict": f"{name}: found{alias}, {detail}: "
+                                    f"{'pass' if ok else f'size off by more than {100 * tolerance:.0f} %'}"}
+    extra = {m: ps for m, ps in have.items() if m not in used}
+    extra_verdicts = [f"{m}: extra — not in the rig ({', '.join(f'{k} = {v:.3g}' for k, v in ps.items()) or 'no params'}); "
+                      "it costs parameters without explaining anything real" for m, ps in extra.items()]
+    pts = sum((e["status"] == "found") + e["pass"] for e in effects.values()) - 0.5 * len(extra)
+    maxpts = 2 * len(hidden)
+    score = 100.0 if maxpts == 0 and not extra else max(0.0, 100.0 * pts / max(maxpts, 1))
+    # the identifiable plant combinations, for information
+    ka = (model.get("constants") or {}).get("Ka", truth["amplifier"]["gain"])
+    plant = {}
+    try:
+        km, tau = _km_tau({k: float(model["params"][k]) for k in "RLJBK"}, float(ka))
+        d = _derived(truth["plant"], truth)
+        plant = {"km": {"truth": d["km_rad_s_per_v"], "model": km,
+                        "error_percent": 100 * (km / d["km_rad_s_per_v"] - 1)},
+                 "tau_m_s": {"truth": d["tau_m_first_order_s"], "model": tau,
+                             "error_percent": 100 * (tau / d["tau_m_first_order_s"] - 1)}}
+    except (KeyError, TypeError, ValueError, ZeroDivisionError):
+        pass
+    rmse = model.get("rmse_over_noise")
+    overall = rmse.get("overall") if isinstance(rmse, dict) else rmse
+    all_pass = all(e["pass"] for e in effects.values()) and not extra
+    n_found = sum(e["status"] == "found" for e in effects.values())
+    verdict = (f"{n_found} of {len(hidden)} hidden effect(s) found, "
+               f"{sum(e['pass'] for e in effects.values())} sized within {100 * tolerance:.0f} %, "
+               f"{len(extra)} extra; score {score:.0f}/100"
+               + (" — complete" if all_pass else ""))
+    return {"file": str(path), "model": str(model_path), "score": round(score, 1),
+            "pass": all_pass, "found": [n for n, e in effects.items() if e["status"] == "found"],
+            "missed": [n for n, e in effects.items() if e["status"] == "missed"],
+            "extra": sorted(extra), "effects": effects, "extra_verdicts": extra_verdicts,
+            "plant": plant, "rmse_over_noise": overall,
+            "rmse_over_noise_channels": rmse if isinstance(rmse, dict) else None,
+            "tolerance_percent": 100 * tolerance, "verdict": verdict}
+
+
+def blind(result: dict) -> dict:
+    """A check result with the hidden truth taken out (for a student's self-check):
+    counts and the student's own effects only, never the names of missed effects."""
+    return {"file": result["file"], "model": result["model"],
+            "score": result["score"], "pass": result["pass"],
+            "found": result["found"], "missed_count": len(result["missed"]),
+            "extra": result["extra"],
+            "effects": {n: {"pass": e["pass"]} for n, e in result["effects"].items()
+                        if e["status"] == "found"},
+            "rmse_over_noise": result["rmse_over_noise"],
+            "verdict": result["verdict"]}
+
+
+def format_check(res: dict, blind_mode: bool = False) -> str:
+    out = [f"model {res['model']} against {res['file']}:"] if "model" in res else []
+    if blind_mode:
+        for n, e in res["effects"].items():
+            out.append(f"  {n}: found, size {'within' if e['pass'] else 'NOT within'} "
+                       "tolerance")
+        if res["missed_count"]:
+            out.append(f"  {res['missed_count']} hidden effect(s) still missing")
+        for m in res["extra"]:
+            out.append(f"  {m}: not in the rig")
+    else:
+        for e in res["effects"].values():
+            out.append("  " + e["verdict"])
+        out += ["  " + v for v in res["extra_verdicts"]]
+        for k, p in res["plant"].items():
+            label = "Km (rad/s per V)" if k == "km" else "tau_m (s)"
+            out.append(f"  plant {label}: model {p['model']:.4g} vs truth {p['truth']:.4g} "
+                       f"({p['error_percent']:+.1f} %)")
+    r = res.get("rmse_over_noise")
+    if r is not None:
+        out.append(f"  rmse/noise of the model: {r:.2f} (1.0 is the noise floor)")
+    out.append(res["verdict"])
+    return "\n".join(out)

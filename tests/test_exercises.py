@@ -1,0 +1,161 @@
+"""The exercise sheets (docs/exercises/*.md) run as written.
+
+Conventions of a sheet (docs/instructor/README.md repeats them for authors):
+
+- ```bash blocks: commands a student types, one per line, run in order. Only
+  ``labrig ...`` (run as ``python -m labrig`` from this interpreter) and ``python ...``
+  (this interpreter); no pipes, redirections or ``&&``. A line may end in
+  ``# expect-exit: N`` when the sheet demonstrates an error; otherwise the exit code
+  must be 0. ``#`` comment lines are skipped.
+- ```python file=NAME / ```toml file=NAME blocks: files the sheet tells the student to
+  create; they are written to disk when the runner reaches them.
+- ```text blocks (real rig only, e.g. ``--port /dev/ttyACM0``, or sample output) and
+  any other fences are not run.
+
+Each sheet runs in a fresh temporary folder holding copies of the repository's
+``data/`` and ``configs/``, so sheets use relative names like ``data/sweep_default``.
+
+Run one sheet by hand, keeping its folder and printing every output and timing::
+
+    python tests/test_exercises.py docs/exercises/03_mystery_rig.md
+"""
+from __future__ import annotations
+
+import os
+import re
+import shlex
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+SHEETS = sorted((ROOT / "docs" / "exercises").glob("[0-9]*.md"))
+FENCE = re.compile(r"^```\s*([A-Za-z0-9_+-]*)\s*(.*)$")
+EXPECT = re.compile(r"#\s*expect-exit:\s*(\d+)\s*$")
+FORBIDDEN = {"|", "||", "&&", ";", ">", ">>", "<", "&", "2>", "2>&1"}
+
+
+def parse_sheet(path: Path) -> list[tuple]:
+    """A sheet -> steps in order: ("run", argv, expected_rc, line_no, line) or
+    ("file", name, text, line_no)."""
+    steps, lines = [], path.read_text(encoding="utf-8").splitlines()
+    i = 0
+    while i < len(lines):
+        m = FENCE.match(lines[i].strip())
+        if not m:
+            i += 1
+            continue
+        lang, info = m.group(1), m.group(2)
+        start = i + 1
+        j = start
+        while j < len(lines) and lines[j].strip() != "```":
+            j += 1
+        if j >= len(lines):
+            raise AssertionError(f"{path.name}:{i + 1}: unclosed ``` block")
+        body = lines[start:j]
+        fm = re.search(r"file=(\S+)", info)
+        if lang == "bash":
+            for k, line in enumerate(body, start + 1):
+                s = line.strip()
+                if not s or s.startswith("#"):
+                    continue
+                em = EXPECT.search(s)
+                rc = int(em.group(1)) if em else 0
+                argv = shlex.split(s, comments=True)
+                bad = FORBIDDEN.intersection(argv) or (s.endswith("\\") and {"\\"})
+                assert not bad, f"{path.name}:{k}: one plain command per line, no shell syntax ({bad})"
+                assert argv[0] in ("labrig", "python", "python3"), \
+                    f"{path.name}:{k}: sheets run only labrig and python commands, got {argv[0]!r}"
+                steps.append(("run", argv, rc, k, s))
+        elif fm:
+            steps.append(("file", fm.group(1), "\n".join(body) + "\n", start))
+        i = j + 1
+    return steps
+
+
+def setup_workdir(workdir: Path) -> None:
+    for name in ("data", "configs"):
+        shutil.copytree(ROOT / name, workdir / name,
+                        ignore=shutil.ignore_patterns("__pycache__", "*.pyc"))
+
+
+def _env() -> dict:
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(ROOT), env.get("PYTHONPATH")]))
+    env["MPLBACKEND"] = "Agg"
+    env.setdefault("PYTHONHASHSEED", "0")
+    return env
+
+
+def run_sheet(sheet: Path, workdir: Path, echo: bool = False) -> list[dict]:
+    """Run every step of ``sheet`` in ``workdir``; returns one record per command."""
+    setup_workdir(workdir)
+    records = []
+    for step in parse_sheet(sheet):
+        if step[0] == "file":
+            _, name, text, _ = step
+            (workdir / name).parent.mkdir(parents=True, exist_ok=True)
+            (workdir / name).write_text(text, encoding="utf-8")
+            if echo:
+                print(f"## wrote {name}", flush=True)
+            continue
+        _, argv, rc, line_no, line = step
+        cmd = ([sys.executable, "-m", "labrig"] if argv[0] == "labrig" else [sys.executable]) + argv[1:]
+        t0 = time.monotonic()
+        proc = subprocess.run(cmd, cwd=workdir, env=_env(), capture_output=True, text=True,
+                              timeout=600)
+        dt = time.monotonic() - t0
+        rec = {"line": line, "line_no": line_no, "rc": proc.returncode, "expected": rc,
+               "seconds": dt, "stdout": proc.stdout, "stderr": proc.stderr}
+        records.append(rec)
+        if echo:
+            print(f"$ {line}    [{dt:.1f} s, exit {proc.returncode}]\n{proc.stdout}", flush=True)
+            if proc.returncode != rc:
+                print(proc.stderr[-3000:], flush=True)
+        if proc.returncode != rc:
+            raise AssertionError(
+                f"{sheet.name}:{line_no}: `{line}` exited {proc.returncode}, expected {rc}\n"
+                f"--- stdout (end)\n{proc.stdout[-2000:]}\n--- stderr (end)\n{proc.stderr[-2000:]}")
+    return records
+
+
+def test_there_are_four_sheets_with_instructor_notes():
+    assert len(SHEETS) == 4, [s.name for s in SHEETS]
+    notes = ROOT / "docs" / "instructor"
+    for s in SHEETS:
+        assert (notes / s.name).exists(), f"no instructor notes for {s.name}"
+        steps = parse_sheet(s)
+        assert any(st[0] == "run" for st in steps), f"{s.name} has no ```bash commands"
+        text = s.read_text()
+        for heading in ("## Objectives", "## Questions", "## What good answers look like"):
+            assert heading in text, f"{s.name}: missing '{heading}'"
+
+
+def test_real_rig_commands_are_not_in_bash_blocks():
+    for s in SHEETS:
+        for st in parse_sheet(s):
+            if st[0] == "run":
+                assert "--port" not in st[1], f"{s.name}:{st[3]}: --port belongs in a ```text block"
+
+
+@pytest.mark.parametrize("sheet", SHEETS, ids=[s.stem for s in SHEETS])
+def test_sheet_runs(sheet, tmp_path):
+    records = run_sheet(sheet, tmp_path)
+    assert records
+    for r in records:
+        if r["expected"] != 0:  # a demonstrated error is one line, not a traceback
+            assert "Traceback" not in r["stderr"] and r["stderr"].strip(), r["line"]
+
+
+if __name__ == "__main__":  # run sheets by hand, printing outputs and times
+    for arg in sys.argv[1:] or map(str, SHEETS):
+        wd = Path(tempfile.mkdtemp(prefix=f"sheet_{Path(arg).stem}_"))
+        print(f"#### {arg} in {wd}", flush=True)
+        t0 = time.monotonic()
+        recs = run_sheet(Path(arg), wd, echo=True)
+        print(f"#### {arg}: {len(recs)} commands, {time.monotonic() - t0:.1f} s", flush=True)

@@ -1,0 +1,237 @@
+"""``labrig report``: one self-contained HTML page, readable in a browser and printable.
+
+The page is rendered with headless Chromium (Debian's ``chromium`` package; CI installs
+it) and the screenshot and the PDF print are checked. Without Chromium those two tests
+are skipped; the HTML checks run anyway.
+"""
+from __future__ import annotations
+
+import json
+import re
+import shutil
+import subprocess
+
+import numpy as np
+import pytest
+
+from labrig import __version__
+from labrig.bridge.base import Experiment
+
+from conftest import labrig, make_rig, sim_dataset, square_plan
+
+HEADINGS = ("1. The sweep", "2. First-order analysis", "3. Identified models",
+            "4. Where the model fails", "5. Diagnosis: what is missing", "6. The error ladder")
+HOSTILE = '<script>alert("x")</script> & friends'
+
+
+def _chromium() -> str | None:
+    for name in ("chromium", "/usr/bin/chromium", "chromium-browser"):
+        path = shutil.which(name)
+        if path:
+            return path
+    return None
+
+
+CHROMIUM = _chromium()
+needs_chromium = pytest.mark.skipif(
+    CHROMIUM is None, reason="headless Chromium not installed (Debian: apt-get install chromium)")
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory):
+    """Three short open-loop square waves and one closed-loop step at 500 Hz, with the
+    default rig's Coulomb friction: a story with something for the diagnosis to find."""
+    tmp = tmp_path_factory.mktemp("report")
+    rig = make_rig(effects={"coulomb_friction": {"tc_v": 0.13}})
+    plan = square_plan(amps=(1.2, 2.0, 2.5), rate=500.0, periods=1) + [
+        Experiment(name="cl_0.50V", loop="closed", amplitude_v=0.5, frequency_hz=0.25,
+                   periods=1, lead_in_s=0.5, sample_rate_hz=500.0, position_gain=2.0,
+                   velocity_gain=0.15)]
+    return sim_dataset(tmp, rig, plan, name="runs", seed=3)
+
+
+def _fake_identification(method, runs, fitness, rig):
+    """What `labrig identify --json` prints, small and by hand (no optimiser in the test)."""
+    p = rig.plant
+    return {"method": method, "effects": [], "effect_params": {}, "fixed": [],
+            "params": {"R": p.R, "L": p.L, "J": p.J, "B": p.B, "K": p.K},
+            "fitness": fitness,
+            "rmse_over_noise": {"speed": fitness * 0.8, "position": fitness * 1.2, "overall": fitness},
+            "fit_percent": {"speed": 97.5, "position": 96.1},
+            "identifiable": {
+                "km": {"value": 90.0, "unit": "rad/s per V", "identifiable": True,
+                       "interval95": [89.9, 90.1]},
+                "tau_m_s": {"value": 0.153, "unit": "s", "identifiable": True,
+                            "interval95": [0.152, 0.154]},
+                "tau_e_s": {"value": 1e-3, "unit": "s", "identifiable": False, "interval95": None},
+                "parameters": {"R": {"value": p.R, "identifiable": False},
+                               "K": {"value": p.K, "identifiable": True}},
+                "warnings": ["structurally unidentifiable: R, L, J, B, K are one member of a "
+                             "family"]},
+            "nfev": 1234, "nit": 10, "seconds": 12.5, "seed": 7,
+            "history": [3 * fitness, 2 * fitness, fitness],
+            "step_info": {"rise_time_s": 0.7, "settling_time_s": 1.3, "overshoot_percent": 0.0},
+            "noise": {"speed_rad_s": 0.45, "position_rad": 0.011},
+            "per_run": {r: {"speed": fitness, "position": fitness} for r in runs}}
+
+
+@pytest.fixture(scope="module")
+def work(dataset):
+    """A work folder as `labrig demo` leaves it, with small hand-made artefacts for the
+    slow stages (identify --method all, diagnose, ladder); analyse is left to the report."""
+    w = dataset.parent
+    rig = make_rig()
+    runs = sorted(p.stem for p in dataset.glob("*.csv"))
+    jfo = _fake_identification("jfo", runs, 9.5, rig)
+    pso = _fake_identification("pso", runs, 9.8, rig)
+    co = _fake_identification("co", runs, 9.3, rig)
+    (w / "identify_all.json").write_text(json.dumps(
+        {**co, "method": "all", "best": "co", "results": {"jfo": jfo, "pso": pso, "co": co}}))
+    ranking = [{"effect": "coulomb_friction", "rmse_over_noise": 1.1, "improvement": 0.88,
+                "delta_bic": -11000.0, "params": {"tc_v": 0.129}, "supported": True,
+                "held_out": {"runs": ["sq_2.00V"], "baseline": 2.7, "with_effect": 1.1,
+                             "improvement": 0.6},
+                "explanation": "Dry friction of brushes and bearings. " + HOSTILE},
+               {"effect": "delay", "rmse_over_noise": 9.3, "improvement": -0.0, "delta_bic": 8.0,
+                "params": {"td_s": 1e-4}, "supported": False, "explanation": "A delay."}]
+    diag = {"baseline": {"source": "the given model", "effects": [], "fitness": 9.3,
+                         "rmse_over_noise": {"speed": 7.2, "position": 11.1, "overall": 9.3}},
+            "regimes": {"by_regime": {"speed": {"steady": {"rmse_over_noise": 7.4,
+                                                           "share_of_error": 0.76,
+                                                           "share_of_time": 0.72},
+                                                "reversal": {"rmse_over_noise": 8.7,
+                                                             "share_of_error": 0.24,
+                                                             "share_of_time": 0.28}}},
+                        "by_amplitude": {"speed": {"open 1.20 V": 9.2, "open 2.50 V": 8.6}},
+                        "worst": {"channel": "speed", "regime": "reversal",
+                                  "rmse_over_noise": 8.7}},
+            "ranking": ranking, "recommendation": "coulomb_friction",
+            "verdict": "Add coulomb_friction: " + HOSTILE, "held_out": ["sq_2.00V"],
+            "criteria": {"min_improvement": 0.05, "max_delta_bic": -10.0, "floor": 1.15},
+            "seconds": 31.0}
+    (w / "diagnosis.json").write_text(json.dumps(diag))
+    steps = [{"label": "linear model", "effects": [],
+              "rmse_over_noise": {"overall": 9.3, "speed": 7.2, "position": 11.1},
+              "fit_percent": {"speed": 97.6, "position": 96.7}, "fitness": 9.3},
+             {"label": "+ coulomb_friction", "effects": ["coulomb_friction"],
+              "rmse_over_noise": {"overall": 1.1, "speed": 0.98, "position": 1.2},
+              "fit_percent": {"speed": 99.7, "position": 99.6}, "fitness": 1.1}]
+    (w / "ladder.json").write_text(json.dumps({"steps": steps}))
+    return w
+
+
+@pytest.fixture(scope="module")
+def full_report(dataset, work):
+    out = work / "report.html"
+    proc = labrig("report", dataset, "-o", out, check=0)  # --work defaults to the parent
+    assert "reading artefacts from" in proc.stderr
+    return out
+
+
+@pytest.fixture(scope="module")
+def quick_report(dataset, tmp_path_factory):
+    out = tmp_path_factory.mktemp("quick") / "quick.html"
+    labrig("report", dataset, "-o", out, "--quick", "--no-work", check=0)
+    return out
+
+
+def _check_self_contained(page: str):
+    # nothing fetched from elsewhere: no external src/href/url(), every image inline
+    assert not re.search(r"""(src|href)\s*=\s*["']?\s*(https?:)?//""", page, re.I)
+    assert not re.search(r"url\(\s*['\"]?\s*(https?:)?//", page, re.I)
+    assert not re.search(r"<(script|link|iframe|object|embed)\b", page, re.I)
+    imgs = re.findall(r"<img\b[^>]*\bsrc=\"([^\"]*)\"", page)
+    assert imgs, "no figures embedded"
+    assert all(s.startswith("data:image/png;base64,") for s in imgs)
+    assert "@media print" in page
+
+
+def test_report_quick_computes_what_it_needs(quick_report, dataset):
+    page = quick_report.read_text(encoding="utf-8")
+    _check_self_contained(page)
+    for h in HEADINGS:
+        assert f">{h}</h2>" in page
+    # the sweep table names every run; the analysis and a CO model were computed here
+    for name in ("sq_1.20V", "sq_2.00V", "sq_2.50V", "cl_0.50V"):
+        assert name in page
+    assert "Table 1" in page and "K<sub>m</sub> = &omega;/V" in page
+    assert "computed by this report" in page
+    assert ">CO (best)</th>" in page
+    assert "rmse/noise" in page
+    # diagnosis and ladder say how to fill them
+    assert page.count("skipped (--quick)") == 2
+    assert "labrig diagnose" in page and "labrig ladder" in page
+    assert len(re.findall(r"<img\b", page)) >= 5  # overview, analysis, convergence, regimes, worst run
+
+
+def test_report_reads_the_work_folder(full_report):
+    page = full_report.read_text(encoding="utf-8")
+    _check_self_contained(page)
+    for h in HEADINGS:
+        assert f">{h}</h2>" in page
+    assert "Not in this report" not in page
+    # JFO, PSO and CO side by side, CO best; artefacts named as the source
+    assert ">JFO</th>" in page and ">PSO</th>" in page and ">CO (best)</th>" in page
+    assert "identify_all.json" in page and "diagnosis.json" in page and "ladder.json" in page
+    assert "Recommendation: coulomb_friction" in page
+    assert "89.9" in page and "1234" in page  # an interval bound and nfev
+    # text from files is escaped, never markup
+    assert HOSTILE not in page and "<script>" not in page
+    assert html_escaped(HOSTILE) in page
+    assert f"<td>{__version__}</td>" in page  # version in the footer
+
+
+def html_escaped(text):
+    import html
+
+    return html.escape(text, quote=True)
+
+
+def test_report_user_errors(dataset, tmp_path):
+    p = labrig("report", dataset, "-o", tmp_path / "r.html", "--work", tmp_path / "nope")
+    assert p.returncode == 2 and "--work" in p.stderr
+    p = labrig("report", tmp_path / "missing", "-o", tmp_path / "r.html")
+    assert p.returncode == 2
+    assert not (tmp_path / "r.html").exists()
+
+
+def _chrome(*args, tmp):
+    cmd = [CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic",
+           "--no-first-run", "--disable-background-networking", "--disable-component-update",
+           "--disable-sync", "--hide-scrollbars", f"--user-data-dir={tmp / 'profile'}", *args]
+    return subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+
+
+@needs_chromium
+@pytest.mark.parametrize("which", ["full_report", "quick_report"])
+def test_report_renders_in_chromium(which, request, tmp_path):
+    from PIL import Image
+
+    page = request.getfixturevalue(which)
+    png = tmp_path / "shot.png"
+    proc = _chrome(f"--screenshot={png}", "--window-size=1280,2400", page.resolve().as_uri(),
+                   tmp=tmp_path)
+    assert png.exists(), proc.stderr[-2000:]
+    img = Image.open(png)
+    assert img.format == "PNG" and img.size == (1280, 2400)
+    a = np.asarray(img.convert("L"), dtype=float)
+    content = a[:, 100:1180]  # the page column
+    assert content.std() > 20, "the screenshot is (almost) uniform: nothing rendered"
+    nonwhite = float(np.mean(content < 245))
+    dark = float(np.mean(content < 128))
+    assert nonwhite > 0.05, f"only {nonwhite:.1%} non-white pixels"
+    assert dark > 0.005, f"only {dark:.2%} dark pixels: no text?"
+    assert len(np.unique(a.astype(np.uint8))) > 32  # text, tables and figures, not flat fill
+
+
+@needs_chromium
+def test_report_prints_to_pdf(full_report, tmp_path):
+    pdf = tmp_path / "report.pdf"
+    proc = _chrome(f"--print-to-pdf={pdf}", "--no-pdf-header-footer",
+                   full_report.resolve().as_uri(), tmp=tmp_path)
+    assert pdf.exists(), proc.stderr[-2000:]
+    data = pdf.read_bytes()
+    assert data.startswith(b"%PDF-")
+    pages = len(re.findall(rb"/Type\s*/Page(?![s\w])", data))
+    assert pages > 1, f"{pages} page(s): the print CSS should break between sections"
+    assert pages >= len(HEADINGS)  # one section per page at least
