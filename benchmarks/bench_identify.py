@@ -142,7 +142,8 @@ def user_loop(R, L, J, B, K, tc_v, u, dt, loop, Ka, N, Kt, Kpot, kp, kv, theta0)
 def reference_coulomb(rd, cand, tc_v, keep=None) -> float:
     t0 = time.perf_counter()
     for r in rd:
-        w, _ = user_loop(*cand, tc_v, r.u, r.dt, r.loop, r.Ka, r.N, r.Kt, r.Kpot, r.kp, r.kv,
+        with np.errstate(all="ignore"):  # forward Euler diverges for candidates with L/R < dt/2
+            w, _ = user_loop(*cand, tc_v, r.u, r.dt, r.loop, r.Ka, r.N, r.Kt, r.Kpot, r.kp, r.kv,
                          r.theta0)
         if keep is not None:
             keep.append(w)

@@ -212,7 +212,7 @@ def _check_effects(path, body) -> dict:
 def load_rig(path: Path | str | None = None) -> RigConfig:
     """Read and validate a rig TOML file (default: configs/rig_default.toml).
 
-    A mystery rig (``.labrig-mystery``) is decoded transparently.
+    A mystery rig (``*.mystery``, see ``labrig mystery``) is decoded transparently.
     """
     path = Path(path) if path is not None else _packaged("rig_default.toml")
     if path.suffix == ".mystery":

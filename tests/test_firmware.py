@@ -54,10 +54,9 @@ def test_both_boards_build_and_report_size():
 
 
 def _plan(exp, idx):
-    """The planned output at sample ``idx``. Evaluated half a sample late because
-    Experiment.waveform_at rounds exact segment edges either way (0.7 - 0.2 < 0.5 in
-    floating point); the board switches exactly at the edge sample."""
-    return exp.waveform_at((idx + 0.5) / exp.sample_rate_hz)
+    """The planned output at sample ``idx`` (waveform_at works on integer sample counts,
+    like the firmware, so edges fall on the same sample)."""
+    return exp.waveform_at(idx / exp.sample_rate_hz)
 
 
 def _run(bridge, exp, timeout=2.0):

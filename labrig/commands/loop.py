@@ -73,7 +73,13 @@ def cmd_diagnose(args):
     runs, model = _load(args)
     fixed = parse_fixed(args.fix)
     with Progress("diagnose", total=8) as bar:
-        res = diagnose(runs, model, seed=args.seed, fixed=fixed,
+        cands = [c.strip() for c in args.candidates.split(",")] if args.candidates else None
+        if cands:
+            from ..model.effects import get_effect
+
+            for c in cands:
+                get_effect(c)  # unknown names fail here, with the catalogue listed
+        res = diagnose(runs, model, seed=args.seed, fixed=fixed, candidates=cands,
                        progress=lambda i, name: (bar.update(i), bar.note(f"re-fitting {name}")))
     if args.output:
         from ..identify.modelfile import save_model
@@ -107,6 +113,7 @@ def _configure_diagnose(p):
     p.add_argument("--model", help="the current model (default: identify one without effects)")
     p.add_argument("--fix", help="parameters known from other measurements, e.g. R=8.2")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--candidates", help="only these catalogue effects (default: all the model lacks)")
     p.add_argument("-o", "--output", help="save the model with the recommended effect added")
     p.add_argument("--json", action="store_true", help="print one JSON object")
 

@@ -25,6 +25,10 @@ def cmd_report(args):
     data = Path(args.data)
     if not data.exists():
         raise UserError(f"{data}: no such folder of runs")
+    if data.is_dir() and not any(data.glob("*.csv")) and (data / "runs").is_dir():
+        # the work folder itself (labrig demo -o OUT): its runs are in OUT/runs
+        print(f"report: reading the runs in {data / 'runs'}", file=sys.stderr)
+        data = data / "runs"
     work = None
     if args.no_work:
         work = None

@@ -33,10 +33,13 @@ def _run_pso(obj, lo, hi, x0, o):
 
 
 def _run_co(obj, lo, hi, x0, o):
+    cb = o.get("callback")
     res = local(obj.residuals, lo, hi, x0=x0, starts=o["starts"], seed=o["seed"],
                 jac_batch=obj.residuals_jac_batch, max_nfev=o.get("max_nfev"),
-                callback=o.get("callback"))
-    res.fun = float(np.sqrt(res.fun))  # local reports the mean square; fitness is its root
+                callback=(lambda k, f: cb(k, float(np.sqrt(f)))) if cb else None)
+    # local reports mean squares; the fitness (and its history) is the root
+    res.fun = float(np.sqrt(res.fun))
+    res.history = [float(np.sqrt(h)) for h in res.history]
     return res
 
 
@@ -195,7 +198,7 @@ def identify(runs, method: str = "co", effects: list[Effect] = (), *, seed: int 
             best = IdentResult(x=x0, fun=float(res.fun), nfev=res.nfev, nit=res.nit,
                                history=res.history, seed=res.seed, method=method)
         res = _polish(best, obj.residuals, lo, hi, jac_batch=obj.residuals_jac_batch)
-        res.fun = float(np.sqrt(res.fun))
+        res.fun = float(np.sqrt(res.fun))  # polish keeps the global history (already a root)
         name = f"{method}+co"
     res.nfev = max(int(res.nfev), obj.nfev)
     phys = space.to_physical(res.x[None, :])[0]

@@ -162,15 +162,21 @@ class Objective:
 
     # -- residuals ----------------------------------------------------------------------
     def _stack(self, sims) -> np.ndarray:
-        parts = []
+        P = sims[0]["w"].shape[0]
+        R = np.empty((P, self.m))
+        k = 0
         for r, s in zip(self.runs, sims):
-            if self.use_theta and r.theta is not None:
-                parts.append(np.sqrt(self.p) * (r.theta[None, :] - s["theta"]) / self.sigma_theta)
-            if self.use_w and r.w is not None:
-                parts.append(np.sqrt(self.q) * (r.w[None, :] - s["w"]) / self.sigma_w)
-        R = np.concatenate(parts, axis=1)
+            for use, meas, sim, scale in ((self.use_theta, r.theta, s["theta"], np.sqrt(self.p) / self.sigma_theta),
+                                          (self.use_w, r.w, s["w"], np.sqrt(self.q) / self.sigma_w)):
+                if use and meas is not None:
+                    out = R[:, k:k + len(meas)]
+                    np.subtract(meas[None, :], sim, out=out)
+                    out *= scale
+                    k += len(meas)
         # a wild candidate (unstable, overflowing) must not poison the optimiser's sums
-        return np.clip(np.nan_to_num(R, nan=1e6, posinf=1e6, neginf=-1e6), -1e6, 1e6)
+        np.clip(R, -1e6, 1e6, out=R)
+        R[np.isnan(R)] = 1e6
+        return R
 
     def residuals_batch(self, X: np.ndarray) -> np.ndarray:
         """(P, D_free) search points -> (P, m) normalised residuals."""

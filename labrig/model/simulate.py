@@ -360,8 +360,7 @@ def _substeps(i, w, th, play, s_old, s_new, frac, prm, closed, S, c):
     return i, w, th, play
 
 
-@numba.njit(parallel=True, cache=True)
-def _kernel(s, m, frac, Ad, g_old, g_new, gf, prm, nonlinear, closed, S, c, out_w, out_th,
+def _kernel_py(s, m, frac, Ad, g_old, g_new, gf, prm, nonlinear, closed, S, c, out_w, out_th,
             store, wm, iw, tm, it, sse):
     P = prm.shape[0]
     n = s.shape[1]
@@ -429,3 +428,14 @@ def _kernel(s, m, frac, Ad, g_old, g_new, gf, prm, nonlinear, closed, S, c, out_
             else:
                 i, w, th, play = _substeps(i, w, th, play, s_old, s_new, frac[p], pr, closed, S, c)
         sse[p] = acc
+
+
+# Threads pay off for a swarm; for the few rows of a finite-difference Jacobian the
+# thread wake-up costs more than the work (and a loaded machine makes it ~10 ms).
+_kernel_par = numba.njit(parallel=True, cache=True)(_kernel_py)
+_kernel_ser = numba.njit(cache=True)(_kernel_py)
+
+
+def _kernel(*args):
+    P = args[7].shape[0]
+    return (_kernel_par if P >= 16 else _kernel_ser)(*args)

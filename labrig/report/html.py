@@ -282,6 +282,15 @@ def _gather_models(story: Story, tmp: Path, seed, log):
                 story.ident = []
             else:
                 story.sources["models"] = str(w / "identify_all.json")
+    if not story.ident and w and (w / "model0.json").is_file():
+        m = _read_json(w / "model0.json", story.notes)
+        names = ((m or {}).get("dataset") or {}).get("runs")
+        if m and isinstance(m.get("params"), dict) and _run_names_match(names, story):
+            story.ident = [dict(m, method=m.get("method", "?"))]
+            story.ident_best = story.ident[0]["method"]
+            story.sources["models"] = (f"{w / 'model0.json'} (run `labrig identify "
+                                       f"{story.data_dir} --method all --json > "
+                                       "identify_all.json` for JFO, PSO and CO side by side)")
     if not story.ident:
         from ..identify.engine import identify
 
