@@ -360,82 +360,95 @@ def _substeps(i, w, th, play, s_old, s_new, frac, prm, closed, S, c):
     return i, w, th, play
 
 
-def _kernel_py(s, m, frac, Ad, g_old, g_new, gf, prm, nonlinear, closed, S, c, out_w, out_th,
-            store, wm, iw, tm, it, sse):
-    P = prm.shape[0]
+@numba.njit(cache=True)
+def _candidate(p, s, m, frac, Ad, g_old, g_new, gf, prm, nonlinear, closed, S, c, out_w, out_th,
+               store, wm, iw, tm, it, sse):
+    """Simulate candidate ``p`` on one run (the loop body of the kernels below)."""
     n = s.shape[1]
     shared = s.shape[0] == 1  # the same input sequence for every candidate
     N = c[2]
-    for p in numba.prange(P):
-        row = np.int64(0)
-        if not shared:
-            row = np.int64(p)
-        acc = 0.0
-        i = 0.0
-        w = 0.0
-        th = c[7] * N
-        play = c[7]
-        pr = prm[p]
-        tc, ts, a = pr[C_TC], pr[C_TS], pr[C_A]
-        friction = tc > 0.0 or ts > 0.0
-        mp = m[p]
-        for k in range(n):
-            yth = play if a > 0.0 else th / N
-            if store:
-                out_w[p, k] = w
-                out_th[p, k] = yth
+    row = np.int64(0)
+    if not shared:
+        row = np.int64(p)
+    acc = 0.0
+    i = 0.0
+    w = 0.0
+    th = c[7] * N
+    play = c[7]
+    pr = prm[p]
+    tc, ts, a = pr[C_TC], pr[C_TS], pr[C_A]
+    friction = tc > 0.0 or ts > 0.0
+    mp = m[p]
+    for k in range(n):
+        yth = play if a > 0.0 else th / N
+        if store:
+            out_w[p, k] = w
+            out_th[p, k] = yth
+        else:
+            acc += (iw * (wm[k] - w)) ** 2 + (it * (tm[k] - yth)) ** 2
+        ko = k - mp - 1
+        kn = k - mp
+        s_old = s[row, ko] if ko >= 0 else 0.0
+        s_new = s[row, kn] if kn >= 0 else 0.0
+        exact = not nonlinear[p] and (w != 0.0 or not friction)
+        if not nonlinear[p] and friction and w == 0.0:
+            # stuck rotor: only the current moves, exactly, while friction holds
+            R, L, K = pr[0], pr[1], pr[4]
+            if closed:
+                v1 = c[1] * c[5] * (s_old - c[4] * th / N)
+                v2 = c[1] * c[5] * (s_new - c[4] * th / N)
             else:
-                acc += (iw * (wm[k] - w)) ** 2 + (it * (tm[k] - yth)) ** 2
-            ko = k - mp - 1
-            kn = k - mp
-            s_old = s[row, ko] if ko >= 0 else 0.0
-            s_new = s[row, kn] if kn >= 0 else 0.0
-            exact = not nonlinear[p] and (w != 0.0 or not friction)
-            if not nonlinear[p] and friction and w == 0.0:
-                # stuck rotor: only the current moves, exactly, while friction holds
-                R, L, K = pr[0], pr[1], pr[4]
-                if closed:
-                    v1 = c[1] * c[5] * (s_old - c[4] * th / N)
-                    v2 = c[1] * c[5] * (s_new - c[4] * th / N)
-                else:
-                    v1 = s_old
-                    v2 = s_new
-                fr = frac[p]
-                i1 = v1 / R + (i - v1 / R) * math.exp(-R * fr * c[0] / L)
-                i2 = v2 / R + (i1 - v2 / R) * math.exp(-R * (1.0 - fr) * c[0] / L)
-                if abs(K * i1) <= ts and abs(K * i2) <= ts:
-                    i = i2
-                    continue
+                v1 = s_old
+                v2 = s_new
+            fr = frac[p]
+            i1 = v1 / R + (i - v1 / R) * math.exp(-R * fr * c[0] / L)
+            i2 = v2 / R + (i1 - v2 / R) * math.exp(-R * (1.0 - fr) * c[0] / L)
+            if abs(K * i1) <= ts and abs(K * i2) <= ts:
+                i = i2
+                continue
+            i, w, th, play = _substeps(i, w, th, play, s_old, s_new, frac[p], pr, closed, S, c)
+            continue
+        if exact:
+            tf = math.copysign(tc, w) if w != 0.0 else 0.0
+            A = Ad[p]
+            ni = A[0, 0] * i + A[0, 1] * w + A[0, 2] * th + g_old[p, 0] * s_old + g_new[p, 0] * s_new + gf[p, 0] * tf
+            nw = A[1, 0] * i + A[1, 1] * w + A[1, 2] * th + g_old[p, 1] * s_old + g_new[p, 1] * s_new + gf[p, 1] * tf
+            nt = A[2, 0] * i + A[2, 1] * w + A[2, 2] * th + g_old[p, 2] * s_old + g_new[p, 2] * s_new + gf[p, 2] * tf
+            if friction and nw * w <= 0.0:
+                # the speed reaches zero inside this sample: resolve it finely
                 i, w, th, play = _substeps(i, w, th, play, s_old, s_new, frac[p], pr, closed, S, c)
                 continue
-            if exact:
-                tf = math.copysign(tc, w) if w != 0.0 else 0.0
-                A = Ad[p]
-                ni = A[0, 0] * i + A[0, 1] * w + A[0, 2] * th + g_old[p, 0] * s_old + g_new[p, 0] * s_new + gf[p, 0] * tf
-                nw = A[1, 0] * i + A[1, 1] * w + A[1, 2] * th + g_old[p, 1] * s_old + g_new[p, 1] * s_new + gf[p, 1] * tf
-                nt = A[2, 0] * i + A[2, 1] * w + A[2, 2] * th + g_old[p, 2] * s_old + g_new[p, 2] * s_new + gf[p, 2] * tf
-                if friction and nw * w <= 0.0:
-                    # the speed reaches zero inside this sample: resolve it finely
-                    i, w, th, play = _substeps(i, w, th, play, s_old, s_new, frac[p], pr, closed, S, c)
-                    continue
-                i, w, th = ni, nw, nt
-                if a > 0.0:
-                    x = th / N
-                    if play < x - a:
-                        play = x - a
-                    elif play > x + a:
-                        play = x + a
-            else:
-                i, w, th, play = _substeps(i, w, th, play, s_old, s_new, frac[p], pr, closed, S, c)
-        sse[p] = acc
+            i, w, th = ni, nw, nt
+            if a > 0.0:
+                x = th / N
+                if play < x - a:
+                    play = x - a
+                elif play > x + a:
+                    play = x + a
+        else:
+            i, w, th, play = _substeps(i, w, th, play, s_old, s_new, frac[p], pr, closed, S, c)
+    sse[p] = acc
 
 
-# Threads pay off for a swarm; for the few rows of a finite-difference Jacobian the
-# thread wake-up costs more than the work (and a loaded machine makes it ~10 ms).
-_kernel_par = numba.njit(parallel=True, cache=True)(_kernel_py)
-_kernel_ser = numba.njit(cache=True)(_kernel_py)
+
+# Two drivers with distinct code (numba's cache would otherwise hand the parallel
+# dispatcher the serial build of a shared function). Threads pay off for a swarm; for
+# the few rows of a finite-difference Jacobian the wake-up costs more than the work.
+@numba.njit(parallel=True, cache=True)
+def _kernel_par(s, m, frac, Ad, g_old, g_new, gf, prm, nonlinear, closed, S, c, out_w, out_th,
+                store, wm, iw, tm, it, sse):
+    for p in numba.prange(prm.shape[0]):
+        _candidate(p, s, m, frac, Ad, g_old, g_new, gf, prm, nonlinear, closed, S, c, out_w,
+                   out_th, store, wm, iw, tm, it, sse)
+
+
+@numba.njit(cache=True)
+def _kernel_ser(s, m, frac, Ad, g_old, g_new, gf, prm, nonlinear, closed, S, c, out_w, out_th,
+                store, wm, iw, tm, it, sse):
+    for p in range(prm.shape[0]):
+        _candidate(p, s, m, frac, Ad, g_old, g_new, gf, prm, nonlinear, closed, S, c, out_w,
+                   out_th, store, wm, iw, tm, it, sse)
 
 
 def _kernel(*args):
-    P = args[7].shape[0]
-    return (_kernel_par if P >= 16 else _kernel_ser)(*args)
+    return (_kernel_par if args[7].shape[0] >= 16 else _kernel_ser)(*args)
