@@ -309,8 +309,8 @@ class PopulationSolver:
             message=message, method=self.method, success=finite,
             extra=self._extra())
 
-    def _iterate(self, t: int) -> None:  # pragma: no cover - abstract
-        raise NotImplementedError
+    def _iterate(self, t: int) -> None:  # pragma: no cover - every solver overrides it
+        raise TypeError(f"{type(self).__name__} must implement _iterate(t)")
 
     def _extra(self) -> dict[str, Any]:
         return {}

@@ -307,6 +307,16 @@ def _expm_par(M):
     return out
 
 
+@numba.njit(cache=True, inline="always")
+def _play(play, x, a):
+    """The play operator (backlash of half gap a): the output follows x only at the gap's ends."""
+    if play < x - a:
+        return x - a
+    if play > x + a:
+        return x + a
+    return play
+
+
 @numba.njit(cache=True)
 def _substeps(i, w, th, play, s_old, s_new, frac, prm, closed, S, c):
     """Semi-implicit sub-steps through one sample, Karnopp friction (as the truth)."""
@@ -352,11 +362,7 @@ def _substeps(i, w, th, play, s_old, s_new, frac, prm, closed, S, c):
             w = w + h / J * tnf
         th = th + h * w
         if a > 0.0:
-            x = th / N
-            if play < x - a:
-                play = x - a
-            elif play > x + a:
-                play = x + a
+            play = _play(play, th / N, a)
     return i, w, th, play
 
 
@@ -420,11 +426,7 @@ def _candidate(p, s, m, frac, Ad, g_old, g_new, gf, prm, nonlinear, closed, S, c
                 continue
             i, w, th = ni, nw, nt
             if a > 0.0:
-                x = th / N
-                if play < x - a:
-                    play = x - a
-                elif play > x + a:
-                    play = x + a
+                play = _play(play, th / N, a)
         else:
             i, w, th, play = _substeps(i, w, th, play, s_old, s_new, frac[p], pr, closed, S, c)
     sse[p] = acc
