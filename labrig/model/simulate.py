@@ -385,6 +385,13 @@ def _candidate(p, s, m, frac, Ad, g_old, g_new, gf, prm, nonlinear, closed, S, c
     tc, ts, a = pr[C_TC], pr[C_TS], pr[C_A]
     friction = tc > 0.0 or ts > 0.0
     mp = m[p]
+    A = Ad[p]
+    a00, a01, a02, a10, a11, a12 = A[0, 0], A[0, 1], A[0, 2], A[1, 0], A[1, 1], A[1, 2]
+    a20, a21, a22 = A[2, 0], A[2, 1], A[2, 2]
+    gn0, gn1, gn2 = g_new[p, 0], g_new[p, 1], g_new[p, 2]
+    go0, go1, go2 = g_old[p, 0], g_old[p, 1], g_old[p, 2]
+    gf0, gf1, gf2 = gf[p, 0], gf[p, 1], gf[p, 2]
+    delayed = go0 != 0.0 or go1 != 0.0 or go2 != 0.0
     for k in range(n):
         yth = play if a > 0.0 else th / N
         if store:
@@ -415,11 +422,24 @@ def _candidate(p, s, m, frac, Ad, g_old, g_new, gf, prm, nonlinear, closed, S, c
             i, w, th, play = _substeps(i, w, th, play, s_old, s_new, frac[p], pr, closed, S, c)
             continue
         if exact:
-            tf = math.copysign(tc, w) if w != 0.0 else 0.0
-            A = Ad[p]
-            ni = A[0, 0] * i + A[0, 1] * w + A[0, 2] * th + g_old[p, 0] * s_old + g_new[p, 0] * s_new + gf[p, 0] * tf
-            nw = A[1, 0] * i + A[1, 1] * w + A[1, 2] * th + g_old[p, 1] * s_old + g_new[p, 1] * s_new + gf[p, 1] * tf
-            nt = A[2, 0] * i + A[2, 1] * w + A[2, 2] * th + g_old[p, 2] * s_old + g_new[p, 2] * s_new + gf[p, 2] * tf
+            # the generic update, with the terms that are zero for this candidate skipped
+            # (the hot path of every identifier: no friction, no delay, open loop)
+            ni = a00 * i + a01 * w + gn0 * s_new
+            nw = a10 * i + a11 * w + gn1 * s_new
+            nt = a20 * i + a21 * w + th + gn2 * s_new
+            if closed:
+                ni += a02 * th
+                nw += a12 * th
+                nt += (a22 - 1.0) * th
+            if delayed:
+                ni += go0 * s_old
+                nw += go1 * s_old
+                nt += go2 * s_old
+            if friction and w != 0.0:
+                tf = math.copysign(tc, w)
+                ni += gf0 * tf
+                nw += gf1 * tf
+                nt += gf2 * tf
             if friction and nw * w <= 0.0:
                 # the speed reaches zero inside this sample: resolve it finely
                 i, w, th, play = _substeps(i, w, th, play, s_old, s_new, frac[p], pr, closed, S, c)
