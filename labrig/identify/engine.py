@@ -33,10 +33,27 @@ def _run_pso(obj, lo, hi, x0, o):
 
 
 def _run_co(obj, lo, hi, x0, o):
+    """Multi-start least squares. The starts are screened on every k-th residual (about
+    8000 of them: the trust-region SVD, not the simulation, is what costs), and the best
+    start is then polished on all residuals, which also gives the covariance."""
     cb = o.get("callback")
-    res = local(obj.residuals, lo, hi, x0=x0, starts=o["starts"], seed=o["seed"],
-                jac_batch=obj.residuals_jac_batch, max_nfev=o.get("max_nfev"),
-                callback=(lambda k, f: cb(k, float(np.sqrt(f)))) if cb else None)
+    root_cb = (lambda k, f: cb(k, float(np.sqrt(f)))) if cb else None
+    stride = max(1, obj.m // 8000)
+    full = lambda x: local(obj.residuals, lo, hi, x0=x, starts=1, seed=o["seed"],  # noqa: E731
+                           jac_batch=obj.residuals_jac_batch, max_nfev=o.get("max_nfev"))
+    if o["starts"] > 1 and stride > 1:
+        screen = local(lambda x: obj.residuals(x)[::stride], lo, hi, x0=x0, starts=o["starts"],
+                       seed=o["seed"], jac_batch=lambda X: obj.residuals_jac_batch(X)[:, ::stride],
+                       max_nfev=o.get("max_nfev"), callback=root_cb)
+        res = full(screen.x)
+        res.nfev += screen.nfev
+        res.nit = screen.nit
+        res.history = list(screen.history) + list(res.history)
+        res.message = (f"best of {o['starts']} starts screened on every {stride}th residual, "
+                       f"then polished on all: {res.message}")
+    else:
+        res = local(obj.residuals, lo, hi, x0=x0, starts=o["starts"], seed=o["seed"],
+                    jac_batch=obj.residuals_jac_batch, max_nfev=o.get("max_nfev"), callback=root_cb)
     # local reports mean squares; the fitness (and its history) is the root
     res.fun = float(np.sqrt(res.fun))
     res.history = [float(np.sqrt(h)) for h in res.history]
