@@ -195,7 +195,8 @@ class SerialBridge(Bridge):
         try:
             ser.open()   # pyserial ignores ENOTTY from DTR/RTS on a pty itself
         except Exception as e:
-            raise RigError(f"cannot open {self.port}: {e}") from e
+            raise RigError(f"cannot open {self.port} ({getattr(e, 'strerror', None) or e}): is the "
+                           "board plugged in and is this its port? (ls /dev/ttyACM* /dev/ttyUSB*)") from e
         self._ser = ser
         # The Uno resets when the port opens and greets after its bootloader (~1-2 s);
         # its greeting may be lost, so ask again every 0.5 s.
