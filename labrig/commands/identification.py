@@ -78,11 +78,6 @@ def cmd_identify(args):
     if not effects_text and cfg.get("effects"):
         effects_text = ",".join(cfg["effects"])
     effects = parse_effects(effects_text)
-    for e in effects:
-        if ":" in (effects_text or ""):
-            for spec in effects_text.split(","):
-                if spec.endswith(f":{type(e).__name__}"):
-                    e.spec = spec.strip()
     bounds = {**cfg.get("bounds", {}), **parse_assignments(args.bounds, "--bounds", pair=True)}
     fixed = {**cfg.get("fixed", {}), **parse_assignments(args.fix, "--fix")}
     w = parse_assignments(args.weights, "--weights")

@@ -68,10 +68,10 @@ def cmd_diagnose(args):
     rank every catalogue effect the model lacks: re-fitted, compared on BIC and on a
     held-out run, each with its evidence and the experiment that would confirm it."""
     from ..diagnose import diagnose
-    from ..identify.commands_util import parse_fixed
+    from .identification import parse_assignments
 
     runs, model = _load(args)
-    fixed = parse_fixed(args.fix)
+    fixed = parse_assignments(args.fix, "--fix")
     with Progress("diagnose", total=8) as bar:
         cands = [c.strip() for c in args.candidates.split(",")] if args.candidates else None
         if cands:

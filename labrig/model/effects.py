@@ -339,7 +339,9 @@ def load_user_effect(spec: str) -> type[Effect]:
 def get_effect(name: str) -> Effect:
     """An effect instance by catalogue name or ``file.py:ClassName``."""
     if ":" in name and name.split(":")[0].endswith(".py"):
-        return load_user_effect(name)()
+        eff = load_user_effect(name)()
+        eff.spec = name  # saved in model files, so later commands can load it again
+        return eff
     try:
         return CATALOGUE[name]()
     except KeyError:
