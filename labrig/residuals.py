@@ -16,6 +16,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .identify.objective import fit_percent
+
 REGIMES = ("start", "reversal", "accel", "steady", "coast", "rest")
 REGIME_TEXT = {"start": "start from rest", "reversal": "reversal through zero speed",
                "accel": "acceleration", "steady": "steady state", "coast": "coast-down",
@@ -141,10 +143,18 @@ def run_residuals(rd, sim: dict, sigma_w: float, sigma_theta: float) -> dict:
             continue
         r = (y - yh) / sig
         out["channels"][ch] = {"measured": y, "simulated": yh, "residual": r, "sigma": sig,
+                               "fit_percent": fit_percent(y, yh),
+                               "rmse_over_noise": float(np.sqrt(np.mean(r ** 2))),
                                "stretches": stretches(r, labels, width),
                                "autocorr": autocorr(r), "crosscorr": crosscorr(r, rd.u),
                                "band": Z99 / np.sqrt(len(r))}
     return out
+
+
+def worst_run(per_run: list[dict]) -> dict:
+    """The run whose worst channel is furthest from the noise floor."""
+    return max(per_run, key=lambda rr: max((c["rmse_over_noise"] for c in rr["channels"].values()),
+                                           default=0.0))
 
 
 def regime_table(per_run: list[dict]) -> dict:

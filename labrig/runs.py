@@ -197,16 +197,37 @@ def _read_sidecar(json_path: Path, csv_path: Path) -> dict:
     return meta
 
 
-def _read_csv(csv_path: Path) -> pd.DataFrame:
+def _read_raw(path: Path, empty_hint: str = "") -> pd.DataFrame:
+    """A CSV as strings with stripped column names, or one clear error."""
     try:
-        raw = pd.read_csv(csv_path, dtype=str, keep_default_na=False, skipinitialspace=True)
+        raw = pd.read_csv(path, dtype=str, keep_default_na=False, skipinitialspace=True)
     except pd.errors.EmptyDataError:
-        raise RunFileError(f"{csv_path}: file is empty; expected a header row "
-                           "t,u,tacho,pos and one row per sample") from None
+        raise RunFileError(f"{path}: file is empty{empty_hint}") from None
     except (pd.errors.ParserError, UnicodeDecodeError) as exc:
-        raise RunFileError(f"{csv_path}: not a readable CSV ({str(exc).splitlines()[0]})") from None
-    cols = [c.strip() for c in raw.columns]
-    raw.columns = cols
+        raise RunFileError(f"{path}: not a readable CSV ({str(exc).splitlines()[0]})") from None
+    raw.columns = [c.strip() for c in raw.columns]
+    return raw
+
+
+def _finite_column(path: Path, raw: pd.DataFrame, c: str) -> np.ndarray:
+    """Column ``c`` as floats; the first NaN, inf, empty or non-numeric cell is an error
+    naming its row (header = row 1) and column."""
+    col = raw[c].str.strip()
+    values = pd.to_numeric(col, errors="coerce").to_numpy(float)
+    bad = ~np.isfinite(values)
+    if bad.any():
+        i = int(np.argmax(bad))
+        cell = col.iloc[i]
+        what = ("NaN or inf" if cell.lower().lstrip("+-") in ("nan", "inf", "infinity")
+                else f"non-numeric value {cell!r}" if cell else "an empty cell")
+        raise RunFileError(f"{path}: row {i + 2}, column '{c}': {what}; every "
+                           "sample must be a finite number")
+    return values
+
+
+def _read_csv(csv_path: Path) -> pd.DataFrame:
+    raw = _read_raw(csv_path, "; expected a header row t,u,tacho,pos and one row per sample")
+    cols = list(raw.columns)
     if not any(c in ("t", "u", "tacho", "pos") for c in cols):
         raise RunFileError(f"{csv_path}: no header row; the first line must name the "
                            "columns, e.g. t,u,tacho,pos")
@@ -222,21 +243,8 @@ def _read_csv(csv_path: Path) -> pd.DataFrame:
     known = [c for c in cols if c in ("t", "u", "tacho", "pos", "ref", "current")]
     data = {}
     for c in cols:
-        col = raw[c].str.strip()
-        num = pd.to_numeric(col, errors="coerce")
-        if c not in known:
-            data[c] = col  # kept, ignored
-            continue
-        values = num.to_numpy(float)
-        bad = ~np.isfinite(values)
-        if bad.any():
-            i = int(np.argmax(bad))
-            cell = col.iloc[i]
-            what = ("NaN or inf" if cell.lower().lstrip("+-") in ("nan", "inf", "infinity")
-                    else f"non-numeric value {cell!r}" if cell else "an empty cell")
-            raise RunFileError(f"{csv_path}: row {i + 2}, column '{c}': {what}; every "
-                               "sample must be a finite number")
-        data[c] = values
+        # unknown columns are kept as text and ignored
+        data[c] = _finite_column(csv_path, raw, c) if c in known else raw[c].str.strip()
     df = pd.DataFrame(data)
     t = df["t"].to_numpy()
     dt = np.diff(t)
@@ -339,26 +347,13 @@ def _read_csv_numeric(path: Path, columns: list[str]) -> dict[str, np.ndarray]:
     path = Path(path)
     if not path.exists():
         raise RunFileError(f"{path}: file not found")
-    try:
-        raw = pd.read_csv(path, dtype=str, keep_default_na=False, skipinitialspace=True)
-    except pd.errors.EmptyDataError:
-        raise RunFileError(f"{path}: file is empty") from None
-    except (pd.errors.ParserError, UnicodeDecodeError) as exc:
-        raise RunFileError(f"{path}: not a readable CSV ({str(exc).splitlines()[0]})") from None
-    raw.columns = [c.strip() for c in raw.columns]
+    raw = _read_raw(path)
     out = {}
     for c in columns:
         if c not in raw.columns:
             raise RunFileError(f"{path}: column '{c}' not found; the header has "
                                f"{', '.join(raw.columns)}")
-        col = raw[c].str.strip()
-        v = pd.to_numeric(col, errors="coerce").to_numpy(float)
-        bad = ~np.isfinite(v)
-        if bad.any():
-            i = int(np.argmax(bad))
-            raise RunFileError(f"{path}: row {i + 2}, column '{c}': {col.iloc[i]!r} is not a "
-                               "finite number")
-        out[c] = v
+        out[c] = _finite_column(path, raw, c)
     if len(raw) < 2:
         raise RunFileError(f"{path}: fewer than two data rows")
     return out

@@ -41,6 +41,7 @@ def cmd_demo(args):
     from ..model.effects import get_effect
     from ..report.compare_plots import plot_ladder, plot_regimes, plot_run_comparison
     from ..report.identify_plots import plot_convergence
+    from ..residuals import worst_run
     from ..runs import read_dataset
 
     t0 = time.perf_counter()
@@ -92,8 +93,7 @@ def cmd_demo(args):
     last = load_model(models[-1])
     ev = evaluate(runs, ModelState.from_model(last))
     ev0 = evaluate(runs, ModelState.from_model(model0))
-    worst = max(ev0["per_run"], key=lambda rr: max(
-        (float((c["residual"] ** 2).mean()) for c in rr["channels"].values()), default=0))
+    worst = worst_run(ev0["per_run"])
     plot_run_comparison(worst, figs / f"compare_{worst['name']}_model0.png",
                         title=f"{worst['name']}: linear model vs measurement")
     for rr in ev["per_run"]:

@@ -34,13 +34,8 @@ def cmd_compare(args):
              "  worst stretch"]
     for rr in ev["per_run"]:
         plot_run_comparison(rr, out / f"compare_{rr['name']}.png")
-        fits, rms = {}, {}
-        for ch, c in rr["channels"].items():
-            import numpy as np
-
-            y, yh = c["measured"], c["simulated"]
-            fits[ch] = 100 * (1 - np.linalg.norm(y - yh) / max(np.linalg.norm(y - y.mean()), 1e-300))
-            rms[ch] = float(np.sqrt(np.mean(c["residual"] ** 2)))
+        fits = {ch: c["fit_percent"] for ch, c in rr["channels"].items()}
+        rms = {ch: c["rmse_over_noise"] for ch, c in rr["channels"].items()}
         st = sorted((s for c in rr["channels"].values() for s in c["stretches"]),
                     key=lambda s: -s["rms"])
         worst = f"{st[0]['regime']} at {rr['t'][st[0]['start']]:.2f} s ({st[0]['rms']:.1f} x noise)" if st else "-"

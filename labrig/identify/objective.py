@@ -206,6 +206,11 @@ class Objective:
         return adequacy(self.runs, sims, self.sigma_w, self.sigma_theta, self.p, self.q)
 
 
+def fit_percent(y: np.ndarray, yhat: np.ndarray) -> float:
+    """MATLAB ``compare``'s fit: 100 (1 - ||y - yhat|| / ||y - mean(y)||)."""
+    return float(100 * (1 - np.linalg.norm(y - yhat) / max(np.linalg.norm(y - y.mean()), 1e-300)))
+
+
 def adequacy(runs, sims, sigma_w, sigma_theta, p=1.0, q=1.0, index=0) -> dict:
     """fitness, rmse_over_noise (overall/per channel/per run) and fit_percent."""
     sq = {"speed": [], "position": []}
@@ -234,7 +239,7 @@ def adequacy(runs, sims, sigma_w, sigma_theta, p=1.0, q=1.0, index=0) -> dict:
         n += len(e2)
         y = np.concatenate([a for a, _ in meas[ch]])
         yh = np.concatenate([b for _, b in meas[ch]])
-        out["fit_percent"][ch] = float(100 * (1 - np.linalg.norm(y - yh) / np.linalg.norm(y - y.mean())))
+        out["fit_percent"][ch] = fit_percent(y, yh)
     allsq = np.concatenate([np.concatenate(v) for v in sq.values() if v])
     out["rmse_over_noise"]["overall"] = float(np.sqrt(np.mean(allsq)))
     out["fitness"] = float(np.sqrt(tot / n))

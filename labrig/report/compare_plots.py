@@ -14,10 +14,6 @@ REGIME_COLOURS = {"start": "tab:green", "reversal": "tab:red", "accel": "tab:ora
                   "steady": "tab:blue", "coast": "tab:purple", "rest": "0.7"}
 
 
-def _fit_percent(y, yh):
-    return 100 * (1 - np.linalg.norm(y - yh) / max(np.linalg.norm(y - y.mean()), 1e-300))
-
-
 def plot_run_comparison(rr: dict, path, title: str = ""):
     """One run: measured vs simulated (fit % in the legend), residuals in noise units
     with the +-1 noise band and the stretches that leave it shaded by regime, and the
@@ -32,7 +28,7 @@ def plot_run_comparison(rr: dict, path, title: str = ""):
         ax = fig.add_subplot(gs[2 * i, :])
         ax.plot(t, c["measured"], color="0.25", lw=1.0, label="measured")
         ax.plot(t, c["simulated"], color="tab:red", lw=1.0, ls="--",
-                label=f"model (fit {_fit_percent(c['measured'], c['simulated']):.1f} %)")
+                label=f"model (fit {c['fit_percent']:.1f} %)")
         ax.set_ylabel(f"{ch}\n{units[ch]}")
         ax.legend(loc="upper right", fontsize=8)
         ax.grid(alpha=0.3)

@@ -399,8 +399,9 @@ def _gather_failures(story: Story, tmp: Path, log):
             reg_png = _figure_from(tmp, plot_regimes, ev0["regimes"], name="regimes.png",
                                    title="Where the linear model fails")
         if cmp_png is None:
-            rr = max(ev0["per_run"], key=lambda rr: max(
-                (float((c["residual"] ** 2).mean()) for c in rr["channels"].values()), default=0))
+            from ..residuals import worst_run
+
+            rr = worst_run(ev0["per_run"])
             worst = rr["name"]
             cmp_png = _figure_from(tmp, plot_run_comparison, rr, name="compare.png",
                                    title=f"{worst}: linear model vs measurement")
