@@ -7,13 +7,13 @@ to a default.
 from __future__ import annotations
 
 import dataclasses
-import math
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from .bridge.base import Experiment
-from .errors import ConfigError
+from .errors import ConfigError, UserError
+from .schemas import PlanFile, RigFile, validate
 
 CONFIG_DIR = Path(__file__).resolve().parent.parent / "configs"
 DEFAULT_RIG = CONFIG_DIR / "rig_default.toml"
@@ -102,107 +102,84 @@ class RigConfig:
                 "name": self.name}
 
 
-# key -> (attribute, lower, upper); bounds are physical plausibility, not taste
-_SCHEMA = {
-    "rig": {"name": ("name", None, None), "gear_ratio": ("gear_ratio", 0.01, 1e4)},
-    "plant": {"R_ohm": ("R", 1e-3, 1e4), "L_h": ("L", 1e-7, 10.0),
-              "J_kgm2": ("J", 1e-10, 10.0), "B_nms_per_rad": ("B", 0.0, 10.0),
-              "K_nm_per_a": ("K", 1e-5, 100.0)},
-    "amplifier": {"gain": ("gain", 1e-3, 1e3), "output_limit_v": ("output_limit_v", 0.01, 1e3)},
-    "sensors": {"tacho_v_per_rad_s": ("tacho_v_per_rad_s", 1e-6, 100.0),
-                "pos_v_per_rad": ("pos_v_per_rad", 1e-6, 1e3),
-                "pos_offset_v": ("pos_offset_v", -100.0, 100.0)},
-    "bridge": {"sample_rate_hz": ("sample_rate_hz", 1.0, 1e5),
-               "output_limit_v": ("output_limit_v", 0.0, 50.0),
-               "dac_bits": ("dac_bits", 1, 24), "dac_range_v": ("dac_range_v", None, None),
-               "adc_bits": ("adc_bits", 1, 24), "adc_range_v": ("adc_range_v", None, None),
-               "watchdog_ms": ("watchdog_ms", 1.0, 60000.0),
-               "calibration": ("calibration", None, None)},
-    "noise": {"tacho_v": ("tacho_v", 0.0, 10.0), "pos_v": ("pos_v", 0.0, 10.0),
-              "seed": ("seed", 0, 2 ** 32 - 1)},
+#: TOML key -> dataclass attribute, per section (the TOML names carry the units)
+_ATTRS = {
+    "rig": {"name": "name", "gear_ratio": "gear_ratio"},
+    "plant": {"R_ohm": "R", "L_h": "L", "J_kgm2": "J", "B_nms_per_rad": "B",
+              "K_nm_per_a": "K"},
 }
-_CALIBRATION_KEYS = {f"{ch}_{k}" for ch in ("dac", "tacho", "pos", "ref")
-                     for k in ("gain", "offset_v")}
 
 
 def _read_toml(path: Path | str, what: str) -> dict:
     path = Path(path)
-    if not path.exists():
+    if not path.is_file():
         raise ConfigError(f"{path}: {what} file not found")
+    if path.stat().st_size > 1_000_000:
+        raise ConfigError(f"{path}: too big for a {what} file (over 1 MB); is this the "
+                          "right file?")
     try:
         return tomllib.loads(path.read_text(encoding="utf-8"))
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{path}: not valid TOML ({exc}); fix the syntax") from None
-    except UnicodeDecodeError:
+    except (UnicodeDecodeError, RecursionError):
         raise ConfigError(f"{path}: not a text TOML file") from None
 
 
-def _check_value(path, key, value, lo, hi):
-    if lo is None:
-        return value
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise ConfigError(f"{path}: key '{key}' must be a number, got {value!r}")
-    if not math.isfinite(value) or value < lo or value > hi:
-        raise ConfigError(f"{path}: key '{key}' = {value} is out of range [{lo:g}, {hi:g}]")
-    return value
-
-
 def rig_from_dict(doc: dict, path: str = "<rig>") -> RigConfig:
-    """Validate a parsed rig document and build the ``RigConfig``."""
+    """Validate a parsed rig document (schema :class:`labrig.schemas.RigFile`) and
+    build the ``RigConfig``; keys left out keep the dataclass defaults."""
+    checked = validate(RigFile, doc, path, ConfigError, section_word=True)
     rig = RigConfig(source=str(path))
-    sections = {"rig": rig, "plant": rig.plant, "amplifier": rig.amplifier,
-                "sensors": rig.sensors, "bridge": rig.bridge, "noise": rig.noise}
-    for sec, body in doc.items():
-        if sec == "effects":
-            rig.effects = _check_effects(path, body)
+    targets = {"rig": rig, "plant": rig.plant, "amplifier": rig.amplifier,
+               "sensors": rig.sensors, "bridge": rig.bridge, "noise": rig.noise}
+    for sec, obj in targets.items():
+        body = getattr(checked, sec)
+        if body is None:
             continue
-        if sec not in _SCHEMA:
-            raise ConfigError(f"{path}: unknown section [{sec}]; expected one of "
-                              f"{', '.join(sorted(list(_SCHEMA) + ['effects']))}")
-        if not isinstance(body, dict):
-            raise ConfigError(f"{path}: [{sec}] must be a table")
-        for key, value in body.items():
-            if key not in _SCHEMA[sec]:
-                raise ConfigError(f"{path}: unknown key '{sec}.{key}'; expected one of "
-                                  f"{', '.join(sorted(_SCHEMA[sec]))}")
-            attr, lo, hi = _SCHEMA[sec][key]
-            value = _check_value(path, f"{sec}.{key}", value, lo, hi)
+        for key, value in body.model_dump(exclude_unset=True).items():
             if key.endswith("range_v"):
-                if (not isinstance(value, list) or len(value) != 2
-                        or not all(isinstance(v, (int, float)) for v in value)
-                        or value[0] >= value[1]):
-                    raise ConfigError(f"{path}: key '{sec}.{key}' must be [low, high] volts "
-                                      f"with low < high, got {value!r}")
                 value = (float(value[0]), float(value[1]))
-            if key == "calibration":
-                bad = set(value) - _CALIBRATION_KEYS
-                if bad:
-                    raise ConfigError(f"{path}: unknown key 'bridge.calibration.{sorted(bad)[0]}';"
-                                      f" expected one of {', '.join(sorted(_CALIBRATION_KEYS))}")
-            setattr(sections[sec], attr, value)
+            setattr(obj, _ATTRS.get(sec, {}).get(key, key), value)
+    rig.effects = _check_effects(path, checked.effects)
     return rig
 
 
-def _check_effects(path, body) -> dict:
+def rig_to_doc(rig: RigConfig) -> dict:
+    """The rig as the full TOML document (every key, defaults filled in)."""
+    inverse = {sec: {attr: key for key, attr in m.items()} for sec, m in _ATTRS.items()}
+    doc = {"rig": {"name": rig.name, "gear_ratio": rig.gear_ratio}}
+    for sec in ("plant", "amplifier", "sensors", "bridge", "noise"):
+        body = dataclasses.asdict(getattr(rig, sec))
+        doc[sec] = {inverse.get(sec, {}).get(k, k): (list(v) if isinstance(v, tuple) else v)
+                    for k, v in body.items() if not (k == "calibration" and not v)}
+    doc["effects"] = {k: dict(v) for k, v in rig.effects.items()}
+    return doc
+
+
+def _check_effects(path, body: dict) -> dict:
+    """Hidden effects by catalogue name, every parameter given and within its bounds.
+
+    A rig file is data: it may name a user effect (FILE.py:Class) only when the user
+    trusted that file on the command line (``--trust-code``), because loading it runs it.
+    """
     from .model.effects import get_effect  # late: the catalogue imports config-free code
 
-    if not isinstance(body, dict):
-        raise ConfigError(f"{path}: [effects] must be a table of effect tables")
     out = {}
     for name, params in body.items():
         try:
-            eff = get_effect(name)
-        except Exception as exc:
-            raise ConfigError(f"{path}: [effects.{name}]: {exc}") from None
-        params = dict(params or {})
-        known = {p.name for p in eff.params}
+            eff = get_effect(name, origin=f"{path}: [effects.{name}]")
+        except UserError as exc:
+            raise ConfigError(str(exc)) from None
+        known = {p.name: p for p in eff.params}
         for k, v in params.items():
             if k not in known:
                 raise ConfigError(f"{path}: unknown key 'effects.{name}.{k}'; "
                                   f"{name} has {', '.join(sorted(known))}")
-            p = next(p for p in eff.params if p.name == k)
-            _check_value(path, f"effects.{name}.{k}", v, p.lower, p.upper)
-        missing = known - set(params)
+            p = known[k]
+            if not p.lower <= v <= p.upper:
+                raise ConfigError(f"{path}: key 'effects.{name}.{k}' = {v:g} is out of range "
+                                  f"[{p.lower:g}, {p.upper:g}] {p.unit}")
+        missing = set(known) - set(params)
         if missing:
             raise ConfigError(f"{path}: [effects.{name}] is missing '{sorted(missing)[0]}'")
         out[name] = {k: float(v) for k, v in params.items()}
@@ -224,36 +201,31 @@ def load_rig(path: Path | str | None = None) -> RigConfig:
 
 # -- sweep plans ----------------------------------------------------------------
 
-_EXP_KEYS = {f.name for f in dataclasses.fields(Experiment)} | {"amplitudes_v"}
+#: a plan that asks for more samples than this is a typo (3600 s at 100 kHz would
+#: allocate gigabytes and run for minutes): refused before anything moves
+MAX_PLAN_SAMPLES = 20_000_000
+_STEMS = {"square": "sq", "step": "step", "staircase": "stair", "constant": "const"}
 
 
 def load_plan(path: Path | str | None = None, rig: RigConfig | None = None) -> list[Experiment]:
     """Read a sweep plan: ``[[experiment]]`` tables; ``amplitudes_v = [...]`` expands
-    one table into one experiment per amplitude."""
+    one table into one experiment per amplitude (schema :class:`labrig.schemas.PlanFile`)."""
     path = Path(path) if path is not None else _packaged("plan_default.toml")
     doc = _read_toml(path, "plan")
-    defaults = doc.pop("defaults", {})
-    exps = doc.pop("experiment", None)
-    if doc:
-        raise ConfigError(f"{path}: unknown key '{sorted(doc)[0]}'; a plan has "
-                          "[defaults] and [[experiment]] tables")
-    if not exps:
+    if "experiment" not in doc:
         raise ConfigError(f"{path}: no [[experiment]] tables; a plan needs at least one")
+    plan = validate(PlanFile, doc, path, ConfigError)
+    defaults = plan.defaults.model_dump(exclude_unset=True) if plan.defaults else {}
     rate = rig.bridge.sample_rate_hz if rig else 1000.0
     out: list[Experiment] = []
-    for k, raw in enumerate(exps, 1):
-        raw = {**defaults, **raw}
-        for key in raw:
-            if key not in _EXP_KEYS:
-                raise ConfigError(f"{path}: experiment {k}: unknown key '{key}'; expected one "
-                                  f"of {', '.join(sorted(_EXP_KEYS))}")
+    for k, spec in enumerate(plan.experiment, 1):
+        raw = {**defaults, **spec.model_dump(exclude_unset=True)}
         amps = raw.pop("amplitudes_v", None)
         raw.setdefault("sample_rate_hz", rate)
         for amp in (amps if amps is not None else [raw.get("amplitude_v", 1.5)]):
             e = dict(raw, amplitude_v=amp)
             if "name" not in e or amps is not None:
-                stem = {"square": "sq", "step": "step", "staircase": "stair",
-                        "constant": "const"}.get(e.get("waveform", "square"), "exp")
+                stem = _STEMS[e.get("waveform", "square")]
                 prefix = "cl_" if e.get("loop") == "closed" else ""
                 e["name"] = f"{prefix}{stem}_{amp:+.2f}V".replace("+", "")
             out.append(_check_experiment(path, k, e))
@@ -261,24 +233,36 @@ def load_plan(path: Path | str | None = None, rig: RigConfig | None = None) -> l
     dup = {n for n in names if names.count(n) > 1}
     if dup:
         raise ConfigError(f"{path}: experiment name '{sorted(dup)[0]}' is used twice")
+    total = sum(e.n_samples for e in out)
+    if total > MAX_PLAN_SAMPLES:
+        raise ConfigError(f"{path}: the plan asks for {total:,} samples in all, more than "
+                          f"labrig records in one sweep ({MAX_PLAN_SAMPLES:,}); shorten the "
+                          "experiments or lower sample_rate_hz")
     return out
 
 
 def _check_experiment(path, k, e) -> Experiment:
+    """What one key cannot say alone: the waveform's needs and the sampling theorem."""
     where = f"{path}: experiment {k} ({e.get('name')})"
-    if e.get("loop", "open") not in ("open", "closed"):
-        raise ConfigError(f"{where}: key 'loop' must be 'open' or 'closed', got {e['loop']!r}")
-    if e.get("waveform", "square") not in ("square", "step", "staircase", "constant"):
-        raise ConfigError(f"{where}: key 'waveform' must be square, step, staircase or "
-                          f"constant, got {e['waveform']!r}")
-    for key, lo, hi in (("amplitude_v", -50, 50), ("frequency_hz", 1e-3, 1e3),
-                        ("offset_v", -50, 50), ("lead_in_s", 0, 3600), ("periods", 0.01, 1e4),
-                        ("step_s", 1e-3, 3600), ("sample_rate_hz", 1, 1e5),
-                        ("position_gain", 0, 1e4), ("velocity_gain", 0, 1e4)):
-        if key in e:
-            _check_value(where, key, e[key], lo, hi)
-    if e.get("duration_s") is not None:
-        _check_value(where, "duration_s", e["duration_s"], 1e-3, 3600)
-    if e.get("waveform") == "staircase" and not e.get("levels"):
+    wave = e.get("waveform", "square")
+    if wave == "square" and not e["amplitude_v"] > 0:
+        raise ConfigError(f"{where}: a square wave needs amplitude_v > 0, got "
+                          f"{e['amplitude_v']:g} (it swings +-amplitude; use offset_v to "
+                          "shift it; a step may be negative)")
+    if wave == "square":
+        f, fs = e.get("frequency_hz", 0.25), e["sample_rate_hz"]
+        if f > fs / 10:
+            raise ConfigError(f"{where}: frequency_hz = {f:g} is above a tenth of the sample "
+                              f"rate ({fs:g} Hz): each half period needs at least 5 samples; "
+                              "lower the frequency or raise sample_rate_hz")
+    if wave == "staircase" and not e.get("levels"):
         raise ConfigError(f"{where}: a staircase needs 'levels' (a list of volts)")
-    return Experiment(**e)
+    exp = Experiment(**e)
+    if exp.n_samples > MAX_PLAN_SAMPLES:
+        raise ConfigError(f"{where}: {exp.n_samples:,} samples is more than labrig records "
+                          f"in one run ({MAX_PLAN_SAMPLES:,}); shorten it or lower "
+                          "sample_rate_hz")
+    if exp.n_samples < 2:
+        raise ConfigError(f"{where}: lasts {exp.total_s:g} s, under two samples; make it "
+                          "longer")
+    return exp

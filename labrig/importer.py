@@ -8,13 +8,15 @@ as volts with the gains given on the command line.
 from __future__ import annotations
 
 import math
+import re
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
 from .errors import RunFileError, UserError
-from .runs import Run, make_meta, write_run, _read_csv_numeric
+from .schemas import check_run_name
+from .runs import Run, make_meta, read_csv_columns, write_run
 
 SPEED_UNITS = {"rad/s": 1.0, "rpm": 2 * math.pi / 60.0}
 POS_UNITS = {"rad": 1.0, "deg": math.pi / 180.0}
@@ -50,18 +52,31 @@ def import_csv(src: Path | str, outdir: Path | str, mapping: dict[str, str], *,
                overwrite: bool = False) -> Path:
     """Convert a foreign CSV into a labrig run in ``outdir``; return the CSV path."""
     src = Path(src)
+    if name is None:  # a file name may hold spaces or brackets; a run name may not
+        name = re.sub(r"[^A-Za-z0-9_.+\-]", "_", src.stem).lstrip(".") or "run"
+    check_run_name(name, "--name")
     for opt, val, table in (("--speed-unit", speed_unit, SPEED_UNITS),
                             ("--pos-unit", pos_unit, POS_UNITS),
                             ("--time-unit", time_unit, TIME_UNITS)):
         if val not in table:
             raise UserError(f"{opt}: unknown unit '{val}'; expected one of {', '.join(table)}")
+    for opt, val, positive in (("--tacho-gain", tacho_gain, False), ("--pos-gain", pos_gain, False),
+                               ("--pos-offset", pos_offset, None),
+                               ("--gear-ratio", gear_ratio, True),
+                               ("--amplifier-gain", amplifier_gain, True)):
+        if val is None:
+            continue
+        if not math.isfinite(val) or (positive and val <= 0) or (positive is False and val == 0):
+            need = "a positive number" if positive else "a nonzero number" \
+                if positive is False else "a finite number"
+            raise UserError(f"{opt}: {val:g} is not {need}")
     if loop not in ("open", "closed"):
         raise UserError(f"--loop: expected open or closed, got '{loop}'")
     if "pos" in mapping and pos_gain is None and "tacho" in mapping:
         raise UserError("--pos-gain is needed with raw-volt columns (tacho=...,pos=...)")
     if "tacho" in mapping and tacho_gain is None:
         raise UserError("--tacho-gain (V per rad/s) is needed when mapping raw tacho volts")
-    frame = _read_csv_numeric(src, list(mapping.values()))
+    frame = read_csv_columns(src, list(mapping.values()))
     t = frame[mapping["t"]] * TIME_UNITS[time_unit]
     t = t - t[0]
     cols = {"t": t, "u": frame[mapping["u"]]}
@@ -100,6 +115,9 @@ def import_csv(src: Path | str, outdir: Path | str, mapping: dict[str, str], *,
                                   "amplifier_gain": float(amplifier_gain),
                                   "name": f"imported from {src.name}"},
                              imported_from=str(src.name)))
+    from .schemas import Sidecar, validate  # never write a run nobody can read back
+
+    validate(Sidecar, run.meta, f"{src} (as imported)", RunFileError)
     path = write_run(run, outdir, overwrite=overwrite)
     from .runs import read_run  # validate what we wrote, exactly as every reader will
 

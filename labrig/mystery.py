@@ -229,10 +229,18 @@ def load_mystery(path: Path | str) -> dict:
         if not isinstance(doc.get("rig"), dict):
             raise ValueError("no rig")
     except (ValueError, IndexError, KeyError, TypeError, binascii.Error, zlib.error,
-            UnicodeDecodeError, AttributeError):
+            UnicodeDecodeError, AttributeError, RecursionError, MemoryError):
         raise ConfigError(f"{bad} (damaged or edited: the contents do not decode); "
                           "ask for a fresh copy") from None
-    return doc
+    # the checksum only shows the file is intact, not that its author meant well: the
+    # rig inside is validated like any rig file, then completed with the defaults so
+    # reveal and check can read every key
+    seed = doc.get("seed")
+    if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int)):
+        raise ConfigError(f"{path}: key 'seed' must be an integer or null, got {seed!r}")
+    from .config import rig_from_dict, rig_to_doc
+
+    return {"rig": rig_to_doc(rig_from_dict(doc["rig"], str(path))), "seed": seed}
 
 
 def read_mystery(path: Path | str) -> dict:
@@ -322,18 +330,13 @@ def check(path: Path | str, model_path: Path | str, tolerance: float = PASS_TOLE
     for finding it and 1 for its parameters; minus 0.5 for every extra effect; as a
     percentage of the maximum.
     """
+    from .identify.modelfile import read_model_file
+
     truth = load_mystery(path)["rig"]
     model_path = Path(model_path)
-    if not model_path.exists():
-        raise UserError(f"{model_path}: model file not found (make one with "
-                        f"`labrig identify DIR -o {model_path.name}`)")
-    try:
-        model = json.loads(model_path.read_text(encoding="utf-8"))
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise UserError(f"{model_path}: not a valid model file ({exc})") from None
-    if not isinstance(model, dict) or not isinstance(model.get("params"), dict):
-        raise UserError(f"{model_path}: no 'params'; is this a model saved by "
-                        "`labrig identify -o`?")
+    # validated, never loaded: grading reads the effects' names and numbers only, so a
+    # student's user effect (FILE.py:Class) is matched by its parameters, not run
+    model = read_model_file(model_path)
     hidden = truth.get("effects", {})
     have = _model_effects(model)
     used: set[str] = set()

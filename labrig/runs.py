@@ -8,9 +8,11 @@ speed in rad/s (tacho / Kt) and ``Run.position`` the output-shaft angle in rad
 """
 from __future__ import annotations
 
+import csv
+import difflib
 import json
-import math
 import os
+import re
 import tempfile
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
@@ -24,6 +26,8 @@ from .errors import RunFileError
 FORMAT = "labrig-run/1"
 REQUIRED_COLUMNS = ("t", "u")
 SENSOR_COLUMNS = ("tacho", "pos")
+#: every column labrig reads; ``gap`` flags samples the link lost (interpolated)
+KNOWN_COLUMNS = ("t", "u", "tacho", "pos", "ref", "current", "gap")
 #: relative spread of the sampling interval still called uniform (scope exports
 #: print t with few digits; a missing sample doubles dt and is caught)
 UNIFORM_TOL = 0.02
@@ -137,7 +141,7 @@ def read_run(path: Path | str) -> Run:
     if not csv_path.exists():
         raise RunFileError(f"{csv_path}: run file not found")
     meta = _read_sidecar(json_path, csv_path)
-    data = _read_csv(csv_path)
+    data = _read_csv(csv_path, float(meta["sample_rate_hz"]))
     _check_against_sidecar(csv_path, json_path, data, meta)
     return Run(name=csv_path.stem, data=data, meta=meta, path=csv_path)
 
@@ -165,13 +169,13 @@ def read_dataset(paths) -> list[Run]:
 
 
 def _read_sidecar(json_path: Path, csv_path: Path) -> dict:
+    from .schemas import Sidecar, read_json, validate
+
     if not json_path.exists():
         raise RunFileError(f"{json_path}: sidecar missing for {csv_path.name}; every run "
-                           "needs a .json sidecar (see design.md 3.1 or `labrig import`)")
-    try:
-        meta = json.loads(json_path.read_text(encoding="utf-8"))
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise RunFileError(f"{json_path}: sidecar is not valid JSON ({exc})") from None
+                           "needs a .json sidecar (docs/design.md, 'Run files', or "
+                           "`labrig import`)")
+    meta = read_json(json_path, "sidecar", RunFileError)
     if not isinstance(meta, dict):
         raise RunFileError(f"{json_path}: sidecar must be a JSON object")
     fmt = meta.get("format")
@@ -179,58 +183,142 @@ def _read_sidecar(json_path: Path, csv_path: Path) -> dict:
         raise RunFileError(f"{json_path}: key 'format' missing; expected \"{FORMAT}\"")
     if fmt != FORMAT:
         raise RunFileError(f"{json_path}: key 'format' is {fmt!r}; this labrig reads \"{FORMAT}\"")
-    rate = meta.get("sample_rate_hz")
-    if isinstance(rate, bool) or not isinstance(rate, (int, float)) or not rate > 0 \
-            or not math.isfinite(rate):
-        raise RunFileError(f"{json_path}: key 'sample_rate_hz' must be a positive number, "
-                           f"got {rate!r}")
     for key in ("experiment", "sensors", "rig"):
         if not isinstance(meta.get(key), dict):
             raise RunFileError(f"{json_path}: key '{key}' missing or not an object")
-    loop = meta["experiment"].get("loop")
-    if loop not in ("open", "closed"):
-        raise RunFileError(f"{json_path}: key 'experiment.loop' must be \"open\" or "
-                           f"\"closed\", got {loop!r}")
-    gr = meta["rig"].get("gear_ratio", 1.0)
-    if isinstance(gr, bool) or not isinstance(gr, (int, float)) or not gr > 0:
-        raise RunFileError(f"{json_path}: key 'rig.gear_ratio' must be a positive number")
-    return meta
+    checked = validate(Sidecar, meta, json_path, RunFileError)
+    # the validated values (ints as floats); keys the schema does not know ride along
+    return checked.model_dump(exclude_unset=True)
 
 
-def _read_raw(path: Path, empty_hint: str = "") -> pd.DataFrame:
-    """A CSV as strings with stripped column names, or one clear error."""
+# -- CSV ----------------------------------------------------------------------------
+
+#: a run file larger than this is refused before reading (2 GB is ~40 million rows of
+#: t,u,tacho,pos): split the recording instead
+MAX_CSV_BYTES = 2_000_000_000
+MAX_ROWS = 20_000_000
+#: how people name labrig's columns elsewhere: a header with one of these where the
+#: labrig name is missing is a misspelling to fix, not an extra column to ignore
+SYNONYMS = {"time": "t", "time_s": "t", "input": "u", "voltage": "u", "u_v": "u",
+            "speed": "tacho", "velocity": "tacho", "omega": "tacho", "w": "tacho",
+            "position": "pos", "angle": "pos", "theta": "pos", "reference": "ref",
+            "i": "current", "ia": "current"}
+CHUNK_ROWS = 500_000
+
+
+def _near_miss(col: str, present: list[str]) -> str | None:
+    """The labrig column ``col`` probably means, if that column is not there."""
+    low = col.lower()
+    cand = low if low in KNOWN_COLUMNS else SYNONYMS.get(low)
+    if cand is None and len(low) >= 3:
+        close = difflib.get_close_matches(low, [c for c in KNOWN_COLUMNS if len(c) >= 3],
+                                          n=1, cutoff=0.75)
+        cand = close[0] if close else None
+    return cand if cand is not None and cand not in present else None
+
+
+def _read_header(path: Path, empty_hint: str = "") -> list[str]:
     try:
-        raw = pd.read_csv(path, dtype=str, keep_default_na=False, skipinitialspace=True)
-    except pd.errors.EmptyDataError:
-        raise RunFileError(f"{path}: file is empty{empty_hint}") from None
-    except (pd.errors.ParserError, UnicodeDecodeError) as exc:
-        raise RunFileError(f"{path}: not a readable CSV ({str(exc).splitlines()[0]})") from None
+        size = path.stat().st_size
+        if size > MAX_CSV_BYTES:
+            raise RunFileError(f"{path}: {size / 1e9:.1f} GB is more than labrig reads in one "
+                               f"run ({MAX_CSV_BYTES / 1e9:.0f} GB); split the recording")
+        with path.open(encoding="utf-8", newline="") as fh:
+            line = fh.readline()
+            while line and not line.strip():
+                line = fh.readline()
+    except UnicodeDecodeError:
+        raise RunFileError(f"{path}: not a readable CSV (not UTF-8 text)") from None
+    if not line.strip():
+        raise RunFileError(f"{path}: file is empty{empty_hint}")
+    return [c.strip() for c in next(csv.reader([line]))]
+
+
+def _no_duplicates(path: Path, cols: list[str]) -> None:
+    dup = sorted({c for c in cols if cols.count(c) > 1})
+    if dup:
+        raise RunFileError(f"{path}: column '{dup[0]}' appears twice in the header; "
+                           "rename one of them")
+
+
+def _parse_error(path: Path, exc: Exception, ncols: int) -> RunFileError:
+    text = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+    m = re.search(r"Expected (\d+) fields in line (\d+), saw (\d+)", text)
+    if m:
+        return RunFileError(f"{path}: row {m.group(2)} has {m.group(3)} fields where the "
+                            f"header names {ncols} columns; fix that row or the header")
+    return RunFileError(f"{path}: not a readable CSV ({text})")
+
+
+def _cell_problem(cell) -> str:
+    if not isinstance(cell, str):
+        return "a missing field (the row is shorter than the header)"
+    if not cell:
+        return "an empty cell"
+    if cell.lower().lstrip("+-") in ("nan", "inf", "infinity"):
+        return "NaN or inf"
+    return f"non-numeric value {cell!r}"
+
+
+def _locate_bad_cell(path: Path, columns: list[str]) -> RunFileError:
+    """Stream the file as text to name the first cell that is not a finite number."""
+    row0 = 2  # the header is row 1
+    try:
+        reader = pd.read_csv(path, dtype=str, keep_default_na=False, skipinitialspace=True,
+                             chunksize=CHUNK_ROWS)
+        for chunk in reader:
+            chunk.columns = [c.strip() for c in chunk.columns]
+            for c in columns:
+                col = chunk[c].str.strip()
+                values = pd.to_numeric(col, errors="coerce").to_numpy(float)
+                bad = ~np.isfinite(values)
+                if bad.any():
+                    i = int(np.argmax(bad))
+                    return RunFileError(f"{path}: row {row0 + i}, column '{c}': "
+                                        f"{_cell_problem(col.iloc[i])}; every sample must be "
+                                        "a finite number")
+            row0 += len(chunk)
+    except (pd.errors.ParserError, ValueError) as exc:
+        return _parse_error(path, exc, 0)
+    return RunFileError(f"{path}: a cell is not a finite number")
+
+
+def _read_numeric(path: Path, cols: list[str], numeric: list[str]) -> pd.DataFrame:
+    """The CSV with ``numeric`` columns as float64, read by pandas' C parser (about
+    8 bytes a cell: 10 million rows fit in memory); any bad cell named by row."""
+    dtypes = {c: "float64" if c in numeric else str for c in cols}
+    try:
+        raw = pd.read_csv(path, skipinitialspace=True, dtype=dtypes, engine="c",
+                          keep_default_na=False, na_values=[""], nrows=MAX_ROWS + 1)
+    except pd.errors.ParserError as exc:
+        raise _parse_error(path, exc, len(cols)) from None
+    except ValueError:  # a cell that is not a number
+        raise _locate_bad_cell(path, numeric) from None
+    except UnicodeDecodeError:
+        raise RunFileError(f"{path}: not a readable CSV (not UTF-8 text)") from None
+    if len(raw) > MAX_ROWS:
+        raise RunFileError(f"{path}: more than {MAX_ROWS:,} rows; labrig reads at most that "
+                           "many samples in one run: split the recording")
     raw.columns = [c.strip() for c in raw.columns]
+    for c in numeric:
+        if not np.isfinite(raw[c].to_numpy()).all():
+            raise _locate_bad_cell(path, numeric)
     return raw
 
 
-def _finite_column(path: Path, raw: pd.DataFrame, c: str) -> np.ndarray:
-    """Column ``c`` as floats; the first NaN, inf, empty or non-numeric cell is an error
-    naming its row (header = row 1) and column."""
-    col = raw[c].str.strip()
-    values = pd.to_numeric(col, errors="coerce").to_numpy(float)
-    bad = ~np.isfinite(values)
-    if bad.any():
-        i = int(np.argmax(bad))
-        cell = col.iloc[i]
-        what = ("NaN or inf" if cell.lower().lstrip("+-") in ("nan", "inf", "infinity")
-                else f"non-numeric value {cell!r}" if cell else "an empty cell")
-        raise RunFileError(f"{path}: row {i + 2}, column '{c}': {what}; every "
-                           "sample must be a finite number")
-    return values
-
-
-def _read_csv(csv_path: Path) -> pd.DataFrame:
-    raw = _read_raw(csv_path, "; expected a header row t,u,tacho,pos and one row per sample")
-    cols = list(raw.columns)
+def _read_csv(csv_path: Path, fs: float | None = None) -> pd.DataFrame:
+    cols = _read_header(csv_path, "; expected a header row t,u,tacho,pos and one row per "
+                                  "sample")
     if not any(c in ("t", "u", "tacho", "pos") for c in cols):
         raise RunFileError(f"{csv_path}: no header row; the first line must name the "
                            "columns, e.g. t,u,tacho,pos")
+    _no_duplicates(csv_path, cols)
+    for c in cols:
+        means = _near_miss(c, cols) if c not in KNOWN_COLUMNS else None
+        if means:
+            raise RunFileError(f"{csv_path}: column '{c}' in the header looks like '{means}'; "
+                               f"rename it to '{means}' (labrig's columns are "
+                               f"{', '.join(KNOWN_COLUMNS)}, lower case)")
     for c in REQUIRED_COLUMNS:
         if c not in cols:
             raise RunFileError(f"{csv_path}: column '{c}' missing (header has "
@@ -238,14 +326,11 @@ def _read_csv(csv_path: Path) -> pd.DataFrame:
     if not any(c in cols for c in SENSOR_COLUMNS):
         raise RunFileError(f"{csv_path}: both 'tacho' and 'pos' missing; a run needs at "
                            "least one sensor column")
-    if len(raw) < 2:
-        raise RunFileError(f"{csv_path}: only {len(raw)} data row(s); a run needs samples")
-    known = [c for c in cols if c in ("t", "u", "tacho", "pos", "ref", "current")]
-    data = {}
-    for c in cols:
-        # unknown columns are kept as text and ignored
-        data[c] = _finite_column(csv_path, raw, c) if c in known else raw[c].str.strip()
-    df = pd.DataFrame(data)
+    numeric = [c for c in cols if c in KNOWN_COLUMNS]
+    df = _read_numeric(csv_path, cols, numeric)
+    if len(df) < 2:
+        raise RunFileError(f"{csv_path}: only {len(df)} data row(s); a run needs samples")
+    # unknown columns are carried along as text, never used
     t = df["t"].to_numpy()
     dt = np.diff(t)
     if (dt <= 0).any():
@@ -253,29 +338,30 @@ def _read_csv(csv_path: Path) -> pd.DataFrame:
         raise RunFileError(f"{csv_path}: row {i + 3}, column 't': time {t[i + 1]:g} s is not "
                            f"after {t[i]:g} s; t must be strictly increasing")
     med = float(np.median(dt))
-    dev = np.abs(dt - med) > UNIFORM_TOL * med
+    if fs is not None and abs(1.0 / med - fs) > RATE_TOL * fs:
+        raise RunFileError(f"{csv_path.with_suffix('.json')}: key 'sample_rate_hz' = {fs:g} "
+                           f"but column 't' of {csv_path.name} samples at {1 / med:.6g} Hz; "
+                           "fix one of them")
+    step = 1.0 / fs if fs is not None else med
+    dev = np.abs(dt - step) > UNIFORM_TOL * step
     if dev.any():
         i = int(np.argmax(dev))
-        raise RunFileError(f"{csv_path}: row {i + 3}, column 't': step {dt[i]:g} s where the "
-                           f"run samples every {med:g} s; t must be uniform (resample first, "
-                           "or a sample was lost)")
+        said = f"the sidecar's {fs:g} Hz" if fs is not None else "the run's median rate"
+        raise RunFileError(f"{csv_path}: row {i + 3}, column 't': the sampling interval "
+                           f"changes to {dt[i]:g} s ({1 / dt[i]:.4g} Hz) where {said} means "
+                           f"{step:g} s; t must be uniform (resample, split the run where "
+                           "the rate changes, or a sample was lost)")
     return df
 
 
 def _check_against_sidecar(csv_path, json_path, data, meta):
-    med = float(np.median(np.diff(data["t"].to_numpy())))
-    fs = float(meta["sample_rate_hz"])
-    if abs(1.0 / med - fs) > RATE_TOL * fs:
-        raise RunFileError(f"{json_path}: key 'sample_rate_hz' = {fs:g} but column 't' of "
-                           f"{csv_path.name} samples at {1 / med:.6g} Hz; fix one of them")
     sensors = meta["sensors"]
     need = ([("tacho_v_per_rad_s", "tacho")] if "tacho" in data else []) + \
            ([("pos_v_per_rad", "pos")] if "pos" in data else [])
     for key, col in need:
-        v = sensors.get(key)
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or v == 0 or not math.isfinite(v):
-            raise RunFileError(f"{json_path}: key 'sensors.{key}' must be a nonzero number "
-                               f"(the run has a '{col}' column to convert)")
+        if sensors.get(key) is None:
+            raise RunFileError(f"{json_path}: key 'sensors.{key}' missing; it must be a "
+                               f"nonzero number (the run has a '{col}' column to convert)")
 
 
 # -- writing -------------------------------------------------------------------
@@ -291,9 +377,18 @@ def make_meta(*, sample_rate_hz: float, experiment: dict, sensors: dict, rig: di
     return meta
 
 
+def _umask() -> int:
+    old = os.umask(0o022)
+    os.umask(old)
+    return old
+
+
 def _atomic_write(path: Path, text: str) -> None:
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
+        # mkstemp makes 0600; a run or model on a shared lab drive must be readable
+        # like any other file the user writes, so follow the umask
+        os.fchmod(fd, 0o666 & ~_umask())
         with os.fdopen(fd, "w", encoding="utf-8", newline="") as fh:
             fh.write(text)
             fh.flush()
@@ -311,9 +406,16 @@ def write_run(run: Run, directory: Path | str, overwrite: bool = False) -> Path:
     without sidecar, which readers reject by name and ``sweep --resume`` redoes;
     never a half-written file. An existing run is only replaced with ``overwrite``.
     """
+    from .schemas import check_run_name
+
     directory = Path(directory)
+    check_run_name(run.name, f"run '{run.name}'")
     directory.mkdir(parents=True, exist_ok=True)
     csv_path, json_path = directory / f"{run.name}.csv", directory / f"{run.name}.json"
+    # belt and braces: whatever the name, nothing lands outside the output folder
+    if csv_path.resolve().parent != directory.resolve():
+        raise RunFileError(f"run '{run.name}': would be written outside {directory}; "
+                           "a run name is a plain file name")
     if not overwrite and json_path.exists():
         raise RunFileError(f"{json_path}: a run named '{run.name}' already exists; choose "
                            "another output folder or remove it first")
@@ -342,18 +444,21 @@ def run_exists(directory: Path | str, name: str) -> bool:
     return (d / f"{name}.csv").exists() and (d / f"{name}.json").exists()
 
 
-def _read_csv_numeric(path: Path, columns: list[str]) -> dict[str, np.ndarray]:
-    """Read named numeric columns of a foreign CSV, with row/column errors."""
+def read_csv_columns(path: Path | str, columns: list[str]) -> dict[str, np.ndarray]:
+    """Named numeric columns of a foreign CSV (an export to import), with the same
+    row/column errors and memory bounds as a run file."""
     path = Path(path)
-    if not path.exists():
+    if not path.is_file():
         raise RunFileError(f"{path}: file not found")
-    raw = _read_raw(path)
-    out = {}
+    cols = _read_header(path)
+    _no_duplicates(path, cols)
     for c in columns:
-        if c not in raw.columns:
-            raise RunFileError(f"{path}: column '{c}' not found; the header has "
-                               f"{', '.join(raw.columns)}")
-        out[c] = _finite_column(path, raw, c)
+        if c not in cols:
+            close = difflib.get_close_matches(c, cols, n=1, cutoff=0.6)
+            hint = f" (did you mean '{close[0]}'?)" if close else ""
+            raise RunFileError(f"{path}: column '{c}' not found{hint}; the header has "
+                               f"{', '.join(cols)}")
+    raw = _read_numeric(path, cols, list(dict.fromkeys(columns)))
     if len(raw) < 2:
         raise RunFileError(f"{path}: fewer than two data rows")
-    return out
+    return {c: raw[c].to_numpy(float) for c in columns}

@@ -5,8 +5,8 @@ import json
 from pathlib import Path
 
 from ..errors import UserError
-from ..model.effects import get_effect
-from ..model.servo import PLANT_NAMES
+from ..model.effects import parse_effects
+from ..schemas import ModelFile, read_json, validate
 
 FORMAT = "labrig-model/1"
 
@@ -20,22 +20,27 @@ def save_model(model: dict, path: Path | str, overwrite: bool = True) -> Path:
     return path
 
 
-def load_model(path: Path | str) -> dict:
-    """Read and check a model file; returns the dict with ``effect_objects`` added."""
+def read_model_file(path: Path | str) -> dict:
+    """A model file parsed and validated (schema :class:`labrig.schemas.ModelFile`), as a
+    plain dict; nothing in it is loaded or run."""
     path = Path(path)
-    if not path.exists():
-        raise UserError(f"{path}: model file not found (make one with `labrig identify DIR -o {path.name}`)")
-    try:
-        model = json.loads(path.read_text(encoding="utf-8"))
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise UserError(f"{path}: not a valid model file ({exc})") from None
+    model = read_json(path, "model file", UserError,
+                      f" (make one with `labrig identify DIR -o {path.name}`)")
     if not isinstance(model, dict) or model.get("format") != FORMAT:
         raise UserError(f"{path}: key 'format' must be \"{FORMAT}\"; is this a labrig model?")
-    params = model.get("params")
-    if not isinstance(params, dict) or any(
-            not isinstance(params.get(k), (int, float)) or not params[k] > 0 for k in PLANT_NAMES):
-        raise UserError(f"{path}: key 'params' must give positive R, L, J, B and K")
-    model["effect_objects"] = [get_effect(s) for s in model.get("effects", [])]
+    return validate(ModelFile, model, path, UserError).model_dump(exclude_unset=True)
+
+
+def load_model(path: Path | str) -> dict:
+    """Read and check a model file; returns the dict with ``effect_objects`` added.
+
+    Effects are catalogue names; a user effect (FILE.py:Class) loads only if the user
+    trusted its file on the command line (``--trust-code``).
+    """
+    path = Path(path)
+    model = read_model_file(path)
+    model["effect_objects"] = parse_effects(model.get("effects", []),
+                                            origin=f"{path}: key 'effects'")
     for e in model["effect_objects"]:
         ep = model.get("effect_params", {}).get(e.name, {})
         for p in e.params:
@@ -51,3 +56,22 @@ def model_start(model: dict) -> dict:
         for k, v in ps.items():
             out[f"{e}.{k}"] = v
     return out
+
+
+def load_identify_config(path) -> dict:
+    """An optional identify config TOML (schema :class:`labrig.schemas.IdentifyConfig`):
+    ``[bounds]`` name = [lo, hi], ``[fixed]`` name = value, ``effects = [...]``.
+
+    Its effects are checked here, as names from a data file: catalogue names, or a user
+    effect only from a file trusted with ``--trust-code``.
+    """
+    if not path:
+        return {}
+    from ..config import _read_toml
+    from ..errors import ConfigError
+    from ..schemas import IdentifyConfig
+
+    cfg = validate(IdentifyConfig, _read_toml(path, "identify config"), path, ConfigError)
+    parse_effects(cfg.effects, origin=f"{path}: key 'effects'")
+    return {"bounds": {k: tuple(v) for k, v in cfg.bounds.items()},
+            "fixed": dict(cfg.fixed), "effects": list(cfg.effects)}

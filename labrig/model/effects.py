@@ -317,12 +317,50 @@ def _check_effect_class(cls, where: str) -> type[Effect]:
     return cls
 
 
-def load_user_effect(spec: str) -> type[Effect]:
-    """``path/to/file.py:ClassName`` -> the effect class, checked."""
+#: user-effect files the user trusted on this command line (``--trust-code FILE.py``)
+_TRUSTED: set[Path] = set()
+
+
+def trust_code(files) -> None:
+    """Allow data files (model, rig, identify config) to name effects from ``files``.
+
+    A user effect is Python code and runs when it is loaded. labrig loads one named on
+    the command line (``--effects FILE.py:Class``: the user asked for it), but one named
+    inside a data file only for files the user trusted explicitly, so opening a
+    student's model never runs the student's code by surprise.
+    """
+    for f in files or ():
+        path = Path(f)
+        if path.suffix != ".py" or not path.is_file():
+            raise UserError(f"--trust-code: '{f}' is not a Python file (give FILE.py)")
+        _TRUSTED.add(path.resolve())
+
+
+def reset_trust() -> None:
+    _TRUSTED.clear()
+
+
+def is_user_spec(name: str) -> bool:
+    return ":" in name and name.rpartition(":")[0].endswith(".py")
+
+
+def load_user_effect(spec: str, origin: str | None = None) -> type[Effect]:
+    """``path/to/file.py:ClassName`` -> the effect class, checked.
+
+    ``origin`` is the data file that names it (``None``: the command line); a data file
+    may only name a trusted file (see :func:`trust_code`).
+    """
     file, _, clsname = spec.rpartition(":")
     path = Path(file)
-    if not path.exists():
-        raise UserError(f"--effects: file '{file}' not found (expected FILE.py:ClassName)")
+    where = origin or "--effects"
+    if origin is not None and (not path.is_file() or path.resolve() not in _TRUSTED):
+        raise UserError(f"{origin}: names the user effect '{spec}', which is Python code; "
+                        "labrig never runs code named in a data file unless you pass "
+                        f"--trust-code {file} (only for code you have read)")
+    if not path.is_file():
+        raise UserError(f"{where}: file '{file}' not found (expected FILE.py:ClassName)")
+    if origin is None:  # named on the command line: the user asked for this code
+        _TRUSTED.add(path.resolve())
     modname = f"labrig_user_{path.stem}_{abs(hash(str(path.resolve())))}"
     spec_ = importlib.util.spec_from_file_location(modname, path)
     module = importlib.util.module_from_spec(spec_)
@@ -336,31 +374,41 @@ def load_user_effect(spec: str) -> type[Effect]:
     return _check_effect_class(cls, spec)
 
 
-def get_effect(name: str) -> Effect:
-    """An effect instance by catalogue name or ``file.py:ClassName``."""
-    if ":" in name and name.split(":")[0].endswith(".py"):
-        eff = load_user_effect(name)()
+def get_effect(name: str, origin: str | None = None) -> Effect:
+    """An effect instance by catalogue name or ``file.py:ClassName``.
+
+    ``origin`` names the data file the name comes from (``None``: the command line);
+    see :func:`load_user_effect` for what a data file may name.
+    """
+    if not isinstance(name, str):
+        raise UserError(f"{origin or '--effects'}: an effect name must be text, got {name!r}")
+    if is_user_spec(name):
+        eff = load_user_effect(name, origin)()
         eff.spec = name  # saved in model files, so later commands can load it again
         return eff
     try:
-        return CATALOGUE[name]()
+        return CATALOGUE[name.strip().lower()]()
     except KeyError:
-        raise UserError(f"unknown effect '{name}'; the catalogue has "
-                        f"{', '.join(CATALOGUE)} (or give FILE.py:ClassName)") from None
+        raise UserError(f"{origin + ': ' if origin else ''}unknown effect '{name}'; the "
+                        f"catalogue has {', '.join(CATALOGUE)} (or give FILE.py:ClassName "
+                        "on the command line)") from None
 
 
-def parse_effects(text: str | None) -> list[Effect]:
-    """``"deadband,coulomb_friction"`` -> effect instances; at most one per stage
-    for friction, output and delay (they do not compose)."""
+def parse_effects(text: str | list | None, origin: str | None = None) -> list[Effect]:
+    """``"deadband,coulomb_friction"`` (or a list of names) -> effect instances; at most
+    one per stage for friction, output and delay (they do not compose). ``origin``: the
+    data file the names come from, if not the command line."""
     if not text:
         return []
-    effects = [get_effect(s.strip()) for s in text.split(",") if s.strip()]
+    items = text.split(",") if isinstance(text, str) else list(text)
+    effects = [get_effect(s.strip(), origin) for s in items if s.strip()]
     names = [e.name for e in effects]
+    where = origin or "--effects"
     for n in names:
         if names.count(n) > 1:
-            raise UserError(f"--effects: '{n}' given twice")
+            raise UserError(f"{where}: '{n}' given twice")
     for stage in ("friction", "output", "delay"):
         same = [e.name for e in effects if e.stage == stage]
         if len(same) > 1:
-            raise UserError(f"--effects: {' and '.join(same)} both act as {stage}; pick one")
+            raise UserError(f"{where}: {' and '.join(same)} both act as {stage}; pick one")
     return effects
