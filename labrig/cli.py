@@ -26,10 +26,17 @@ def command(name, help):
 
 
 def emit_json(obj) -> None:
-    """Exactly one JSON object on stdout (progress and logs go to stderr)."""
+    """Exactly one JSON object on stdout (progress and logs go to stderr).
+
+    Non-finite numbers (an unbounded interval, the rmse of a diverged candidate)
+    become null: strict JSON has no inf/nan, and they are results, not bugs.
+    """
+    from .identify.result import finite_json
     from .runs import _json_default
 
-    sys.stdout.write(json.dumps(obj, indent=2, default=_json_default, allow_nan=False) + "\n")
+    # what ``default`` converts (arrays of unknown containers...) is cleaned as well
+    sys.stdout.write(json.dumps(finite_json(obj), indent=2, allow_nan=False,
+                                default=lambda o: finite_json(_json_default(o))) + "\n")
 
 
 def _float_opt(text: str) -> float:

@@ -1,6 +1,7 @@
 """``labrig identify``: fit R, L, J, B, K (+ effects) with JFO, PSO or CO."""
 from __future__ import annotations
 
+import math
 import sys
 import tomllib
 from pathlib import Path
@@ -48,6 +49,59 @@ def load_identify_config(path) -> dict:
             "fixed": dict(doc.get("fixed", {})), "effects": doc.get("effects", [])}
 
 
+def refuse_existing(paths, force: bool, what: str = "file") -> None:
+    """Refuse to replace existing output files unless ``--force``.
+
+    Commands call this before any fitting, so a user is not refused after a 30 s wait.
+    ``what="folder"``: ``paths[0]`` is the output folder (it may exist; it must not be
+    a file) and the rest are the files the command would write into it.
+    """
+    paths = [Path(p) for p in paths]
+    if what == "folder":
+        if paths[0].exists() and not paths[0].is_dir():
+            raise UserError(f"{paths[0]}: exists and is not a folder; give a folder name for -o")
+        paths = paths[1:]
+    else:
+        for p in paths:
+            if p.is_dir():
+                raise UserError(f"{p}: is a folder; give a file name for -o")
+    existing = [p for p in paths if p.exists()]
+    if existing and not force:
+        more = f" (and {len(existing) - 1} more output file{'s' * (len(existing) > 2)})" \
+            if len(existing) > 1 else ""
+        raise UserError(f"{existing[0]}: already exists{more}; add --force to replace it")
+
+
+def null_unbounded(identifiable: dict) -> dict:
+    """A copy of an identifiability dict in which an interval with an infinite or NaN
+    end is null, as an interval the data do not bound at all already is (a [0, inf]
+    interval says nothing, and strict JSON cannot carry it)."""
+    def fix(d):
+        if isinstance(d, dict) and d.get("interval95") is not None and \
+                not all(isinstance(x, (int, float)) and math.isfinite(x) for x in d["interval95"]):
+            return {**d, "interval95": None}
+        return d
+
+    out = dict(identifiable)
+    for key in ("km", "tau_m_s", "tau_e_s"):
+        if key in out:
+            out[key] = fix(out[key])
+    if isinstance(out.get("parameters"), dict):
+        out["parameters"] = {n: fix(d) for n, d in out["parameters"].items()}
+    return out
+
+
+def identification_dict(res) -> dict:
+    """``res.to_dict()`` (keys unchanged) with unbounded intervals null and the bound and
+    fit warnings under ``warnings``."""
+    from ..identify.result import identification_warnings
+
+    d = res.to_dict()
+    d["identifiable"] = null_unbounded(d.get("identifiable") or {})
+    d["warnings"] = identification_warnings(res)
+    return d
+
+
 def common_model_options(p):
     p.add_argument("data", nargs="+", help="folder(s) of runs, or run files")
     p.add_argument("--effects", help="effects by catalogue name or FILE.py:Class, comma separated")
@@ -84,6 +138,11 @@ def cmd_identify(args):
     if set(w) - {"p", "q"}:
         raise UserError("--weights: only p (position) and q (speed)")
     methods = ["jfo", "pso", "co"] if args.method == "all" else [args.method]
+    # before the fit, not after it
+    refuse_existing([args.output] if args.output else [], args.force)
+    if args.figures:
+        refuse_existing([args.figures, Path(args.figures) / "convergence.png"], args.force,
+                        what="folder")
     dataset = {"paths": [str(Path(d)) for d in args.data], "runs": [r.name for r in runs]}
     results = []
     for m in methods:
@@ -99,18 +158,21 @@ def cmd_identify(args):
         results.append(res)
     best = min(results, key=lambda r: r.fitness)
     if args.output:
-        save_model(best.model_dict(), args.output)
+        from ..identify.result import finite_json
+
+        save_model(finite_json(best.model_dict()), args.output)  # strict JSON: inf -> null
     if args.figures:
         from ..report.identify_plots import plot_convergence
 
         Path(args.figures).mkdir(parents=True, exist_ok=True)
         plot_convergence(results, Path(args.figures) / "convergence.png")
     if args.json:
+        dicts = {r.method: identification_dict(r) for r in results}
         if len(results) == 1:
-            emit_json(results[0].to_dict())
+            emit_json(dicts[results[0].method])
         else:
-            emit_json({**best.to_dict(), "method": "all", "best": best.method,
-                       "results": {r.method: r.to_dict() for r in results}})
+            emit_json({**dicts[best.method], "method": "all", "best": best.method,
+                       "results": dicts, "warnings": _all_warnings(results)})
     else:
         print(format_identification(results))
         if args.output:
@@ -125,6 +187,8 @@ def _configure(p):
     p.add_argument("--seed", type=int, help="random seed (recorded; same seed, same result)")
     p.add_argument("--model", help="start from a saved model (its effects are kept)")
     p.add_argument("-o", "--output", help="save the model (best method) as JSON")
+    p.add_argument("--force", action="store_true",
+                   help="replace existing output files (-o, --figures)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--pop", type=int, default=50, help="population of JFO/PSO (default 50)")
     p.add_argument("--iters", type=int, default=200, help="iterations of JFO/PSO (default 200)")
@@ -183,6 +247,8 @@ def format_identification(results) -> str:
             lines.append(f"-- {label} " + "-" * (w0 + w1 * len(heads) - len(label) - 4))
         else:
             lines.append(label.ljust(w0) + "".join(c.ljust(w1) for c in cells))
+    for w in _all_warnings(results):  # at a bound, fit below zero: the result is suspect
+        lines.append(f"\nwarning: {w}")
     warns = {w for r in results for w in r.identifiable.get("warnings", [])}
     for w in sorted(warns):
         lines.append(f"\nwarning: {w}")
@@ -192,10 +258,19 @@ def format_identification(results) -> str:
     return "\n".join(lines)
 
 
+def _all_warnings(results) -> list[str]:
+    """Bound and fit warnings of each result; prefixed by the method when several."""
+    from ..identify.result import identification_warnings
+
+    if len(results) == 1:
+        return identification_warnings(results[0])
+    return [f"{r.method}: {w}" for r in results for w in identification_warnings(r)]
+
+
 def _interval(d):
     if not d:
         return "-"
-    if not d.get("interval95"):
+    if not null_unbounded({"km": d})["km"].get("interval95"):  # none, or unbounded
         return f"{d['value']:.4g} ? (not seen by these data)"
     lo, hi = d["interval95"]
     return f"{d['value']:.4g} [{lo:.3g}, {hi:.3g}]"

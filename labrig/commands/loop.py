@@ -26,10 +26,17 @@ def cmd_compare(args):
     from ..diagnose import ModelState, evaluate
     from ..report.compare_plots import plot_regimes, plot_run_comparison
 
+    from ..identify.result import fit_warnings
+    from .identification import refuse_existing
+
     runs, model = _load(args)
-    ev = evaluate(runs, ModelState.from_model(model))
     out = Path(args.output)
+    # the figures this command writes, refused before the simulation if they exist
+    refuse_existing([out] + [out / f"compare_{r.name}.png" for r in runs] + [out / "regimes.png"],
+                    args.force, what="folder")
+    ev = evaluate(runs, ModelState.from_model(model))
     out.mkdir(parents=True, exist_ok=True)
+    warnings, table = [], []
     lines = [f"{'run':<16}{'fit % speed':>13}{'fit % pos':>11}{'rmse/noise w':>14}{'rmse/noise th':>15}"
              "  worst stretch"]
     for rr in ev["per_run"]:
@@ -42,8 +49,22 @@ def cmd_compare(args):
         f = lambda d, k: f"{d[k]:.1f}" if k in d else "-"  # noqa: E731
         lines.append(f"{rr['name']:<16}{f(fits, 'speed'):>13}{f(fits, 'position'):>11}"
                      f"{f(rms, 'speed'):>14}{f(rms, 'position'):>15}  {worst}")
+        warnings += fit_warnings(fits, f"run '{rr['name']}'")
+        table.append({"run": rr["name"], "fit_percent": fits, "rmse_over_noise": rms,
+                      "worst_stretch": {"regime": st[0]["regime"], "t_s": float(rr["t"][st[0]["start"]]),
+                                        "rms_over_noise": st[0]["rms"]} if st else None,
+                      "figure": str(out / f"compare_{rr['name']}.png")})
     plot_regimes(ev["regimes"], out / "regimes.png")
+    if args.json:
+        emit_json({"model": str(args.model), "runs": table,
+                   "fit_percent": ev["metrics"]["fit_percent"],
+                   "rmse_over_noise": ev["metrics"]["rmse_over_noise"],
+                   "figures": [t["figure"] for t in table] + [str(out / "regimes.png")],
+                   "warnings": warnings})
+        return 0
     print("\n".join(lines))
+    for w in warnings:
+        print(f"\nwarning: {w}")
     print(f"\nfigures in {out}/ (compare_<run>.png, regimes.png)")
     return 0
 
@@ -52,6 +73,8 @@ def _configure_compare(p):
     p.add_argument("data", nargs="+", help="folder(s) of runs")
     p.add_argument("--model", required=True, help="a model saved by `labrig identify -o`")
     p.add_argument("-o", "--output", default="compare", help="folder for the figures")
+    p.add_argument("--force", action="store_true", help="replace figures already in the folder")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
 
 
 cmd_compare.configure = _configure_compare
@@ -63,10 +86,11 @@ def cmd_diagnose(args):
     rank every catalogue effect the model lacks: re-fitted, compared on BIC and on a
     held-out run, each with its evidence and the experiment that would confirm it."""
     from ..diagnose import diagnose
-    from .identification import parse_assignments
+    from .identification import parse_assignments, refuse_existing
 
     runs, model = _load(args)
     fixed = parse_assignments(args.fix, "--fix")
+    refuse_existing([args.output] if args.output else [], args.force)  # before the 30 s
     with Progress("diagnose", total=8) as bar:
         cands = [c.strip() for c in args.candidates.split(",")] if args.candidates else None
         if cands:
@@ -78,9 +102,10 @@ def cmd_diagnose(args):
                        progress=lambda i, name: (bar.update(i), bar.note(f"re-fitting {name}")))
     if args.output:
         from ..identify.modelfile import save_model
+        from ..identify.result import finite_json
 
         if res["recommendation"]:
-            save_model(res_model(res, runs, res["recommendation"]), args.output)
+            save_model(finite_json(res_model(res, runs, res["recommendation"])), args.output)
     if args.json:
         emit_json({k: v for k, v in res.items() if not k.startswith("_")})
     else:
@@ -110,6 +135,7 @@ def _configure_diagnose(p):
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--candidates", help="only these catalogue effects (default: all the model lacks)")
     p.add_argument("-o", "--output", help="save the model with the recommended effect added")
+    p.add_argument("--force", action="store_true", help="replace an existing -o file")
     p.add_argument("--json", action="store_true", help="print one JSON object")
 
 
@@ -152,14 +178,20 @@ def cmd_ladder(args):
     from ..report.compare_plots import plot_ladder
     from ..runs import read_dataset
 
+    from .identification import refuse_existing
+
     runs = read_dataset(args.data)
+    out = Path(args.output)
+    # automatic mode saves step0..stepN.json; N is not known in advance, so every
+    # step file it may write counts
+    written = [] if args.models else [out / f"step{k}.json" for k in range(args.max_steps + 1)]
+    refuse_existing([out, out / "ladder.png", *written], args.force, what="folder")
     if args.models:
         steps = evaluate_ladder(runs, [m.strip() for m in args.models.split(",") if m.strip()])
     else:
         with Progress("ladder", total=args.max_steps) as bar:
             steps = auto_ladder(runs, max_steps=args.max_steps, outdir=args.output, seed=args.seed,
                                 log=lambda s: bar.log(s))
-    out = Path(args.output)
     out.mkdir(parents=True, exist_ok=True)
     plot_ladder(steps, out / "ladder.png")
     if args.json:
@@ -181,6 +213,7 @@ def _configure_ladder(p):
     p.add_argument("--max-steps", type=int, default=3, help="automatic mode: at most this many effects")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("-o", "--output", default="ladder", help="folder for models and the figure")
+    p.add_argument("--force", action="store_true", help="replace files already in the folder")
     p.add_argument("--json", action="store_true")
 
 

@@ -17,6 +17,9 @@ def cmd_mystery(args):
     from .. import mystery as m
 
     if args.action == "new":
+        from .identification import refuse_existing
+
+        refuse_existing([args.output], args.force)  # the same words as every other -o
         doc = m.new_mystery(args.seed)
         path = m.write_mystery(doc, args.output, seed=args.seed, overwrite=args.force)
         n = len(doc["effects"])

@@ -21,7 +21,10 @@ def cmd_report(args):
     leaves them); what is missing is computed: the analysis, a CO identification,
     and -- unless --quick -- the diagnosis (about 30 s) and the ladder."""
     from ..report.html import build_report, find_work
+    from .identification import refuse_existing
 
+    # before the analysis, identification and diagnosis (which can take a minute)
+    refuse_existing([args.output], args.force)
     data = Path(args.data)
     if not data.exists():
         raise UserError(f"{data}: no such folder of runs")
@@ -54,6 +57,7 @@ def _configure(p):
     p.add_argument("data", metavar="DIR", help="folder of runs")
     p.add_argument("-o", "--output", default="report.html",
                    help="the HTML file to write (default report.html)")
+    p.add_argument("--force", action="store_true", help="replace an existing -o file")
     p.add_argument("--work", metavar="WORKDIR",
                    help="folder with analysis.json, identify_all.json, model0.json, "
                         "diagnosis.json, model1.json, ladder.json, figures/ (default: the "

@@ -17,7 +17,8 @@ from typing import Any, Callable
 
 import numpy as np
 
-__all__ = ["IdentResult"]
+__all__ = ["IdentResult", "finite_json", "bound_warnings", "fit_warnings",
+           "identification_warnings"]
 
 
 @dataclass
@@ -111,6 +112,101 @@ def _jsonable(value: Any) -> Any:
     if isinstance(value, IdentResult):
         return value.to_dict()
     return value
+
+
+def finite_json(value: Any) -> Any:
+    """``value`` with every non-finite float replaced by ``None``, at any depth.
+
+    Python floats, numpy scalars and arrays inside dicts, lists and tuples are
+    converted; dict keys and any other object are left as they are (``json``'s
+    ``default`` deals with those). Strict JSON has no ``inf``/``nan``, and an
+    unbounded interval or a diverged candidate's rmse must not end a command in
+    an internal error.
+    """
+    if isinstance(value, dict):
+        return {k: finite_json(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [finite_json(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return finite_json(value.tolist())
+    if isinstance(value, (bool, np.bool_)):
+        return bool(value)
+    if isinstance(value, np.integer):
+        return int(value)
+    if isinstance(value, (float, np.floating)):
+        value = float(value)
+        return value if math.isfinite(value) else None
+    return value
+
+
+#: "At a bound" means within this fraction of the bound's span, measured in the
+#: coordinates the optimiser searches: decades for log-searched parameters. In
+#: physical units 0.1 % of R's default 0.1..100 ohm box would be 0.1 ohm and call
+#: R = 0.2 ohm "at" 0.1 ohm; in decades it is 0.003 (0.7 %), which is what an
+#: optimiser pressed against the wall of its box actually ends within.
+AT_BOUND_FRACTION = 1e-3
+
+
+def bound_warnings(space: Any, params: dict, units: dict | None = None) -> list[str]:
+    """One sentence per free parameter that ended at a bound of ``space``.
+
+    ``space`` has ``names``, ``lower``, ``upper``, ``log`` and ``fixed`` (an
+    ``objective.Space``); ``params`` maps names to physical values; ``units``
+    maps names to unit strings ("-" or "" for none).
+    """
+    units = units or {}
+    out = []
+    for n, lo, hi, lg in zip(space.names, space.lower, space.upper, space.log):
+        v = params.get(n)
+        if n in space.fixed or v is None or not math.isfinite(v):
+            continue
+        lo, hi, v = float(lo), float(hi), float(v)
+        if lg:  # log-searched parameters are positive; compare in decades
+            f = lambda x: math.log10(max(x, 1e-300))  # noqa: E731
+        else:
+            f = lambda x: x  # noqa: E731
+        tol = AT_BOUND_FRACTION * (f(hi) - f(lo))
+        if f(v) - f(lo) <= tol:
+            side, bound, want = "lower", lo, "smaller"
+        elif f(hi) - f(v) <= tol:
+            side, bound, want = "upper", hi, "larger"
+        else:
+            continue
+        u = units.get(n, "")
+        u = f" {u}" if u and u != "-" else ""
+        out.append(f"{n} = {v:.4g}{u} is at its {side} bound {bound:.4g}{u}: the data may want "
+                   f"a {want} value; widen the bound (--bounds {n}=LOW:HIGH) or check the units")
+    return out
+
+
+def fit_warnings(fit_percent: dict, where: str) -> list[str]:
+    """One sentence per channel whose fit % is below zero (or not a number).
+
+    ``where`` says what the fit is over, e.g. ``"run 'sq_1.20V'"`` or ``"all runs"``.
+    A fit below zero means the model is further from the measurement than the
+    measurement's own mean is: worse than a constant.
+    """
+    out = []
+    for ch in ("speed", "position"):
+        fp = fit_percent.get(ch)
+        if fp is None or fp >= 0:  # NaN fails ">= 0" and is reported too
+            continue
+        out.append(f"{where}: {ch} fit {fp:.1f} % is below zero: the model is worse than a "
+                   "constant (the measurement's mean); check that the model belongs to these "
+                   "data (rig constants, units) or that the fit converged")
+    return out
+
+
+def identification_warnings(ident: Any) -> list[str]:
+    """Bound and fit warnings of an ``engine.Identification``."""
+    from ..model.servo import PLANT_UNITS
+
+    units = dict(PLANT_UNITS)
+    for e in ident.effects:
+        for p in e.params:
+            units[f"{e.name}.{p.name}"] = p.unit
+    return (bound_warnings(ident.space, ident.params, units)
+            + fit_warnings(ident.metrics.get("fit_percent", {}), "all runs"))
 
 
 # --------------------------------------------------------------------------
