@@ -46,6 +46,18 @@ def _float_opt(text: str) -> float:
         raise argparse.ArgumentTypeError(f"expected a number, got '{text}'") from None
 
 
+class _TrustCode(argparse.Action):
+    """``--trust-code FILE.py``: data files read by this command may name effects from
+    FILE.py (a user effect is code that runs; see labrig.model.effects.trust_code)."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        from .model.effects import trust_code
+
+        trust_code([values])
+        getattr(namespace, self.dest, None) or setattr(namespace, self.dest, [])
+        getattr(namespace, self.dest).append(values)
+
+
 class _Parser(argparse.ArgumentParser):
     def error(self, message):  # argparse's own errors are user errors too: exit 2
         self.print_usage(sys.stderr)
@@ -58,10 +70,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--debug", action="store_true", help="show tracebacks")
     sub = p.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     from . import commands  # noqa: F401  (registers the subcommands)
+    from .model.effects import reset_trust
+
+    reset_trust()  # trust is given per command line, never carried over
 
     for name, (func, help_) in COMMANDS.items():
         sp = sub.add_parser(name, help=help_, description=(func.__doc__ or help_).strip())
         sp.add_argument("--debug", action="store_true", help="show tracebacks")
+        sp.add_argument("--trust-code", action=_TrustCode, metavar="FILE.py",
+                        help="let the model, rig or config files this command reads name user "
+                             "effects from FILE.py. A user effect is Python code and runs "
+                             "with your rights: pass only files you have read (repeatable)")
         func.configure(sp)
         sp.set_defaults(func=func)
     return p

@@ -28,6 +28,7 @@ from .identify.objective import Objective, build_space
 from .model.effects import CATALOGUE, get_effect
 from .model.simulate import prepare
 from .residuals import REGIME_TEXT, autocorr, regime_table, run_residuals, worst_regime
+from .runs import require_excitation
 
 #: a candidate must beat the model by this much (relative) on all runs and on held-out runs
 MIN_GAIN = 0.05
@@ -138,6 +139,7 @@ def diagnose(runs, model: dict | None = None, *, candidates=None, seed: int = 0,
     t0 = time.perf_counter()
     if not runs:
         raise UserError("the data set is empty: give a folder with at least one run")
+    require_excitation(runs, "diagnose")
     if model is None:
         ident = identify(runs, "co", [], seed=seed, starts=4, fixed=fixed, identifiability=False)
         ident = min([ident, _fit_from(runs, [], ident.params, dict(fixed or {}), seed)],

@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from .errors import RunFileError
+from .errors import AnalysisError, RunFileError
 
 FORMAT = "labrig-run/1"
 REQUIRED_COLUMNS = ("t", "u")
@@ -189,6 +189,22 @@ def _read_sidecar(json_path: Path, csv_path: Path) -> dict:
     checked = validate(Sidecar, meta, json_path, RunFileError)
     # the validated values (ints as floats); keys the schema does not know ride along
     return checked.model_dump(exclude_unset=True)
+
+
+def require_excitation(runs, what: str = "identify") -> None:
+    """Refuse a data set that cannot show any dynamics: the input never changes in any
+    run, or no sensor ever moves (an unpowered motor, an unplugged sensor)."""
+    names = ", ".join(r.name for r in runs[:3]) + (" ..." if len(runs) > 3 else "")
+    if all(np.ptp(r.u) == 0 for r in runs):
+        raise AnalysisError(f"runs {names}: the input u is constant ({runs[0].u[0]:g} V) in "
+                            f"every run, so there is nothing to {what}; record steps or "
+                            "square waves (`labrig sweep`)")
+    flat = all(all(np.ptp(r.data[c].to_numpy(float)) == 0 for c in SENSOR_COLUMNS
+                   if c in r.data) for r in runs)
+    if flat:
+        raise AnalysisError(f"runs {names}: tacho and pos are constant in every run while u "
+                            f"changes, so there is nothing to {what}; is the motor powered "
+                            "and are the sensors wired?")
 
 
 # -- CSV ----------------------------------------------------------------------------

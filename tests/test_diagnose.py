@@ -135,8 +135,12 @@ class MyCoulomb(Effect):
     d = json.loads(proc.stdout)
     assert d["rmse_over_noise"]["overall"] <= 1.5
     assert d["effect_params"]["my_coulomb"]["tc_v"] == pytest.approx(0.25, rel=0.15)
+    # m1.json names the user effect: a data file runs no code until the user trusts it
+    refused = labrig("ladder", ds, "--models", f"{tmp_path / 'm0.json'},{tmp_path / 'm1.json'}",
+                     "-o", tmp_path / "lad", "--json")
+    assert refused.returncode == 2 and "--trust-code" in refused.stderr
     proc = labrig("ladder", ds, "--models", f"{tmp_path / 'm0.json'},{tmp_path / 'm1.json'}",
-                  "-o", tmp_path / "lad", "--json", check=0)
+                  "--trust-code", user, "-o", tmp_path / "lad", "--json", check=0)
     steps = json.loads(proc.stdout)["steps"]
     assert steps[0]["rmse_over_noise"]["overall"] > 2 * steps[1]["rmse_over_noise"]["overall"]
     assert (tmp_path / "lad" / "ladder.png").exists()

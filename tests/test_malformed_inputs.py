@@ -511,5 +511,19 @@ def test_matrix_size():
     """The issue asks for at least 150 malformed inputs; count them."""
     n = (len(SIDECAR_CASES) + len(SIDECAR_TEXT_CASES) + len(CSV_CASES) + 1 + len(RIG_CASES)
          + len(PLAN_CASES) + len(MODEL_CASES) + len(MODEL_TEXT_CASES) + 2
-         + len(IDCONFIG_CASES) + 9 + 2 * len(MYSTERY_CASES) + 4 + 5 + len(IMPORT_CASES))
+         + len(IDCONFIG_CASES) + 9 + 2 * len(MYSTERY_CASES) + 4 + 5 + len(IMPORT_CASES) + 4)
     assert n >= 150, n
+
+
+# -- data that cannot show dynamics ---------------------------------------------------
+
+ZERO_ROWS = [f"{i * 0.005:.3f},0,0,0" for i in range(1700)]
+FLAT_ROWS = [f"{i * 0.005:.3f},{1.2 if (i // 200) % 2 else -1.2},0.1,-4" for i in range(1700)]
+
+
+@pytest.mark.parametrize("command", ["diagnose", "identify"])
+@pytest.mark.parametrize("rows,msg", [(ZERO_ROWS, "input u is constant"),
+                                      (FLAT_ROWS, "tacho and pos are constant")])
+def test_data_without_dynamics(tmp_path, capsys, command, rows, msg):
+    d = _run_dir(tmp_path, csv_text=_csv(rows=rows))
+    _expect_user_error(capsys, [command, d], msg)

@@ -3,11 +3,13 @@ from __future__ import annotations
 
 import math
 import sys
-import tomllib
 from pathlib import Path
 
+import numpy as np
+
 from ..cli import command, emit_json
-from ..errors import ConfigError, UserError
+from ..errors import UserError
+from ..identify.modelfile import load_identify_config
 from .progress import Progress
 
 
@@ -26,27 +28,11 @@ def parse_assignments(text: str | None, opt: str, pair: bool = False) -> dict:
                 out[key.strip()] = (float(lo), float(hi))
             else:
                 out[key.strip()] = float(val)
+            if not all(map(math.isfinite, np.atleast_1d(out[key.strip()]))):
+                raise ValueError
         except ValueError:
-            raise UserError(f"{opt}: '{item}' needs {'LOW:HIGH numbers' if pair else 'a number'}") from None
+            raise UserError(f"{opt}: '{item}' needs {'LOW:HIGH finite numbers' if pair else 'a finite number'}") from None
     return out
-
-
-def load_identify_config(path) -> dict:
-    """An optional TOML with [bounds] (name = [lo, hi]), [fixed] and effects = [...]."""
-    if not path:
-        return {}
-    path = Path(path)
-    if not path.exists():
-        raise ConfigError(f"{path}: identify config not found")
-    try:
-        doc = tomllib.loads(path.read_text())
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{path}: not valid TOML ({exc})") from None
-    bad = set(doc) - {"bounds", "fixed", "effects"}
-    if bad:
-        raise ConfigError(f"{path}: unknown key '{sorted(bad)[0]}'; expected bounds, fixed, effects")
-    return {"bounds": {k: tuple(v) for k, v in doc.get("bounds", {}).items()},
-            "fixed": dict(doc.get("fixed", {})), "effects": doc.get("effects", [])}
 
 
 def refuse_existing(paths, force: bool, what: str = "file") -> None:

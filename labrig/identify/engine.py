@@ -14,6 +14,7 @@ import numpy as np
 from ..errors import UserError
 from ..model.effects import Effect
 from ..model.servo import PLANT_NAMES, ServoParams
+from ..runs import require_excitation
 from .identifiability import analyse_identifiability
 from .jellyfish import jellyfish
 from .local import local, polish as _polish
@@ -194,6 +195,7 @@ def identify(runs, method: str = "co", effects: list[Effect] = (), *, seed: int 
         raise UserError(f"--method: unknown method '{method}'; choose {', '.join(METHODS)} or all")
     if not runs:
         raise UserError("the data set is empty: give a folder with at least one run")
+    require_excitation(runs, "identify")
     t0 = time.perf_counter()
     effects = list(effects)
     space = build_space(effects, bounds, fixed)
