@@ -247,3 +247,15 @@ def test_compare_warns_when_the_model_is_worse_than_a_constant(ds, model, tmp_pa
     # a good model: no warnings
     rc, out, err = run(capsys, "compare", ds, "--model", model, "-o", tmp_path / "c3", "--json")
     assert rc == 0 and strict_loads(out)["warnings"] == []
+
+
+def test_analyse_figures_refused_unless_force(ds, tmp_path, capsys):
+    figs = tmp_path / "figs"
+    assert main(["analyse", str(ds), "-o", str(figs)]) == 0
+    before = {p.name: p.stat().st_mtime_ns for p in figs.iterdir()}
+    capsys.readouterr()
+    assert main(["analyse", str(ds), "-o", str(figs)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "add --force" in err
+    assert {p.name: p.stat().st_mtime_ns for p in figs.iterdir()} == before
+    assert main(["analyse", str(ds), "-o", str(figs), "--force"]) == 0

@@ -11,10 +11,20 @@ def cmd_analyse(args):
     """Analyse open-loop runs (square waves, steps, staircases; levels and edges are found
     from u) or a steady-state table like data/paper_table1.csv. Prints a table like the
     paper's Table 1 and a verdict; --json prints one JSON object; -o writes figures."""
+    from pathlib import Path
+
     from ..analyse import analyse
+    from .identification import refuse_existing
 
     res = analyse(args.paths, tolerance=args.tolerance)
     if args.output:
+        # the figures it would write (analysis takes a second; nothing is written yet)
+        out = Path(args.output)
+        names = [f"edges_{ra.name}.png" for ra in res.runs
+                 if getattr(ra, "skipped", None) is None and getattr(ra, "edges", None)]
+        refuse_existing([out] + [out / n for n in names + ["speed_vs_voltage.png",
+                                                          "km_vs_amplitude.png"]],
+                        args.force, what="folder")
         res.plot(args.output)
         for p in res.figures:
             print(f"wrote {p}", file=sys.stderr)
@@ -32,6 +42,7 @@ def _configure(p):
                    help="dataset folder(s) or run files, or a steady-state table CSV")
     p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     p.add_argument("-o", "--output", metavar="FIGDIR", help="write the figures (PNG) here")
+    p.add_argument("--force", action="store_true", help="replace figures already in FIGDIR")
     p.add_argument("--tolerance", type=_float_opt, default=0.03,
                    help="relative change of w/V over the amplitude range still called "
                         "constant (default 0.03)")
