@@ -137,3 +137,67 @@ def test_corrupted_stream_never_yields_a_wrong_frame(frames, seed, n_faults):
     originals = {(t, s, b) for t, s, b in frames}
     for f in d.feed(bytes(wire)):
         assert (f.type, f.seq, f.body) in originals
+
+
+# ---- body parsers: a CRC-valid frame with a malformed body is a BodyError, never a crash
+
+# shortest valid body of each parser; the firmware sends exactly these lengths
+MIN_BODY = {P.parse_configure: 31, P.parse_hello: 19, P.parse_status: 29, P.parse_done: 8,
+            P.parse_error: 1, P.parse_ack: 2, P.parse_samples: 13}
+EXACT = {P.parse_status, P.parse_done, P.parse_ack}
+
+
+@pytest.mark.parametrize("parse", list(MIN_BODY), ids=lambda f: f.__name__)
+def test_short_bodies_raise_body_error(parse):
+    for n in range(MIN_BODY[parse]):
+        with pytest.raises(P.BodyError):
+            parse(bytes(range(1, n + 1)))
+    assert issubclass(P.BodyError, P.FrameError)
+
+
+@pytest.mark.parametrize("parse", sorted(EXACT, key=lambda f: f.__name__), ids=lambda f: f.__name__)
+def test_fixed_size_bodies_refuse_extra_bytes(parse):
+    parse(bytes(MIN_BODY[parse]))
+    with pytest.raises(P.BodyError):
+        parse(bytes(MIN_BODY[parse] + 1))
+
+
+def test_error_with_empty_body_is_a_body_error():
+    with pytest.raises(P.BodyError, match="ERROR"):
+        P.parse_error(b"")
+    assert P.parse_error(b"\x05busy") == {"code": 5, "name": "BUSY", "text": "busy"}
+
+
+def test_configure_with_unknown_loop_or_waveform_or_bad_count():
+    good = P.configure_body(loop="open", waveform="square", sample_rate_hz=1000, n_samples=100,
+                            lead_in_samples=0, segment_samples=10, dac_zero=2048, dac_min=1024,
+                            dac_max=3072, watchdog_ms=500, levels=[2500, 1500])
+    assert P.parse_configure(good)["levels"] == [2500, 1500]
+    for i, v in ((0, 2), (1, 9)):   # loop 2, waveform 9
+        bad = bytearray(good)
+        bad[i] = v
+        with pytest.raises(P.BodyError):
+            P.parse_configure(bytes(bad))
+    for n in (0, 3, 33):            # level count disagrees with the length, or out of range
+        bad = bytearray(good)
+        bad[28] = n
+        with pytest.raises(P.BodyError):
+            P.parse_configure(bytes(bad))
+
+
+def test_samples_count_must_match_length():
+    body = P.samples_body(7, [[1, 2, 3, 4], [5, 6, 7, 8]])
+    assert P.parse_samples(body)[0] == 7
+    for bad in (body[:-1], body + b"\x00", body[:4] + b"\x03" + body[5:], body[:4] + b"\x00"):
+        with pytest.raises(P.BodyError):
+            P.parse_samples(bad)
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.sampled_from(list(MIN_BODY)), st.binary(max_size=260))
+def test_parsers_on_garbage_return_or_raise_body_error(parse, body):
+    try:
+        out = parse(body)
+    except P.BodyError:
+        return
+    assert out is not None

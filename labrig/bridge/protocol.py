@@ -36,10 +36,32 @@ BOARDS = {1: "uno", 2: "mega"}
 STATES = {0: "idle", 1: "configured", 2: "running", 3: "finishing"}
 
 _CONFIGURE_FIXED = struct.Struct("<BBHIIIHHHHHHB")  # 29 bytes, then n_levels x u16
+_HELLO_FIXED = struct.Struct("<BBHHBBBBBHHHH")      # 19 bytes, then the firmware id
+_SAMPLES_HEAD = struct.Struct("<IB")
+_STATUS = struct.Struct("<IIIIIIBHH")               # the last u16 is reserved
+_DONE = struct.Struct("<II")
+_ACK = struct.Struct("<BB")
 
 
 class FrameError(ValueError):
     """A frame that must be rejected (bad COBS, too short, too long, bad CRC)."""
+
+
+class BodyError(FrameError):
+    """A frame with a valid CRC whose body does not parse (wrong length, unknown code).
+
+    Only a corruption that slipped past the CRC or a firmware/host mismatch produces one;
+    the host counts such frames and carries on.
+    """
+
+
+def _unpack(fmt: struct.Struct, body: bytes, what: str, exact: bool = False) -> tuple:
+    """``fmt.unpack_from(body)``, raising :class:`BodyError` on a short (or, with ``exact``,
+    a longer) body instead of ``struct.error``."""
+    if len(body) < fmt.size or (exact and len(body) != fmt.size):
+        raise BodyError(f"{what} body of {len(body)} bytes, expected "
+                        f"{'' if exact else 'at least '}{fmt.size}")
+    return fmt.unpack_from(body)
 
 
 def crc16(data: bytes, crc: int = 0xFFFF) -> int:
@@ -203,32 +225,36 @@ def configure_body(*, loop: str, waveform: str, sample_rate_hz: int, n_samples: 
 
 
 def parse_configure(body: bytes) -> dict:
-    """Inverse of :func:`configure_body`."""
-    f = _CONFIGURE_FIXED.unpack_from(body)
+    """Inverse of :func:`configure_body`; :class:`BodyError` on any malformed body."""
+    f = _unpack(_CONFIGURE_FIXED, body, "CONFIGURE")
     keys = ("loop", "waveform", "sample_rate_hz", "n_samples", "lead_in_samples",
             "segment_samples", "dac_zero", "dac_min", "dac_max", "watchdog_ms",
             "position_gain", "velocity_gain", "n_levels")
     d = dict(zip(keys, f))
-    d["loop"] = {v: k for k, v in LOOPS.items()}[d["loop"]]
-    d["waveform"] = {v: k for k, v in WAVEFORMS.items()}[d["waveform"]]
+    loops = {v: k for k, v in LOOPS.items()}
+    waves = {v: k for k, v in WAVEFORMS.items()}
+    if d["loop"] not in loops or d["waveform"] not in waves:
+        raise BodyError(f"CONFIGURE with unknown loop {d['loop']} or waveform {d['waveform']}")
+    d["loop"], d["waveform"] = loops[d["loop"]], waves[d["waveform"]]
     d["position_gain"] /= 100.0
     d["velocity_gain"] /= 100.0
     n = d.pop("n_levels")
+    if not 1 <= n <= MAX_LEVELS or len(body) != _CONFIGURE_FIXED.size + 2 * n:
+        raise BodyError(f"CONFIGURE of {len(body)} bytes does not match its level count {n}")
     d["levels"] = list(struct.unpack_from(f"<{n}H", body, _CONFIGURE_FIXED.size))
-    if len(body) != _CONFIGURE_FIXED.size + 2 * n:
-        raise FrameError("CONFIGURE length does not match its level count")
     return d
 
 
 def parse_hello(body: bytes) -> dict:
     """HELLO: protocol version, board, capabilities, limits, firmware id."""
     (ver, board, caps, max_rate, batch, dac_bits, adc_bits, n_adc, max_levels, dac_zero,
-     fw_min, fw_max, wd_ms) = struct.unpack_from("<BBHHBBBBBHHHH", body)
+     fw_min, fw_max, wd_ms) = _unpack(_HELLO_FIXED, body, "HELLO")
     return {"protocol": ver, "board": BOARDS.get(board, str(board)), "capabilities": caps,
             "max_rate_hz": max_rate, "batch": batch, "dac_bits": dac_bits,
             "adc_bits": adc_bits, "n_adc": n_adc, "max_levels": max_levels,
             "dac_zero": dac_zero, "fw_dac_min": fw_min, "fw_dac_max": fw_max,
-            "watchdog_ms_default": wd_ms, "firmware": body[19:].decode("ascii", "replace")}
+            "watchdog_ms_default": wd_ms,
+            "firmware": body[_HELLO_FIXED.size:].decode("ascii", "replace")}
 
 
 def samples_body(first_index: int, rows) -> bytes:
@@ -239,16 +265,15 @@ def samples_body(first_index: int, rows) -> bytes:
 
 def parse_samples(body: bytes) -> tuple[int, np.ndarray]:
     """Return ``(first_index, words)`` with ``words`` of shape (n, 4): dac, tacho, pos, ref."""
-    if len(body) < 5:
-        raise FrameError("SAMPLES too short")
-    first, n = struct.unpack_from("<IB", body)
-    if len(body) != 5 + 8 * n or n == 0:
-        raise FrameError("SAMPLES length does not match its count")
+    first, n = _unpack(_SAMPLES_HEAD, body, "SAMPLES")
+    if len(body) != _SAMPLES_HEAD.size + 8 * n or n == 0:
+        raise BodyError(f"SAMPLES of {len(body)} bytes does not match its count {n}")
     return first, np.frombuffer(body, dtype="<u2", offset=5).reshape(n, 4).astype(np.int64)
 
 
 def parse_status(body: bytes) -> dict:
-    vals = struct.unpack_from("<IIIIIIBH", body)
+    """STATUS: the board's counters (cumulative except ``sample_overruns``), state, DAC word."""
+    vals = _unpack(_STATUS, body, "STATUS", exact=True)[:-1]
     keys = ("samples_sent", "rx_frames_ok", "rx_crc_errors", "rx_overruns",
             "watchdog_trips", "sample_overruns", "state", "dac_word")
     d = dict(zip(keys, vals))
@@ -257,14 +282,20 @@ def parse_status(body: bytes) -> dict:
 
 
 def parse_done(body: bytes) -> dict:
-    n, lost = struct.unpack_from("<II", body)
+    """DONE: planned samples and the samples the board itself lost in this run."""
+    n, lost = _unpack(_DONE, body, "DONE", exact=True)
     return {"n_samples": n, "samples_lost": lost}
 
 
 def parse_error(body: bytes) -> dict:
+    """ERROR: code, its name and the board's text."""
+    if not body:
+        raise BodyError("ERROR without a code")
     return {"code": body[0], "name": ERROR_CODES.get(body[0], str(body[0])),
             "text": body[1:].decode("ascii", "replace")}
 
 
 def parse_ack(body: bytes) -> dict:
-    return {"type": body[0], "seq": body[1]}
+    """ACK: the acknowledged command's type and seq."""
+    t, seq = _unpack(_ACK, body, "ACK", exact=True)
+    return {"type": t, "seq": seq}
