@@ -19,11 +19,18 @@ from .runs import Run, make_meta, run_exists, write_run
 
 def acquire(bridge: Bridge, exp: Experiment, rig, progress: Callable[[int], None] | None = None,
             timeout: float = 5.0) -> Run:
-    """Configure, start and stream one experiment; return it as a Run (not yet saved)."""
+    """Configure, start and stream one experiment; return it as a Run (not yet saved).
+
+    The run always has the planned ``exp.n_samples`` rows. Samples lost on the link --
+    inside the run or at its end -- are filled (interpolated inside, the last received
+    value held at the end, the first one before the first received sample) and flagged
+    with ``gap = 1``; the ``gap`` column exists only when something was lost.
+    """
     bridge.configure(exp)
     bridge.start()
     blocks = []
     got = 0
+    n = int(exp.n_samples)
     while True:
         blk = bridge.read(timeout=timeout)
         if blk is None:
@@ -32,25 +39,30 @@ def acquire(bridge: Bridge, exp: Experiment, rig, progress: Callable[[int], None
         if progress:
             progress(int(blk.index[-1]) + 1 - got)
         got = int(blk.index[-1]) + 1
-        if got >= exp.n_samples:
+        if got >= n:
             break
     bridge.stop()
+    if progress and got < n:
+        progress(n - got)   # a lost tail: the run is over all the same
     if not blocks:
         raise RigError(f"experiment '{exp.name}': the bridge returned no samples")
     idx = np.concatenate([b.index for b in blocks]).astype(np.int64)
-    raw = {"u": np.concatenate([b.u for b in blocks]),
-           "tacho": np.concatenate([b.tacho for b in blocks]),
-           "pos": np.concatenate([b.pos for b in blocks])}
+    keep = idx < n   # a bridge never sends more, but a record never grows past the plan
+    idx = idx[keep]
+    raw = {"u": np.concatenate([b.u for b in blocks])[keep],
+           "tacho": np.concatenate([b.tacho for b in blocks])[keep],
+           "pos": np.concatenate([b.pos for b in blocks])[keep]}
     if blocks[0].ref is not None:
-        raw["ref"] = np.concatenate([b.ref for b in blocks])
-    n = int(idx[-1]) + 1
+        raw["ref"] = np.concatenate([b.ref for b in blocks])[keep]
     full = np.arange(n)
     cols = {"t": full / exp.sample_rate_hz}
-    # a dropped sample must not shift time: fill it by interpolation and flag it in
-    # the 'gap' column, so the run stays uniform and nobody mistakes it for data
+    # a dropped sample must not shift time nor shorten the run: fill it (np.interp holds
+    # the end values beyond the first and last received sample) and flag it in the 'gap'
+    # column, so the run stays uniform and nobody mistakes it for data
+    complete = len(idx) == n
     for k, v in raw.items():
-        cols[k] = v if len(idx) == n else np.interp(full, idx, v)
-    if len(idx) != n:
+        cols[k] = v if complete else np.interp(full, idx, v)
+    if not complete:
         gap = np.ones(n, dtype=np.int8)
         gap[idx] = 0
         cols["gap"] = gap

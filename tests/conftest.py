@@ -51,3 +51,26 @@ def labrig(*args, check=None, **kw):
 @pytest.fixture
 def rig():
     return make_rig()
+
+
+@pytest.fixture
+def emulators():
+    """``emulators(board, rig, **kw)`` starts an emulated board and returns it.
+
+    Every emulator started through it is stopped at teardown through its own process
+    (SIGTERM to that PID, then SIGKILL), even when the test fails; nothing is ever
+    killed by name.
+    """
+    from labrig.bridge.emulate import Emulator
+
+    started = []
+
+    def start(board="uno", rig=None, **kw):
+        emu = Emulator(board, rig, **kw)
+        started.append(emu)
+        emu.start()
+        return emu
+
+    yield start
+    for emu in started:
+        emu.stop()

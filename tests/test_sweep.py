@@ -84,3 +84,45 @@ def test_ctrl_c_on_the_cli(tmp_path):
     assert 2 <= len(runs) < 4
     assert all(len(r) == 600 for r in runs)
     assert not [p for p in (tmp_path / "ds").iterdir() if p.suffix == ".tmp"]
+
+
+def test_sim_counters_are_per_run(tmp_path):
+    """Point 4 on the simulated rig: each sidecar counts its own run's samples."""
+    rig = make_rig()
+    plan = square_plan(amps=(1.0, 1.5, 2.0), periods=0.5)
+    sweep(SimRig(rig), plan, rig, tmp_path / "ds")
+    runs = read_dataset(tmp_path / "ds")
+    assert [r.meta["bridge"]["samples"] for r in runs] == [2500, 2500, 2500]
+    assert all(r.meta["bridge"]["dropped_samples"] == 0 for r in runs)
+
+
+class LosesTail(SimRig):
+    """A rig whose link loses samples 300..309 and everything from 2000 on (and so the
+    end of the run): what a serial bridge reports when the last frames and DONE are lost."""
+
+    def read(self, timeout=2.0):
+        while (blk := super().read(timeout)) is not None:
+            keep = ((blk.index < 300) | (blk.index >= 310)) & (blk.index < 2000)
+            if keep.any():
+                return type(blk)(index=blk.index[keep], u=blk.u[keep], tacho=blk.tacho[keep],
+                                 pos=blk.pos[keep], ref=None)
+        return None
+
+    def counters(self):
+        return {**super().counters(), "dropped_samples": 510}
+
+
+def test_lost_tail_becomes_gap_rows_holding_the_last_value(tmp_path):
+    """Point 5: a run whose tail is lost keeps its planned length; the tail holds the last
+    received value and is flagged gap = 1, like the interpolated hole inside."""
+    rig = make_rig()
+    (exp,) = square_plan(amps=(1.5,), periods=0.5)   # 2500 samples
+    sweep(LosesTail(rig), [exp], rig, tmp_path / "ds")
+    r = read_run(tmp_path / "ds" / "sq_1.50V")
+    gap = r.data["gap"].to_numpy()
+    assert len(r) == exp.n_samples == 2500
+    assert np.allclose(r.t, np.arange(2500) / 1000.0)
+    assert gap.sum() == 510 == r.meta["bridge"]["dropped_samples"]
+    assert np.flatnonzero(gap).tolist() == list(range(300, 310)) + list(range(2000, 2500))
+    tacho = r.data["tacho"].to_numpy()
+    assert np.all(tacho[2000:] == tacho[1999]) and np.all(r.u[2000:] == r.u[1999])

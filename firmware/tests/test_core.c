@@ -374,6 +374,68 @@ static void test_stop_and_garbage(void)
     CHECK(lr_core_decoder()->framing_errors >= 1, "garbage counted, commands still understood");
 }
 
+/* a START retransmitted with the same seq (its ACK was lost) is acked again but never
+ * restarts the run, neither while running nor after DONE; a new seq or a new CONFIGURE does */
+static int count_samples(uint32_t *first_min)
+{
+    int total = 0;
+    *first_min = 0xFFFFFFFFu;
+    for (int i = 0; i < nmsgs; i++) {
+        if (msgs[i].type != LR_SAMPLES) continue;
+        uint32_t first = lr_get32(msgs[i].body);
+        if (first < *first_min) *first_min = first;
+        total += msgs[i].body[4];
+    }
+    return total;
+}
+
+static void test_start_retransmission(void)
+{
+    reset_all();
+    uint8_t b[128];
+    uint16_t lv[2] = {2663, 1433};
+    size_t n = cfg_body(b, 0, LR_WAVE_SQUARE, 1000, 300, 20, 50, 1024, 3072, 500, lv, 2);
+    host_send(LR_CONFIGURE, 1, b, n);
+    host_send(LR_START, 2, NULL, 0);
+    lr_core_poll();
+    run_ticks(100, 1);
+    host_send(LR_START, 2, NULL, 0);          /* retransmission while running */
+    run_ticks(400, 1);
+    collect();
+    uint32_t first_min;
+    int acks = 0, busy = 0, done = 0, total = count_samples(&first_min);
+    for (int i = 0; i < nmsgs; i++) {
+        if (msgs[i].type == LR_ACK && msgs[i].body[0] == LR_START && msgs[i].body[1] == 2) acks++;
+        if (msgs[i].type == LR_ERROR && msgs[i].body[0] == LR_ERR_BUSY) busy++;
+        if (msgs[i].type == LR_DONE) done++;
+    }
+    CHECK(acks == 2 && busy == 0, "a repeated START is acked again (acks %d, busy %d)", acks, busy);
+    CHECK(total == 300 && done == 1, "and does not restart the run (%d samples, %d DONE)", total, done);
+
+    nmsgs = 0;
+    host_send(LR_START, 2, NULL, 0);          /* retransmission after DONE */
+    run_ticks(400, 1);
+    collect();
+    total = count_samples(&first_min);
+    CHECK(total == 0 && !timer_on && dac_hw == 2048 && find(LR_ACK) >= 0,
+          "a repeated START after DONE is acked, nothing restarts (%d samples)", total);
+
+    nmsgs = 0;
+    host_send(LR_START, 3, NULL, 0);          /* a new START (new seq) runs again */
+    run_ticks(400, 1);
+    collect();
+    total = count_samples(&first_min);
+    CHECK(total == 300 && first_min == 0, "a new START runs the experiment again (%d samples)", total);
+
+    nmsgs = 0;
+    host_send(LR_CONFIGURE, 4, b, n);         /* CONFIGURE forgets the START seq */
+    host_send(LR_START, 3, NULL, 0);
+    run_ticks(400, 1);
+    collect();
+    total = count_samples(&first_min);
+    CHECK(total == 300, "after a CONFIGURE the same seq starts a new run (%d samples)", total);
+}
+
 static void test_fuzz(void)
 {
     reset_all();
@@ -414,6 +476,7 @@ int main(int argc, char **argv)
     test_watchdog();
     test_overrun_gap();
     test_stop_and_garbage();
+    test_start_retransmission();
     test_fuzz();
     printf("%d passed, %d failed\n", passed, failed);
     return failed ? 1 : 0;

@@ -10,6 +10,7 @@ from __future__ import annotations
 import time
 from collections import deque
 from types import SimpleNamespace
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -85,6 +86,23 @@ def adc_counts_to_volts(counts, channel: str, s: SimpleNamespace) -> np.ndarray:
     return getattr(s, f"{channel}_gain") * nominal + getattr(s, f"{channel}_offset_v")
 
 
+#: link counters that :meth:`SerialBridge.counters` reports per run (difference since configure)
+_RUN_KEYS = ("samples", "dropped_samples", "crc_errors", "framing_errors", "stale_frames",
+             "bad_frames", "retries")
+#: board STATUS counters that count since the board's reset; reported per run as differences
+_BOARD_CUMULATIVE = ("samples_sent", "rx_crc_errors", "rx_overruns", "watchdog_trips")
+#: the body parser of every board->host message
+_PARSERS = {P.ACK: P.parse_ack, P.HELLO: P.parse_hello, P.SAMPLES: P.parse_samples,
+            P.STATUS: P.parse_status, P.DONE: P.parse_done, P.ERROR: P.parse_error}
+
+
+class _Msg(NamedTuple):
+    """A received frame whose body parsed: its type and its fields."""
+
+    type: int
+    fields: Any
+
+
 class SerialBridge(Bridge):
     """The labrig board on a serial port (USB ``/dev/ttyACM0`` or an emulator's pty).
 
@@ -100,17 +118,36 @@ class SerialBridge(Bridge):
         Seconds to wait for the board's HELLO after opening (the Uno resets on open).
     heartbeat_s : float
         Interval of heartbeats while streaming; must be well below the watchdog time.
+    tries : int
+        Transmissions of a command (CONFIGURE, START, STOP, ZERO, STATUS_REQ) before giving
+        up; twice as many once the link has delivered a damaged frame (a board is there,
+        behind a bad link: patience pays, while a silent port fails fast).
+    ack_timeout : float
+        Seconds to wait for the answer to one transmission. A pty answers in a few ms and a
+        USB board within ~20 ms; 4 x 0.3 s keeps the old 1 s budget for a silent board.
+    tail_s : float
+        Once the planned end of a run has passed, this long without a sample frame ends the
+        run even without its DONE (which may have been lost); the rest becomes a gap.
+
+    Attributes
+    ----------
+    samples, dropped_samples, stale_frames, bad_frames, retries : int
+        Cumulative over the session: samples received, samples missing (index gaps and a
+        lost tail), frames that arrived too late or twice, CRC-valid frames whose body does
+        not parse, command retransmissions. :meth:`counters` gives them per run.
     """
 
     source = "serial"
 
     def __init__(self, port: str, rig, *, baudrate: int = 500000, hello_timeout: float = 3.0,
-                 heartbeat_s: float = 0.1):
+                 heartbeat_s: float = 0.1, tries: int = 4, ack_timeout: float = 0.3,
+                 tail_s: float = 0.5):
         self.port = port
         self.settings = bridge_settings(rig)
         self.baudrate = baudrate
         self.hello_timeout = hello_timeout
         self.heartbeat_s = min(heartbeat_s, self.settings.watchdog_ms / 4000.0)
+        self.tries, self.ack_timeout, self.tail_s = max(1, int(tries)), ack_timeout, tail_s
         self._ser = None
         self._dec = P.StreamDecoder()
         self._seq = 0
@@ -121,16 +158,25 @@ class SerialBridge(Bridge):
         self._n_samples = 0
         self._next_index = 0
         self._streaming = False
+        self._started = False
         self._finished = False
-        self.dropped_samples = 0
-        self.stale_frames = 0
+        self._t_end = self._last_sample_t = 0.0
+        self.samples = self.dropped_samples = self.stale_frames = self.bad_frames = 0
+        self.retries = 0
+        self._mark = self._totals()
         self.board_status: dict = {}
+        self._board_mark: dict = {}
         self.board_errors: list[str] = []
+        self._errors_mark = 0
 
     # ---- link ------------------------------------------------------------------------
-    def _send(self, type_: int, body: bytes = b"") -> int:
+    def _next_seq(self) -> int:
         seq = self._seq
         self._seq = (self._seq + 1) & 0xFF
+        return seq
+
+    def _send(self, type_: int, body: bytes = b"") -> int:
+        seq = self._next_seq()
         # the leading 0x00 ends any partial frame the board holds (garbage, a reset)
         self._write(b"\x00" + P.encode_frame(type_, seq, body))
         return seq
@@ -154,33 +200,137 @@ class SerialBridge(Bridge):
         except Exception as e:
             raise RigError(f"lost {self.port}: {e}") from e
         if data:
-            self._pending.extend(self._dec.feed(data))
+            for f in self._dec.feed(data):
+                # every body is checked once, on arrival: one that does not parse is counted
+                # and dropped here, so no consumer can trip over it
+                parser = _PARSERS.get(f.type)
+                try:
+                    if parser is None:
+                        raise P.BodyError(f"unknown message type 0x{f.type:02X}")
+                    self._pending.append(_Msg(f.type, parser(f.body)))
+                except P.BodyError:
+                    self.bad_frames += 1
 
     def _heartbeat(self) -> None:
         if time.monotonic() - self._last_tx >= self.heartbeat_s:
             self._send(P.HEARTBEAT)
 
-    def _board_error(self, frame: P.Frame) -> RigError:
-        e = P.parse_error(frame.body)
-        msg = f"board on {self.port} reported {e['name']}: {e['text']}"
+    def _totals(self) -> dict:
+        return {"samples": self.samples, "dropped_samples": self.dropped_samples,
+                "crc_errors": self._dec.crc_errors, "framing_errors": self._dec.framing_errors,
+                "stale_frames": self.stale_frames, "bad_frames": self.bad_frames,
+                "retries": self.retries}
+
+    def _link_state(self) -> tuple[int, int]:
+        """(damaged, intact) frames received so far, to tell a garbling link from a dead one."""
+        return self._dec.crc_errors + self._dec.framing_errors + self.bad_frames, self._dec.frames_ok
+
+    def _tries(self) -> int:
+        return self.tries * (2 if self._link_state()[0] else 1)
+
+    def _hint(self, since: tuple[int, int]) -> str:
+        """Why nothing useful arrived since ``since`` (a :meth:`_link_state`), and what to do."""
+        cure = "use a shorter or shielded USB cable, away from the motor leads, or a lower baud rate"
+        total_damaged, total_intact = self._link_state()
+        damaged, intact = total_damaged - since[0], total_intact - since[1]
+        if damaged:
+            return f"the link answers but garbles ({damaged} damaged frame(s), {intact} intact): {cure}"
+        if intact:
+            return f"the board sends but does not answer: the host->board direction loses data; {cure}"
+        if total_damaged:
+            return (f"nothing came back, and the link has damaged {total_damaged} of "
+                    f"{total_damaged + total_intact} frames so far: {cure}")
+        return "is the board plugged in?"
+
+    def _board_error(self, err: dict) -> RigError:
+        msg = f"board on {self.port} reported {err['name']}: {err['text']}"
         self.board_errors.append(msg)
         return RigError(msg)
 
-    def _wait_ack(self, type_: int, seq: int, timeout: float = 1.0) -> None:
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            while self._pending:
-                f = self._pending.popleft()
-                if f.type == P.ACK and f.body[:2] == bytes([type_, seq]):
+    def _command(self, type_: int, body: bytes = b"") -> None:
+        """Send a command and wait for its ACK, retransmitting it on silence.
+
+        A retransmission is the identical frame (same ``seq``): a late ACK of an earlier
+        try matches, and the firmware recognises a repeated START instead of restarting
+        the experiment. A START has also taken effect when its samples arrive (the lost
+        frame was its ACK); those frames stay queued for :meth:`read`.
+
+        Raises
+        ------
+        UserError
+            The board refused the experiment (LIMIT, RATE, BAD_CONFIG).
+        RigError
+            No ACK after ``tries`` transmissions, or a board error that no retry can fix.
+        """
+        seq = self._next_seq()
+        wire = b"\x00" + P.encode_frame(type_, seq, body)
+        since = self._link_state()
+        name = P.TYPE_NAMES[type_]
+        attempt = 0
+        while attempt < self._tries():
+            if attempt:
+                self.retries += 1
+            self._write(wire)
+            deadline = time.monotonic() + self.ack_timeout
+            while True:
+                if self._take_answer(type_, seq, attempt):
                     return
-                if f.type == P.ERROR:
-                    err = P.parse_error(f.body)
-                    if err["name"] in ("LIMIT", "RATE", "BAD_CONFIG"):
-                        raise UserError(f"board on {self.port} refused the experiment: {err['text']}")
-                    raise self._board_error(f)
-            self._poll(0.05)
-        raise RigError(f"no answer from {self.port} to {P.TYPE_NAMES[type_]} within {timeout:.1f} s: "
-                       "is the board plugged in?")
+                now = time.monotonic()
+                if now >= deadline:
+                    break
+                self._heartbeat()   # a running board must not trip its watchdog meanwhile
+                self._poll(min(0.05, deadline - now))
+            attempt += 1
+        raise RigError(f"no answer from {self.port} to {name} after {attempt} tries "
+                       f"({attempt * self.ack_timeout:.1f} s): {self._hint(since)}")
+
+    def _take_answer(self, type_: int, seq: int, attempt: int) -> bool:
+        """Consume queued frames looking for the answer to command (type_, seq)."""
+        keep: deque = deque()
+        found = False
+        while self._pending:
+            f = self._pending.popleft()
+            if found:
+                keep.append(f)
+            elif f.type == P.ACK:
+                found = f.fields == {"type": type_, "seq": seq}
+            elif type_ == P.START and f.type in (P.SAMPLES, P.DONE):
+                keep.append(f)
+                found = True
+            elif f.type == P.ERROR:
+                err = f.fields
+                if err["name"] in ("LIMIT", "RATE", "BAD_CONFIG"):
+                    raise UserError(f"board on {self.port} refused the experiment: {err['text']}")
+                if type_ == P.START and attempt and err["name"] == "BUSY":
+                    found = True   # an earlier try started it (firmware without START dedup)
+                elif err["name"] == "BAD_FRAME" or (err["name"] == "WATCHDOG"
+                                                    and type_ in (P.STOP, P.ZERO)):
+                    # one of our frames arrived damaged, or the board has already stopped
+                    # itself: the ACK or a retransmission settles it
+                    self.board_errors.append(f"board on {self.port} reported {err['name']}: "
+                                             f"{err['text']}")
+                else:
+                    raise self._board_error(err)
+            # anything else here is stale: a duplicate ACK, a late STATUS or HELLO
+        self._pending = keep
+        return found
+
+    def _fetch_status(self) -> dict:
+        """Ask for STATUS (a few tries); {} when no answer came."""
+        wire = b"\x00" + P.encode_frame(P.STATUS_REQ, self._next_seq())
+        for attempt in range(self._tries()):
+            if attempt:
+                self.retries += 1
+            self._write(wire)
+            deadline = time.monotonic() + self.ack_timeout
+            while time.monotonic() < deadline:
+                self._poll(0.05)
+                while self._pending:
+                    f = self._pending.popleft()
+                    if f.type == P.STATUS:
+                        self._pending.clear()
+                        return f.fields
+        return {}
 
     # ---- Bridge interface ------------------------------------------------------------
     def open(self) -> dict:
@@ -200,14 +350,21 @@ class SerialBridge(Bridge):
         self._ser = ser
         # The Uno resets when the port opens and greets after its bootloader (~1-2 s);
         # its greeting may be lost, so ask again every 0.5 s.
+        since = self._link_state()
         deadline = time.monotonic() + self.hello_timeout
+        extended = False
         next_ask = 0.0
         while not self.hello:
             now = time.monotonic()
+            if now >= deadline and not extended and self._link_state()[0] > since[0]:
+                # damaged frames arrive: a board is there behind a bad link; ask a while longer
+                deadline, extended = deadline + self.hello_timeout, True
             if now >= deadline:
+                hint = self._hint(since)
                 self.close()
-                raise RigError(f"no hello from {self.port} within {self.hello_timeout:.1f} s: "
-                               "is the labrig firmware on the board and nothing else using the port?")
+                if hint.startswith("is the board"):
+                    hint = "is the labrig firmware on the board and nothing else using the port?"
+                raise RigError(f"no hello from {self.port} within {self.hello_timeout:.1f} s: {hint}")
             if now >= next_ask:
                 self._send(P.HELLO_REQ)
                 next_ask = now + 0.5
@@ -215,13 +372,14 @@ class SerialBridge(Bridge):
             while self._pending:
                 f = self._pending.popleft()
                 if f.type == P.HELLO:
-                    self.hello = P.parse_hello(f.body)
+                    self.hello = f.fields
         if self.hello["protocol"] != P.PROTOCOL_VERSION:
             self.close()
             raise RigError(f"board on {self.port} speaks protocol {self.hello['protocol']}, "
                            f"labrig needs {P.PROTOCOL_VERSION}: reflash the firmware")
         # stop whatever a previous host left running
-        self._wait_ack(P.ZERO, self._send(P.ZERO))
+        self._command(P.ZERO)
+        self.board_status = self._fetch_status()   # the baseline of the first run's counters
         self._pending.clear()
         return {"firmware": self.hello["firmware"], "board": self.hello["board"],
                 "capabilities": ["square", "step", "staircase", "constant"],
@@ -280,7 +438,11 @@ class SerialBridge(Bridge):
             dac_zero=zero, dac_min=wmin, dac_max=wmax, watchdog_ms=s.watchdog_ms, levels=levels,
             position_gain=exp.position_gain if exp.loop == "closed" else 0.0,
             velocity_gain=exp.velocity_gain if exp.loop == "closed" else 0.0)
-        self._wait_ack(P.CONFIGURE, self._send(P.CONFIGURE, body))
+        # the run's counters start here: a sidecar reports this run, not the session
+        self._mark, self._board_mark = self._totals(), dict(self.board_status)
+        self._errors_mark = len(self.board_errors)
+        self._started = self._finished = False
+        self._command(P.CONFIGURE, body)
         self._exp, self._n_samples = exp, n
 
     def start(self) -> None:
@@ -290,32 +452,46 @@ class SerialBridge(Bridge):
         self._pending.clear()
         self._next_index = 0
         self._finished = False
-        self._wait_ack(P.START, self._send(P.START))
-        self._streaming = True
+        t0 = time.monotonic()
+        self._command(P.START)
+        self._started = self._streaming = True
+        rate = float(self._exp.sample_rate_hz)
+        self._t_end = t0 + self._n_samples / rate
+        self._last_sample_t = t0
+        self._tail = self.tail_s + 3 * P.BATCH / rate   # a few frame intervals at any rate
+
+    def _finish(self) -> None:
+        """End the run: whatever did not arrive up to the planned length is dropped."""
+        self.dropped_samples += max(0, self._n_samples - self._next_index)
+        self._next_index = max(self._next_index, self._n_samples)
+        self._finished = True
+        self._streaming = False
 
     def read(self, timeout: float = 2.0) -> SampleBlock | None:
-        """Next batch of samples in raw volts; ``None`` once the board reports DONE.
+        """Next batch of samples in raw volts; ``None`` once the run is over.
 
-        Gaps in the sample index are counted in ``dropped_samples`` (the block's ``index``
-        shows them); a silent link for ``timeout`` s raises :class:`RigError`.
+        The run is over at DONE, at the last planned sample, or -- when DONE and the last
+        frames were lost -- once the planned end has passed and no samples came for
+        ``tail_s``. Gaps in the sample index and a lost tail are counted in
+        ``dropped_samples`` (the block's ``index`` shows them); no valid samples for
+        ``timeout`` s raises :class:`RigError`.
         """
         if self._finished or not self._streaming:
             return None
         deadline = time.monotonic() + timeout
+        since = self._link_state()
         while True:
             while self._pending:
                 f = self._pending.popleft()
                 if f.type == P.SAMPLES:
-                    try:
-                        first, w = P.parse_samples(f.body)
-                    except P.FrameError:
-                        self.stale_frames += 1
-                        continue
+                    first, w = f.fields
                     if first < self._next_index or first + len(w) > self._n_samples:
                         self.stale_frames += 1   # a duplicate or a previous run's tail
                         continue
                     self.dropped_samples += first - self._next_index
                     self._next_index = first + len(w)
+                    self.samples += len(w)
+                    self._last_sample_t = time.monotonic()
                     s = self.settings
                     return SampleBlock(
                         index=np.arange(first, first + len(w)),
@@ -324,33 +500,40 @@ class SerialBridge(Bridge):
                         pos=adc_counts_to_volts(w[:, 2], "pos", s),
                         ref=adc_counts_to_volts(w[:, 3], "ref", s))
                 if f.type == P.DONE:
-                    self.dropped_samples += max(0, self._n_samples - self._next_index)
-                    self._next_index = self._n_samples
-                    self._finished = True
-                    self._streaming = False
+                    if f.fields["n_samples"] != self._n_samples:
+                        self.stale_frames += 1   # not this run's DONE
+                        continue
+                    self._finish()
                     return None
                 if f.type == P.ERROR:
+                    err = f.fields
+                    if err["name"] == "BAD_FRAME":   # a heartbeat arrived damaged: harmless
+                        self.board_errors.append(f"board on {self.port} reported BAD_FRAME: "
+                                                 f"{err['text']}")
+                        continue
                     self._streaming = False
-                    raise self._board_error(f)
+                    raise self._board_error(err)
             now = time.monotonic()
+            if self._next_index >= self._n_samples or (
+                    now >= self._t_end and now - self._last_sample_t >= self._tail
+                    and self._next_index > 0):
+                self._finish()   # DONE lost or not needed: the board has finished
+                return None
             if now >= deadline:
                 self._streaming = False
-                raise RigError(f"no data from {self.port} for {timeout:.1f} s: is the board plugged in?")
+                raise RigError(f"no data from {self.port} for {timeout:.1f} s: {self._hint(since)}")
             self._heartbeat()
             self._poll(min(0.05, deadline - now))
 
     def stop(self) -> None:
         """Stop the experiment (the board returns to 0 V) and fetch the board's counters."""
         self._streaming = False
-        self._wait_ack(P.STOP, self._send(P.STOP))
-        self._send(P.STATUS_REQ)
-        deadline = time.monotonic() + 1.0
-        while time.monotonic() < deadline and not self.board_status:
-            self._poll(0.05)
-            while self._pending:
-                f = self._pending.popleft()
-                if f.type == P.STATUS:
-                    self.board_status = P.parse_status(f.body)
+        ran, self._started = self._started, False
+        if ran and not self._finished:
+            self._finish()
+        self._command(P.STOP)
+        if ran:   # the run's board counters; a repeated stop() only makes sure of 0 V
+            self.board_status = self._fetch_status()
 
     def zero(self) -> None:
         """Command 0 V now; never raises (a dead link is already safe: the watchdog zeroes)."""
@@ -364,16 +547,23 @@ class SerialBridge(Bridge):
             pass
 
     def counters(self) -> dict:
-        """Link and board counters for the run's ``bridge`` metadata."""
+        """Link and board counters of the current run, for the run's ``bridge`` metadata.
+
+        Every count is this run's own (since :meth:`configure`), so ``dropped_samples``
+        equals the run's gap rows. Board counters are differences of the STATUS fetched
+        before the run and at :meth:`stop`; they are left out when either STATUS was lost.
+        """
         c = {"firmware": self.hello.get("firmware", "unknown"), "board": self.hello.get("board"),
-             "port": self.port, "dropped_samples": int(self.dropped_samples),
-             "crc_errors": int(self._dec.crc_errors), "framing_errors": int(self._dec.framing_errors),
-             "stale_frames": int(self.stale_frames)}
-        if self.board_status:
-            for k in ("rx_crc_errors", "rx_overruns", "watchdog_trips", "sample_overruns"):
-                c[f"board_{k}"] = int(self.board_status[k])
-        if self.board_errors:
-            c["board_errors"] = list(self.board_errors)
+             "port": self.port}
+        c.update({k: int(v - self._mark[k]) for k, v in self._totals().items()})
+        st, base = self.board_status, self._board_mark
+        if st:
+            if base:
+                for k in _BOARD_CUMULATIVE:
+                    c[f"board_{k}"] = int(st[k] - base[k])
+            c["board_sample_overruns"] = int(st["sample_overruns"])   # reset by START
+        if self.board_errors[self._errors_mark:]:
+            c["board_errors"] = self.board_errors[self._errors_mark:]
         return c
 
     def close(self) -> None:

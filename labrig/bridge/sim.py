@@ -40,7 +40,7 @@ class SimRig(Bridge):
         self._data: dict | None = None
         self._pos = 0
         self._output_v = 0.0
-        self._count = {"samples": 0, "experiments": 0}
+        self._count = {"samples": 0, "experiments": 0, "run_samples": 0}
 
     def open(self) -> dict:
         return {"firmware": "labrig-sim", "capabilities": ["open", "closed", "square", "step",
@@ -60,6 +60,7 @@ class SimRig(Bridge):
         self._data = self._acquire(self._exp)
         self._pos = 0
         self._count["experiments"] += 1
+        self._count["run_samples"] = 0   # the sidecar counts this run only
 
     def read(self, timeout: float = 2.0) -> SampleBlock | None:
         d = self._data
@@ -69,6 +70,7 @@ class SimRig(Bridge):
         s = slice(self._pos, min(self._pos + self.block, len(d["u"])))
         self._pos = s.stop
         self._count["samples"] += s.stop - s.start
+        self._count["run_samples"] += s.stop - s.start
         self._output_v = float(d["u"][s.stop - 1])
         return SampleBlock(index=np.arange(s.start, s.stop), u=d["u"][s], tacho=d["tacho"][s],
                            pos=d["pos"][s], ref=d["ref"][s] if d["ref"] is not None else None)
@@ -86,8 +88,9 @@ class SimRig(Bridge):
         return self._output_v
 
     def counters(self) -> dict:
+        """The current run's counters (a simulated link loses nothing)."""
         return {"firmware": "labrig-sim", "dropped_samples": 0, "crc_errors": 0,
-                "samples": self._count["samples"]}
+                "samples": self._count["run_samples"]}
 
     # -- the physics behind it ----------------------------------------------------
     def _acquire(self, exp: Experiment) -> dict:

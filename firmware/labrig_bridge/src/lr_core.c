@@ -21,6 +21,9 @@ static uint16_t max_rate;
 static lr_decoder_t dec;
 static lr_counters_t ctr;
 static uint32_t last_rx_ms;
+/* seq of the START that began the current run: the host retransmits a START whose ACK
+ * it missed with the same seq, and that must not restart the experiment */
+static uint8_t start_seq, start_seq_valid;
 
 /* shared with the ISRs */
 static volatile uint8_t state;
@@ -105,6 +108,7 @@ void lr_core_init(uint8_t board_id, const char *fw_id, uint16_t max_rate_hz)
     cfg.dac_zero = LR_DAC_ZERO; cfg.dac_min = lim_lo(); cfg.dac_max = lim_hi();
     cfg.watchdog_ms = LR_WATCHDOG_MS_DEFAULT;
     state = LR_STATE_IDLE;
+    start_seq_valid = 0;
     lr_decoder_init(&dec);
     dac_set(LR_DAC_ZERO);   /* 0 V at reset, before anything else can happen */
     last_rx_ms = hal_millis();
@@ -155,6 +159,7 @@ static void handle(const lr_frame_t *f)
     case LR_HEARTBEAT:
         break;
     case LR_CONFIGURE:
+        start_seq_valid = 0;
         if (state == LR_STATE_RUNNING || state == LR_STATE_FINISHING) {
             send_error(LR_ERR_BUSY, "configure while running");
             break;
@@ -173,6 +178,11 @@ static void handle(const lr_frame_t *f)
         }
         break;
     case LR_START:
+        if (start_seq_valid && f->seq == start_seq) {
+            /* a retransmission: acknowledge again, never restart (even after DONE) */
+            send_ack(f->type, f->seq);
+            break;
+        }
         if (state != LR_STATE_CONFIGURED) {
             send_error(state == LR_STATE_IDLE ? LR_ERR_NOT_CONFIGURED : LR_ERR_BUSY,
                        state == LR_STATE_IDLE ? "start before configure" : "already running");
@@ -186,11 +196,14 @@ static void handle(const lr_frame_t *f)
             state = LR_STATE_RUNNING;
             hal_unlock(s);
         }
+        start_seq = f->seq;
+        start_seq_valid = 1;
         send_ack(f->type, f->seq);   /* ack first: the first SAMPLES frame follows it */
         hal_timer_start(cfg.rate_hz);
         break;
     case LR_STOP:
     case LR_ZERO:
+        start_seq_valid = 0;
         stop_and_zero();
         send_ack(f->type, f->seq);
         break;
