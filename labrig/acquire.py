@@ -6,6 +6,7 @@ before an interruption stays on disk, complete.
 """
 from __future__ import annotations
 
+import glob
 from pathlib import Path
 from typing import Callable
 
@@ -81,12 +82,37 @@ def check_plan(plan: list[Experiment], rig) -> None:
                             f"the output limit {limit:g} V (rig bridge.output_limit_v)")
 
 
+def remove_stale_tmp(outdir: Path | str, names) -> list[Path]:
+    """Remove the temporary files a killed atomic write left for the runs ``names``.
+
+    ``runs.write_run`` writes ``.NAME.csv.*.tmp`` / ``.NAME.json.*.tmp`` next to the run and
+    renames them into place; a SIGKILL in between leaves them behind. Only those of the
+    plan's run names go: anything else in the folder is not ours to delete.
+
+    Returns
+    -------
+    list of Path
+        The files removed.
+    """
+    outdir = Path(outdir)
+    gone = []
+    if not outdir.is_dir():
+        return gone
+    for name in names:
+        for ext in ("csv", "json"):
+            for p in outdir.glob(f".{glob.escape(name)}.{ext}.*.tmp"):
+                p.unlink(missing_ok=True)
+                gone.append(p)
+    return gone
+
+
 def sweep(bridge: Bridge, plan: list[Experiment], rig, outdir: Path | str, *,
           resume: bool = False, on_start=None, on_progress=None, on_done=None) -> list[Path]:
     """Run every experiment of ``plan`` on ``bridge`` and write it to ``outdir``.
 
     With ``resume`` the runs already complete in ``outdir`` are skipped; without it
-    an existing run is an error (nothing is overwritten silently).
+    an existing run is an error (nothing is overwritten silently). Temporary files a
+    killed write left for the plan's runs are removed first (:func:`remove_stale_tmp`).
     """
     check_plan(plan, rig)
     outdir = Path(outdir)
@@ -98,6 +124,7 @@ def sweep(bridge: Bridge, plan: list[Experiment], rig, outdir: Path | str, *,
             raise UserError(f"{outdir / exp.name}.json exists; use --resume to continue this "
                             "sweep or choose an empty output folder")
         todo.append(exp)
+    remove_stale_tmp(outdir, [exp.name for exp in plan])
     written: list[Path] = []
     try:
         bridge.open()

@@ -87,6 +87,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
+    from .errors import Interrupted
+
     argv = sys.argv[1:] if argv is None else argv
     debug = "--debug" in argv
     if not debug:  # wild candidates overflow on purpose during a search; not news for users
@@ -103,6 +105,9 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         print("labrig: interrupted; finished runs are kept, the output is at 0 V", file=sys.stderr)
         return 130
+    except Interrupted as exc:   # SIGTERM/SIGHUP (errors.Terminated): one line, 128 + signal
+        print(f"labrig: {exc}", file=sys.stderr)
+        return exc.exit_code
     except LabrigError as exc:
         if debug:
             traceback.print_exc()

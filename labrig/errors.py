@@ -35,3 +35,24 @@ class Interrupted(LabrigError):
     """The user pressed Ctrl-C (exit 130)."""
 
     exit_code = 130
+
+
+class Terminated(Interrupted):
+    """SIGTERM or SIGHUP stopped a sweep: exit ``128 + signal number`` like a shell reports
+    it (143 for SIGTERM, 129 for SIGHUP), so a supervisor can tell it from Ctrl-C (130).
+
+    Parameters
+    ----------
+    signum : int
+        The signal received.
+    detail : str
+        What the user needs to know, after "terminated by SIGTERM; ".
+    """
+
+    def __init__(self, signum: int, detail: str = ""):
+        import signal
+
+        self.signum = int(signum)
+        self.exit_code = 128 + self.signum
+        text = f"terminated by {signal.Signals(self.signum).name}"
+        super().__init__(f"{text}; {detail}" if detail else text)

@@ -5,12 +5,8 @@ libsimavr-dev, libsimavrparts1."""
 from __future__ import annotations
 
 import os
-import random
-import select
 import subprocess
-import threading
 import time
-import tty
 from pathlib import Path
 
 import numpy as np
@@ -20,6 +16,7 @@ from labrig.bridge.base import Experiment
 from labrig.bridge.emulate import APT_PACKAGES, FIRMWARE_DIR, Emulator, missing_tools
 from labrig.bridge.serial import SerialBridge, bridge_settings, volts_to_dac_word
 from labrig.errors import RigError, UserError
+from linkproxy import B2H, LinkProxy
 
 _missing = missing_tools()
 pytestmark = [
@@ -92,63 +89,15 @@ def test_refuses_beyond_output_limit():
             bridge.configure(Experiment(name="too_big", amplitude_v=3.0))
 
 
-class FaultyProxy:
-    """A pty between host and board that corrupts and drops board->host bytes."""
-
-    def __init__(self, board_pty: str, p_flip: float, p_drop: float, seed: int = 7):
-        self.board = os.open(board_pty, os.O_RDWR | os.O_NOCTTY)
-        tty.setraw(self.board)
-        self.master, self.slave = os.openpty()
-        tty.setraw(self.slave)   # keep a slave fd open so the master never sees EIO
-        self.path = os.ttyname(self.slave)
-        self.rng = random.Random(seed)
-        self.p_flip, self.p_drop = p_flip, p_drop
-        self.flipped = self.dropped = 0
-        self._stop = False
-        self.thread = threading.Thread(target=self._pump, daemon=True)
-        self.thread.start()
-
-    def _write_all(self, fd, data):
-        while data:   # blocking fds: a short write is retried, nothing is lost
-            n = os.write(fd, data)
-            data = data[n:]
-
-    def _pump(self):
-        while not self._stop:
-            r, _, _ = select.select([self.board, self.master], [], [], 0.05)
-            if self.board in r:
-                out = bytearray()
-                for b in os.read(self.board, 4096):
-                    x = self.rng.random()
-                    if x < self.p_drop:
-                        self.dropped += 1
-                        continue
-                    if x < self.p_drop + self.p_flip:
-                        b ^= 1 << self.rng.randrange(8)
-                        self.flipped += 1
-                    out.append(b)
-                self._write_all(self.master, bytes(out))
-            if self.master in r:
-                self._write_all(self.board, os.read(self.master, 4096))
-
-    def close(self):
-        self._stop = True
-        self.thread.join(2)
-        for fd in (self.board, self.master, self.slave):
-            os.close(fd)
-
-
 def test_link_faults_detected_counted_never_a_wrong_sample():
     exp = Experiment(name="sq_2.00V", amplitude_v=2.0, frequency_hz=1.0, lead_in_s=0.2, periods=2.5)
     with Emulator("uno", RIG) as emu:
-        proxy = FaultyProxy(emu.pty, p_flip=1 / 1500, p_drop=1 / 1500)
-        try:
+        # both directions: lost commands are retried, lost samples counted
+        with LinkProxy(emu.pty, b2h=(1 / 1500, 1 / 1500), h2b=(1 / 1500, 1 / 1500)) as proxy:
             with SerialBridge(proxy.path, RIG) as bridge:
                 idx, u, _ = _run(bridge, exp)
                 c = bridge.counters()
-        finally:
-            proxy.close()
-    assert proxy.flipped + proxy.dropped > 10
+    assert proxy.total(proxy.faults, B2H) > 10
     assert c["crc_errors"] + c["framing_errors"] > 0
     assert c["dropped_samples"] == exp.n_samples - len(idx) > 0
     assert np.all(np.diff(idx) > 0)
@@ -235,3 +184,78 @@ def test_cli_sweep_on_emulated_board_then_board_vanishes(tmp_path):
 
     res = analyse([tmp_path / "ds"]).to_dict()
     assert res["km"] is not None and 80 < res["km"] < 115
+
+
+def test_sigterm_mid_run_stops_the_board_at_zero(tmp_path, emulators):
+    """Point 9 on the emulated board: SIGTERM by PID while a run streams -> exit 143, the
+    finished run intact, and the host itself (not the watchdog) put the output at 0 V."""
+    import signal
+    import sys
+
+    from labrig.runs import read_dataset
+
+    log = tmp_path / "dac.log"
+    plan = tmp_path / "plan.toml"
+    plan.write_text("[defaults]\nlead_in_s = 0.1\n[[experiment]]\namplitudes_v = [1.2, 2.0]\n"
+                    "frequency_hz = 0.5\nperiods = 2\n")
+    emu = emulators("uno", dac_log=log, speed=2.0)
+    proc = subprocess.Popen([sys.executable, "-m", "labrig", "sweep", "--port", emu.pty,
+                             "--plan", str(plan), "-o", str(tmp_path / "ds")],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.time() + 30
+    while time.time() < deadline and not (tmp_path / "ds" / "sq_1.20V.json").exists():
+        time.sleep(0.05)
+    time.sleep(0.6)                       # the second run is streaming, output at +-2 V
+    os.kill(proc.pid, signal.SIGTERM)
+    out, err = proc.communicate(timeout=30)
+    assert proc.returncode == 143, err
+    assert err.strip().splitlines()[-1] == ("labrig: terminated by SIGTERM; finished runs "
+                                            "are kept, the output is at 0 V")
+    runs = read_dataset(tmp_path / "ds")
+    assert [r.name for r in runs] == ["sq_1.20V"] and len(runs[0]) == 4100
+    assert not [p for p in (tmp_path / "ds").iterdir() if p.suffix == ".tmp"]
+    s = bridge_settings(RIG)
+    words = [int(line.split()[1]) for line in log.read_text().split("\n") if line.strip()]
+    assert volts_to_dac_word(2.0, s) in words and words[-1] == 2048
+    # long past the watchdog time: had the host not stopped it, the board would have tripped
+    time.sleep(0.5)
+    with SerialBridge(emu.pty, RIG) as bridge:
+        st = bridge.board_status
+    assert st["watchdog_trips"] == 0 and st["state"] in ("idle", "configured")
+    assert st["dac_word"] == 2048
+
+
+def test_emulator_ends_with_the_process_that_started_it():
+    """Point 10: the emulator's parent is SIGKILLed (no cleanup runs) -> the emulator
+    exits by itself (PR_SET_PDEATHSIG), found gone by its PID."""
+    import signal
+    import sys
+
+    code = ("import sys, time\nfrom labrig.bridge.emulate import Emulator\n"
+            "e = Emulator('uno')\ne.start()\nprint(e.proc.pid, flush=True)\ntime.sleep(60)\n")
+    child = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
+    emu_pid = None
+    try:
+        emu_pid = int(child.stdout.readline())
+        assert _running(emu_pid)
+        os.kill(child.pid, signal.SIGKILL)
+        child.wait(5)
+        deadline = time.monotonic() + 5
+        while time.monotonic() < deadline and _running(emu_pid):
+            time.sleep(0.05)
+        assert not _running(emu_pid)
+    finally:
+        if child.poll() is None:
+            child.kill()
+            child.wait()
+        if emu_pid is not None and _running(emu_pid):
+            os.kill(emu_pid, signal.SIGKILL)   # by the PID we recorded, never by name
+
+
+def _running(pid: int) -> bool:
+    """The process exists and is not a zombie waiting for a reaper."""
+    try:
+        with open(f"/proc/{pid}/stat") as fh:
+            return fh.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False

@@ -126,3 +126,54 @@ def test_lost_tail_becomes_gap_rows_holding_the_last_value(tmp_path):
     assert np.flatnonzero(gap).tolist() == list(range(300, 310)) + list(range(2000, 2500))
     tacho = r.data["tacho"].to_numpy()
     assert np.all(tacho[2000:] == tacho[1999]) and np.all(r.u[2000:] == r.u[1999])
+
+
+def _plan_file(tmp_path, n=4):
+    plan = tmp_path / "p.toml"
+    amps = ", ".join(str(a) for a in (1.0, 1.5, 2.0, 2.5)[:n])
+    plan.write_text("[defaults]\nlead_in_s = 0.1\nduration_s = 0.6\n"
+                    f"[[experiment]]\namplitudes_v = [{amps}]\n")
+    return plan
+
+
+@pytest.mark.parametrize("sig, code", [(signal.SIGTERM, 143), (signal.SIGHUP, 129)],
+                         ids=["SIGTERM", "SIGHUP"])
+def test_sigterm_and_sighup_stop_like_ctrl_c(tmp_path, sig, code):
+    """Point 9: SIGTERM/SIGHUP by PID take the Ctrl-C path: finished runs intact, no
+    temporary files, exit 128 + signal number, one line on stderr."""
+    proc = subprocess.Popen([sys.executable, "-m", "labrig", "sweep", "--sim", "--realtime",
+                             "--plan", _plan_file(tmp_path), "-o", tmp_path / "ds"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.time() + 30
+    while time.time() < deadline and not (tmp_path / "ds" / "sq_1.50V.json").exists():
+        time.sleep(0.05)
+    os.kill(proc.pid, sig)
+    out, err = proc.communicate(timeout=30)
+    assert proc.returncode == code, err
+    name = signal.Signals(sig).name
+    notes = [line for line in err.splitlines() if not line.startswith("wrote ")]
+    assert notes == [f"labrig: terminated by {name}; finished runs are kept, the output is at 0 V"]
+    runs = read_dataset(tmp_path / "ds")
+    assert 2 <= len(runs) < 4 and all(len(r) == 600 for r in runs)
+    assert not [p for p in (tmp_path / "ds").iterdir() if p.suffix == ".tmp"]
+
+
+def test_stale_tmp_files_are_removed_when_a_sweep_starts(tmp_path):
+    """Point 9: `.NAME.csv.*.tmp` left by a killed atomic write go when a sweep or a
+    --resume starts; temporary files of other names stay."""
+    out = tmp_path / "ds"
+    out.mkdir()
+    stale = [out / ".sq_1.00V.csv.k2j3x.tmp", out / ".sq_1.00V.json.x9a1.tmp"]
+    other = out / ".notes.txt.abc.tmp"
+    for p in stale + [other]:
+        p.write_text("t,u\n0,")
+    plan = _plan_file(tmp_path, n=2)
+    labrig("sweep", "--sim", "--plan", plan, "-o", out, check=0)
+    assert not any(p.exists() for p in stale) and other.exists()
+    # a sweep killed while writing its second run: CSV and a tmp sidecar, no .json
+    (out / "sq_1.50V.json").unlink()
+    left = out / ".sq_1.50V.json.q1w2e3.tmp"
+    left.write_text("{")
+    labrig("sweep", "--sim", "--plan", plan, "-o", out, "--resume", check=0)
+    assert not left.exists() and other.exists()
+    assert [r.name for r in read_dataset(out)] == ["sq_1.00V", "sq_1.50V"]

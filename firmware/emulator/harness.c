@@ -3,7 +3,9 @@
  *
  *   labrig-emu --fw build/uno/labrig_bridge.elf [--board uno|mega] [plant options]
  *
- * Prints the pty path as the first line of stdout, then serves until SIGINT/SIGTERM.
+ * Prints the pty path as the first line of stdout, then serves until SIGINT/SIGTERM, or
+ * until the process that started it dies (even by SIGKILL): nothing has to find and kill
+ * a leftover emulator. --parent-pid names that process (closes the start-up race).
  * The simulation is paced to real time (--speed 1) so host timeouts and the firmware's
  * watchdog behave as on the bench; --speed 0 runs free.
  *
@@ -19,6 +21,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/prctl.h>
 #include <time.h>
 #include <unistd.h>
 
@@ -130,11 +133,18 @@ static void usage(void)
         "  [--link PATH] [--loop auto|open|closed] [--kp G] [--kv G]\n"
         "  [--R ohm] [--L H] [--J kgm2] [--B Nms] [--K Nm/A] [--Ka V/V] [--Vmax V] [--N ratio]\n"
         "  [--Kt V/(rad/s)] [--Kpot V/rad] [--pos-offset V] [--noise-tacho V] [--noise-pos V]\n"
-        "  [--Tc Nm] [--seed N]\n");
+        "  [--Tc Nm] [--seed N] [--parent-pid PID]\n");
 }
 
 int main(int argc, char **argv)
 {
+    /* die with the parent: SIGTERM (handled below like a Ctrl-C) when it exits. The
+     * parent may have died before prctl() took effect; then we have been re-parented
+     * already, which the getppid() checks below catch. */
+    pid_t ppid_at_start = getppid();
+    prctl(PR_SET_PDEATHSIG, SIGTERM);
+    if (getppid() != ppid_at_start) return 1;
+    pid_t parent_pid = 0;
     /* defaults: configs/rig_default.toml */
     plant_params_t p = {.R = 8.0, .L = 0.0085, .J = 5.2245e-5, .B = 1.0e-5, .K = 0.05, .Ka = 5.0,
                         .Vmax = 13.0, .N = 30.0, .Kt = 0.026, .Kpot = 0.5, .pos_offset = -4.0,
@@ -148,7 +158,8 @@ int main(int argc, char **argv)
         {"R", 1, 0, 3}, {"L", 1, 0, 4}, {"J", 1, 0, 5}, {"B", 1, 0, 6}, {"K", 1, 0, 7},
         {"Ka", 1, 0, 8}, {"Vmax", 1, 0, 9}, {"N", 1, 0, 10}, {"Kt", 1, 0, 11}, {"Kpot", 1, 0, 12},
         {"pos-offset", 1, 0, 13}, {"noise-tacho", 1, 0, 14}, {"noise-pos", 1, 0, 15},
-        {"Tc", 1, 0, 16}, {"seed", 1, 0, 17}, {"help", 0, 0, 'h'}, {0, 0, 0, 0}};
+        {"Tc", 1, 0, 16}, {"seed", 1, 0, 17}, {"parent-pid", 1, 0, 18}, {"help", 0, 0, 'h'},
+        {0, 0, 0, 0}};
     int c;
     while ((c = getopt_long_only(argc, argv, "", opts, NULL)) != -1) {
         double v = optarg ? atof(optarg) : 0;
@@ -178,6 +189,7 @@ int main(int argc, char **argv)
         case 15: p.noise_pos = v; break;
         case 16: p.Tc = v; break;
         case 17: p.seed = (uint64_t)strtoull(optarg, NULL, 10); break;
+        case 18: parent_pid = (pid_t)atol(optarg); break;
         default: usage(); return 2;
         }
     }
@@ -185,6 +197,7 @@ int main(int argc, char **argv)
         usage();
         return 2;
     }
+    if (parent_pid > 0 && getppid() != parent_pid) return 1;   /* its parent is gone already */
     if (loop_forced >= 0) p.closed = loop_forced;
     plant_init(&plant, &p);
     lr_decoder_init(&snoop);

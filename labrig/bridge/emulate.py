@@ -113,6 +113,13 @@ class Emulator:
         (``<simulated seconds> <word>`` per line).
     loop : {"open", "closed"}, optional
         Force the plant's loop; by default it follows each CONFIGURE (the patch panel).
+
+    Notes
+    -----
+    The harness ends with the process that started it (Linux ``PR_SET_PDEATHSIG``; strictly,
+    with the thread that called :meth:`start`, so start it from a thread that lives as long
+    as the emulator is needed, normally the main thread). It runs in its own session, so a
+    Ctrl-C meant for the host never reaches it; :meth:`stop` ends it by its PID.
     """
 
     def __init__(self, board: str = "uno", rig=None, *, speed: float = 1.0, dac_log=None,
@@ -126,7 +133,10 @@ class Emulator:
 
     def command(self) -> list[str]:
         elf, harness = build(self.board)
-        cmd = [str(harness), "--fw", str(elf), "--board", self.board, "--speed", repr(self.speed)]
+        # --parent-pid: the harness exits when this process dies (PR_SET_PDEATHSIG), even by
+        # SIGKILL, so no emulator outlives its owner and nothing needs killing by name
+        cmd = [str(harness), "--fw", str(elf), "--board", self.board, "--speed", repr(self.speed),
+               "--parent-pid", str(os.getpid())]
         cmd += plant_args(self.rig)
         if self.dac_log:
             cmd += ["--dac-log", self.dac_log]

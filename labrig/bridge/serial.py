@@ -16,7 +16,7 @@ import numpy as np
 
 from labrig.bridge import protocol as P
 from labrig.bridge.base import Bridge, Experiment, SampleBlock
-from labrig.errors import RigError, UserError
+from labrig.errors import LabrigError, RigError, UserError
 
 TIMER_HZ = 2_000_000   # Timer1 count rate: only rates dividing it are exact
 
@@ -186,6 +186,8 @@ class SerialBridge(Bridge):
             raise RigError(f"{self.port} is not open")
         try:
             self._ser.write(data)
+        except LabrigError:
+            raise   # e.g. Terminated from a signal handler: not a link fault
         except Exception as e:  # pyserial raises SerialException/OSError subclasses
             raise RigError(f"lost {self.port} while writing: {e}") from e
         self._last_tx = time.monotonic()
@@ -197,6 +199,8 @@ class SerialBridge(Bridge):
             data = self._ser.read(max(1, self._ser.in_waiting))
             if data and self._ser.in_waiting:
                 data += self._ser.read(self._ser.in_waiting)
+        except LabrigError:
+            raise   # e.g. Terminated from a signal handler: not a link fault
         except Exception as e:
             raise RigError(f"lost {self.port}: {e}") from e
         if data:

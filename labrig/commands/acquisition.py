@@ -1,18 +1,20 @@
 """``labrig sweep`` and ``labrig import``."""
 from __future__ import annotations
 
+import signal
 import sys
 from pathlib import Path
 
 from ..cli import command, _float_opt
-from ..errors import UserError
+from ..errors import Terminated, UserError
 from .progress import Progress
 
 
 @command("sweep", "acquire a sweep on the board (--port) or the simulated rig (--sim)")
 def cmd_sweep(args):
     """Acquire a sweep: one run per experiment of the plan, each written atomically as it
-    finishes. Interrupting keeps every finished run; --resume continues."""
+    finishes. Interrupting (Ctrl-C, SIGTERM, SIGHUP) stops the board at 0 V and keeps every
+    finished run; --resume continues. Exit codes: 130 Ctrl-C, 143 SIGTERM, 129 SIGHUP."""
     from ..acquire import sweep
     from ..config import load_plan, load_rig
 
@@ -31,7 +33,7 @@ def cmd_sweep(args):
 
         bridge = SerialBridge(args.port, rig)
     total = sum(e.n_samples for e in plan)
-    with Progress("sweep", total=total, unit="samples") as bar:
+    with _StopSignals(), Progress("sweep", total=total, unit="samples") as bar:
         written = sweep(bridge, plan, rig, args.output, resume=args.resume,
                         on_start=lambda e: bar.describe(e.name),
                         on_progress=bar.advance,
@@ -54,6 +56,42 @@ def _configure_sweep(p):
 
 
 cmd_sweep.configure = _configure_sweep
+
+
+class _StopSignals:
+    """SIGTERM and SIGHUP end a sweep the way Ctrl-C does.
+
+    The handler raises :class:`~labrig.errors.Terminated` wherever the sweep is, so
+    ``acquire.sweep``'s ``finally`` sends STOP and ZERO and closes the port. Further
+    SIGTERM/SIGHUP/SIGINT are ignored until that path has run (a second signal must not
+    cut the board's stop short); a signal that lands while the sweep is already closing
+    is raised once the sweep returns.
+    """
+
+    SIGNALS = (signal.SIGTERM, signal.SIGHUP)
+
+    def __enter__(self):
+        self.got = None
+        self._old = {s: signal.getsignal(s) for s in (*self.SIGNALS, signal.SIGINT)}
+        for s in self.SIGNALS:
+            signal.signal(s, self._handler)
+        return self
+
+    def _handler(self, signum, frame):
+        self.got = signum
+        for s in self._old:
+            signal.signal(s, signal.SIG_IGN)
+        raise Terminated(signum, _KEPT)
+
+    def __exit__(self, exc_type, exc, tb):
+        for s, h in self._old.items():
+            signal.signal(s, h)
+        if self.got is not None and exc_type is None:
+            raise Terminated(self.got, _KEPT)
+        return False
+
+
+_KEPT = "finished runs are kept, the output is at 0 V"
 
 
 class _Paced:
