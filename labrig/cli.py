@@ -1,6 +1,6 @@
 """The command line: parse arguments, call the core, map errors to exit codes.
 
-Exit codes (design.md 3.2): 0 success, 2 user error, 1 rig or runtime fault,
+Exit codes (docs/design.md, 'Exit codes'): 0 success, 2 user error, 1 rig or runtime fault,
 130 interrupted. This is the only place that turns exceptions into exit codes.
 """
 from __future__ import annotations

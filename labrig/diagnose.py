@@ -35,7 +35,7 @@ MIN_GAIN = 0.05
 #: and be strongly supported by BIC (Kass & Raftery: |dBIC| > 10 is "very strong")
 MIN_DBIC = -10.0
 #: below this rmse/noise the model is at the noise floor (simulation residuals are
-#: slightly coloured even for the right model; physics.md 5)
+#: slightly coloured even for the right model; docs/physics.md, "The noise floor")
 FLOOR = 1.15
 
 
@@ -212,7 +212,8 @@ def diagnose(runs, model: dict | None = None, *, candidates=None, seed: int = 0,
     elif rec is None:
         verdict = (f"The model misses (rmse/noise {rmse0:.2f}) but no catalogue effect earns its "
                    "parameters on BIC and held-out data; the cause may be outside the catalogue "
-                   "(write your own effect, see docs) or in the sensors' calibration.")
+                   "(write your own effect: docs/physics.md, 'Writing your own effect') or "
+                   "in the sensors' calibration.")
     else:
         verdict = f"Add {rec}: " + supported[0]["explanation"]
     return {"baseline": {"source": base_source, "effects": base.names,

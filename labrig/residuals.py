@@ -1,4 +1,5 @@
-"""Where a model fails: residuals by regime, the noise band, whiteness (physics.md 5).
+"""Where a model fails: residuals by regime, the noise band, whiteness (docs/physics.md,
+'Diagnosis').
 
 Every sample of a run gets a regime label from the measured input and speed:
 

@@ -1,4 +1,4 @@
-"""Run files (design.md 3.1): read, validate, write atomically, import foreign CSVs.
+"""Run files (docs/design.md, 'Run files'): read, validate, write atomically, import foreign CSVs.
 
 A run is ``stem.csv`` (raw volts: t, u, tacho and/or pos, optional ref, current)
 plus ``stem.json`` (sidecar: format, sample rate, experiment, sensors, rig). Loading

@@ -10,7 +10,8 @@ from labrig.model.effects import get_effect
 from labrig.runs import read_dataset
 from conftest import labrig, make_rig, sim_dataset, square_plan
 
-# realistic magnitudes (physics.md 4) and the parameter each effect must recover
+# realistic magnitudes (docs/physics.md, 'Effect catalogue') and the parameter each
+# effect must recover
 HIDDEN = {
     "deadband": ({"d_v": 0.3}, "d_v"),
     "coulomb_friction": ({"tc_v": 0.25}, "tc_v"),
@@ -56,9 +57,10 @@ def test_small_delay_ranked_first_at_floor(tmp_path):
 
 
 def test_delay_of_one_and_a_half_samples_at_250_hz(tmp_path):
-    """physics.md's typical delay is 1-2 samples: at 250 Hz, 1.5 samples = 6 ms. It is
-    ranked first and recovered; the linear model is near the floor, so no recommendation
-    is required (the 2 ms case at 1 kHz is below what these data can show: see README)."""
+    """A typical delay is 1-2 samples (docs/physics.md, 'Effect catalogue'): at 250 Hz,
+    1.5 samples = 6 ms. It is ranked first and recovered; the linear model is near the
+    floor, so no recommendation is required (the 2 ms case at 1 kHz is below what these
+    data can show: see README)."""
     plan = square_plan(amps=(1.2, 1.8, 2.5), periods=1.5, rate=250.0)
     runs = read_dataset(sim_dataset(tmp_path, make_rig(effects={"delay": {"td_s": 0.006}}), plan))
     res = diagnose(runs, seed=0)

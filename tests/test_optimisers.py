@@ -165,7 +165,8 @@ def test_jellyfish_solver_greedy_and_best(batch):
 
 def _reference_js(fun, lo, hi, pop, iters, seed, rule="paper", beta=3.0,
                   gamma=0.1, c0=0.5):
-    """Literal transcription of physics.md 6 (sequential), same draw order."""
+    """Literal transcription of docs/physics.md, 'Jellyfish Search' (sequential), same
+    draw order."""
     rng = np.random.default_rng(seed)
     D = lo.size
     u = np.empty((pop, D))

@@ -1,4 +1,4 @@
-"""Run files (design.md 3.1): every bad case gives one clear line and exit code 2."""
+"""Run files (docs/design.md, 'Run files'): every bad case gives one clear line and exit code 2."""
 import json
 
 import numpy as np

@@ -107,7 +107,7 @@ class Identification:
             return {"rise_time_s": None, "settling_time_s": None, "overshoot_percent": None}
 
     def to_dict(self) -> dict:
-        """The JSON of design.md 3.2."""
+        """The JSON of ``identify --json`` (docs/design.md, 'Commands')."""
         return {"method": self.method, "effects": [e.name for e in self.effects],
                 "params": self.plant, "effect_params": self.effect_params,
                 "fixed": sorted(self.space.fixed),

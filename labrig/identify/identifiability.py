@@ -1,4 +1,4 @@
-"""Identifiability (physics.md 2): what the data can and cannot pin down.
+"""Identifiability (docs/physics.md, 'Identifiability'): what the data can and cannot pin down.
 
 From u to w or theta the DC servo has five parameters but only three transfer-
 function coefficients (b0 = Ka K/(J L), a1 = R/L + B/J, a0 = (B R + K^2)/(J L)):
@@ -98,7 +98,7 @@ def analyse_identifiability(objective, x_search: np.ndarray, Ka: float) -> dict:
     warnings, null = [], []
     symmetry = None
     if all(n in free for n in ("R", "L", "J", "B")):
-        # the exact symmetry of physics.md 2: (R/l, L/l, lJ, lB, K)
+        # the exact symmetry (docs/physics.md, 'Identifiability'): (R/l, L/l, lJ, lB, K)
         v = np.zeros(D)
         for n, c in (("R", -1), ("L", -1), ("J", 1), ("B", 1)):
             v[free.index(n)] = c

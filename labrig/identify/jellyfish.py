@@ -1,4 +1,4 @@
-"""Jellyfish Search (Chou & Truong 2021), as specified in physics.md section 6.
+"""Jellyfish Search (Chou & Truong 2021), as in docs/physics.md, 'Jellyfish Search'.
 
 Algorithm (t = 1..T, N jellyfish, D dimensions, r a fresh U(0,1) draw,
 r(D) a vector of D draws)::

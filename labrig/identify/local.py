@@ -1,4 +1,5 @@
-"""Local least-squares optimisation, the paper's "CO" (physics.md section 8).
+"""Local least-squares optimisation, the paper's "CO" (docs/physics.md,
+'Constrained optimisation (CO)').
 
 ``scipy.optimize.least_squares(method="trf")`` with box bounds, multi-started
 from `x0` and/or Latin-hypercube points; :func:`polish` refines a global

@@ -200,7 +200,7 @@ class Objective:
             f = np.sqrt(self.sim.sse(plant, ep, self._weights) / self.m)
         return np.where(np.isfinite(f), f, np.inf)
 
-    # -- adequacy measures (physics.md 5) --------------------------------------------
+    # -- adequacy measures (docs/physics.md, 'The objective') -------------------------
     def metrics(self, phys_row: np.ndarray) -> dict:
         sims = self.simulate_physical(phys_row[None, :])
         return adequacy(self.runs, sims, self.sigma_w, self.sigma_theta, self.p, self.q)

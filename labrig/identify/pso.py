@@ -1,4 +1,4 @@
-"""Particle swarm optimisation with Clerc-Kennedy constriction (physics.md 7).
+"""Particle swarm optimisation with Clerc-Kennedy constriction (docs/physics.md, 'PSO').
 
 Update, per particle and dimension (r1, r2 fresh U(0,1) draws)::
 

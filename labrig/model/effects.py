@@ -166,8 +166,8 @@ class CoulombFriction(Effect):
     The parameter is the friction expressed in volts at the bridge input,
     ``tc_v = Tc R / (Ka K)``: the input whose stall torque just balances it. Tc in
     N m is not identifiable from speed and position alone (it scales with R and J
-    along the model's symmetry, physics.md 2); tc_v is, and it is directly comparable
-    with a deadband.
+    along the model's symmetry, docs/physics.md, 'Identifiability'); tc_v is, and it
+    is directly comparable with a deadband.
     """
 
     name = "coulomb_friction"

@@ -1,5 +1,5 @@
-"""The DC servo (physics.md 1): armature + rotor + gear + sensors, as python-control
-objects, open loop and with the position/tacho loop of the paper's eq. 29 set-up.
+"""The DC servo (docs/physics.md, 'The DC servo'): armature + rotor + gear + sensors, as
+python-control objects, open loop and with the position/tacho loop of the paper's eq. 29 set-up.
 
 States x = [i (A), w (rad/s, motor), theta_m (rad, motor)]; input: the bridge voltage
 (open loop) or the reference voltage (closed loop).
@@ -46,7 +46,7 @@ class ServoParams:
     def as_dict(self) -> dict:
         return asdict(self)
 
-    # -- identifiable combinations (physics.md 2) --------------------------------
+    # -- identifiable combinations (docs/physics.md, 'Identifiability') ----------
     @property
     def km(self) -> float:
         """Steady motor speed per bridge volt: Ka K / (B R + K^2)."""

@@ -1,4 +1,4 @@
-"""The accurate "truth" integrator of the simulated rig (physics.md 1 and 4).
+"""The accurate "truth" integrator of the simulated rig (docs/physics.md, 'The simulators').
 
 Fixed step with sub-steps inside each sample: semi-implicit armature update (no L/R
 stability limit), explicit mechanical update with the Karnopp stick-slip rule (no
@@ -57,7 +57,8 @@ def simulate_truth(p: ServoParams, u: np.ndarray, dt: float, *, effects=(),
     outp = by_stage.get("output", [])
 
     R, L, J, B, K, Ka = p.R, p.L, p.J, p.B, p.K, p.Ka
-    quasi_static = L / R < h / 10  # physics.md 1: inductance invisible at this step
+    # inductance invisible at this step (docs/physics.md, 'The simulators')
+    quasi_static = L / R < h / 10
     i, w, th = map(float, x0)
     play = th / p.N
     out_w, out_th, out_thm, out_i = (np.empty(n) for _ in range(4))

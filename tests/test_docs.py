@@ -1,0 +1,94 @@
+"""The project documents itself: every pointer into the documentation resolves inside the
+repository (no notes outside it, no missing files, no missing sections)."""
+import re
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+#: where users and readers of the code look; nothing here may point outside the repository
+SCANNED = [ROOT / "README.md", ROOT / "labrig", ROOT / "configs", ROOT / "data", ROOT / "docs"]
+FORBIDDEN = ("../shared", "shared/design.md", "shared/physics.md")
+#: "docs/physics.md, 'Jellyfish Search'" (the section may wrap onto the next line)
+SECTION_REF = re.compile(r"docs/([\w-]+\.md)`?,\s+['\"]([^'\"]+)['\"]")
+DOC_PATH = re.compile(r"docs/[\w./-]+?\.md")
+MD_LINK = re.compile(r"\]\(([^)\s]+?\.md)(#[\w-]+)?\)")
+
+
+def _files(roots):
+    for root in roots:
+        paths = [root] if root.is_file() else sorted(root.rglob("*"))
+        for p in paths:
+            if p.is_file() and "__pycache__" not in p.parts:
+                yield p
+
+
+def _text_files(roots, suffixes=(".py", ".md", ".toml")):
+    return [p for p in _files(roots) if p.suffix in suffixes]
+
+
+def _headings(md: Path) -> list[str]:
+    return [line.lstrip("#").strip() for line in md.read_text(encoding="utf-8").splitlines()
+            if line.startswith("#")]
+
+
+def _slug(heading: str) -> str:
+    """GitHub's anchor for a heading: lower case, punctuation dropped, spaces to '-'."""
+    return re.sub(r"[^\w\- ]", "", heading.lower()).replace(" ", "-")
+
+
+def _norm(text: str) -> str:
+    return " ".join(text.split()).lower()
+
+
+def test_nothing_points_outside_the_repository():
+    bad = []
+    for p in _files(SCANNED):
+        data = p.read_bytes()
+        bad += [f"{p.relative_to(ROOT)}: {s}" for s in FORBIDDEN if s.encode() in data]
+    assert not bad, "pointers to notes outside the repository:\n" + "\n".join(bad)
+
+
+def test_every_docs_path_in_readme_and_code_exists():
+    missing = []
+    for p in _text_files([ROOT / "README.md", ROOT / "labrig"]):
+        for ref in sorted(set(DOC_PATH.findall(p.read_text(encoding="utf-8")))):
+            if not (ROOT / ref).is_file():
+                missing.append(f"{p.relative_to(ROOT)}: {ref}")
+    assert not missing, "documents named but missing:\n" + "\n".join(missing)
+
+
+@pytest.mark.parametrize("doc", ["design.md", "physics.md"])
+def test_the_reference_documents_exist(doc):
+    assert (ROOT / "docs" / doc).is_file()
+
+
+def test_every_named_section_exists():
+    """A section named after a docs path in code, configs, docs and tests is a heading of
+    that document."""
+    missing = []
+    for p in _text_files(SCANNED + [ROOT / "tests"]):
+        if p == Path(__file__).resolve():
+            continue
+        for doc, section in SECTION_REF.findall(p.read_text(encoding="utf-8")):
+            md = ROOT / "docs" / doc
+            if not md.is_file():
+                missing.append(f"{p.relative_to(ROOT)}: docs/{doc} does not exist")
+            elif _norm(section) not in {_norm(h) for h in _headings(md)}:
+                missing.append(f"{p.relative_to(ROOT)}: docs/{doc} has no section "
+                               f"'{' '.join(section.split())}'")
+    assert not missing, "\n".join(missing)
+
+
+def test_links_between_documents_resolve():
+    broken = []
+    for p in _text_files([ROOT / "README.md", ROOT / "docs"], suffixes=(".md",)):
+        for target, anchor in MD_LINK.findall(p.read_text(encoding="utf-8")):
+            if "://" in target:
+                continue
+            md = (p.parent / target).resolve()
+            if not md.is_file():
+                broken.append(f"{p.relative_to(ROOT)}: {target}")
+            elif anchor and anchor[1:] not in {_slug(h) for h in _headings(md)}:
+                broken.append(f"{p.relative_to(ROOT)}: {target}{anchor}")
+    assert not broken, "broken links:\n" + "\n".join(broken)
