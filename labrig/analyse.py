@@ -8,7 +8,8 @@ each edge a first-order step response is fitted (the 63 % point is kept as a
 cross-check). The steady points then give the paper's Km = w/V per level, the
 incremental gain (slope of speed against voltage), the deadband (where that line
 meets zero speed) and the trend of w/V with amplitude, which tells a threshold
-(deadband, Coulomb friction: w/V rises) from saturation (w/V falls); physics.md 3, 4.
+(deadband, Coulomb friction: w/V rises) from saturation (w/V falls); docs/physics.md,
+'Effect catalogue'.
 
 Runs with only a position pot are analysed on the motor angle
 ``gear_ratio * theta_out``: the edge model is integrated instead of the data being
@@ -223,7 +224,7 @@ class AnalysisResult:
 
     # -- outputs ------------------------------------------------------------
     def to_dict(self) -> dict:
-        """JSON-safe dict (design.md 3.2 keys first; NaN and inf become None)."""
+        """JSON-safe dict (docs/design.md, 'Commands'; NaN and inf become None)."""
         asym = {}
         if self.line.km_fwd is not None and self.line.km_rev is not None:
             asym["km_ratio_fwd_rev"] = self.line.km_fwd / self.line.km_rev

@@ -135,7 +135,7 @@ def _bic(sse, n, n_eff, k):
 
 def diagnose(runs, model: dict | None = None, *, candidates=None, seed: int = 0,
              fixed: dict | None = None, progress=None) -> dict:
-    """Locate the model's error and rank the missing effects (design.md 3.2 keys)."""
+    """Locate the model's error and rank the missing effects (keys: docs/design.md, 'Commands')."""
     t0 = time.perf_counter()
     if not runs:
         raise UserError("the data set is empty: give a folder with at least one run")
