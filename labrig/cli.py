@@ -31,12 +31,9 @@ def emit_json(obj) -> None:
     Non-finite numbers (an unbounded interval, the rmse of a diverged candidate)
     become null: strict JSON has no inf/nan, and they are results, not bugs.
     """
-    from .identify.result import finite_json
-    from .runs import _json_default
+    from .fileio import dumps
 
-    # what ``default`` converts (arrays of unknown containers...) is cleaned as well
-    sys.stdout.write(json.dumps(finite_json(obj), indent=2, allow_nan=False,
-                                default=lambda o: finite_json(_json_default(o))) + "\n")
+    sys.stdout.write(dumps(obj))
 
 
 def _float_opt(text: str) -> float:

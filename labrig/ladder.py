@@ -1,54 +1,113 @@
-"""The error ladder: the model's error after each added effect, against the noise floor."""
+"""The error ladder: the model's error after each added effect, against the noise floor.
+
+:func:`evaluate_ladder` judges a chain of saved models; :func:`auto_ladder` builds the
+chain itself (identify, diagnose, add the recommendation, repeat). Both return a
+:class:`Ladder`.
+"""
 from __future__ import annotations
 
+from dataclasses import dataclass, field
 from pathlib import Path
 
-from .diagnose import ModelState, diagnose, evaluate
+from .diagnose import diagnose
+from .evaluation import Evaluation, evaluate
 from .identify.engine import identify
-from .identify.modelfile import load_model, save_model
+from .model.model import Model
+from .tables import Table, fmt
 
 
-def _step(label, ev, effects, path=None):
-    return {"label": label, "effects": effects, "rmse_over_noise": ev["metrics"]["rmse_over_noise"],
-            "fit_percent": ev["metrics"]["fit_percent"], "fitness": ev["metrics"]["fitness"],
-            "model": str(path) if path else None}
+@dataclass
+class LadderStep:
+    """One rung: the model's label, its effects and how well it explains the runs."""
+
+    label: str
+    effects: list
+    rmse_over_noise: dict
+    fit_percent: dict
+    fitness: float
+    model: str | None = None
+
+    @classmethod
+    def of(cls, label: str, model: Model, ev: Evaluation, path=None) -> "LadderStep":
+        return cls(label=label, effects=list(model.names),
+                   rmse_over_noise=ev.metrics["rmse_over_noise"],
+                   fit_percent=ev.metrics["fit_percent"], fitness=ev.metrics["fitness"],
+                   model=str(path) if path else None)
+
+    def to_json(self) -> dict:
+        return {"label": self.label, "effects": self.effects,
+                "rmse_over_noise": self.rmse_over_noise, "fit_percent": self.fit_percent,
+                "fitness": self.fitness, "model": self.model}
 
 
-def evaluate_ladder(runs, model_paths) -> list[dict]:
-    steps, prev = [], []
+@dataclass
+class Ladder:
+    """The error after each step; ``to_json()`` is ``labrig ladder --json``."""
+
+    steps: list[LadderStep] = field(default_factory=list)
+
+    def to_json(self) -> dict:
+        return {"steps": [s.to_json() for s in self.steps]}
+
+    def to_pandas(self):
+        import pandas as pd
+
+        return pd.DataFrame([{"step": s.label,
+                              **{f"rmse/noise {k}": v for k, v in s.rmse_over_noise.items()},
+                              **{f"fit % {k}": v for k, v in s.fit_percent.items()}}
+                             for s in self.steps])
+
+    def table_rows(self) -> Table:
+        t = Table("the error ladder (rmse/noise; 1.00 is the noise floor)",
+                  ["step", "rmse/noise", "speed", "position", "fit % w", "fit % th"],
+                  numeric=(1, 2, 3, 4, 5))
+        for s in self.steps:
+            r, f = s.rmse_over_noise, s.fit_percent
+            t.rows.append([s.label, fmt(r.get("overall"), ".2f"), fmt(r.get("speed"), ".2f"),
+                           fmt(r.get("position"), ".2f"), fmt(f.get("speed"), ".2f"),
+                           fmt(f.get("position"), ".2f")])
+        return t
+
+    def plot(self, ax=None):
+        from .report.compare_plots import plot_ladder
+
+        return plot_ladder(self, ax=ax)
+
+
+def _label(model: Model, previous: list[str]) -> str:
+    new = [n for n in model.names if n not in previous]
+    return "linear model" if not model.names else "+ " + ", ".join(new or model.names)
+
+
+def evaluate_ladder(runs, model_paths) -> Ladder:
+    """Evaluate saved models in order (``labrig ladder --models m0.json,m1.json``)."""
+    ladder, prev = Ladder(), []
     for path in model_paths:
-        st = ModelState.from_model(load_model(path))
-        new = [n for n in st.names if n not in prev]
-        label = "linear model" if not st.names else "+ " + ", ".join(new or st.names)
-        steps.append(_step(label, evaluate(runs, st), st.names, path))
-        prev = st.names
-    return steps
+        model = Model.load(path)
+        ladder.steps.append(LadderStep.of(_label(model, prev), model, evaluate(runs, model), path))
+        prev = model.names
+    return ladder
 
 
-def auto_ladder(runs, max_steps=3, outdir=None, seed=0, log=print) -> list[dict]:
-    """identify -> diagnose -> add the recommendation -> identify --model ... until the
-    diagnosis finds nothing more (or ``max_steps`` effects were added)."""
-    from .commands.loop import res_model
-
+def auto_ladder(runs, max_steps=3, outdir=None, seed=0, log=print) -> Ladder:
+    """identify -> diagnose -> add the recommendation -> ... until the diagnosis finds
+    nothing more (or ``max_steps`` effects were added); each step's model is saved as
+    ``outdir/step<k>.json`` when ``outdir`` is given."""
     out = Path(outdir) if outdir else None
-    ident = identify(runs, "co", [], seed=seed, starts=4, identifiability=False)
-    model = ident.model_dict()
-    model["effect_objects"] = []
-    steps = [_step("linear model", evaluate(runs, ModelState.from_model(model)), [],
-                   out / "step0.json" if out else None)]
-    if out:
-        save_model({k: v for k, v in model.items() if k != "effect_objects"}, out / "step0.json")
+    model = identify(runs, "co", [], seed=seed, starts=4, identifiability=False).model()
+    path = out / "step0.json" if out else None
+    if path:
+        model.save(path)
+    ladder = Ladder([LadderStep.of("linear model", model, evaluate(runs, model), path)])
     for k in range(1, max_steps + 1):
         res = diagnose(runs, model, seed=seed)
-        rec = res["recommendation"]
-        log(f"step {k}: {res['verdict'][:160]}")
-        if rec is None:
+        log(f"step {k}: {res.verdict[:160]}")
+        if res.recommendation is None:
             break
-        model = res_model(res, runs, rec)
+        model = res.recommended_model()
         path = out / f"step{k}.json" if out else None
-        if out:
-            save_model(model, path)
-        model = load_model(path) if out else {**model, "effect_objects": res["_states"][rec].effects}
-        st = ModelState.from_model(model)
-        steps.append(_step(f"+ {rec}", evaluate(runs, st), st.names, path))
-    return steps
+        if path:
+            model.save(path)
+        ladder.steps.append(LadderStep.of(f"+ {res.recommendation}", model,
+                                          evaluate(runs, model), path))
+    return ladder

@@ -179,7 +179,7 @@ def write_mystery(doc: dict, path: Path | str, seed: int | None = None,
     ``overwrite=True``. The write is atomic (temp file + rename).
     """
     from .config import rig_from_dict
-    from .runs import _atomic_write
+    from .fileio import atomic_write
 
     path = Path(path)
     if path.suffix != SUFFIX:
@@ -196,7 +196,7 @@ def write_mystery(doc: dict, path: Path | str, seed: int | None = None,
     blob = base64.b64encode(_xor(zlib.compress(payload, 9), salt)).decode()
     lines = [HEADER, f"salt {salt.hex()}"] + [blob[i:i + 76] for i in range(0, len(blob), 76)]
     path.parent.mkdir(parents=True, exist_ok=True)
-    _atomic_write(path, "\n".join(lines) + "\n")
+    atomic_write(path, "\n".join(lines) + "\n")
     return path
 
 
@@ -330,7 +330,7 @@ def check(path: Path | str, model_path: Path | str, tolerance: float = PASS_TOLE
     for finding it and 1 for its parameters; minus 0.5 for every extra effect; as a
     percentage of the maximum.
     """
-    from .identify.modelfile import read_model_file
+    from .model.model import read_model_file
 
     truth = load_mystery(path)["rig"]
     model_path = Path(model_path)

@@ -11,9 +11,7 @@ from __future__ import annotations
 import csv
 import difflib
 import json
-import os
 import re
-import tempfile
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
@@ -22,6 +20,7 @@ import numpy as np
 import pandas as pd
 
 from .errors import AnalysisError, RunFileError
+from .fileio import atomic_write, json_default
 
 FORMAT = "labrig-run/1"
 REQUIRED_COLUMNS = ("t", "u")
@@ -393,28 +392,6 @@ def make_meta(*, sample_rate_hz: float, experiment: dict, sensors: dict, rig: di
     return meta
 
 
-def _umask() -> int:
-    old = os.umask(0o022)
-    os.umask(old)
-    return old
-
-
-def _atomic_write(path: Path, text: str) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        # mkstemp makes 0600; a run or model on a shared lab drive must be readable
-        # like any other file the user writes, so follow the umask
-        os.fchmod(fd, 0o666 & ~_umask())
-        with os.fdopen(fd, "w", encoding="utf-8", newline="") as fh:
-            fh.write(text)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
 def write_run(run: Run, directory: Path | str, overwrite: bool = False) -> Path:
     """Write ``run`` as ``directory/name.csv`` + ``.json``, each atomically.
 
@@ -437,21 +414,11 @@ def write_run(run: Run, directory: Path | str, overwrite: bool = False) -> Path:
                            "another output folder or remove it first")
     cols = [c for c in ("t", "u", "tacho", "pos", "ref", "current") if c in run.data] + \
            [c for c in run.data.columns if c not in ("t", "u", "tacho", "pos", "ref", "current")]
-    _atomic_write(csv_path, run.data[cols].to_csv(index=False, float_format="%.7g",
+    atomic_write(csv_path, run.data[cols].to_csv(index=False, float_format="%.7g",
                                                   lineterminator="\n"))
-    _atomic_write(json_path, json.dumps(run.meta, indent=2, default=_json_default) + "\n")
+    atomic_write(json_path, json.dumps(run.meta, indent=2, default=json_default) + "\n")
     run.path = csv_path
     return csv_path
-
-
-def _json_default(o):
-    if isinstance(o, (np.floating, np.integer)):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    if isinstance(o, tuple):
-        return list(o)
-    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
 
 
 def run_exists(directory: Path | str, name: str) -> bool:

@@ -35,13 +35,13 @@ def test_hidden_effect_found_added_and_recovered(tmp_path, name):
     params, key = HIDDEN[name]
     runs = dataset(tmp_path, {name: params})
     res = diagnose(runs, seed=0)
-    assert res["recommendation"] == name, [(e["effect"], round(e["delta_bic"])) for e in res["ranking"]]
-    assert res["ranking"][0]["effect"] == name
+    assert res.recommendation == name, [(e.effect, round(e.delta_bic)) for e in res.ranking]
+    assert res.ranking[0].effect == name
     # adding it (as a student would: identify with the effect) reaches the noise floor
     fit = identify(runs, "co", [get_effect(name)], seed=0, starts=4)
     assert fit.metrics["rmse_over_noise"]["overall"] <= 1.5
     assert fit.params[f"{name}.{key}"] == pytest.approx(params[key], rel=0.15)
-    assert name in res["ranking"][0]["explanation"] or res["ranking"][0]["explanation"]
+    assert name in res.ranking[0].explanation or res.ranking[0].explanation
 
 
 def test_small_delay_ranked_first_at_floor(tmp_path):
@@ -50,10 +50,10 @@ def test_small_delay_ranked_first_at_floor(tmp_path):
     that the model is (nearly) at the noise floor rather than invent a cause."""
     runs = dataset(tmp_path, {"delay": {"td_s": 0.004}})
     res = diagnose(runs, seed=0)
-    top = res["ranking"][0]
-    assert top["effect"] == "delay" and top["delta_bic"] < -100
-    assert top["params"]["td_s"] == pytest.approx(0.004, rel=0.15)
-    assert res["recommendation"] in ("delay", None)
+    top = res.ranking[0]
+    assert top.effect == "delay" and top.delta_bic < -100
+    assert top.params["td_s"] == pytest.approx(0.004, rel=0.15)
+    assert res.recommendation in ("delay", None)
 
 
 def test_delay_of_one_and_a_half_samples_at_250_hz(tmp_path):
@@ -64,9 +64,9 @@ def test_delay_of_one_and_a_half_samples_at_250_hz(tmp_path):
     plan = square_plan(amps=(1.2, 1.8, 2.5), periods=1.5, rate=250.0)
     runs = read_dataset(sim_dataset(tmp_path, make_rig(effects={"delay": {"td_s": 0.006}}), plan))
     res = diagnose(runs, seed=0)
-    top = res["ranking"][0]
-    assert top["effect"] == "delay" and top["delta_bic"] < -100
-    assert top["params"]["td_s"] == pytest.approx(0.006, rel=0.15)
+    top = res.ranking[0]
+    assert top.effect == "delay" and top.delta_bic < -100
+    assert top.params["td_s"] == pytest.approx(0.006, rel=0.15)
     fit = identify(runs, "co", [get_effect("delay")], seed=0, starts=4)
     assert fit.metrics["rmse_over_noise"]["overall"] <= 1.5
     assert fit.params["delay.td_s"] == pytest.approx(0.006, rel=0.15)
@@ -75,8 +75,8 @@ def test_delay_of_one_and_a_half_samples_at_250_hz(tmp_path):
 def test_nothing_hidden_nothing_recommended(tmp_path):
     runs = dataset(tmp_path, {})
     res = diagnose(runs, seed=0)
-    assert res["recommendation"] is None
-    assert res["baseline"]["rmse_over_noise"]["overall"] < 1.3
+    assert res.recommendation is None
+    assert res.baseline["rmse_over_noise"]["overall"] < 1.3
 
 
 def test_deadband_and_friction_told_apart_by_transients(tmp_path):
@@ -84,23 +84,19 @@ def test_deadband_and_friction_told_apart_by_transients(tmp_path):
     for truth, other in (("deadband", "coulomb_friction"), ("coulomb_friction", "deadband")):
         runs = dataset(tmp_path / truth, {truth: {"d_v": 0.3} if truth == "deadband" else {"tc_v": 0.3}})
         res = diagnose(runs, seed=0, candidates=[truth, other])
-        r = {e["effect"]: e for e in res["ranking"]}
-        assert res["recommendation"] == truth
+        r = {e.effect: e.to_json() for e in res.ranking}
+        assert res.recommendation == truth
         assert r[truth]["rmse_over_noise"] < 0.8 * r[other]["rmse_over_noise"]
 
 
 def test_two_hidden_effects_two_rounds(tmp_path):
     runs = dataset(tmp_path, {"deadband": {"d_v": 0.3}, "backlash": {"a_rad": 0.035}})
     first = diagnose(runs, seed=0)
-    found = first["recommendation"]
+    found = first.recommendation
     assert found in ("deadband", "backlash")
-    from labrig.commands.loop import res_model
-    from labrig.model.effects import get_effect as ge
-
-    model = res_model(first, runs, found)
-    model["effect_objects"] = [ge(n) for n in model["effects"]]
+    model = first.model_with(found)
     second = diagnose(runs, model, seed=0)
-    assert {found, second["recommendation"]} == {"deadband", "backlash"}
+    assert {found, second.recommendation} == {"deadband", "backlash"}
 
 
 def test_cli_loop_and_user_effect(tmp_path):
@@ -148,3 +144,17 @@ class MyCoulomb(Effect):
     assert (tmp_path / "lad" / "ladder.png").exists()
     bad = labrig("identify", ds, "--effects", f"{tmp_path / 'nope.py'}:X")
     assert bad.returncode == 2 and "not found" in bad.stderr
+
+
+def test_auto_ladder_cli_on_the_shipped_sweep(tmp_path):
+    """`labrig ladder DIR --max-steps N` (automatic mode) once crashed with KeyError 'km'
+    on data/sweep_default; it must run and save step0.json with the linear model."""
+    from pathlib import Path
+
+    data = Path(__file__).resolve().parent.parent / "data" / "sweep_default"
+    proc = labrig("ladder", data, "--max-steps", "1", "-o", tmp_path / "lad", "--json", check=0)
+    steps = json.loads(proc.stdout)["steps"]
+    assert steps[0]["label"] == "linear model" and len(steps) in (1, 2)
+    assert (tmp_path / "lad" / "step0.json").exists() and (tmp_path / "lad" / "ladder.png").exists()
+    if len(steps) == 2:  # an effect was added: the error fell
+        assert steps[1]["rmse_over_noise"]["overall"] < steps[0]["rmse_over_noise"]["overall"]

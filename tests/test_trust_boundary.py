@@ -191,11 +191,11 @@ def test_run_files_follow_the_umask(tmp_path):
 
 
 def test_model_file_follows_the_umask(tmp_path):
-    from labrig.identify.modelfile import save_model
+    from labrig.model.model import Model
 
     old = os.umask(0o022)
     try:
-        p = save_model({"format": "labrig-model/1"}, tmp_path / "m.json")
+        p = Model({"R": 8.0, "L": 0.0085, "J": 5e-5, "B": 1e-5, "K": 0.05}).save(tmp_path / "m.json")
     finally:
         os.umask(old)
     assert stat.S_IMODE(p.stat().st_mode) == 0o644

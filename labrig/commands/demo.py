@@ -19,9 +19,9 @@ def _say(text):
 
 
 def _dump(obj, path):
-    from ..runs import _atomic_write, _json_default
+    from ..fileio import atomic_write, json_default
 
-    _atomic_write(Path(path), json.dumps(obj, indent=2, default=_json_default) + "\n")
+    atomic_write(Path(path), json.dumps(obj, indent=2, default=json_default) + "\n")
 
 
 @command("demo", "the whole lab on the simulated rig: sweep to report, in a few minutes")
@@ -34,14 +34,14 @@ def cmd_demo(args):
     from ..bridge.sim import SimRig
     from ..commands.identification import format_identification
     from ..config import load_plan, load_rig
-    from ..diagnose import ModelState, diagnose, evaluate
+    from ..diagnose import diagnose
+    from ..evaluation import evaluate
     from ..identify.engine import identify
-    from ..identify.modelfile import load_model, model_start, save_model
     from ..ladder import evaluate_ladder
     from ..model.effects import get_effect
-    from ..report.compare_plots import plot_ladder, plot_regimes, plot_run_comparison
+    from ..model.model import Model
+    from ..report.compare_plots import plot_regimes, plot_run_comparison, save
     from ..report.identify_plots import plot_convergence
-    from ..residuals import worst_run
     from ..runs import read_dataset
 
     t0 = time.perf_counter()
@@ -65,43 +65,42 @@ def cmd_demo(args):
     _say(f"[3/7] identify the linear model with {', '.join(m.upper() for m in methods)}")
     results = [identify(runs, m, [], seed=args.seed, pop=50, iters=200 if not args.quick else 60,
                         starts=4) for m in methods]
-    plot_convergence(results, figs / "convergence.png")
+    save(plot_convergence(results), figs / "convergence.png", dpi=120)
     best = min(results, key=lambda r: r.fitness)
     _dump({**best.to_dict(), "method": "all", "best": best.method,
            "results": {r.method: r.to_dict() for r in results}}, out / "identify_all.json")
-    save_model(best.model_dict(), out / "model0.json")
+    best.model().save(out / "model0.json")
     print("\n" + format_identification(results))
 
     _say("[4/7] diagnose: where the model fails and which effect is missing")
-    model0 = load_model(out / "model0.json")
+    model0 = Model.load(out / "model0.json")
     diag = diagnose(runs, model0, seed=args.seed)
-    _dump({k: v for k, v in diag.items() if not k.startswith("_")}, out / "diagnosis.json")
-    rec = diag["recommendation"]
-    print(f"\n{diag['verdict']}")
+    _dump(diag.to_json(), out / "diagnosis.json")
+    rec = diag.recommendation
+    print(f"\n{diag.verdict}")
 
     models = [out / "model0.json"]
     if rec:
         _say(f"[5/7] identify again with {rec} added (warm start from model0)")
-        res1 = identify(runs, "co", model0["effect_objects"] + [get_effect(rec)], seed=args.seed,
-                        start=model_start(model0), starts=1)
-        save_model(res1.model_dict(), out / "model1.json")
+        res1 = identify(runs, "co", model0.effects + [get_effect(rec)], seed=args.seed,
+                        start=model0.flat(), starts=1)
+        res1.model().save(out / "model1.json")
         models.append(out / "model1.json")
     else:
         _say("[5/7] nothing to add: the model is at the noise floor")
 
     _say("[6/7] compare and the error ladder")
-    last = load_model(models[-1])
-    ev = evaluate(runs, ModelState.from_model(last))
-    ev0 = evaluate(runs, ModelState.from_model(model0))
-    worst = worst_run(ev0["per_run"])
-    plot_run_comparison(worst, figs / f"compare_{worst['name']}_model0.png",
-                        title=f"{worst['name']}: linear model vs measurement")
-    for rr in ev["per_run"]:
-        plot_run_comparison(rr, figs / f"compare_{rr['name']}.png")
-    plot_regimes(ev0["regimes"], figs / "regimes.png", title="Where the linear model fails")
-    steps = evaluate_ladder(runs, [str(m) for m in models])
-    plot_ladder(steps, figs / "ladder.png")
-    _dump({"steps": steps}, out / "ladder.json")
+    ev = evaluate(runs, Model.load(models[-1]))
+    ev0 = evaluate(runs, model0)
+    worst = ev0.worst_run()
+    save(plot_run_comparison(worst, title=f"{worst['name']}: linear model vs measurement"),
+         figs / f"compare_{worst['name']}_model0.png")
+    for rr in ev.per_run:
+        save(plot_run_comparison(rr), figs / f"compare_{rr['name']}.png")
+    save(plot_regimes(ev0.regimes, title="Where the linear model fails"), figs / "regimes.png")
+    ladder = evaluate_ladder(runs, [str(m) for m in models])
+    save(ladder.plot(), figs / "ladder.png", dpi=120)
+    _dump(ladder.to_json(), out / "ladder.json")
 
     _say("[7/7] report")
     report = None
@@ -115,8 +114,8 @@ def cmd_demo(args):
     print("\n== summary ==")
     print(f"analysis: km = {ana.km:.4g} rad/s per V, tau = {ana.tau_s:.4g} s, "
           f"gain trend {ana.gain_trend}" if ana.km and ana.tau_s else "analysis: see above")
-    for s in steps:
-        print(f"  {s['label']:<24} rmse/noise {s['rmse_over_noise']['overall']:.2f}")
+    for s in ladder.steps:
+        print(f"  {s.label:<24} rmse/noise {s.rmse_over_noise['overall']:.2f}")
     print(f"recommendation: {rec or 'none (at the noise floor)'}")
     print(f"outputs in {out}/" + (f", report: {report}" if report else ""))
     print(f"demo finished in {dt:.0f} s")

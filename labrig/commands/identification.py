@@ -102,22 +102,21 @@ def cmd_identify(args):
     """Identify the DC-servo model on a data set. Reports the identifiable combinations
     (Km, tau_m, tau_e) first, then R, L, J, B, K with identifiability warnings."""
     from ..identify.engine import identify
-    from ..identify.modelfile import load_model, model_start, save_model
-    from ..model.effects import parse_effects
+    from ..model.effectset import EffectSet
+    from ..model.model import Model
     from ..runs import read_dataset
 
     runs = read_dataset(args.data)
+    # the command line first: naming FILE.py:Class there is the user's own choice
+    asked = EffectSet.parse(args.effects)
     cfg = load_identify_config(args.config)
-    start, effects_text = None, args.effects
+    start, effects = None, asked
     if args.model:
-        model = load_model(args.model)
-        start = model_start(model)
-        prev = model.get("effects", [])
-        new = [s for s in (args.effects or "").split(",") if s.strip() and s.strip() not in prev]
-        effects_text = ",".join(prev + new)
-    if not effects_text and cfg.get("effects"):
-        effects_text = ",".join(cfg["effects"])
-    effects = parse_effects(effects_text)
+        model = Model.load(args.model)
+        start = model.flat()
+        effects = model.effects + [e for e in asked if e.name not in model.names]
+    if not len(effects) and cfg.get("effects"):
+        effects = EffectSet.parse(cfg["effects"], origin=f"{args.config}: key 'effects'")
     bounds = {**cfg.get("bounds", {}), **parse_assignments(args.bounds, "--bounds", pair=True)}
     fixed = {**cfg.get("fixed", {}), **parse_assignments(args.fix, "--fix")}
     w = parse_assignments(args.weights, "--weights")
@@ -144,14 +143,13 @@ def cmd_identify(args):
         results.append(res)
     best = min(results, key=lambda r: r.fitness)
     if args.output:
-        from ..identify.result import finite_json
-
-        save_model(finite_json(best.model_dict()), args.output)  # strict JSON: inf -> null
+        best.model().save(args.output)
     if args.figures:
+        from ..report.compare_plots import save
         from ..report.identify_plots import plot_convergence
 
         Path(args.figures).mkdir(parents=True, exist_ok=True)
-        plot_convergence(results, Path(args.figures) / "convergence.png")
+        save(plot_convergence(results), Path(args.figures) / "convergence.png", dpi=120)
     if args.json:
         dicts = {r.method: identification_dict(r) for r in results}
         if len(results) == 1:

@@ -13,6 +13,8 @@ import numpy as np
 
 from ..errors import UserError
 from ..model.effects import Effect
+from ..model.effectset import EffectSet
+from ..model.model import Model
 from ..model.servo import PLANT_NAMES, ServoParams
 from ..runs import require_excitation
 from .identifiability import analyse_identifiability
@@ -121,19 +123,16 @@ class Identification:
                 "step_info": self.step_info(), "noise": self.metrics["noise"],
                 "per_run": self.metrics["per_run"]}
 
-    def model_dict(self) -> dict:
-        """What ``-o model.json`` saves, for compare/diagnose/identify --model."""
-        from .modelfile import FORMAT
-
-        return {"format": FORMAT, "structure": "dc-servo", "method": self.method,
-                "effects": [getattr(e, "spec", e.name) for e in self.effects],
-                "params": self.plant, "effect_params": self.effect_params,
-                "constants": self.constants, "fitness": self.metrics["fitness"],
-                "rmse_over_noise": self.metrics["rmse_over_noise"],
-                "fit_percent": self.metrics["fit_percent"], "noise": self.metrics["noise"],
-                "seed": self.result.seed, "nfev": int(self.result.nfev),
-                "identifiable": {k: self.identifiable[k] for k in ("km", "tau_m_s", "tau_e_s")},
-                "dataset": self.dataset}
+    def model(self) -> Model:
+        """The identified model (what ``-o model.json`` saves)."""
+        return Model.from_flat(self.params, self.effects, self.constants, info={
+            "method": self.method, "fitness": self.metrics["fitness"],
+            "rmse_over_noise": self.metrics["rmse_over_noise"],
+            "fit_percent": self.metrics["fit_percent"], "noise": self.metrics["noise"],
+            "seed": self.result.seed, "nfev": int(self.result.nfev),
+            "identifiable": {k: self.identifiable[k] for k in ("km", "tau_m_s", "tau_e_s")
+                             if k in self.identifiable},
+            "dataset": self.dataset})
 
 
 def dataset_constants(runs) -> dict:
@@ -157,12 +156,9 @@ def initial_point(space: Space, effects, runs, constants, start: dict | None) ->
         point.update({k: v for k, v in start.items() if k in point})
     plant = ServoParams(**{k: point[k] for k in PLANT_NAMES}, Ka=constants["Ka"],
                         N=constants["N"], Kt=constants["Kt"], Kpot=constants["Kpot"])
-    for e in effects:
-        guess = e.initial_guess(runs, plant)
-        for p in e.params:
-            key = f"{e.name}.{p.name}"
-            if not (start and key in start):
-                point[key] = float(guess[p.name])
+    for key, v in EffectSet.parse(effects).initial_guess(runs, plant).items():
+        if not (start and key in start):
+            point[key] = v
     point.update(space.fixed)
     return point
 
@@ -197,7 +193,7 @@ def identify(runs, method: str = "co", effects: list[Effect] = (), *, seed: int 
         raise UserError("the data set is empty: give a folder with at least one run")
     require_excitation(runs, "identify")
     t0 = time.perf_counter()
-    effects = list(effects)
+    effects = EffectSet.parse(effects)
     space = build_space(effects, bounds, fixed)
     obj = Objective(runs, effects, space, p=p, q=q)
     constants = dataset_constants(runs)

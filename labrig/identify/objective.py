@@ -14,13 +14,14 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import UserError
-from ..model.effects import Effect, get_effect
+from ..model.effects import Effect
+from ..model.effectset import EffectSet
+from ..model.model import DCServoPlant
 from ..model.servo import PLANT_NAMES
 from ..model.simulate import Simulator, prepare
 
 #: generic plant bounds (SI units); wide enough for bench servos from 10 W to 1 kW
-DEFAULT_BOUNDS = {"R": (0.1, 100.0), "L": (1e-5, 1.0), "J": (1e-7, 1e-1),
-                  "B": (1e-9, 1e-1), "K": (1e-3, 2.0)}
+DEFAULT_BOUNDS = DCServoPlant.bounds
 
 
 def noise_level(y: np.ndarray) -> float:
@@ -97,11 +98,9 @@ def build_space(effects: list[Effect], bounds: dict | None = None, fixed: dict |
         names.append(n)
         a, b = bounds.pop(n, DEFAULT_BOUNDS[n])
         lo.append(a), hi.append(b), log.append(True)
-    for e in effects:
-        for p in e.params:
-            key = f"{e.name}.{p.name}"
-            a, b = bounds.pop(key, (p.lower, p.upper))
-            names.append(key), lo.append(a), hi.append(b), log.append(bool(p.log and a > 0))
+    for key, a0, b0, lg in EffectSet.parse(effects).bounds():
+        a, b = bounds.pop(key, (a0, b0))
+        names.append(key), lo.append(a), hi.append(b), log.append(bool(lg and a > 0))
     if bounds:
         raise UserError(f"--bounds: unknown parameter '{sorted(bounds)[0]}'; the model has "
                         f"{', '.join(names)}")
@@ -124,7 +123,7 @@ class Objective:
         if not runs:
             raise UserError("the data set is empty: give a folder with at least one run")
         self.runs = prepare(runs)
-        self.effects = list(effects)
+        self.effects = EffectSet.parse(effects)
         self.space = space
         self.p, self.q = float(p), float(q)
         if self.p < 0 or self.q < 0 or self.p + self.q == 0:
@@ -147,14 +146,7 @@ class Objective:
     # -- parameters -------------------------------------------------------------------
     def split(self, phys: np.ndarray):
         """(P, D_all) physical -> plant (P, 5), {effect: {param: (P,)}}."""
-        plant = phys[:, :5]
-        ep, k = {}, 5
-        for e in self.effects:
-            ep[e.name] = {}
-            for prm in e.params:
-                ep[e.name][prm.name] = phys[:, k]
-                k += 1
-        return plant, ep
+        return phys[:, :5], self.effects.split(phys, offset=5)
 
     def simulate_physical(self, phys: np.ndarray) -> list[dict]:
         plant, ep = self.split(np.atleast_2d(phys))

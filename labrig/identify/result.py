@@ -17,6 +17,8 @@ from typing import Any, Callable
 
 import numpy as np
 
+from ..fileio import finite_json
+
 __all__ = ["IdentResult", "finite_json", "bound_warnings", "fit_warnings",
            "identification_warnings"]
 
@@ -111,31 +113,6 @@ def _jsonable(value: Any) -> Any:
         return value if math.isfinite(value) else None
     if isinstance(value, IdentResult):
         return value.to_dict()
-    return value
-
-
-def finite_json(value: Any) -> Any:
-    """``value`` with every non-finite float replaced by ``None``, at any depth.
-
-    Python floats, numpy scalars and arrays inside dicts, lists and tuples are
-    converted; dict keys and any other object are left as they are (``json``'s
-    ``default`` deals with those). Strict JSON has no ``inf``/``nan``, and an
-    unbounded interval or a diverged candidate's rmse must not end a command in
-    an internal error.
-    """
-    if isinstance(value, dict):
-        return {k: finite_json(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [finite_json(v) for v in value]
-    if isinstance(value, np.ndarray):
-        return finite_json(value.tolist())
-    if isinstance(value, (bool, np.bool_)):
-        return bool(value)
-    if isinstance(value, np.integer):
-        return int(value)
-    if isinstance(value, (float, np.floating)):
-        value = float(value)
-        return value if math.isfinite(value) else None
     return value
 
 

@@ -36,6 +36,7 @@ and use it with ``labrig identify DIR --effects my_effects.py:MyCoulomb``.
 """
 from __future__ import annotations
 
+import abc
 import importlib.util
 import math
 from dataclasses import dataclass
@@ -60,9 +61,11 @@ class Param:
     log: bool = True  # search in log space (positive, spans decades)
 
 
-class Effect:
-    """Base class of every effect. Subclasses set ``name``, ``stage``, ``params``
-    and implement the hook of their stage:
+class Effect(abc.ABC):
+    """Base of every effect. Subclasses set ``name``, ``params`` and implement the hook
+    of their stage; the catalogue's effects derive from the stage classes below
+    (:class:`InputEffect`, :class:`DriveEffect`, :class:`FrictionEffect`,
+    :class:`OutputEffect`, :class:`DelayEffect`), which declare the hook abstract.
 
     - ``input``/``drive``: ``apply(v, **p) -> v'`` (elementwise on arrays)
     - ``friction``: ``friction(plant, **p) -> (kinetic, breakaway)`` torque levels >= 0
@@ -74,6 +77,9 @@ class Effect:
 
     ``initial_guess(runs, plant)`` returns a starting value for every parameter
     from data (``plant`` is a ``ServoParams`` with helper methods).
+
+    A user effect may subclass ``Effect`` directly with ``stage`` set (the small
+    interface of the first exercise sheets) or a stage class.
     """
 
     name: str = "effect"
@@ -85,6 +91,9 @@ class Effect:
     signature: str = ""
     #: the experiment that would confirm it
     experiment: str = ""
+    #: parameter -> column of the fast simulator's kernel that holds it (built-in
+    #: input, drive and output effects); empty: the simulator's general path
+    kernel_columns: dict = {}
 
     def param_names(self) -> list[str]:
         return [p.name for p in self.params]
@@ -92,6 +101,30 @@ class Effect:
     def initial_guess(self, runs, plant) -> dict:
         return {p.name: math.sqrt(p.lower * p.upper) if p.log and p.lower > 0
                 else 0.5 * (p.lower + p.upper) for p in self.params}
+
+    def to_kernel(self, kernel, p: dict, plant) -> bool:
+        """Write this effect into the fast kernel's parameter table.
+
+        ``kernel.set(column, values)`` / ``kernel.add(column, values)`` act on the
+        columns named in :data:`labrig.model.simulate.KERNEL_COLUMNS`; ``p`` maps
+        each parameter to an array over candidates. Returns False when the kernel
+        cannot represent the effect (the simulator then takes its general path).
+        """
+        if self.kernel_columns:
+            for param, column in self.kernel_columns.items():
+                kernel.set(column, p[param])
+            return True
+        base = STAGE_BASES.get(self.stage)
+        if base is not None and not isinstance(self, base) \
+                and base.to_kernel is not Effect.to_kernel:
+            return base.to_kernel(self, kernel, p, plant)  # a plain Effect with stage set
+        return False
+
+    def explain_params(self, params: dict, context: dict) -> str:
+        """The fitted parameters in plain words with units (``context``: the rig's
+        constants ``Ka`` and the smallest open-loop amplitude ``amin``)."""
+        units = {q.name: q.unit for q in self.params}
+        return ", ".join(f"{k} = {v:.3g} {units.get(k, '')}".rstrip() for k, v in params.items())
 
     def describe(self) -> str:
         ps = ", ".join(f"{p.name} [{p.unit}]" for p in self.params)
@@ -101,12 +134,77 @@ class Effect:
         return f"<effect {self.name}>"
 
 
+class InputEffect(Effect):
+    """Maps the bridge voltage before the amplifier (dead zone, offset, asymmetry)."""
+
+    stage = "input"
+
+    @abc.abstractmethod
+    def apply(self, v, **p):
+        """The mapped input voltage (elementwise)."""
+
+
+class DriveEffect(Effect):
+    """Maps the armature voltage ``Ka u`` (the amplifier's rail)."""
+
+    stage = "drive"
+
+    @abc.abstractmethod
+    def apply(self, v, **p):
+        """The mapped armature voltage (elementwise)."""
+
+
+class FrictionEffect(Effect):
+    """A friction torque level; the simulators apply the Karnopp stick-slip rule."""
+
+    stage = "friction"
+
+    @abc.abstractmethod
+    def friction(self, plant, **p):
+        """``(kinetic, breakaway)`` torque levels >= 0."""
+
+    def to_kernel(self, kernel, p, plant) -> bool:
+        tc, ts = self.friction(plant, **p)
+        kernel.add("tc", tc)
+        kernel.add("ts", ts)
+        return True
+
+
+class OutputEffect(Effect):
+    """A stateful map of the output-shaft angle seen by the pot (gear play)."""
+
+    stage = "output"
+
+    @abc.abstractmethod
+    def output(self, state, x, **p):
+        """``(state', y)``: the new state and the angle the pot sees."""
+
+
+class DelayEffect(Effect):
+    """A transport delay between the bridge output and the motor."""
+
+    stage = "delay"
+
+    @abc.abstractmethod
+    def delay_s(self, **p):
+        """The delay in seconds."""
+
+    def to_kernel(self, kernel, p, plant) -> bool:
+        kernel.add("td", self.delay_s(**p))
+        return True
+
+
+#: the stage classes, for user effects that subclass ``Effect`` with ``stage`` set
+STAGE_BASES = {"input": InputEffect, "drive": DriveEffect, "friction": FrictionEffect,
+               "output": OutputEffect, "delay": DelayEffect}
+
+
 def _run_amplitudes(runs) -> np.ndarray:
     amps = [r.amplitude for r in runs if r.loop == "open"]
     return np.array(amps or [1.0])
 
 
-class Deadband(Effect):
+class Deadband(InputEffect):
     """Amplifier dead zone / brush voltage drop: ``v = sign(u) max(|u| - d, 0)``.
 
     Physics: the SA150D's input stage and the brushes need a threshold voltage before
@@ -123,6 +221,10 @@ class Deadband(Effect):
     signature = ("apparent gain rises with amplitude; speed-vs-voltage line crosses zero "
                  "speed at u = d; coast-downs are exponential (not braked)")
     experiment = "a slow voltage ramp through zero: the speed stays at 0 until |u| = d"
+    kernel_columns = {"d_v": "d"}
+
+    def explain_params(self, params, context):
+        return f"d = {params['d_v']:.3g} V at the bridge input"
 
     def apply(self, v, d_v):
         return np.sign(v) * np.maximum(np.abs(v) - d_v, 0.0)
@@ -131,7 +233,7 @@ class Deadband(Effect):
         return {"d_v": 0.05 * float(np.min(_run_amplitudes(runs)))}
 
 
-class Saturation(Effect):
+class Saturation(DriveEffect):
     """Amplifier rail: ``v_arm = clip(Ka u, -vmax, vmax)``.
 
     Physics: the amplifier cannot drive the armature beyond its supply rail. Residual
@@ -146,6 +248,11 @@ class Saturation(Effect):
     signature = ("steady speed the same for all large amplitudes; apparent gain falls "
                  "as 1/A; errors grow with amplitude")
     experiment = "a staircase of constant inputs: the speed stops rising at the rail"
+    kernel_columns = {"vmax_v": "vmax"}
+
+    def explain_params(self, params, context):
+        return (f"vmax = {params['vmax_v']:.3g} V at the armature, i.e. inputs above "
+                f"{params['vmax_v'] / context['Ka']:.3g} V saturate")
 
     def apply(self, v, vmax_v):
         return np.clip(v, -vmax_v, vmax_v)
@@ -154,7 +261,7 @@ class Saturation(Effect):
         return {"vmax_v": 0.8 * plant.Ka * float(np.max(_run_amplitudes(runs)))}
 
 
-class CoulombFriction(Effect):
+class CoulombFriction(FrictionEffect):
     """Dry friction ``Tc sign(w)`` with stiction through a Karnopp stick band.
 
     Physics: brushes and bearings rub with a torque nearly independent of speed;
@@ -179,6 +286,12 @@ class CoulombFriction(Effect):
                  "decelerate faster into zero speed and leave it later, with a kink at w = 0")
     experiment = ("a coast-down from speed with the amplifier off (the speed falls "
                   "linearly and stops in finite time) or a slow ramp in both directions")
+    def explain_params(self, params, context):
+        # Tc in N m is not identifiable (it slides along the model's symmetry with R
+        # and J); its size relative to the drive is
+        return (f"tc_v = {params['tc_v']:.3g} V: friction cancels the first "
+                f"{params['tc_v']:.3g} V of drive ({100 * params['tc_v'] / context['amin']:.0f} % "
+                f"of the smallest amplitude, {context['amin']:.2g} V)")
 
     def friction(self, plant, tc_v):
         t = tc_v * plant.Ka * plant.K / plant.R
@@ -188,7 +301,7 @@ class CoulombFriction(Effect):
         return {"tc_v": 0.05 * float(np.min(_run_amplitudes(runs)))}
 
 
-class Stiction(Effect):
+class Stiction(FrictionEffect):
     """Coulomb friction plus a higher breakaway torque (Karnopp): ``ts = tc*(1 + s)``."""
 
     name = "stiction"
@@ -198,6 +311,9 @@ class Stiction(Effect):
     summary = "static friction: starting from rest needs more torque than keeping moving"
     signature = "a delay before each start from rest, near the breakaway voltage only"
     experiment = "a very slow ramp from rest: the motor jumps into motion at breakaway"
+    def explain_params(self, params, context):
+        return (CoulombFriction().explain_params(params, context)
+                + f", breakaway {1 + params['excess']:.2f} x Coulomb")
 
     def friction(self, plant, tc_v, excess):
         t = tc_v * plant.Ka * plant.K / plant.R
@@ -208,7 +324,7 @@ class Stiction(Effect):
         return {"tc_v": g["tc_v"], "excess": 0.5}
 
 
-class Backlash(Effect):
+class Backlash(OutputEffect):
     """Gear play: a play operator of half-gap ``a`` on the output-shaft angle.
 
     Physics: the gear teeth have clearance; at each reversal the motor turns through
@@ -223,6 +339,11 @@ class Backlash(Effect):
     signature = ("position error only, a constant offset of about 2a after each "
                  "reversal; speed residual unaffected")
     experiment = "reverse slowly and watch the output pot stand still while the motor turns"
+    kernel_columns = {"a_rad": "a"}
+
+    def explain_params(self, params, context):
+        return (f"half gap a = {params['a_rad']:.3g} rad = {math.degrees(params['a_rad']):.2f} deg "
+                "at the output shaft")
 
     def output(self, state, x, a_rad):
         y = np.clip(state, x - a_rad, x + a_rad)
@@ -232,7 +353,7 @@ class Backlash(Effect):
         return {"a_rad": math.radians(1.0)}
 
 
-class Delay(Effect):
+class Delay(DelayEffect):
     """Transport delay ``u(t - Td)``: conversion latency, filters, the ZOH itself.
 
     Residual signature: error spikes right after each edge, about ``-Td dy/dt``; the
@@ -245,6 +366,8 @@ class Delay(Effect):
     summary = "a pure time delay between the bridge output and the motor's response"
     signature = "error spikes right after each edge; cross-correlation peak at small lag"
     experiment = "a single fast step at a high sample rate: the response starts late"
+    def explain_params(self, params, context):
+        return f"Td = {params['td_s'] * 1e3:.3g} ms"
 
     def delay_s(self, td_s):
         return td_s
@@ -253,7 +376,7 @@ class Delay(Effect):
         return {"td_s": 1.0 / max(r.fs for r in runs) if runs else 1e-3}
 
 
-class Offset(Effect):
+class Offset(InputEffect):
     """Amplifier input offset ``u + u0``: drift of the SA150D's zero."""
 
     name = "offset"
@@ -262,6 +385,7 @@ class Offset(Effect):
     summary = "an offset at the amplifier input: the motor creeps at zero command"
     signature = "same-sign residual in both half-periods; drift at zero command"
     experiment = "command 0 V for a while: the motor creeps"
+    kernel_columns = {"u0_v": "u0"}
 
     def apply(self, v, u0_v):
         return v + u0_v
@@ -270,7 +394,7 @@ class Offset(Effect):
         return {"u0_v": 0.0}
 
 
-class Asymmetry(Effect):
+class Asymmetry(InputEffect):
     """Different gains in the two directions: ``u (1 + k)`` for u > 0, ``u (1 - k)`` below."""
 
     name = "asymmetry"
@@ -280,6 +404,7 @@ class Asymmetry(Effect):
     summary = "the amplifier or motor is stronger in one direction than the other"
     signature = "residual sign alternates with direction, grows with amplitude"
     experiment = "equal positive and negative steps: the steady speeds differ"
+    kernel_columns = {"k": "asym"}
 
     def apply(self, v, k):
         return np.where(v >= 0, v * (1.0 + k), v * (1.0 - k))
@@ -392,23 +517,3 @@ def get_effect(name: str, origin: str | None = None) -> Effect:
         raise UserError(f"{origin + ': ' if origin else ''}unknown effect '{name}'; the "
                         f"catalogue has {', '.join(CATALOGUE)} (or give FILE.py:ClassName "
                         "on the command line)") from None
-
-
-def parse_effects(text: str | list | None, origin: str | None = None) -> list[Effect]:
-    """``"deadband,coulomb_friction"`` (or a list of names) -> effect instances; at most
-    one per stage for friction, output and delay (they do not compose). ``origin``: the
-    data file the names come from, if not the command line."""
-    if not text:
-        return []
-    items = text.split(",") if isinstance(text, str) else list(text)
-    effects = [get_effect(s.strip(), origin) for s in items if s.strip()]
-    names = [e.name for e in effects]
-    where = origin or "--effects"
-    for n in names:
-        if names.count(n) > 1:
-            raise UserError(f"{where}: '{n}' given twice")
-    for stage in ("friction", "output", "delay"):
-        same = [e.name for e in effects if e.stage == stage]
-        if len(same) > 1:
-            raise UserError(f"{where}: {' and '.join(same)} both act as {stage}; pick one")
-    return effects

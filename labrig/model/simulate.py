@@ -27,13 +27,30 @@ import numba
 import numpy as np
 
 from ..errors import UserError
-from .effects import Backlash, Effect, ordered
+from .effects import Effect, ordered
 
 PLANT = ("R", "L", "J", "B", "K")
 # kernel parameter columns after the plant
 C_D, C_U0, C_ASYM, C_VMAX, C_TC, C_TS, C_A, C_TD = range(5, 13)
 N_COLS = 13
-_KERNEL_INPUT = {"deadband": (C_D, "d_v"), "offset": (C_U0, "u0_v"), "asymmetry": (C_ASYM, "k")}
+#: the kernel's effect columns by name: an effect's ``to_kernel`` writes into these
+#: (dead zone, input offset, asymmetry, armature rail, kinetic and breakaway friction
+#: torque, backlash half gap, delay)
+KERNEL_COLUMNS = {"d": C_D, "u0": C_U0, "asym": C_ASYM, "vmax": C_VMAX, "tc": C_TC,
+                  "ts": C_TS, "a": C_A, "td": C_TD}
+
+
+class _KernelTable:
+    """Named access to the (P, 13) parameter table for ``Effect.to_kernel``."""
+
+    def __init__(self, prm: np.ndarray):
+        self.prm = prm
+
+    def set(self, column: str, values) -> None:
+        self.prm[:, KERNEL_COLUMNS[column]] = np.broadcast_to(values, (self.prm.shape[0],))
+
+    def add(self, column: str, values) -> None:
+        self.prm[:, KERNEL_COLUMNS[column]] += np.broadcast_to(values, (self.prm.shape[0],))
 
 
 @dataclass
@@ -98,8 +115,8 @@ class Simulator:
         self.effects = ordered(list(effects))
         self.substeps = int(substeps)
         for e in self.effects:
-            if e.stage in ("input", "drive") and e.name not in _KERNEL_INPUT \
-                    and e.name != "saturation" and any(r.loop == "closed" for r in self.runs):
+            if e.stage in ("input", "drive") and not e.kernel_columns \
+                    and any(r.loop == "closed" for r in self.runs):
                 raise UserError(f"effect '{e.name}': a user-written {e.stage} effect can only be "
                                 "simulated on open-loop runs; leave the closed-loop runs out")
 
@@ -114,24 +131,13 @@ class Simulator:
                        for k, v in (effect_params or {}).get(e.name, {}).items()}
               for e in self.effects}
         user_output = []
+        table = _KernelTable(prm)
+        view = _PlantView(plant[:, 0], plant[:, 4], self.runs[0].Ka)
         for e in self.effects:
-            p = ep[e.name]
-            if e.stage == "friction":
-                tc, ts = e.friction(_PlantView(plant[:, 0], plant[:, 4], self.runs[0].Ka), **p)
-                prm[:, C_TC] += np.broadcast_to(tc, (P,))
-                prm[:, C_TS] += np.broadcast_to(ts, (P,))
-            elif e.stage == "delay":
-                prm[:, C_TD] += np.broadcast_to(e.delay_s(**p), (P,))
-            elif e.stage == "output":
-                if isinstance(e, Backlash):
-                    prm[:, C_A] = p["a_rad"]
-                else:
-                    user_output.append(e)
-            elif e.name in _KERNEL_INPUT:
-                col, key = _KERNEL_INPUT[e.name]
-                prm[:, col] = p[key]
-            elif e.name == "saturation":
-                prm[:, C_VMAX] = p["vmax_v"]
+            # the effect says where it lives in the kernel; what the kernel cannot hold
+            # (a user's input map, a user's output map) takes the general path
+            if not e.to_kernel(table, ep[e.name], view) and e.stage == "output":
+                user_output.append(e)
         return prm, ep, user_output
 
     def simulate(self, plant: np.ndarray, effect_params: dict | None = None) -> list[dict]:

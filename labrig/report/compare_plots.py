@@ -1,5 +1,9 @@
 """Figures of the missing-physics loop: model vs measurement, residuals by regime,
-whiteness tests, and the error ladder."""
+whiteness tests, and the error ladder.
+
+Every function draws and returns a ``matplotlib.figure.Figure`` (on ``ax`` when one is
+given); callers save it (:func:`save`).
+"""
 from __future__ import annotations
 
 import matplotlib
@@ -14,15 +18,38 @@ REGIME_COLOURS = {"start": "tab:green", "reversal": "tab:red", "accel": "tab:ora
                   "steady": "tab:blue", "coast": "tab:purple", "rest": "0.7"}
 
 
-def plot_run_comparison(rr: dict, path, title: str = ""):
+def save(fig, path, dpi: int = 110):
+    """Save ``fig`` to ``path`` and free it; returns the path."""
+    fig.savefig(path, dpi=dpi)
+    plt.close(fig)
+    return path
+
+
+UNITS = {"speed": "rad/s (motor)", "position": "rad (output)"}
+
+
+def plot_run_comparison(rr: dict, ax=None, title: str = ""):
     """One run: measured vs simulated (fit % in the legend), residuals in noise units
     with the +-1 noise band and the stretches that leave it shaded by regime, and the
-    residual autocorrelation / input cross-correlation with their 99 % bands."""
+    residual autocorrelation / input cross-correlation with their 99 % bands.
+
+    With ``ax``, only the first channel's overlay is drawn there (a report thumbnail).
+    """
     chans = list(rr["channels"])
+    if ax is not None:
+        c = rr["channels"][chans[0]]
+        ax.plot(rr["t"], c["measured"], color="0.25", lw=1.0, label="measured")
+        ax.plot(rr["t"], c["simulated"], color="tab:red", lw=1.0, ls="--",
+                label=f"model (fit {c['fit_percent']:.1f} %)")
+        ax.set_xlabel("time (s)")
+        ax.set_ylabel(f"{chans[0]} {UNITS[chans[0]]}")
+        ax.legend(fontsize=8)
+        ax.set_title(title or rr["name"])
+        return ax.figure
     fig = plt.figure(figsize=(12, 3.2 * len(chans) + 2.8))
     gs = fig.add_gridspec(2 * len(chans) + 1, 2, height_ratios=[3, 2] * len(chans) + [2.2])
     t = rr["t"]
-    units = {"speed": "rad/s (motor)", "position": "rad (output)"}
+    units = UNITS
     for i, ch in enumerate(chans):
         c = rr["channels"][ch]
         ax = fig.add_subplot(gs[2 * i, :])
@@ -65,14 +92,17 @@ def plot_run_comparison(rr: dict, path, title: str = ""):
     b.set_xlabel("lag (samples)")
     fig.suptitle(title or f"{rr['name']}: model vs measurement", fontsize=11)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return fig
 
 
-def plot_ladder(steps: list[dict], path):
-    """The error ladder: rmse/noise after each added effect, against the noise floor."""
-    fig, ax = plt.subplots(figsize=(7, 4))
+def plot_ladder(ladder, ax=None):
+    """The error ladder: rmse/noise after each added effect, against the noise floor.
+
+    ``ladder``: a :class:`labrig.ladder.Ladder` (or its list of steps as dicts).
+    """
+    steps = [s.to_json() if hasattr(s, "to_json") else s
+             for s in getattr(ladder, "steps", ladder)]
+    fig, ax = plt.subplots(figsize=(7, 4)) if ax is None else (ax.figure, ax)
     x = np.arange(len(steps))
     for ch, mk in (("overall", "o-"), ("speed", "s--"), ("position", "^--")):
         y = [s["rmse_over_noise"].get(ch, np.nan) for s in steps]
@@ -88,16 +118,19 @@ def plot_ladder(steps: list[dict], path):
     ax.grid(alpha=0.3, which="both")
     ax.legend()
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    return fig
 
 
-def plot_regimes(table: dict, path, title="Where the model fails"):
-    """rmse/noise by regime for each channel, with the share of time."""
+def plot_regimes(table: dict, ax=None, title="Where the model fails"):
+    """rmse/noise by regime for each channel, with the share of time (with ``ax``: the
+    first channel only, on that axes)."""
     chans = list(table["by_regime"])
-    fig, axes = plt.subplots(1, len(chans), figsize=(5 * len(chans), 3.5), squeeze=False)
-    for ax, ch in zip(axes[0], chans):
+    if ax is None:
+        fig, axes = plt.subplots(1, len(chans), figsize=(5 * len(chans), 3.5), squeeze=False)
+        pairs = list(zip(axes[0], chans))
+    else:
+        fig, pairs = ax.figure, [(ax, chans[0])]
+    for ax, ch in pairs:
         regs = table["by_regime"][ch]
         names = list(regs)
         vals = [regs[n]["rmse_over_noise"] for n in names]
@@ -112,6 +145,4 @@ def plot_regimes(table: dict, path, title="Where the model fails"):
                         ha="center", fontsize=7, textcoords="offset points", xytext=(0, 3))
     fig.suptitle(title)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return fig

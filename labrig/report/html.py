@@ -172,8 +172,10 @@ def _work_figure(story: Story, name: str) -> bytes | None:
 
 
 def _figure_from(tmp: Path, plot, *args, name="fig.png", **kw) -> bytes:
+    from .compare_plots import save
+
     path = tmp / name
-    plot(*args, path, **kw)
+    save(plot(*args, **kw), path)
     return path.read_bytes()
 
 
@@ -239,8 +241,9 @@ def _gather_analysis(story: Story, tmp: Path, log):
                 d = res.to_dict()
                 story.sources["analysis"] = "computed by this report (labrig.analyse)"
             if not figs:
-                for p in res.plot(tmp / "analysis"):
-                    figs[Path(p).name] = Path(p).read_bytes()
+                # drawn one at a time; fig_bytes closes each
+                for name, fig in res.figures().items():
+                    figs[name] = fig_bytes(fig)
     if d is not None and "analysis" not in story.sources:
         story.sources["analysis"] = str(w / "analysis.json")
     story.analysis = d
@@ -330,26 +333,26 @@ def _f(x, default=math.inf) -> float:
 
 def _gather_model0(story: Story, live):
     """The linear model the later sections judge: model0.json, else the best fit."""
-    from ..identify.modelfile import FORMAT, load_model
-    from ..model.effects import get_effect
+    from ..model.model import Model
 
     w = story.work
     if w and (w / "model0.json").is_file():
         try:
-            story.model0 = load_model(w / "model0.json")
+            story.model0 = Model.load(w / "model0.json")
             story.model0_source = str(w / "model0.json")
             return
         except UserError as exc:
             story.notes.append(f"{w / 'model0.json'} was ignored: {exc}")
-    if live:
-        m = live[0].model_dict()
-    else:
-        best = next((r for r in story.ident if r.get("method") == story.ident_best), story.ident[0])
-        m = {"format": FORMAT, "params": best["params"], "effects": best.get("effects", []),
-             "effect_params": best.get("effect_params", {})}
     try:
-        m["effect_objects"] = [get_effect(s) for s in m.get("effects", [])]
-    except Exception as exc:  # a user effect file that is not here any more
+        if live:
+            m = live[0].model()
+        else:
+            best = next((r for r in story.ident if r.get("method") == story.ident_best),
+                        story.ident[0])
+            m = Model.from_json({"params": best["params"], "effects": best.get("effects", []),
+                                 "effect_params": best.get("effect_params", {})},
+                                "identify_all.json")
+    except UserError as exc:  # e.g. a user effect that is not trusted (or not here)
         story.notes.append(f"the identified model's effects could not be loaded ({exc})")
         return
     story.model0 = m
@@ -381,27 +384,27 @@ def _gather_failures(story: Story, tmp: Path, log):
         story.regimes = diag["regimes"]
         story.sources["failures"] = str(w / "diagnosis.json")
     if story.model0 is not None and (diag is None or reg_png is None or cmp_png is None):
-        from ..diagnose import ModelState, evaluate
+        from ..evaluation import evaluate
         from ..residuals import worst_regime
 
         _say(log, "report: simulating the linear model on every run")
-        ev0 = evaluate(story.runs, ModelState.from_model(story.model0))
+        ev0 = evaluate(story.runs, story.model0)
         if diag is None:
-            table = ev0["regimes"]
+            table = ev0.regimes
             wr = worst_regime(table)
             story.regimes = {"by_regime": table["by_regime"], "by_amplitude": table["by_amplitude"],
                              "worst": None if wr is None else {"channel": wr[0], "regime": wr[1],
                                                                "rmse_over_noise": wr[2]},
-                             "noise": ev0["metrics"]["noise"]}
+                             "noise": ev0.metrics["noise"]}
             story.sources["failures"] = (f"computed by this report (simulation of "
                                          f"{story.model0_source})")
         if reg_png is None:
-            reg_png = _figure_from(tmp, plot_regimes, ev0["regimes"], name="regimes.png",
+            reg_png = _figure_from(tmp, plot_regimes, ev0.regimes, name="regimes.png",
                                    title="Where the linear model fails")
         if cmp_png is None:
             from ..residuals import worst_run
 
-            rr = worst_run(ev0["per_run"])
+            rr = worst_run(ev0.per_run)
             worst = rr["name"]
             cmp_png = _figure_from(tmp, plot_run_comparison, rr, name="compare.png",
                                    title=f"{worst}: linear model vs measurement")
@@ -442,7 +445,7 @@ def _gather_diagnosis(story: Story, seed, log):
 
     _say(log, "report: diagnosing the linear model (tries every catalogue effect, ~30 s)")
     res = diagnose(story.runs, story.model0, seed=seed)
-    story.diagnosis = {k: v for k, v in res.items() if not k.startswith("_")}
+    story.diagnosis = res.to_json()
     story.sources["diagnosis"] = f"computed by this report (labrig.diagnose, seed {seed})"
     return res
 
@@ -468,7 +471,8 @@ def _gather_ladder(story: Story, tmp: Path, diag_live, ev0, log):
         from ..ladder import evaluate_ladder
 
         _say(log, "report: evaluating the error ladder")
-        steps = evaluate_ladder(story.runs, [str(w / "model0.json"), str(w / "model1.json")])
+        steps = evaluate_ladder(story.runs, [str(w / "model0.json"),
+                                             str(w / "model1.json")]).to_json()["steps"]
         story.sources["ladder"] = f"computed by this report from {w / 'model0.json'} and model1.json"
     elif story.diagnosis is not None and story.model0 is not None:
         steps = _ladder_from_diagnosis(story, diag_live, ev0)
@@ -488,7 +492,7 @@ def _gather_ladder(story: Story, tmp: Path, diag_live, ev0, log):
 
 def _ladder_from_diagnosis(story: Story, diag_live, ev0) -> list:
     """Linear model, then + the recommended effect as fitted by the diagnosis."""
-    from ..diagnose import ModelState, evaluate
+    from ..evaluation import evaluate
 
     d = story.diagnosis
     rec = d.get("recommendation")
@@ -499,14 +503,14 @@ def _ladder_from_diagnosis(story: Story, diag_live, ev0) -> list:
                 "fit_percent": fit, "fitness": fitness, "model": None}
 
     if ev0 is not None:
-        m = ev0["metrics"]
+        m = ev0.metrics
         steps = [step("linear model", [], m["rmse_over_noise"], m["fit_percent"], m["fitness"])]
     else:
         steps = [step("linear model", [], base.get("rmse_over_noise", {}),
                       base.get("fit_percent", {}), base.get("fitness"))]
     if rec:
-        if diag_live is not None and rec in diag_live.get("_states", {}):
-            m = evaluate(story.runs, diag_live["_states"][rec])["metrics"]
+        if diag_live is not None and rec in diag_live.states:
+            m = evaluate(story.runs, diag_live.states[rec]).metrics
             steps.append(step(f"+ {rec}", [rec], m["rmse_over_noise"], m["fit_percent"],
                               m["fitness"]))
         else:
@@ -1144,12 +1148,12 @@ def build_report(data_dir, output="report.html", work=None, *, quick=False, seed
         raise UserError(f"--work {work}: no such folder")
     story = gather(data_dir, work=work, quick=quick, seed=seed, log=log)
     page = render(story)
-    from ..runs import _atomic_write
+    from ..fileio import atomic_write
 
     out = Path(output)
     if out.parent and not out.parent.exists():
         out.parent.mkdir(parents=True, exist_ok=True)
-    _atomic_write(out, page)
+    atomic_write(out, page)
     try:  # a report is for sharing: the usual file mode, not mkstemp's 0600
         import os
 

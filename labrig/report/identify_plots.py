@@ -7,9 +7,14 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
 
-def plot_convergence(results, path):
-    """Best fitness against iteration for each method (log scale), with the noise floor."""
-    fig, ax = plt.subplots(figsize=(7, 4))
+def plot_convergence(results, ax=None):
+    """Best fitness against iteration for each method (log scale), with the noise floor.
+
+    ``results``: one :class:`labrig.identify.engine.Identification` or a list of them.
+    Returns the figure; the caller saves it.
+    """
+    results = results if isinstance(results, (list, tuple)) else [results]
+    fig, ax = plt.subplots(figsize=(7, 4)) if ax is None else (ax.figure, ax)
     for r in results:
         h = r.result.history
         if len(h) > 1:
@@ -23,6 +28,4 @@ def plot_convergence(results, path):
     ax.grid(True, which="both", alpha=0.3)
     ax.legend()
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    return fig

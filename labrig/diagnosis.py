@@ -1,0 +1,135 @@
+"""The result of ``labrig diagnose``: typed, with its JSON, its tables and its figure.
+
+:func:`labrig.diagnose.diagnose` computes a :class:`Diagnosis`; the CLI prints
+:meth:`Diagnosis.to_text`, ``--json`` prints :meth:`Diagnosis.to_json` and the report
+renders :meth:`Diagnosis.table_rows`, so nothing is formatted twice.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+from .evaluation import Evaluation
+from .model.model import Model
+from .residuals import REGIME_TEXT
+from .tables import Table, fmt
+
+
+@dataclass
+class Candidate:
+    """One catalogue effect tried on the data: re-fitted, scored and explained."""
+
+    effect: str
+    rmse_over_noise: float
+    improvement: float
+    delta_bic: float
+    params: dict
+    fit_percent: dict
+    held_out: dict | None = None
+    supported: bool = False
+    explanation: str = ""
+    #: live, not in the JSON: the re-fitted model and its regime table
+    model: Model | None = field(default=None, repr=False)
+    regimes: dict | None = field(default=None, repr=False)
+
+    def to_json(self) -> dict:
+        d = {"effect": self.effect, "rmse_over_noise": self.rmse_over_noise,
+             "improvement": self.improvement, "delta_bic": self.delta_bic,
+             "params": self.params, "fit_percent": self.fit_percent}
+        if self.held_out is not None:
+            d["held_out"] = self.held_out
+        d["supported"] = self.supported
+        d["explanation"] = self.explanation
+        return d
+
+
+@dataclass
+class Diagnosis:
+    """Where the model fails and which effect is missing, with the evidence.
+
+    ``to_json()`` gives the keys of ``labrig diagnose --json``: baseline, regimes,
+    ranking, recommendation, verdict, held_out, criteria, seconds.
+    """
+
+    baseline: dict
+    regimes: dict
+    ranking: list[Candidate]
+    recommendation: str | None
+    verdict: str
+    held_out: list | None
+    criteria: dict
+    seconds: float
+    #: live: the diagnosed model, its evaluation, the rig constants and run names
+    base: Model | None = field(default=None, repr=False)
+    evaluation: Evaluation | None = field(default=None, repr=False)
+    constants: dict = field(default_factory=dict, repr=False)
+    dataset: list = field(default_factory=list, repr=False)
+
+    def candidate(self, effect: str) -> Candidate:
+        return next(c for c in self.ranking if c.effect == effect)
+
+    @property
+    def states(self) -> dict:
+        """effect name -> the re-fitted model with that effect."""
+        return {c.effect: c.model for c in self.ranking}
+
+    def recommended_model(self) -> Model | None:
+        """The re-fitted model with the recommended effect, ready to save."""
+        if not self.recommendation:
+            return None
+        return self.model_with(self.recommendation)
+
+    def model_with(self, effect: str) -> Model:
+        c = self.candidate(effect)
+        return replace(c.model, constants=dict(self.constants),
+                       info={"method": "co (diagnose re-fit)",
+                             "rmse_over_noise": {"overall": c.rmse_over_noise},
+                             "dataset": {"runs": list(self.dataset)}})
+
+    def to_json(self) -> dict:
+        return {"baseline": self.baseline, "regimes": self.regimes,
+                "ranking": [c.to_json() for c in self.ranking],
+                "recommendation": self.recommendation, "verdict": self.verdict,
+                "held_out": self.held_out, "criteria": self.criteria,
+                "seconds": self.seconds}
+
+    # -- presentation ---------------------------------------------------------------------
+    def table_rows(self) -> list[Table]:
+        """Where it fails (by regime), and the ranking of candidates."""
+        regimes = Table("where it fails (rmse/noise by regime; share of time)",
+                        ["channel", "regime", "rmse/noise", "share of time"], numeric=(2, 3))
+        for ch, regs in self.regimes["by_regime"].items():
+            for r, v in sorted(regs.items(), key=lambda kv: -kv[1]["rmse_over_noise"]):
+                regimes.rows.append([ch, REGIME_TEXT[r], fmt(v["rmse_over_noise"], ".2f"),
+                                     f"{100 * v['share_of_time']:.0f} %"])
+        for ch, amps in self.regimes["by_amplitude"].items():
+            regimes.notes.append(f"{ch} by run amplitude: "
+                                 + ", ".join(f"{k} {v:.2f}" for k, v in amps.items()))
+        ranking = Table("candidates (re-fitted with each effect the model lacks)",
+                        ["rank", "effect", "rmse/noise", "gain", "dBIC", "held-out",
+                         "supported"], numeric=(0, 2, 3, 4))
+        for i, c in enumerate(self.ranking, 1):
+            ho = c.held_out
+            ranking.rows.append([str(i), c.effect, fmt(c.rmse_over_noise, ".2f"),
+                                 f"{100 * c.improvement:.0f} %", fmt(c.delta_bic, ".0f"),
+                                 f"{ho['baseline']:.2f} -> {ho['with_effect']:.2f}" if ho else "-",
+                                 "yes" if c.supported else "no"])
+        return [regimes, ranking]
+
+    def to_text(self) -> str:
+        b = self.baseline
+        r = b["rmse_over_noise"]
+        out = [f"baseline ({b['source']}; effects: {', '.join(b['effects']) or 'none'}): "
+               f"rmse/noise {r['overall']:.2f} (speed {fmt(r.get('speed'), '.2f')}, "
+               f"position {fmt(r.get('position'), '.2f')}); 1.0 is the noise floor", ""]
+        out += [t.to_text() + "\n" for t in self.table_rows()]
+        out += [f"recommendation: {self.recommendation or 'none'}", "", self.verdict]
+        if self.recommendation:
+            out.append(f"\nnext: labrig identify DATA --model MODEL.json --effects "
+                       f"{self.recommendation} -o next.json")
+        return "\n".join(out)
+
+    def plot(self, ax=None):
+        """Where the diagnosed model fails: rmse/noise by regime."""
+        from .report.compare_plots import plot_regimes
+
+        return plot_regimes(self.regimes, ax=ax)

@@ -1,0 +1,108 @@
+"""A model simulated on runs: the numbers every command judges it by.
+
+:func:`evaluate` returns an :class:`Evaluation`: fitness, rmse/noise and fit % (overall,
+per channel, per run), the residuals of every run with their regimes, the regime table,
+and the residuals' sum of squares and lag-1 correlation for the BIC.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .identify.objective import Objective, adequacy, build_space
+from .model.model import Model, param_keys
+from .residuals import autocorr, regime_table, run_residuals, worst_regime, worst_run
+from .tables import Table, fmt
+
+
+@dataclass
+class Evaluation:
+    """How well a model explains runs.
+
+    Attributes
+    ----------
+    metrics : dict
+        ``fitness``, ``rmse_over_noise`` and ``fit_percent`` (overall and per channel),
+        ``per_run`` and ``noise`` (the keys of ``labrig identify --json``).
+    per_run : list of dict
+        Residuals per run (``labrig.residuals.run_residuals``).
+    regimes : dict
+        The regime table (``by_regime``, ``by_amplitude``).
+    sse, n : float, int
+        Sum of squared normalised residuals and their count.
+    sigmas : tuple
+        The noise levels (speed rad/s, position rad) the residuals are divided by.
+    rho1 : float
+        Mean lag-1 autocorrelation of the residuals (the colour the BIC corrects for).
+    """
+
+    metrics: dict
+    per_run: list
+    regimes: dict
+    sse: float
+    n: int
+    sigmas: tuple
+    rho1: float
+
+    @property
+    def rmse(self) -> float:
+        """Overall rmse/noise (1.0 is the noise floor)."""
+        return self.metrics["rmse_over_noise"]["overall"]
+
+    def worst_regime(self):
+        return worst_regime(self.regimes)
+
+    def worst_run(self) -> dict:
+        return worst_run(self.per_run)
+
+    def to_json(self) -> dict:
+        return {"fitness": self.metrics["fitness"],
+                "rmse_over_noise": self.metrics["rmse_over_noise"],
+                "fit_percent": self.metrics["fit_percent"], "noise": self.metrics["noise"],
+                "regimes": self.regimes}
+
+    def table_rows(self) -> Table:
+        """Per run: fit % and rmse/noise of each channel, and the worst stretch."""
+        rows = []
+        for rr in self.per_run:
+            ch = rr["channels"]
+            st = sorted((s for c in ch.values() for s in c["stretches"]), key=lambda s: -s["rms"])
+            worst = (f"{st[0]['regime']} at {rr['t'][st[0]['start']]:.2f} s "
+                     f"({st[0]['rms']:.1f} x noise)") if st else "-"
+            rows.append([rr["name"],
+                         fmt(ch.get("speed", {}).get("fit_percent"), ".1f"),
+                         fmt(ch.get("position", {}).get("fit_percent"), ".1f"),
+                         fmt(ch.get("speed", {}).get("rmse_over_noise"), ".2f"),
+                         fmt(ch.get("position", {}).get("rmse_over_noise"), ".2f"), worst])
+        return Table("model against measurement", ["run", "fit % speed", "fit % pos",
+                                                   "rmse/noise w", "rmse/noise th",
+                                                   "worst stretch"], rows,
+                     numeric=(1, 2, 3, 4))
+
+    def plot(self, ax=None):
+        """The regime table as a figure (``labrig.report.compare_plots.plot_regimes``)."""
+        from .report.compare_plots import plot_regimes
+
+        return plot_regimes(self.regimes, ax=ax)
+
+
+def evaluate(runs, model: Model, sigmas=None) -> Evaluation:
+    """Simulate ``model`` on ``runs``; ``sigmas`` fixes the noise levels (to compare
+    candidates on equal terms), else they are estimated from the runs."""
+    space = build_space(model.effects)
+    obj = Objective(runs, model.effects, space)
+    if sigmas is not None:
+        obj.sigma_w, obj.sigma_theta = sigmas
+    flat = model.flat()
+    phys = np.array([flat[n] for n in param_keys(model)])
+    sims = obj.simulate_physical(phys[None, :])
+    metrics = adequacy(obj.runs, sims, obj.sigma_w, obj.sigma_theta)
+    per_run = [run_residuals(rd, {"w": s["w"][0], "theta": s["theta"][0]}, obj.sigma_w,
+                             obj.sigma_theta) for rd, s in zip(obj.runs, sims)]
+    r = np.concatenate([c["residual"] for rr in per_run for c in rr["channels"].values()])
+    rho1 = float(np.mean([autocorr(c["residual"], 1)[0] for rr in per_run
+                          for c in rr["channels"].values()]))
+    return Evaluation(metrics=metrics, per_run=per_run, regimes=regime_table(per_run),
+                      sse=float(np.sum(r ** 2)), n=int(len(r)),
+                      sigmas=(obj.sigma_w, obj.sigma_theta), rho1=rho1)

@@ -1,0 +1,89 @@
+"""Writing files the way every labrig output is written: atomically, with the user's
+umask, and as strict JSON (no inf/NaN)."""
+from __future__ import annotations
+
+import json
+import math
+import os
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+
+def _umask() -> int:
+    old = os.umask(0o022)
+    os.umask(old)
+    return old
+
+
+def atomic_write(path: Path | str, text: str) -> None:
+    """Write ``text`` to ``path`` via a temporary file and a rename: a reader never sees
+    a half-written file, and a crash leaves only a ``.NAME.*.tmp`` behind."""
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        # mkstemp makes 0600; a run or model on a shared lab drive must be readable
+        # like any other file the user writes, so follow the umask
+        os.fchmod(fd, 0o666 & ~_umask())
+        with os.fdopen(fd, "w", encoding="utf-8", newline="") as fh:
+            fh.write(text)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def json_default(o):
+    """``json.dumps(default=...)`` for numpy scalars, arrays and tuples."""
+    if isinstance(o, (np.floating, np.integer)):
+        return o.item()
+    if isinstance(o, np.bool_):
+        return bool(o)
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, tuple):
+        return list(o)
+    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
+
+
+def finite_json(value: Any) -> Any:
+    """``value`` with every non-finite float replaced by ``None``, at any depth.
+
+    Python floats, numpy scalars and arrays inside dicts, lists and tuples are
+    converted; dict keys and any other object are left as they are (``json``'s
+    ``default`` deals with those). Strict JSON has no ``inf``/``nan``, and an
+    unbounded interval or a diverged candidate's rmse must not end a command in
+    an internal error.
+    """
+    if isinstance(value, dict):
+        return {k: finite_json(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [finite_json(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return finite_json(value.tolist())
+    if isinstance(value, (bool, np.bool_)):
+        return bool(value)
+    if isinstance(value, np.integer):
+        return int(value)
+    if isinstance(value, (float, np.floating)):
+        value = float(value)
+        return value if math.isfinite(value) else None
+    return value
+
+
+def dumps(obj: Any) -> str:
+    """Strict, indented JSON of ``obj`` (non-finite numbers become null)."""
+    return json.dumps(finite_json(obj), indent=2, allow_nan=False,
+                      default=lambda o: finite_json(json_default(o))) + "\n"
+
+
+def write_json(path: Path | str, obj: Any) -> Path:
+    """``obj`` as strict JSON in ``path``, atomically."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write(path, dumps(obj))
+    return path

@@ -1,0 +1,189 @@
+"""One model object for a fitted or given model: the plant, its effects, the rig's known
+constants and what the fit reported.
+
+Every command reads and writes :class:`Model`; nothing else builds model dicts. The
+plant is a registered class (:data:`PLANTS`): a new kind of plant (a torque- or
+force-driven axis) is a new class there, not a branch in every command.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import UserError
+from ..fileio import write_json
+from ..schemas import ModelFile, read_json, validate
+from .effects import Effect
+from .effectset import EffectSet, param_key
+from .servo import PLANT_NAMES, PLANT_UNITS, ServoParams
+
+FORMAT = "labrig-model/1"
+
+
+class DCServoPlant:
+    """The voltage-driven DC servo: armature circuit, back-EMF, rotor, gear, sensors."""
+
+    kind = "dc-servo"
+    names = PLANT_NAMES
+    units = PLANT_UNITS
+    #: generic search bounds (SI units); wide enough for bench servos from 10 W to 1 kW
+    bounds = {"R": (0.1, 100.0), "L": (1e-5, 1.0), "J": (1e-7, 1e-1),
+              "B": (1e-9, 1e-1), "K": (1e-3, 2.0)}
+
+    @staticmethod
+    def servo(params: dict, constants: dict) -> ServoParams:
+        return ServoParams(**{k: float(params[k]) for k in PLANT_NAMES},
+                           Ka=constants.get("Ka", 1.0), N=constants.get("N", 1.0),
+                           Kt=constants.get("Kt", 0.026), Kpot=constants.get("Kpot", 1.0))
+
+
+#: plant kind (the model file's ``structure``) -> plant class
+PLANTS = {DCServoPlant.kind: DCServoPlant}
+
+#: what a fit reports and a model file carries along (never used to compute)
+INFO_KEYS = ("method", "fitness", "rmse_over_noise", "fit_percent", "noise", "seed", "nfev",
+             "identifiable", "dataset")
+
+
+@dataclass
+class Model:
+    """A DC-servo model: plant parameters, effects and their parameters, constants.
+
+    Attributes
+    ----------
+    params : dict
+        Plant parameters in SI units (R, L, J, B, K for the DC servo).
+    effects : EffectSet
+    effect_params : dict
+        ``{effect name: {param: value}}``.
+    constants : dict
+        The rig's known constants: Ka, N, Kt, Kpot and the loop gains kp, kv.
+    plant : str
+        Plant kind, a key of :data:`PLANTS`.
+    info : dict
+        What the fit reported (method, fitness, rmse_over_noise, ...), carried along.
+    """
+
+    params: dict
+    effects: EffectSet = field(default_factory=EffectSet)
+    effect_params: dict = field(default_factory=dict)
+    constants: dict = field(default_factory=dict)
+    plant: str = DCServoPlant.kind
+    info: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        self.effects = EffectSet.parse(self.effects) if not isinstance(self.effects, EffectSet) \
+            else self.effects
+
+    @property
+    def plant_class(self):
+        return PLANTS[self.plant]
+
+    # -- flat form -------------------------------------------------------------------------
+    def flat(self) -> dict:
+        """Every parameter in one dict: plant names, then ``effect.param``."""
+        out = {k: float(self.params[k]) for k in self.plant_class.names}
+        out.update(EffectSet.flatten(self.effect_params))
+        return out
+
+    @classmethod
+    def from_flat(cls, flat: dict, effects, constants: dict | None = None,
+                  plant: str = DCServoPlant.kind, info: dict | None = None) -> "Model":
+        effects = EffectSet.parse(effects)
+        names = PLANTS[plant].names
+        return cls(params={k: float(flat[k]) for k in names}, effects=effects,
+                   effect_params={e: {k: float(v) for k, v in ps.items()}
+                                  for e, ps in effects.nest(flat).items()},
+                   constants=dict(constants or {}), plant=plant, info=dict(info or {}))
+
+    def with_effect(self, effect: Effect, params: dict) -> "Model":
+        """This model plus ``effect`` with its ``params`` (nothing re-fitted)."""
+        eps = {**self.effect_params, effect.name: dict(params)}
+        return replace(self, effects=self.effects + [effect], effect_params=eps, info={})
+
+    @property
+    def names(self) -> list[str]:
+        return self.effects.names
+
+    def servo(self) -> ServoParams:
+        return self.plant_class.servo(self.params, self.constants)
+
+    # -- files ---------------------------------------------------------------------------
+    def to_json(self) -> dict:
+        """The model file's content (``labrig-model/1``)."""
+        doc = {"format": FORMAT, "structure": self.plant, "method": self.info.get("method"),
+               "effects": self.effects.specs, "params": dict(self.params),
+               "effect_params": {e: dict(ps) for e, ps in self.effect_params.items()},
+               "constants": dict(self.constants)}
+        doc.update({k: self.info[k] for k in INFO_KEYS if k in self.info and k != "method"})
+        if doc["method"] is None:
+            doc.pop("method")
+        return doc
+
+    @classmethod
+    def from_json(cls, doc: dict, origin: str) -> "Model":
+        """A validated model document -> Model; effects are loaded as names from a data
+        file (a user effect only from a file trusted with ``--trust-code``)."""
+        structure = doc.get("structure") or DCServoPlant.kind
+        if structure not in PLANTS:
+            raise UserError(f"{origin}: key 'structure' is {structure!r}; this labrig knows "
+                            f"{', '.join(PLANTS)}")
+        effects = EffectSet.parse(doc.get("effects", []), origin=f"{origin}: key 'effects'")
+        eps = doc.get("effect_params") or {}
+        for e in effects:
+            for p in e.params:
+                if not isinstance((eps.get(e.name) or {}).get(p.name), (int, float)):
+                    raise UserError(f"{origin}: key 'effect_params.{e.name}.{p.name}' missing "
+                                    "or not a number")
+        info = {k: doc[k] for k in INFO_KEYS if k in doc}
+        return cls(params={k: float(doc["params"][k]) for k in PLANTS[structure].names},
+                   effects=effects,
+                   effect_params={e.name: {p.name: float(eps[e.name][p.name]) for p in e.params}
+                                  for e in effects},
+                   constants=dict(doc.get("constants") or {}), plant=structure, info=info)
+
+    @classmethod
+    def load(cls, path: Path | str) -> "Model":
+        """Read, validate and load a model file."""
+        return cls.from_json(read_model_file(path), str(path))
+
+    def save(self, path: Path | str) -> Path:
+        """Write the model file atomically (the caller checks --force first)."""
+        return write_json(path, self.to_json())
+
+    # -- simulation ------------------------------------------------------------------------
+    def simulate(self, runs) -> list[dict]:
+        """Simulate this model on ``runs``: per run ``{"w": (n,), "theta": (n,)}``."""
+        from .simulate import Simulator
+
+        sim = Simulator(runs, self.effects)
+        plant = np.array([[self.params[k] for k in self.plant_class.names]])
+        out = sim.simulate(plant, {e: {k: np.array([v]) for k, v in ps.items()}
+                                   for e, ps in self.effect_params.items()})
+        return [{"w": s["w"][0], "theta": s["theta"][0]} for s in out]
+
+    def describe(self) -> str:
+        """One line: the structure and its parameters."""
+        ps = ", ".join(f"{k} = {v:.4g}" for k, v in self.params.items())
+        eff = "; ".join(f"{e}: " + ", ".join(f"{k} = {v:.3g}" for k, v in p.items())
+                        for e, p in self.effect_params.items())
+        return f"{' + '.join(['linear'] + self.names)} ({ps}{'; ' + eff if eff else ''})"
+
+
+def param_keys(model: Model) -> list[str]:
+    """Flat names of every parameter of ``model``, plant first."""
+    return list(model.plant_class.names) + [param_key(e.name, p.name)
+                                            for e in model.effects for p in e.params]
+
+
+def read_model_file(path: Path | str) -> dict:
+    """A model file parsed and validated (schema :class:`labrig.schemas.ModelFile`), as a
+    plain dict; nothing in it is loaded or run (``mystery check`` grades it as is)."""
+    path = Path(path)
+    doc = read_json(path, "model file", UserError,
+                    f" (make one with `labrig identify DIR -o {path.name}`)")
+    if not isinstance(doc, dict) or doc.get("format") != FORMAT:
+        raise UserError(f"{path}: key 'format' must be \"{FORMAT}\"; is this a labrig model?")
+    return validate(ModelFile, doc, path, UserError).model_dump(exclude_unset=True)
