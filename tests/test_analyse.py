@@ -197,3 +197,152 @@ def test_cli_json_figures_and_errors(tmp_path, linear_ds):
     p = labrig("analyse", tmp_path / "bad")
     assert p.returncode == 2 and "flat" in p.stderr and "Traceback" not in p.stderr
     assert len(p.stderr.strip().splitlines()) == 1
+
+
+# -- the redesigned package: typed edges, tables, figure objects ----------------------
+
+TOP_KEYS = ["deadband_v", "km", "tau_s", "kt", "gain_trend", "runs", "verdict", "km_paper",
+            "trend", "tolerance", "breakaway_v", "forward", "reverse", "asymmetry",
+            "line_region", "kt_configured", "kt_mismatch", "source", "figures"]
+RUN_KEYS = ["name", "loop", "sample_rate_hz", "skipped", "sensor", "tau_s", "kt_est", "levels",
+            "edges", "notes", "figure"]
+EDGE_KEYS = ["t_s", "v_from", "v_to", "kind", "speed_from", "speed_to", "tau_s", "tau63_s",
+             "delay_s", "fit_nrmse", "note"]
+LEVEL_KEYS = ["v", "speed_rad_s", "spread_rad_s", "km_paper", "moving", "segments", "settled",
+              "tau_s"]
+
+
+def test_json_keys_pinned_and_to_dict_alias(linear_ds):
+    res = analyse(linear_ds[0])
+    d = res.to_json()
+    assert list(d) == TOP_KEYS and res.to_dict() == d
+    r = d["runs"][0]
+    assert list(r) == RUN_KEYS
+    assert list(r["edges"][0]) == EDGE_KEYS and list(r["levels"][0]) == LEVEL_KEYS
+    json.dumps(d, allow_nan=False)
+
+
+def test_edge_conditions_are_booleans_and_the_note_is_derived():
+    from labrig.analyse import EdgeFit, StepFit
+
+    def edge(**flags):
+        return EdgeFit(index=0, t_s=0.0, v_from=0.0, v_to=1.0, kind="from_rest",
+                       fit=StepFit(nrmse=0.234, error="boom"), **flags)
+    assert edge().note == "" and edge().to_json()["note"] is None
+    assert edge(too_short=True).note == "segment too short to fit"
+    assert edge(no_response=True).note == "no speed change (the motor did not respond)"
+    assert edge(fit_failed=True).note == "fit failed (boom)"
+    assert edge(not_settled=True, tau_at_bound=True).note == (
+        "time constant longer than half the segment: not settled; time constant at its bound")
+    assert edge(poor_fit=True, t63_disagrees=True).to_json()["note"] == (
+        "poor first-order fit (residual 23 % of the step); 63 % point disagrees with the fit")
+
+
+def test_edge_flags_from_real_fits():
+    """A 4-sample visit to a level is too short to fit; an edge inside the deadband
+    gives no response; a time constant longer than half its segment is rejected."""
+    fs, tau, k = 1000.0, 0.1, 100.0
+    u = np.concatenate([np.repeat([0.0, 1.0], 800), [2.0] * 4, np.repeat([1.0, -1.0, 0.0], 800),
+                        np.repeat([0.05, 0.0, 2.0], 800)])
+    drive = np.where(np.abs(u) > 0.2, u, 0.0)        # a deadband of 0.2 V
+    y = np.zeros_like(u)
+    for i in range(1, len(u)):
+        y[i] = y[i - 1] + (k * drive[i - 1] - y[i - 1]) / (tau * fs)
+    y += np.random.default_rng(1).normal(0, 0.3, len(u))
+    run = _run(u)
+    run.data["tacho"] = y * 0.026
+    ra = analyse([run]).runs[0]
+    by_v = {(round(e.v_from, 2), round(e.v_to, 2)): e for e in ra.edges}
+    assert by_v[(1.0, 2.0)].too_short and not by_v[(1.0, 2.0)].ok
+    assert by_v[(0.0, 0.05)].no_response and by_v[(0.0, 0.05)].speed_to is not None
+    good = by_v[(0.0, 1.0)]
+    assert good.ok and not any([good.too_short, good.no_response, good.not_settled,
+                                good.tau_at_bound, good.fit_failed])
+    assert good.tau_s == pytest.approx(tau, rel=0.05) and good.fit.accepted
+    # tau = 0.2 s on 0.3 s segments: fitted but rejected as not settled
+    u2 = np.concatenate([np.repeat([0.0, 1.0, -1.0, 2.0], 300), np.repeat([1.0, -1.0], 3000)])
+    y2 = np.zeros_like(u2)
+    for i in range(1, len(u2)):
+        y2[i] = y2[i - 1] + (k * u2[i - 1] - y2[i - 1]) / (0.2 * fs)
+    run2 = _run(u2)
+    run2.data["tacho"] = y2 * 0.026
+    edges = analyse([run2]).runs[0].edges
+    rejected = [e for e in edges if e.not_settled]
+    assert rejected and all(not e.ok and e.fit.ran and "not settled" in e.note
+                            for e in rejected)
+
+
+def test_table_rows_are_tables_and_the_summary_prints_them(linear_ds):
+    from labrig.tables import Table
+
+    res = analyse(linear_ds[0])
+    levels, summary = res.table_rows()
+    assert isinstance(levels, Table) and isinstance(summary, Table)
+    assert len(levels.rows) == len(res.levels)
+    assert all(len(r) == len(t.columns) for t in (levels, summary) for r in t.rows)
+    assert len(set(levels.columns)) == len(levels.columns)
+    assert [r[0] for r in summary.rows] == ["km (incremental)", "deadband", "tau_m", "kt",
+                                            "gain trend"]
+    assert summary.rows[-1][1] == "constant"
+    text = res.summary()
+    assert "Km=w/V" in text and res.verdict in text
+    # the closed-loop runs of the example sweep are listed under the level table
+    ex = analyse(ROOT / "data" / "sweep_default")
+    assert any(n.startswith("cl_sq_0.50V: skipped (closed-loop") for n in ex.table_rows()[0].notes)
+
+
+def test_figures_are_objects_drawn_on_demand(linear_ds, tmp_path, monkeypatch):
+    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure
+
+    from labrig.report.analyse_plots import plot_edges, plot_km_vs_amplitude
+
+    monkeypatch.chdir(tmp_path)
+    res = analyse(linear_ds[0])
+    plt.close("all")
+    figs = res.figures()
+    # names without drawing: nothing is open until a figure is looked up
+    assert list(figs) == ["edges_sq_1.00V.png", "edges_sq_1.50V.png", "edges_sq_2.00V.png",
+                          "edges_sq_2.50V.png", "speed_vs_voltage.png", "km_vs_amplitude.png"]
+    assert plt.get_fignums() == []
+    for name, fig in figs.items():
+        assert isinstance(fig, Figure) and fig.axes
+        plt.close(fig)
+    fig = res.plot()
+    assert isinstance(fig, Figure) and "Speed against voltage" in fig.axes[0].get_title()
+    # drawn on the caller's Axes: same figure back, nothing saved anywhere
+    own, axes = plt.subplots(1, 3)
+    assert res.plot(ax=axes[0]) is own
+    assert plot_km_vs_amplitude(res, ax=axes[1]) is own
+    assert plot_edges(res.runs[0], ax=axes[2]) is own and axes[2].get_lines()
+    assert list(tmp_path.iterdir()) == [] and res.to_json()["figures"] == []
+    plt.close("all")
+
+
+def test_saving_closes_figures_and_records_paths(linear_ds, tmp_path):
+    import matplotlib.pyplot as plt
+
+    from labrig.cli import main
+
+    plt.close("all")
+    assert main(["analyse", str(linear_ds[0]), "-o", str(tmp_path / "f"), "--json"]) == 0
+    assert plt.get_fignums() == []
+    res = analyse(linear_ds[0])
+    with pytest.warns(DeprecationWarning):
+        paths = res.plot(tmp_path / "old")       # the old plot(figdir), kept for callers
+    assert [p.split("/")[-1] for p in paths] == list(res.figures())
+    assert res.to_json()["figures"] == paths and plt.get_fignums() == []
+    assert res.to_json()["runs"][0]["figure"] == str(tmp_path / "old" / "edges_sq_1.00V.png")
+
+
+def test_package_modules_are_small_and_share_no_private_names():
+    import ast
+
+    pkg = ROOT / "labrig" / "analyse"
+    for f in pkg.glob("*.py"):
+        src = f.read_text(encoding="utf-8")
+        assert len(src.splitlines()) <= 400, f.name
+        for node in ast.walk(ast.parse(src)):
+            if isinstance(node, ast.ImportFrom):
+                assert not [a.name for a in node.names if a.name.startswith("_")], \
+                    f"{f.name} imports a private name from {node.module}"

@@ -18,21 +18,25 @@ def cmd_analyse(args):
 
     res = analyse(args.paths, tolerance=args.tolerance)
     if args.output:
-        # the figures it would write (analysis takes a second; nothing is written yet)
         out = Path(args.output)
-        names = [f"edges_{ra.name}.png" for ra in res.runs
-                 if getattr(ra, "skipped", None) is None and getattr(ra, "edges", None)]
-        refuse_existing([out] + [out / n for n in names + ["speed_vs_voltage.png",
-                                                          "km_vs_amplitude.png"]],
-                        args.force, what="folder")
-        res.plot(args.output)
-        for p in res.figures:
-            print(f"wrote {p}", file=sys.stderr)
+        figs = res.figures()    # names only: nothing is drawn or written yet
+        refuse_existing([out] + [out / name for name in figs], args.force, what="folder")
+        _save(res, figs, out)
     if args.json:
-        emit_json(res.to_dict())
+        emit_json(res.to_json())
     else:
         print(res.summary())
     return 0
+
+
+def _save(res, figs, out):
+    """Save each figure as PNG and close it at once (one figure in memory at a time)."""
+    from ..report.analyse_plots import save_figures
+
+    saved = save_figures(figs, out)
+    res.record_figures(saved)          # the paths go into --json and the summary
+    for p in saved.values():
+        print(f"wrote {p}", file=sys.stderr)
 
 
 def _configure(p):

@@ -1,15 +1,19 @@
-"""Figures of ``labrig analyse`` (matplotlib, Agg backend, PNG).
+"""Figures of ``labrig analyse`` (matplotlib figures; the caller saves and closes them).
 
 - ``edges_<run>.png``: every edge of a run, speed against time from the edge, with
-  the first-order fit and the 63 % point;
+  the first-order fit and the 63 % point (:func:`plot_edges`);
 - ``speed_vs_voltage.png``: steady speed per level with its spread, the fitted line
-  and the deadband;
+  and the deadband (:func:`plot_speed_vs_voltage`);
 - ``km_vs_amplitude.png``: the paper's Km = w/V against amplitude with the
-  tolerance band that decides the gain trend.
+  tolerance band that decides the gain trend (:func:`plot_km_vs_amplitude`).
+
+Like python-control's ``time_response_plot``, each ``plot_*`` draws on the Axes it
+is given or on a new figure, returns the figure and never saves it.
 """
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from pathlib import Path
 
 import matplotlib
@@ -19,68 +23,145 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 MAX_EDGES = 16  # per figure; more edges would make unreadable panels
+DPI = 110
 
 
-def plot_analysis(res, figdir: Path) -> list[Path]:
-    """Write every figure of an :class:`~labrig.analyse.AnalysisResult`; return the paths."""
+class FigureMap(Mapping):
+    """``{file name: Figure}`` whose figures are drawn when looked up.
+
+    The names are known without drawing anything; each lookup draws a new figure,
+    so a caller that saves and closes them one by one holds one figure at a time.
+    """
+
+    def __init__(self, makers):
+        self._makers = dict(makers)
+
+    def __getitem__(self, name):
+        return self._makers[name]()
+
+    def __iter__(self):
+        return iter(self._makers)
+
+    def __len__(self):
+        return len(self._makers)
+
+
+def analysis_figures(res) -> FigureMap:
+    """Every figure of an :class:`~labrig.analyse.AnalysisResult` by file name: the
+    edges of each run with a fitted edge, then speed against voltage and Km."""
+    makers = {}
+    for ra in res.runs:
+        if getattr(ra, "skipped", None) is None and any(e.ok for e in getattr(ra, "edges", ())):
+            makers[f"edges_{ra.name}.png"] = lambda ra=ra: plot_edges(ra)
+    makers["speed_vs_voltage.png"] = lambda: plot_speed_vs_voltage(res)
+    makers["km_vs_amplitude.png"] = lambda: plot_km_vs_amplitude(res)
+    return FigureMap(makers)
+
+
+def save_figures(figs, figdir, dpi: int = DPI) -> dict:
+    """Save each figure of ``figs`` (``{name: Figure}``) as ``figdir/name`` and close
+    it right after, so memory does not grow; returns ``{name: path}``."""
     figdir = Path(figdir)
     figdir.mkdir(parents=True, exist_ok=True)
-    out = []
-    for ra in res.runs:
-        if getattr(ra, "skipped", None) is None and getattr(ra, "edges", None):
-            p = plot_edges(ra, figdir / f"edges_{ra.name}.png")
-            if p:
-                ra.figure = str(p)
-                out.append(p)
-    out.append(plot_speed_vs_voltage(res, figdir / "speed_vs_voltage.png"))
-    out.append(plot_km_vs_amplitude(res, figdir / "km_vs_amplitude.png"))
-    return out
+    saved = {}
+    for name, fig in figs.items():
+        path = figdir / name
+        try:
+            fig.savefig(path, dpi=dpi)
+        finally:
+            plt.close(fig)
+        saved[name] = path
+    return saved
 
 
-def plot_edges(ra, path: Path) -> Path | None:
-    """One panel per edge: measured speed, first-order fit, 63 % point."""
-    edges = [e for e in ra.edges if e._plot is not None][:MAX_EDGES]
+def plot_edges(ra, ax=None):
+    """One panel per fitted edge of a run: measured speed, first-order fit, 63 % point.
+
+    Parameters
+    ----------
+    ra : RunAnalysis
+    ax : Axes or array of Axes, optional
+        One Axes per panel (the first ``len(ax)`` edges are drawn); by default a new
+        figure with a grid of up to ``MAX_EDGES`` panels.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+
+    Raises
+    ------
+    ValueError
+        When the run has no fitted edge.
+    """
+    edges = [e for e in ra.edges if e.ok][:MAX_EDGES]
     if not edges:
-        return None
+        raise ValueError(f"run '{ra.name}' has no fitted edge to plot")
     n = len(edges)
-    ncol = min(4, n)
-    nrow = math.ceil(n / ncol)
-    fig, axes = plt.subplots(nrow, ncol, figsize=(3.6 * ncol, 2.8 * nrow), squeeze=False)
+    if ax is None:
+        ncol = min(4, n)
+        nrow = math.ceil(n / ncol)
+        fig, axes = plt.subplots(nrow, ncol, figsize=(3.6 * ncol, 2.8 * nrow), squeeze=False)
+    else:
+        axes = np.atleast_2d(np.asarray(ax, dtype=object))
+        fig = axes.flat[0].figure
     src = "tacho" if ra.sensor == "tacho" else "pot (derivative, smoothed)"
-    for ax, e in zip(axes.flat, edges):
-        d = e._plot
-        s, w, fit = d["s"], d["w"], d["fit"]
-        ax.plot(s, w, ".", ms=2, color="0.5", label=f"speed ({src})")
-        ax.plot(s, fit, "-", color="C3", lw=1.4, label="first-order fit")
-        ax.axvline(0, color="0.7", lw=0.8)
-        if e.tau63_s is not None:
-            y63 = e.speed_from + (1 - math.exp(-1)) * (e.speed_to - e.speed_from)
-            ax.plot([e.tau63_s], [y63], "o", mfc="none", color="C0", label="63 % point")
-        ax.set_title(f"{e.v_from:+.2f} -> {e.v_to:+.2f} V at {e.t_s:.2f} s\n"
-                     f"tau {e.tau_s * 1e3:.0f} ms, 63 %: "
-                     + (f"{e.tau63_s * 1e3:.0f} ms" if e.tau63_s is not None else "-"),
-                     fontsize=8)
-        ax.set_xlim(s[0], min(s[-1], 8 * e.tau_s))
-        ax.tick_params(labelsize=7)
-        ax.grid(alpha=0.3)
-    for ax in axes.flat[n:]:
-        ax.axis("off")
-    for ax in axes[-1]:
-        ax.set_xlabel("time from edge (s)", fontsize=8)
-    for ax in axes[:, 0]:
-        ax.set_ylabel("motor speed (rad/s)", fontsize=8)
+    for a, e in zip(axes.flat, edges):
+        _draw_edge(a, e, src)
+    for a in axes.flat[n:]:
+        a.axis("off")
+    for a in axes[-1]:
+        a.set_xlabel("time from edge (s)", fontsize=8)
+    for a in axes[:, 0]:
+        a.set_ylabel("motor speed (rad/s)", fontsize=8)
     axes.flat[0].legend(fontsize=7, loc="best")
-    more = f" (first {MAX_EDGES} of {len(ra.edges)})" if len(ra.edges) > MAX_EDGES else ""
-    fig.suptitle(f"{ra.name}: edges and first-order fits{more}", fontsize=10)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    if ax is None:
+        more = f" (first {MAX_EDGES} of {len(ra.edges)})" if len(ra.edges) > MAX_EDGES else ""
+        fig.suptitle(f"{ra.name}: edges and first-order fits{more}", fontsize=10)
+        fig.tight_layout()
+    return fig
 
 
-def plot_speed_vs_voltage(res, path: Path) -> Path:
-    """Steady speed against input voltage, the fitted line(s) and the deadband."""
-    fig, ax = plt.subplots(figsize=(6.4, 4.6))
+def _draw_edge(ax, e, src):
+    f = e.fit
+    ax.plot(f.s, f.w, ".", ms=2, color="0.5", label=f"speed ({src})")
+    ax.plot(f.s, f.model, "-", color="C3", lw=1.4, label="first-order fit")
+    ax.axvline(0, color="0.7", lw=0.8)
+    if e.tau63_s is not None:
+        y63 = e.speed_from + (1 - math.exp(-1)) * (e.speed_to - e.speed_from)
+        ax.plot([e.tau63_s], [y63], "o", mfc="none", color="C0", label="63 % point")
+    ax.set_title(f"{e.v_from:+.2f} -> {e.v_to:+.2f} V at {e.t_s:.2f} s\n"
+                 f"tau {e.tau_s * 1e3:.0f} ms, 63 %: "
+                 + (f"{e.tau63_s * 1e3:.0f} ms" if e.tau63_s is not None else "-"),
+                 fontsize=8)
+    # eight time constants show the whole transient and a little of the flat part
+    ax.set_xlim(f.s[0], min(f.s[-1], 8 * e.tau_s))
+    ax.tick_params(labelsize=7)
+    ax.grid(alpha=0.3)
+
+
+def _axes(ax, figsize):
+    """(figure, axes, own): a new figure unless ``ax`` is given (its layout is then
+    the caller's)."""
+    if ax is None:
+        fig, ax = plt.subplots(figsize=figsize)
+        return fig, ax, True
+    return ax.figure, ax, False
+
+
+def plot_speed_vs_voltage(res, ax=None):
+    """Steady speed against input voltage, the fitted line(s) and the deadband.
+
+    Parameters
+    ----------
+    res : AnalysisResult
+    ax : Axes, optional
+        Draw here; by default on a new figure.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    fig, ax, own = _axes(ax, (6.4, 4.6))
     lv = [L for L in res.levels if L.speed is not None]
     mov = [L for L in lv if L.moving]
     rest = [L for L in lv if not L.moving]
@@ -91,20 +172,7 @@ def plot_speed_vs_voltage(res, path: Path) -> Path:
     if rest:
         ax.plot([L.v for L in rest], [L.speed for L in rest], "x", color="0.4",
                 label="at rest")
-    line = res.line
-    vmax = max([abs(L.v) for L in lv] + [0.1])
-    if line.km is not None and line.intercepts:
-        for key, sgn in (("fwd", 1), ("rev", -1)):
-            c = line.intercepts.get(key)
-            if c is None:
-                continue
-            # start each branch where it meets zero speed (the deadband edge), not at 0 V
-            v0 = -c / line.km if line.km else 0.0
-            v0 = v0 if v0 * sgn > 0 else 0.0
-            vv = np.linspace(v0, sgn * vmax * 1.05, 50)
-            ax.plot(vv, line.km * vv + c, "-", color="C3", lw=1,
-                    label=f"fit: slope {line.km:.4g} rad/s per V" if key == "fwd" or
-                    "fwd" not in line.intercepts else None)
+    _draw_line(ax, res.line, vmax=max([abs(L.v) for L in lv] + [0.1]))
     if res.deadband_v is not None and res.deadband_v > 0:
         ax.axvspan(-res.deadband_v, res.deadband_v, color="C1", alpha=0.2,
                    label=f"deadband \u00b1{res.deadband_v:.3f} V")
@@ -120,15 +188,42 @@ def plot_speed_vs_voltage(res, path: Path) -> Path:
                  f"deadband {_fmt(res.deadband_v, '.3f')} V", fontsize=10)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8, loc="upper left")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    if own:
+        fig.tight_layout()
+    return fig
 
 
-def plot_km_vs_amplitude(res, path: Path) -> Path:
-    """The paper's Km = w/V per level against |V|, both directions, tolerance band."""
-    fig, ax = plt.subplots(figsize=(6.4, 4.2))
+def _draw_line(ax, line, vmax):
+    """The fitted line, one branch per direction."""
+    if line.km is None or not line.intercepts:
+        return
+    for key, sgn in (("fwd", 1), ("rev", -1)):
+        c = line.intercepts.get(key)
+        if c is None:
+            continue
+        # start each branch where it meets zero speed (the deadband edge), not at 0 V
+        v0 = -c / line.km if line.km else 0.0
+        v0 = v0 if v0 * sgn > 0 else 0.0
+        vv = np.linspace(v0, sgn * vmax * 1.05, 50)
+        ax.plot(vv, line.km * vv + c, "-", color="C3", lw=1,
+                label=f"fit: slope {line.km:.4g} rad/s per V" if key == "fwd" or
+                "fwd" not in line.intercepts else None)
+
+
+def plot_km_vs_amplitude(res, ax=None):
+    """The paper's Km = w/V per level against |V|, both directions, tolerance band.
+
+    Parameters
+    ----------
+    res : AnalysisResult
+    ax : Axes, optional
+        Draw here; by default on a new figure.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    fig, ax, own = _axes(ax, (6.4, 4.2))
     pts = [L for L in res.levels if L.km_paper is not None and L.moving]
     for sgn, mk, lab in ((1, "o", "forward"), (-1, "s", "reverse")):
         p = [L for L in pts if np.sign(L.v) == sgn]
@@ -151,10 +246,9 @@ def plot_km_vs_amplitude(res, path: Path) -> Path:
     ax.set_title(f"Km against amplitude: {res.gain_trend}", fontsize=10)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8, loc="lower right")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    if own:
+        fig.tight_layout()
+    return fig
 
 
 def _fmt(x, fmt):
