@@ -6,41 +6,11 @@ Exit codes (docs/design.md, 'Exit codes'): 0 success, 2 user error, 1 rig or run
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import traceback
-from pathlib import Path
 
 from . import __version__
 from .errors import LabrigError, UserError
-
-COMMANDS = {}
-
-
-def command(name, help):
-    """Register ``func(args)`` as a subcommand; ``func.configure(parser)`` adds options."""
-    def deco(func):
-        COMMANDS[name] = (func, help)
-        return func
-    return deco
-
-
-def emit_json(obj) -> None:
-    """Exactly one JSON object on stdout (progress and logs go to stderr).
-
-    Non-finite numbers (an unbounded interval, the rmse of a diverged candidate)
-    become null: strict JSON has no inf/nan, and they are results, not bugs.
-    """
-    from .fileio import dumps
-
-    sys.stdout.write(dumps(obj))
-
-
-def _float_opt(text: str) -> float:
-    try:
-        return float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got '{text}'") from None
 
 
 class _TrustCode(argparse.Action):
@@ -67,6 +37,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--debug", action="store_true", help="show tracebacks")
     sub = p.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     from . import commands  # noqa: F401  (registers the subcommands)
+    from .commands.registry import COMMANDS
     from .model.effects import reset_trust
 
     reset_trust()  # trust is given per command line, never carried over

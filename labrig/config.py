@@ -20,7 +20,7 @@ DEFAULT_RIG = CONFIG_DIR / "rig_default.toml"
 DEFAULT_PLAN = CONFIG_DIR / "plan_default.toml"
 
 
-def _packaged(name: str) -> Path:
+def packaged_config(name: str) -> Path:
     """Configs ship inside the package too, so a wheel install finds them."""
     local = CONFIG_DIR / name
     if local.exists():
@@ -110,7 +110,7 @@ _ATTRS = {
 }
 
 
-def _read_toml(path: Path | str, what: str) -> dict:
+def read_toml(path: Path | str, what: str) -> dict:
     path = Path(path)
     if not path.is_file():
         raise ConfigError(f"{path}: {what} file not found")
@@ -191,12 +191,12 @@ def load_rig(path: Path | str | None = None) -> RigConfig:
 
     A mystery rig (``*.mystery``, see ``labrig mystery``) is decoded transparently.
     """
-    path = Path(path) if path is not None else _packaged("rig_default.toml")
+    path = Path(path) if path is not None else packaged_config("rig_default.toml")
     if path.suffix == ".mystery":
-        from .mystery import read_mystery  # noqa: WPS433 (optional feature)
+        from .mysteryfile import decode
 
-        return rig_from_dict(read_mystery(path), str(path))
-    return rig_from_dict(_read_toml(path, "rig"), str(path))
+        return rig_from_dict(decode(path)["rig"], str(path))
+    return rig_from_dict(read_toml(path, "rig"), str(path))
 
 
 # -- sweep plans ----------------------------------------------------------------
@@ -210,8 +210,8 @@ _STEMS = {"square": "sq", "step": "step", "staircase": "stair", "constant": "con
 def load_plan(path: Path | str | None = None, rig: RigConfig | None = None) -> list[Experiment]:
     """Read a sweep plan: ``[[experiment]]`` tables; ``amplitudes_v = [...]`` expands
     one table into one experiment per amplitude (schema :class:`labrig.schemas.PlanFile`)."""
-    path = Path(path) if path is not None else _packaged("plan_default.toml")
-    doc = _read_toml(path, "plan")
+    path = Path(path) if path is not None else packaged_config("plan_default.toml")
+    doc = read_toml(path, "plan")
     if "experiment" not in doc:
         raise ConfigError(f"{path}: no [[experiment]] tables; a plan needs at least one")
     plan = validate(PlanFile, doc, path, ConfigError)

@@ -5,41 +5,26 @@ perturbed (each of R, L, J, B, K by up to +-20 %) and one or two hidden effects 
 the catalogue (deadband, coulomb_friction, saturation, backlash, delay) at sizes a
 student can detect with the default sweep. ``write_mystery`` stores it in a file that a
 student cannot read by opening it; ``labrig sweep --sim --rig FILE`` uses it like any rig
-file (``labrig.config.load_rig`` calls ``read_mystery`` for the ``.mystery`` suffix).
+file (``labrig.config.load_rig`` decodes the ``.mystery`` suffix).
 ``reveal`` shows the truth to the instructor and ``check`` grades a student's
 model.json against it.
 
-File format (``labrig-mystery/1``)::
-
-    labrig-mystery/1
-    salt <32 hex digits>
-    <base64 text, 76 columns>
-
-The payload is JSON -> zlib -> XOR with a SHA-256 counter keystream of a fixed key and
-the salt -> base64. **This is obfuscation against casual reading (a student opening the
-file in an editor, or grep), not security**: the key is in this source file and anyone
-who reads it can decode a mystery file. Do not use it to hide anything that matters.
-A SHA-256 digest of the JSON inside the payload detects a damaged or edited file.
+The file format lives in ``labrig.mysteryfile`` (obfuscation, not security).
 """
 from __future__ import annotations
 
-import base64
-import binascii
 import copy
-import hashlib
-import json
 import math
 import tomllib
-import zlib
 from pathlib import Path
 
 import numpy as np
 
-from .errors import ConfigError, UserError
+from .config import packaged_config, rig_from_dict, rig_to_doc
+from .errors import UserError
+from .fileio import atomic_write
+from .mysteryfile import SUFFIX, decode, encode
 
-HEADER = "labrig-mystery/1"
-_KEY = b"labrig mystery rig: obfuscation, not encryption"
-SUFFIX = ".mystery"
 
 #: effects a mystery rig may hide, with the range (uniform) of their parameter, chosen
 #: so that the default sweep shows them clearly above the noise
@@ -62,9 +47,7 @@ PASS_TOLERANCE = 0.20
 # -- drawing a rig ------------------------------------------------------------------
 
 def _default_doc() -> dict:
-    from .config import _packaged
-
-    path = _packaged("rig_default.toml")
+    path = packaged_config("rig_default.toml")
     return tomllib.loads(path.read_text(encoding="utf-8"))
 
 
@@ -157,20 +140,6 @@ def new_mystery(seed: int) -> dict:
 
 # -- the file -------------------------------------------------------------------------
 
-def _keystream(salt: bytes, n: int) -> bytes:
-    out = bytearray()
-    counter = 0
-    while len(out) < n:
-        out += hashlib.sha256(_KEY + salt + counter.to_bytes(8, "big")).digest()
-        counter += 1
-    return bytes(out[:n])
-
-
-def _xor(data: bytes, salt: bytes) -> bytes:
-    ks = _keystream(salt, len(data))
-    return bytes(a ^ b for a, b in zip(data, ks))
-
-
 def write_mystery(doc: dict, path: Path | str, seed: int | None = None,
                   overwrite: bool = False) -> Path:
     """Write a mystery rig file (obfuscated, not encrypted: see the module docstring).
@@ -178,69 +147,27 @@ def write_mystery(doc: dict, path: Path | str, seed: int | None = None,
     ``seed`` is recorded for ``reveal``. An existing file is only replaced with
     ``overwrite=True``. The write is atomic (temp file + rename).
     """
-    from .config import rig_from_dict
-    from .fileio import atomic_write
-
     path = Path(path)
     if path.suffix != SUFFIX:
         raise UserError(f"{path}: a mystery rig file must end in '{SUFFIX}' "
                         f"(e.g. {path.with_suffix(SUFFIX).name}) so that --rig recognises it")
     if path.exists() and not overwrite:
-        raise UserError(f"{path}: already exists; choose another name or pass --force")
+        raise UserError(f"{path}: already exists; add --force to replace it")
     rig_from_dict(doc, str(path))  # never write a rig that cannot be loaded
-    body = json.dumps({"rig": doc, "seed": seed}, sort_keys=True).encode()
-    payload = json.dumps({"sha256": hashlib.sha256(body).hexdigest(),
-                          "body": body.decode()}).encode()
-    digest = hashlib.sha256(_KEY + body).digest()
-    salt = digest[:16]
-    blob = base64.b64encode(_xor(zlib.compress(payload, 9), salt)).decode()
-    lines = [HEADER, f"salt {salt.hex()}"] + [blob[i:i + 76] for i in range(0, len(blob), 76)]
     path.parent.mkdir(parents=True, exist_ok=True)
-    atomic_write(path, "\n".join(lines) + "\n")
+    atomic_write(path, encode({"rig": doc, "seed": seed}))
     return path
 
 
 def load_mystery(path: Path | str) -> dict:
-    """Decode a mystery file -> ``{"rig": doc, "seed": N | None}``; a damaged file is a
-    ``ConfigError`` (exit 2) naming the file and what is wrong."""
-    path = Path(path)
-    if not path.exists():
-        raise ConfigError(f"{path}: mystery rig file not found")
-    bad = f"{path}: not a valid mystery rig file"
-    try:
-        text = path.read_text(encoding="ascii")
-    except (UnicodeDecodeError, OSError):
-        raise ConfigError(f"{bad} (not text); ask for a fresh copy") from None
-    lines = text.split("\n")
-    if not lines or lines[0].strip() != HEADER:
-        raise ConfigError(f"{bad} (first line is not '{HEADER}'); make one with "
-                          "`labrig mystery new --seed N -o FILE.mystery`")
-    try:
-        tag, hexsalt = lines[1].split()
-        if tag != "salt":
-            raise ValueError
-        salt = bytes.fromhex(hexsalt)
-        blob = base64.b64decode("".join(s.strip() for s in lines[2:]), validate=True)
-        payload = json.loads(zlib.decompress(_xor(blob, salt)))
-        body = payload["body"].encode()
-        if hashlib.sha256(body).hexdigest() != payload["sha256"]:
-            raise ValueError("checksum")
-        doc = json.loads(body)
-        if not isinstance(doc.get("rig"), dict):
-            raise ValueError("no rig")
-    except (ValueError, IndexError, KeyError, TypeError, binascii.Error, zlib.error,
-            UnicodeDecodeError, AttributeError, RecursionError, MemoryError):
-        raise ConfigError(f"{bad} (damaged or edited: the contents do not decode); "
-                          "ask for a fresh copy") from None
-    # the checksum only shows the file is intact, not that its author meant well: the
-    # rig inside is validated like any rig file, then completed with the defaults so
-    # reveal and check can read every key
-    seed = doc.get("seed")
-    if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int)):
-        raise ConfigError(f"{path}: key 'seed' must be an integer or null, got {seed!r}")
-    from .config import rig_from_dict, rig_to_doc
+    """Decode a mystery file -> ``{"rig": doc, "seed": N | None}``.
 
-    return {"rig": rig_to_doc(rig_from_dict(doc["rig"], str(path))), "seed": seed}
+    The checksum only shows the file is intact, not that its author meant well: the rig
+    inside is validated like any rig file, then completed with the defaults so reveal
+    and check can read every key.
+    """
+    m = decode(path)
+    return {"rig": rig_to_doc(rig_from_dict(m["rig"], str(path))), "seed": m["seed"]}
 
 
 def read_mystery(path: Path | str) -> dict:
@@ -252,7 +179,6 @@ def read_mystery(path: Path | str) -> dict:
 
 def reveal(path: Path | str) -> dict:
     """The hidden truth of a mystery file, with the default rig for comparison."""
-    from .config import rig_from_dict
     from .model.effects import get_effect
 
     m = load_mystery(path)

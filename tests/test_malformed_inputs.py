@@ -402,18 +402,9 @@ def test_bad_identify_options(tmp_path, capsys, opt):
 def _craft_mystery(path: Path, rig_doc: dict, seed=1) -> Path:
     """A mystery file with any content, encoded as labrig would (bypassing its checks):
     what someone who read the source could hand an instructor."""
-    import base64
-    import hashlib
-    import zlib
+    from labrig.mysteryfile import encode
 
-    from labrig import mystery as m
-
-    body = json.dumps({"rig": rig_doc, "seed": seed}, sort_keys=True).encode()
-    payload = json.dumps({"sha256": hashlib.sha256(body).hexdigest(),
-                          "body": body.decode()}).encode()
-    salt = hashlib.sha256(m._KEY + body).digest()[:16]
-    blob = base64.b64encode(m._xor(zlib.compress(payload, 9), salt)).decode()
-    path.write_text("\n".join([m.HEADER, f"salt {salt.hex()}", blob]) + "\n")
+    path.write_text(encode({"rig": rig_doc, "seed": seed}))
     return path
 
 

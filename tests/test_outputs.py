@@ -8,7 +8,8 @@ import re
 import numpy as np
 import pytest
 
-from labrig.cli import emit_json, main
+from labrig.cli import main
+from labrig.commands.registry import emit_json
 from labrig.identify.objective import build_space
 from conftest import make_rig, sim_dataset, square_plan
 

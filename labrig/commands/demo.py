@@ -11,7 +11,7 @@ import sys
 import time
 from pathlib import Path
 
-from ..cli import command
+from .registry import command
 
 
 def _say(text):

@@ -5,7 +5,7 @@ import signal
 import sys
 import time
 
-from ..cli import command
+from .registry import command
 
 
 @command("emulate", "run the real firmware under simavr and serve it on a pty")

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..cli import command, emit_json
+from .registry import command, emit_json
 from ..errors import UserError
 from ..identify.modelfile import load_identify_config
 from .progress import Progress

@@ -4,7 +4,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from ..cli import command, emit_json
+from .registry import command, emit_json
 from ..errors import UserError
 from .progress import Progress
 

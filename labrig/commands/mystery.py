@@ -4,7 +4,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from ..cli import command, emit_json
+from .registry import command, emit_json
 from ..errors import UserError
 
 
@@ -47,7 +47,7 @@ def cmd_mystery(args):
 
 
 def _configure(p):
-    from ..cli import _float_opt
+    from .registry import float_opt
 
     sub = p.add_subparsers(dest="action", metavar="ACTION")
     dbg = dict(action="store_true", default=argparse.SUPPRESS, help="show tracebacks")
@@ -69,7 +69,7 @@ def _configure(p):
     pc.add_argument("--json", action="store_true", help="print one JSON object")
     pc.add_argument("--blind", action="store_true",
                     help="student self-check: say how many effects are missing, not which")
-    pc.add_argument("--tolerance", type=_float_opt, default=20.0,
+    pc.add_argument("--tolerance", type=float_opt, default=20.0,
                     help="parameter error (%%) within which an effect passes (default 20)")
     pc.add_argument("--debug", **dbg)
 

@@ -17,11 +17,11 @@ def load_identify_config(path) -> dict:
     """
     if not path:
         return {}
-    from ..config import _read_toml
+    from ..config import read_toml
     from ..errors import ConfigError
     from ..schemas import IdentifyConfig
 
-    cfg = validate(IdentifyConfig, _read_toml(path, "identify config"), path, ConfigError)
+    cfg = validate(IdentifyConfig, read_toml(path, "identify config"), path, ConfigError)
     EffectSet.parse(cfg.effects, origin=f"{path}: key 'effects'")
     return {"bounds": {k: tuple(v) for k, v in cfg.bounds.items()},
             "fixed": dict(cfg.fixed), "effects": list(cfg.effects)}

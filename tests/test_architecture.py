@@ -1,0 +1,109 @@
+"""The shape of the code: layers import downwards only, no cycles, small modules.
+
+Checked statically (every import statement, including those inside functions), so a
+lazy import cannot hide a cycle.
+"""
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+PKG = Path(__file__).resolve().parent.parent / "labrig"
+MAX_LINES = 500
+
+
+def _modules() -> dict[str, Path]:
+    mods = {}
+    for f in PKG.rglob("*.py"):
+        parts = f.relative_to(PKG.parent).with_suffix("").parts
+        name = ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+        mods[name] = f
+    return mods
+
+
+def _graph():
+    mods = _modules()
+    graph, private = {}, []
+    for m, f in mods.items():
+        pkg = m if f.name == "__init__.py" else m.rsplit(".", 1)[0]
+        deps = set()
+        for node in ast.walk(ast.parse(f.read_text())):
+            targets = []
+            if isinstance(node, ast.ImportFrom):
+                if node.level:
+                    base = pkg.split(".")[: len(pkg.split(".")) - (node.level - 1)]
+                    target = ".".join(base + ([node.module] if node.module else []))
+                else:
+                    target = node.module or ""
+                targets = [f"{target}.{a.name}" for a in node.names] + [target]
+                private += [(m, a.name) for a in node.names
+                            if a.name.startswith("_") and not a.name.startswith("__")
+                            and target.startswith("labrig")]
+            elif isinstance(node, ast.Import):
+                targets = [a.name for a in node.names]
+            for t in targets:
+                while t and t not in mods and "." in t:
+                    t = t.rsplit(".", 1)[0]
+                if t in mods and t != m and t.startswith("labrig"):
+                    deps.add(t)
+        graph[m] = deps
+    return graph, private
+
+
+def _cycles(graph) -> list[list[str]]:
+    index, low, stack, on, out, counter = {}, {}, [], set(), [], [0]
+
+    def visit(v):
+        index[v] = low[v] = counter[0]
+        counter[0] += 1
+        stack.append(v)
+        on.add(v)
+        for w in graph[v]:
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                on.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            if len(comp) > 1:
+                out.append(sorted(comp))
+
+    for v in graph:
+        if v not in index:
+            visit(v)
+    return out
+
+
+def test_no_import_cycles():
+    graph, _ = _graph()
+    assert _cycles(graph) == []
+
+
+def test_nothing_imports_the_cli():
+    graph, _ = _graph()
+    assert [m for m, d in graph.items() if "labrig.cli" in d] == ["labrig.__main__"]
+
+
+def test_core_never_imports_commands():
+    graph, _ = _graph()
+    offenders = [m for m, d in graph.items() if not m.startswith(("labrig.commands", "labrig.cli"))
+                 and any(x.startswith("labrig.commands") for x in d)]
+    assert offenders == []
+
+
+def test_no_private_helper_crosses_modules():
+    _, private = _graph()
+    assert private == []
+
+
+def test_modules_are_small():
+    big = {str(f.relative_to(PKG.parent)): n for f in PKG.rglob("*.py")
+           if (n := len(f.read_text().splitlines())) > MAX_LINES}
+    assert big == {}
