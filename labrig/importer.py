@@ -49,7 +49,8 @@ def import_csv(src: Path | str, outdir: Path | str, mapping: dict[str, str], *,
                tacho_gain: float | None = None, pos_gain: float | None = None,
                pos_offset: float = 0.0, gear_ratio: float = 1.0, amplifier_gain: float = 1.0,
                name: str | None = None, waveform: str = "custom", loop: str = "open",
-               overwrite: bool = False) -> Path:
+               overwrite: bool = False, position_gain: float | None = None,
+               velocity_gain: float | None = None) -> Path:
     """Convert a foreign CSV into a labrig run in ``outdir``; return the CSV path."""
     src = Path(src)
     if name is None:  # a file name may hold spaces or brackets; a run name may not
@@ -72,6 +73,17 @@ def import_csv(src: Path | str, outdir: Path | str, mapping: dict[str, str], *,
             raise UserError(f"{opt}: {val:g} is not {need}")
     if loop not in ("open", "closed"):
         raise UserError(f"--loop: expected open or closed, got '{loop}'")
+    experiment = {"loop": loop, "waveform": waveform}
+    if loop == "closed":
+        # fitted through the loop, the controller is part of the model: without its
+        # gains the fit would be of a different system
+        for opt, v in (("--position-gain", position_gain), ("--velocity-gain", velocity_gain)):
+            if v is None or not math.isfinite(v) or v < 0:
+                raise UserError(f"{opt}: a closed-loop import needs the loop's gains "
+                                f"(>= 0, volts per volt); got {v}")
+        experiment.update(position_gain=float(position_gain), velocity_gain=float(velocity_gain))
+    elif position_gain is not None or velocity_gain is not None:
+        raise UserError("--position-gain/--velocity-gain: only with --loop closed")
     if "pos" in mapping and pos_gain is None and "tacho" in mapping:
         raise UserError("--pos-gain is needed with raw-volt columns (tacho=...,pos=...)")
     if "tacho" in mapping and tacho_gain is None:
@@ -109,7 +121,7 @@ def import_csv(src: Path | str, outdir: Path | str, mapping: dict[str, str], *,
         fs = float(round(fs))
     run = Run(name=name or src.stem, data=pd.DataFrame(cols),
               meta=make_meta(sample_rate_hz=fs, source="import",
-                             experiment={"loop": loop, "waveform": waveform},
+                             experiment=experiment,
                              sensors=sensors,
                              rig={"gear_ratio": float(gear_ratio),
                                   "amplifier_gain": float(amplifier_gain),

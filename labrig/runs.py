@@ -86,6 +86,29 @@ class Run:
         return self.meta.get("sensors", {})
 
     @property
+    def gains(self) -> dict | None:
+        """The closed loop's ``{"kp": ..., "kv": ...}`` (amplifier input = kp (ref - pos)
+        - kv tacho, in volts per volt); None for an open-loop run. A closed-loop run
+        always states them (checked when it is read)."""
+        if self.loop != "closed":
+            return None
+        return {"kp": float(self.experiment["position_gain"]),
+                "kv": float(self.experiment["velocity_gain"])}
+
+    @property
+    def amplifier_gain(self) -> float:
+        """Armature volts per bridge volt (1.0 when the sidecar does not say)."""
+        return float(self.meta.get("rig", {}).get("amplifier_gain", 1.0))
+
+    @property
+    def constants(self) -> dict:
+        """The rig constants a model of this run needs: Ka, N, Kt, Kpot (a channel the
+        run does not have gets 1.0: it is never used)."""
+        return {"Ka": self.amplifier_gain, "N": self.gear_ratio,
+                "Kt": float(self.sensors.get("tacho_v_per_rad_s") or 1.0),
+                "Kpot": float(self.sensors.get("pos_v_per_rad") or 1.0)}
+
+    @property
     def kt(self) -> float:
         return float(self.sensors["tacho_v_per_rad_s"])
 
@@ -186,6 +209,12 @@ def _read_sidecar(json_path: Path, csv_path: Path) -> dict:
         if not isinstance(meta.get(key), dict):
             raise RunFileError(f"{json_path}: key '{key}' missing or not an object")
     checked = validate(Sidecar, meta, json_path, RunFileError)
+    exp = checked.experiment
+    if exp.loop == "closed" and (exp.position_gain is None or exp.velocity_gain is None):
+        raise RunFileError(f"{json_path}: a closed-loop run must state its controller: keys "
+                           "'experiment.position_gain' and 'experiment.velocity_gain' (volts "
+                           "per volt) missing; add them, or import with --loop closed "
+                           "--position-gain KP --velocity-gain KV")
     # the validated values (ints as floats); keys the schema does not know ride along
     return checked.model_dump(exclude_unset=True)
 

@@ -37,7 +37,7 @@ class Table:
         buf = io.StringIO()
         Console(file=buf, width=width, color_system=None, force_terminal=False,
                 legacy_windows=False).print(t)
-        text = buf.getvalue().rstrip()
+        text = "\n".join(line.rstrip() for line in buf.getvalue().rstrip().splitlines())
         if self.notes:
             text += "\n" + "\n".join(self.notes)
         return text

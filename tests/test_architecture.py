@@ -27,7 +27,14 @@ def _graph():
     for m, f in mods.items():
         pkg = m if f.name == "__init__.py" else m.rsplit(".", 1)[0]
         deps = set()
-        for node in ast.walk(ast.parse(f.read_text())):
+        tree = ast.parse(f.read_text())
+        # imports for annotations only (``if TYPE_CHECKING:``) never run
+        typing_only = {id(n) for blk in ast.walk(tree) if isinstance(blk, ast.If)
+                       and getattr(blk.test, "id", None) == "TYPE_CHECKING"
+                       for stmt in blk.body for n in ast.walk(stmt)}
+        for node in ast.walk(tree):
+            if id(node) in typing_only:
+                continue
             targets = []
             if isinstance(node, ast.ImportFrom):
                 if node.level:

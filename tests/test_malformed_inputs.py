@@ -504,7 +504,7 @@ def matrix_size() -> int:
     return (len(SIDECAR_CASES) + len(SIDECAR_TEXT_CASES) + len(CSV_CASES) + 1
             + len(RIG_CASES) + len(PLAN_CASES) + len(MODEL_CASES) + len(MODEL_TEXT_CASES)
             + 2 + len(IDCONFIG_CASES) + 9 + 2 * len(MYSTERY_CASES) + 4 + 5
-            + len(IMPORT_CASES) + 4)
+            + len(IMPORT_CASES) + 4 + 1 + 4)
 
 
 def test_matrix_size_and_readme():
@@ -527,3 +527,38 @@ FLAT_ROWS = [f"{i * 0.005:.3f},{1.2 if (i // 200) % 2 else -1.2},0.1,-4" for i i
 def test_data_without_dynamics(tmp_path, capsys, command, rows, msg):
     d = _run_dir(tmp_path, csv_text=_csv(rows=rows))
     _expect_user_error(capsys, [command, d], msg)
+
+
+# -- closed-loop runs must state their controller ---------------------------------------
+
+def test_closed_loop_run_without_gains_is_refused(tmp_path, capsys):
+    side = _set(_set(_set(SIDE, "experiment.loop", "closed"), "experiment.position_gain", _DEL),
+                "experiment.velocity_gain", _DEL)
+    d = _run_dir(tmp_path, side)
+    line = _expect_user_error(capsys, ["analyse", d], "r.json", "position_gain")
+    assert "--loop closed" in line
+
+
+@pytest.mark.parametrize("opts,msg", [
+    (["--loop", "closed"], "--position-gain"),
+    (["--loop", "closed", "--position-gain", "2"], "--velocity-gain"),
+    (["--loop", "closed", "--position-gain", "-2", "--velocity-gain", "0.1"], "--position-gain"),
+    (["--position-gain", "2", "--velocity-gain", "0.1"], "only with --loop closed"),
+])
+def test_closed_loop_import_needs_its_gains(tmp_path, capsys, opts, msg):
+    src = tmp_path / "scope.csv"
+    src.write_text(SRC)
+    _expect_user_error(capsys, ["import", src, "-o", tmp_path / "out",
+                                "--map", "t=Time,u=CH1,pos=CH2", *opts], msg)
+
+
+def test_closed_loop_import_records_the_gains(tmp_path, capsys):
+    from labrig.runs import read_run
+
+    src = tmp_path / "scope.csv"
+    src.write_text(SRC)
+    assert main(["import", str(src), "-o", str(tmp_path / "out"), "--map", "t=Time,u=CH1,pos=CH2",
+                 "--loop", "closed", "--position-gain", "2", "--velocity-gain", "0.15"]) == 0
+    run = read_run(tmp_path / "out" / "scope.csv")
+    assert run.gains == {"kp": 2.0, "kv": 0.15} and run.loop == "closed"
+    assert run.constants == {"Ka": 1.0, "N": 1.0, "Kt": 1.0, "Kpot": 1.0}

@@ -10,6 +10,8 @@ from dataclasses import dataclass, field, asdict
 
 import numpy as np
 
+from ..defaults import LOOP_GAINS
+
 
 @dataclass
 class Experiment:
@@ -34,8 +36,8 @@ class Experiment:
     levels: list[float] = field(default_factory=list)
     step_s: float = 1.0
     sample_rate_hz: float = 1000.0
-    position_gain: float = 10.0
-    velocity_gain: float = 1.0
+    position_gain: float = LOOP_GAINS["position_gain"]
+    velocity_gain: float = LOOP_GAINS["velocity_gain"]
 
     @property
     def total_s(self) -> float:

@@ -5,7 +5,7 @@ import signal
 import sys
 from pathlib import Path
 
-from ..cli import command, _float_opt
+from .registry import command, float_opt
 from ..errors import Terminated, UserError
 from .progress import Progress
 
@@ -125,7 +125,8 @@ def cmd_import(args):
                       tacho_gain=args.tacho_gain, pos_gain=args.pos_gain,
                       pos_offset=args.pos_offset, gear_ratio=args.gear_ratio,
                       amplifier_gain=args.amplifier_gain, name=args.name,
-                      waveform=args.waveform, loop=args.loop, overwrite=args.overwrite)
+                      waveform=args.waveform, loop=args.loop, overwrite=args.overwrite,
+                      position_gain=args.position_gain, velocity_gain=args.velocity_gain)
     print(f"wrote {path} and {path.with_suffix('.json').name}")
     return 0
 
@@ -138,15 +139,21 @@ def _configure_import(p):
     p.add_argument("--speed-unit", default="rad/s", help="rad/s (default) or rpm")
     p.add_argument("--pos-unit", default="rad", help="rad (default) or deg")
     p.add_argument("--time-unit", default="s", help="s (default) or ms")
-    p.add_argument("--tacho-gain", type=_float_opt, help="V per rad/s, for tacho= in volts")
-    p.add_argument("--pos-gain", type=_float_opt, help="V per rad, for pos= in volts")
-    p.add_argument("--pos-offset", type=_float_opt, default=0.0, help="pot volts at 0 rad")
-    p.add_argument("--gear-ratio", type=_float_opt, default=1.0, help="motor/output (default 1)")
-    p.add_argument("--amplifier-gain", type=_float_opt, default=1.0)
+    p.add_argument("--tacho-gain", type=float_opt, help="V per rad/s, for tacho= in volts")
+    p.add_argument("--pos-gain", type=float_opt, help="V per rad, for pos= in volts")
+    p.add_argument("--pos-offset", type=float_opt, default=0.0, help="pot volts at 0 rad")
+    p.add_argument("--gear-ratio", type=float_opt, default=1.0, help="motor/output (default 1)")
+    p.add_argument("--amplifier-gain", type=float_opt, default=1.0)
     p.add_argument("--name", help="run name (default: the source file's stem)")
     p.add_argument("--waveform", default="custom",
                    choices=["square", "step", "staircase", "custom"])
-    p.add_argument("--loop", default="open", choices=["open", "closed"])
+    p.add_argument("--loop", default="open", choices=["open", "closed"],
+                   help="open (u drives the amplifier) or closed (u is the reference of a "
+                        "position loop; give its gains)")
+    p.add_argument("--position-gain", type=float_opt, metavar="KP",
+                   help="closed loop: amplifier volts per volt of position error")
+    p.add_argument("--velocity-gain", type=float_opt, metavar="KV",
+                   help="closed loop: amplifier volts per volt of tacho feedback")
     p.add_argument("--overwrite", action="store_true", help="replace an existing run")
 
 

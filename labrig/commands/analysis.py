@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import sys
 
-from ..cli import command, emit_json
+from .registry import command, emit_json
 
 
 @command("analyse", "deadband, Km, tau_m, Kt and the gain-vs-amplitude verdict of a dataset")
@@ -14,7 +14,7 @@ def cmd_analyse(args):
     from pathlib import Path
 
     from ..analyse import analyse
-    from .identification import refuse_existing
+    from .registry import refuse_existing
 
     res = analyse(args.paths, tolerance=args.tolerance)
     if args.output:
@@ -40,14 +40,14 @@ def _save(res, figs, out):
 
 
 def _configure(p):
-    from ..cli import _float_opt
+    from .registry import float_opt
 
     p.add_argument("paths", nargs="+", metavar="DIR",
                    help="dataset folder(s) or run files, or a steady-state table CSV")
     p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     p.add_argument("-o", "--output", metavar="FIGDIR", help="write the figures (PNG) here")
     p.add_argument("--force", action="store_true", help="replace figures already in FIGDIR")
-    p.add_argument("--tolerance", type=_float_opt, default=0.03,
+    p.add_argument("--tolerance", type=float_opt, default=0.03,
                    help="relative change of w/V over the amplitude range still called "
                         "constant (default 0.03)")
 

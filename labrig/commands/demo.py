@@ -32,7 +32,7 @@ def cmd_demo(args):
     from ..acquire import sweep
     from ..analyse import analyse
     from ..bridge.sim import SimRig
-    from ..commands.identification import format_identification
+    from ..identify.table import format_identification
     from ..config import load_plan, load_rig
     from ..diagnose import diagnose
     from ..evaluation import evaluate
@@ -57,8 +57,9 @@ def cmd_demo(args):
 
     _say("[2/7] analyse: deadband, Km, tau_m, Kt, gain trend")
     ana = analyse([runs_dir])
-    ana.plot(figs)
-    _dump(ana.to_dict(), out / "analysis.json")
+    for name, fig in ana.figures().items():
+        save(fig, figs / name)
+    _dump(ana.to_json(), out / "analysis.json")
     print(ana.summary())
 
     methods = ["co"] if args.quick else ["jfo", "pso", "co"]

@@ -27,7 +27,7 @@ def cmd_compare(args):
     from ..report.compare_plots import plot_regimes, plot_run_comparison, save
 
     from ..identify.result import fit_warnings
-    from .identification import refuse_existing
+    from .registry import refuse_existing
 
     runs, model = _load(args)
     out = Path(args.output)
@@ -86,7 +86,8 @@ def cmd_diagnose(args):
     rank every catalogue effect the model lacks: re-fitted, compared on BIC and on a
     held-out run, each with its evidence and the experiment that would confirm it."""
     from ..diagnose import diagnose
-    from .identification import parse_assignments, refuse_existing
+    from .identification import parse_assignments
+    from .registry import refuse_existing
 
     runs, model = _load(args)
     fixed = parse_assignments(args.fix, "--fix")
@@ -132,7 +133,7 @@ def cmd_ladder(args):
     from ..report.compare_plots import save
     from ..runs import read_dataset
 
-    from .identification import refuse_existing
+    from .registry import refuse_existing
 
     runs = read_dataset(args.data)
     out = Path(args.output)

@@ -17,7 +17,7 @@ def cmd_mystery(args):
     from .. import mystery as m
 
     if args.action == "new":
-        from .identification import refuse_existing
+        from .registry import refuse_existing
 
         refuse_existing([args.output], args.force)  # the same words as every other -o
         doc = m.new_mystery(args.seed)

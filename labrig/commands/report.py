@@ -21,7 +21,7 @@ def cmd_report(args):
     leaves them); what is missing is computed: the analysis, a CO identification,
     and -- unless --quick -- the diagnosis (about 30 s) and the ladder."""
     from ..report.html import build_report, find_work
-    from .identification import refuse_existing
+    from .registry import refuse_existing
 
     # before the analysis, identification and diagnosis (which can take a minute)
     refuse_existing([args.output], args.force)

@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..defaults import LOOP_GAINS
 from ..errors import UserError
 from ..model.effects import Effect
 from ..model.effectset import EffectSet
@@ -123,6 +124,32 @@ class Identification:
                 "step_info": self.step_info(), "noise": self.metrics["noise"],
                 "per_run": self.metrics["per_run"]}
 
+    def to_json(self) -> dict:
+        """What ``labrig identify --json`` prints: :meth:`to_dict` with unbounded
+        intervals null and the bound and fit warnings under ``warnings``."""
+        from .table import identification_dict
+
+        return identification_dict(self)
+
+    def table_rows(self):
+        """The Table 2 column of this fit (:func:`labrig.identify.table.comparison_table`)."""
+        from .table import comparison_table
+
+        return comparison_table([self])
+
+    def to_pandas(self):
+        """Every parameter with its value (physical units) and whether it was fixed."""
+        import pandas as pd
+
+        return pd.DataFrame([{"parameter": n, "value": v, "fixed": n in self.space.fixed}
+                             for n, v in self.params.items()]).set_index("parameter")
+
+    def plot(self, ax=None):
+        """Convergence: best fitness against iteration."""
+        from ..report.identify_plots import plot_convergence
+
+        return plot_convergence([self], ax=ax)
+
     def model(self) -> Model:
         """The identified model (what ``-o model.json`` saves)."""
         return Model.from_flat(self.params, self.effects, self.constants, info={
@@ -137,13 +164,11 @@ class Identification:
 
 def dataset_constants(runs) -> dict:
     """Known rig constants from the runs' sidecars (the first run speaks for all)."""
-    r0 = runs[0]
-    closed = [r for r in runs if r.loop == "closed"]
-    exp = closed[0].experiment if closed else {}
-    return {"Ka": float(r0.meta.get("rig", {}).get("amplifier_gain", 1.0)), "N": r0.gear_ratio,
-            "Kt": float(r0.sensors.get("tacho_v_per_rad_s", 1.0)),
-            "Kpot": float(r0.sensors.get("pos_v_per_rad", 1.0)),
-            "kp": float(exp.get("position_gain", 2.0)), "kv": float(exp.get("velocity_gain", 0.15))}
+    closed = [r.gains for r in runs if r.loop == "closed"]
+    # step metrics are for the data's own loop, else for the lab's standard loop
+    gains = closed[0] if closed else {"kp": LOOP_GAINS["position_gain"],
+                                      "kv": LOOP_GAINS["velocity_gain"]}
+    return {**runs[0].constants, **gains}
 
 
 def initial_point(space: Space, effects, runs, constants, start: dict | None) -> dict:

@@ -74,15 +74,12 @@ class RunData:
 
     @classmethod
     def from_run(cls, run) -> "RunData":
-        exp = run.experiment
         th = run.position
         # start the model where the pot says the shaft is (the rig starts at rest)
         theta0 = float(np.mean(th[: max(1, min(20, len(th) // 50))])) if th is not None else 0.0
+        gains = run.gains or {"kp": 0.0, "kv": 0.0}  # open loop: no feedback
         return cls(name=run.name, u=run.u.astype(float), dt=run.dt, loop=run.loop,
-                   kp=float(exp.get("position_gain", 0.0)), kv=float(exp.get("velocity_gain", 0.0)),
-                   Ka=float(run.meta.get("rig", {}).get("amplifier_gain", 1.0)),
-                   N=run.gear_ratio, Kt=float(run.sensors.get("tacho_v_per_rad_s", 1.0)),
-                   Kpot=float(run.sensors.get("pos_v_per_rad", 1.0)),
+                   kp=gains["kp"], kv=gains["kv"], **run.constants,
                    w=run.speed, theta=th, theta0=theta0, amplitude=run.amplitude)
 
 

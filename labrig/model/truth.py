@@ -19,7 +19,7 @@ from .servo import ServoParams
 
 def simulate_truth(p: ServoParams, u: np.ndarray, dt: float, *, effects=(),
                    effect_params: dict | None = None, loop: str = "open",
-                   kp: float = 10.0, kv: float = 1.0, substeps: int = 20,
+                   kp: float | None = None, kv: float | None = None, substeps: int = 20,
                    x0=(0.0, 0.0, 0.0), rail_v: float = np.inf) -> dict:
     """Simulate one run.
 
@@ -46,6 +46,8 @@ def simulate_truth(p: ServoParams, u: np.ndarray, dt: float, *, effects=(),
     ``theta_m`` (motor rad), ``i`` (A), all sampled at t_k.
     """
     effect_params = effect_params or {}
+    if loop == "closed" and (kp is None or kv is None):
+        raise ValueError("a closed loop needs its gains kp and kv")
     u = np.asarray(u, dtype=float)
     n = len(u)
     h = dt / substeps
