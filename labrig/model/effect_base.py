@@ -1,0 +1,161 @@
+"""The base classes of every effect: a parameter, the effect, and one abstract class per
+stage of the servo where an effect acts. The catalogue (``labrig.model.effects``) and a
+user's own effects derive from these.
+"""
+from __future__ import annotations
+
+import abc
+import math
+from dataclasses import dataclass
+
+STAGES = ("input", "drive", "friction", "output", "delay")
+
+
+@dataclass(frozen=True)
+class Param:
+    """One effect parameter: name, unit, physical bounds and a description."""
+
+    name: str
+    unit: str
+    lower: float
+    upper: float
+    doc: str = ""
+    log: bool = True  # search in log space (positive, spans decades)
+
+
+class Effect(abc.ABC):
+    """Base of every effect. Subclasses set ``name``, ``params`` and implement the hook
+    of their stage; the catalogue's effects derive from the stage classes below
+    (:class:`InputEffect`, :class:`DriveEffect`, :class:`FrictionEffect`,
+    :class:`OutputEffect`, :class:`DelayEffect`), which declare the hook abstract.
+
+    - ``input``/``drive``: ``apply(v, **p) -> v'`` (elementwise on arrays)
+    - ``friction``: ``friction(plant, **p) -> (kinetic, breakaway)`` torque levels >= 0
+      (``plant`` has R, K, Ka, maybe arrays over candidates); the simulator applies
+      the Karnopp stick-slip rule with them
+    - ``output``: ``output(state, x, **p) -> (state', y)`` a stateful map of the
+      output-shaft angle x (the play operator for backlash)
+    - ``delay``: ``delay_s(**p) -> seconds``
+
+    ``initial_guess(runs, plant)`` returns a starting value for every parameter
+    from data (``plant`` is a ``ServoParams`` with helper methods).
+
+    A user effect may subclass ``Effect`` directly with ``stage`` set (the small
+    interface of the first exercise sheets) or a stage class.
+    """
+
+    name: str = "effect"
+    stage: str = "input"
+    params: tuple = ()
+    #: one line: what the effect is in the rig
+    summary: str = ""
+    #: where it shows in the residuals of a model that lacks it
+    signature: str = ""
+    #: the experiment that would confirm it
+    experiment: str = ""
+    #: parameter -> column of the fast simulator's kernel that holds it (built-in
+    #: input, drive and output effects); empty: the simulator's general path
+    kernel_columns: dict = {}
+
+    def param_names(self) -> list[str]:
+        return [p.name for p in self.params]
+
+    def initial_guess(self, runs, plant) -> dict:
+        return {p.name: math.sqrt(p.lower * p.upper) if p.log and p.lower > 0
+                else 0.5 * (p.lower + p.upper) for p in self.params}
+
+    def to_kernel(self, kernel, p: dict, plant) -> bool:
+        """Write this effect into the fast kernel's parameter table.
+
+        ``kernel.set(column, values)`` / ``kernel.add(column, values)`` act on the
+        columns named in :data:`labrig.model.simulate.KERNEL_COLUMNS`; ``p`` maps
+        each parameter to an array over candidates. Returns False when the kernel
+        cannot represent the effect (the simulator then takes its general path).
+        """
+        if self.kernel_columns:
+            for param, column in self.kernel_columns.items():
+                kernel.set(column, p[param])
+            return True
+        base = STAGE_BASES.get(self.stage)
+        if base is not None and not isinstance(self, base) \
+                and base.to_kernel is not Effect.to_kernel:
+            return base.to_kernel(self, kernel, p, plant)  # a plain Effect with stage set
+        return False
+
+    def explain_params(self, params: dict, context: dict) -> str:
+        """The fitted parameters in plain words with units (``context``: the rig's
+        constants ``Ka`` and the smallest open-loop amplitude ``amin``)."""
+        units = {q.name: q.unit for q in self.params}
+        return ", ".join(f"{k} = {v:.3g} {units.get(k, '')}".rstrip() for k, v in params.items())
+
+    def describe(self) -> str:
+        ps = ", ".join(f"{p.name} [{p.unit}]" for p in self.params)
+        return f"{self.name} ({self.stage}; {ps}): {self.summary}"
+
+    def __repr__(self):
+        return f"<effect {self.name}>"
+
+
+class InputEffect(Effect):
+    """Maps the bridge voltage before the amplifier (dead zone, offset, asymmetry)."""
+
+    stage = "input"
+
+    @abc.abstractmethod
+    def apply(self, v, **p):
+        """The mapped input voltage (elementwise)."""
+
+
+class DriveEffect(Effect):
+    """Maps the armature voltage ``Ka u`` (the amplifier's rail)."""
+
+    stage = "drive"
+
+    @abc.abstractmethod
+    def apply(self, v, **p):
+        """The mapped armature voltage (elementwise)."""
+
+
+class FrictionEffect(Effect):
+    """A friction torque level; the simulators apply the Karnopp stick-slip rule."""
+
+    stage = "friction"
+
+    @abc.abstractmethod
+    def friction(self, plant, **p):
+        """``(kinetic, breakaway)`` torque levels >= 0."""
+
+    def to_kernel(self, kernel, p, plant) -> bool:
+        tc, ts = self.friction(plant, **p)
+        kernel.add("tc", tc)
+        kernel.add("ts", ts)
+        return True
+
+
+class OutputEffect(Effect):
+    """A stateful map of the output-shaft angle seen by the pot (gear play)."""
+
+    stage = "output"
+
+    @abc.abstractmethod
+    def output(self, state, x, **p):
+        """``(state', y)``: the new state and the angle the pot sees."""
+
+
+class DelayEffect(Effect):
+    """A transport delay between the bridge output and the motor."""
+
+    stage = "delay"
+
+    @abc.abstractmethod
+    def delay_s(self, **p):
+        """The delay in seconds."""
+
+    def to_kernel(self, kernel, p, plant) -> bool:
+        kernel.add("td", self.delay_s(**p))
+        return True
+
+
+#: the stage classes, for user effects that subclass ``Effect`` with ``stage`` set
+STAGE_BASES = {"input": InputEffect, "drive": DriveEffect, "friction": FrictionEffect,
+               "output": OutputEffect, "delay": DelayEffect}
