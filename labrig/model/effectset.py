@@ -58,7 +58,9 @@ class EffectSet(Sequence):
         if not text:
             return cls()
         items = text.split(",") if isinstance(text, str) else list(text)
-        return cls([get_effect(s.strip(), origin) for s in items if s.strip()],
+        # effect objects pass through; names are looked up (and checked for trust)
+        return cls([s if isinstance(s, Effect) else get_effect(s.strip(), origin)
+                    for s in items if isinstance(s, Effect) or s.strip()],
                    where=origin or "--effects")
 
     # -- sequence ----------------------------------------------------------------------
