@@ -62,19 +62,36 @@ class Evaluation:
                 "fit_percent": self.metrics["fit_percent"], "noise": self.metrics["noise"],
                 "regimes": self.regimes}
 
-    def table_rows(self) -> Table:
-        """Per run: fit % and rmse/noise of each channel, and the worst stretch."""
-        rows = []
+    def runs(self) -> list[dict]:
+        """Per run: fit % and rmse/noise per channel and the worst stretch outside the
+        noise band (the ``runs`` of ``labrig compare --json``, without figures)."""
+        out = []
         for rr in self.per_run:
             ch = rr["channels"]
             st = sorted((s for c in ch.values() for s in c["stretches"]), key=lambda s: -s["rms"])
-            worst = (f"{st[0]['regime']} at {rr['t'][st[0]['start']]:.2f} s "
-                     f"({st[0]['rms']:.1f} x noise)") if st else "-"
-            rows.append([rr["name"],
-                         fmt(ch.get("speed", {}).get("fit_percent"), ".1f"),
-                         fmt(ch.get("position", {}).get("fit_percent"), ".1f"),
-                         fmt(ch.get("speed", {}).get("rmse_over_noise"), ".2f"),
-                         fmt(ch.get("position", {}).get("rmse_over_noise"), ".2f"), worst])
+            out.append({"run": rr["name"],
+                        "fit_percent": {k: c["fit_percent"] for k, c in ch.items()},
+                        "rmse_over_noise": {k: c["rmse_over_noise"] for k, c in ch.items()},
+                        "worst_stretch": {"regime": st[0]["regime"],
+                                          "t_s": float(rr["t"][st[0]["start"]]),
+                                          "rms_over_noise": st[0]["rms"]} if st else None})
+        return out
+
+    def warnings(self) -> list[str]:
+        """A run whose fit % is below zero (the model is worse than a constant)."""
+        from .identify.result import fit_warnings
+
+        return [w for r in self.runs() for w in fit_warnings(r["fit_percent"], f"run '{r['run']}'")]
+
+    def table_rows(self) -> Table:
+        """Per run: fit % and rmse/noise of each channel, and the worst stretch."""
+        rows = []
+        for r in self.runs():
+            f, e, st = r["fit_percent"], r["rmse_over_noise"], r["worst_stretch"]
+            worst = (f"{st['regime']} at {st['t_s']:.2f} s ({st['rms_over_noise']:.1f} x noise)"
+                     if st else "-")
+            rows.append([r["run"], fmt(f.get("speed"), ".1f"), fmt(f.get("position"), ".1f"),
+                         fmt(e.get("speed"), ".2f"), fmt(e.get("position"), ".2f"), worst])
         return Table("model against measurement", ["run", "fit % speed", "fit % pos",
                                                    "rmse/noise w", "rmse/noise th",
                                                    "worst stretch"], rows,

@@ -26,7 +26,6 @@ def cmd_compare(args):
     from ..evaluation import evaluate
     from ..report.compare_plots import plot_regimes, plot_run_comparison, save
 
-    from ..identify.result import fit_warnings
     from .registry import refuse_existing
 
     runs, model = _load(args)
@@ -36,34 +35,19 @@ def cmd_compare(args):
                     args.force, what="folder")
     ev = evaluate(runs, model)
     out.mkdir(parents=True, exist_ok=True)
-    warnings, table = [], []
-    lines = [f"{'run':<16}{'fit % speed':>13}{'fit % pos':>11}{'rmse/noise w':>14}{'rmse/noise th':>15}"
-             "  worst stretch"]
-    for rr in ev.per_run:
-        save(plot_run_comparison(rr), out / f"compare_{rr['name']}.png")
-        fits = {ch: c["fit_percent"] for ch, c in rr["channels"].items()}
-        rms = {ch: c["rmse_over_noise"] for ch, c in rr["channels"].items()}
-        st = sorted((s for c in rr["channels"].values() for s in c["stretches"]),
-                    key=lambda s: -s["rms"])
-        worst = f"{st[0]['regime']} at {rr['t'][st[0]['start']]:.2f} s ({st[0]['rms']:.1f} x noise)" if st else "-"
-        f = lambda d, k: f"{d[k]:.1f}" if k in d else "-"  # noqa: E731
-        lines.append(f"{rr['name']:<16}{f(fits, 'speed'):>13}{f(fits, 'position'):>11}"
-                     f"{f(rms, 'speed'):>14}{f(rms, 'position'):>15}  {worst}")
-        warnings += fit_warnings(fits, f"run '{rr['name']}'")
-        table.append({"run": rr["name"], "fit_percent": fits, "rmse_over_noise": rms,
-                      "worst_stretch": {"regime": st[0]["regime"], "t_s": float(rr["t"][st[0]["start"]]),
-                                        "rms_over_noise": st[0]["rms"]} if st else None,
-                      "figure": str(out / f"compare_{rr['name']}.png")})
+    table = ev.runs()
+    for rr, row in zip(ev.per_run, table):
+        row["figure"] = str(save(plot_run_comparison(rr), out / f"compare_{rr['name']}.png"))
     save(plot_regimes(ev.regimes), out / "regimes.png")
     if args.json:
         emit_json({"model": str(args.model), "runs": table,
                    "fit_percent": ev.metrics["fit_percent"],
                    "rmse_over_noise": ev.metrics["rmse_over_noise"],
                    "figures": [t["figure"] for t in table] + [str(out / "regimes.png")],
-                   "warnings": warnings})
+                   "warnings": ev.warnings()})
         return 0
-    print("\n".join(lines))
-    for w in warnings:
+    print(ev.table_rows().to_text())
+    for w in ev.warnings():
         print(f"\nwarning: {w}")
     print(f"\nfigures in {out}/ (compare_<run>.png, regimes.png)")
     return 0
