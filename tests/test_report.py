@@ -235,3 +235,147 @@ def test_report_prints_to_pdf(full_report, tmp_path):
     pages = len(re.findall(rb"/Type\s*/Page(?![s\w])", data))
     assert pages > 1, f"{pages} page(s): the print CSS should break between sections"
     assert pages >= len(HEADINGS)  # one section per page at least
+
+
+# -- the parts: artefacts validated once, tables shared with the CLI, escaping ---------
+
+def _cells(page: str) -> list[str]:
+    """Every table cell's text, tags stripped, in page order."""
+    import html
+
+    return [html.unescape(re.sub(r"<[^>]+>", "", c)).strip()
+            for c in re.findall(r"<t[dh]\b[^>]*>(.*?)</t[dh]>", page, re.S)]
+
+
+def _contains_row(cells: list[str], row: list[str]) -> bool:
+    n = len(row)
+    return any(cells[i:i + n] == row for i in range(len(cells) - n + 1))
+
+
+def test_the_page_renders_the_cli_tables(full_report, work):
+    """The ranking and the ladder on the page are Diagnosis.table_rows() and
+    Ladder.table_rows() (the CLI's tables), cell for cell, with the page's extra columns
+    beside them; Table 1 and the summary are AnalysisResult.table_rows()."""
+    from labrig.report.artefacts import DiagnosisDoc, LadderDoc
+
+    page = full_report.read_text(encoding="utf-8")
+    cells = _cells(page)
+    diag = DiagnosisDoc.model_validate_json((work / "diagnosis.json").read_text()).result()
+    ranking = diag.table_rows()[1]
+    for row, cand in zip(ranking.rows, diag.ranking):
+        params = ", ".join(f"{p} = {v:.3g}" for p, v in cand.params.items())
+        assert _contains_row(cells, [*row, params]), row
+    ladder = LadderDoc.model_validate_json((work / "ladder.json").read_text()).result()
+    table = ladder.table_rows()
+    for row, step in zip(table.rows, ladder.steps):
+        assert _contains_row(cells, [row[0], ", ".join(step.effects) or "none", *row[1:]]), row
+    assert _contains_row(cells, ["gain trend"])
+    assert "Table 1: steady speed per input level" in page and "Summary</h3>" in page
+
+
+def test_analysis_json_gives_the_same_tables_as_the_live_analysis(dataset):
+    """analysis.json read back is the AnalysisResult it was written from: the same
+    table cells, less the tacho volts the JSON does not keep."""
+    from labrig.analyse import analyse
+    from labrig.report.artefacts import AnalysisDoc
+    from labrig.report.blocks import without_empty_columns
+
+    live = analyse([dataset])
+    doc = AnalysisDoc.model_validate(json.loads(json.dumps(live.to_json())))
+    read = doc.result()
+    live_levels, live_summary = live.table_rows()
+    read_levels, read_summary = read.table_rows()
+    assert read_summary.to_dict() == live_summary.to_dict()
+    vt = live_levels.columns.index("Vt (V)")
+    drop = [[c for i, c in enumerate(r) if i != vt] for r in live_levels.rows]
+    assert without_empty_columns(read_levels).rows == drop
+    assert read_levels.notes == live_levels.notes  # the skipped closed-loop run
+    assert dict(read.trend["km_by_amplitude"]) == pytest.approx(
+        {float(f"{a:g}"): k for a, k in live.trend["km_by_amplitude"]})
+
+
+def test_artefacts_that_do_not_fit_are_ignored_with_a_note(tmp_path):
+    from labrig.report.artefacts import (AnalysisDoc, DiagnosisDoc, IdentifyAllDoc, LadderDoc,
+                                         read_artefact)
+
+    notes = []
+    cases = {"a.json": ("{not json", AnalysisDoc, "not valid JSON"),
+             "b.json": ("[1, 2]", AnalysisDoc, "not a JSON object"),
+             "c.json": ('{"steps": {"a": 1}}', LadderDoc, "'steps' is not a list of steps"),
+             "d.json": ('{"ranking": []}', DiagnosisDoc, "no 'regimes' key"),
+             "e.json": ('{"regimes": {"by_regime": {"speed": {"warp": {"rmse_over_noise": 1, '
+                        '"share_of_time": 1}}}}}', DiagnosisDoc, "warp"),
+             "f.json": ('{"results": {"co": {"params": {"R": "big"}}}}', IdentifyAllDoc,
+                        "results.co.params.R")}
+    for name, (text, schema, why) in cases.items():
+        (tmp_path / name).write_text(text)
+        assert read_artefact(tmp_path / name, schema, notes) is None
+        assert why in notes[-1] and str(tmp_path / name) in notes[-1], notes[-1]
+    assert read_artefact(tmp_path / "absent.json", LadderDoc, notes) is None
+    assert len(notes) == len(cases)
+
+
+def test_identify_all_records_and_the_best(work):
+    from labrig.report.artefacts import IdentifyAllDoc
+
+    doc = IdentifyAllDoc.model_validate_json((work / "identify_all.json").read_text())
+    records, best = doc.records()
+    assert [r.method for r in records] == ["jfo", "pso", "co"] and best == "co"
+    assert records[2].identifiable.km.interval95 == [89.9, 90.1]
+    assert records[0].result.history == [28.5, 19.0, 9.5]  # what the convergence plot draws
+    # a single method's JSON (identify --json) is one record, best by its own name
+    single, best = IdentifyAllDoc.model_validate(records[1].model_dump()).records()
+    assert [r.method for r in single] == ["pso"] and best == "pso"
+
+
+def test_a_broken_artefact_is_named_on_the_page_and_recomputed(dataset, work, tmp_path):
+    """A ladder.json of the wrong shape and a diagnosis.json without regimes: the page
+    says so, and with --quick says how to fill the two sections."""
+    import shutil
+
+    from labrig.report.html import build_report
+
+    w = tmp_path / "w"
+    shutil.copytree(dataset, w / "runs")
+    shutil.copy(work / "identify_all.json", w)
+    (w / "ladder.json").write_text('{"steps": "none"}')
+    (w / "diagnosis.json").write_text('{"verdict": "x"}')
+    out = build_report(w / "runs", tmp_path / "r.html", work=w, quick=True, log=lambda t: None)
+    page = out.read_text(encoding="utf-8")
+    assert "ladder.json was ignored: &#x27;steps&#x27; is not a list of steps." in page
+    assert "diagnosis.json was ignored: no &#x27;regimes&#x27; key." in page
+    assert page.count("skipped (--quick)") == 2
+    assert str(w / "identify_all.json") in page  # the good artefact is still used
+
+
+def test_text_is_escaped_and_markup_only_where_made(tmp_path):
+    """Autoescape with html.escape's quoting; markup() escapes what goes into it."""
+    from markupsafe import Markup
+
+    from labrig.report.blocks import TableBlock, markup
+    from labrig.report.render import environment
+    from labrig.tables import Table
+
+    m = markup("<b>{}</b>", HOSTILE)
+    assert isinstance(m, Markup) and m == f"<b>{html_escaped(HOSTILE)}</b>"
+    tpl = environment().from_string("{{ a }}|{{ b }}|{{ c }}")
+    assert tpl.render(a=HOSTILE, b=m, c=None) == f"{html_escaped(HOSTILE)}|{m}|"
+    # a CLI table's conventions: a "-- label" row is a group row, yes/no are coloured,
+    # text columns are left-aligned
+    t = Table("t", ["", "a", "b"], [["-- fit", "", ""], ["x <y>", "yes", "1.0"]], numeric=(2,))
+    block = TableBlock(t)
+    assert block.body[0].group == "fit"
+    assert [c.cls for c in block.body[1].cells] == ["", "l", ""]
+    assert block.body[1].cells[1].text == '<span class="yes">yes</span>'
+
+
+def test_the_template_ships_as_package_data():
+    import tomllib
+    from pathlib import Path
+
+    import labrig.report.render as render
+
+    root = Path(render.__file__).resolve().parents[2]
+    conf = tomllib.loads((root / "pyproject.toml").read_text())
+    assert "report/templates/*.j2" in conf["tool"]["setuptools"]["package-data"]["labrig"]
+    assert (render.TEMPLATES / "report.html.j2").is_file()

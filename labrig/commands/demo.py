@@ -41,6 +41,7 @@ def cmd_demo(args):
     from ..model.effects import get_effect
     from ..model.model import Model
     from ..report.compare_plots import plot_regimes, plot_run_comparison, save
+    from ..report.html import build_report
     from ..report.identify_plots import plot_convergence
     from ..runs import read_dataset
 
@@ -104,13 +105,8 @@ def cmd_demo(args):
     _dump(ladder.to_json(), out / "ladder.json")
 
     _say("[7/7] report")
-    report = None
-    try:
-        from ..report.html import build_report
-    except ImportError:  # the report module is optional in a partial install
-        build_report = None
-    if build_report is not None:
-        report = build_report(runs_dir, out / "report.html", work=out)
+    # every artefact above is in `out`, so the report only reads and renders
+    report = build_report(runs_dir, out / "report.html", work=out, seed=args.seed, log=_say)
     dt = time.perf_counter() - t0
     print("\n== summary ==")
     print(f"analysis: km = {ana.km:.4g} rad/s per V, tau = {ana.tau_s:.4g} s, "
