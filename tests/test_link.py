@@ -19,6 +19,7 @@ from labrig.bridge.serial import SerialBridge, bridge_settings, volts_to_dac_wor
 from labrig.config import load_rig
 from labrig.errors import RigError
 from labrig.runs import read_dataset
+from conftest import ROOT
 from linkproxy import B2H, H2B, LinkProxy
 
 _missing = missing_tools()
@@ -29,11 +30,16 @@ pytestmark = [
 ]
 
 SPEED = 2.0   # the emulated board runs at twice real time: shorter tests, same firmware
+# ... so its watchdog (simulated ms) is doubled to keep the bench's 500 ms of wall time:
+# a host stalled by a busy test machine must not trip it
+WATCHDOG_MS = 1000
 
 
 @pytest.fixture
 def rig():
-    return load_rig()
+    r = load_rig()
+    r.bridge.watchdog_ms = WATCHDOG_MS
+    return r
 
 
 def _exp(name, seconds=0.5, amp=1.5, **kw):
@@ -160,6 +166,24 @@ def test_lost_acks_and_done_are_retried_without_restarting(tmp_path, emulators, 
     assert runs["b"].meta["bridge"]["dropped_samples"] == 0
 
 
+def test_lost_heartbeats_do_not_trip_the_watchdog(tmp_path, emulators, rig):
+    """A link losing 11 of every 12 heartbeats: with one every 50 ms the board still hears
+    the host every ~0.66 s, inside a 1 s watchdog (2 s simulated at speed 2); at the old
+    100 ms it heard it every 1.2 s: a trip and an aborted sweep."""
+    rig.bridge.watchdog_ms = 2 * WATCHDOG_MS
+    plan = [_exp("a", seconds=3.0)]
+
+    def policy(d, f, run, nth):
+        return "drop" if d == H2B and f.type == P.HEARTBEAT and nth % 12 else None
+
+    emu = emulators("uno", rig, speed=SPEED)
+    with LinkProxy(emu.pty, policy=policy) as proxy:
+        runs = _sweep(proxy, plan, rig, tmp_path / "ds")
+    b = runs["a"].meta["bridge"]
+    assert sum(t == P.HEARTBEAT for t, _ in proxy.frames[H2B, 1]) >= 24
+    assert b["board_watchdog_trips"] == 0 and b["dropped_samples"] == 0 and len(runs["a"]) == 3000
+
+
 def test_malformed_bodies_are_counted_not_fatal(tmp_path, emulators, rig):
     """Point 7: CRC-valid frames with short or inconsistent bodies (which used to raise
     IndexError or end the run) are counted as bad frames; the run completes intact."""
@@ -253,12 +277,16 @@ def test_sweep_through_faults_in_both_directions(tmp_path, emulators, rig):
     plan_file = tmp_path / "plan.toml"
     plan_file.write_text(ACCEPT_PLAN)
     plan = load_plan(plan_file, rig)
+    rig_file = tmp_path / "rig.toml"   # the default rig, watchdog scaled to the emulator's speed
+    text = (ROOT / "configs" / "rig_default.toml").read_text()
+    assert "watchdog_ms = 500" in text
+    rig_file.write_text(text.replace("watchdog_ms = 500", f"watchdog_ms = {WATCHDOG_MS}"))
     emu = emulators("uno", rig, speed=SPEED)
     faults = (P_FAULT / 2, P_FAULT / 2)
     with LinkProxy(emu.pty, b2h=faults, h2b=faults, seed=SEED) as proxy:
         t0 = time.monotonic()
         proc = subprocess.run([sys.executable, "-m", "labrig", "sweep", "--port", proxy.path,
-                               "--plan", plan_file, "-o", tmp_path / "ds"],
+                               "--rig", rig_file, "--plan", plan_file, "-o", tmp_path / "ds"],
                               capture_output=True, text=True, timeout=120)
         took = time.monotonic() - t0
     assert proc.returncode == 0, proc.stderr
