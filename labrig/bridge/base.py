@@ -141,7 +141,9 @@ class Bridge(abc.ABC):
 
     @abc.abstractmethod
     def counters(self) -> dict:
-        """``{"firmware": ..., "dropped_samples": n, "crc_errors": n, ...}`` for the run's ``bridge`` key."""
+        """``{"firmware": ..., "samples": n, "dropped_samples": n, "crc_errors": n, ...}`` for the
+        run's ``bridge`` key: counts of the current run only (since ``configure``), so
+        ``dropped_samples`` equals the run's ``gap`` rows."""
 
     def close(self) -> None:
         """Release the link (default: nothing to release)."""
