@@ -57,4 +57,4 @@ def fmt(x, spec: str = ".4g", none: str = "-") -> str:
         return str(x)
     if not math.isfinite(xf):
         return none
-    return format(xf, spec)
+    return format(int(round(xf)), spec) if spec.endswith("d") else format(xf, spec)

@@ -6,7 +6,7 @@ from __future__ import annotations
 import math
 
 from ..model.servo import PLANT_NAMES, PLANT_UNITS
-from ..tables import Table
+from ..tables import Table, fmt
 from .result import identification_warnings
 
 
@@ -38,49 +38,88 @@ def identification_dict(res) -> dict:
     return d
 
 
-def _fmt(v, unit=""):
-    if v is None:
+def _fmt(v, spec=".4g"):
+    return fmt(v, spec)
+
+
+def _record(r) -> dict:
+    """An Identification (live) or its JSON record (read back) as the JSON record."""
+    if hasattr(r, "to_json"):
+        return r.to_json()
+    if hasattr(r, "model_dump"):
+        return r.model_dump()
+    return dict(r)
+
+
+def _interval(d) -> str:
+    if not d or d.get("value") is None:
         return "-"
-    return f"{v:.4g}{(' ' + unit) if unit else ''}"
+    iv = d.get("interval95")
+    if d.get("identifiable") is False or not iv or any(x is None for x in iv):
+        return f"{d['value']:.4g} ? (not seen by these data)"
+    return f"{d['value']:.4g} [{iv[0]:.3g}, {iv[1]:.3g}]"
 
 
-def comparison_table(results) -> Table:
-    """The paper's Table 2, done right: combinations first, then R..K, side by side."""
-    heads = [r.method for r in results]
-    rows = [("identifiable", None)]
-    for key, label in (("km", "Km (rad/s per V)"), ("tau_m_s", "tau_m (s)"), ("tau_e_s", "tau_e (s)")):
-        rows.append((label, [_interval(r.identifiable.get(key)) for r in results]))
-    rows.append(("parameters", None))
+def _parameter(r: dict, name: str) -> str:
+    info = ((r.get("identifiable") or {}).get("parameters") or {}).get(name) or {}
+    v = _fmt(r["params"].get(name))
+    if info.get("fixed"):
+        return f"{v} (fixed)"
+    return v + (" ?" if info.get("identifiable") is False else "")
+
+
+def comparison_table(results, best: str | None = None) -> Table:
+    """The paper's Table 2, done right: the identifiable combinations first, then R..K
+    (one member of the family the data allow), the fit, the identified model's
+    closed-loop step and the cost; one column per method.
+
+    ``results``: live :class:`~labrig.identify.engine.Identification` objects or their
+    JSON records (``identify --json``), so the CLI and the report print the same table.
+    """
+    recs = [_record(r) for r in results]
+    rows: list = []
+
+    def group(label):
+        rows.append([f"-- {label}"] + [""] * len(recs))
+
+    group("identifiable combinations (95 % intervals)")
+    for key, label in (("km", "Km (rad/s per V)"), ("tau_m_s", "tau_m (s)"),
+                       ("tau_e_s", "tau_e (s)")):
+        rows.append([label] + [_interval((r.get("identifiable") or {}).get(key)) for r in recs])
+    group("physical parameters (one member of the family the data allow)")
     for n in PLANT_NAMES:
-        rows.append((f"{n} ({PLANT_UNITS[n]})",
-                     [_fmt(r.params[n]) + ("" if r.identifiable.get("parameters", {}).get(n, {}).get("identifiable", True) else " ?")
-                      for r in results]))
-    for r in results[:1]:
-        for e, ps in r.effect_params.items():
-            for k in ps:
-                rows.append((f"{e}.{k}", [_fmt(x.params.get(f"{e}.{k}")) for x in results]))
-    rows.append(("fit", None))
-    rows.append(("fitness (eq. 26)", [_fmt(r.fitness) for r in results]))
-    rows.append(("rmse/noise speed", [_fmt(r.metrics["rmse_over_noise"].get("speed")) for r in results]))
-    rows.append(("rmse/noise position", [_fmt(r.metrics["rmse_over_noise"].get("position")) for r in results]))
-    rows.append(("fit % speed", [_fmt(r.metrics["fit_percent"].get("speed")) for r in results]))
-    rows.append(("fit % position", [_fmt(r.metrics["fit_percent"].get("position")) for r in results]))
-    infos = [r.step_info() for r in results]
-    rows.append(("closed-loop step", None))
-    rows.append(("rise time (s)", [_fmt(i["rise_time_s"]) for i in infos]))
-    rows.append(("settling time (s)", [_fmt(i["settling_time_s"]) for i in infos]))
-    rows.append(("overshoot (%)", [_fmt(i["overshoot_percent"]) for i in infos]))
-    rows.append(("nfev / seconds", [f"{r.result.nfev} / {r.seconds:.1f}" for r in results]))
-    rows.append(("seed", [str(r.result.seed) for r in results]))
-    table = Table("identification (Table 2)", ["", *heads], numeric=())
-    for label, cells in rows:
-        table.rows.append([f"-- {label}", *([""] * len(heads))] if cells is None
-                          else [label, *cells])
-    for w in all_warnings(results):  # at a bound, fit below zero: the result is suspect
+        rows.append([f"{n} ({PLANT_UNITS[n]})"] + [_parameter(r, n) for r in recs])
+    keys = list(dict.fromkeys((e, k) for r in recs for e, ps in (r.get("effect_params") or {}).items()
+                              for k in ps))
+    for e, k in keys:
+        rows.append([f"{e}.{k}"] + [_fmt((r.get("effect_params") or {}).get(e, {}).get(k))
+                                    for r in recs])
+    group("fit")
+    rows.append(["fitness (eq. 26)"] + [_fmt(r.get("fitness")) for r in recs])
+    for ch in ("overall", "speed", "position"):
+        rows.append([f"rmse/noise {ch}"] + [_fmt((r.get("rmse_over_noise") or {}).get(ch), ".3g")
+                                             for r in recs])
+    for ch in ("speed", "position"):
+        rows.append([f"fit % {ch}"] + [_fmt((r.get("fit_percent") or {}).get(ch), ".2f")
+                                       for r in recs])
+    group("closed-loop position step of the identified model")
+    for key, label in (("rise_time_s", "rise time (s)"), ("settling_time_s", "settling time (s)"),
+                       ("overshoot_percent", "overshoot (%)")):
+        rows.append([label] + [_fmt((r.get("step_info") or {}).get(key), ".3g") for r in recs])
+    group("cost")
+    rows.append(["evaluations (nfev)"] + [_fmt(r.get("nfev"), "d") for r in recs])
+    rows.append(["seconds"] + [_fmt(r.get("seconds"), ".1f") for r in recs])
+    rows.append(["seed"] + [_fmt(r.get("seed"), "d") for r in recs])
+    heads = [str(r.get("method", "?")).upper() + (" (best)" if r.get("method") == best else "")
+             for r in recs]
+    table = Table("identified models (Table 2)", [""] + heads, rows)
+    prefix = len(recs) > 1
+    for r in recs:  # at a bound, fit below zero: the result is suspect
+        for w in r.get("warnings") or []:
+            table.notes.append(f"warning: {r.get('method')}: {w}" if prefix else f"warning: {w}")
+    for w in dict.fromkeys(w for r in recs for w in (r.get("identifiable") or {}).get("warnings", [])):
         table.notes.append(f"warning: {w}")
-    for w in sorted({w for r in results for w in r.identifiable.get("warnings", [])}):
-        table.notes.append(f"warning: {w}")
-    if any("?" in c for _, cs in rows if cs for c in cs):
+    if any(c.endswith("?") or "? (not seen" in c for row in rows for c in row[1:]):
         table.notes.append("? = not identifiable from these data alone (see the warning); the "
                            "combinations above are.")
     return table
@@ -98,10 +137,3 @@ def all_warnings(results) -> list[str]:
     return [f"{r.method}: {w}" for r in results for w in identification_warnings(r)]
 
 
-def _interval(d):
-    if not d:
-        return "-"
-    if not null_unbounded({"km": d})["km"].get("interval95"):  # none, or unbounded
-        return f"{d['value']:.4g} ? (not seen by these data)"
-    lo, hi = d["interval95"]
-    return f"{d['value']:.4g} [{lo:.3g}, {hi:.3g}]"
