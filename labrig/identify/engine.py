@@ -89,10 +89,7 @@ class Identification:
 
     @property
     def effect_params(self) -> dict:
-        out = {}
-        for e in self.effects:
-            out[e.name] = {p.name: self.params[f"{e.name}.{p.name}"] for p in e.params}
-        return out
+        return self.effects.nest(self.params)
 
     @property
     def fitness(self) -> float:

@@ -179,9 +179,7 @@ def identification_warnings(ident: Any) -> list[str]:
     from ..model.servo import PLANT_UNITS
 
     units = dict(PLANT_UNITS)
-    for e in ident.effects:
-        for p in e.params:
-            units[f"{e.name}.{p.name}"] = p.unit
+    units.update({key: p.unit for key, p in ident.effects.units()})
     return (bound_warnings(ident.space, ident.params, units)
             + fit_warnings(ident.metrics.get("fit_percent", {}), "all runs"))
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 
+from ..model.effectset import param_key
 from ..model.servo import PLANT_NAMES, PLANT_UNITS
 from ..tables import Table, fmt
 from .result import identification_warnings
@@ -92,7 +93,7 @@ def comparison_table(results, best: str | None = None) -> Table:
     keys = list(dict.fromkeys((e, k) for r in recs for e, ps in (r.get("effect_params") or {}).items()
                               for k in ps))
     for e, k in keys:
-        rows.append([f"{e}.{k}"] + [_fmt((r.get("effect_params") or {}).get(e, {}).get(k))
+        rows.append([param_key(e, k)] + [_fmt((r.get("effect_params") or {}).get(e, {}).get(k))
                                     for r in recs])
     group("fit")
     rows.append(["fitness (eq. 26)"] + [_fmt(r.get("fitness")) for r in recs])

@@ -123,6 +123,10 @@ class EffectSet(Sequence):
                 k += 1
         return out
 
+    def units(self) -> list[tuple[str, object]]:
+        """``(key, Param)`` of every parameter, in order."""
+        return [(param_key(e.name, p.name), p) for e in self._effects for p in e.params]
+
     def bounds(self) -> list[tuple[str, float, float, bool]]:
         """``(key, lower, upper, log)`` of every parameter, from the catalogue (``log``:
         the parameter may be searched in log space when its lower bound is positive)."""
