@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import UserError
-from ..identify.modelfile import load_identify_config
+from ..identify.config_file import load_identify_config
 from ..identify.table import all_warnings, format_identification, identification_dict
 from .progress import Progress
 from .registry import command, emit_json, refuse_existing
