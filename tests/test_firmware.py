@@ -15,6 +15,7 @@ import pytest
 from labrig.bridge.base import Experiment
 from labrig.bridge.emulate import APT_PACKAGES, FIRMWARE_DIR, Emulator, missing_tools
 from labrig.bridge.serial import SerialBridge, bridge_settings, volts_to_dac_word
+from labrig.config import RigConfig
 from labrig.errors import RigError, UserError
 from linkproxy import B2H, LinkProxy
 
@@ -25,9 +26,7 @@ pytestmark = [
                                               f"apt-get install {APT_PACKAGES}"),
 ]
 
-RIG = {"bridge": {"sample_rate_hz": 1000.0, "output_limit_v": 2.5, "dac_bits": 12,
-                  "dac_range_v": [-5.0, 5.0], "adc_bits": 10, "adc_range_v": [-10.0, 10.0],
-                  "watchdog_ms": 500, "calibration": {}}}
+RIG = RigConfig()   # the default rig's bridge (1 kHz, +-2.5 V, 12-bit DAC), no hidden friction
 LSB = 10.0 / 4096
 
 

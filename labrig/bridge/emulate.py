@@ -18,26 +18,13 @@ import tempfile
 import time
 from pathlib import Path
 
+from labrig.config import RigConfig
 from labrig.errors import RigError, UserError
 
 FIRMWARE_DIR = Path(os.environ.get("LABRIG_FIRMWARE_DIR",
                                    Path(__file__).resolve().parents[2] / "firmware"))
 APT_PACKAGES = "gcc-avr avr-libc arduino-core-avr simavr libsimavr-dev libsimavrparts1"
 BOARDS = ("uno", "mega")
-
-# configs/rig_default.toml, for attributes a rig object lacks
-_DEFAULTS = {"R": 8.0, "L": 0.0085, "J": 5.2245e-5, "B": 1.0e-5, "K": 0.05, "Ka": 5.0, "Vmax": 13.0,
-             "N": 30.0, "Kt": 0.026, "Kpot": 0.5, "pos-offset": -4.0, "noise-tacho": 0.010,
-             "noise-pos": 0.004, "Tc": 0.0, "seed": 1}
-
-
-def _get(obj, *path, default=None):
-    for name in path:
-        if obj is None:
-            return default
-        obj = obj.get(name) if isinstance(obj, dict) else getattr(obj, name, None)
-    return default if obj is None else obj
-
 
 def missing_tools() -> list[str]:
     """What is missing to build and run the emulator (empty when all is there)."""
@@ -79,22 +66,21 @@ def build(board: str = "uno") -> tuple[Path, Path]:
             FIRMWARE_DIR / "build" / "emulator" / "labrig-emu")
 
 
-def plant_args(rig) -> list[str]:
-    """Harness command-line options for the plant of ``rig`` (defaults where it says nothing)."""
-    v = dict(_DEFAULTS)
-    for key, path in {"R": ("plant", "R"), "L": ("plant", "L"), "J": ("plant", "J"), "B": ("plant", "B"),
-                      "K": ("plant", "K"), "Ka": ("amplifier", "gain"),
-                      "Vmax": ("amplifier", "output_limit_v"), "N": ("gear_ratio",),
-                      "Kt": ("sensors", "tacho_v_per_rad_s"), "Kpot": ("sensors", "pos_v_per_rad"),
-                      "pos-offset": ("sensors", "pos_offset_v"), "noise-tacho": ("noise", "tacho_v"),
-                      "noise-pos": ("noise", "pos_v"), "seed": ("noise", "seed")}.items():
-        got = _get(rig, *path)
-        if isinstance(got, (int, float)):
-            v[key] = got
-    tc_v = _get(rig, "effects", "coulomb_friction", "tc_v")
-    if isinstance(tc_v, (int, float)):  # the catalogue gives friction in bridge volts
-        v["Tc"] = tc_v * v["Ka"] * v["K"] / v["R"]
-    return [a for k, val in v.items() for a in (f"--{k}", repr(val) if k != "seed" else str(int(val)))]
+def plant_args(rig: RigConfig) -> list[str]:
+    """Harness command-line options for the plant of ``rig``.
+
+    The rig's hidden Coulomb friction (``[effects.coulomb_friction]``) is the one effect the
+    harness models; without it the plant has none.
+    """
+    p, amp, sen, noise = rig.plant, rig.amplifier, rig.sensors, rig.noise
+    tc_v = rig.effects.get("coulomb_friction", {}).get("tc_v", 0.0)
+    v = {"R": p.R, "L": p.L, "J": p.J, "B": p.B, "K": p.K, "Ka": amp.gain,
+         "Vmax": amp.output_limit_v, "N": rig.gear_ratio, "Kt": sen.tacho_v_per_rad_s,
+         "Kpot": sen.pos_v_per_rad, "pos-offset": sen.pos_offset_v, "noise-tacho": noise.tacho_v,
+         "noise-pos": noise.pos_v,
+         # the catalogue gives friction in bridge volts, the harness a motor torque
+         "Tc": tc_v * amp.gain * p.K / p.R, "seed": noise.seed}
+    return [a for k, val in v.items() for a in (f"--{k}", str(int(val)) if k == "seed" else repr(val))]
 
 
 class Emulator:
@@ -103,8 +89,9 @@ class Emulator:
     Parameters
     ----------
     board : {"uno", "mega"}
-    rig : object, optional
-        Rig configuration for the plant (``rig.plant.R`` ...); defaults of the default rig.
+    rig : labrig.config.RigConfig, optional
+        Rig whose plant the harness simulates; ``RigConfig()`` (the default rig's values,
+        without its hidden friction) when not given.
     speed : float
         1.0 paces the simulation to real time (host timeouts and the watchdog as on the
         bench); 0 runs as fast as the machine allows.
@@ -122,9 +109,10 @@ class Emulator:
     Ctrl-C meant for the host never reaches it; :meth:`stop` ends it by its PID.
     """
 
-    def __init__(self, board: str = "uno", rig=None, *, speed: float = 1.0, dac_log=None,
-                 loop: str | None = None, extra_args: tuple = ()):
-        self.board, self.rig, self.speed = board, rig, speed
+    def __init__(self, board: str = "uno", rig: RigConfig | None = None, *, speed: float = 1.0,
+                 dac_log=None, loop: str | None = None, extra_args: tuple = ()):
+        self.board, self.speed = board, speed
+        self.rig = rig if rig is not None else RigConfig()
         self.dac_log = str(dac_log) if dac_log else None
         self.loop, self.extra_args = loop, tuple(extra_args)
         self.proc: subprocess.Popen | None = None

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import struct
 from dataclasses import dataclass
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -299,3 +300,66 @@ def parse_ack(body: bytes) -> dict:
     """ACK: the acknowledged command's type and seq."""
     t, seq = _unpack(_ACK, body, "ACK", exact=True)
     return {"type": t, "seq": seq}
+
+
+# ---- board -> host body builders ------------------------------------------------------
+# The inverses of the parsers above. The host never sends these; they exist so a scripted
+# board (labrig.bridge.transport.ScriptedTransport) answers with exactly the firmware's bytes.
+
+def _code_of(names: dict, value) -> int:
+    """The wire code of ``value``, given as a code or as its name in ``names``."""
+    if isinstance(value, int):
+        return value
+    return {v: k for k, v in names.items()}[value]
+
+
+def ack_body(type_: int, seq: int) -> bytes:
+    """ACK body acknowledging the command (``type_``, ``seq``)."""
+    return _ACK.pack(type_, seq)
+
+
+def hello_body(*, protocol: int, board, capabilities: int, max_rate_hz: int, batch: int,
+               dac_bits: int, adc_bits: int, n_adc: int, max_levels: int, dac_zero: int,
+               fw_dac_min: int, fw_dac_max: int, watchdog_ms_default: int,
+               firmware: str) -> bytes:
+    """HELLO body from the fields :func:`parse_hello` returns (``board`` by name or code)."""
+    return _HELLO_FIXED.pack(protocol, _code_of(BOARDS, board), capabilities, max_rate_hz,
+                             batch, dac_bits, adc_bits, n_adc, max_levels, dac_zero,
+                             fw_dac_min, fw_dac_max, watchdog_ms_default) + firmware.encode("ascii")
+
+
+def status_body(*, samples_sent: int, rx_frames_ok: int, rx_crc_errors: int, rx_overruns: int,
+                watchdog_trips: int, sample_overruns: int, state, dac_word: int) -> bytes:
+    """STATUS body from the fields :func:`parse_status` returns (``state`` by name or code)."""
+    return _STATUS.pack(samples_sent, rx_frames_ok, rx_crc_errors, rx_overruns, watchdog_trips,
+                        sample_overruns, _code_of(STATES, state), dac_word, 0)
+
+
+def done_body(n_samples: int, samples_lost: int = 0) -> bytes:
+    """DONE body: the run's planned samples and those the board lost."""
+    return _DONE.pack(n_samples, samples_lost)
+
+
+def error_body(code, text: str = "") -> bytes:
+    """ERROR body: ``code`` as a number or a name of :data:`ERROR_CODES`, then the text."""
+    return bytes([_code_of(ERROR_CODES, code)]) + text.encode("ascii")
+
+
+#: the body parser of every board->host message type
+BOARD_PARSERS = {ACK: parse_ack, HELLO: parse_hello, SAMPLES: parse_samples, STATUS: parse_status,
+                 DONE: parse_done, ERROR: parse_error}
+
+
+class Message(NamedTuple):
+    """A board->host frame whose body parsed: its type and its fields."""
+
+    type: int
+    fields: Any
+
+
+def parse_message(frame: Frame) -> Message:
+    """The fields of a board->host ``frame``; :class:`BodyError` when its body does not parse."""
+    parser = BOARD_PARSERS.get(frame.type)
+    if parser is None:
+        raise BodyError(f"unknown message type 0x{frame.type:02X}")
+    return Message(frame.type, parser(frame.body))

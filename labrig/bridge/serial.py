@@ -1,106 +1,37 @@
-"""The serial bridge: the labrig firmware on an Arduino (or under simavr) via pyserial.
+"""The serial bridge: the labrig firmware on an Arduino (or under simavr).
 
 Implements :class:`labrig.bridge.base.Bridge` over the framed protocol of
 ``firmware/PROTOCOL.md``. The board owns the timing; the host configures an experiment in
-DAC words (computed here from the rig's ``[bridge]`` ranges and calibration), starts it,
-and receives sample-indexed, CRC-checked batches which it converts to raw volts.
+DAC words (computed by :mod:`labrig.bridge.settings` from the rig's ``[bridge]`` ranges and
+calibration), starts it, and receives sample-indexed, CRC-checked batches which it converts
+to raw volts. Bytes move through a :class:`~labrig.bridge.transport.Transport`: a serial
+port by default, a scripted board in tests.
 """
 from __future__ import annotations
 
 import time
 from collections import deque
-from types import SimpleNamespace
-from typing import Any, NamedTuple
+from os import PathLike
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from labrig.bridge import protocol as P
 from labrig.bridge.base import Bridge, Experiment, SampleBlock
+from labrig.bridge.settings import (TIMER_HZ, adc_counts_to_volts, bridge_settings,
+                                    dac_word_to_volts, experiment_body, volts_to_dac_word)
+from labrig.bridge.transport import SerialTransport, Transport, link_hint
 from labrig.errors import LabrigError, RigError, UserError
 
-TIMER_HZ = 2_000_000   # Timer1 count rate: only rates dividing it are exact
+if TYPE_CHECKING:   # annotation only: labrig.config imports the bridge package
+    from labrig.config import RigConfig
 
-_CAL_KEYS = ("dac", "tacho", "pos", "ref")
+# the conversions lived here before settings.py; importers of this module keep working
+__all__ = ["SerialBridge", "SerialTransport", "TIMER_HZ", "Transport", "adc_counts_to_volts",
+           "bridge_settings", "dac_word_to_volts", "volts_to_dac_word"]
 
-
-def _get(obj, name, default=None):
-    """Attribute or mapping lookup, so a config dataclass and a plain dict both work."""
-    if obj is None:
-        return default
-    if isinstance(obj, dict):
-        return obj.get(name, default)
-    return getattr(obj, name, default)
-
-
-def bridge_settings(rig) -> SimpleNamespace:
-    """Read ``rig.bridge`` (attributes or a dict; defaults of configs/rig_default.toml).
-
-    Parameters
-    ----------
-    rig : object
-        Anything with a ``bridge`` attribute or key holding ``sample_rate_hz``,
-        ``output_limit_v``, ``dac_bits``, ``dac_range_v``, ``adc_bits``, ``adc_range_v``,
-        ``watchdog_ms`` and an optional ``calibration`` mapping.
-
-    Returns
-    -------
-    types.SimpleNamespace
-        The same fields as floats/ints/tuples, with calibration gains and offsets filled in.
-    """
-    b = _get(rig, "bridge", rig)
-    cal = dict(_get(b, "calibration", None) or {})
-    ns = SimpleNamespace(
-        sample_rate_hz=float(_get(b, "sample_rate_hz", 1000.0)),
-        output_limit_v=float(_get(b, "output_limit_v", 2.5)),
-        dac_bits=int(_get(b, "dac_bits", 12)),
-        dac_range_v=tuple(float(v) for v in _get(b, "dac_range_v", (-5.0, 5.0))),
-        adc_bits=int(_get(b, "adc_bits", 10)),
-        adc_range_v=tuple(float(v) for v in _get(b, "adc_range_v", (-10.0, 10.0))),
-        watchdog_ms=int(_get(b, "watchdog_ms", 500)),
-    )
-    for k in _CAL_KEYS:
-        setattr(ns, f"{k}_gain", float(cal.get(f"{k}_gain", 1.0)))
-        setattr(ns, f"{k}_offset_v", float(cal.get(f"{k}_offset_v", 0.0)))
-    return ns
-
-
-def dac_word_to_volts(words, s: SimpleNamespace) -> np.ndarray:
-    """Bridge output volts for DAC words: nominal from the range, then the calibration."""
-    lo, hi = s.dac_range_v
-    nominal = lo + np.asarray(words, dtype=float) * (hi - lo) / 2 ** s.dac_bits
-    return s.dac_gain * nominal + s.dac_offset_v
-
-
-def volts_to_dac_word(v: float, s: SimpleNamespace) -> int:
-    """DAC word whose calibrated output is closest to ``v`` volts (clipped to the DAC)."""
-    lo, hi = s.dac_range_v
-    nominal = (v - s.dac_offset_v) / s.dac_gain
-    w = int(round((nominal - lo) * 2 ** s.dac_bits / (hi - lo)))
-    return min(max(w, 0), 2 ** s.dac_bits - 1)
-
-
-def adc_counts_to_volts(counts, channel: str, s: SimpleNamespace) -> np.ndarray:
-    """Sensor volts for ADC counts of ``channel`` (``tacho``, ``pos`` or ``ref``)."""
-    lo, hi = s.adc_range_v
-    nominal = lo + np.asarray(counts, dtype=float) * (hi - lo) / 2 ** s.adc_bits
-    return getattr(s, f"{channel}_gain") * nominal + getattr(s, f"{channel}_offset_v")
-
-
-#: link counters that :meth:`SerialBridge.counters` reports per run (difference since configure)
-_RUN_KEYS = ("samples", "dropped_samples", "crc_errors", "framing_errors", "stale_frames",
-             "bad_frames", "retries")
 #: board STATUS counters that count since the board's reset; reported per run as differences
 _BOARD_CUMULATIVE = ("samples_sent", "rx_crc_errors", "rx_overruns", "watchdog_trips")
-#: the body parser of every board->host message
-_PARSERS = {P.ACK: P.parse_ack, P.HELLO: P.parse_hello, P.SAMPLES: P.parse_samples,
-            P.STATUS: P.parse_status, P.DONE: P.parse_done, P.ERROR: P.parse_error}
-
-
-class _Msg(NamedTuple):
-    """A received frame whose body parsed: its type and its fields."""
-
-    type: int
-    fields: Any
 
 
 class SerialBridge(Bridge):
@@ -108,12 +39,13 @@ class SerialBridge(Bridge):
 
     Parameters
     ----------
-    port : str
-        Serial device.
-    rig : object
+    port_or_transport : str, path or Transport
+        Serial device, opened through :class:`SerialTransport`, or a transport to use
+        as it is (e.g. a :class:`~labrig.bridge.transport.ScriptedTransport` in tests).
+    rig : labrig.config.RigConfig
         Rig configuration; only ``rig.bridge`` is used (see :func:`bridge_settings`).
     baudrate : int
-        Link speed; the firmware runs at 500000.
+        Link speed of a serial device; the firmware runs at 500000.
     hello_timeout : float
         Seconds to wait for the board's HELLO after opening (the Uno resets on open).
     heartbeat_s : float
@@ -133,6 +65,8 @@ class SerialBridge(Bridge):
 
     Attributes
     ----------
+    link : Transport
+        The byte link the frames travel on.
     samples, dropped_samples, stale_frames, bad_frames, retries : int
         Cumulative over the session: samples received, samples missing (index gaps and a
         lost tail), frames that arrived too late or twice, CRC-valid frames whose body does
@@ -141,16 +75,18 @@ class SerialBridge(Bridge):
 
     source = "serial"
 
-    def __init__(self, port: str, rig, *, baudrate: int = 500000, hello_timeout: float = 3.0,
-                 heartbeat_s: float = 0.05, tries: int = 4, ack_timeout: float = 0.3,
-                 tail_s: float = 0.5):
-        self.port = port
+    def __init__(self, port_or_transport: str | PathLike | Transport, rig: RigConfig, *,
+                 baudrate: int = 500000, hello_timeout: float = 3.0, heartbeat_s: float = 0.05,
+                 tries: int = 4, ack_timeout: float = 0.3, tail_s: float = 0.5):
+        if isinstance(port_or_transport, Transport):
+            self.link = port_or_transport
+        else:
+            self.link = SerialTransport(port_or_transport, baudrate)
+        self.port = self.link.name   # what messages and counters() call the link
         self.settings = bridge_settings(rig)
-        self.baudrate = baudrate
         self.hello_timeout = hello_timeout
         self.heartbeat_s = min(heartbeat_s, self.settings.watchdog_ms / 10000.0)
         self.tries, self.ack_timeout, self.tail_s = max(1, int(tries)), ack_timeout, tail_s
-        self._ser = None
         self._dec = P.StreamDecoder()
         self._seq = 0
         self._last_tx = 0.0
@@ -185,10 +121,10 @@ class SerialBridge(Bridge):
         return seq
 
     def _write(self, data: bytes) -> None:
-        if self._ser is None:
+        if not self.link.is_open:
             raise RigError(f"{self.port} is not open")
         try:
-            self._ser.write(data)
+            self.link.write(data)
         except LabrigError:
             raise   # e.g. Terminated from a signal handler: not a link fault
         except Exception as e:  # pyserial raises SerialException/OSError subclasses
@@ -198,10 +134,9 @@ class SerialBridge(Bridge):
     def _poll(self, wait: float) -> None:
         """Read what is there (waiting up to ``wait`` s for a first byte) into the queue."""
         try:
-            self._ser.timeout = wait
-            data = self._ser.read(max(1, self._ser.in_waiting))
-            if data and self._ser.in_waiting:
-                data += self._ser.read(self._ser.in_waiting)
+            data = self.link.read(max(1, self.link.in_waiting), wait)
+            if data and self.link.in_waiting:
+                data += self.link.read(self.link.in_waiting, wait)
         except LabrigError:
             raise   # e.g. Terminated from a signal handler: not a link fault
         except Exception as e:
@@ -210,11 +145,8 @@ class SerialBridge(Bridge):
             for f in self._dec.feed(data):
                 # every body is checked once, on arrival: one that does not parse is counted
                 # and dropped here, so no consumer can trip over it
-                parser = _PARSERS.get(f.type)
                 try:
-                    if parser is None:
-                        raise P.BodyError(f"unknown message type 0x{f.type:02X}")
-                    self._pending.append(_Msg(f.type, parser(f.body)))
+                    self._pending.append(P.parse_message(f))
                 except P.BodyError:
                     self.bad_frames += 1
 
@@ -237,17 +169,7 @@ class SerialBridge(Bridge):
 
     def _hint(self, since: tuple[int, int]) -> str:
         """Why nothing useful arrived since ``since`` (a :meth:`_link_state`), and what to do."""
-        cure = "use a shorter or shielded USB cable, away from the motor leads, or a lower baud rate"
-        total_damaged, total_intact = self._link_state()
-        damaged, intact = total_damaged - since[0], total_intact - since[1]
-        if damaged:
-            return f"the link answers but garbles ({damaged} damaged frame(s), {intact} intact): {cure}"
-        if intact:
-            return f"the board sends but does not answer: the host->board direction loses data; {cure}"
-        if total_damaged:
-            return (f"nothing came back, and the link has damaged {total_damaged} of "
-                    f"{total_damaged + total_intact} frames so far: {cure}")
-        return "is the board plugged in?"
+        return link_hint(since, self._link_state())
 
     def _board_error(self, err: dict) -> RigError:
         msg = f"board on {self.port} reported {err['name']}: {err['text']}"
@@ -341,20 +263,13 @@ class SerialBridge(Bridge):
 
     # ---- Bridge interface ------------------------------------------------------------
     def open(self) -> dict:
-        """Open the port and handshake; return the board's HELLO fields."""
-        import serial  # pyserial; imported here so the module loads without it
-
-        ser = serial.Serial()
-        ser.port = self.port
-        ser.baudrate = self.baudrate
-        ser.timeout = 0.05
-        ser.write_timeout = 2.0
+        """Open the link and handshake; return the board's HELLO fields."""
         try:
-            ser.open()   # pyserial ignores ENOTTY from DTR/RTS on a pty itself
+            self.link.open()
+        except LabrigError:
+            raise   # the transport's own message, with its cure
         except Exception as e:
-            raise RigError(f"cannot open {self.port} ({getattr(e, 'strerror', None) or e}): is the "
-                           "board plugged in and is this its port? (ls /dev/ttyACM* /dev/ttyUSB*)") from e
-        self._ser = ser
+            raise RigError(f"cannot open {self.port}: {e}") from e
         # The Uno resets when the port opens and greets after its bootloader (~1-2 s);
         # its greeting may be lost, so ask again every 0.5 s.
         since = self._link_state()
@@ -392,65 +307,15 @@ class SerialBridge(Bridge):
                 "capabilities": ["square", "step", "staircase", "constant"],
                 "max_rate_hz": self.hello["max_rate_hz"], "port": self.port}
 
-    def _levels(self, exp: Experiment) -> list[float]:
-        if exp.waveform == "square":
-            return [exp.offset_v + exp.amplitude_v, exp.offset_v - exp.amplitude_v]
-        if exp.waveform in ("step", "constant"):
-            return [exp.amplitude_v + exp.offset_v]
-        if exp.waveform == "staircase":
-            if not exp.levels:
-                raise UserError(f"experiment {exp.name!r}: a staircase needs levels")
-            return [v + exp.offset_v for v in exp.levels]
-        raise UserError(f"experiment {exp.name!r}: the board cannot generate a {exp.waveform!r} waveform "
-                        "(square, step, staircase or constant)")
-
     def configure(self, exp: Experiment) -> None:
         """Check the experiment against the limits and load it into the board."""
-        s = self.settings
-        limit = s.output_limit_v
-        peak = exp.peak_v()
-        if peak > limit + 1e-9:
-            raise UserError(f"experiment {exp.name!r} peaks at {peak:.3g} V, beyond the bridge output "
-                            f"limit of {limit:.3g} V ([bridge] output_limit_v)")
-        if exp.loop not in P.LOOPS:
-            raise UserError(f"experiment {exp.name!r}: loop must be 'open' or 'closed'")
-        rate = int(round(exp.sample_rate_hz))
-        max_rate = self.hello.get("max_rate_hz", 1000)
-        if abs(rate - exp.sample_rate_hz) > 1e-9 or TIMER_HZ % rate or not 50 <= rate <= max_rate:
-            raise UserError(f"experiment {exp.name!r}: sample rate {exp.sample_rate_hz:g} Hz is not "
-                            f"available; the board runs 50..{max_rate} Hz at divisors of 2 MHz "
-                            "(e.g. 500, 1000, 2000)")
-        levels_v = self._levels(exp)
-        if len(levels_v) > P.MAX_LEVELS:
-            raise UserError(f"experiment {exp.name!r}: at most {P.MAX_LEVELS} staircase levels")
-        levels = [volts_to_dac_word(v, s) for v in levels_v]
-        zero = volts_to_dac_word(0.0, s)
-        wmin, wmax = sorted((volts_to_dac_word(-limit, s), volts_to_dac_word(limit, s)))
-        fw_min, fw_max = self.hello.get("fw_dac_min", 0), self.hello.get("fw_dac_max", 2 ** s.dac_bits - 1)
-        wmin, wmax = max(wmin, fw_min), min(wmax, fw_max)
-        if any(not wmin <= w <= wmax for w in levels + [zero]):
-            lo_v, hi_v = dac_word_to_volts([fw_min, fw_max], s)
-            raise UserError(f"experiment {exp.name!r} needs DAC words beyond the firmware limit "
-                            f"({lo_v:.3g}..{hi_v:.3g} V with this calibration)")
-        if exp.waveform == "square":
-            segment = int(round(rate / (2.0 * exp.frequency_hz)))
-        elif exp.waveform == "staircase":
-            segment = int(round(exp.step_s * rate))
-        else:
-            segment = 0
-        n = int(exp.n_samples)
-        body = P.configure_body(
-            loop=exp.loop, waveform=exp.waveform, sample_rate_hz=rate, n_samples=n,
-            lead_in_samples=int(round(exp.lead_in_s * rate)), segment_samples=segment,
-            dac_zero=zero, dac_min=wmin, dac_max=wmax, watchdog_ms=s.watchdog_ms, levels=levels,
-            position_gain=exp.position_gain if exp.loop == "closed" else 0.0,
-            velocity_gain=exp.velocity_gain if exp.loop == "closed" else 0.0)
+        body = experiment_body(exp, self.settings, self.hello)
         # the run's counters start here: a sidecar reports this run, not the session
         self._mark, self._board_mark = self._totals(), dict(self.board_status)
         self._errors_mark = len(self.board_errors)
         self._started = self._finished = False
         self._command(P.CONFIGURE, body)
-        self._exp, self._n_samples = exp, n
+        self._exp, self._n_samples = exp, int(exp.n_samples)
 
     def start(self) -> None:
         """Start the configured experiment; samples follow from index 0."""
@@ -546,10 +411,10 @@ class SerialBridge(Bridge):
         """Command 0 V now; never raises (a dead link is already safe: the watchdog zeroes)."""
         self._streaming = False
         try:
-            if self._ser is not None and self._ser.is_open:
-                self._ser.write(b"\x00" + P.encode_frame(P.ZERO, self._seq))
+            if self.link.is_open:
+                self.link.write(b"\x00" + P.encode_frame(P.ZERO, self._seq))
                 self._seq = (self._seq + 1) & 0xFF
-                self._ser.flush()
+                self.link.flush()
         except Exception:
             pass
 
@@ -574,10 +439,8 @@ class SerialBridge(Bridge):
         return c
 
     def close(self) -> None:
-        """Close the port (never raises)."""
-        ser, self._ser = self._ser, None
-        if ser is not None:
-            try:
-                ser.close()
-            except Exception:
-                pass
+        """Close the link (never raises)."""
+        try:
+            self.link.close()
+        except Exception:
+            pass

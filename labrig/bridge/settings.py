@@ -1,0 +1,167 @@
+"""The bridge's units: the rig's ``[bridge]`` section, DAC/ADC words <-> volts, and an
+experiment as the CONFIGURE body the board runs.
+
+Pure functions of the configuration (no link, no board), so the conversions that decide
+what reaches the motor are checked without hardware and shared by every caller.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from labrig.bridge import protocol as P
+from labrig.bridge.base import Experiment
+from labrig.errors import UserError
+
+if TYPE_CHECKING:   # annotation only: labrig.config imports the bridge package
+    from labrig.config import RigConfig
+
+TIMER_HZ = 2_000_000   # Timer1 count rate: only rates dividing it are exact
+
+#: channels with a calibration gain and offset (``<channel>_gain``, ``<channel>_offset_v``)
+CAL_CHANNELS = ("dac", "tacho", "pos", "ref")
+
+
+@dataclass(frozen=True)
+class BridgeSettings:
+    """The rig's ``[bridge]`` section as the host uses it, calibration filled in.
+
+    Gains default to 1 and offsets to 0 V for every channel of :data:`CAL_CHANNELS`
+    that the calibration leaves out.
+    """
+
+    sample_rate_hz: float
+    output_limit_v: float
+    dac_bits: int
+    dac_range_v: tuple[float, float]
+    adc_bits: int
+    adc_range_v: tuple[float, float]
+    watchdog_ms: int
+    dac_gain: float = 1.0
+    dac_offset_v: float = 0.0
+    tacho_gain: float = 1.0
+    tacho_offset_v: float = 0.0
+    pos_gain: float = 1.0
+    pos_offset_v: float = 0.0
+    ref_gain: float = 1.0
+    ref_offset_v: float = 0.0
+
+
+def bridge_settings(rig: RigConfig) -> BridgeSettings:
+    """Read ``rig.bridge``: the one place the bridge's settings come from.
+
+    Parameters
+    ----------
+    rig : labrig.config.RigConfig
+        The rig; ``RigConfig()`` is the default rig, whose ``bridge`` holds the defaults
+        of ``configs/rig_default.toml``.
+
+    Returns
+    -------
+    BridgeSettings
+        The same fields as floats/ints/tuples, with calibration gains and offsets filled in.
+    """
+    b = rig.bridge
+    cal = dict(b.calibration or {})
+    return BridgeSettings(
+        sample_rate_hz=float(b.sample_rate_hz), output_limit_v=float(b.output_limit_v),
+        dac_bits=int(b.dac_bits), dac_range_v=tuple(float(v) for v in b.dac_range_v),
+        adc_bits=int(b.adc_bits), adc_range_v=tuple(float(v) for v in b.adc_range_v),
+        watchdog_ms=int(b.watchdog_ms),
+        **{f"{k}_gain": float(cal.get(f"{k}_gain", 1.0)) for k in CAL_CHANNELS},
+        **{f"{k}_offset_v": float(cal.get(f"{k}_offset_v", 0.0)) for k in CAL_CHANNELS})
+
+
+def dac_word_to_volts(words, s: BridgeSettings) -> np.ndarray:
+    """Bridge output volts for DAC words: nominal from the range, then the calibration."""
+    lo, hi = s.dac_range_v
+    nominal = lo + np.asarray(words, dtype=float) * (hi - lo) / 2 ** s.dac_bits
+    return s.dac_gain * nominal + s.dac_offset_v
+
+
+def volts_to_dac_word(v: float, s: BridgeSettings) -> int:
+    """DAC word whose calibrated output is closest to ``v`` volts (clipped to the DAC)."""
+    lo, hi = s.dac_range_v
+    nominal = (v - s.dac_offset_v) / s.dac_gain
+    w = int(round((nominal - lo) * 2 ** s.dac_bits / (hi - lo)))
+    return min(max(w, 0), 2 ** s.dac_bits - 1)
+
+
+def adc_counts_to_volts(counts, channel: str, s: BridgeSettings) -> np.ndarray:
+    """Sensor volts for ADC counts of ``channel`` (``tacho``, ``pos`` or ``ref``)."""
+    lo, hi = s.adc_range_v
+    nominal = lo + np.asarray(counts, dtype=float) * (hi - lo) / 2 ** s.adc_bits
+    return getattr(s, f"{channel}_gain") * nominal + getattr(s, f"{channel}_offset_v")
+
+
+def waveform_levels(exp: Experiment) -> list[float]:
+    """The output levels (bridge volts) the board cycles through for ``exp``."""
+    if exp.waveform == "square":
+        return [exp.offset_v + exp.amplitude_v, exp.offset_v - exp.amplitude_v]
+    if exp.waveform in ("step", "constant"):
+        return [exp.amplitude_v + exp.offset_v]
+    if exp.waveform == "staircase":
+        if not exp.levels:
+            raise UserError(f"experiment {exp.name!r}: a staircase needs levels")
+        return [v + exp.offset_v for v in exp.levels]
+    raise UserError(f"experiment {exp.name!r}: the board cannot generate a {exp.waveform!r} waveform "
+                    "(square, step, staircase or constant)")
+
+
+def experiment_body(exp: Experiment, s: BridgeSettings, hello: dict) -> bytes:
+    """The CONFIGURE body of ``exp`` in DAC words, checked against every limit first.
+
+    Parameters
+    ----------
+    exp : Experiment
+    s : BridgeSettings
+    hello : dict
+        The board's HELLO fields (its maximum rate and firmware DAC limits); missing
+        fields mean no limit beyond the DAC's own and 1000 Hz.
+
+    Raises
+    ------
+    UserError
+        The experiment is beyond the output limit, the board's rates, its level count or
+        the firmware's DAC limits, or has an unknown loop or waveform.
+    """
+    limit = s.output_limit_v
+    peak = exp.peak_v()
+    if peak > limit + 1e-9:
+        raise UserError(f"experiment {exp.name!r} peaks at {peak:.3g} V, beyond the bridge output "
+                        f"limit of {limit:.3g} V ([bridge] output_limit_v)")
+    if exp.loop not in P.LOOPS:
+        raise UserError(f"experiment {exp.name!r}: loop must be 'open' or 'closed'")
+    rate = int(round(exp.sample_rate_hz))
+    max_rate = hello.get("max_rate_hz", 1000)
+    if abs(rate - exp.sample_rate_hz) > 1e-9 or TIMER_HZ % rate or not 50 <= rate <= max_rate:
+        raise UserError(f"experiment {exp.name!r}: sample rate {exp.sample_rate_hz:g} Hz is not "
+                        f"available; the board runs 50..{max_rate} Hz at divisors of 2 MHz "
+                        "(e.g. 500, 1000, 2000)")
+    levels_v = waveform_levels(exp)
+    if len(levels_v) > P.MAX_LEVELS:
+        raise UserError(f"experiment {exp.name!r}: at most {P.MAX_LEVELS} staircase levels")
+    levels = [volts_to_dac_word(v, s) for v in levels_v]
+    zero = volts_to_dac_word(0.0, s)
+    wmin, wmax = sorted((volts_to_dac_word(-limit, s), volts_to_dac_word(limit, s)))
+    fw_min, fw_max = hello.get("fw_dac_min", 0), hello.get("fw_dac_max", 2 ** s.dac_bits - 1)
+    wmin, wmax = max(wmin, fw_min), min(wmax, fw_max)
+    if any(not wmin <= w <= wmax for w in levels + [zero]):
+        lo_v, hi_v = dac_word_to_volts([fw_min, fw_max], s)
+        raise UserError(f"experiment {exp.name!r} needs DAC words beyond the firmware limit "
+                        f"({lo_v:.3g}..{hi_v:.3g} V with this calibration)")
+    if exp.waveform == "square":
+        segment = int(round(rate / (2.0 * exp.frequency_hz)))
+    elif exp.waveform == "staircase":
+        segment = int(round(exp.step_s * rate))
+    else:
+        segment = 0
+    closed = exp.loop == "closed"
+    return P.configure_body(
+        loop=exp.loop, waveform=exp.waveform, sample_rate_hz=rate, n_samples=int(exp.n_samples),
+        lead_in_samples=int(round(exp.lead_in_s * rate)), segment_samples=segment,
+        dac_zero=zero, dac_min=wmin, dac_max=wmax, watchdog_ms=s.watchdog_ms, levels=levels,
+        position_gain=exp.position_gain if closed else 0.0,
+        velocity_gain=exp.velocity_gain if closed else 0.0)
