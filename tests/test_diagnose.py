@@ -158,3 +158,29 @@ def test_auto_ladder_cli_on_the_shipped_sweep(tmp_path):
     assert (tmp_path / "lad" / "step0.json").exists() and (tmp_path / "lad" / "ladder.png").exists()
     if len(steps) == 2:  # an effect was added: the error fell
         assert steps[1]["rmse_over_noise"]["overall"] < steps[0]["rmse_over_noise"]["overall"]
+
+
+@pytest.mark.slow
+def test_diagnose_auto_runs_the_rounds_and_names_the_confusable_pair(tmp_path):
+    """--auto adds the hidden dead zone, stops, writes the final model and the ladder, and
+    reports Coulomb friction as the look-alike (same steady state) with the regime where
+    the two differ."""
+    ds = sim_dataset(tmp_path, make_rig(effects={"deadband": {"d_v": 0.3}}), plan())
+    out = tmp_path / "auto"
+    proc = labrig("diagnose", ds, "--auto", "--max-rounds", "2", "-o", out, "--json", check=0)
+    d = json.loads(proc.stdout)
+    assert d["added"][0] == "deadband" and "deadband" in d["effects"]
+    steps = d["ladder"]
+    assert steps[0]["label"] == "linear model"
+    assert steps[-1]["rmse_over_noise"]["overall"] < 0.5 * steps[0]["rmse_over_noise"]["overall"]
+    assert steps[-1]["rmse_over_noise"]["overall"] <= 1.5
+    from labrig.model.model import Model
+
+    m = Model.load(out / "model.json")
+    assert m.effect_params["deadband"]["d_v"] == pytest.approx(0.3, rel=0.15)
+    assert {"model.json", "ladder.json", "ladder.png", "diagnosis.json"} <= {p.name for p in out.iterdir()}
+    pairs = {tuple(p["pair"]) for p in d["confusable"]}
+    if pairs:  # the look-alike, if close enough to be confusable, is named with a regime
+        assert all(p["differ_in"] for p in d["confusable"])
+    again = labrig("diagnose", ds, "--auto", "-o", out)
+    assert again.returncode == 2 and "--force" in again.stderr

@@ -75,6 +75,8 @@ def cmd_diagnose(args):
 
     runs, model = _load(args)
     fixed = parse_assignments(args.fix, "--fix")
+    if args.auto:
+        return _auto(args, runs, model, fixed)
     refuse_existing([args.output] if args.output else [], args.force)  # before the 30 s
     with Progress("diagnose", total=8) as bar:
         cands = [c.strip() for c in args.candidates.split(",")] if args.candidates else None
@@ -94,13 +96,52 @@ def cmd_diagnose(args):
     return 0
 
 
+AUTO_FILES = ("model.json", "ladder.json", "ladder.png", "diagnosis.json")
+
+
+def _auto(args, runs, model, fixed) -> int:
+    """``diagnose --auto``: the rounds to the end; -o is a folder of their results."""
+    from ..auto import auto_diagnose
+    from ..fileio import write_json
+    from ..report.compare_plots import save
+    from .registry import refuse_existing
+
+    out = Path(args.output) if args.output else None
+    if out:
+        refuse_existing([out] + [out / f for f in AUTO_FILES], args.force, what="folder")
+    if args.candidates:
+        raise UserError("--candidates: not with --auto (every round tries the whole catalogue)")
+    with Progress("diagnose --auto", total=args.max_rounds) as bar:
+        res = auto_diagnose(runs, model, max_rounds=args.max_rounds, seed=args.seed,
+                            fixed=fixed, log=bar.log)
+    if out:
+        out.mkdir(parents=True, exist_ok=True)
+        res.model.save(out / "model.json")
+        write_json(out / "ladder.json", res.ladder.to_json())
+        write_json(out / "diagnosis.json", res.to_json())
+        save(res.plot(), out / "ladder.png", dpi=120)
+    if args.json:
+        emit_json(res.to_json())
+    else:
+        print(res.to_text())
+        if out:
+            print(f"\nwritten to {out}/: {', '.join(AUTO_FILES)}")
+    return 0
+
+
 def _configure_diagnose(p):
     p.add_argument("data", nargs="+", help="folder(s) of runs")
     p.add_argument("--model", help="the current model (default: identify one without effects)")
     p.add_argument("--fix", help="parameters known from other measurements, e.g. R=8.2")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--candidates", help="only these catalogue effects (default: all the model lacks)")
-    p.add_argument("-o", "--output", help="save the model with the recommended effect added")
+    p.add_argument("-o", "--output", help="save the model with the recommended effect added "
+                   "(with --auto: a folder for the final model, the ladder and the rounds)")
+    p.add_argument("--auto", action="store_true",
+                   help="run the rounds to the end: add the recommended effect and diagnose "
+                        "again until nothing more earns its parameters")
+    p.add_argument("--max-rounds", type=int, default=3,
+                   help="with --auto: add at most this many effects (default 3)")
     p.add_argument("--force", action="store_true", help="replace an existing -o file")
     p.add_argument("--json", action="store_true", help="print one JSON object")
 
