@@ -92,6 +92,15 @@ class Diagnosis:
                 "held_out": self.held_out, "criteria": self.criteria,
                 "seconds": self.seconds}
 
+    def to_pandas(self):
+        """The ranking as a DataFrame, one row per candidate effect."""
+        import pandas as pd
+
+        return pd.DataFrame([{"effect": c.effect, "rmse_over_noise": c.rmse_over_noise,
+                              "improvement": c.improvement, "delta_bic": c.delta_bic,
+                              "held_out": (c.held_out or {}).get("with_effect"),
+                              "supported": c.supported} for c in self.ranking])
+
     # -- presentation ---------------------------------------------------------------------
     def table_rows(self) -> list[Table]:
         """Where it fails (by regime), and the ranking of candidates."""

@@ -77,6 +77,14 @@ class Evaluation:
                                           "rms_over_noise": st[0]["rms"]} if st else None})
         return out
 
+    def to_pandas(self):
+        """Per run and channel: fit % and rmse/noise, one row each."""
+        import pandas as pd
+
+        return pd.DataFrame([{"run": r["run"], "channel": ch, "fit_percent": r["fit_percent"][ch],
+                              "rmse_over_noise": r["rmse_over_noise"][ch]}
+                             for r in self.runs() for ch in r["fit_percent"]])
+
     def warnings(self) -> list[str]:
         """A run whose fit % is below zero (the model is worse than a constant)."""
         from .identify.result import fit_warnings

@@ -110,3 +110,22 @@ def test_a_stage_class_without_its_hook_cannot_be_made():
 
     with pytest.raises(TypeError):
         Broken()
+
+
+def test_results_are_tabular_and_plottable(runs):
+    """Evaluation, Diagnosis and Ladder give pandas tables, rich tables and figures."""
+    import matplotlib.pyplot as plt
+
+    from labrig.evaluation import evaluate
+    from labrig.ladder import Ladder, LadderStep
+
+    m = Model(PLANT, EffectSet.parse("deadband"), {"deadband": {"d_v": 0.3}}, CONST)
+    ev = evaluate(runs, m)
+    df = ev.to_pandas()
+    assert set(df["run"]) == {r.name for r in runs} and (df["rmse_over_noise"] > 0).all()
+    assert [row[0] for row in ev.table_rows().rows] == [r.name for r in runs]
+    lad = Ladder([LadderStep.of("+ deadband", m, ev)])
+    assert lad.to_pandas().shape[0] == 1 and "rmse/noise overall" in lad.to_pandas()
+    fig = lad.plot()
+    assert fig.axes and ev.plot().axes
+    plt.close("all")
