@@ -10,10 +10,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from .diagnose import diagnose
 from .diagnosis import Candidate, Diagnosis
-from .evaluation import evaluate
-from .ladder import Ladder, LadderStep
+from .ladder import Ladder, add_effects
 from .model.model import Model
 from .residuals import REGIME_TEXT
 from .tables import Table, fmt
@@ -115,7 +113,8 @@ def _where_they_differ(a: Candidate, b: Candidate) -> dict | None:
 
 def auto_diagnose(runs, model: Model | None = None, *, max_rounds: int = 3, seed: int = 0,
                   fixed: dict | None = None, log=None) -> AutoDiagnosis:
-    """Diagnose, add the recommendation, repeat; see the module docstring.
+    """Diagnose, add the recommendation, repeat (:func:`labrig.ladder.add_effects`), and
+    name the confusable pairs of every round.
 
     Parameters
     ----------
@@ -129,20 +128,7 @@ def auto_diagnose(runs, model: Model | None = None, *, max_rounds: int = 3, seed
         Parameters known from other measurements.
     log : callable(str), optional
     """
-    rounds, pairs, ladder = [], [], None
-    for k in range(1, max_rounds + 1):
-        diag = diagnose(runs, model, seed=seed, fixed=fixed)
-        rounds.append(diag)
-        if ladder is None:  # the first round's baseline is the ladder's first rung
-            model = diag.base
-            ladder = Ladder([LadderStep.of("linear model" if not model.names else "given model",
-                                           model, diag.evaluation)])
-        pairs += confusable_pairs(diag, k)
-        if log:
-            log(f"round {k}: {diag.verdict[:160]}")
-        if diag.recommendation is None:
-            break
-        model = diag.recommended_model()
-        ladder.steps.append(LadderStep.of(f"+ {diag.recommendation}", model,
-                                          evaluate(runs, model)))
+    rounds, ladder, model = add_effects(runs, model, max_rounds=max_rounds, seed=seed,
+                                        fixed=fixed, log=log)
+    pairs = [p for k, diag in enumerate(rounds, 1) for p in confusable_pairs(diag, k)]
     return AutoDiagnosis(rounds=rounds, model=model, ladder=ladder, confusable=pairs)

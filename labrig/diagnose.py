@@ -149,8 +149,7 @@ def diagnose(runs, model: Model | None = None, *, candidates=None, seed: int = 0
         bic = _bic(ev.sse, n, n_eff, k0 + len(eff.params))
         entry = Candidate(effect=name, rmse_over_noise=ev.rmse, improvement=1.0 - ev.rmse / rmse0,
                           delta_bic=bic - bic0, params=dict(cand.effect_params[name]),
-                          fit_percent=ev.metrics["fit_percent"], regimes=ev.regimes,
-                          model=cand)
+                          fit_percent=ev.metrics["fit_percent"], model=cand, evaluation=ev)
         if held:
             fit = _fit_from(train, cand.effects, cand.flat(), dict(fixed or {}), seed)
             held1 = evaluate(held, fit.model(), sig).rmse

@@ -27,9 +27,13 @@ class Candidate:
     held_out: dict | None = None
     supported: bool = False
     explanation: str = ""
-    #: live, not in the JSON: the re-fitted model and its regime table
+    #: live, not in the JSON: the re-fitted model and its evaluation on all runs
     model: Model | None = field(default=None, repr=False)
-    regimes: dict | None = field(default=None, repr=False)
+    evaluation: Evaluation | None = field(default=None, repr=False)
+
+    @property
+    def regimes(self) -> dict | None:
+        return self.evaluation.regimes if self.evaluation is not None else None
 
     def to_json(self) -> dict:
         d = {"effect": self.effect, "rmse_over_noise": self.rmse_over_noise,
@@ -66,11 +70,6 @@ class Diagnosis:
 
     def candidate(self, effect: str) -> Candidate:
         return next(c for c in self.ranking if c.effect == effect)
-
-    @property
-    def states(self) -> dict:
-        """effect name -> the re-fitted model with that effect."""
-        return {c.effect: c.model for c in self.ranking}
 
     def recommended_model(self) -> Model | None:
         """The re-fitted model with the recommended effect, ready to save."""

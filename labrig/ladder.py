@@ -89,25 +89,56 @@ def evaluate_ladder(runs, model_paths) -> Ladder:
     return ladder
 
 
-def auto_ladder(runs, max_steps=3, outdir=None, seed=0, log=print) -> Ladder:
-    """identify -> diagnose -> add the recommendation -> ... until the diagnosis finds
-    nothing more (or ``max_steps`` effects were added); each step's model is saved as
-    ``outdir/step<k>.json`` when ``outdir`` is given."""
-    out = Path(outdir) if outdir else None
-    model = identify(runs, "co", [], seed=seed, starts=4, identifiability=False).model()
-    path = out / "step0.json" if out else None
-    if path:
-        model.save(path)
-    ladder = Ladder([LadderStep.of("linear model", model, evaluate(runs, model), path)])
-    for k in range(1, max_steps + 1):
-        res = diagnose(runs, model, seed=seed)
-        log(f"step {k}: {res.verdict[:160]}")
-        if res.recommendation is None:
+def add_effects(runs, model: Model | None = None, *, max_rounds: int = 3, seed: int = 0,
+                fixed: dict | None = None, log=None, on_step=None):
+    """The loop itself: diagnose, add the recommended effect, repeat until nothing more
+    earns its parameters (or ``max_rounds`` effects were added).
+
+    ``on_step(k, model)`` is called for every rung (k = 0 is the starting model).
+    Returns ``(rounds, ladder, model)``: every round's :class:`Diagnosis`, the
+    :class:`Ladder` and the final model.
+    """
+    rounds, ladder = [], None
+    for k in range(1, max_rounds + 1):
+        diag = diagnose(runs, model, seed=seed, fixed=fixed)
+        rounds.append(diag)
+        if ladder is None:  # the first round's baseline is the ladder's first rung
+            model = diag.base
+            ladder = Ladder([LadderStep.of("linear model" if not model.names else "given model",
+                                           model, diag.evaluation)])
+            if on_step:
+                on_step(0, model)
+        if log:
+            log(f"round {k}: {diag.verdict[:160]}")
+        if diag.recommendation is None:
             break
-        model = res.recommended_model()
-        path = out / f"step{k}.json" if out else None
-        if path:
+        model = diag.recommended_model()
+        # the diagnosis evaluated this model already, on the same runs
+        ladder.steps.append(LadderStep.of(f"+ {diag.recommendation}", model,
+                                          diag.candidate(diag.recommendation).evaluation))
+        if on_step:
+            on_step(k, model)
+    return rounds, ladder, model
+
+
+def auto_ladder(runs, max_steps=3, outdir=None, seed=0, log=print) -> Ladder:
+    """The ladder of :func:`add_effects` from the linear model; each rung's model is
+    saved as ``outdir/step<k>.json`` when ``outdir`` is given."""
+    out = Path(outdir) if outdir else None
+
+    def save(k, model):
+        if out:
+            path = out / f"step{k}.json"
             model.save(path)
-        ladder.steps.append(LadderStep.of(f"+ {res.recommendation}", model,
-                                          evaluate(runs, model), path))
+            ladder_paths[k] = str(path)
+
+    ladder_paths: dict = {}
+    if max_steps < 1:  # no round: the linear model alone
+        model = identify(runs, "co", [], seed=seed, starts=4, identifiability=False).model()
+        save(0, model)
+        return Ladder([LadderStep.of("linear model", model, evaluate(runs, model),
+                                     ladder_paths.get(0))])
+    _, ladder, _ = add_effects(runs, max_rounds=max_steps, seed=seed, log=log, on_step=save)
+    for k, step in enumerate(ladder.steps):
+        step.model = ladder_paths.get(k)
     return ladder

@@ -504,7 +504,7 @@ def matrix_size() -> int:
     return (len(SIDECAR_CASES) + len(SIDECAR_TEXT_CASES) + len(CSV_CASES) + 1
             + len(RIG_CASES) + len(PLAN_CASES) + len(MODEL_CASES) + len(MODEL_TEXT_CASES)
             + 2 + len(IDCONFIG_CASES) + 9 + 2 * len(MYSTERY_CASES) + 4 + 5
-            + len(IMPORT_CASES) + 4 + 1 + 4)
+            + len(IMPORT_CASES) + 4 + 1 + 4 + 2)
 
 
 def test_matrix_size_and_readme():
@@ -562,3 +562,9 @@ def test_closed_loop_import_records_the_gains(tmp_path, capsys):
     run = read_run(tmp_path / "out" / "scope.csv")
     assert run.gains == {"kp": 2.0, "kv": 0.15} and run.loop == "closed"
     assert run.constants == {"Ka": 1.0, "N": 1.0, "Kt": 1.0, "Kpot": 1.0}
+
+
+@pytest.mark.parametrize("rounds", ["0", "-1"])
+def test_diagnose_auto_needs_a_round(tmp_path, capsys, rounds):
+    d = _run_dir(tmp_path)
+    _expect_user_error(capsys, ["diagnose", d, "--auto", "--max-rounds", rounds], "--max-rounds")

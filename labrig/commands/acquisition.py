@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import signal
-import sys
 from pathlib import Path
 
 from .registry import command, float_opt

@@ -40,7 +40,8 @@ def cmd_demo(args):
     from ..ladder import evaluate_ladder
     from ..model.effects import get_effect
     from ..model.model import Model
-    from ..report.compare_plots import plot_regimes, plot_run_comparison, save
+    from ..report.compare_plots import plot_regimes, plot_run_comparison
+    from ..report.figures import save
     from ..report.html import build_report
     from ..report.identify_plots import plot_convergence
     from ..runs import read_dataset

@@ -92,7 +92,7 @@ def cmd_identify(args):
     if args.output:
         best.model().save(args.output)
     if args.figures:
-        from ..report.compare_plots import save
+        from ..report.figures import save
         from ..report.identify_plots import plot_convergence
 
         Path(args.figures).mkdir(parents=True, exist_ok=True)

@@ -1,7 +1,6 @@
 """``labrig compare``, ``labrig diagnose`` and ``labrig ladder``: the missing-physics loop."""
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 from .registry import command, emit_json
@@ -24,7 +23,8 @@ def cmd_compare(args):
     residuals in noise units with the stretches outside the noise band shaded by regime,
     residual autocorrelation and input cross-correlation with their bands."""
     from ..evaluation import evaluate
-    from ..report.compare_plots import plot_regimes, plot_run_comparison, save
+    from ..report.compare_plots import plot_regimes, plot_run_comparison
+    from ..report.figures import save
 
     from .registry import refuse_existing
 
@@ -103,9 +103,11 @@ def _auto(args, runs, model, fixed) -> int:
     """``diagnose --auto``: the rounds to the end; -o is a folder of their results."""
     from ..auto import auto_diagnose
     from ..fileio import write_json
-    from ..report.compare_plots import save
+    from ..report.figures import save
     from .registry import refuse_existing
 
+    if args.max_rounds < 1:
+        raise UserError(f"--max-rounds: {args.max_rounds} adds nothing; give 1 or more")
     out = Path(args.output) if args.output else None
     if out:
         refuse_existing([out] + [out / f for f in AUTO_FILES], args.force, what="folder")
@@ -155,7 +157,7 @@ def cmd_ladder(args):
     `labrig identify --model PREV --effects NEW -o NEXT`), or, without --models, run the
     loop automatically: identify, diagnose, add the recommended effect, repeat."""
     from ..ladder import auto_ladder, evaluate_ladder
-    from ..report.compare_plots import save
+    from ..report.figures import save
     from ..runs import read_dataset
 
     from .registry import refuse_existing

@@ -27,7 +27,7 @@ import numba
 import numpy as np
 
 from ..errors import UserError
-from .effects import Effect, ordered
+from .effects import ordered
 
 PLANT = ("R", "L", "J", "B", "K")
 # kernel parameter columns after the plant

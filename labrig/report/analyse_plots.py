@@ -14,13 +14,14 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from pathlib import Path
 
 import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+
+from .figures import save_all  # noqa: E402
 
 MAX_EDGES = 16  # per figure; more edges would make unreadable panels
 DPI = 110
@@ -59,19 +60,9 @@ def analysis_figures(res) -> FigureMap:
 
 
 def save_figures(figs, figdir, dpi: int = DPI) -> dict:
-    """Save each figure of ``figs`` (``{name: Figure}``) as ``figdir/name`` and close
-    it right after, so memory does not grow; returns ``{name: path}``."""
-    figdir = Path(figdir)
-    figdir.mkdir(parents=True, exist_ok=True)
-    saved = {}
-    for name, fig in figs.items():
-        path = figdir / name
-        try:
-            fig.savefig(path, dpi=dpi)
-        finally:
-            plt.close(fig)
-        saved[name] = path
-    return saved
+    """Save each figure of ``figs`` as ``figdir/name``, closing each (see
+    :func:`labrig.report.figures.save_all`); returns ``{name: path}``."""
+    return save_all(figs, figdir, dpi)
 
 
 def plot_edges(ra, ax=None):

@@ -2,7 +2,7 @@
 whiteness tests, and the error ladder.
 
 Every function draws and returns a ``matplotlib.figure.Figure`` (on ``ax`` when one is
-given); callers save it (:func:`save`).
+given); callers save it (:func:`labrig.report.figures.save`).
 """
 from __future__ import annotations
 
@@ -16,13 +16,6 @@ from ..residuals import REGIME_TEXT  # noqa: E402
 
 REGIME_COLOURS = {"start": "tab:green", "reversal": "tab:red", "accel": "tab:orange",
                   "steady": "tab:blue", "coast": "tab:purple", "rest": "0.7"}
-
-
-def save(fig, path, dpi: int = 110):
-    """Save ``fig`` to ``path`` and free it; returns the path."""
-    fig.savefig(path, dpi=dpi)
-    plt.close(fig)
-    return path
 
 
 UNITS = {"speed": "rad/s (motor)", "position": "rad (output)"}

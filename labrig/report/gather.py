@@ -321,7 +321,6 @@ def _ladder(story: Story, diag_live, ev0, say) -> None:
 
 def _ladder_from_diagnosis(story: Story, diag_live, ev0):
     """Linear model, then + the recommended effect as fitted by the diagnosis."""
-    from ..evaluation import evaluate
     from ..ladder import Ladder, LadderStep
 
     d = story.diagnosis
@@ -337,8 +336,8 @@ def _ladder_from_diagnosis(story: Story, diag_live, ev0):
     if first.rmse_over_noise.get("overall") is None:
         return None
     ladder = Ladder([first])
-    if rec and diag_live is not None and diag_live.states.get(rec) is not None:
-        m = evaluate(story.runs, diag_live.states[rec]).metrics
+    if rec and diag_live is not None and diag_live.candidate(rec).evaluation is not None:
+        m = diag_live.candidate(rec).evaluation.metrics  # evaluated by the diagnosis
         ladder.steps.append(LadderStep(f"+ {rec}", [rec], m["rmse_over_noise"],
                                        m["fit_percent"], m["fitness"]))
     elif rec and (c := next((c for c in d.ranking if c.effect == rec), None)) is not None:

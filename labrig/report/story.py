@@ -7,10 +7,11 @@ Every piece is a result object of the stage that made it (``AnalysisResult``,
 """
 from __future__ import annotations
 
-import io
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
+
+from .figures import png_bytes
 
 if TYPE_CHECKING:  # annotations only: gathering imports the heavy modules lazily
     from ..analyse.result import AnalysisResult
@@ -29,19 +30,8 @@ SECTIONS = (("sweep", "1. The sweep"),
 
 
 def fig_bytes(fig, dpi: int = 110) -> bytes:
-    """``fig`` as PNG bytes, drawn in memory; the figure is closed (one at a time keeps
-    a report of many runs within memory)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    buf = io.BytesIO()
-    try:
-        fig.savefig(buf, format="png", dpi=dpi)
-    finally:
-        plt.close(fig)
-    return buf.getvalue()
+    """``fig`` as PNG bytes, closed after (see :func:`labrig.report.figures.png_bytes`)."""
+    return png_bytes(fig, dpi)
 
 
 @dataclass

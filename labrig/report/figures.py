@@ -1,0 +1,38 @@
+"""Saving figures: every labrig figure is drawn by a ``plot_x(obj, ax=None)`` that
+returns it, and is saved (to a file or to PNG bytes) and closed here, one at a time, so
+a command or report with many runs keeps one figure in memory."""
+from __future__ import annotations
+
+import io
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+
+DPI = 110
+
+
+def save(fig, path, dpi: int = DPI):
+    """Save ``fig`` to ``path`` and close it; returns the path."""
+    try:
+        fig.savefig(path, dpi=dpi)
+    finally:
+        plt.close(fig)
+    return path
+
+
+def save_all(figs, figdir, dpi: int = DPI) -> dict:
+    """Save each figure of ``figs`` (``{name: Figure}``, drawn on access) as
+    ``figdir/name``; returns ``{name: path}``."""
+    figdir = Path(figdir)
+    figdir.mkdir(parents=True, exist_ok=True)
+    return {name: save(fig, figdir / name, dpi) for name, fig in figs.items()}
+
+
+def png_bytes(fig, dpi: int = DPI) -> bytes:
+    """``fig`` as PNG bytes, drawn in memory; the figure is closed."""
+    buf = io.BytesIO()
+    save(fig, buf, dpi)
+    return buf.getvalue()
