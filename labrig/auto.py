@@ -1,17 +1,20 @@
 """``labrig diagnose --auto``: the missing-physics loop run to the end.
 
-Round after round, :func:`labrig.diagnose.diagnose` re-fits every effect the model
-lacks and the recommended one is added, until nothing more earns its parameters (or
-``max_rounds`` effects were added). The result holds the final model, the error ladder
-and the *confusable pairs*: candidates that explain the data about equally well, with
-the regime where their predictions differ most (where an experiment should look).
+:func:`labrig.search.search` adds, pairs, swaps and removes effects round after round
+until the cross-validated error stops falling (or ``max_rounds`` effects were added).
+The result holds the final model, the error ladder (in-sample and cross-validated),
+the moves of the search, the thresholds of the final model stated through the effects
+in front of them, and the *confusable pairs*: candidates that explain the data about
+equally well, with the regime where their predictions differ most (where an experiment
+should look).
 """
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 
 from .diagnosis import Candidate, Diagnosis
-from .ladder import Ladder, add_effects
+from .explain import thresholds
+from .ladder import Ladder
 from .model.model import Model
 from .residuals import REGIME_TEXT
 from .tables import Table, fmt
@@ -43,17 +46,34 @@ class AutoDiagnosis:
     model: Model
     ladder: Ladder
     confusable: list[ConfusablePair] = field(default_factory=list)
+    moves: list = field(default_factory=list)
+    thresholds: str = ""
 
     @property
     def added(self) -> list[str]:
-        return [d.recommendation for d in self.rounds if d.recommendation]
+        """Effects added, in order (a pair adds two; swaps and removals not counted)."""
+        return [e for m in self.moves if m.kind in ("add", "pair") for e in m.effects]
+
+    @property
+    def verdict(self) -> str:
+        if not self.rounds:
+            return ""
+        last = self.rounds[-1]
+        head = (f"Final model: {', '.join(self.model.names) or 'no effects'}. "
+                + (self.thresholds + " " if self.thresholds else ""))
+        return head + last.verdict if not last.recommendation else head
 
     def to_json(self) -> dict:
+        first = self.rounds[0] if self.rounds else None
         return {"effects": self.model.names, "added": self.added,
+                "moves": [m.to_json() for m in self.moves],
                 "final_model": self.model.to_json(), "ladder": self.ladder.to_json()["steps"],
                 "confusable": [p.to_json() for p in self.confusable],
+                "thresholds": self.thresholds,
+                "noise": first.noise if first else {}, "weights": first.weights if first else {},
+                "cross_validation": first.cross_validation if first else None,
                 "rounds": [d.to_json() for d in self.rounds],
-                "verdict": self.rounds[-1].verdict if self.rounds else ""}
+                "verdict": self.verdict}
 
     def table_rows(self) -> list[Table]:
         pairs = Table("confusable pairs (about equally good: an experiment should decide)",
@@ -71,9 +91,19 @@ class AutoDiagnosis:
 
     def to_text(self) -> str:
         out = [t.to_text() + "\n" for t in self.table_rows()]
-        out.append(f"final model: {self.model.describe()}")
+        if self.moves:
+            out.append("moves: " + "; ".join(f"round {m.round}: {m.label} (cross-validated "
+                                              f"{m.cv_before:.2f} -> {m.cv_after:.2f})"
+                                              for m in self.moves))
         if self.rounds:
-            out.append(self.rounds[-1].verdict)
+            first = self.rounds[0]
+            for v in first.noise.values():
+                out.append(f"noise floor, {v['method']}")
+            if first.cross_validation:
+                out.append(f"cross-validation: {first.cross_validation['folds']} folds, "
+                           f"{first.cross_validation['kind']}")
+        out.append(f"final model: {self.model.describe()}")
+        out.append(self.verdict)
         return "\n".join(out)
 
     def plot(self, ax=None):
@@ -112,9 +142,9 @@ def _where_they_differ(a: Candidate, b: Candidate) -> dict | None:
 
 
 def auto_diagnose(runs, model: Model | None = None, *, max_rounds: int = 3, seed: int = 0,
-                  fixed: dict | None = None, log=None) -> AutoDiagnosis:
-    """Diagnose, add the recommendation, repeat (:func:`labrig.ladder.add_effects`), and
-    name the confusable pairs of every round.
+                  fixed: dict | None = None, weights=None, log=None) -> AutoDiagnosis:
+    """Run the search (:func:`labrig.search.search`) and name the confusable pairs of
+    every round.
 
     Parameters
     ----------
@@ -126,9 +156,15 @@ def auto_diagnose(runs, model: Model | None = None, *, max_rounds: int = 3, seed
     seed : int
     fixed : dict, optional
         Parameters known from other measurements.
+    weights : Weights, optional
+        Channel weights (default: balanced on the starting model).
     log : callable(str), optional
     """
-    rounds, ladder, model = add_effects(runs, model, max_rounds=max_rounds, seed=seed,
-                                        fixed=fixed, log=log)
-    pairs = [p for k, diag in enumerate(rounds, 1) for p in confusable_pairs(diag, k)]
-    return AutoDiagnosis(rounds=rounds, model=model, ladder=ladder, confusable=pairs)
+    from .search import search
+
+    res = search(runs, model, max_rounds=max_rounds, seed=seed, fixed=fixed, weights=weights,
+                 log=log)
+    pairs = [p for k, diag in enumerate(res.rounds, 1) for p in confusable_pairs(diag, k)]
+    return AutoDiagnosis(rounds=res.rounds, model=res.model, ladder=res.ladder,
+                         confusable=pairs, moves=res.moves,
+                         thresholds=thresholds(res.model, runs))

@@ -4,92 +4,117 @@ and the evidence, in numbers and in words.
 ``diagnose(runs, model)``:
 
 1. simulates the current model and locates its error by regime and amplitude against
-   the noise floor (``labrig.residuals``);
-2. re-fits the model with every catalogue effect it lacks, warm-started from the
-   current model (the new effect's parameters first, then all of them);
+   each channel's honest noise floor (``labrig.noise``), with the channels weighted so
+   that neither drowns the other;
+2. re-fits the model with every catalogue effect it lacks, from starts scanned over
+   the range the data can see and in two basins of the electrical pole
+   (``labrig.refit``), so no threshold starts on a plateau;
 3. compares the candidates on equal terms: BIC with the sample count corrected for
-   the colour of simulation residuals, and the error on a held-out run that none of
-   the fits saw, so an extra parameter cannot win by overfitting;
+   the colour of simulation residuals, and the error on data the fits did not see,
+   by cross-validation (``labrig.crossval``: whole runs held out in turn, or blocks
+   of a single long run), so an extra parameter cannot win by overfitting or by luck;
 4. explains the winner: what it is in the rig, where its signature shows in these
-   runs, and the experiment that would confirm it. ``recommendation`` is None when
-   nothing earns its parameters.
+   runs (the regimes that carry the held-out evidence), and the experiment that would
+   confirm it. ``recommendation`` is None when nothing earns its parameters.
 """
 from __future__ import annotations
 
 import math
 import time
 
+import numpy as np
+
+from .crossval import cross_validate, make_folds, regime_evidence
 from .diagnosis import Candidate, Diagnosis
 from .errors import UserError
 from .evaluation import Evaluation, evaluate
+from .explain import context as explain_context
 from .identify.engine import dataset_constants, identify
 from .model.effects import CATALOGUE, get_effect
 from .model.model import Model, param_keys
+from .model.reach import Reach
+from .noise import Weights
+from .refit import refit, refit_with
 from .residuals import REGIME_TEXT, worst_regime
 from .runs import require_excitation
 
-#: a candidate must beat the model by this much (relative) on all runs and on held-out runs
+#: a candidate must lower the cross-validated (and the in-sample) error by this much
 MIN_GAIN = 0.05
 #: and be strongly supported by BIC (Kass & Raftery: |dBIC| > 10 is "very strong")
 MIN_DBIC = -10.0
-#: below this rmse/noise the model is at the noise floor (simulation residuals are
-#: slightly coloured even for the right model; docs/physics.md, "The noise floor")
+#: below this rmse/noise the model is called at the noise floor (in words only: the
+#: decision is the cross-validation's)
 FLOOR = 1.15
+#: candidates cross-validated per round (the best by in-sample error)
+CV_CANDIDATES = 4
+#: a fit parameter within this share of its bound's span sits at the bound
+AT_BOUND = 1e-3
 
 
-def _fit(runs, effects, start, fixed, starts, seed, max_nfev=60):
-    return identify(runs, "co", effects, seed=seed, start=start, fixed=fixed, starts=starts,
-                    identifiability=False, max_nfev=max_nfev)
-
-
-def _plateau_starts(params: dict, runs) -> list[dict]:
-    """The start itself, plus one with the electrical pole moved onto the sample period
-    when it sits far below it: there tau_e has no gradient and a local optimiser cannot
-    climb off the plateau, even when the data do see the pole."""
-    starts = [params]
-    dt = min(r.dt for r in runs)
-    if params["L"] / params["R"] < 0.1 * dt:
-        starts.append({**params, "L": params["R"] * dt})
-    return starts
-
-
-def _fit_from(runs, effects, start, fixed, seed):
-    """CO from ``start`` (and its plateau-escape twin); the better fit wins."""
-    fits = [_fit(runs, effects, s, fixed, starts=1, seed=seed)
-            for s in _plateau_starts(start, runs) if "L" not in fixed]
-    if not fits:
-        fits = [_fit(runs, effects, start, fixed, starts=1, seed=seed)]
-    return min(fits, key=lambda f: f.fitness)
-
-
-def refit_with(runs, base: Model, effect, seed=0, user_fixed=None) -> Model:
-    """Warm-started re-fit: the new effect's parameters first (all else fixed at the
-    current model), then every parameter from there."""
-    effects = base.effects + [effect]
-    fixed = base.flat()
-    fixed.update(user_fixed or {})
-    stage1 = _fit(runs, effects, base.flat(), fixed, starts=3, seed=seed)
-    stage2 = _fit_from(runs, effects, stage1.params, dict(user_fixed or {}), seed)
-    best = stage2 if stage2.fitness <= stage1.fitness else stage1
-    return best.model()
-
-
-def _held_out_split(runs):
-    """Hold out the middle-amplitude open-loop run (an interpolation test) when there are
-    at least three; otherwise no split (BIC alone decides, and the report says so)."""
-    open_runs = sorted([r for r in runs if r.loop == "open"], key=lambda r: r.amplitude)
-    if len(open_runs) < 3:
-        return runs, []
-    held = [open_runs[len(open_runs) // 2]]
-    return [r for r in runs if r not in held], held
+def balanced_weights(ev: Evaluation) -> Weights:
+    """Channel weights that give each channel the same say at the starting model: each
+    channel's squared error divided by its own mean square, normalised so the weights
+    average to one over the samples (equal to p = q = 1 when both channels miss by the
+    same factor, as on an analogue rig)."""
+    r = ev.metrics["rmse_over_noise"]
+    if "speed" not in r or "position" not in r:
+        return Weights()
+    q, p = 1.0 / max(r["speed"], 1.0) ** 2, 1.0 / max(r["position"], 1.0) ** 2
+    n = ev.metrics.get("counts", {})
+    nw, nt = n.get("speed", 1), n.get("position", 1)
+    scale = (nw + nt) / (q * nw + p * nt)
+    return Weights(p=p * scale, q=q * scale)
 
 
 def _bic(sse, n, n_eff, k):
     return n_eff * math.log(max(sse, 1e-300) / n) + k * math.log(n_eff)
 
 
+def at_bounds(ident) -> list[str]:
+    """Free parameters of a fit that ended at a bound of the search space."""
+    sp = ident.space
+    out = []
+    for n, lo, hi, lg in zip(sp.names, sp.lower, sp.upper, sp.log):
+        if n in sp.fixed or "." not in n:
+            continue
+        v = ident.params[n]
+        a, b, x = (np.log10(lo), np.log10(hi), np.log10(max(v, 1e-300))) if lg else (lo, hi, v)
+        if min(x - a, b - x) <= AT_BOUND * (b - a):
+            out.append(f"{n} = {v:.3g} at its {'lower' if x - a < b - x else 'upper'} bound")
+    return out
+
+
+def linear_model(runs, *, seed=0, fixed=None, weights=Weights(), start: Model | None = None) -> Model:
+    """The model without effects, identified: CO from four starts (or from ``start``),
+    then both basins of the electrical pole."""
+    if start is None:
+        ident = identify(runs, "co", [], seed=seed, starts=4, fixed=fixed, identifiability=False,
+                         p=weights.p, q=weights.q)
+        start = ident.model()
+    else:
+        ident = None
+    again = refit(runs, start, seed=seed, fixed=fixed, weights=weights)
+    return again.model() if ident is None else min([ident, again], key=lambda f: f.fitness).model()
+
+
+def candidate_names(base: Model, candidates=None) -> list[str]:
+    """Catalogue effects ``base`` could take: not already in it, not a second friction
+    law, output map or delay, not a second member of a family (a second dead zone)."""
+    names = candidates or [n for n in CATALOGUE if n not in base.names]
+    taken = {e.stage for e in base.effects if e.stage in ("friction", "output", "delay")}
+    families = {e.family_name for e in base.effects}
+    out = []
+    for n in names:
+        eff = get_effect(n)
+        if eff.stage in taken or eff.family_name in families:
+            continue
+        out.append(n)
+    return out
+
+
 def diagnose(runs, model: Model | None = None, *, candidates=None, seed: int = 0,
-             fixed: dict | None = None, progress=None) -> Diagnosis:
+             fixed: dict | None = None, progress=None, weights: Weights | None = None,
+             folds=None) -> Diagnosis:
     """Locate the model's error and rank the missing effects.
 
     Parameters
@@ -103,6 +128,10 @@ def diagnose(runs, model: Model | None = None, *, candidates=None, seed: int = 0
     fixed : dict, optional
         Parameters known from other measurements.
     progress : callable(i, name), optional
+    weights : Weights, optional
+        Channel weights (default: balanced on the starting model).
+    folds : Folds, optional
+        Cross-validation folds (default: :func:`labrig.crossval.make_folds`).
 
     Returns
     -------
@@ -112,112 +141,137 @@ def diagnose(runs, model: Model | None = None, *, candidates=None, seed: int = 0
     if not runs:
         raise UserError("the data set is empty: give a folder with at least one run")
     require_excitation(runs, "diagnose")
+    fixed = dict(fixed or {})
     if model is None:
-        ident = identify(runs, "co", [], seed=seed, starts=4, fixed=fixed, identifiability=False)
-        ident = min([ident, _fit_from(runs, [], ident.params, dict(fixed or {}), seed)],
-                    key=lambda f: f.fitness)
-        base = ident.model()
+        base = linear_model(runs, seed=seed, fixed=fixed)
         base_source = "identified without effects (co)"
+        if weights is None:
+            weights = balanced_weights(evaluate(runs, base))
+            if weights != Weights():  # the linear fit again, on the balanced objective
+                base = linear_model(runs, seed=seed, fixed=fixed, weights=weights, start=base)
     else:
         base = model
         base_source = "the given model"
-    ev0 = evaluate(runs, base)
+    weights = weights or balanced_weights(evaluate(runs, base))
+    ev0 = evaluate(runs, base, weights=weights)
     sig = ev0.sigmas
     n = ev0.n
     rho = min(max(ev0.rho1, 0.0), 0.995)
     n_eff = max(n * (1 - rho) / (1 + rho), 10.0)
-    k0 = len(param_keys(base)) - len(fixed or {})
-    bic0 = _bic(ev0.sse, n, n_eff, k0)
-    rmse0 = ev0.rmse
+    k0 = len(param_keys(base)) - len(fixed)
+    bic0 = _bic(ev0.wsse, n, n_eff, k0)
+    f0 = ev0.fitness
+    reach = Reach.of(runs, base)
 
-    train, held = _held_out_split(runs)
-    if held:
-        fit = _fit_from(train, base.effects, base.flat(), dict(fixed or {}), seed)
-        held0 = evaluate(held, fit.model(), sig).rmse
-
-    names = candidates or [n_ for n_ in CATALOGUE if n_ not in base.names]
-    taken = {e.stage for e in base.effects if e.stage in ("friction", "output", "delay")}
     ranking: list[Candidate] = []
-    for i, name in enumerate(names):
+    for i, name in enumerate(candidate_names(base, candidates)):
         eff = get_effect(name)
-        if eff.stage in taken:
-            continue  # one friction law, one output map, one delay per model
         if progress:
             progress(i, name)
-        cand = refit_with(runs, base, eff, seed=seed, user_fixed=fixed)
-        ev = evaluate(runs, cand, sig)
-        bic = _bic(ev.sse, n, n_eff, k0 + len(eff.params))
-        entry = Candidate(effect=name, rmse_over_noise=ev.rmse, improvement=1.0 - ev.rmse / rmse0,
-                          delta_bic=bic - bic0, params=dict(cand.effect_params[name]),
-                          fit_percent=ev.metrics["fit_percent"], model=cand, evaluation=ev)
-        if held:
-            fit = _fit_from(train, cand.effects, cand.flat(), dict(fixed or {}), seed)
-            held1 = evaluate(held, fit.model(), sig).rmse
-            entry.held_out = {"runs": [r.name for r in held], "baseline": held0,
-                              "with_effect": held1, "improvement": 1.0 - held1 / held0}
-        ranking.append(entry)
-    ranking.sort(key=lambda e: e.delta_bic)
-    const = dict(dataset_constants(runs),
-                 amin=min([r.amplitude for r in runs if r.loop == "open"] or [1.0]))
-    at_floor = rmse0 <= FLOOR
-    for e in ranking:
-        ho = e.held_out
-        e.supported = bool(not at_floor and e.delta_bic < MIN_DBIC and e.improvement >= MIN_GAIN
-                           and (ho is None or ho["improvement"] >= MIN_GAIN))
-        e.explanation = explain(e, ev0, rmse0, const)
-    supported = [e for e in ranking if e.supported]
-    rec = supported[0].effect if supported else None
+        ident = refit_with(runs, base, eff, seed=seed, fixed=fixed, weights=weights, reach=reach)
+        cand = ident.model()
+        ev = evaluate(runs, cand, sig, weights=weights)
+        bic = _bic(ev.wsse, n, n_eff, k0 + len(eff.params))
+        ranking.append(Candidate(effect=name, rmse_over_noise=ev.rmse,
+                                 improvement=1.0 - ev.fitness / f0, delta_bic=bic - bic0,
+                                 params=dict(cand.effect_params[name]),
+                                 fit_percent=ev.metrics["fit_percent"], model=cand,
+                                 evaluation=ev, at_bound=at_bounds(ident)))
+
+    folds = folds or make_folds(runs)
+    cv0 = cross_validate(runs, base, folds, sigmas=sig, weights=weights, seed=seed,
+                         fixed=fixed, reach=reach)
+    by_fit = sorted(ranking, key=lambda c: -c.improvement)
+    for c in [c for c in by_fit if c.improvement >= MIN_GAIN][:CV_CANDIDATES]:
+        cv = cross_validate(runs, c.model, folds, sigmas=sig, weights=weights, seed=seed,
+                            fixed=fixed, reach=Reach.of(runs, c.model))
+        better = sum(b < a for a, b in zip(cv0.per_fold, cv.per_fold))
+        c.cross_validated = {"baseline": cv0.rmse, "with_effect": cv.rmse,
+                             "improvement": 1.0 - cv.rmse / cv0.rmse,
+                             "folds_improved": better, "folds": len(folds.folds),
+                             "evidence": regime_evidence(cv0, cv)}
+    for c in ranking:
+        cv = c.cross_validated
+        c.supported = bool(cv is not None and c.delta_bic < MIN_DBIC
+                           and c.improvement >= MIN_GAIN and cv["improvement"] >= MIN_GAIN
+                           and cv["folds_improved"] > cv["folds"] / 2)
+    ranking.sort(key=lambda c: (c.cross_validated is None,
+                                c.cross_validated["with_effect"] if c.cross_validated else 0.0,
+                                c.delta_bic))
+    rec = _choose([c for c in ranking if c.supported])
+    for c in ranking:
+        c.explanation = explain(c, ev0, explain_context(c.model, runs))
     worst = worst_regime(ev0.regimes)
     regimes = {"by_regime": ev0.regimes["by_regime"], "by_amplitude": ev0.regimes["by_amplitude"],
                "worst": None if worst is None else {"channel": worst[0], "regime": worst[1],
                                                      "rmse_over_noise": worst[2]},
                "noise": ev0.metrics["noise"]}
-    if at_floor:
-        verdict = (f"The model is at the noise floor (rmse/noise {rmse0:.2f} <= {FLOOR}): "
-                   "nothing is missing that these data can show.")
-    elif rec is None:
-        verdict = (f"The model misses (rmse/noise {rmse0:.2f}) but no catalogue effect earns its "
-                   "parameters on BIC and held-out data; the cause may be outside the catalogue "
-                   "(write your own effect: docs/physics.md, 'Writing your own effect') or "
-                   "in the sensors' calibration.")
+    rmse0 = ev0.rmse
+    if rec is not None:
+        verdict = f"Add {rec}: " + next(c for c in ranking if c.effect == rec).explanation
+    elif rmse0 <= FLOOR:
+        verdict = (f"The model is at the noise floor (rmse/noise {rmse0:.2f}) and no effect "
+                   "predicts held-out data better: nothing is missing that these data can show.")
     else:
-        verdict = f"Add {rec}: " + supported[0].explanation
+        verdict = (f"The model misses (rmse/noise {rmse0:.2f}) but no catalogue effect earns its "
+                   "parameters on BIC and on held-out data; the cause may be outside the catalogue "
+                   "(write your own effect: docs/physics.md, 'Writing your own effect'), in the "
+                   "sensors' calibration, or in effects that only act together (diagnose --auto "
+                   "tries pairs).")
     return Diagnosis(
         baseline={"source": base_source, "effects": base.names,
                   "fitness": ev0.metrics["fitness"],
                   "rmse_over_noise": ev0.metrics["rmse_over_noise"],
                   "fit_percent": ev0.metrics["fit_percent"], "bic": bic0,
-                  "n": n, "n_effective": n_eff},
+                  "n": n, "n_effective": n_eff, "cross_validated": cv0.rmse},
         regimes=regimes, ranking=ranking, recommendation=rec, verdict=verdict,
-        held_out=[r.name for r in held] if held else None,
+        cross_validation={"kind": folds.kind, "folds": len(folds.folds),
+                          "baseline": cv0.rmse, "channels": cv0.channels},
+        noise={ch: f.to_json() for ch, f in ev0.floors.items()},
+        weights=weights.to_json(),
         criteria={"min_improvement": MIN_GAIN, "max_delta_bic": MIN_DBIC, "floor": FLOOR},
         seconds=round(time.perf_counter() - t0, 2), base=base, evaluation=ev0,
-        constants=dataset_constants(runs), dataset=[r.name for r in runs])
+        constants=dataset_constants(runs), dataset=[r.name for r in runs], folds=folds,
+        cv_baseline=cv0)
 
 
-def explain(entry: Candidate, ev0: Evaluation, rmse0: float, const: dict) -> str:
+def _choose(supported: list[Candidate]) -> str | None:
+    """The supported candidate that predicts held-out data best; a simpler one of the same
+    family within 2 % of it is preferred (a symmetric dead zone over an asymmetric one
+    that fits no better)."""
+    if not supported:
+        return None
+    best = min(supported, key=lambda c: c.cross_validated["with_effect"])
+    fam = get_effect(best.effect).family_name
+    for c in supported:
+        e = get_effect(c.effect)
+        if (e.family_name == fam and len(e.params) < len(get_effect(best.effect).params)
+                and c.cross_validated["with_effect"] <= 1.02 * best.cross_validated["with_effect"]):
+            best = c
+    return best.effect
+
+
+def explain(entry: Candidate, ev0: Evaluation, const: dict) -> str:
     """Plain words with numbers: what, where in these runs, how much, how to confirm."""
     eff = entry.model.effects.by_name(entry.effect)
-    # the regime where this candidate removes the most error
-    gains = []
-    for ch, regs in ev0.regimes["by_regime"].items():
-        for reg, v in regs.items():
-            new = entry.regimes["by_regime"].get(ch, {}).get(reg)
-            if new and v["share_of_time"] > 0.005:
-                gains.append((v["rmse_over_noise"] - new["rmse_over_noise"], ch, reg,
-                              v["rmse_over_noise"], new["rmse_over_noise"]))
-    gains.sort(reverse=True)
-    where = ""
-    if gains and gains[0][0] > 0:
-        _, ch, reg, a, b = gains[0]
-        where = f" Its signature is in the {REGIME_TEXT[reg]} stretches of the {ch}: rmse/noise {a:.2f} -> {b:.2f}."
-    ho = entry.held_out
-    held = (f" On the held-out run {', '.join(ho['runs'])}: {ho['baseline']:.2f} -> {ho['with_effect']:.2f}."
-            if ho else " (No held-out run: fewer than three open-loop amplitudes.)")
+    cv = entry.cross_validated
+    if cv:
+        held = (f" Cross-validated: {cv['baseline']:.2f} -> {cv['with_effect']:.2f} on held-out "
+                f"data, better in {cv['folds_improved']} of {cv['folds']} folds.")
+        ev = cv.get("evidence") or []
+        if ev:
+            held += " The held-out evidence is in the " + "; ".join(
+                f"{REGIME_TEXT[d['regime']]} of the {d['channel']} ({d['base']:.2f} -> "
+                f"{d['candidate']:.2f}, {100 * d['share_of_time']:.0f} % of the time)" for d in ev) + "."
+    else:
+        held = " Not cross-validated (its in-sample gain is below the threshold)."
+    bound = (" The fit ended at a bound: " + "; ".join(entry.at_bound)
+             + " (the data do not reach the effect there).") if entry.at_bound else ""
     verdict = ("It earns its parameters." if entry.supported else
                "It does not earn its parameters on these data.")
+    r0 = ev0.rmse
     return (f"{eff.summary[0].upper()}{eff.summary[1:]}. Fitted: "
             f"{eff.explain_params(entry.params, const)}. "
-            f"rmse/noise {rmse0:.2f} -> {entry.rmse_over_noise:.2f} on all runs, "
-            f"delta BIC {entry.delta_bic:.0f}.{held}{where} {verdict} "
+            f"rmse/noise {r0:.2f} -> {entry.rmse_over_noise:.2f} on all runs, "
+            f"delta BIC {entry.delta_bic:.0f}.{held}{bound} {verdict} "
             f"Expected signature: {eff.signature}. To confirm: {eff.experiment}.")

@@ -24,9 +24,13 @@ class Candidate:
     delta_bic: float
     params: dict
     fit_percent: dict
-    held_out: dict | None = None
+    #: held-out evidence: baseline and candidate cross-validated rmse/noise, the folds
+    #: it improved, and the regimes that carry the gain
+    cross_validated: dict | None = None
     supported: bool = False
     explanation: str = ""
+    #: parameters whose fit ended at a bound of the search space
+    at_bound: list = field(default_factory=list)
     #: live, not in the JSON: the re-fitted model and its evaluation on all runs
     model: Model | None = field(default=None, repr=False)
     evaluation: Evaluation | None = field(default=None, repr=False)
@@ -39,8 +43,9 @@ class Candidate:
         d = {"effect": self.effect, "rmse_over_noise": self.rmse_over_noise,
              "improvement": self.improvement, "delta_bic": self.delta_bic,
              "params": self.params, "fit_percent": self.fit_percent}
-        if self.held_out is not None:
-            d["held_out"] = self.held_out
+        if self.cross_validated is not None:
+            d["cross_validated"] = self.cross_validated
+        d["at_bound"] = list(self.at_bound)
         d["supported"] = self.supported
         d["explanation"] = self.explanation
         return d
@@ -51,7 +56,7 @@ class Diagnosis:
     """Where the model fails and which effect is missing, with the evidence.
 
     ``to_json()`` gives the keys of ``labrig diagnose --json``: baseline, regimes,
-    ranking, recommendation, verdict, held_out, criteria, seconds.
+    ranking, recommendation, verdict, cross_validation, noise, weights, criteria, seconds.
     """
 
     baseline: dict
@@ -59,14 +64,19 @@ class Diagnosis:
     ranking: list[Candidate]
     recommendation: str | None
     verdict: str
-    held_out: list | None
+    cross_validation: dict | None
     criteria: dict
     seconds: float
+    #: each channel's noise floor and how it was measured; the channel weights
+    noise: dict = field(default_factory=dict)
+    weights: dict = field(default_factory=dict)
     #: live: the diagnosed model, its evaluation, the rig constants and run names
     base: Model | None = field(default=None, repr=False)
     evaluation: Evaluation | None = field(default=None, repr=False)
     constants: dict = field(default_factory=dict, repr=False)
     dataset: list = field(default_factory=list, repr=False)
+    folds: object = field(default=None, repr=False)
+    cv_baseline: object = field(default=None, repr=False)
 
     def candidate(self, effect: str) -> Candidate:
         return next(c for c in self.ranking if c.effect == effect)
@@ -88,7 +98,8 @@ class Diagnosis:
         return {"baseline": self.baseline, "regimes": self.regimes,
                 "ranking": [c.to_json() for c in self.ranking],
                 "recommendation": self.recommendation, "verdict": self.verdict,
-                "held_out": self.held_out, "criteria": self.criteria,
+                "cross_validation": self.cross_validation, "noise": self.noise,
+                "weights": self.weights, "criteria": self.criteria,
                 "seconds": self.seconds}
 
     def to_pandas(self):
@@ -97,7 +108,7 @@ class Diagnosis:
 
         return pd.DataFrame([{"effect": c.effect, "rmse_over_noise": c.rmse_over_noise,
                               "improvement": c.improvement, "delta_bic": c.delta_bic,
-                              "held_out": (c.held_out or {}).get("with_effect"),
+                              "cross_validated": (c.cross_validated or {}).get("with_effect"),
                               "supported": c.supported} for c in self.ranking])
 
     # -- presentation ---------------------------------------------------------------------
@@ -113,14 +124,25 @@ class Diagnosis:
             regimes.notes.append(f"{ch} by run amplitude: "
                                  + ", ".join(f"{k} {v:.2f}" for k, v in amps.items()))
         ranking = Table("candidates (re-fitted with each effect the model lacks)",
-                        ["rank", "effect", "rmse/noise", "gain", "dBIC", "held-out",
-                         "supported"], numeric=(0, 2, 3, 4))
+                        ["rank", "effect", "rmse/noise", "gain", "dBIC", "cross-validated",
+                         "folds", "supported"], numeric=(0, 2, 3, 4))
         for i, c in enumerate(self.ranking, 1):
-            ho = c.held_out
+            cv = c.cross_validated
             ranking.rows.append([str(i), c.effect, fmt(c.rmse_over_noise, ".2f"),
                                  f"{100 * c.improvement:.0f} %", fmt(c.delta_bic, ".0f"),
-                                 f"{ho['baseline']:.2f} -> {ho['with_effect']:.2f}" if ho else "-",
-                                 "yes" if c.supported else "no"])
+                                 f"{cv['baseline']:.2f} -> {cv['with_effect']:.2f}" if cv else "-",
+                                 f"{cv['folds_improved']}/{cv['folds']}" if cv else "-",
+                                 ("yes" if c.supported else "no") + (" (at bound)" if c.at_bound else "")])
+        cvd = self.cross_validation
+        if cvd:
+            ranking.notes.append(f"cross-validation: {cvd['folds']} folds, {cvd['kind']}; "
+                                 "gain is in the weighted error the fits minimise")
+        if self.noise:
+            ranking.notes.append("noise floors: " + "; ".join(v["method"] for v in self.noise.values()))
+        if self.weights:
+            ranking.notes.append(f"channel weights: speed {self.weights['speed']:.3g}, position "
+                                 f"{self.weights['position']:.3g} (each channel's squared error "
+                                 "over its own at the starting model; --weights overrides)")
         return [regimes, ranking]
 
     def to_text(self) -> str:

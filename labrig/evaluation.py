@@ -6,12 +6,13 @@ and the residuals' sum of squares and lag-1 correlation for the BIC.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from .identify.objective import Objective, adequacy, build_space
 from .model.model import Model, param_keys
+from .noise import Weights
 from .residuals import autocorr, regime_table, run_residuals, worst_regime, worst_run
 from .tables import Table, fmt
 
@@ -35,6 +36,10 @@ class Evaluation:
         The noise levels (speed rad/s, position rad) the residuals are divided by.
     rho1 : float
         Mean lag-1 autocorrelation of the residuals (the colour the BIC corrects for).
+    floors : dict
+        The channels' :class:`labrig.noise.NoiseFloor` (how the noise was measured).
+    weights : Weights
+        The channel weights of ``fitness``.
     """
 
     metrics: dict
@@ -44,11 +49,23 @@ class Evaluation:
     n: int
     sigmas: tuple
     rho1: float
+    floors: dict = field(default_factory=dict, repr=False)
+    weights: Weights = Weights()
 
     @property
     def rmse(self) -> float:
         """Overall rmse/noise (1.0 is the noise floor)."""
         return self.metrics["rmse_over_noise"]["overall"]
+
+    @property
+    def fitness(self) -> float:
+        """The weighted rmse/noise the fits minimise (equal to ``rmse`` at p = q = 1)."""
+        return self.metrics["fitness"]
+
+    @property
+    def wsse(self) -> float:
+        """Weighted sum of squared normalised residuals (for the BIC)."""
+        return self.fitness ** 2 * self.n
 
     def worst_regime(self):
         return worst_regime(self.regimes)
@@ -112,22 +129,27 @@ class Evaluation:
         return plot_regimes(self.regimes, ax=ax)
 
 
-def evaluate(runs, model: Model, sigmas=None) -> Evaluation:
+def evaluate(runs, model: Model, sigmas=None, weights: Weights | None = None) -> Evaluation:
     """Simulate ``model`` on ``runs``; ``sigmas`` fixes the noise levels (to compare
-    candidates on equal terms), else they are estimated from the runs."""
+    candidates on equal terms), else they are measured from the runs
+    (:mod:`labrig.noise`); ``weights`` are the channel weights of the fitness."""
+    weights = weights or Weights()
     space = build_space(model.effects)
-    obj = Objective(runs, model.effects, space)
+    obj = Objective(runs, model.effects, space, p=weights.p, q=weights.q)
     if sigmas is not None:
         obj.sigma_w, obj.sigma_theta = sigmas
     flat = model.flat()
     phys = np.array([flat[n] for n in param_keys(model)])
     sims = obj.simulate_physical(phys[None, :])
-    metrics = adequacy(obj.runs, sims, obj.sigma_w, obj.sigma_theta)
+    metrics = adequacy(obj.runs, sims, obj.sigma_w, obj.sigma_theta, weights.p, weights.q)
     per_run = [run_residuals(rd, {"w": s["w"][0], "theta": s["theta"][0]}, obj.sigma_w,
                              obj.sigma_theta) for rd, s in zip(obj.runs, sims)]
     r = np.concatenate([c["residual"] for rr in per_run for c in rr["channels"].values()])
+    metrics["counts"] = {ch: sum(len(rr["channels"][ch]["residual"]) for rr in per_run
+                                 if ch in rr["channels"]) for ch in ("speed", "position")}
     rho1 = float(np.mean([autocorr(c["residual"], 1)[0] for rr in per_run
                           for c in rr["channels"].values()]))
     return Evaluation(metrics=metrics, per_run=per_run, regimes=regime_table(per_run),
                       sse=float(np.sum(r ** 2)), n=int(len(r)),
-                      sigmas=(obj.sigma_w, obj.sigma_theta), rho1=rho1)
+                      sigmas=(obj.sigma_w, obj.sigma_theta), rho1=rho1, floors=obj.floors,
+                      weights=weights)

@@ -91,7 +91,7 @@ def test_identify_output_that_is_a_folder_is_a_user_error(ds, tmp_path, capsys):
 def test_every_output_file_is_refused_before_the_work(cmd, ds, model, tmp_path, capsys,
                                                       monkeypatch):
     for target in ("labrig.diagnose.evaluate", "labrig.diagnose.diagnose",
-                   "labrig.ladder.auto_ladder", "labrig.ladder.evaluate_ladder",
+                   "labrig.search.auto_ladder", "labrig.ladder.evaluate_ladder",
                    "labrig.report.html.build_report", "labrig.mystery.new_mystery"):
         monkeypatch.setattr(target, no_call)
     folder = tmp_path / "o"
@@ -110,7 +110,7 @@ def test_every_output_file_is_refused_before_the_work(cmd, ds, model, tmp_path, 
 
 
 def test_ladder_automatic_mode_refuses_its_step_files(ds, tmp_path, capsys, monkeypatch):
-    monkeypatch.setattr("labrig.ladder.auto_ladder", no_call)
+    monkeypatch.setattr("labrig.search.auto_ladder", no_call)
     (tmp_path / "step0.json").write_text("keep")
     rc, _, err = run(capsys, "ladder", ds, "-o", tmp_path)
     assert_refused(rc, err, tmp_path / "step0.json")

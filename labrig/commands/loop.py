@@ -156,7 +156,8 @@ def cmd_ladder(args):
     """Evaluate a chain of models (`--models m0.json,m1.json,...`, as saved by
     `labrig identify --model PREV --effects NEW -o NEXT`), or, without --models, run the
     loop automatically: identify, diagnose, add the recommended effect, repeat."""
-    from ..ladder import auto_ladder, evaluate_ladder
+    from ..ladder import evaluate_ladder
+    from ..search import auto_ladder
     from ..report.figures import save
     from ..runs import read_dataset
 
@@ -166,7 +167,8 @@ def cmd_ladder(args):
     out = Path(args.output)
     # automatic mode saves step0..stepN.json; N is not known in advance, so every
     # step file it may write counts
-    written = [] if args.models else [out / f"step{k}.json" for k in range(args.max_steps + 1)]
+    # automatic mode saves step0..stepN.json (swaps and removals add rungs): any step file
+    written = [] if args.models else (sorted(out.glob("step*.json")) if out.is_dir() else [])
     refuse_existing([out, out / "ladder.png", *written], args.force, what="folder")
     out.mkdir(parents=True, exist_ok=True)
     if args.models:

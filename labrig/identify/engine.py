@@ -16,6 +16,7 @@ from ..errors import UserError
 from ..model.effects import Effect
 from ..model.effectset import EffectSet
 from ..model.model import Model
+from ..model.reach import Reach
 from ..model.servo import PLANT_NAMES, ServoParams
 from ..runs import require_excitation
 from .identifiability import analyse_identifiability
@@ -43,6 +44,16 @@ def _run_co(obj, lo, hi, x0, o):
     cb = o.get("callback")
     root_cb = (lambda k, f: cb(k, float(np.sqrt(f)))) if cb else None
     stride = max(1, obj.m // 8000)
+    if o.get("subsample") and o["starts"] == 1:
+        # the loop's many warm re-fits: every k-th residual (at 1 kHz neighbours are
+        # strongly correlated, so the optimum barely moves; the SVD costs k times less)
+        k = max(1, obj.m // o["subsample"])
+        res = local(lambda x: obj.residuals(x)[::k], lo, hi, x0=x0, starts=1, seed=o["seed"],
+                    jac_batch=lambda X: obj.residuals_jac_batch(X)[:, ::k],
+                    max_nfev=o.get("max_nfev"), callback=root_cb)
+        res.fun = float(np.sqrt(res.fun))
+        res.history = [float(np.sqrt(h)) for h in res.history]
+        return res
     full = lambda x: local(obj.residuals, lo, hi, x0=x, starts=1, seed=o["seed"],  # noqa: E731
                            jac_batch=obj.residuals_jac_batch, max_nfev=o.get("max_nfev"))
     if o["starts"] > 1 and stride > 1:
@@ -190,7 +201,8 @@ def identify(runs, method: str = "co", effects: list[Effect] = (), *, seed: int 
              q: float = 1.0, pop: int = 50, iters: int = 200, starts: int = 8,
              polish: bool = False, start: dict | None = None, callback=None,
              dataset: dict | None = None, identifiability: bool = True,
-             max_nfev: int | None = None, rule: str = "paper") -> Identification:
+             max_nfev: int | None = None, rule: str = "paper", masks=None,
+             reach=None, subsample: int | None = None) -> Identification:
     """Fit the servo model to ``runs``.
 
     Parameters
@@ -208,6 +220,12 @@ def identify(runs, method: str = "co", effects: list[Effect] = (), *, seed: int 
     start : dict, optional
         Physical parameters to start from (a saved model): CO starts there, JFO and
         PSO are polished from the better of their result and the start.
+    masks : list of bool arrays, optional
+        Per run, the samples to fit (a cross-validation fold); default all.
+    reach : Reach, optional
+        What the data can see (bounds of threshold effects); default from ``runs``.
+    subsample : int, optional
+        CO from ``start`` with one start: fit on about this many residuals (every k-th).
     """
     if method not in METHODS:
         raise UserError(f"--method: unknown method '{method}'; choose {', '.join(METHODS)} or all")
@@ -216,14 +234,14 @@ def identify(runs, method: str = "co", effects: list[Effect] = (), *, seed: int 
     require_excitation(runs, "identify")
     t0 = time.perf_counter()
     effects = EffectSet.parse(effects)
-    space = build_space(effects, bounds, fixed)
-    obj = Objective(runs, effects, space, p=p, q=q)
+    space = build_space(effects, bounds, fixed, reach=reach or Reach.of(runs))
+    obj = Objective(runs, effects, space, p=p, q=q, masks=masks)
     constants = dataset_constants(runs)
     lo, hi = space.search_bounds()
     x0 = space.to_search(initial_point(space, effects, runs, constants, start))
     seed = int(np.random.default_rng().integers(2 ** 31)) if seed is None else int(seed)
     opts = {"pop": pop, "iters": iters, "seed": seed, "starts": starts, "callback": callback,
-            "max_nfev": max_nfev, "rule": rule}
+            "max_nfev": max_nfev, "rule": rule, "subsample": subsample}
     try:
         res = METHODS[method](obj, lo, hi, x0 if (start or method == "co") else None, opts)
     except ValueError as exc:  # the optimisers name the bad argument

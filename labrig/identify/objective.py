@@ -19,27 +19,10 @@ from ..model.effectset import EffectSet
 from ..model.model import DCServoPlant
 from ..model.servo import PLANT_NAMES
 from ..model.simulate import Simulator, prepare
+from ..noise import channel_floors
 
 #: generic plant bounds (SI units); wide enough for bench servos from 10 W to 1 kW
 DEFAULT_BOUNDS = DCServoPlant.bounds
-
-
-def noise_level(y: np.ndarray) -> float:
-    """Noise standard deviation of a sampled signal.
-
-    Second differences remove ramps and steady motion; the median absolute deviation
-    ignores the few large values at edges; the floor is the quantisation noise
-    q/sqrt(12) with q the signal's smallest step (a quiet quantised signal shows no
-    scatter at all, yet it is only known to within q).
-    """
-    y = np.asarray(y, float)
-    d2 = np.diff(y, 2)
-    sigma = 1.4826 * np.median(np.abs(d2 - np.median(d2))) / np.sqrt(6.0)
-    levels = np.unique(np.round(y, 12))
-    steps = np.diff(levels)
-    steps = steps[steps > 1e-12]
-    q = float(np.percentile(steps, 5)) if len(steps) else 0.0
-    return float(max(sigma, q / np.sqrt(12.0), 1e-12))
 
 
 @dataclass
@@ -91,14 +74,21 @@ class Space:
         return {n: float(v) for n, v in zip(self.names, row)}
 
 
-def build_space(effects: list[Effect], bounds: dict | None = None, fixed: dict | None = None) -> Space:
-    bounds, fixed = dict(bounds or {}), dict(fixed or {})
+def build_space(effects: list[Effect], bounds: dict | None = None, fixed: dict | None = None,
+                reach=None) -> Space:
+    """The search space; ``reach`` (:class:`labrig.model.reach.Reach`) replaces the
+    catalogue's bounds of threshold effects by what the data can see."""
+    effects = EffectSet.parse(effects)
+    data = {f"{e.name}.{k}": v for e in effects for k, v in
+            (e.data_bounds(reach).items() if reach is not None else ())}
+    user = dict(bounds or {})
+    bounds, fixed = {**data, **user}, dict(fixed or {})
     names, lo, hi, log = [], [], [], []
     for n in PLANT_NAMES:
         names.append(n)
         a, b = bounds.pop(n, DEFAULT_BOUNDS[n])
         lo.append(a), hi.append(b), log.append(True)
-    for key, a0, b0, lg in EffectSet.parse(effects).bounds():
+    for key, a0, b0, lg in effects.bounds():
         a, b = bounds.pop(key, (a0, b0))
         names.append(key), lo.append(a), hi.append(b), log.append(bool(lg and a > 0))
     if bounds:
@@ -119,7 +109,7 @@ class Objective:
     """Population-vectorised residuals and fitness of a model on a data set."""
 
     def __init__(self, runs, effects: list[Effect], space: Space, p: float = 1.0,
-                 q: float = 1.0, substeps: int = 16):
+                 q: float = 1.0, substeps: int = 16, masks=None):
         if not runs:
             raise UserError("the data set is empty: give a folder with at least one run")
         self.runs = prepare(runs)
@@ -129,14 +119,19 @@ class Objective:
         if self.p < 0 or self.q < 0 or self.p + self.q == 0:
             raise UserError("weights: p and q must be >= 0 and not both 0")
         self.sim = Simulator(self.runs, self.effects, substeps=substeps)
-        ws = [noise_level(r.w) for r in self.runs if r.w is not None]
-        ts = [noise_level(r.theta) for r in self.runs if r.theta is not None]
-        self.sigma_w = float(np.median(ws)) if ws else 1.0
-        self.sigma_theta = float(np.median(ts)) if ts else 1.0
-        self.use_w = bool(ws) and self.q > 0
-        self.use_theta = bool(ts) and self.p > 0
-        self.n_w = sum(len(r.u) for r in self.runs if r.w is not None) if self.use_w else 0
-        self.n_theta = sum(len(r.u) for r in self.runs if r.theta is not None) if self.use_theta else 0
+        #: each channel's noise floor, measured moving and at rest (labrig.noise)
+        self.floors = channel_floors(self.runs)
+        self.sigma_w = self.floors["speed"].sigma if "speed" in self.floors else 1.0
+        self.sigma_theta = self.floors["position"].sigma if "position" in self.floors else 1.0
+        self.use_w = "speed" in self.floors and self.q > 0
+        self.use_theta = "position" in self.floors and self.p > 0
+        #: per run, the samples the fit sees (cross-validation folds); None: all
+        self.masks = None if masks is None else [np.asarray(m, bool) for m in masks]
+        counts = [len(r.u) if self.masks is None else int(m.sum())
+                  for r, m in zip(self.runs, self.masks or [None] * len(self.runs))]
+        self.n_w = sum(c for r, c in zip(self.runs, counts) if r.w is not None) if self.use_w else 0
+        self.n_theta = sum(c for r, c in zip(self.runs, counts)
+                           if r.theta is not None) if self.use_theta else 0
         self.m = self.n_w + self.n_theta
         self.nfev = 0
         self._weights = [(r.w, np.sqrt(self.q) / self.sigma_w if self.use_w and r.w is not None else 0.0,
@@ -157,10 +152,12 @@ class Objective:
         P = sims[0]["w"].shape[0]
         R = np.empty((P, self.m))
         k = 0
-        for r, s in zip(self.runs, sims):
+        for j, (r, s) in enumerate(zip(self.runs, sims)):
             for use, meas, sim, scale in ((self.use_theta, r.theta, s["theta"], np.sqrt(self.p) / self.sigma_theta),
                                           (self.use_w, r.w, s["w"], np.sqrt(self.q) / self.sigma_w)):
                 if use and meas is not None:
+                    if self.masks is not None:
+                        meas, sim = meas[self.masks[j]], sim[:, self.masks[j]]
                     out = R[:, k:k + len(meas)]
                     np.subtract(meas[None, :], sim, out=out)
                     out *= scale
@@ -186,6 +183,10 @@ class Objective:
     def fitness_batch(self, X: np.ndarray) -> np.ndarray:
         """(P, D_free) -> (P,) fitness; the fused kernel never stores trajectories."""
         X = np.atleast_2d(X)
+        if self.masks is not None:  # a fold: the residuals of its samples
+            R = self.residuals_batch(X)
+            f = np.sqrt(np.sum(R ** 2, axis=1) / self.m)
+            return np.where(np.isfinite(f), f, np.inf)
         self.nfev += X.shape[0]
         plant, ep = self.split(self.space.to_physical(X))
         with np.errstate(all="ignore"):

@@ -56,6 +56,23 @@ class Effect(abc.ABC):
     #: parameter -> column of the fast simulator's kernel that holds it (built-in
     #: input, drive and output effects); empty: the simulator's general path
     kernel_columns: dict = {}
+    #: effects of one family are alternatives: a model holds at most one of them
+    #: (empty: the effect's own name)
+    family: str = ""
+
+    @property
+    def family_name(self) -> str:
+        return self.family or self.name
+
+    def data_bounds(self, reach) -> dict:
+        """``{param: (lower, upper)}`` from what the data can see
+        (:class:`labrig.model.reach.Reach`); default: the catalogue's bounds."""
+        return {}
+
+    def scan_grid(self, reach) -> dict:
+        """``{param: values}`` (arrays of one length): points to try before a local fit,
+        so a threshold never starts where no gradient reaches it; default: none."""
+        return {}
 
     def param_names(self) -> list[str]:
         return [p.name for p in self.params]

@@ -71,9 +71,17 @@ class Deadband(InputEffect):
                  "speed at u = d; coast-downs are exponential (not braked)")
     experiment = "a slow voltage ramp through zero: the speed stays at 0 until |u| = d"
     kernel_columns = {"d_v": "d"}
+    family = "dead zone"
 
     def explain_params(self, params, context):
-        return f"d = {params['d_v']:.3g} V at the bridge input"
+        return (f"d = {params['d_v']:.3g} V at the bridge input "
+                f"({params['d_v'] * context['Ka']:.3g} V at the armature)")
+
+    def data_bounds(self, reach):
+        return {"d_v": (1e-3, reach.amax)}  # a hobby H-bridge's 3-4 V included
+
+    def scan_grid(self, reach):
+        return {"d_v": np.linspace(0.02, 0.9, 12) * reach.amax}
 
     def apply(self, v, d_v):
         return np.sign(v) * np.maximum(np.abs(v) - d_v, 0.0)
@@ -100,8 +108,20 @@ class Saturation(DriveEffect):
     kernel_columns = {"vmax_v": "vmax"}
 
     def explain_params(self, params, context):
+        to_input = context.get("to_input")
+        if to_input is not None:  # through the effects in front (a dead zone, an offset)
+            up, down = to_input(params["vmax_v"] / context["Ka"])
+            return (f"vmax = {params['vmax_v']:.3g} V at the armature, reached by inputs "
+                    f"above {up:.3g} V and below {down:.3g} V")
         return (f"vmax = {params['vmax_v']:.3g} V at the armature, i.e. inputs above "
                 f"{params['vmax_v'] / context['Ka']:.3g} V saturate")
+
+    def data_bounds(self, reach):
+        # a rail above the largest drive is never met: the upper bound says "not reached"
+        return {"vmax_v": (0.02 * reach.drive_max, 1.5 * reach.drive_max)}
+
+    def scan_grid(self, reach):
+        return {"vmax_v": np.geomspace(0.08, 1.2, 14) * reach.drive_max}
 
     def apply(self, v, vmax_v):
         return np.clip(v, -vmax_v, vmax_v)
@@ -136,11 +156,23 @@ class CoulombFriction(FrictionEffect):
     experiment = ("a coast-down from speed with the amplifier off (the speed falls "
                   "linearly and stops in finite time) or a slow ramp in both directions")
     def explain_params(self, params, context):
-        # Tc in N m is not identifiable (it slides along the model's symmetry with R
-        # and J); its size relative to the drive is
-        return (f"tc_v = {params['tc_v']:.3g} V: friction cancels the first "
+        # Tc in N m slides along the model's symmetry with R and J; in the model it is
+        text = (f"tc_v = {params['tc_v']:.3g} V: friction cancels the first "
                 f"{params['tc_v']:.3g} V of drive ({100 * params['tc_v'] / context['amin']:.0f} % "
                 f"of the smallest amplitude, {context['amin']:.2g} V)")
+        if "R" in context:
+            text += f"; Tc = {params['tc_v'] * context['Ka'] * context['K'] / context['R']:.3g} N m"
+        to_input = context.get("to_input")
+        if to_input is not None:  # behind a dead zone or an offset
+            up, down = to_input(params["tc_v"])
+            text += f"; the motor keeps turning for inputs above {up:.3g} V or below {down:.3g} V"
+        return text
+
+    def data_bounds(self, reach):
+        return {"tc_v": (1e-3, reach.amax)}
+
+    def scan_grid(self, reach):
+        return {"tc_v": np.linspace(0.02, 0.9, 12) * reach.amax}
 
     def friction(self, plant, tc_v):
         t = tc_v * plant.Ka * plant.K / plant.R
@@ -168,6 +200,13 @@ class Stiction(FrictionEffect):
         t = tc_v * plant.Ka * plant.K / plant.R
         return t, t * (1.0 + excess)
 
+    def data_bounds(self, reach):
+        return {"tc_v": (1e-3, reach.amax)}
+
+    def scan_grid(self, reach):
+        tc = np.linspace(0.02, 0.8, 8) * reach.amax
+        return {"tc_v": np.tile(tc, 2), "excess": np.repeat([0.3, 1.0], len(tc))}
+
     def initial_guess(self, runs, plant):
         g = CoulombFriction().initial_guess(runs, plant)
         return {"tc_v": g["tc_v"], "excess": 0.5}
@@ -193,6 +232,12 @@ class Backlash(OutputEffect):
     def explain_params(self, params, context):
         return (f"half gap a = {params['a_rad']:.3g} rad = {math.degrees(params['a_rad']):.2f} deg "
                 "at the output shaft")
+
+    def data_bounds(self, reach):
+        return {"a_rad": (1e-4, float(np.clip(reach.theta_span / 2, 2e-3, 0.5)))}
+
+    def scan_grid(self, reach):
+        return {"a_rad": np.geomspace(1e-3, float(np.clip(reach.theta_span / 4, 2e-3, 0.25)), 10)}
 
     def output(self, state, x, a_rad):
         y = np.clip(state, x - a_rad, x + a_rad)
@@ -221,6 +266,13 @@ class Delay(DelayEffect):
     def delay_s(self, td_s):
         return td_s
 
+    def data_bounds(self, reach):
+        return {"td_s": (1e-5, float(np.clip(reach.duration / 20, 0.01, 0.25)))}
+
+    def scan_grid(self, reach):
+        hi = float(np.clip(reach.duration / 40, 0.005, 0.12))
+        return {"td_s": np.geomspace(max(reach.dt / 2, 1e-4), hi, 12)}
+
     def initial_guess(self, runs, plant):
         return {"td_s": 1.0 / max(r.fs for r in runs) if runs else 1e-3}
 
@@ -238,6 +290,12 @@ class Offset(InputEffect):
 
     def apply(self, v, u0_v):
         return v + u0_v
+
+    def explain_params(self, params, context):
+        return f"u0 = {params['u0_v'] * 1e3:.3g} mV at the bridge input"
+
+    def scan_grid(self, reach):
+        return {"u0_v": np.linspace(-0.2, 0.2, 9) * min(reach.amax, 2.5)}
 
     def initial_guess(self, runs, plant):
         return {"u0_v": 0.0}
@@ -258,12 +316,59 @@ class Asymmetry(InputEffect):
     def apply(self, v, k):
         return np.where(v >= 0, v * (1.0 + k), v * (1.0 - k))
 
+    def scan_grid(self, reach):
+        return {"k": np.linspace(-0.2, 0.2, 9)}
+
     def initial_guess(self, runs, plant):
         return {"k": 0.0}
 
 
+class AsymmetricDeadband(InputEffect):
+    """A dead zone wider one way: ``v = u - d+`` above ``d+``, ``u + d-`` below ``-d-``.
+
+    Physics: an H-bridge or amplifier whose two half-bridges switch on at different
+    inputs, or brushes set off the neutral axis. It equals a symmetric dead zone
+    ``d = (d+ + d-)/2`` behind an input offset ``u0 = (d- - d+)/2`` exactly, which is
+    how the fast simulator holds it.
+    """
+
+    name = "asymmetric_deadband"
+    stage = "input"
+    family = "dead zone"
+    params = (Param("dpos_v", "V", 1e-3, 2.0, "dead zone for positive inputs"),
+              Param("dneg_v", "V", 1e-3, 2.0, "dead zone for negative inputs"))
+    summary = "a dead zone wider in one direction: the rig starts later one way"
+    signature = ("like a dead zone, but the steady speeds of +A and -A differ by a "
+                 "constant amount; the error alternates sign with direction")
+    experiment = "slow ramps from 0 V up and from 0 V down: the speed leaves 0 at different |u|"
+
+    def explain_params(self, params, context):
+        return (f"d+ = {params['dpos_v']:.3g} V forward, d- = {params['dneg_v']:.3g} V in "
+                f"reverse (a symmetric {0.5 * (params['dpos_v'] + params['dneg_v']):.3g} V "
+                f"dead zone behind a {0.5e3 * (params['dneg_v'] - params['dpos_v']):.3g} mV offset)")
+
+    def apply(self, v, dpos_v, dneg_v):
+        return np.where(v >= 0, np.maximum(v - dpos_v, 0.0), np.minimum(v + dneg_v, 0.0))
+
+    def to_kernel(self, kernel, p, plant) -> bool:
+        kernel.set("d", 0.5 * (p["dpos_v"] + p["dneg_v"]))
+        kernel.add("u0", 0.5 * (p["dneg_v"] - p["dpos_v"]))
+        return True
+
+    def data_bounds(self, reach):
+        return {"dpos_v": (1e-3, reach.amax), "dneg_v": (1e-3, reach.amax)}
+
+    def scan_grid(self, reach):
+        d = np.linspace(0.04, 0.8, 6) * reach.amax
+        return {"dpos_v": np.repeat(d, len(d)), "dneg_v": np.tile(d, len(d))}
+
+    def initial_guess(self, runs, plant):
+        d = 0.05 * float(np.min(_run_amplitudes(runs)))
+        return {"dpos_v": d, "dneg_v": d}
+
+
 #: input-stage effects act in this order (then any user effects), in every simulator
-INPUT_ORDER = ("offset", "asymmetry", "deadband")
+INPUT_ORDER = ("offset", "asymmetry", "deadband", "asymmetric_deadband")
 
 
 def ordered(effects) -> list:
@@ -273,7 +378,8 @@ def ordered(effects) -> list:
 
 
 CATALOGUE: dict[str, type[Effect]] = {cls.name: cls for cls in (
-    Deadband, CoulombFriction, Saturation, Backlash, Delay, Stiction, Offset, Asymmetry)}
+    Deadband, CoulombFriction, Saturation, Backlash, Delay, Stiction, Offset, Asymmetry,
+    AsymmetricDeadband)}
 
 
 def _check_effect_class(cls, where: str) -> type[Effect]:

@@ -44,6 +44,12 @@ class EffectSet(Sequence):
             same = [e.name for e in effects if e.stage == stage]
             if len(same) > 1:
                 raise UserError(f"{where}: {' and '.join(same)} both act as {stage}; pick one")
+        families = [e.family_name for e in effects]
+        for e in effects:
+            if families.count(e.family_name) > 1:
+                same = [x.name for x in effects if x.family_name == e.family_name]
+                raise UserError(f"{where}: {' and '.join(same)} are both a {e.family_name}; "
+                                "pick one")
         self._effects = ordered(effects)
 
     @classmethod

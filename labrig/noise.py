@@ -1,0 +1,189 @@
+"""The noise floor of a sensor channel, measured the way the sensor behaves.
+
+A model's error is judged against the error a perfect model would leave: the sensor's
+scatter. That scatter is not the same everywhere. An analogue tacho scatters about
+equally at rest and while moving; an encoder-derived speed does not scatter at all at
+rest (the count stands still) and jumps by a whole count step while moving, so a floor
+taken at rest is several times too small. Hence, per channel:
+
+1. every run is cut into blocks (about 64 samples); each block is detrended locally by
+   a quadratic Savitzky-Golay fit (smooth motion removed, scatter kept) and its
+   variance corrected for what the fit absorbs;
+2. blocks are sorted into *moving* and *at rest* by the speed; within each class the
+   blocks holding an edge (a kink the quadratic cannot follow) are dropped as outliers
+   against the class median;
+3. each class's variance is floored at the channel's quantisation ``q^2/12`` (a quiet
+   quantised signal is only known to within a step), and the floor is the
+   time-weighted root mean of the two: the rms error of a perfect model over these runs.
+
+:func:`noise_floor` returns a :class:`NoiseFloor` that says how it was measured.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.signal import savgol_coeffs, savgol_filter
+
+#: samples per block, and of the local quadratic fit
+BLOCK = 64
+WINDOW = 7
+#: a block whose variance exceeds this multiple of its class median holds an edge
+OUTLIER = 5.0
+#: a block is moving when its median |speed| exceeds this share of the largest speed
+MOVING = 0.05
+
+
+@dataclass(frozen=True)
+class Weights:
+    """Channel weights of the fit (position p, speed q), each already in noise units."""
+
+    p: float = 1.0
+    q: float = 1.0
+
+    def to_json(self) -> dict:
+        return {"position": self.p, "speed": self.q}
+
+
+@dataclass
+class NoiseFloor:
+    """The noise level of one channel (in the channel's units) and how it was found.
+
+    Attributes
+    ----------
+    sigma : float
+        The floor: rms error a perfect model would leave.
+    moving, rest : float or None
+        The scatter while moving and at rest (None: no such block).
+    share_moving : float
+        Share of samples in moving blocks.
+    q : float
+        Quantisation step (0 if none seen); ``q/sqrt(12)`` is the lowest floor allowed.
+    blocks : int
+        Blocks used.
+    """
+
+    channel: str
+    unit: str
+    sigma: float
+    moving: float | None
+    rest: float | None
+    share_moving: float
+    q: float
+    blocks: int
+
+    @property
+    def quantisation(self) -> float:
+        return self.q / np.sqrt(12.0)
+
+    def describe(self) -> str:
+        parts = []
+        if self.moving is not None:
+            parts.append(f"moving {self.moving:.3g}")
+        if self.rest is not None:
+            parts.append(f"at rest {self.rest:.3g}")
+        qtxt = (f"; quantisation step {self.q:.3g}, q/sqrt(12) = {self.quantisation:.3g}"
+                if self.q > 0 else "")
+        return (f"{self.channel}: {self.sigma:.3g} {self.unit} rms ({', '.join(parts)}; "
+                f"{100 * self.share_moving:.0f} % of the time moving; {self.blocks} blocks of "
+                f"{BLOCK} samples detrended by a {WINDOW}-sample quadratic{qtxt})")
+
+    def to_json(self) -> dict:
+        return {"channel": self.channel, "unit": self.unit, "sigma": self.sigma,
+                "moving": self.moving, "rest": self.rest, "share_moving": self.share_moving,
+                "quantisation_step": self.q, "blocks": self.blocks,
+                "method": self.describe()}
+
+
+def quantisation_step(y: np.ndarray) -> float:
+    """The smallest regular step between the signal's levels (5th percentile of the
+    gaps between distinct values; 0 for an unquantised signal)."""
+    levels = np.unique(np.round(np.asarray(y, float), 12))
+    steps = np.diff(levels)
+    steps = steps[steps > 1e-12]
+    if len(steps) == 0:
+        return 0.0
+    q = float(np.percentile(steps, 5))
+    # an unquantised noisy signal has gaps far below its spread: no quantisation step
+    return q if q > 1e-6 * max(np.ptp(levels), 1e-300) else 0.0
+
+
+def _centre_weight(window: int) -> float:
+    return float(savgol_coeffs(window, 2)[window // 2])
+
+
+def _block_variances(y: np.ndarray, speed: np.ndarray, window: int):
+    """(variance, moving) per block of one run."""
+    if len(y) < max(window + 2, 16):
+        return np.empty(0), np.empty(0, bool)
+    r = y - savgol_filter(y, window, 2, mode="interp")
+    corr = 1.0 - _centre_weight(window)   # what the local fit absorbs of white noise
+    n = len(y) // BLOCK if len(y) >= 2 * BLOCK else 1
+    size = len(y) // n
+    smax = max(float(np.max(np.abs(speed))), 1e-300)
+    var = np.mean(r[:n * size].reshape(n, size) ** 2, axis=1) / corr
+    moving = np.median(np.abs(speed[:n * size]).reshape(n, size), axis=1) > MOVING * smax
+    return var, moving
+
+
+def _class_variance(var: np.ndarray, floor: float) -> tuple[float | None, int]:
+    if len(var) == 0:
+        return None, 0
+    med = float(np.median(var))
+    keep = var <= OUTLIER * max(med, floor, 1e-300)
+    return float(np.mean(np.maximum(var[keep], floor))), int(keep.sum())
+
+
+def noise_floor(signals, speeds, channel: str = "speed", unit: str = "rad/s") -> NoiseFloor:
+    """The noise floor of one channel over several runs.
+
+    Parameters
+    ----------
+    signals : list of arrays
+        The channel in each run.
+    speeds : list of arrays
+        A speed signal per run (to tell moving from resting stretches).
+    """
+    signals = [np.asarray(y, float) for y in signals]
+    q = max((quantisation_step(y) for y in signals), default=0.0)
+    floor = q * q / 12.0
+    window = WINDOW
+    vs, ms = [], []
+    for y, s in zip(signals, speeds):
+        v, m = _block_variances(y, np.asarray(s, float), window)
+        vs.append(v), ms.append(m)
+    var = np.concatenate(vs) if vs else np.empty(0)
+    mov = np.concatenate(ms) if ms else np.empty(0, bool)
+    vm, km = _class_variance(var[mov], floor)
+    vr, kr = _class_variance(var[~mov], floor)
+    share = float(mov.mean()) if len(mov) else 0.0
+    if vm is None and vr is None:  # too short to block: all of it, detrended once
+        y = np.concatenate(signals)
+        sd = float(np.std(np.diff(y))) / np.sqrt(2.0) if len(y) > 2 else 0.0
+        sigma = max(sd, np.sqrt(floor), 1e-12)
+        return NoiseFloor(channel, unit, sigma, None, None, 0.0, q, 0)
+    total = share * (vm if vm is not None else vr) + (1 - share) * (vr if vr is not None else vm)
+    return NoiseFloor(channel=channel, unit=unit, sigma=float(max(np.sqrt(total), 1e-12)),
+                      moving=None if vm is None else float(np.sqrt(vm)),
+                      rest=None if vr is None else float(np.sqrt(vr)),
+                      share_moving=share, q=q, blocks=km + kr)
+
+
+def run_speed(rd) -> np.ndarray:
+    """The speed that says whether a run is moving: the tacho, else the position's
+    derivative (motor side)."""
+    if rd.w is not None:
+        return rd.w
+    return np.gradient(rd.theta * rd.N, rd.dt)
+
+
+def channel_floors(runs) -> dict:
+    """``{"speed": NoiseFloor, "position": NoiseFloor}`` for the channels present in
+    prepared runs (:class:`labrig.model.simulate.RunData`)."""
+    out = {}
+    speeds = [run_speed(r) for r in runs]
+    for ch, attr, unit in (("speed", "w", "rad/s"), ("position", "theta", "rad")):
+        pairs = [(getattr(r, attr), s) for r, s in zip(runs, speeds) if getattr(r, attr) is not None]
+        if pairs:
+            out[ch] = noise_floor([p[0] for p in pairs], [p[1] for p in pairs], ch, unit)
+    return out

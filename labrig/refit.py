@@ -1,0 +1,118 @@
+"""Re-fitting a model with one effect more (or one fewer) without getting stuck.
+
+A local optimiser started from the current model fails in two ways that real rigs
+show at once:
+
+- **plateaus**: a threshold (dead zone, rail, friction level, gear gap) that starts
+  outside what the data reach has no gradient, so its re-fit "gains 0 %";
+- **basins**: the linear model's electrical pole can absorb a transport delay
+  (tau_e of 0.1 s for a 31 ms delay), and warm starts never leave that basin.
+
+So every re-fit first *scans* the new effect's parameters over the range the data can
+see (:meth:`labrig.model.effects.Effect.scan_grid`, one population call of the fast
+simulator, in two basins: the current electrical pole and a structurally different
+one), then polishes the best point of each basin with CO and keeps the better fit.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .identify.engine import identify
+from .identify.objective import Objective, build_space
+from .model.model import Model
+from .noise import Weights
+
+#: the loop's re-fits see about this many residuals (every k-th)
+SUBSAMPLE = 16000
+#: a basin whose best scan point is this much worse than the other's is not polished
+BASIN_MARGIN = 1.5
+
+
+def fit(runs, effects, start: dict, fixed: dict, *, seed: int, weights: Weights,
+        reach, max_nfev: int = 60, masks=None):
+    """One CO fit from ``start`` (bounds from ``reach``)."""
+    return identify(runs, "co", effects, seed=seed, start=start, fixed=fixed, starts=1,
+                    identifiability=False, max_nfev=max_nfev, p=weights.p, q=weights.q,
+                    masks=masks, reach=reach, subsample=SUBSAMPLE)
+
+
+def _alternative_pole(params: dict, dt: float) -> dict:
+    """The same plant with its electrical pole in the other basin: far below the sample
+    period when it sits above it (room for a delay), onto it when it sits far below
+    (where tau_e has no gradient at all)."""
+    tau_e = params["L"] / params["R"]
+    L = params["R"] * (0.05 * dt if tau_e > 0.5 * dt else 2.0 * dt)
+    return {**params, "L": L}
+
+
+def starts_for(runs, base_params: dict, effects, new, reach, fixed: dict,
+               weights: Weights) -> list[dict]:
+    """The best scanned start in each basin, best first (at most two)."""
+    space = build_space(effects, None, fixed, reach=reach)
+    obj = Objective(runs, effects, space, p=weights.p, q=weights.q)
+    grid = new.scan_grid(reach) if new is not None else {}
+    npts = len(next(iter(grid.values()))) if grid else 1
+    basins = [base_params, _alternative_pole(base_params, reach.dt)]
+    points = []
+    for b in basins:
+        for k in range(npts):
+            pt = dict(b)
+            for name, values in grid.items():
+                pt[f"{new.name}.{name}"] = float(values[k])
+            points.append(pt)
+    X = np.array([space.to_search({n: pt.get(n, space_mid(space, n)) for n in space.names})
+                  for pt in points])
+    f = obj.fitness_batch(X)
+    best = []
+    for j in range(len(basins)):
+        seg = f[j * npts:(j + 1) * npts]
+        k = int(np.argmin(seg))
+        best.append((float(seg[k]), points[j * npts + k]))
+    best.sort(key=lambda t: t[0])
+    keep = [best[0][1]]
+    if len(best) > 1 and best[1][0] <= BASIN_MARGIN * best[0][0]:
+        keep.append(best[1][1])
+    return keep
+
+
+def space_mid(space, name: str) -> float:
+    i = space.names.index(name)
+    lo, hi = space.lower[i], space.upper[i]
+    return float(np.sqrt(lo * hi)) if space.log[i] else 0.5 * (lo + hi)
+
+
+def refit_with(runs, base: Model, effect, *, seed: int = 0, fixed: dict | None = None,
+               weights: Weights = Weights(), reach=None):
+    """``base`` plus ``effect``, re-fitted from scanned starts in two basins; returns the
+    best :class:`labrig.identify.engine.Identification`."""
+    from .model.reach import Reach
+
+    reach = reach or Reach.of(runs, base)
+    effects = base.effects + [effect]
+    fixed = dict(fixed or {})
+    params = {**base.flat(), **fixed}
+    starts = starts_for(runs, params, effects, effect, reach, fixed, weights)
+    fits = [fit(runs, effects, s, fixed, seed=seed, weights=weights, reach=reach)
+            for s in starts]
+    return min(fits, key=lambda f: f.fitness)
+
+
+def refit(runs, model: Model, *, seed: int = 0, fixed: dict | None = None,
+          weights: Weights = Weights(), reach=None):
+    """``model`` re-fitted as it is (both basins of the electrical pole)."""
+    from .model.reach import Reach
+
+    reach = reach or Reach.of(runs, model)
+    fixed = dict(fixed or {})
+    params = {**model.flat(), **fixed}
+    starts = starts_for(runs, params, model.effects, None, reach, fixed, weights)
+    fits = [fit(runs, model.effects, s, fixed, seed=seed, weights=weights, reach=reach)
+            for s in starts]
+    return min(fits, key=lambda f: f.fitness)
+
+
+def without(model: Model, name: str) -> Model:
+    """``model`` with the effect ``name`` taken out (its parameters dropped)."""
+    effects = [e for e in model.effects if e.name != name]
+    flat = {k: v for k, v in model.flat().items() if not k.startswith(f"{name}.")}
+    return Model.from_flat(flat, effects, model.constants, info=dict(model.info or {}))
