@@ -58,8 +58,9 @@ class Move:
     @property
     def label(self) -> str:
         e = self.effects
-        return {"add": f"+ {e[0]}", "pair": f"+ {e[0]}, {e[1]}",
-                "swap": f"{e[0]} -> {e[1]}", "remove": f"- {e[0]}"}[self.kind]
+        if self.kind == "swap":
+            return f"{e[0]} -> {e[1]}"
+        return ("- " if self.kind == "remove" else "+ ") + ", ".join(e)
 
     def to_json(self) -> dict:
         return {"kind": self.kind, "effects": list(self.effects), "label": self.label,

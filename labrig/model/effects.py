@@ -148,6 +148,7 @@ class CoulombFriction(FrictionEffect):
 
     name = "coulomb_friction"
     stage = "friction"
+    family = "friction law"
     params = (Param("tc_v", "V", 1e-3, 5.0, "Coulomb friction as the bridge voltage that balances "
                     "it at stall (Tc = tc_v Ka K / R)"),)
     summary = "dry friction of brushes and bearings: a constant torque against motion"
@@ -187,6 +188,7 @@ class Stiction(FrictionEffect):
 
     name = "stiction"
     stage = "friction"
+    family = "friction law"
     params = (Param("tc_v", "V", 1e-3, 5.0, "Coulomb friction as a bridge voltage (see coulomb_friction)"),
               Param("excess", "-", 0.01, 3.0, "breakaway excess: Ts = Tc (1 + excess)"))
     summary = "static friction: starting from rest needs more torque than keeping moving"
