@@ -47,6 +47,8 @@ MIN_DBIC = -10.0
 FLOOR = 1.15
 #: candidates cross-validated per round (the best by in-sample error)
 CV_CANDIDATES = 4
+#: relative penalty per extra parameter when held-out errors are compared
+PARSIMONY = 0.02
 #: a fit parameter within this share of its bound's span sits at the bound
 AT_BOUND = 1e-3
 
@@ -66,7 +68,8 @@ def balanced_weights(ev: Evaluation) -> Weights:
     return Weights(p=p * scale, q=q * scale)
 
 
-def _bic(sse, n, n_eff, k):
+def bic(sse, n, n_eff, k):
+    """BIC with the effective sample count (residual colour corrected)."""
     return n_eff * math.log(max(sse, 1e-300) / n) + k * math.log(n_eff)
 
 
@@ -80,7 +83,9 @@ def at_bounds(ident) -> list[str]:
         v = ident.params[n]
         a, b, x = (np.log10(lo), np.log10(hi), np.log10(max(v, 1e-300))) if lg else (lo, hi, v)
         if min(x - a, b - x) <= AT_BOUND * (b - a):
-            out.append(f"{n} = {v:.3g} at its {'lower' if x - a < b - x else 'upper'} bound")
+            out.append(f"{n} = {v:.3g} at its lower bound (absent, or below what these data show)"
+                       if x - a < b - x else
+                       f"{n} = {v:.3g} at its upper bound (beyond what these data reach)")
     return out
 
 
@@ -159,7 +164,7 @@ def diagnose(runs, model: Model | None = None, *, candidates=None, seed: int = 0
     rho = min(max(ev0.rho1, 0.0), 0.995)
     n_eff = max(n * (1 - rho) / (1 + rho), 10.0)
     k0 = len(param_keys(base)) - len(fixed)
-    bic0 = _bic(ev0.wsse, n, n_eff, k0)
+    bic0 = bic(ev0.wsse, n, n_eff, k0)
     f0 = ev0.fitness
     reach = Reach.of(runs, base)
 
@@ -171,9 +176,9 @@ def diagnose(runs, model: Model | None = None, *, candidates=None, seed: int = 0
         ident = refit_with(runs, base, eff, seed=seed, fixed=fixed, weights=weights, reach=reach)
         cand = ident.model()
         ev = evaluate(runs, cand, sig, weights=weights)
-        bic = _bic(ev.wsse, n, n_eff, k0 + len(eff.params))
+        bic1 = bic(ev.wsse, n, n_eff, k0 + len(eff.params))
         ranking.append(Candidate(effect=name, rmse_over_noise=ev.rmse,
-                                 improvement=1.0 - ev.fitness / f0, delta_bic=bic - bic0,
+                                 improvement=1.0 - ev.fitness / f0, delta_bic=bic1 - bic0,
                                  params=dict(cand.effect_params[name]),
                                  fit_percent=ev.metrics["fit_percent"], model=cand,
                                  evaluation=ev, at_bound=at_bounds(ident)))
@@ -196,9 +201,9 @@ def diagnose(runs, model: Model | None = None, *, candidates=None, seed: int = 0
                            and c.improvement >= MIN_GAIN and cv["improvement"] >= MIN_GAIN
                            and cv["folds_improved"] > cv["folds"] / 2)
     ranking.sort(key=lambda c: (c.cross_validated is None,
-                                c.cross_validated["with_effect"] if c.cross_validated else 0.0,
-                                c.delta_bic))
-    rec = _choose([c for c in ranking if c.supported])
+                                _score(c) if c.cross_validated else 0.0, c.delta_bic))
+    supported = [c for c in ranking if c.supported]
+    rec = supported[0].effect if supported else None
     for c in ranking:
         c.explanation = explain(c, ev0, explain_context(c.model, runs))
     worst = worst_regime(ev0.regimes)
@@ -235,20 +240,12 @@ def diagnose(runs, model: Model | None = None, *, candidates=None, seed: int = 0
         cv_baseline=cv0)
 
 
-def _choose(supported: list[Candidate]) -> str | None:
-    """The supported candidate that predicts held-out data best; a simpler one of the same
-    family within 2 % of it is preferred (a symmetric dead zone over an asymmetric one
-    that fits no better)."""
-    if not supported:
-        return None
-    best = min(supported, key=lambda c: c.cross_validated["with_effect"])
-    fam = get_effect(best.effect).family_name
-    for c in supported:
-        e = get_effect(c.effect)
-        if (e.family_name == fam and len(e.params) < len(get_effect(best.effect).params)
-                and c.cross_validated["with_effect"] <= 1.02 * best.cross_validated["with_effect"]):
-            best = c
-    return best.effect
+def _score(c: Candidate) -> float:
+    """Cross-validated error with a mild penalty per extra parameter, so a simpler effect
+    that predicts held-out data about as well ranks first (a symmetric dead zone over an
+    asymmetric one that fits no better, Coulomb friction over stiction)."""
+    extra = len(get_effect(c.effect).params) - 1
+    return c.cross_validated["with_effect"] * (1 + PARSIMONY * extra)
 
 
 def explain(entry: Candidate, ev0: Evaluation, const: dict) -> str:
@@ -265,8 +262,7 @@ def explain(entry: Candidate, ev0: Evaluation, const: dict) -> str:
                 f"{d['candidate']:.2f}, {100 * d['share_of_time']:.0f} % of the time)" for d in ev) + "."
     else:
         held = " Not cross-validated (its in-sample gain is below the threshold)."
-    bound = (" The fit ended at a bound: " + "; ".join(entry.at_bound)
-             + " (the data do not reach the effect there).") if entry.at_bound else ""
+    bound = (" The fit ended at a bound: " + "; ".join(entry.at_bound) + ".") if entry.at_bound else ""
     verdict = ("It earns its parameters." if entry.supported else
                "It does not earn its parameters on these data.")
     r0 = ev0.rmse

@@ -6,7 +6,6 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from pathlib import Path
 
 from .evaluation import Evaluation, evaluate
 from .model.model import Model

@@ -8,7 +8,9 @@ taken at rest is several times too small. Hence, per channel:
 
 1. every run is cut into blocks (about 64 samples); each block is detrended locally by
    a quadratic Savitzky-Golay fit (smooth motion removed, scatter kept) and its
-   variance corrected for what the fit absorbs;
+   variance corrected for what the fit absorbs, which depends on the noise's colour
+   (solved from the residual's lag-1 correlation: white, or the negatively correlated
+   scatter of a difference of encoder counts);
 2. blocks are sorted into *moving* and *at rest* by the speed; within each class the
    blocks holding an edge (a kink the quadratic cannot follow) are dropped as outliers
    against the class median;
@@ -108,30 +110,56 @@ def quantisation_step(y: np.ndarray) -> float:
     return q if q > 1e-6 * max(np.ptp(levels), 1e-300) else 0.0
 
 
-def _centre_weight(window: int) -> float:
-    return float(savgol_coeffs(window, 2)[window // 2])
+def _residual_filter(window: int) -> np.ndarray:
+    """g = delta - h: what the local quadratic fit leaves of a sample's neighbourhood."""
+    g = -savgol_coeffs(window, 2)
+    g[window // 2] += 1.0
+    return g
+
+
+def _gamma(g: np.ndarray, m: int) -> float:
+    return float(np.dot(g[:len(g) - m], g[m:])) if m < len(g) else 0.0
 
 
 def _block_variances(y: np.ndarray, speed: np.ndarray, window: int):
-    """(variance, moving) per block of one run."""
+    """(mean square, lag-1 product mean, moving) per block of one run's detrended signal."""
     if len(y) < max(window + 2, 16):
-        return np.empty(0), np.empty(0, bool)
+        return np.empty(0), np.empty(0), np.empty(0, bool)
     r = y - savgol_filter(y, window, 2, mode="interp")
-    corr = 1.0 - _centre_weight(window)   # what the local fit absorbs of white noise
     n = len(y) // BLOCK if len(y) >= 2 * BLOCK else 1
     size = len(y) // n
     smax = max(float(np.max(np.abs(speed))), 1e-300)
-    var = np.mean(r[:n * size].reshape(n, size) ** 2, axis=1) / corr
+    rb = r[:n * size].reshape(n, size)
+    ms = np.mean(rb ** 2, axis=1)
+    lag1 = np.mean(rb[:, 1:] * rb[:, :-1], axis=1)
     moving = np.median(np.abs(speed[:n * size]).reshape(n, size), axis=1) > MOVING * smax
-    return var, moving
+    return ms, lag1, moving
 
 
-def _class_variance(var: np.ndarray, floor: float) -> tuple[float | None, int]:
-    if len(var) == 0:
+def _class_variance(ms: np.ndarray, lag1: np.ndarray, window: int,
+                    floor: float) -> tuple[float | None, int]:
+    """The noise variance of one class of blocks.
+
+    The local fit absorbs part of the noise, how much depends on its colour: white
+    noise keeps Gamma(0) = 1 - h0 of its variance, noise whose neighbours are correlated
+    by rho keeps Gamma(0) + 2 rho Gamma(1) (an encoder speed, a difference of counts, has
+    rho = -0.5). rho is solved from the residual's own lag-1 correlation, between -0.5
+    and 0."""
+    if len(ms) == 0:
         return None, 0
-    med = float(np.median(var))
-    keep = var <= OUTLIER * max(med, floor, 1e-300)
-    return float(np.mean(np.maximum(var[keep], floor))), int(keep.sum())
+    g = _residual_filter(window)
+    G0, G1, G2 = _gamma(g, 0), _gamma(g, 1), _gamma(g, 2)
+    var = ms / G0
+    keep = var <= OUTLIER * max(float(np.median(var)), floor, 1e-300)
+    m, c = float(np.mean(ms[keep])), float(np.mean(lag1[keep]))
+    rho = 0.0
+    if m > 0:
+        c1 = c / m
+        den = 2 * c1 * G1 - G0 - G2
+        # a positive correlation is motion the local fit could not follow, not noise
+        rho = float(np.clip((G1 - c1 * G0) / den, -0.5, 0.0)) if den else 0.0
+    est = ms[keep] / (G0 + 2 * rho * G1)
+    return float(np.mean(np.maximum(est, floor))), int(keep.sum())
 
 
 def noise_floor(signals, speeds, channel: str = "speed", unit: str = "rad/s") -> NoiseFloor:
@@ -148,14 +176,12 @@ def noise_floor(signals, speeds, channel: str = "speed", unit: str = "rad/s") ->
     q = max((quantisation_step(y) for y in signals), default=0.0)
     floor = q * q / 12.0
     window = WINDOW
-    vs, ms = [], []
-    for y, s in zip(signals, speeds):
-        v, m = _block_variances(y, np.asarray(s, float), window)
-        vs.append(v), ms.append(m)
-    var = np.concatenate(vs) if vs else np.empty(0)
-    mov = np.concatenate(ms) if ms else np.empty(0, bool)
-    vm, km = _class_variance(var[mov], floor)
-    vr, kr = _class_variance(var[~mov], floor)
+    parts = [_block_variances(y, np.asarray(s, float), window) for y, s in zip(signals, speeds)]
+    ms = np.concatenate([p[0] for p in parts]) if parts else np.empty(0)
+    l1 = np.concatenate([p[1] for p in parts]) if parts else np.empty(0)
+    mov = np.concatenate([p[2] for p in parts]) if parts else np.empty(0, bool)
+    vm, km = _class_variance(ms[mov], l1[mov], window, floor)
+    vr, kr = _class_variance(ms[~mov], l1[~mov], window, floor)
     share = float(mov.mean()) if len(mov) else 0.0
     if vm is None and vr is None:  # too short to block: all of it, detrended once
         y = np.concatenate(signals)

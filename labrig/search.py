@@ -19,7 +19,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from .crossval import cross_validate
-from .diagnose import MIN_DBIC, MIN_GAIN, _bic, candidate_names, diagnose
+from .diagnose import MIN_DBIC, MIN_GAIN, bic, candidate_names, diagnose
 from .evaluation import evaluate
 from .ladder import Ladder, LadderStep
 from .model.effects import get_effect
@@ -98,17 +98,28 @@ class _Judge:
 
     def bic(self, model, ev) -> float:
         k = len(param_keys(model)) - len(self.fixed)
-        return _bic(ev.wsse, self.n, self.n_eff, k)
+        return bic(ev.wsse, self.n, self.n_eff, k)
 
     def add(self, model, name):
         return refit_with(self.runs, model, get_effect(name), seed=self.seed, fixed=self.fixed,
                           weights=self.weights).model()
 
 
+def _pool(ranking) -> list:
+    """The leading candidates, one per family: the simplest member unless a richer one
+    gains MIN_GAIN more (an asymmetric dead zone only when it is clearly asymmetric)."""
+    best: dict = {}
+    for c in sorted(ranking, key=lambda c: len(get_effect(c.effect).params)):
+        fam = get_effect(c.effect).family_name
+        if fam not in best or c.improvement >= best[fam].improvement + MIN_GAIN:
+            best[fam] = c
+    return sorted(best.values(), key=lambda c: -c.improvement)[:PAIR_POOL]
+
+
 def _pair(judge: _Judge, diag, log):
     """The best pair of the leading candidates, when no single one is near the floor:
     ``(model, cv, names)`` or None."""
-    pool = sorted(diag.ranking, key=lambda c: -c.improvement)[:PAIR_POOL]
+    pool = _pool(diag.ranking)
     if not pool or min(c.rmse_over_noise for c in pool) <= NEAR_FLOOR:
         return None
     best = None

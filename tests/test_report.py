@@ -89,8 +89,8 @@ def work(dataset):
         {**co, "method": "all", "best": "co", "results": {"jfo": jfo, "pso": pso, "co": co}}))
     ranking = [{"effect": "coulomb_friction", "rmse_over_noise": 1.1, "improvement": 0.88,
                 "delta_bic": -11000.0, "params": {"tc_v": 0.129}, "supported": True,
-                "held_out": {"runs": ["sq_2.00V"], "baseline": 2.7, "with_effect": 1.1,
-                             "improvement": 0.6},
+                "cross_validated": {"baseline": 2.7, "with_effect": 1.1, "improvement": 0.6,
+                                    "folds_improved": 4, "folds": 4, "evidence": []},
                 "explanation": "Dry friction of brushes and bearings. " + HOSTILE},
                {"effect": "delay", "rmse_over_noise": 9.3, "improvement": -0.0, "delta_bic": 8.0,
                 "params": {"td_s": 1e-4}, "supported": False, "explanation": "A delay."}]
@@ -106,7 +106,8 @@ def work(dataset):
                         "worst": {"channel": "speed", "regime": "reversal",
                                   "rmse_over_noise": 8.7}},
             "ranking": ranking, "recommendation": "coulomb_friction",
-            "verdict": "Add coulomb_friction: " + HOSTILE, "held_out": ["sq_2.00V"],
+            "verdict": "Add coulomb_friction: " + HOSTILE,
+            "cross_validation": {"kind": "leave-one-run-out", "folds": 4, "baseline": 2.7},
             "criteria": {"min_improvement": 0.05, "max_delta_bic": -10.0, "floor": 1.15},
             "seconds": 31.0}
     (w / "diagnosis.json").write_text(json.dumps(diag))

@@ -66,17 +66,19 @@ cmd_compare.configure = _configure_compare
 
 @command("diagnose", "where the model fails and which physical effect is missing")
 def cmd_diagnose(args):
-    """Locate the model's error (by regime and amplitude, against the noise floor), then
-    rank every catalogue effect the model lacks: re-fitted, compared on BIC and on a
-    held-out run, each with its evidence and the experiment that would confirm it."""
+    """Locate the model's error (by regime and amplitude, against each channel's noise
+    floor), then rank every catalogue effect the model lacks: re-fitted from scanned
+    starts, compared on BIC and by cross-validation, each with its evidence and the
+    experiment that would confirm it."""
     from ..diagnose import diagnose
     from .identification import parse_assignments
     from .registry import refuse_existing
 
     runs, model = _load(args)
     fixed = parse_assignments(args.fix, "--fix")
+    weights = _weights(args.weights)
     if args.auto:
-        return _auto(args, runs, model, fixed)
+        return _auto(args, runs, model, fixed, weights)
     refuse_existing([args.output] if args.output else [], args.force)  # before the 30 s
     with Progress("diagnose", total=8) as bar:
         cands = [c.strip() for c in args.candidates.split(",")] if args.candidates else None
@@ -85,7 +87,7 @@ def cmd_diagnose(args):
 
             for c in cands:
                 get_effect(c)  # unknown names fail here, with the catalogue listed
-        res = diagnose(runs, model, seed=args.seed, fixed=fixed, candidates=cands,
+        res = diagnose(runs, model, seed=args.seed, fixed=fixed, candidates=cands, weights=weights,
                        progress=lambda i, name: (bar.update(i), bar.note(f"re-fitting {name}")))
     if args.output and res.recommendation:
         res.recommended_model().save(args.output)
@@ -99,7 +101,23 @@ def cmd_diagnose(args):
 AUTO_FILES = ("model.json", "ladder.json", "ladder.png", "diagnosis.json")
 
 
-def _auto(args, runs, model, fixed) -> int:
+def _weights(text):
+    """``--weights p=..,q=..`` -> Weights (None: balanced on the starting model)."""
+    if not text:
+        return None
+    from ..noise import Weights
+    from .identification import parse_assignments
+
+    w = parse_assignments(text, "--weights")
+    if set(w) - {"p", "q"}:
+        raise UserError("--weights: only p (position) and q (speed), e.g. p=1,q=1")
+    p, q = float(w.get("p", 1.0)), float(w.get("q", 1.0))
+    if p < 0 or q < 0 or p + q == 0:
+        raise UserError("--weights: p and q must be >= 0 and not both 0")
+    return Weights(p=p, q=q)
+
+
+def _auto(args, runs, model, fixed, weights) -> int:
     """``diagnose --auto``: the rounds to the end; -o is a folder of their results."""
     from ..auto import auto_diagnose
     from ..fileio import write_json
@@ -115,7 +133,7 @@ def _auto(args, runs, model, fixed) -> int:
         raise UserError("--candidates: not with --auto (every round tries the whole catalogue)")
     with Progress("diagnose --auto", total=args.max_rounds) as bar:
         res = auto_diagnose(runs, model, max_rounds=args.max_rounds, seed=args.seed,
-                            fixed=fixed, log=bar.log)
+                            fixed=fixed, weights=weights, log=bar.log)
     if out:
         out.mkdir(parents=True, exist_ok=True)
         res.model.save(out / "model.json")
@@ -135,6 +153,8 @@ def _configure_diagnose(p):
     p.add_argument("data", nargs="+", help="folder(s) of runs")
     p.add_argument("--model", help="the current model (default: identify one without effects)")
     p.add_argument("--fix", help="parameters known from other measurements, e.g. R=8.2")
+    p.add_argument("--weights", help="channel weights p (position), q (speed), e.g. p=1,q=1 "
+                   "(default: balanced so that neither channel drowns the other)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--candidates", help="only these catalogue effects (default: all the model lacks)")
     p.add_argument("-o", "--output", help="save the model with the recommended effect added "
@@ -165,8 +185,6 @@ def cmd_ladder(args):
 
     runs = read_dataset(args.data)
     out = Path(args.output)
-    # automatic mode saves step0..stepN.json; N is not known in advance, so every
-    # step file it may write counts
     # automatic mode saves step0..stepN.json (swaps and removals add rungs): any step file
     written = [] if args.models else (sorted(out.glob("step*.json")) if out.is_dir() else [])
     refuse_existing([out, out / "ladder.png", *written], args.force, what="folder")

@@ -161,8 +161,9 @@ class CoulombFriction(FrictionEffect):
         text = (f"tc_v = {params['tc_v']:.3g} V: friction cancels the first "
                 f"{params['tc_v']:.3g} V of drive ({100 * params['tc_v'] / context['amin']:.0f} % "
                 f"of the smallest amplitude, {context['amin']:.2g} V)")
-        if "R" in context:
-            text += f"; Tc = {params['tc_v'] * context['Ka'] * context['K'] / context['R']:.3g} N m"
+        # in the physics' units: armature volts (the torque Tc = tc_v Ka K / R needs R or K
+        # known, --fix: along the model's symmetry it slides with R and J)
+        text += f", {params['tc_v'] * context['Ka']:.3g} V at the armature"
         to_input = context.get("to_input")
         if to_input is not None:  # behind a dead zone or an offset
             up, down = to_input(params["tc_v"])

@@ -27,7 +27,7 @@ import numba
 import numpy as np
 
 from ..errors import UserError
-from .effects import ordered
+from .effects import Effect, ordered
 
 PLANT = ("R", "L", "J", "B", "K")
 # kernel parameter columns after the plant
@@ -113,6 +113,7 @@ class Simulator:
         self.substeps = int(substeps)
         for e in self.effects:
             if e.stage in ("input", "drive") and not e.kernel_columns \
+                    and type(e).to_kernel is Effect.to_kernel \
                     and any(r.loop == "closed" for r in self.runs):
                 raise UserError(f"effect '{e.name}': a user-written {e.stage} effect can only be "
                                 "simulated on open-loop runs; leave the closed-loop runs out")

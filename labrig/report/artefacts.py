@@ -219,11 +219,13 @@ class Regimes(_Doc):
     noise: dict[str, Num] = {}
 
 
-class HeldOut(_Doc):
+class CrossValidated(_Doc):
     baseline: float
     with_effect: float
     improvement: Num = None
-    runs: list[str] = []
+    folds_improved: int = 0
+    folds: int = 0
+    evidence: list[dict] = []
 
 
 class CandidateDoc(_Doc):
@@ -233,7 +235,8 @@ class CandidateDoc(_Doc):
     delta_bic: Num = None
     params: dict[str, Num] = {}
     fit_percent: dict[str, Num] = {}
-    held_out: Optional[HeldOut] = None
+    cross_validated: Optional[CrossValidated] = None
+    at_bound: list[str] = []
     supported: bool = False
     explanation: str = ""
 
@@ -259,7 +262,9 @@ class DiagnosisDoc(_Doc):
     ranking: list[CandidateDoc] = []
     recommendation: Optional[str] = None
     verdict: str = ""
-    held_out: Optional[list[str]] = None
+    cross_validation: Optional[dict] = None
+    noise: dict = {}
+    weights: dict = {}
     criteria: Criteria = Criteria()
     seconds: Num = None
 
@@ -268,12 +273,15 @@ class DiagnosisDoc(_Doc):
         ranking = [Candidate(effect=c.effect, rmse_over_noise=c.rmse_over_noise,
                              improvement=c.improvement, delta_bic=c.delta_bic,
                              params=dict(c.params), fit_percent=dict(c.fit_percent),
-                             held_out=c.held_out.model_dump() if c.held_out else None,
+                             cross_validated=(c.cross_validated.model_dump()
+                                              if c.cross_validated else None),
+                             at_bound=list(c.at_bound),
                              supported=c.supported, explanation=c.explanation)
                    for c in self.ranking]
         return Diagnosis(baseline=self.baseline.model_dump(), regimes=self.regimes.model_dump(),
                          ranking=ranking, recommendation=self.recommendation,
-                         verdict=self.verdict, held_out=self.held_out,
+                         verdict=self.verdict, cross_validation=self.cross_validation,
+                         noise=dict(self.noise), weights=dict(self.weights),
                          criteria=self.criteria.model_dump(), seconds=self.seconds)
 
 
@@ -291,6 +299,7 @@ class StepDoc(_Doc):
     rmse_over_noise: Rmse
     fit_percent: dict[str, Num] = {}
     fitness: Num = None
+    cross_validated: Num = None
     model: Optional[str] = None
 
 
@@ -303,7 +312,8 @@ class LadderDoc(_Doc):
         return Ladder([LadderStep(label=s.label, effects=list(s.effects),
                                   rmse_over_noise=s.rmse_over_noise.model_dump(),
                                   fit_percent=dict(s.fit_percent), fitness=s.fitness,
-                                  model=s.model) for s in self.steps])
+                                  model=s.model, cross_validated=s.cross_validated)
+                       for s in self.steps])
 
 
 # -- reading --------------------------------------------------------------------------

@@ -181,8 +181,9 @@ def _diagnosis(story: Story, key, title) -> Section:
         "re-fitted; an effect is supported when it lowers the error by at least {}, with "
         "&Delta;BIC below {} ", num((base.get("rmse_over_noise") or {}).get("overall"), ".2f"),
         pct(crit.get("min_improvement"), ".0f"), num(crit.get("max_delta_bic"), "g"))
-    text += (markup("and on the held-out run {}", ", ".join(d.held_out)) if d.held_out
-             else "(no held-out run)") + "."
+    cv = d.cross_validation
+    text += (markup("and on data the fits did not see ({} folds, {})", cv["folds"], cv["kind"])
+             if cv else "(not cross-validated)") + "."
     blocks = _source(story, key) + [Text(text), Verdict(
         markup("<b>Recommendation: {}.</b> {}", rec or "none", d.verdict),
         "good" if rec else "warn")]

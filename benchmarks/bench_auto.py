@@ -1,0 +1,80 @@
+"""Benchmark: `labrig diagnose DIR --auto` on a five-run sweep with two hidden effects.
+
+    python benchmarks/bench_auto.py                 # measure, print JSON, write results_auto.json
+    python benchmarks/bench_auto.py --markdown      # the README row from results_auto.json
+
+The sweep: `labrig sweep --sim --rig configs/rig_deadzone_rail.toml --plan
+configs/plan_five.toml` (a 0.3 V dead zone in front of a 4 V armature rail; open-loop
+square waves of 0.6, 0.9, 1.2, 1.8 and 2.5 V, 0.25 Hz, two periods, 1 kHz: 5 x 8500
+samples). The whole process is timed (`labrig diagnose ... --auto` as a
+subprocess: interpreter start, imports, numba cache load, every round, the files
+written), after one warm-up run so the numba cache exists. Target: < 60 s on this
+2-core machine. Load average before the timed run, CPU count and versions are recorded.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+RESULTS = HERE / "results_auto.json"
+TARGET_S = 60.0
+RIG = HERE.parent / "configs" / "rig_deadzone_rail.toml"
+PLAN = HERE.parent / "configs" / "plan_five.toml"
+
+
+def labrig(*args) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "labrig", *map(str, args)],
+                          capture_output=True, text=True, check=True)
+
+
+def measure() -> dict:
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        labrig("sweep", "--sim", "--rig", RIG, "--plan", PLAN, "-o", tmp / "runs")
+        labrig("diagnose", tmp / "runs", "--auto", "--max-rounds", "1", "-o", tmp / "warm")
+        load = os.getloadavg()[0]
+        t0 = time.perf_counter()
+        p = labrig("diagnose", tmp / "runs", "--auto", "-o", tmp / "auto", "--json")
+        seconds = time.perf_counter() - t0
+        doc = json.loads(p.stdout)
+    return {"command": "labrig diagnose RUNS --auto -o OUT --json (subprocess, whole process)",
+            "seconds": round(seconds, 1), "target_s": TARGET_S, "pass": seconds < TARGET_S,
+            "effects_found": doc["effects"],
+            "final_rmse_over_noise": doc["ladder"][-1]["rmse_over_noise"],
+            "loadavg_before": round(load, 2), "cpus": os.cpu_count(),
+            "python": platform.python_version(), "machine": platform.machine(),
+            "when": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())}
+
+
+def markdown(res: dict) -> str:
+    return (f"| `labrig diagnose --auto`, five-run sweep, dead zone + rail hidden (subprocess, "
+            f"whole process) | **{res['seconds']:.1f} s**, found "
+            f"{' + '.join(res['effects_found'])} | < {res['target_s']:.0f} s | "
+            f"{'PASS' if res['pass'] else 'MISS'} |")
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--markdown", action="store_true", help="print the README row of the "
+                    "recorded result and exit")
+    args = ap.parse_args()
+    if args.markdown:
+        print(markdown(json.loads(RESULTS.read_text())))
+        return 0
+    res = measure()
+    RESULTS.write_text(json.dumps(res, indent=2) + "\n")
+    print(json.dumps(res, indent=2))
+    print(markdown(res))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,231 @@
+"""The loop on real rigs (issue 14): an honest noise floor, folds, data-derived bounds,
+and the hidden-effect matrix: several effects at once, a quantised encoder, one long
+staircase, a short delay and nothing hidden, each run through ``diagnose --auto``."""
+import shutil
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from labrig.auto import auto_diagnose
+from labrig.bridge.base import Experiment
+from labrig.crossval import make_folds
+from labrig.model.effects import get_effect
+from labrig.model.reach import Reach
+from labrig.noise import noise_floor
+from labrig.runs import read_dataset
+from conftest import make_rig, sim_dataset, square_plan
+
+FIVE = (0.6, 0.9, 1.2, 1.8, 2.5)
+
+
+# -- the noise floor -------------------------------------------------------------------
+
+def test_floor_of_an_analogue_tacho_is_its_noise(tmp_path):
+    """Gaussian tacho noise of 10 mV behind a 10-bit ADC (19.5 mV steps): the floor is the
+    rms of both, sqrt(0.010^2 + 0.0195^2/12) / Kt, measured moving and at rest."""
+    runs = read_dataset(sim_dataset(tmp_path, make_rig(), square_plan(amps=(1.2, 2.5))))
+    from labrig.model.simulate import prepare
+    from labrig.noise import channel_floors
+
+    f = channel_floors(prepare(runs))["speed"]
+    truth = np.hypot(0.010, 20.0 / 1024 / np.sqrt(12)) / 0.026
+    assert f.sigma == pytest.approx(truth, rel=0.08)
+    assert f.moving == pytest.approx(truth, rel=0.1) and f.rest == pytest.approx(truth, rel=0.2)
+    assert "moving" in f.describe() and "q/sqrt(12)" in f.describe()
+
+
+def test_floor_of_an_encoder_speed_is_taken_while_moving():
+    """An encoder-derived speed (counts per 10 ms sample) does not scatter at rest and jumps
+    by whole steps while moving: the floor must be the error of a perfect model (the
+    quantisation while moving), never below q/sqrt(12), and not the silence at rest."""
+    rng = np.random.default_rng(4)
+    dt, cpr = 0.01, 48 * 30.0
+    t = np.arange(0, 40, dt)
+    cmd = np.repeat(rng.choice([0.0, 0.0, 6.0, 12.0, -9.0], 40), len(t) // 40)
+    w = np.convolve(cmd, np.ones(30) / 30, mode="same")         # smooth speed, with rests
+    theta = np.cumsum(w) * dt + rng.uniform(0, 1)
+    counts = np.floor(theta * cpr / (2 * np.pi))
+    w_enc = np.diff(counts, prepend=counts[0]) * 2 * np.pi / cpr / dt
+    q = 2 * np.pi / cpr / dt
+    f = noise_floor([w_enc], [w_enc], "speed", "rad/s")
+    actual = np.sqrt(np.mean((w_enc - w)[50:] ** 2))              # what a perfect model leaves
+    assert f.q == pytest.approx(q, rel=1e-6)
+    assert f.sigma >= q / np.sqrt(12)
+    assert f.sigma == pytest.approx(actual, rel=0.25)
+    assert f.rest == pytest.approx(q / np.sqrt(12), rel=0.05)   # silence is floored at q/sqrt(12)
+    assert f.moving > 1.3 * f.rest
+
+
+# -- folds and bounds ----------------------------------------------------------------------
+
+class _R:
+    def __init__(self, n, amp):
+        self.u, self.loop, self.amplitude = np.zeros(n), "open", amp
+
+
+def test_whole_runs_are_held_out_once_and_a_single_run_is_blocked():
+    runs = [_R(100, a) for a in (1.0, 2.0, 1.5, 0.5, 2.5)]
+    f = make_folds(runs)
+    assert len(f.folds) == 4 and "held out" in f.kind
+    held = sum(np.array([t.all() for t in fold.test], int) for fold in f.folds)
+    assert list(held) == [1] * 5                   # every run predicted exactly once
+    for fold in f.folds:
+        assert all((tr ^ te).all() for tr, te in zip(fold.train, fold.test))
+    single = make_folds([_R(1000, 2.0)])
+    assert "blocks" in single.kind and len(single.folds) == 4
+    cover = sum(fold.test[0].astype(int) for fold in single.folds)
+    assert (cover == 1).all()                      # contiguous blocks tile the run
+    assert all(np.flatnonzero(np.diff(fold.test[0].astype(int))).size <= 2 for fold in single.folds)
+
+
+def test_threshold_bounds_come_from_the_data():
+    """A hobby H-bridge's dead zone of 3-4 V fits when the data reach 6 V; a rail is
+    bounded by the drive the inputs reach (through the dead zone in front)."""
+    reach = Reach(amin=1.0, amax=6.0, Ka=1.0, drive_max=5.0, speed_max=50.0, theta_span=3.0,
+                  dt=0.01, duration=20.0)
+    assert get_effect("deadband").data_bounds(reach)["d_v"][1] == 6.0
+    assert get_effect("coulomb_friction").data_bounds(reach)["tc_v"][1] == 6.0
+    assert get_effect("saturation").data_bounds(reach)["vmax_v"][1] == pytest.approx(7.5)
+    grid = get_effect("deadband").scan_grid(reach)["d_v"]
+    assert grid.min() < 0.2 and grid.max() > 5.0   # the scan covers what the data see
+
+
+# -- the hidden-effect matrix --------------------------------------------------------------
+
+def _encoder(tmp_path, effects):
+    """A position-only rig with a 1000-count encoder on the output shaft (no noise, no
+    ADC: the counts are the only error)."""
+    rig = make_rig(effects=effects, noise=False)
+    rig.bridge.adc_bits = 24
+    ds = sim_dataset(tmp_path, rig, square_plan(amps=FIVE))
+    for csv in ds.glob("*.csv"):
+        d = pd.read_csv(csv)
+        th = (d["pos"] - rig.sensors.pos_offset_v) / rig.sensors.pos_v_per_rad
+        q = 2 * np.pi / 1000
+        d["pos"] = np.round(th / q) * q * rig.sensors.pos_v_per_rad + rig.sensors.pos_offset_v
+        d.drop(columns=["tacho"]).to_csv(csv, index=False)
+    return ds
+
+
+def _staircase(tmp_path, effects):
+    """One long run: a staircase up, down through zero, and back (18 levels of 0.8 s)."""
+    from labrig.acquire import sweep
+    from labrig.bridge.sim import SimRig
+
+    levels = [0.5, 1.0, 1.5, 2.0, 2.5, 0.0, -0.5, -1.0, -1.5, -2.0, -2.5, 0.0,
+              1.2, -1.2, 2.2, -2.2, 0.8, 0.0]
+    rig = make_rig(effects=effects)
+    out = tmp_path / "stair"
+    sweep(SimRig(rig, seed=3), [Experiment(name="stair", waveform="staircase", levels=levels,
+                                           step_s=0.8, duration_s=0.8 * len(levels))], rig, out)
+    return out
+
+
+def _paper(tmp_path, effects):
+    """The lab's sweep where every open-loop amplitude (1.2-2.5 V) is on the rail; the
+    closed-loop position steps pass through the dead zone as they settle."""
+    plan = square_plan(amps=(1.2, 1.5, 2.0, 2.5)) + [
+        Experiment(name=f"cl_{a:.2f}V", loop="closed", amplitude_v=a, periods=1)
+        for a in (0.5, 0.6)]
+    return sim_dataset(tmp_path, make_rig(effects=effects), plan)
+
+
+def _sweep(tmp_path, effects):
+    return sim_dataset(tmp_path, make_rig(effects=effects), square_plan(amps=FIVE))
+
+
+#: case -> (data maker, hidden effects); tau_m of the default rig is 0.162 s
+MATRIX = {
+    "paper's rig: dead zone + rail every amplitude reaches": (
+        _paper, {"deadband": {"d_v": 0.3}, "saturation": {"vmax_v": 4.0}}),
+    "dead zone + rail, five amplitudes": (
+        _sweep, {"deadband": {"d_v": 0.3}, "saturation": {"vmax_v": 4.0}}),
+    "Coulomb friction + delay": (
+        _sweep, {"coulomb_friction": {"tc_v": 0.2}, "delay": {"td_s": 0.012}}),
+    "asymmetric dead zone": (
+        _sweep, {"asymmetric_deadband": {"dpos_v": 0.25, "dneg_v": 0.65}}),
+    "position-only quantised encoder": (_encoder, {"deadband": {"d_v": 0.3}}),
+    "one long staircase, two effects": (
+        _staircase, {"coulomb_friction": {"tc_v": 0.2}, "saturation": {"vmax_v": 9.0}}),
+    "delay of 0.12 tau_m": (_sweep, {"delay": {"td_s": 0.0194}}),
+    "nothing hidden": (_sweep, {}),
+}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("case", list(MATRIX))
+def test_hidden_effects_found_nothing_invented(tmp_path, case):
+    make, hidden = MATRIX[case]
+    runs = read_dataset(make(tmp_path, hidden))
+    res = auto_diagnose(runs, seed=0)
+    assert sorted(res.model.names) == sorted(hidden), [m.label for m in res.moves]
+    final = res.ladder.steps[-1]
+    for ch, v in final.rmse_over_noise.items():
+        assert v <= 1.5, (ch, v)                  # within 1.5x of the honest floor
+    for name, params in hidden.items():
+        for k, v in params.items():
+            assert res.model.effect_params[name][k] == pytest.approx(v, rel=0.15), (name, k)
+    if hidden:  # the ladder falls and the cross-validated error with it
+        assert final.cross_validated < 0.5 * res.ladder.steps[0].cross_validated
+    shutil.rmtree(tmp_path, ignore_errors=True)
+
+
+# -- the README's walkthrough is what the commands print ----------------------------------
+
+def _quoted_block(text: str, after: str) -> list[str]:
+    """The lines of the first ``` block after ``after`` (a command line in the README)."""
+    rest = text[text.index(after):]
+    rest = rest[rest.index("```\n\n```\n") + 8:]
+    return rest[:rest.index("```")].strip().splitlines()
+
+
+@pytest.mark.slow
+def test_readme_loop_walkthrough_numbers(tmp_path):
+    """Steps 2 and 4 of the README's loop quote the diagnosis and the --auto ladder; the
+    same commands must print the same numbers."""
+    import json
+    import re
+    from pathlib import Path
+
+    from conftest import labrig
+
+    root = Path(__file__).resolve().parent.parent
+    readme = (root / "README.md").read_text()
+    runs2, auto2 = tmp_path / "runs2", tmp_path / "auto2"
+    labrig("sweep", "--sim", "--rig", root / "configs" / "rig_deadzone_rail.toml", "--plan",
+           root / "configs" / "plan_five.toml", "-o", runs2, check=0)
+    d = json.loads(labrig("diagnose", runs2, "--auto", "-o", auto2, "--json", check=0).stdout)
+    quoted = _quoted_block(readme, "labrig diagnose runs2 --auto -o auto2")[1:]
+    assert len(quoted) == len(d["ladder"])
+    for line, step in zip(quoted, d["ladder"]):
+        label, nums = re.match(r"(.+?)\s{2,}([\d.\s]+)$", line).groups()
+        assert label.strip() == step["label"]
+        r = step["rmse_over_noise"]
+        got = [r["overall"], r["speed"], r["position"], step["cross_validated"]]
+        assert [float(x) for x in nums.split()] == pytest.approx(got, abs=0.011), line
+    for quote in ("gets nothing between -0.301 V and 0.301 V",
+                  "rail (3.99 V at the armature) is reached above 1.1 V and below -1.1 V"):
+        assert quote in d["thresholds"] and quote in " ".join(readme.split())
+
+    runs = tmp_path / "runs"
+    labrig("sweep", "--sim", "-o", runs, check=0)
+    labrig("identify", runs, "-o", tmp_path / "m0.json", check=0)
+    diag = json.loads(labrig("diagnose", runs, "--model", tmp_path / "m0.json", "--json",
+                             check=0).stdout)
+    rows = [ln for ln in _step2(readme) if re.match(r"\s*\d+\s", ln)]
+    for line, c in zip(rows, diag["ranking"]):
+        f = line.split()
+        assert f[1] == c["effect"]
+        assert float(f[2]) == pytest.approx(c["rmse_over_noise"], abs=0.011)
+        assert float(f[5]) == pytest.approx(c["delta_bic"], abs=1.0)
+        cv = c.get("cross_validated")
+        if cv:
+            assert float(f[6]) == pytest.approx(cv["baseline"], abs=0.011)
+            assert float(f[8]) == pytest.approx(cv["with_effect"], abs=0.011)
+
+
+def _step2(readme: str) -> list[str]:
+    rest = readme[readme.index("**2. Locate and explain.**"):]
+    rest = rest[rest.index("```\nrank") + 4:]
+    return rest[:rest.index("```")].splitlines()
