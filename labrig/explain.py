@@ -30,7 +30,7 @@ def input_for(model: Model, level: float, amax: float) -> tuple[float, float]:
     """The smallest forward input and the smallest reverse input (negative) at which
     the input chain's output reaches ``level`` (bridge volts); inf when never."""
     chain, _ = input_chain(model)
-    u = np.linspace(0.0, 4.0 * max(amax, 1e-3), 8001)
+    u = np.linspace(0.0, 4.0 * max(amax, 1e-3), 40001)
     up = u[chain(u) >= level]
     down = u[chain(-u) <= -level]
     return (float(up[0]) if len(up) else np.inf, -float(down[0]) if len(down) else -np.inf)
@@ -51,22 +51,27 @@ def context(model: Model, runs) -> dict:
 
 
 def thresholds(model: Model, runs) -> str:
-    """One sentence: where the rig starts to move and where it saturates, each way, at
-    the bridge input, through every effect in front ('' when the model has none)."""
+    """One sentence: where the amplifier starts to get a drive, where friction stops the
+    motor and where the rail is reached, each way, at the bridge input, through every
+    effect in front; and which way the rig is stronger ('' when the model has none)."""
     amax = max(float(np.max(np.abs(r.u))) for r in runs)
     Ka = float(runs[0].constants["Ka"])
-    parts = []
-    chain, front = input_chain(model)
-    if front:
-        up, down = input_for(model, 1e-9, amax)
-        if up > 1e-6 or down < -1e-6:
-            parts.append(f"the amplifier gets nothing between {down:.3g} V and {up:.3g} V "
-                         f"({', '.join(front)})")
+    parts, start = [], None
+    _, front = input_chain(model)
+    zones = [e.name for e in model.effects if e.family_name == "dead zone"]
+    if zones:
+        start = input_for(model, 1e-9, amax)
+        parts.append(f"the amplifier gets nothing between {start[1]:.3g} V and {start[0]:.3g} V "
+                     f"({', '.join(front)})")
+    elif "offset" in model.names:
+        u0 = model.effect_params["offset"]["u0_v"]
+        parts.append(f"an offset of {1e3 * u0:.3g} mV drives the motor at zero input")
     for e in model.effects:
         p = model.effect_params[e.name]
         if e.stage == "friction" and "tc_v" in p:
-            up, down = input_for(model, p["tc_v"], amax)
-            parts.append(f"friction stops the motor for inputs between {down:.3g} V and {up:.3g} V")
+            start = input_for(model, p["tc_v"], amax)
+            parts.append(f"friction stops the motor for inputs between {start[1]:.3g} V and "
+                         f"{start[0]:.3g} V")
         if e.stage == "drive" and "vmax_v" in p:
             up, down = input_for(model, p["vmax_v"] / Ka, amax)
             parts.append(f"the rail ({p['vmax_v']:.3g} V at the armature) is reached above "
@@ -74,8 +79,9 @@ def thresholds(model: Model, runs) -> str:
     if not parts:
         return ""
     text = "At the bridge input: " + "; ".join(parts) + "."
-    ups = [input_for(model, 1e-9, amax)] if front else []
-    if ups and abs(ups[0][0] + ups[0][1]) > 0.02 * max(abs(ups[0][0]), abs(ups[0][1]), 1e-9):
-        stronger = "forward" if ups[0][0] < -ups[0][1] else "reverse"
-        text += f" The rig is stronger {stronger}: it starts at a smaller input that way."
+    if start is not None and np.isfinite(start).all():
+        up, down = start[0], -start[1]
+        if abs(up - down) > 0.02 * max(up, down, 1e-9):
+            text += (f" The rig is stronger {'forward' if up < down else 'in reverse'}: it "
+                     "starts at a smaller input that way.")
     return text

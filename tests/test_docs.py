@@ -92,3 +92,14 @@ def test_links_between_documents_resolve():
             elif anchor and anchor[1:] not in {_slug(h) for h in _headings(md)}:
                 broken.append(f"{p.relative_to(ROOT)}: {target}{anchor}")
     assert not broken, "broken links:\n" + "\n".join(broken)
+
+
+def test_readme_quotes_the_recorded_auto_benchmark():
+    """The README's diagnose --auto row is the one benchmarks/bench_auto.py writes from
+    its recorded result (benchmarks/results_auto.json)."""
+    import subprocess
+    import sys
+
+    row = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "bench_auto.py"), "--markdown"],
+                         capture_output=True, text=True, check=True).stdout.strip()
+    assert row in (ROOT / "README.md").read_text()

