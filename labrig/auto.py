@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 from .diagnosis import Candidate, Diagnosis
 from .explain import thresholds
 from .ladder import Ladder
+from .model.effects import get_effect
 from .model.model import Model
 from .residuals import REGIME_TEXT
 from .tables import Table, fmt
@@ -113,7 +114,9 @@ class AutoDiagnosis:
 def confusable_pairs(diag: Diagnosis, round_no: int, margin: float = CONFUSABLE) -> list:
     """Candidates of one round that clearly improve the model (by the diagnosis' minimum
     gain) and lie within ``margin`` of the best one, each paired with the best, and the
-    regime where their errors differ most."""
+    regime where their errors differ most. Members of one family (a symmetric and an
+    asymmetric dead zone, Coulomb friction and stiction) are not pairs: one is the other
+    with a parameter more, and the search already prefers the simpler."""
     useful = [c for c in diag.ranking if c.improvement >= diag.criteria["min_improvement"]]
     if len(useful) < 2:
         return []
@@ -122,6 +125,8 @@ def confusable_pairs(diag: Diagnosis, round_no: int, margin: float = CONFUSABLE)
     for c in useful:
         if c is best or c.rmse_over_noise > (1 + margin) * best.rmse_over_noise:
             continue
+        if get_effect(c.effect).family_name == get_effect(best.effect).family_name:
+            continue  # one is the other with a parameter more: not a different explanation
         out.append(ConfusablePair(best.effect, c.effect, (best.rmse_over_noise, c.rmse_over_noise),
                                   _where_they_differ(best, c), round_no))
     return out
