@@ -17,7 +17,8 @@ class Reach:
     Attributes
     ----------
     amin, amax : float
-        Smallest open-loop amplitude and largest |input| of any run (V at the bridge).
+        Smallest open-loop amplitude and largest input the amplifier can see in any
+        run (V at the bridge; in closed loop kp times a reference step).
     Ka : float
         Amplifier gain (armature V per bridge V).
     drive_max : float
@@ -46,7 +47,11 @@ class Reach:
     def of(cls, runs, model=None) -> "Reach":
         """From runs (``labrig.runs.Run``) and the model the new effect would join."""
         open_amps = [r.amplitude for r in runs if r.loop == "open" and r.amplitude > 0]
-        amax = max(float(np.max(np.abs(r.u))) for r in runs)
+        # the amplifier's input: u in open loop; in closed loop the error kp (r - theta),
+        # up to kp times a reference step of 2A
+        amax = max(float(np.max(np.abs(r.u))) * (1.0 if r.loop == "open" else
+                                                  2.0 * (r.gains or {}).get("kp", 1.0))
+                   for r in runs)
         amax = max(amax, 1e-3)
         Ka = float(runs[0].constants["Ka"])
         drive = np.array([amax])
