@@ -6,6 +6,7 @@ import os
 import re
 
 import numpy as np
+import labrig.search  # noqa: F401  (imported before any patching: it binds diagnose)
 import pytest
 
 from labrig.cli import main

@@ -210,7 +210,11 @@ def test_readme_loop_walkthrough_numbers(tmp_path):
 
     runs = tmp_path / "runs"
     labrig("sweep", "--sim", "-o", runs, check=0)
-    labrig("identify", runs, "-o", tmp_path / "m0.json", check=0)
+    ident = json.loads(labrig("identify", runs, "-o", tmp_path / "m0.json", "--json",
+                              check=0).stdout)
+    r0 = ident["rmse_over_noise"]
+    assert (f"(rmse/noise {r0['speed']:.2f} speed, {r0['position']:.2f} position)"
+            in " ".join(readme.split()))
     diag = json.loads(labrig("diagnose", runs, "--model", tmp_path / "m0.json", "--json",
                              check=0).stdout)
     rows = [ln for ln in _step2(readme) if re.match(r"\s*\d+\s", ln)]
