@@ -77,8 +77,8 @@ class AutoDiagnosis:
                 "verdict": self.verdict}
 
     def table_rows(self) -> list[Table]:
-        pairs = Table("confusable pairs (about equally good: an experiment should decide)",
-                      ["round", "pair", "rmse/noise", "they differ most in"])
+        pairs = Table("confusable pairs", ["round", "pair", "rmse/noise", "they differ most in"])
+        pairs.notes.append("about equally good explanations: an experiment should decide")
         for p in self.confusable:
             d = p.differ_in
             where = (f"{REGIME_TEXT[d['regime']]} of the {d['channel']} "
