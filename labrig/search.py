@@ -164,7 +164,7 @@ def search(runs, model: Model | None = None, *, max_rounds: int = 3, seed: int =
         if diag.recommendation:
             c = diag.candidate(diag.recommendation)
             step = ("add", [c.effect], c.model, c.evaluation, c.cross_validated["with_effect"])
-        pair = _pair(judge, diag, log)
+        pair = _pair(judge, diag, log) if added + 2 <= max_rounds else None
         if pair is not None:
             m, ev, cv, names = pair
             single_cv = step[4] if step else cv_now
