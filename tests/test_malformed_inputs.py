@@ -504,7 +504,7 @@ def matrix_size() -> int:
     return (len(SIDECAR_CASES) + len(SIDECAR_TEXT_CASES) + len(CSV_CASES) + 1
             + len(RIG_CASES) + len(PLAN_CASES) + len(MODEL_CASES) + len(MODEL_TEXT_CASES)
             + 2 + len(IDCONFIG_CASES) + 9 + 2 * len(MYSTERY_CASES) + 4 + 5
-            + len(IMPORT_CASES) + 4 + 1 + 4 + 2)
+            + len(IMPORT_CASES) + 4 + 1 + 4 + 2 + 5)
 
 
 def test_matrix_size_and_readme():
@@ -568,3 +568,9 @@ def test_closed_loop_import_records_the_gains(tmp_path, capsys):
 def test_diagnose_auto_needs_a_round(tmp_path, capsys, rounds):
     d = _run_dir(tmp_path)
     _expect_user_error(capsys, ["diagnose", d, "--auto", "--max-rounds", rounds], "--max-rounds")
+
+
+@pytest.mark.parametrize("weights", ["p=-1", "x=1", "p=abc", "p=0,q=0", "p=nan"])
+def test_diagnose_weights_are_checked(tmp_path, capsys, weights):
+    d = _run_dir(tmp_path)
+    _expect_user_error(capsys, ["diagnose", d, "--auto", "--weights", weights], "--weights")
