@@ -18,6 +18,7 @@ import numpy as np
 from .model.model import Model
 from .model.simulate import prepare
 from .noise import run_speed
+from .refit import fit
 from .residuals import label_regimes
 
 #: at most this many folds of whole runs, and blocks in a single run
@@ -93,16 +94,10 @@ class CrossValidation:
                 "channels": self.channels}
 
 
-def _sims(model: Model, runs) -> list[dict]:
-    return model.simulate(runs)
-
-
 def cross_validate(runs, model: Model, folds: Folds, *, sigmas, weights, seed: int = 0,
                    fixed: dict | None = None, reach=None, max_nfev: int = 25) -> CrossValidation:
     """Fit ``model``'s structure on each fold's training samples (from ``model``'s
     parameters) and predict the held-out samples."""
-    from .refit import fit
-
     prepared = prepare(runs)
     sw, st = sigmas
     res = [{ch: np.zeros(len(r.u)) for ch, y in (("speed", r.w), ("position", r.theta))
@@ -117,7 +112,7 @@ def cross_validate(runs, model: Model, folds: Folds, *, sigmas, weights, seed: i
                 reach=reach, max_nfev=max_nfev, masks=masks)
         fm = Model.from_flat(f.params, model.effects, model.constants)
         test_idx = [i for i, m in enumerate(fold.test) if m.any()]
-        sims = _sims(fm, [runs[i] for i in test_idx])
+        sims = fm.simulate([runs[i] for i in test_idx])
         sq, cnt = 0.0, 0
         for i, s in zip(test_idx, sims):
             r, m = prepared[i], fold.test[i]

@@ -22,14 +22,13 @@ from __future__ import annotations
 import math
 import time
 
-import numpy as np
-
 from .crossval import cross_validate, make_folds, regime_evidence
 from .diagnosis import Candidate, Diagnosis
 from .errors import UserError
 from .evaluation import Evaluation, evaluate
 from .explain import context as explain_context
 from .identify.engine import dataset_constants, identify
+from .identify.result import at_bounds as bound_sides
 from .model.effects import CATALOGUE, get_effect
 from .model.model import Model, param_keys
 from .model.reach import Reach
@@ -49,8 +48,6 @@ FLOOR = 1.15
 CV_CANDIDATES = 4
 #: relative penalty per extra parameter when held-out errors are compared
 PARSIMONY = 0.02
-#: a fit parameter within this share of its bound's span sits at the bound
-AT_BOUND = 1e-3
 
 
 def balanced_weights(ev: Evaluation) -> Weights:
@@ -74,19 +71,11 @@ def bic(sse, n, n_eff, k):
 
 
 def at_bounds(ident) -> list[str]:
-    """Free parameters of a fit that ended at a bound of the search space."""
-    sp = ident.space
-    out = []
-    for n, lo, hi, lg in zip(sp.names, sp.lower, sp.upper, sp.log):
-        if n in sp.fixed or "." not in n:
-            continue
-        v = ident.params[n]
-        a, b, x = (np.log10(lo), np.log10(hi), np.log10(max(v, 1e-300))) if lg else (lo, hi, v)
-        if min(x - a, b - x) <= AT_BOUND * (b - a):
-            out.append(f"{n} = {v:.3g} at its lower bound (absent, or below what these data show)"
-                       if x - a < b - x else
-                       f"{n} = {v:.3g} at its upper bound (beyond what these data reach)")
-    return out
+    """Effect parameters of a fit that ended at a bound of the search space, in words."""
+    return [f"{n} = {v:.3g} at its lower bound (absent, or below what these data show)"
+            if side == "lower" else
+            f"{n} = {v:.3g} at its upper bound (beyond what these data reach)"
+            for n, v, side, _ in bound_sides(ident.space, ident.params) if "." in n]
 
 
 def linear_model(runs, *, seed=0, fixed=None, weights=Weights(), start: Model | None = None) -> Model:

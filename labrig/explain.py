@@ -36,11 +36,15 @@ def input_for(model: Model, level: float, amax: float) -> tuple[float, float]:
     return (float(up[0]) if len(up) else np.inf, -float(down[0]) if len(down) else -np.inf)
 
 
+def _largest_input(runs) -> float:
+    return max(float(np.max(np.abs(r.u))) for r in runs)
+
+
 def context(model: Model, runs) -> dict:
     """What an effect's ``explain_params`` may use: Ka, the smallest open-loop
     amplitude, the plant's R and K, and ``to_input`` when effects sit in front."""
     amps = [r.amplitude for r in runs if r.loop == "open"] or [1.0]
-    amax = max(float(np.max(np.abs(r.u))) for r in runs)
+    amax = _largest_input(runs)
     ctx = {"Ka": float(runs[0].constants["Ka"]), "amin": min(amps),
            "R": float(model.params.get("R", np.nan)), "K": float(model.params.get("K", np.nan))}
     _, front = input_chain(model)
@@ -54,7 +58,7 @@ def thresholds(model: Model, runs) -> str:
     """One sentence: where the amplifier starts to get a drive, where friction stops the
     motor and where the rail is reached, each way, at the bridge input, through every
     effect in front; and which way the rig is stronger ('' when the model has none)."""
-    amax = max(float(np.max(np.abs(r.u))) for r in runs)
+    amax = _largest_input(runs)
     Ka = float(runs[0].constants["Ka"])
     parts, start = [], None
     _, front = input_chain(model)

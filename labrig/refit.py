@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .identify.engine import identify
+from .identify.engine import dataset_constants, identify, initial_point
 from .identify.objective import Objective, build_space
 from .model.model import Model
 from .noise import Weights
@@ -74,8 +74,10 @@ def starts_for(runs, base_params: dict, effects, new, reach, fixed: dict,
             for name, values in grid.items():
                 pt[f"{new.name}.{name}"] = float(values[k])
             points.append(pt)
-    X = np.array([space.to_search({n: pt.get(n, space_mid(space, n)) for n in space.names})
-                  for pt in points])
+    # parameters neither the base nor the grid sets (a user effect without a scan):
+    # the identifiers' own starting point, once
+    fill = initial_point(space, effects, runs, dataset_constants(runs), base_params)
+    X = np.array([space.to_search({**fill, **pt}) for pt in points])
     f = obj.fitness_batch(X)
     best = []
     for j in range(len(basins)):
@@ -89,12 +91,6 @@ def starts_for(runs, base_params: dict, effects, new, reach, fixed: dict,
     if len(best) > 1 and (swapped is not None or best[1][0] <= BASIN_MARGIN * best[0][0]):
         keep.append(best[1][1])
     return keep
-
-
-def space_mid(space, name: str) -> float:
-    i = space.names.index(name)
-    lo, hi = space.lower[i], space.upper[i]
-    return float(np.sqrt(lo * hi)) if space.log[i] else 0.5 * (lo + hi)
 
 
 def refit_with(runs, base: Model, effect, *, seed: int = 0, fixed: dict | None = None,

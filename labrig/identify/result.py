@@ -19,7 +19,7 @@ import numpy as np
 
 from ..fileio import finite_json
 
-__all__ = ["IdentResult", "finite_json", "bound_warnings", "fit_warnings",
+__all__ = ["IdentResult", "finite_json", "at_bounds", "bound_warnings", "fit_warnings",
            "identification_warnings"]
 
 
@@ -124,14 +124,9 @@ def _jsonable(value: Any) -> Any:
 AT_BOUND_FRACTION = 1e-3
 
 
-def bound_warnings(space: Any, params: dict, units: dict | None = None) -> list[str]:
-    """One sentence per free parameter that ended at a bound of ``space``.
-
-    ``space`` has ``names``, ``lower``, ``upper``, ``log`` and ``fixed`` (an
-    ``objective.Space``); ``params`` maps names to physical values; ``units``
-    maps names to unit strings ("-" or "" for none).
-    """
-    units = units or {}
+def at_bounds(space: Any, params: dict) -> list[tuple[str, float, str, float]]:
+    """``(name, value, "lower"/"upper", bound)`` for every free parameter of ``space``
+    that ended within :data:`AT_BOUND_FRACTION` of a bound (in search coordinates)."""
     out = []
     for n, lo, hi, lg in zip(space.names, space.lower, space.upper, space.log):
         v = params.get(n)
@@ -144,11 +139,23 @@ def bound_warnings(space: Any, params: dict, units: dict | None = None) -> list[
             f = lambda x: x  # noqa: E731
         tol = AT_BOUND_FRACTION * (f(hi) - f(lo))
         if f(v) - f(lo) <= tol:
-            side, bound, want = "lower", lo, "smaller"
+            out.append((n, v, "lower", lo))
         elif f(hi) - f(v) <= tol:
-            side, bound, want = "upper", hi, "larger"
-        else:
-            continue
+            out.append((n, v, "upper", hi))
+    return out
+
+
+def bound_warnings(space: Any, params: dict, units: dict | None = None) -> list[str]:
+    """One sentence per free parameter that ended at a bound of ``space``.
+
+    ``space`` has ``names``, ``lower``, ``upper``, ``log`` and ``fixed`` (an
+    ``objective.Space``); ``params`` maps names to physical values; ``units``
+    maps names to unit strings ("-" or "" for none).
+    """
+    units = units or {}
+    out = []
+    for n, v, side, bound in at_bounds(space, params):
+        want = "smaller" if side == "lower" else "larger"
         u = units.get(n, "")
         u = f" {u}" if u and u != "-" else ""
         out.append(f"{n} = {v:.4g}{u} is at its {side} bound {bound:.4g}{u}: the data may want "
