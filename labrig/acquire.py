@@ -50,11 +50,10 @@ def acquire(bridge: Bridge, exp: Experiment, rig, progress: Callable[[int], None
     idx = np.concatenate([b.index for b in blocks]).astype(np.int64)
     keep = idx < n   # a bridge never sends more, but a record never grows past the plan
     idx = idx[keep]
-    raw = {"u": np.concatenate([b.u for b in blocks])[keep],
-           "tacho": np.concatenate([b.tacho for b in blocks])[keep],
-           "pos": np.concatenate([b.pos for b in blocks])[keep]}
-    if blocks[0].ref is not None:
-        raw["ref"] = np.concatenate([b.ref for b in blocks])[keep]
+    raw = {"u": np.concatenate([b.u for b in blocks])[keep]}
+    for ch in ("tacho", "pos", "ref", "current"):  # the channels this rig has
+        if getattr(blocks[0], ch) is not None:
+            raw[ch] = np.concatenate([getattr(b, ch) for b in blocks])[keep]
     full = np.arange(n)
     cols = {"t": full / exp.sample_rate_hz}
     # a dropped sample must not shift time nor shorten the run: fill it (np.interp holds
@@ -67,7 +66,11 @@ def acquire(bridge: Bridge, exp: Experiment, rig, progress: Callable[[int], None
         gap = np.ones(n, dtype=np.int8)
         gap[idx] = 0
         cols["gap"] = gap
-    meta = make_meta(sample_rate_hz=exp.sample_rate_hz, experiment=exp.to_sidecar(),
+    experiment = exp.to_sidecar()
+    controller = rig.controller_sidecar(exp)
+    if controller is not None:
+        experiment["controller"] = controller
+    meta = make_meta(sample_rate_hz=exp.sample_rate_hz, experiment=experiment,
                      sensors=rig.sensors_sidecar(), rig=rig.rig_sidecar(),
                      source=bridge.source, bridge=bridge.counters())
     return Run(name=exp.name, data=pd.DataFrame(cols), meta=meta)

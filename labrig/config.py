@@ -32,14 +32,25 @@ def packaged_config(name: str) -> Path:
 
 @dataclass
 class Plant:
+    """Every plant's parameters; the rig's ``drive`` says which are used
+    (labrig.model.plants): R..K (voltage), J, B (torque), M, Fv (force)."""
+
     R: float = 8.0
     L: float = 0.0085
     J: float = 5.2245e-5
     B: float = 1.0e-5
     K: float = 0.05
+    M: float = 2.0
+    Fv: float = 20.0
 
     def as_dict(self) -> dict:
         return dataclasses.asdict(self)
+
+    def values(self, drive: str = "voltage") -> dict:
+        """The parameters of the plant ``drive`` names."""
+        from .model.plants import plant_class
+
+        return {k: getattr(self, k) for k in plant_class(drive).names}
 
 
 @dataclass
@@ -50,9 +61,15 @@ class Amplifier:
 
 @dataclass
 class Sensors:
-    tacho_v_per_rad_s: float = 0.026
+    """Per axis unit: rad and rad/s on a rotary axis, m and m/s on a linear one."""
+
+    tacho_v_per_rad_s: float = 0.026   # 0: no tacho
     pos_v_per_rad: float = 0.5
     pos_offset_v: float = -4.0
+    #: an encoder instead of the pot: counts per rad (rotary) or per m (linear); 0: a pot
+    encoder_counts_per_unit: float = 0.0
+    #: a current-sense channel (V per A of armature current); 0: none
+    current_v_per_a: float = 0.0
 
 
 @dataclass
@@ -76,6 +93,7 @@ class BridgeConfig:
 class Noise:
     tacho_v: float = 0.010
     pos_v: float = 0.004
+    current_v: float = 0.005
     seed: int = 1
 
 
@@ -84,6 +102,9 @@ class RigConfig:
     """A whole rig: plant, amplifier, gear, sensors, bridge, noise and hidden effects."""
 
     name: str = "rig"
+    #: what the input drives (labrig.model.plants) and the axis it moves
+    drive: str = "voltage"
+    axis: str = "rotary"
     gear_ratio: float = 30.0
     plant: Plant = field(default_factory=Plant)
     amplifier: Amplifier = field(default_factory=Amplifier)
@@ -94,19 +115,46 @@ class RigConfig:
     effects: dict = field(default_factory=dict)
     source: str = ""
 
+    @property
+    def digital_loop(self) -> bool:
+        """A closed loop of this rig is a digital PD on the position in axis units (an
+        encoder or no tacho), not the MS150's analog loop on sensor volts."""
+        return self.sensors.encoder_counts_per_unit > 0 or self.sensors.tacho_v_per_rad_s == 0
+
+    def controller_sidecar(self, exp) -> dict | None:
+        """The ``experiment.controller`` of a closed-loop run on a digital loop."""
+        if exp.loop != "closed" or not self.digital_loop:
+            return None
+        return {"kind": "pd", "kp": float(exp.position_gain), "kd": float(exp.velocity_gain),
+                "ki": 0.0, "feedback": "position"}
+
     def sensors_sidecar(self) -> dict:
-        return dataclasses.asdict(self.sensors)
+        s = self.sensors
+        out = {"pos_v_per_rad": s.pos_v_per_rad, "pos_offset_v": s.pos_offset_v}
+        if s.tacho_v_per_rad_s > 0:
+            out["tacho_v_per_rad_s"] = s.tacho_v_per_rad_s
+        if s.encoder_counts_per_unit > 0:  # the pos column holds counts
+            out.update(pos_v_per_rad=s.encoder_counts_per_unit, pos_offset_v=0.0,
+                       pos_kind="encoder", pos_quantum=1.0 / s.encoder_counts_per_unit)
+        if s.current_v_per_a > 0:
+            out["current_a_per_v"] = 1.0 / s.current_v_per_a
+        return out
 
     def rig_sidecar(self) -> dict:
-        return {"gear_ratio": self.gear_ratio, "amplifier_gain": self.amplifier.gain,
-                "name": self.name}
+        out = {"gear_ratio": self.gear_ratio, "amplifier_gain": self.amplifier.gain,
+               "name": self.name}
+        if self.drive != "voltage" or self.axis != "rotary":
+            out.update(drive=self.drive, axis=self.axis)
+        if self.drive != "voltage":
+            out["input_gain"] = self.amplifier.gain
+        return out
 
 
 #: TOML key -> dataclass attribute, per section (the TOML names carry the units)
 _ATTRS = {
-    "rig": {"name": "name", "gear_ratio": "gear_ratio"},
+    "rig": {"name": "name", "gear_ratio": "gear_ratio", "drive": "drive", "axis": "axis"},
     "plant": {"R_ohm": "R", "L_h": "L", "J_kgm2": "J", "B_nms_per_rad": "B",
-              "K_nm_per_a": "K"},
+              "K_nm_per_a": "K", "M_kg": "M", "Fv_ns_per_m": "Fv"},
 }
 
 
@@ -141,15 +189,44 @@ def rig_from_dict(doc: dict, path: str = "<rig>") -> RigConfig:
                 value = (float(value[0]), float(value[1]))
             setattr(obj, _ATTRS.get(sec, {}).get(key, key), value)
     rig.effects = _check_effects(path, checked.effects)
+    _check_plant(path, rig, checked)
     return rig
+
+
+def _check_plant(path, rig: RigConfig, checked) -> None:
+    """The drive and axis agree, a linear or torque axis has no gear unless stated, and
+    only a voltage plant has an armature current to sense."""
+    from .model.plants import check_axis
+
+    section = checked.rig.model_dump(exclude_unset=True) if checked.rig else {}
+    if "axis" not in section:
+        rig.axis = "linear" if rig.drive == "force" else "rotary"
+    try:
+        check_axis(rig.drive, rig.axis, f"{path}: key 'rig.axis'")
+    except UserError as exc:
+        raise ConfigError(str(exc)) from None
+    if rig.drive != "voltage" and "gear_ratio" not in section:
+        rig.gear_ratio = 1.0
+    if rig.axis == "linear" and rig.gear_ratio != 1.0:
+        raise ConfigError(f"{path}: key 'rig.gear_ratio' = {rig.gear_ratio:g}, but a linear axis "
+                          "has none (the position is the carriage's, in m); remove it")
+    if rig.sensors.current_v_per_a > 0 and rig.drive != "voltage":
+        raise ConfigError(f"{path}: key 'sensors.current_v_per_a': a {rig.drive}-driven plant's "
+                          "current is its command, not a measurement labrig fits; remove it")
+    if rig.sensors.tacho_v_per_rad_s == 0 and rig.sensors.encoder_counts_per_unit == 0 \
+            and rig.sensors.pos_v_per_rad == 0:
+        raise ConfigError(f"{path}: [sensors] has neither a tacho nor a position sensor")
 
 
 def rig_to_doc(rig: RigConfig) -> dict:
     """The rig as the full TOML document (every key, defaults filled in)."""
     inverse = {sec: {attr: key for key, attr in m.items()} for sec, m in _ATTRS.items()}
-    doc = {"rig": {"name": rig.name, "gear_ratio": rig.gear_ratio}}
+    doc = {"rig": {"name": rig.name, "drive": rig.drive, "axis": rig.axis,
+                   "gear_ratio": rig.gear_ratio}}
     for sec in ("plant", "amplifier", "sensors", "bridge", "noise"):
         body = dataclasses.asdict(getattr(rig, sec))
+        if sec == "plant":  # only the parameters of the rig's plant
+            body = rig.plant.values(rig.drive)
         doc[sec] = {inverse.get(sec, {}).get(k, k): (list(v) if isinstance(v, tuple) else v)
                     for k, v in body.items() if not (k == "calibration" and not v)}
     doc["effects"] = {k: dict(v) for k, v in rig.effects.items()}

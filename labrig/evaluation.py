@@ -134,7 +134,7 @@ def evaluate(runs, model: Model, sigmas=None, weights: Weights | None = None) ->
     candidates on equal terms), else they are measured from the runs
     (:mod:`labrig.noise`); ``weights`` are the channel weights of the fitness."""
     weights = weights or Weights()
-    space = build_space(model.effects)
+    space = build_space(model.effects, plant=model.plant_class)
     obj = Objective(runs, model.effects, space, p=weights.p, q=weights.q)
     if sigmas is not None:
         obj.sigma_w, obj.sigma_theta = sigmas

@@ -14,7 +14,6 @@ The file format lives in ``labrig.mysteryfile`` (obfuscation, not security).
 from __future__ import annotations
 
 import copy
-import math
 import tomllib
 from pathlib import Path
 
@@ -23,6 +22,7 @@ import numpy as np
 from .config import packaged_config, rig_from_dict, rig_to_doc
 from .errors import UserError
 from .fileio import atomic_write
+from .model.plants import plant_class
 from .mysteryfile import SUFFIX, decode, encode
 
 
@@ -31,15 +31,17 @@ from .mysteryfile import SUFFIX, decode, encode
 HIDDEN_EFFECTS = {
     "deadband": ("d_v", 0.2, 0.4),
     "coulomb_friction": ("tc_v", 0.15, 0.35),
-    "saturation": ("vmax_v", 7.0, 9.0),
+    # the rail as a share of the largest drive the default plan asks for (Ka x 2.5 V)
+    "saturation": ("vmax_v", 0.56, 0.72),
     "backlash": ("a_rad", 0.03, 0.05),
     "delay": ("td_s", 0.008, 0.015),
 }
+#: backlash on a linear axis, in m (a screw's play)
+LINEAR_BACKLASH_M = (2e-4, 5e-4)
 #: relative perturbation of each plant parameter (uniform in +-PLANT_SPREAD)
 PLANT_SPREAD = 0.20
 #: ... but Km and tau_m, which a student measures first, stay within +-this of the default
 COMBINATION_SPREAD = 0.25
-_PLANT_KEYS = {"R": "R_ohm", "L": "L_h", "J": "J_kgm2", "B": "B_nms_per_rad", "K": "K_nm_per_a"}
 #: parameter error (relative) within which an identified effect passes
 PASS_TOLERANCE = 0.20
 
@@ -51,48 +53,64 @@ def _default_doc() -> dict:
     return tomllib.loads(path.read_text(encoding="utf-8"))
 
 
+def _plant(doc: dict):
+    return plant_class((doc.get("rig") or {}).get("drive") or "voltage")
+
+
+def _servo(plant: dict, doc: dict, **constants):
+    cls = _plant(doc)
+    return cls.servo({n: plant[key] for n, key in cls.toml_keys.items()},
+                     {"Ka": doc["amplifier"]["gain"], **constants})
+
+
 def _derived(plant: dict, doc: dict) -> dict:
-    """Km, tau_m, tau_e and the top speed of the default plan for a plant section."""
-    R, L, J, B, K = (plant[_PLANT_KEYS[k]] for k in "RLJBK")
-    Ka = doc["amplifier"]["gain"]
-    den = B * R + K * K
-    km = Ka * K / den
-    # the two poles of J L s^2 + (J R + B L) s + (B R + K^2)
-    a, b, c = J * L, J * R + B * L, den
-    disc = math.sqrt(max(b * b - 4 * a * c, 0.0))
-    p_slow, p_fast = (-b + disc) / (2 * a), (-b - disc) / (2 * a)
-    return {"km_rad_s_per_v": km, "tau_m_s": -1.0 / p_slow, "tau_e_s": -1.0 / p_fast,
-            "tau_m_first_order_s": J * R / den}
+    """Km, tau_m (and tau_e for the voltage plant) of a plant section; the key
+    ``km_rad_s_per_v`` keeps its name on a linear axis, where it is m/s per V."""
+    sp = _servo(plant, doc)
+    out = {"km_rad_s_per_v": sp.km, "tau_m_s": sp.tau_m, "tau_m_first_order_s": sp.tau_m_approx}
+    if _plant(doc).kind == "voltage":
+        out["tau_e_s"] = sp.tau_e
+    return out
 
 
-def _plausible(doc: dict) -> bool:
+def _base_doc(base_rig) -> dict:
+    """The full document of the rig a mystery is drawn around (every key filled in)."""
+    if base_rig is None:
+        return _default_doc()
+    from .config import load_rig
+
+    return rig_to_doc(load_rig(base_rig))
+
+
+def _plausible(doc: dict, base: dict) -> bool:
     """The default plan stays inside the amplifier rail and the sensors' ranges, and the
     closed position loop of the default plan (Kp 2.0, Kv 0.15) is well damped."""
-    from .model.servo import ServoParams
-
     p = doc["plant"]
     amp, sens, br = doc["amplifier"], doc["sensors"], doc["bridge"]
     d = _derived(p, doc)
     if amp["gain"] * br["output_limit_v"] > amp["output_limit_v"]:
         return False
-    # the identifiable combinations stay near the MS150's (Km 97 rad/s/V, tau_m 0.16 s)
-    d0 = _derived(_default_doc()["plant"], doc)
+    # the identifiable combinations stay near the base rig's (the MS150: Km 97 rad/s/V,
+    # tau_m 0.16 s)
+    d0 = _derived(base["plant"], base)
     for k in ("km_rad_s_per_v", "tau_m_s"):
         if abs(d[k] / d0[k] - 1.0) > COMBINATION_SPREAD:
             return False
     adc_hi = min(abs(v) for v in br["adc_range_v"])
     top_speed = d["km_rad_s_per_v"] * br["output_limit_v"]
-    if sens["tacho_v_per_rad_s"] * top_speed > 0.9 * adc_hi:
+    if sens.get("tacho_v_per_rad_s", 0.0) * top_speed > 0.9 * adc_hi:
         return False
-    # open loop +-2.5 V square, 0.25 Hz: the output shaft travels about w * 2 s / N
-    travel = top_speed * 2.0 / doc["rig"]["gear_ratio"]
-    lo, hi = br["adc_range_v"]
-    pos_hi = sens["pos_offset_v"] + sens["pos_v_per_rad"] * travel
-    if not (0.9 * lo < sens["pos_offset_v"] and pos_hi < 0.9 * hi):
-        return False
-    sp = ServoParams(R=p["R_ohm"], L=p["L_h"], J=p["J_kgm2"], B=p["B_nms_per_rad"],
-                     K=p["K_nm_per_a"], Ka=amp["gain"], N=doc["rig"]["gear_ratio"],
-                     Kt=sens["tacho_v_per_rad_s"], Kpot=sens["pos_v_per_rad"])
+    if not sens.get("encoder_counts_per_unit"):
+        # open loop +-2.5 V square, 0.25 Hz: the output shaft travels about w * 2 s / N
+        travel = top_speed * 2.0 / doc["rig"]["gear_ratio"]
+        lo, hi = br["adc_range_v"]
+        pos_hi = sens["pos_offset_v"] + sens["pos_v_per_rad"] * travel
+        if not (0.9 * lo < sens["pos_offset_v"] and pos_hi < 0.9 * hi):
+            return False
+    digital = sens.get("encoder_counts_per_unit") or not sens.get("tacho_v_per_rad_s")
+    sp = _servo(p, doc, N=doc["rig"]["gear_ratio"],
+                Kt=1.0 / doc["rig"]["gear_ratio"] if digital else sens["tacho_v_per_rad_s"],
+                Kpot=1.0 if digital else sens["pos_v_per_rad"])
     eig = np.linalg.eigvals(sp.A_closed(2.0, 0.15))
     if np.any(eig.real >= 0):
         return False
@@ -107,30 +125,38 @@ def _sig(x: float, digits: int = 3) -> float:
     return float(f"{x:.{digits}g}")
 
 
-def new_mystery(seed: int) -> dict:
+def new_mystery(seed: int, base_rig: Path | str | None = None) -> dict:
     """A mystery rig document (the dict a rig TOML parses to), drawn from ``seed``.
 
-    Same seed, same rig. The hidden truth is in ``doc["effects"]`` and ``doc["plant"]``;
-    ``doc["rig"]["name"]`` says only "mystery rig <seed>".
+    Same seed, same rig. ``base_rig`` is the rig file it is drawn around (default the
+    MS150; any plant and axis: a torque-driven motor, a linear axis). The hidden truth
+    is in ``doc["effects"]`` and ``doc["plant"]``; ``doc["rig"]["name"]`` says only
+    "mystery rig <seed>".
     """
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
         raise UserError(f"--seed must be a whole number >= 0, got {seed!r}")
     rng = np.random.default_rng([seed, 0x6D797374])  # "myst"
-    base = _default_doc()
+    base = _base_doc(base_rig)
     doc = copy.deepcopy(base)
+    keys = _plant(base).toml_keys
     for _ in range(1000):
-        for k, key in _PLANT_KEYS.items():
+        for key in keys.values():
             f = 1.0 + rng.uniform(-PLANT_SPREAD, PLANT_SPREAD)
             doc["plant"][key] = _sig(base["plant"][key] * f, 4)
-        if _plausible(doc):
+        if _plausible(doc, base):
             break
-    else:  # pragma: no cover - the default rig itself is plausible
+    else:  # the base rig itself is drawn around: keep its plant
         doc["plant"] = dict(base["plant"])
     n = 1 + int(rng.integers(0, 2))
     names = sorted(rng.choice(sorted(HIDDEN_EFFECTS), size=n, replace=False).tolist())
     effects = {}
+    drive_max = doc["amplifier"]["gain"] * doc["bridge"]["output_limit_v"]
     for name in names:
         pname, lo, hi = HIDDEN_EFFECTS[name]
+        if name == "saturation":
+            lo, hi = lo * drive_max, hi * drive_max
+        if name == "backlash" and doc["rig"].get("axis") == "linear":
+            lo, hi = LINEAR_BACKLASH_M
         effects[name] = {pname: _sig(rng.uniform(lo, hi))}
     doc["effects"] = effects
     doc["rig"]["name"] = f"mystery rig {seed}"
@@ -184,10 +210,15 @@ def reveal(path: Path | str) -> dict:
     m = load_mystery(path)
     doc = m["rig"]
     rig_from_dict(doc, str(path))
-    base = _default_doc()
-    plant = {k: {"value": doc["plant"][key], "default": base["plant"][key],
-                 "change_percent": 100.0 * (doc["plant"][key] / base["plant"][key] - 1.0)}
-             for k, key in _PLANT_KEYS.items()}
+    cls = _plant(doc)
+    # the MS150 is the reference of a voltage plant; a mystery drawn around another rig
+    # file has none here (that file is its reference)
+    base = _default_doc() if cls.kind == "voltage" else None
+    plant = {k: {"value": doc["plant"][key], "unit": cls.units[k],
+                 "default": base["plant"][key] if base else None,
+                 "change_percent": 100.0 * (doc["plant"][key] / base["plant"][key] - 1.0)
+                 if base else None}
+             for k, key in cls.toml_keys.items()}
     effects = {}
     for name, ps in doc.get("effects", {}).items():
         e = get_effect(name)
@@ -195,24 +226,36 @@ def reveal(path: Path | str) -> dict:
                          "experiment": e.experiment,
                          "units": {p.name: p.unit for p in e.params}}
     return {"file": str(path), "seed": m.get("seed"), "name": doc["rig"].get("name"),
-            "plant": plant, "derived": _derived(doc["plant"], doc),
-            "derived_default": _derived(base["plant"], base), "effects": effects,
+            "drive": cls.kind, "axis": cls.axis, "plant": plant, "derived": _derived(doc["plant"], doc),
+            "derived_default": _derived(base["plant"], base) if base else None,
+            "effects": effects,
             "noise": doc.get("noise", {})}
 
 
 def format_reveal(r: dict) -> str:
     d, d0 = r["derived"], r["derived_default"]
-    units = {"R": "ohm", "L": "H", "J": "kg m^2", "B": "N m s/rad", "K": "N m/A"}
-    out = [f"{r['file']}: {r['name']} (seed {r['seed']})", "",
-           "plant (truth; default rig in brackets):"]
+    speed = "m/s" if r.get("axis") == "linear" else "rad/s"
+    out = [f"{r['file']}: {r['name']} (seed {r['seed']}; a {r.get('drive', 'voltage')}-driven "
+           f"{r.get('axis', 'rotary')} axis)", "", "plant (truth; default rig in brackets):"]
+    if d0 is None:
+        out[-1] = "plant (truth):"
+        d0 = {k: None for k in d}
     for k, v in r["plant"].items():
-        out.append(f"  {k:<3}{v['value']:>12.4g} {units[k]:<10} ({v['default']:.4g}, "
-                   f"{v['change_percent']:+.1f} %)")
+        ref = "" if v["default"] is None else \
+            f" ({v['default']:.4g}, {v['change_percent']:+.1f} %)"
+        out.append(f"  {k:<3}{v['value']:>12.4g} {v['unit']:<10}{ref}")
+
+    def dflt(x, spec, scale=1.0, pad=2):
+        return "" if x is None else " " * pad + f"(default {scale * x:{spec}})"
+    kspec = ".2f" if speed == "rad/s" else ".4g"
     out += ["", "what a fit should find (identifiable combinations):",
-            f"  Km     {d['km_rad_s_per_v']:8.2f} rad/s per V  (default {d0['km_rad_s_per_v']:.2f})",
-            f"  tau_m  {1e3 * d['tau_m_s']:8.1f} ms           (default {1e3 * d0['tau_m_s']:.1f})",
-            f"  tau_e  {1e3 * d['tau_e_s']:8.2f} ms           (default {1e3 * d0['tau_e_s']:.2f})",
-            "", "hidden effects:"]
+            f"  Km     {d['km_rad_s_per_v']:8{kspec}} {speed} per V"
+            + dflt(d0["km_rad_s_per_v"], kspec),
+            f"  tau_m  {1e3 * d['tau_m_s']:8.1f} ms" + dflt(d0["tau_m_s"], ".1f", 1e3, 11)]
+    if "tau_e_s" in d:
+        out.append(f"  tau_e  {1e3 * d['tau_e_s']:8.2f} ms"
+                   + dflt(d0["tau_e_s"], ".2f", 1e3, 11))
+    out += ["", "hidden effects:"]
     if not r["effects"]:
         out.append("  none")
     for name, e in r["effects"].items():
@@ -240,10 +283,9 @@ def _model_effects(model: dict) -> dict:
             for k, ps in out.items()}
 
 
-def _km_tau(params: dict, ka: float):
-    R, L, J, B, K = (params[k] for k in "RLJBK")
-    den = B * R + K * K
-    return ka * K / den, J * R / den
+def _km_tau(cls, params: dict, ka: float):
+    sp = cls.servo(params, {"Ka": ka})
+    return sp.km, sp.tau_m_approx
 
 
 def check(path: Path | str, model_path: Path | str, tolerance: float = PASS_TOLERANCE) -> dict:
@@ -299,7 +341,8 @@ def check(path: Path | str, model_path: Path | str, tolerance: float = PASS_TOLE
     ka = (model.get("constants") or {}).get("Ka", truth["amplifier"]["gain"])
     plant = {}
     try:
-        km, tau = _km_tau({k: float(model["params"][k]) for k in "RLJBK"}, float(ka))
+        cls = _plant(truth)
+        km, tau = _km_tau(cls, {k: float(model["params"][k]) for k in cls.names}, float(ka))
         d = _derived(truth["plant"], truth)
         plant = {"km": {"truth": d["km_rad_s_per_v"], "model": km,
                         "error_percent": 100 * (km / d["km_rad_s_per_v"] - 1)},

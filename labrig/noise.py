@@ -162,7 +162,8 @@ def _class_variance(ms: np.ndarray, lag1: np.ndarray, window: int,
     return float(np.mean(np.maximum(est, floor))), int(keep.sum())
 
 
-def noise_floor(signals, speeds, channel: str = "speed", unit: str = "rad/s") -> NoiseFloor:
+def noise_floor(signals, speeds, channel: str = "speed", unit: str = "rad/s",
+                quantum: float = 0.0) -> NoiseFloor:
     """The noise floor of one channel over several runs.
 
     Parameters
@@ -171,9 +172,12 @@ def noise_floor(signals, speeds, channel: str = "speed", unit: str = "rad/s") ->
         The channel in each run.
     speeds : list of arrays
         A speed signal per run (to tell moving from resting stretches).
+    quantum : float
+        The sensor's quantum when it is known (an encoder's count); the step seen in
+        the data is used when larger (an ADC's code on top).
     """
     signals = [np.asarray(y, float) for y in signals]
-    q = max((quantisation_step(y) for y in signals), default=0.0)
+    q = max([quantisation_step(y) for y in signals] + [float(quantum)])
     floor = q * q / 12.0
     window = WINDOW
     parts = [_block_variances(y, np.asarray(s, float), window) for y, s in zip(signals, speeds)]
@@ -203,13 +207,19 @@ def run_speed(rd) -> np.ndarray:
     return np.gradient(rd.theta * rd.N, rd.dt)
 
 
-def channel_floors(runs) -> dict:
-    """``{"speed": NoiseFloor, "position": NoiseFloor}`` for the channels present in
-    prepared runs (:class:`labrig.model.simulate.RunData`)."""
+def channel_floors(runs, units: tuple = ("rad", "rad/s")) -> dict:
+    """``{"speed": NoiseFloor, "position": NoiseFloor, "current": NoiseFloor}`` for the
+    channels present in prepared runs (:class:`labrig.model.simulate.RunData`); an
+    encoder's known count is the position's quantum."""
     out = {}
     speeds = [run_speed(r) for r in runs]
-    for ch, attr, unit in (("speed", "w", "rad/s"), ("position", "theta", "rad")):
-        pairs = [(getattr(r, attr), s) for r, s in zip(runs, speeds) if getattr(r, attr) is not None]
+    for ch, attr, unit in (("speed", "w", units[1]), ("position", "theta", units[0]),
+                           ("current", "current", "A")):
+        pairs = [(getattr(r, attr, None), s) for r, s in zip(runs, speeds)
+                 if getattr(r, attr, None) is not None]
         if pairs:
-            out[ch] = noise_floor([p[0] for p in pairs], [p[1] for p in pairs], ch, unit)
+            known = max((getattr(r, "pos_q", 0.0) for r in runs), default=0.0) \
+                if ch == "position" else 0.0
+            out[ch] = noise_floor([p[0] for p in pairs], [p[1] for p in pairs], ch, unit,
+                                  quantum=known)
     return out

@@ -18,6 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from .identify.engine import dataset_constants, identify, initial_point
+from .model.plants import plant_of_runs
 from .identify.objective import Objective, build_space
 from .model.model import Model
 from .noise import Weights
@@ -39,7 +40,10 @@ def fit(runs, effects, start: dict, fixed: dict, *, seed: int, weights: Weights,
 def _alternative_pole(params: dict, dt: float) -> dict:
     """The same plant with its electrical pole in the other basin: far below the sample
     period when it sits above it (room for a delay), onto it when it sits far below
-    (where tau_e has no gradient at all)."""
+    (where tau_e has no gradient at all). A torque/force plant has no electrical pole:
+    one basin."""
+    if "L" not in params:
+        return None
     tau_e = params["L"] / params["R"]
     L = params["R"] * (0.05 * dt if tau_e > 0.5 * dt else 2.0 * dt)
     return {**params, "L": L}
@@ -49,6 +53,8 @@ def _swapped_poles(params: dict) -> dict | None:
     """The plant with its two time constants exchanged, when the electrical one is the
     slower: a second-order response barely tells which pole is which, and a fit can land
     with tau_e = 0.15 s and tau_m = 4 ms, the wrong way round for any servo motor."""
+    if "L" not in params:
+        return None
     R, L, J, B, K = (params[k] for k in ("R", "L", "J", "B", "K"))
     tau_e, tau_m = L / R, J * R / (B * R + K * K)
     if tau_e <= tau_m:
@@ -59,11 +65,11 @@ def _swapped_poles(params: dict) -> dict | None:
 def starts_for(runs, base_params: dict, effects, new, reach, fixed: dict,
                weights: Weights) -> list[dict]:
     """The best scanned start in each basin, best first (at most two)."""
-    space = build_space(effects, None, fixed, reach=reach)
+    space = build_space(effects, None, fixed, reach=reach, plant=plant_of_runs(runs))
     obj = Objective(runs, effects, space, p=weights.p, q=weights.q)
     grid = new.scan_grid(reach) if new is not None else {}
     npts = len(next(iter(grid.values()))) if grid else 1
-    basins = [base_params, _alternative_pole(base_params, reach.dt)]
+    basins = [b for b in (base_params, _alternative_pole(base_params, reach.dt)) if b]
     swapped = _swapped_poles(base_params) if not {"L", "J"} & set(fixed) else None
     if swapped is not None:
         basins = [swapped, base_params]
@@ -114,8 +120,8 @@ def best_fit(fits):
     (the physical reading of an almost symmetric pair of poles)."""
     low = min(f.fitness for f in fits)
     near = [f for f in fits if f.fitness <= 1.01 * low]
-    right = [f for f in near if f.params["L"] / f.params["R"] <= f.params["J"] * f.params["R"]
-             / (f.params["B"] * f.params["R"] + f.params["K"] ** 2)]
+    right = [f for f in near if "L" not in f.params or f.params["L"] / f.params["R"]
+             <= f.params["J"] * f.params["R"] / (f.params["B"] * f.params["R"] + f.params["K"] ** 2)]
     return min(right or near, key=lambda f: f.fitness)
 
 

@@ -131,12 +131,18 @@ def crosscorr(r: np.ndarray, u: np.ndarray, lags: int = 25) -> tuple[np.ndarray,
     return ks, np.array(out)
 
 
+#: the channels' units on each axis, as figures label them
+AXIS_UNITS = {"rotary": {"speed": "rad/s (motor)", "position": "rad (output)"},
+              "linear": {"speed": "m/s", "position": "m"}}
+
+
 def run_residuals(rd, sim: dict, sigma_w: float, sigma_theta: float) -> dict:
     """Residuals of one run in noise units, with regimes and stretches."""
     w_ref = rd.w if rd.w is not None else np.gradient(rd.theta * rd.N, rd.dt)
     labels = label_regimes(rd.u, w_ref)
     out = {"name": rd.name, "labels": labels, "amplitude": rd.amplitude, "loop": rd.loop,
-           "t": np.arange(len(rd.u)) * rd.dt, "channels": {}}
+           "t": np.arange(len(rd.u)) * rd.dt, "channels": {},
+           "units": AXIS_UNITS[getattr(rd, "axis", "rotary")]}
     width = max(3, int(0.02 / rd.dt))  # 20 ms: long enough to beat the noise, short for edges
     for ch, y, yh, sig in (("speed", rd.w, sim["w"], sigma_w),
                            ("position", rd.theta, sim["theta"], sigma_theta)):

@@ -8,10 +8,7 @@ speed in rad/s (tacho / Kt) and ``Run.position`` the output-shaft angle in rad
 """
 from __future__ import annotations
 
-import csv
-import difflib
 import json
-import re
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
@@ -19,18 +16,12 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from .errors import AnalysisError, RunFileError
+from .errors import AnalysisError, RunFileError, UserError
+from .csvfile import (KNOWN_COLUMNS, SENSOR_COLUMNS, read_run_csv,  # noqa: F401
+                      read_csv_columns)
 from .fileio import atomic_write, json_default
 
 FORMAT = "labrig-run/1"
-REQUIRED_COLUMNS = ("t", "u")
-SENSOR_COLUMNS = ("tacho", "pos")
-#: every column labrig reads; ``gap`` flags samples the link lost (interpolated)
-KNOWN_COLUMNS = ("t", "u", "tacho", "pos", "ref", "current", "gap")
-#: relative spread of the sampling interval still called uniform (scope exports
-#: print t with few digits; a missing sample doubles dt and is caught)
-UNIFORM_TOL = 0.02
-RATE_TOL = 0.01
 
 
 @dataclass
@@ -86,27 +77,76 @@ class Run:
         return self.meta.get("sensors", {})
 
     @property
+    def controller(self) -> dict | None:
+        """A closed loop's controller as the sidecar states it (``experiment.controller``:
+        kind, kp, kd, ki, output_limit_v), or None (open loop, or the MS150's analog loop
+        given by ``position_gain``/``velocity_gain``)."""
+        return self.experiment.get("controller") if self.loop == "closed" else None
+
+    @property
     def gains(self) -> dict | None:
-        """The closed loop's ``{"kp": ..., "kv": ...}`` (amplifier input = kp (ref - pos)
-        - kv tacho, in volts per volt); None for an open-loop run. A closed-loop run
-        always states them (checked when it is read)."""
+        """The closed loop's ``{"kp": ..., "kv": ...}`` as the simulators use them
+        (amplifier input = kp (ref - Kpot x) - kv Kt w, volts per volt); None for an
+        open-loop run. A closed-loop run always states its loop (checked when read)."""
         if self.loop != "closed":
             return None
+        c = self.controller
+        if c is not None:  # a digital PD on the position in axis units: see ``constants``
+            return {"kp": float(c["kp"]), "kv": float(c.get("kd", 0.0))}
         return {"kp": float(self.experiment["position_gain"]),
                 "kv": float(self.experiment["velocity_gain"])}
 
+    # -- the plant --------------------------------------------------------------------
+    @property
+    def drive(self) -> str:
+        """What the input drives: ``voltage`` (an armature), ``torque`` or ``force``."""
+        return self.meta.get("rig", {}).get("drive") or "voltage"
+
+    @property
+    def axis(self) -> str:
+        """``rotary`` (rad, rad/s) or ``linear`` (m, m/s)."""
+        return self.meta.get("rig", {}).get("axis") or \
+            ("linear" if self.drive == "force" else "rotary")
+
+    @property
+    def units(self) -> tuple[str, str]:
+        """The axis's (position unit, speed unit)."""
+        return ("m", "m/s") if self.axis == "linear" else ("rad", "rad/s")
+
     @property
     def amplifier_gain(self) -> float:
-        """Armature volts per bridge volt (1.0 when the sidecar does not say)."""
-        return float(self.meta.get("rig", {}).get("amplifier_gain", 1.0))
+        """Armature volts per bridge volt, or a torque/force drive's gain kd (N m or N per
+        input volt); 1.0 when the sidecar does not say."""
+        rig = self.meta.get("rig", {})
+        if self.drive != "voltage" and rig.get("input_gain") is not None:
+            return float(rig["input_gain"])
+        return float(rig.get("amplifier_gain", 1.0))
 
     @property
     def constants(self) -> dict:
         """The rig constants a model of this run needs: Ka, N, Kt, Kpot (a channel the
-        run does not have gets 1.0: it is never used)."""
+        run does not have gets 1.0: it is never used). Under a stated controller the
+        loop is closed on the position in axis units: Kpot = 1 and Kt = 1/N make the
+        simulators' ``kv Kt w`` the controller's ``kd x'``."""
+        if self.controller is not None:
+            return {"Ka": self.amplifier_gain, "N": self.gear_ratio, "Kt": 1.0 / self.gear_ratio,
+                    "Kpot": 1.0}
         return {"Ka": self.amplifier_gain, "N": self.gear_ratio,
                 "Kt": float(self.sensors.get("tacho_v_per_rad_s") or 1.0),
                 "Kpot": float(self.sensors.get("pos_v_per_rad") or 1.0)}
+
+    @property
+    def current(self) -> np.ndarray | None:
+        """Armature current in A (``current`` column times ``current_a_per_v``), or None."""
+        if "current" not in self.data:
+            return None
+        return self.data["current"].to_numpy(float) * float(
+            self.sensors.get("current_a_per_v") or 1.0)
+
+    @property
+    def pos_quantum(self) -> float:
+        """The position sensor's quantum in axis units (an encoder's count); 0 unknown."""
+        return float(self.sensors.get("pos_quantum") or 0.0)
 
     @property
     def kt(self) -> float:
@@ -163,7 +203,7 @@ def read_run(path: Path | str) -> Run:
     if not csv_path.exists():
         raise RunFileError(f"{csv_path}: run file not found")
     meta = _read_sidecar(json_path, csv_path)
-    data = _read_csv(csv_path, float(meta["sample_rate_hz"]))
+    data = read_run_csv(csv_path, float(meta["sample_rate_hz"]))
     _check_against_sidecar(csv_path, json_path, data, meta)
     return Run(name=csv_path.stem, data=data, meta=meta, path=csv_path)
 
@@ -210,11 +250,22 @@ def _read_sidecar(json_path: Path, csv_path: Path) -> dict:
             raise RunFileError(f"{json_path}: key '{key}' missing or not an object")
     checked = validate(Sidecar, meta, json_path, RunFileError)
     exp = checked.experiment
-    if exp.loop == "closed" and (exp.position_gain is None or exp.velocity_gain is None):
-        raise RunFileError(f"{json_path}: a closed-loop run must state its controller: keys "
-                           "'experiment.position_gain' and 'experiment.velocity_gain' (volts "
-                           "per volt) missing; add them, or import with --loop closed "
-                           "--position-gain KP --velocity-gain KV")
+    if exp.loop == "closed" and exp.controller is None and (
+            exp.position_gain is None or exp.velocity_gain is None):
+        raise RunFileError(f"{json_path}: a closed-loop run must state its controller: key "
+                           "'experiment.controller' ({\"kind\": \"pd\", \"kp\": .., \"kd\": ..}) "
+                           "or the analog loop's 'experiment.position_gain' and "
+                           "'experiment.velocity_gain' missing; add it, or import with "
+                           "--loop closed --controller pd:kp=..,kd=..")
+    if checked.rig.drive is not None or checked.rig.axis is not None:
+        from .model.plants import check_axis
+
+        drive = checked.rig.drive or "voltage"
+        axis = checked.rig.axis or ("linear" if drive == "force" else "rotary")
+        try:
+            check_axis(drive, axis, f"{json_path}: key 'rig.axis'")
+        except UserError as exc:
+            raise RunFileError(str(exc)) from None
     # the validated values (ints as floats); keys the schema does not know ride along
     return checked.model_dump(exclude_unset=True)
 
@@ -233,169 +284,6 @@ def require_excitation(runs, what: str = "identify") -> None:
         raise AnalysisError(f"runs {names}: tacho and pos are constant in every run while u "
                             f"changes, so there is nothing to {what}; is the motor powered "
                             "and are the sensors wired?")
-
-
-# -- CSV ----------------------------------------------------------------------------
-
-#: a run file larger than this is refused before reading (2 GB is ~40 million rows of
-#: t,u,tacho,pos): split the recording instead
-MAX_CSV_BYTES = 2_000_000_000
-MAX_ROWS = 20_000_000
-#: how people name labrig's columns elsewhere: a header with one of these where the
-#: labrig name is missing is a misspelling to fix, not an extra column to ignore
-SYNONYMS = {"time": "t", "time_s": "t", "input": "u", "voltage": "u", "u_v": "u",
-            "speed": "tacho", "velocity": "tacho", "omega": "tacho", "w": "tacho",
-            "position": "pos", "angle": "pos", "theta": "pos", "reference": "ref",
-            "i": "current", "ia": "current"}
-CHUNK_ROWS = 500_000
-
-
-def _near_miss(col: str, present: list[str]) -> str | None:
-    """The labrig column ``col`` probably means, if that column is not there."""
-    low = col.lower()
-    cand = low if low in KNOWN_COLUMNS else SYNONYMS.get(low)
-    if cand is None and len(low) >= 3:
-        close = difflib.get_close_matches(low, [c for c in KNOWN_COLUMNS if len(c) >= 3],
-                                          n=1, cutoff=0.75)
-        cand = close[0] if close else None
-    return cand if cand is not None and cand not in present else None
-
-
-def _read_header(path: Path, empty_hint: str = "") -> list[str]:
-    try:
-        size = path.stat().st_size
-        if size > MAX_CSV_BYTES:
-            raise RunFileError(f"{path}: {size / 1e9:.1f} GB is more than labrig reads in one "
-                               f"run ({MAX_CSV_BYTES / 1e9:.0f} GB); split the recording")
-        with path.open(encoding="utf-8", newline="") as fh:
-            line = fh.readline()
-            while line and not line.strip():
-                line = fh.readline()
-    except UnicodeDecodeError:
-        raise RunFileError(f"{path}: not a readable CSV (not UTF-8 text)") from None
-    if not line.strip():
-        raise RunFileError(f"{path}: file is empty{empty_hint}")
-    return [c.strip() for c in next(csv.reader([line]))]
-
-
-def _no_duplicates(path: Path, cols: list[str]) -> None:
-    dup = sorted({c for c in cols if cols.count(c) > 1})
-    if dup:
-        raise RunFileError(f"{path}: column '{dup[0]}' appears twice in the header; "
-                           "rename one of them")
-
-
-def _parse_error(path: Path, exc: Exception, ncols: int) -> RunFileError:
-    text = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-    m = re.search(r"Expected (\d+) fields in line (\d+), saw (\d+)", text)
-    if m:
-        return RunFileError(f"{path}: row {m.group(2)} has {m.group(3)} fields where the "
-                            f"header names {ncols} columns; fix that row or the header")
-    return RunFileError(f"{path}: not a readable CSV ({text})")
-
-
-def _cell_problem(cell) -> str:
-    if not isinstance(cell, str):
-        return "a missing field (the row is shorter than the header)"
-    if not cell:
-        return "an empty cell"
-    if cell.lower().lstrip("+-") in ("nan", "inf", "infinity"):
-        return "NaN or inf"
-    return f"non-numeric value {cell!r}"
-
-
-def _locate_bad_cell(path: Path, columns: list[str]) -> RunFileError:
-    """Stream the file as text to name the first cell that is not a finite number."""
-    row0 = 2  # the header is row 1
-    try:
-        reader = pd.read_csv(path, dtype=str, keep_default_na=False, skipinitialspace=True,
-                             chunksize=CHUNK_ROWS)
-        for chunk in reader:
-            chunk.columns = [c.strip() for c in chunk.columns]
-            for c in columns:
-                col = chunk[c].str.strip()
-                values = pd.to_numeric(col, errors="coerce").to_numpy(float)
-                bad = ~np.isfinite(values)
-                if bad.any():
-                    i = int(np.argmax(bad))
-                    return RunFileError(f"{path}: row {row0 + i}, column '{c}': "
-                                        f"{_cell_problem(col.iloc[i])}; every sample must be "
-                                        "a finite number")
-            row0 += len(chunk)
-    except (pd.errors.ParserError, ValueError) as exc:
-        return _parse_error(path, exc, 0)
-    return RunFileError(f"{path}: a cell is not a finite number")
-
-
-def _read_numeric(path: Path, cols: list[str], numeric: list[str]) -> pd.DataFrame:
-    """The CSV with ``numeric`` columns as float64, read by pandas' C parser (about
-    8 bytes a cell: 10 million rows fit in memory); any bad cell named by row."""
-    dtypes = {c: "float64" if c in numeric else str for c in cols}
-    try:
-        raw = pd.read_csv(path, skipinitialspace=True, dtype=dtypes, engine="c",
-                          keep_default_na=False, na_values=[""], nrows=MAX_ROWS + 1)
-    except pd.errors.ParserError as exc:
-        raise _parse_error(path, exc, len(cols)) from None
-    except ValueError:  # a cell that is not a number
-        raise _locate_bad_cell(path, numeric) from None
-    except UnicodeDecodeError:
-        raise RunFileError(f"{path}: not a readable CSV (not UTF-8 text)") from None
-    if len(raw) > MAX_ROWS:
-        raise RunFileError(f"{path}: more than {MAX_ROWS:,} rows; labrig reads at most that "
-                           "many samples in one run: split the recording")
-    raw.columns = [c.strip() for c in raw.columns]
-    for c in numeric:
-        if not np.isfinite(raw[c].to_numpy()).all():
-            raise _locate_bad_cell(path, numeric)
-    return raw
-
-
-def _read_csv(csv_path: Path, fs: float | None = None) -> pd.DataFrame:
-    cols = _read_header(csv_path, "; expected a header row t,u,tacho,pos and one row per "
-                                  "sample")
-    if not any(c in ("t", "u", "tacho", "pos") for c in cols):
-        raise RunFileError(f"{csv_path}: no header row; the first line must name the "
-                           "columns, e.g. t,u,tacho,pos")
-    _no_duplicates(csv_path, cols)
-    for c in cols:
-        means = _near_miss(c, cols) if c not in KNOWN_COLUMNS else None
-        if means:
-            raise RunFileError(f"{csv_path}: column '{c}' in the header looks like '{means}'; "
-                               f"rename it to '{means}' (labrig's columns are "
-                               f"{', '.join(KNOWN_COLUMNS)}, lower case)")
-    for c in REQUIRED_COLUMNS:
-        if c not in cols:
-            raise RunFileError(f"{csv_path}: column '{c}' missing (header has "
-                               f"{', '.join(cols)}); a run needs t and u")
-    if not any(c in cols for c in SENSOR_COLUMNS):
-        raise RunFileError(f"{csv_path}: both 'tacho' and 'pos' missing; a run needs at "
-                           "least one sensor column")
-    numeric = [c for c in cols if c in KNOWN_COLUMNS]
-    df = _read_numeric(csv_path, cols, numeric)
-    if len(df) < 2:
-        raise RunFileError(f"{csv_path}: only {len(df)} data row(s); a run needs samples")
-    # unknown columns are carried along as text, never used
-    t = df["t"].to_numpy()
-    dt = np.diff(t)
-    if (dt <= 0).any():
-        i = int(np.argmax(dt <= 0))
-        raise RunFileError(f"{csv_path}: row {i + 3}, column 't': time {t[i + 1]:g} s is not "
-                           f"after {t[i]:g} s; t must be strictly increasing")
-    med = float(np.median(dt))
-    if fs is not None and abs(1.0 / med - fs) > RATE_TOL * fs:
-        raise RunFileError(f"{csv_path.with_suffix('.json')}: key 'sample_rate_hz' = {fs:g} "
-                           f"but column 't' of {csv_path.name} samples at {1 / med:.6g} Hz; "
-                           "fix one of them")
-    step = 1.0 / fs if fs is not None else med
-    dev = np.abs(dt - step) > UNIFORM_TOL * step
-    if dev.any():
-        i = int(np.argmax(dev))
-        said = f"the sidecar's {fs:g} Hz" if fs is not None else "the run's median rate"
-        raise RunFileError(f"{csv_path}: row {i + 3}, column 't': the sampling interval "
-                           f"changes to {dt[i]:g} s ({1 / dt[i]:.4g} Hz) where {said} means "
-                           f"{step:g} s; t must be uniform (resample, split the run where "
-                           "the rate changes, or a sample was lost)")
-    return df
 
 
 def _check_against_sidecar(csv_path, json_path, data, meta):
@@ -454,23 +342,3 @@ def run_exists(directory: Path | str, name: str) -> bool:
     """A finished run: both files present (the sidecar is written last)."""
     d = Path(directory)
     return (d / f"{name}.csv").exists() and (d / f"{name}.json").exists()
-
-
-def read_csv_columns(path: Path | str, columns: list[str]) -> dict[str, np.ndarray]:
-    """Named numeric columns of a foreign CSV (an export to import), with the same
-    row/column errors and memory bounds as a run file."""
-    path = Path(path)
-    if not path.is_file():
-        raise RunFileError(f"{path}: file not found")
-    cols = _read_header(path)
-    _no_duplicates(path, cols)
-    for c in columns:
-        if c not in cols:
-            close = difflib.get_close_matches(c, cols, n=1, cutoff=0.6)
-            hint = f" (did you mean '{close[0]}'?)" if close else ""
-            raise RunFileError(f"{path}: column '{c}' not found{hint}; the header has "
-                               f"{', '.join(cols)}")
-    raw = _read_numeric(path, cols, list(dict.fromkeys(columns)))
-    if len(raw) < 2:
-        raise RunFileError(f"{path}: fewer than two data rows")
-    return {c: raw[c].to_numpy(float) for c in columns}

@@ -82,6 +82,18 @@ class _Open(BaseModel):
 
 # -- run sidecar ------------------------------------------------------------------------
 
+class Controller(_Closed):
+    """The controller of a closed-loop run: ``drive = kp (ref - x) - kd x' + ki int(ref - x)``
+    in input volts, x the fed-back position (derivative on the measurement)."""
+
+    kind: Literal["pd", "pid"]
+    kp: Num(0, 1e9)
+    kd: Num(0, 1e9) = 0.0
+    ki: Num(0, 1e9) = 0.0
+    feedback: Literal["position"] = "position"
+    output_limit_v: Optional[Num(gt=0, le=1e4)] = None
+
+
 class SidecarExperiment(_Open):
     loop: Literal["open", "closed"]
     waveform: Optional[str] = None
@@ -96,17 +108,27 @@ class SidecarExperiment(_Open):
     sample_rate_hz: Num(gt=0, le=1e6) = None
     position_gain: Num(0, 1e6) = None
     velocity_gain: Num(0, 1e6) = None
+    controller: Optional[Controller] = None
 
 
 class SidecarSensors(_Open):
     tacho_v_per_rad_s: Gain = None
     pos_v_per_rad: Gain = None
     pos_offset_v: Num(-1e3, 1e3) = None
+    #: the position sensor's quantum in the axis's unit (an encoder's count)
+    pos_quantum: Num(gt=0, le=1e3) = None
+    pos_kind: Optional[Literal["pot", "encoder"]] = None
+    current_a_per_v: Gain = None
 
 
 class SidecarRig(_Open):
     gear_ratio: Num(gt=0, le=1e5) = None
     amplifier_gain: Num(gt=0, le=1e5) = None
+    #: the plant (labrig.model.plants) and the axis it moves
+    drive: Optional[Literal["voltage", "torque", "force"]] = None
+    axis: Optional[Literal["rotary", "linear"]] = None
+    #: a torque/force drive's gain kd (N m or N per input volt)
+    input_gain: Num(gt=0, le=1e6) = None
     name: Optional[str] = None
 
 
@@ -127,6 +149,8 @@ class Sidecar(_Open):
 
 class RigSection(_Closed):
     name: Optional[str] = None
+    drive: Optional[Literal["voltage", "torque", "force"]] = None
+    axis: Optional[Literal["rotary", "linear"]] = None
     gear_ratio: Num(0.01, 1e4) = None
 
 
@@ -136,6 +160,8 @@ class PlantSection(_Closed):
     J_kgm2: Num(1e-10, 10.0) = None
     B_nms_per_rad: Num(0.0, 10.0) = None
     K_nm_per_a: Num(1e-5, 100.0) = None
+    M_kg: Num(1e-4, 1e5) = None
+    Fv_ns_per_m: Num(0.0, 1e6) = None
 
 
 class AmplifierSection(_Closed):
@@ -144,9 +170,11 @@ class AmplifierSection(_Closed):
 
 
 class SensorsSection(_Closed):
-    tacho_v_per_rad_s: Num(1e-6, 100.0) = None
+    tacho_v_per_rad_s: Num(0.0, 100.0) = None      # 0: no tacho
     pos_v_per_rad: Num(1e-6, 1e3) = None
     pos_offset_v: Num(-100.0, 100.0) = None
+    encoder_counts_per_unit: Num(0.0, 1e9) = None   # 0: a pot
+    current_v_per_a: Num(0.0, 1e3) = None           # 0: no current sense
 
 
 class CalibrationSection(_Closed):
@@ -174,6 +202,7 @@ class BridgeSection(_Closed):
 class NoiseSection(_Closed):
     tacho_v: Num(0.0, 10.0) = None
     pos_v: Num(0.0, 10.0) = None
+    current_v: Num(0.0, 10.0) = None
     seed: Int32 = None
 
 
@@ -216,11 +245,15 @@ class PlanFile(_Closed):
 # -- model JSON -------------------------------------------------------------------------
 
 class PlantParams(_Open):
-    R: Num(gt=0, le=1e6)
-    L: Num(gt=0, le=1e3)
-    J: Num(gt=0, le=1e3)
-    B: Num(gt=0, le=1e3)
-    K: Num(gt=0, le=1e3)
+    """Every plant's parameters; which are required depends on the model's structure."""
+
+    R: Num(gt=0, le=1e6) = None
+    L: Num(gt=0, le=1e3) = None
+    J: Num(gt=0, le=1e3) = None
+    B: Num(gt=0, le=1e3) = None
+    K: Num(gt=0, le=1e3) = None
+    M: Num(gt=0, le=1e6) = None
+    Fv: Num(gt=0, le=1e7) = None
 
 
 class ModelConstants(_Open):

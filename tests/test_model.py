@@ -49,7 +49,7 @@ def test_model_round_trips_through_json_and_flat(tmp_path):
               info={"method": "co", "fitness": 1.2})
     path = m.save(tmp_path / "m.json")
     doc = json.loads(path.read_text())
-    assert doc["format"] == "labrig-model/1" and doc["structure"] == "dc-servo"
+    assert doc["format"] == "labrig-model/1" and doc["structure"] == "voltage"
     assert doc["effects"] == ["deadband", "delay"] and doc["fitness"] == 1.2
     back = Model.load(path)
     assert back.flat() == m.flat() and back.constants == CONST and back.names == m.names

@@ -53,7 +53,8 @@ def analyse(paths, *, tolerance: float = GAIN_TOLERANCE) -> AnalysisResult:
     kcfg = [r.kt_configured for r in good if r.kt_configured is not None]
     return summarise(results, levels, tolerance,
                      kt_configured=float(np.median(kcfg)) if kcfg else None,
-                     kt_est=kt_from_levels(levels))   # pooled over runs with both sensors
+                     kt_est=kt_from_levels(levels),   # pooled over runs with both sensors
+                     speed_unit=runs[0].units[1])
 
 
 def _analyse_each(runs):

@@ -241,6 +241,8 @@ class AnalysisResult:
     source: str = "runs"
     levels: list = field(default_factory=list)
     figure_paths: list = field(default_factory=list)
+    #: the axis's speed unit (rad/s on a rotary axis, m/s on a linear one)
+    speed_unit: str = "rad/s"
 
     # -- data outputs ----------------------------------------------------------
     def to_json(self) -> dict:

@@ -13,7 +13,7 @@ KT_TOLERANCE = 0.05
 
 
 def summarise(runs, levels, tol, *, kt_configured=None, kt_est=None,
-              source="runs") -> AnalysisResult:
+              source="runs", speed_unit="rad/s") -> AnalysisResult:
     """Line fit, gain trend, deadband, stiction, Kt check and verdict of pooled levels.
 
     Parameters
@@ -55,6 +55,7 @@ def summarise(runs, levels, tol, *, kt_configured=None, kt_est=None,
                          breakaway_v=breakaway, kt_configured=kt_configured,
                          kt_mismatch=kt_mismatch, tolerance=tol, source=source,
                          levels=levels)
+    res.speed_unit = speed_unit
     res.verdict = verdict(res)
     return res
 

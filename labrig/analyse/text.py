@@ -18,18 +18,22 @@ def table_rows(res) -> list[Table]:
 def level_table(res) -> Table:
     """One row per run and input level."""
     rows = []
+    columns = list(LEVEL_COLUMNS)
+    if res.speed_unit != "rad/s":  # a linear axis: no rpm, speed in its own unit
+        columns[2:4] = ["-", f"v ({res.speed_unit})"]
     for lv in res.levels:
         note = "" if lv.moving is not False else "at rest"
         if not lv.n_settled:
             note = "not settled"
         rows.append([str(lv.run), fmt(lv.v, ".3f"),
-                     fmt(None if lv.speed is None else lv.speed * 30 / math.pi, ".0f"),
+                     fmt(None if lv.speed is None or res.speed_unit != "rad/s"
+                         else lv.speed * 30 / math.pi, ".0f"),
                      fmt(lv.speed, ".2f"), fmt(lv.spread, ".2f"), fmt(lv.tacho_v, ".3f"),
                      fmt(lv.km_paper, ".2f"),
                      fmt(None if lv.tau_s is None else lv.tau_s * 1e3, ".1f"), note])
     notes = [f"{r.name}: skipped ({r.skipped})" for r in res.runs
              if not isinstance(r, dict) and r.skipped]
-    return Table("Steady speed per input level", list(LEVEL_COLUMNS), rows, notes,
+    return Table("Steady speed per input level", columns, rows, notes,
                  numeric=tuple(range(1, 8)))
 
 
@@ -39,7 +43,7 @@ def summary_table(res) -> Table:
 
     def g(x, spec, unit=""):
         return "not measurable" if x is None else format(x, spec) + unit
-    rows = [["km (incremental)", g(res.km, ".4g", " rad/s per V"),
+    rows = [["km (incremental)", g(res.km, ".4g", f" {res.speed_unit} per V"),
              f"forward {line.km_fwd:.4g}, reverse {line.km_rev:.4g}"
              if line.km_fwd is not None and line.km_rev is not None else ""],
             ["deadband", g(res.deadband_v, ".3f", " V"),

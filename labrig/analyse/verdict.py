@@ -95,7 +95,7 @@ def _trend_sentence(res) -> str:
     kb = res.trend.get("km_by_amplitude", [])
     rng = ""
     if len(kb) >= 2:
-        rng = (f"w/V goes from {kb[0][1]:.4g} to {kb[-1][1]:.4g} rad/s per V between "
+        rng = (f"w/V goes from {kb[0][1]:.4g} to {kb[-1][1]:.4g} {res.speed_unit} per V between "
                f"{kb[0][0]:.3g} and {kb[-1][0]:.3g} V")
     thr = res.trend.get("threshold", GAIN_TOLERANCE) * 100
     if res.gain_trend == "constant":
@@ -116,8 +116,10 @@ def _trend_sentence(res) -> str:
                 "friction leaves the amplifier output linear and stops the motor in "
                 "finite time with a kink at zero speed.")
     wsat = max(abs(L.speed) for L in moving_points(res.levels))
+    top = (f"{wsat:.0f} rad/s ({wsat * 30 / math.pi:.0f} rpm)" if res.speed_unit == "rad/s"
+           else f"{wsat:.3g} {res.speed_unit}")
     return (f"{rng} (falling by more than {thr:.1f} %) while the speed levels off near "
-            f"{wsat:.0f} rad/s ({wsat * 30 / math.pi:.0f} rpm): saturation — the "
+            f"{top}: saturation — the "
             "amplifier's output rail, a current limit or a clipped speed readout. "
             "To separate them, measure the amplifier output voltage and the armature "
             "current at the highest level (a rail clips the voltage, a current limit "

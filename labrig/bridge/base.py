@@ -99,9 +99,10 @@ class SampleBlock:
 
     index: np.ndarray
     u: np.ndarray
-    tacho: np.ndarray
+    tacho: np.ndarray | None   # None: the rig has no tacho
     pos: np.ndarray
     ref: np.ndarray | None = None
+    current: np.ndarray | None = None
 
 
 class Bridge(abc.ABC):

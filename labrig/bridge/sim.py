@@ -7,6 +7,7 @@ experiment offset), so the same sweep is byte-identical every time.
 from __future__ import annotations
 
 import zlib
+from dataclasses import replace
 
 import numpy as np
 
@@ -35,6 +36,8 @@ class SimRig(Bridge):
         self.seed = rig.noise.seed if seed is None else seed
         self.substeps = substeps
         self.params = ServoParams.from_rig(rig)
+        if rig.digital_loop:  # a PD on the position in axis units (RigConfig.digital_loop)
+            self.params = replace(self.params, Kpot=1.0, Kt=1.0 / rig.gear_ratio)
         self.effects = [get_effect(n) for n in rig.effects]
         self._exp: Experiment | None = None
         self._data: dict | None = None
@@ -72,8 +75,8 @@ class SimRig(Bridge):
         self._count["samples"] += s.stop - s.start
         self._count["run_samples"] += s.stop - s.start
         self._output_v = float(d["u"][s.stop - 1])
-        return SampleBlock(index=np.arange(s.start, s.stop), u=d["u"][s], tacho=d["tacho"][s],
-                           pos=d["pos"][s], ref=d["ref"][s] if d["ref"] is not None else None)
+        part = {k: (d[k][s] if d[k] is not None else None) for k in ("tacho", "ref", "current")}
+        return SampleBlock(index=np.arange(s.start, s.stop), u=d["u"][s], pos=d["pos"][s], **part)
 
     def stop(self) -> None:
         self._data = None
@@ -105,9 +108,23 @@ class SimRig(Bridge):
         # one stream per experiment name: adding an experiment never changes the others
         rng = np.random.default_rng([self.seed, zlib.crc32(exp.name.encode())])
         s = rig.sensors
-        tacho = s.tacho_v_per_rad_s * sim["w"] + rng.normal(0, rig.noise.tacho_v, len(t))
-        pos = s.pos_v_per_rad * sim["theta"] + s.pos_offset_v + rng.normal(0, rig.noise.pos_v, len(t))
         lo, hi = br.adc_range_v
+        # the noise streams are drawn in the same order whatever the rig has, so adding
+        # a channel never changes the others
+        n_tacho = rng.normal(0, rig.noise.tacho_v, len(t))
+        n_pos = rng.normal(0, rig.noise.pos_v, len(t))
+        tacho = None
+        if s.tacho_v_per_rad_s > 0:
+            tacho = quantise(s.tacho_v_per_rad_s * sim["w"] + n_tacho, br.adc_bits, lo, hi)
+        if s.encoder_counts_per_unit > 0:  # counts: exact edges, no analog noise
+            pos = np.floor(sim["theta"] * s.encoder_counts_per_unit + 0.5)
+        else:
+            pos = quantise(s.pos_v_per_rad * sim["theta"] + s.pos_offset_v + n_pos,
+                           br.adc_bits, lo, hi)
+        current = None
+        if s.current_v_per_a > 0:
+            n_cur = rng.normal(0, rig.noise.current_v, len(t))
+            current = quantise(s.current_v_per_a * sim["i"] + n_cur, br.adc_bits, lo, hi)
         ref = quantise(u, br.adc_bits, lo, hi) if exp.loop == "closed" else None
-        return {"t": t, "u": u, "tacho": quantise(tacho, br.adc_bits, lo, hi),
-                "pos": quantise(pos, br.adc_bits, lo, hi), "ref": ref, "truth": sim}
+        return {"t": t, "u": u, "tacho": tacho, "pos": pos, "ref": ref, "current": current,
+                "truth": sim}

@@ -112,11 +112,14 @@ class _Paced:
         return blk
 
 
-@command("import", "bring a scope/DAQ export or another lab's CSV in as a run")
+@command("import", "bring a scope/DAQ export, another lab's CSV or a MATLAB .mat file in as a run")
 def cmd_import(args):
-    """Import a foreign CSV as a labrig run. Map columns with --map TARGET=COLUMN: t, u and
-    speed (rad/s or rpm) and/or pos (rad or deg), or raw volts tacho=/pos= with gains."""
-    from ..importer import import_csv, parse_map
+    """Import a foreign CSV or MATLAB .mat file as a labrig run. Map channels with --map
+    TARGET=COLUMN (a .mat file's variables by name, a struct's fields as s.field, a
+    matrix's column as m[k]): t, u and speed and/or pos in physical units, or raw volts
+    tacho=/pos= with gains; current= and, in closed loop, ref=. Choose the plant with
+    --drive and --axis."""
+    from ..importer import import_csv, parse_controller, parse_map
 
     mapping = parse_map(args.map)
     path = import_csv(args.src, args.output, mapping, speed_unit=args.speed_unit,
@@ -125,34 +128,57 @@ def cmd_import(args):
                       pos_offset=args.pos_offset, gear_ratio=args.gear_ratio,
                       amplifier_gain=args.amplifier_gain, name=args.name,
                       waveform=args.waveform, loop=args.loop, overwrite=args.overwrite,
-                      position_gain=args.position_gain, velocity_gain=args.velocity_gain)
+                      position_gain=args.position_gain, velocity_gain=args.velocity_gain,
+                      drive=args.drive, axis=args.axis, input_gain=args.input_gain,
+                      controller=parse_controller(args.controller),
+                      current_gain=args.current_gain)
     print(f"wrote {path} and {path.with_suffix('.json').name}")
     return 0
 
 
 def _configure_import(p):
-    p.add_argument("src", help="the CSV to import")
+    p.add_argument("src", help="the CSV or MATLAB .mat file to import")
     p.add_argument("-o", "--output", required=True, help="output folder")
     p.add_argument("--map", required=True,
-                   help="TARGET=COLUMN,...: targets t, u, speed, pos, tacho, ref, current")
-    p.add_argument("--speed-unit", default="rad/s", help="rad/s (default) or rpm")
-    p.add_argument("--pos-unit", default="rad", help="rad (default) or deg")
+                   help="TARGET=COLUMN,...: targets t, u, speed, pos, tacho, ref, current "
+                        "(in closed loop: ref= the reference, u= the logged controller output)")
+    p.add_argument("--drive", default="voltage", choices=["voltage", "torque", "force"],
+                   help="what the input drives: voltage (an armature, default), torque "
+                        "(a current-mode drive on a rotary axis) or force (on a linear axis)")
+    p.add_argument("--axis", choices=["rotary", "linear"],
+                   help="rotary (rad, rad/s) or linear (m, m/s); default from --drive or "
+                        "the units")
+    p.add_argument("--input-gain", type=float_opt, metavar="KD",
+                   help="torque/force drive: N m (or N) per input volt")
+    p.add_argument("--speed-unit", help="rad/s (default), rpm, deg/s; linear: m/s "
+                                        "(default), mm/s")
+    p.add_argument("--pos-unit", help="rad (default), deg, rev; linear: m (default), mm; "
+                                      "counts:N for an encoder (N counts per revolution, or "
+                                      "per metre on a linear axis)")
     p.add_argument("--time-unit", default="s", help="s (default) or ms")
     p.add_argument("--tacho-gain", type=float_opt, help="V per rad/s, for tacho= in volts")
     p.add_argument("--pos-gain", type=float_opt, help="V per rad, for pos= in volts")
     p.add_argument("--pos-offset", type=float_opt, default=0.0, help="pot volts at 0 rad")
+    p.add_argument("--current-gain", type=float_opt, default=1.0,
+                   help="A per unit of the current= column (default 1: already in A)")
     p.add_argument("--gear-ratio", type=float_opt, default=1.0, help="motor/output (default 1)")
-    p.add_argument("--amplifier-gain", type=float_opt, default=1.0)
+    p.add_argument("--amplifier-gain", type=float_opt, default=1.0,
+                   help="voltage drive: armature volts per input volt (default 1)")
     p.add_argument("--name", help="run name (default: the source file's stem)")
     p.add_argument("--waveform", default="custom",
-                   choices=["square", "step", "staircase", "custom"])
+                   choices=["square", "step", "staircase", "custom"],
+                   help="what the input was (default custom)")
     p.add_argument("--loop", default="open", choices=["open", "closed"],
-                   help="open (u drives the amplifier) or closed (u is the reference of a "
-                        "position loop; give its gains)")
+                   help="open (u drives the plant) or closed (a position loop: give "
+                        "--controller, map ref= and, if logged, u= the controller output)")
+    p.add_argument("--controller", metavar="KIND:GAINS",
+                   help="closed loop's controller, e.g. pd:kp=2,kd=0.1 or "
+                        "pid:kp=2,kd=0.1,ki=1[,limit=10]: drive = kp (ref - x) - kd x' "
+                        "+ ki int(ref - x), in input volts per axis unit")
     p.add_argument("--position-gain", type=float_opt, metavar="KP",
-                   help="closed loop: amplifier volts per volt of position error")
+                   help="MS150 analog loop: amplifier volts per volt of position error")
     p.add_argument("--velocity-gain", type=float_opt, metavar="KV",
-                   help="closed loop: amplifier volts per volt of tacho feedback")
+                   help="MS150 analog loop: amplifier volts per volt of tacho feedback")
     p.add_argument("--overwrite", action="store_true", help="replace an existing run")
 
 

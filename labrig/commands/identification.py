@@ -42,18 +42,35 @@ def common_model_options(p):
     p.add_argument("--bounds", help="search bounds, e.g. R=1:20,deadband.d_v=0:1")
     p.add_argument("--config", help="TOML with [bounds], [fixed] and effects = [...]")
     p.add_argument("--weights", default="p=1,q=1", help="position and speed weights (default p=1,q=1)")
+    add_through_option(p)
 
 
-@command("identify", "fit the servo model (R, L, J, B, K + effects) with JFO, PSO or CO")
+def add_through_option(p):
+    p.add_argument("--through", default="auto", choices=["auto", "loop", "input"],
+                   help="closed-loop runs: fit through the loop (the reference is the input, "
+                        "the controller part of the model) or from the logged controller "
+                        "output as the input; auto (default) takes input when it was logged")
+
+
+def read_for_fit(args):
+    """The data set as it will be fitted (closed-loop runs by --through) and the way."""
+    from ..closedloop import choose_way
+    from ..runs import read_dataset
+
+    return choose_way(read_dataset(args.data), getattr(args, "through", "auto"))
+
+
+@command("identify", "fit the plant (R, L, J, B, K; J, B; or M, Fv) + effects with JFO, PSO or CO")
 def cmd_identify(args):
-    """Identify the DC-servo model on a data set. Reports the identifiable combinations
-    (Km, tau_m, tau_e) first, then R, L, J, B, K with identifiability warnings."""
+    """Identify the plant model on a data set (the plant the runs were recorded on:
+    voltage, torque or force driven). Reports the identifiable combinations (Km, tau_m,
+    tau_e) first, then the plant's parameters with identifiability warnings, and the
+    physical parameters in the axis's units."""
     from ..identify.engine import identify
     from ..model.effectset import EffectSet
     from ..model.model import Model
-    from ..runs import read_dataset
 
-    runs = read_dataset(args.data)
+    runs, way = read_for_fit(args)
     # the command line first: naming FILE.py:Class there is the user's own choice
     asked = EffectSet.parse(args.effects)
     cfg = load_identify_config(args.config)
@@ -76,6 +93,8 @@ def cmd_identify(args):
         refuse_existing([args.figures, Path(args.figures) / "convergence.png"], args.force,
                         what="folder")
     dataset = {"paths": [str(Path(d)) for d in args.data], "runs": [r.name for r in runs]}
+    if way.runs:
+        dataset["closed_loop"] = way.to_json()
     results = []
     for m in methods:
         iters = args.iters if m != "co" else 1
@@ -98,13 +117,17 @@ def cmd_identify(args):
         Path(args.figures).mkdir(parents=True, exist_ok=True)
         save(plot_convergence(results), Path(args.figures) / "convergence.png", dpi=120)
     if args.json:
-        dicts = {r.method: identification_dict(r) for r in results}
+        dicts = {r.method: {**identification_dict(r), **({"closed_loop": way.to_json()}
+                                                          if way.runs else {})}
+                 for r in results}
         if len(results) == 1:
             emit_json(dicts[results[0].method])
         else:
             emit_json({**dicts[best.method], "method": "all", "best": best.method,
                        "results": dicts, "warnings": all_warnings(results)})
     else:
+        if way.runs:
+            print(f"closed-loop runs ({way.runs}): {way.why}\n")
         print(format_identification(results))
         if args.output:
             print(f"\nmodel saved to {args.output}")

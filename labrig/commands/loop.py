@@ -5,14 +5,17 @@ from pathlib import Path
 
 from .registry import command, emit_json
 from ..errors import UserError
+from .identification import add_through_option
 from .progress import Progress
 
 
 def _load(args):
     from ..model.model import Model
-    from ..runs import read_dataset
+    from .identification import read_for_fit
 
-    runs = read_dataset(args.data)
+    runs, way = read_for_fit(args)
+    if way.runs and not getattr(args, "json", False):
+        print(f"closed-loop runs ({way.runs}): {way.why}\n")
     model = Model.load(args.model) if getattr(args, "model", None) else None
     return runs, model
 
@@ -59,6 +62,7 @@ def _configure_compare(p):
     p.add_argument("-o", "--output", default="compare", help="folder for the figures")
     p.add_argument("--force", action="store_true", help="replace figures already in the folder")
     p.add_argument("--json", action="store_true", help="print one JSON object")
+    add_through_option(p)
 
 
 cmd_compare.configure = _configure_compare
@@ -166,6 +170,7 @@ def _configure_diagnose(p):
                    help="with --auto: add at most this many effects (default 3)")
     p.add_argument("--force", action="store_true", help="replace an existing -o file")
     p.add_argument("--json", action="store_true", help="print one JSON object")
+    add_through_option(p)
 
 
 cmd_diagnose.configure = _configure_diagnose
@@ -179,11 +184,11 @@ def cmd_ladder(args):
     from ..ladder import evaluate_ladder
     from ..search import auto_ladder
     from ..report.figures import save
-    from ..runs import read_dataset
+    from .identification import read_for_fit
 
     from .registry import refuse_existing
 
-    runs = read_dataset(args.data)
+    runs, _ = read_for_fit(args)
     out = Path(args.output)
     # automatic mode saves step0..stepN.json (swaps and removals add rungs): any step file
     written = [] if args.models else (sorted(out.glob("step*.json")) if out.is_dir() else [])
@@ -211,7 +216,8 @@ def _configure_ladder(p):
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("-o", "--output", default="ladder", help="folder for models and the figure")
     p.add_argument("--force", action="store_true", help="replace files already in the folder")
-    p.add_argument("--json", action="store_true")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    add_through_option(p)
 
 
 cmd_ladder.configure = _configure_ladder

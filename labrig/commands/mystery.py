@@ -19,7 +19,7 @@ def cmd_mystery(args):
         from .registry import refuse_existing
 
         refuse_existing([args.output], args.force)  # the same words as every other -o
-        doc = m.new_mystery(args.seed)
+        doc = m.new_mystery(args.seed, args.rig)
         path = m.write_mystery(doc, args.output, seed=args.seed, overwrite=args.force)
         n = len(doc["effects"])
         print(f"wrote {path}: mystery rig {args.seed} ({n} hidden effect{'s' * (n != 1)}); "
@@ -54,6 +54,8 @@ def _configure(p):
     pn = sub.add_parser("new", help="draw a mystery rig and write it (not plain text)")
     pn.add_argument("--seed", type=int, required=True, help="which mystery (same seed, same rig)")
     pn.add_argument("-o", "--output", required=True, help="file to write, ending in .mystery")
+    pn.add_argument("--rig", help="the rig to draw the mystery around (default the MS150; any "
+                                  "plant and axis, e.g. configs/rig_linear_axis.toml)")
     pn.add_argument("--force", action="store_true", help="replace an existing file")
     pn.add_argument("--debug", **dbg)
 

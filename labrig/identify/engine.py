@@ -17,7 +17,8 @@ from ..model.effects import Effect
 from ..model.effectset import EffectSet
 from ..model.model import Model
 from ..model.reach import Reach
-from ..model.servo import PLANT_NAMES, ServoParams
+from ..model.plants import plant_of_runs
+from ..model.servo import ServoParams
 from ..runs import require_excitation
 from .identifiability import analyse_identifiability
 from .jellyfish import jellyfish
@@ -96,7 +97,7 @@ class Identification:
 
     @property
     def plant(self) -> dict:
-        return {k: self.params[k] for k in PLANT_NAMES}
+        return {k: self.params[k] for k in self.space.plant.names}
 
     @property
     def effect_params(self) -> dict:
@@ -107,8 +108,7 @@ class Identification:
         return self.metrics["fitness"]
 
     def servo(self) -> ServoParams:
-        c = self.constants
-        return ServoParams(**self.plant, Ka=c["Ka"], N=c["N"], Kt=c["Kt"], Kpot=c["Kpot"])
+        return self.space.plant.servo(self.plant, self.constants)
 
     def step_info(self) -> dict:
         c = self.constants
@@ -117,10 +117,28 @@ class Identification:
         except Exception:  # an unstable identified loop has no step metrics
             return {"rise_time_s": None, "settling_time_s": None, "overshoot_percent": None}
 
+    def physical(self) -> dict:
+        """The plant and friction in the axis's units: ``{name: {value, unit, interval95}}``
+        (J, B, Tc, T0 in kg m^2, N m s/rad, N m, N m for a torque-driven axis; M, Fv, Fc,
+        F0 for a force-driven one; R, L, J, B, K and friction for the voltage plant). The
+        interval is null where the parameter is not identifiable or fixed."""
+        pars = (self.identifiable or {}).get("parameters", {})
+        out = {}
+        for name, (v, unit, key, scale) in self.space.plant.physical(
+                self.plant, self.effect_params, self.constants).items():
+            iv = (pars.get(key) or {}).get("interval95")
+            out[name] = {"value": v, "unit": unit,
+                         "interval95": None if iv is None else sorted([iv[0] * scale, iv[1] * scale])}
+        return out
+
     def to_dict(self) -> dict:
         """The JSON of ``identify --json`` (docs/design.md, 'Commands')."""
+        plant = self.space.plant
         return {"method": self.method, "effects": [e.name for e in self.effects],
+                "plant": plant.kind, "axis": plant.axis,
+                "units": {"position": plant.position_unit(), "speed": plant.speed_unit()},
                 "params": self.plant, "effect_params": self.effect_params,
+                "physical": self.physical(),
                 "fixed": sorted(self.space.fixed),
                 "fitness": self.metrics["fitness"],
                 "rmse_over_noise": self.metrics["rmse_over_noise"],
@@ -160,12 +178,13 @@ class Identification:
 
     def model(self) -> Model:
         """The identified model (what ``-o model.json`` saves)."""
-        return Model.from_flat(self.params, self.effects, self.constants, info={
+        return Model.from_flat(self.params, self.effects, self.constants,
+                               plant=self.space.plant.kind, info={
             "method": self.method, "fitness": self.metrics["fitness"],
             "rmse_over_noise": self.metrics["rmse_over_noise"],
             "fit_percent": self.metrics["fit_percent"], "noise": self.metrics["noise"],
             "seed": self.result.seed, "nfev": int(self.result.nfev),
-            "identifiable": {k: self.identifiable[k] for k in ("km", "tau_m_s", "tau_e_s")
+            "identifiable": {k: self.identifiable[k] for k in self.space.plant.combinations
                              if k in self.identifiable},
             "dataset": self.dataset})
 
@@ -187,8 +206,7 @@ def initial_point(space: Space, effects, runs, constants, start: dict | None) ->
     point = dict(mid)
     if start:
         point.update({k: v for k, v in start.items() if k in point})
-    plant = ServoParams(**{k: point[k] for k in PLANT_NAMES}, Ka=constants["Ka"],
-                        N=constants["N"], Kt=constants["Kt"], Kpot=constants["Kpot"])
+    plant = space.plant.servo(point, constants)
     for key, v in EffectSet.parse(effects).initial_guess(runs, plant).items():
         if not (start and key in start):
             point[key] = v
@@ -234,7 +252,8 @@ def identify(runs, method: str = "co", effects: list[Effect] = (), *, seed: int 
     require_excitation(runs, "identify")
     t0 = time.perf_counter()
     effects = EffectSet.parse(effects)
-    space = build_space(effects, bounds, fixed, reach=reach or Reach.of(runs))
+    space = build_space(effects, bounds, fixed, reach=reach or Reach.of(runs),
+                        plant=plant_of_runs(runs))
     obj = Objective(runs, effects, space, p=p, q=q, masks=masks)
     constants = dataset_constants(runs)
     lo, hi = space.search_bounds()

@@ -1,41 +1,59 @@
 """Identifiability (docs/physics.md, 'Identifiability'): what the data can and cannot pin down.
 
-From u to w or theta the DC servo has five parameters but only three transfer-
-function coefficients (b0 = Ka K/(J L), a1 = R/L + B/J, a0 = (B R + K^2)/(J L)):
+From u to w or theta the voltage-driven servo has five parameters but only three
+transfer-function coefficients (b0 = Ka K/(J L), a1 = R/L + B/J, a0 = (B R + K^2)/(J L)):
 a two-dimensional family of (R, L, J, B, K) gives identical responses, e.g.
-(R/l, L/l, l J, l B, K). So labrig reports the identifiable combinations first
-(Km, tau_m, tau_e) with intervals, then the raw parameters with warnings.
+(R/l, L/l, l J, l B, K). A measured armature current adds two more (Ka/L and
+Ka B/(J L)) and fixes all five. A torque- or force-driven axis has two parameters and
+two coefficients (kd/J, B/J): both are identifiable. So labrig reports the identifiable
+combinations first (Km, tau_m, and tau_e for the voltage plant) with intervals, then
+the raw parameters with warnings.
 """
 from __future__ import annotations
 
 import numpy as np
 
-from ..model.servo import PLANT_NAMES, ServoParams
+from ..model.plants import VoltagePlant
 
 STRUCTURAL = 1e-6
 PRACTICAL = 1e-3
+COMBINATION_UNITS = {"km": "speed per input V", "tau_m_s": "s", "tau_e_s": "s"}
 
 
-def _combos(R, L, J, B, K, Ka):
-    sp = ServoParams(R=R, L=L, J=J, B=B, K=K, Ka=Ka)
-    return np.array([sp.km, sp.tau_m, sp.tau_e])
+def _combos(plant, values: dict, constants: dict) -> np.ndarray:
+    sp = plant.servo(values, constants)
+    every = {"km": sp.km, "tau_m_s": sp.tau_m, "tau_e_s": sp.tau_e}
+    return np.array([every[k] for k in plant.combinations])
 
 
-def structural_rank(plant: dict, free: list[str]) -> int:
-    """Rank of d(b0, a1, a0)/d ln(free plant parameters): 3 at most."""
-    idx = [PLANT_NAMES.index(n) for n in free if n in PLANT_NAMES]
-    if not idx:
-        return 0
-    p = np.array([plant[n] for n in PLANT_NAMES])
+def _coefficients(plant, current: bool):
+    """The transfer-function coefficients the data fix, as a function of ln(parameters)."""
+    if plant is not VoltagePlant:
+        return lambda lp: np.array([-lp[0], lp[1] - lp[0]])   # kd/J, B/J
 
     def coeffs(lp):
         R, L, J, B, K = np.exp(lp)
-        return np.log([K / (J * L), R / L + B / J, (B * R + K * K) / (J * L)])
+        out = [K / (J * L), R / L + B / J, (B * R + K * K) / (J * L)]
+        if current:  # I/U = Ka (J s + B) / (J L s^2 + ...)
+            out += [1.0 / L, B / (J * L)]
+        return np.log(out)
+    return coeffs
 
+
+def structural_rank(plant: dict, free: list[str], plant_class=VoltagePlant,
+                    current: bool = False) -> int:
+    """Rank of d(coefficients)/d ln(free plant parameters): for the voltage plant 3 at
+    most from speed and position, 5 with the armature current; 2 for torque/force."""
+    names = plant_class.names
+    idx = [names.index(n) for n in free if n in names]
+    if not idx:
+        return 0
+    p = np.array([plant[n] for n in names])
+    coeffs = _coefficients(plant_class, current)
     lp = np.log(p)
-    Jm = np.empty((3, len(idx)))
+    Jm = np.empty((len(coeffs(lp)), len(idx)))
     for c, k in enumerate(idx):
-        d = np.zeros(5)
+        d = np.zeros(len(names))
         d[k] = 1e-6
         Jm[:, c] = (coeffs(lp + d) - coeffs(lp - d)) / 2e-6
     s = np.linalg.svd(Jm, compute_uv=False)
@@ -109,8 +127,10 @@ def analyse_identifiability(objective, x_search: np.ndarray, Ka: float) -> dict:
                         "direction": "(R, L, J, B, K) -> (R/l, L/l, l*J, l*B, K) for any l > 0 "
                                      "leaves the fit unchanged (exact symmetry of the model)"}
             null.append(symmetry)
-    plant_free = [n for n in free if n in PLANT_NAMES]
-    rank = structural_rank(pd, plant_free)
+    plant = sp.plant
+    current = bool(getattr(objective, "use_i", False))
+    plant_free = [n for n in free if n in plant.names]
+    rank = structural_rank(pd, plant_free, plant, current)
     structural_nullity = len(plant_free) - rank
     small = [k for k, r in enumerate(rel) if r < PRACTICAL]
     for j, k in enumerate(small):
@@ -119,12 +139,15 @@ def analyse_identifiability(objective, x_search: np.ndarray, Ka: float) -> dict:
         null.append({"relative_singular_value": float(rel[k]), "kind": kind,
                      "direction": readable_direction(Vt[k], free)})
     if rank < len(plant_free):
+        how = ("fix R and L (locked-rotor test: --fix R=..,L=..), or fix K (back-EMF test) "
+               "and R." if current else
+               "measure the armature current too, or fix R and L (locked-rotor test: "
+               "--fix R=..,L=..), or fix K (back-EMF test) and R.")
         warnings.append(
             f"structurally unidentifiable: the data fix only {rank} combinations of the "
-            f"{len(plant_free)} free plant parameters ({', '.join(plant_free)}); R, L, J, B, K "
-            "below are one member of a family of equally good fits. To pin them down: "
-            "measure the armature current too, or fix R and L (locked-rotor test: --fix R=..,L=..), "
-            "or fix K (back-EMF test) and R.")
+            f"{len(plant_free)} free plant parameters ({', '.join(plant_free)}); "
+            f"{', '.join(plant.names)} below are one member of a family of equally good fits. "
+            f"To pin them down: {how}")
     # directions beyond what the structure explains are worth a word each
     extra = [k for k in small if rel[k] >= STRUCTURAL][: max(0, len(small) - structural_nullity)]
     for k in extra:
@@ -140,23 +163,26 @@ def analyse_identifiability(objective, x_search: np.ndarray, Ka: float) -> dict:
                 pairs.append({"a": free[a], "b": free[b], "rho": float(corr[a, b])})
 
     # identifiable combinations, with intervals by the delta method in log space
-    base = _combos(pd["R"], pd["L"], pd["J"], pd["B"], pd["K"], Ka)
-    G = np.zeros((3, D))
+    consts = {"Ka": Ka}
+    base = _combos(plant, pd, consts)
+    G = np.zeros((len(base), D))
     for k, n in enumerate(free):
-        if n not in PLANT_NAMES:
+        if n not in plant.names:
             continue
         h = 1e-6
         q = dict(pd)
         q[n] = pd[n] * np.exp(h)
-        G[:, k] = (np.log(_combos(q["R"], q["L"], q["J"], q["B"], q["K"], Ka)) - np.log(base)) / h
+        G[:, k] = (np.log(_combos(plant, q, consts)) - np.log(base)) / h
         if not free_log[k]:
             G[:, k] /= pd[n]
     var = np.einsum("ij,jk,ik->i", G, cov, G)
     sdl = np.sqrt(np.clip(var, 0, None))
     nullspace = Vt[rel < PRACTICAL]
     comb = {}
-    for (key, unit), v, s, g in zip((("km", "rad/s per V"), ("tau_m_s", "s"), ("tau_e_s", "s")),
-                                    base, sdl, G):
+    speed = plant.speed_unit()
+    units = {**COMBINATION_UNITS, "km": f"{speed} per V"}
+    for key, v, s, g in zip(plant.combinations, base, sdl, G):
+        unit = units[key]
         # a combination that moves along an unidentifiable direction has no interval
         # (the pseudo-inverse would silently drop that direction and claim precision)
         leak = float(np.max(np.abs(nullspace @ g)) / max(np.linalg.norm(g), 1e-300)) if len(nullspace) else 0.0
@@ -177,7 +203,7 @@ def analyse_identifiability(objective, x_search: np.ndarray, Ka: float) -> dict:
                      "identifiable": not flag}
     for n, v in sp.fixed.items():
         params[n] = {"value": float(v), "fixed": True, "identifiable": True}
-    return {"km": comb["km"], "tau_m_s": comb["tau_m_s"], "tau_e_s": comb["tau_e_s"],
+    return {**comb, "current_measured": current,
             "structural_rank": rank, "free_plant_parameters": len(plant_free),
             "all_identifiable": not null and rank == len(plant_free),
             "symmetry": symmetry,

@@ -16,13 +16,12 @@ import numpy as np
 from ..errors import UserError
 from ..model.effects import Effect
 from ..model.effectset import EffectSet
-from ..model.model import DCServoPlant
-from ..model.servo import PLANT_NAMES
+from ..model.plants import VoltagePlant
 from ..model.simulate import Simulator, prepare
 from ..noise import channel_floors
 
-#: generic plant bounds (SI units); wide enough for bench servos from 10 W to 1 kW
-DEFAULT_BOUNDS = DCServoPlant.bounds
+#: generic plant bounds of the voltage-driven servo (SI units)
+DEFAULT_BOUNDS = VoltagePlant.bounds
 
 
 @dataclass
@@ -33,11 +32,12 @@ class Space:
     only the free coordinates in ``lower``/``upper``.
     """
 
-    names: list[str]               # all parameter names: R..K then "effect.param"
+    names: list[str]               # all parameter names: the plant's, then "effect.param"
     lower: np.ndarray              # physical bounds of every parameter
     upper: np.ndarray
     log: np.ndarray                # bool per parameter
     fixed: dict = field(default_factory=dict)  # name -> physical value
+    plant: type = VoltagePlant     # the plant class (labrig.model.plants)
 
     @property
     def free(self) -> list[str]:
@@ -75,18 +75,19 @@ class Space:
 
 
 def build_space(effects: list[Effect], bounds: dict | None = None, fixed: dict | None = None,
-                reach=None) -> Space:
-    """The search space; ``reach`` (:class:`labrig.model.reach.Reach`) replaces the
-    catalogue's bounds of threshold effects by what the data can see."""
+                reach=None, plant=VoltagePlant) -> Space:
+    """The search space of ``plant`` (a class of :mod:`labrig.model.plants`) and
+    ``effects``; ``reach`` (:class:`labrig.model.reach.Reach`) replaces the catalogue's
+    bounds of threshold effects by what the data can see."""
     effects = EffectSet.parse(effects)
     data = {f"{e.name}.{k}": v for e in effects for k, v in
             (e.data_bounds(reach).items() if reach is not None else ())}
     user = dict(bounds or {})
     bounds, fixed = {**data, **user}, dict(fixed or {})
     names, lo, hi, log = [], [], [], []
-    for n in PLANT_NAMES:
+    for n in plant.names:
         names.append(n)
-        a, b = bounds.pop(n, DEFAULT_BOUNDS[n])
+        a, b = bounds.pop(n, plant.bounds[n])
         lo.append(a), hi.append(b), log.append(True)
     for key, a0, b0, lg in effects.bounds():
         a, b = bounds.pop(key, (a0, b0))
@@ -102,29 +103,36 @@ def build_space(effects: list[Effect], bounds: dict | None = None, fixed: dict |
             raise UserError(f"--bounds: {n} has lower {a:g} >= upper {b:g}")
     if len(fixed) >= len(names):
         raise UserError("--fix: every parameter is fixed; nothing left to identify")
-    return Space(names, np.array(lo, float), np.array(hi, float), np.array(log), fixed)
+    return Space(names, np.array(lo, float), np.array(hi, float), np.array(log), fixed, plant)
 
 
 class Objective:
     """Population-vectorised residuals and fitness of a model on a data set."""
 
     def __init__(self, runs, effects: list[Effect], space: Space, p: float = 1.0,
-                 q: float = 1.0, substeps: int = 16, masks=None):
+                 q: float = 1.0, substeps: int = 16, masks=None, c: float = 1.0):
         if not runs:
             raise UserError("the data set is empty: give a folder with at least one run")
         self.runs = prepare(runs)
         self.effects = EffectSet.parse(effects)
         self.space = space
-        self.p, self.q = float(p), float(q)
-        if self.p < 0 or self.q < 0 or self.p + self.q == 0:
+        self.p, self.q, self.c = float(p), float(q), float(c)
+        if self.p < 0 or self.q < 0 or self.c < 0 or self.p + self.q == 0:
             raise UserError("weights: p and q must be >= 0 and not both 0")
-        self.sim = Simulator(self.runs, self.effects, substeps=substeps)
+        self.plant = space.plant
+        self.n_plant = len(self.plant.names)
+        self.sim = Simulator(self.runs, self.effects, substeps=substeps, plant=self.plant)
         #: each channel's noise floor, measured moving and at rest (labrig.noise)
-        self.floors = channel_floors(self.runs)
+        self.floors = channel_floors(self.runs, (self.plant.position_unit(),
+                                                   self.plant.speed_unit()))
+        if not self.plant.current_output:  # a current-mode drive's current says nothing new
+            self.floors.pop("current", None)
         self.sigma_w = self.floors["speed"].sigma if "speed" in self.floors else 1.0
         self.sigma_theta = self.floors["position"].sigma if "position" in self.floors else 1.0
+        self.sigma_i = self.floors["current"].sigma if "current" in self.floors else 1.0
         self.use_w = "speed" in self.floors and self.q > 0
         self.use_theta = "position" in self.floors and self.p > 0
+        self.use_i = "current" in self.floors and self.c > 0
         #: per run, the samples the fit sees (cross-validation folds); None: all
         self.masks = None if masks is None else [np.asarray(m, bool) for m in masks]
         counts = [len(r.u) if self.masks is None else int(m.sum())
@@ -132,16 +140,20 @@ class Objective:
         self.n_w = sum(c for r, c in zip(self.runs, counts) if r.w is not None) if self.use_w else 0
         self.n_theta = sum(c for r, c in zip(self.runs, counts)
                            if r.theta is not None) if self.use_theta else 0
-        self.m = self.n_w + self.n_theta
+        self.n_i = sum(c for r, c in zip(self.runs, counts)
+                       if r.current is not None) if self.use_i else 0
+        self.m = self.n_w + self.n_theta + self.n_i
         self.nfev = 0
         self._weights = [(r.w, np.sqrt(self.q) / self.sigma_w if self.use_w and r.w is not None else 0.0,
                           r.theta, np.sqrt(self.p) / self.sigma_theta
-                          if self.use_theta and r.theta is not None else 0.0) for r in self.runs]
+                          if self.use_theta and r.theta is not None else 0.0,
+                          r.current, np.sqrt(self.c) / self.sigma_i
+                          if self.use_i and r.current is not None else 0.0) for r in self.runs]
 
     # -- parameters -------------------------------------------------------------------
     def split(self, phys: np.ndarray):
-        """(P, D_all) physical -> plant (P, 5), {effect: {param: (P,)}}."""
-        return phys[:, :5], self.effects.split(phys, offset=5)
+        """(P, D_all) physical -> plant (P, n_plant), {effect: {param: (P,)}}."""
+        return phys[:, :self.n_plant], self.effects.split(phys, offset=self.n_plant)
 
     def simulate_physical(self, phys: np.ndarray) -> list[dict]:
         plant, ep = self.split(np.atleast_2d(phys))
@@ -154,7 +166,8 @@ class Objective:
         k = 0
         for j, (r, s) in enumerate(zip(self.runs, sims)):
             for use, meas, sim, scale in ((self.use_theta, r.theta, s["theta"], np.sqrt(self.p) / self.sigma_theta),
-                                          (self.use_w, r.w, s["w"], np.sqrt(self.q) / self.sigma_w)):
+                                          (self.use_w, r.w, s["w"], np.sqrt(self.q) / self.sigma_w),
+                                          (self.use_i, r.current, s["i"], np.sqrt(self.c) / self.sigma_i)):
                 if use and meas is not None:
                     if self.masks is not None:
                         meas, sim = meas[self.masks[j]], sim[:, self.masks[j]]
@@ -196,7 +209,9 @@ class Objective:
     # -- adequacy measures (docs/physics.md, 'The objective') -------------------------
     def metrics(self, phys_row: np.ndarray) -> dict:
         sims = self.simulate_physical(phys_row[None, :])
-        return adequacy(self.runs, sims, self.sigma_w, self.sigma_theta, self.p, self.q)
+        return adequacy(self.runs, sims, self.sigma_w, self.sigma_theta, self.p, self.q,
+                        sigma_i=self.sigma_i if self.use_i else None, c=self.c,
+                        units=self.plant.position_unit())
 
 
 def fit_percent(y: np.ndarray, yhat: np.ndarray) -> float:
@@ -204,15 +219,19 @@ def fit_percent(y: np.ndarray, yhat: np.ndarray) -> float:
     return float(100 * (1 - np.linalg.norm(y - yhat) / max(np.linalg.norm(y - y.mean()), 1e-300)))
 
 
-def adequacy(runs, sims, sigma_w, sigma_theta, p=1.0, q=1.0, index=0) -> dict:
-    """fitness, rmse_over_noise (overall/per channel/per run) and fit_percent."""
-    sq = {"speed": [], "position": []}
-    meas = {"speed": [], "position": []}
+def adequacy(runs, sims, sigma_w, sigma_theta, p=1.0, q=1.0, index=0, sigma_i=None,
+             c=1.0, units="rad") -> dict:
+    """fitness, rmse_over_noise (overall/per channel/per run) and fit_percent; the
+    current is a channel when ``sigma_i`` is given (a voltage plant with current measured)."""
+    sq = {"speed": [], "position": [], "current": []}
+    meas = {"speed": [], "position": [], "current": []}
     per_run = {}
     for r, s in zip(runs, sims):
         entry = {}
         for ch, y, yh, sig in (("speed", r.w, s["w"][index], sigma_w),
-                               ("position", r.theta, s["theta"][index], sigma_theta)):
+                               ("position", r.theta, s["theta"][index], sigma_theta),
+                               ("current", getattr(r, "current", None) if sigma_i else None,
+                                s["i"][index] if "i" in s else None, sigma_i)):
             if y is None:
                 continue
             e = (y - yh) / sig
@@ -220,10 +239,15 @@ def adequacy(runs, sims, sigma_w, sigma_theta, p=1.0, q=1.0, index=0) -> dict:
             meas[ch].append((y, yh))
             entry[ch] = float(np.sqrt(np.mean(e ** 2)))
         per_run[r.name] = entry
-    out = {"rmse_over_noise": {}, "fit_percent": {}, "per_run": per_run,
-           "noise": {"speed_rad_s": sigma_w, "position_rad": sigma_theta}}
+    # the keys keep the rotary names (speed_rad_s, position_rad); ``units`` says the axis's
+    noise = {"speed_rad_s": sigma_w, "position_rad": sigma_theta}
+    if units != "rad":
+        noise["units"] = {"position": units, "speed": units + "/s"}
+    if sigma_i:
+        noise["current_a"] = sigma_i
+    out = {"rmse_over_noise": {}, "fit_percent": {}, "per_run": per_run, "noise": noise}
     tot, n = 0.0, 0
-    for ch, w in (("speed", q), ("position", p)):
+    for ch, w in (("speed", q), ("position", p), ("current", c)):
         if not sq[ch]:
             continue
         e2 = np.concatenate(sq[ch])

@@ -6,7 +6,7 @@ from __future__ import annotations
 import math
 
 from ..model.effectset import param_key
-from ..model.servo import PLANT_NAMES, PLANT_UNITS
+from ..model.plants import plant_class
 from ..tables import Table, fmt
 from .result import identification_warnings
 
@@ -25,6 +25,8 @@ def null_unbounded(identifiable: dict) -> dict:
     for key in ("km", "tau_m_s", "tau_e_s"):
         if key in out:
             out[key] = fix(out[key])
+    if isinstance(out.get("physical"), dict):
+        out["physical"] = {n: fix(d) for n, d in out["physical"].items()}
     if isinstance(out.get("parameters"), dict):
         out["parameters"] = {n: fix(d) for n, d in out["parameters"].items()}
     return out
@@ -35,6 +37,7 @@ def identification_dict(res) -> dict:
     fit warnings under ``warnings``."""
     d = res.to_dict()
     d["identifiable"] = null_unbounded(d.get("identifiable") or {})
+    d["physical"] = null_unbounded({"physical": d.get("physical") or {}})["physical"]
     d["warnings"] = identification_warnings(res)
     return d
 
@@ -79,17 +82,27 @@ def comparison_table(results, best: str | None = None) -> Table:
     """
     recs = [_record(r) for r in results]
     rows: list = []
+    plant = plant_class(recs[0].get("plant") or "voltage") if recs else plant_class("voltage")
+    speed = plant.speed_unit()
 
     def group(label):
         rows.append([f"-- {label}"] + [""] * len(recs))
 
     group("identifiable combinations (95 % intervals)")
-    for key, label in (("km", "Km (rad/s per V)"), ("tau_m_s", "tau_m (s)"),
-                       ("tau_e_s", "tau_e (s)")):
-        rows.append([label] + [_interval((r.get("identifiable") or {}).get(key)) for r in recs])
-    group("physical parameters (one member of the family the data allow)")
-    for n in PLANT_NAMES:
-        rows.append([f"{n} ({PLANT_UNITS[n]})"] + [_parameter(r, n) for r in recs])
+    labels = {"km": f"Km ({speed} per V)", "tau_m_s": "tau_m (s)", "tau_e_s": "tau_e (s)"}
+    for key in plant.combinations:
+        rows.append([labels[key]] + [_interval((r.get("identifiable") or {}).get(key))
+                                     for r in recs])
+    rank = (recs[0].get("identifiable") or {}).get("structural_rank") if recs else None
+    group("physical parameters" + ("" if plant.kind != "voltage" or rank == 5 else
+                                   " (one member of the family the data allow)"))
+    for n in plant.names:
+        rows.append([f"{n} ({plant.units[n]})"] + [_parameter(r, n) for r in recs])
+    extra = list(dict.fromkeys(n for r in recs for n in (r.get("physical") or {})
+                               if n not in plant.names))
+    for n in extra:  # friction and offset in the axis's units
+        unit = next(r["physical"][n]["unit"] for r in recs if n in (r.get("physical") or {}))
+        rows.append([f"{n} ({unit})"] + [_interval((r.get("physical") or {}).get(n)) for r in recs])
     keys = list(dict.fromkeys((e, k) for r in recs for e, ps in (r.get("effect_params") or {}).items()
                               for k in ps))
     for e, k in keys:
@@ -97,10 +110,12 @@ def comparison_table(results, best: str | None = None) -> Table:
                                     for r in recs])
     group("fit")
     rows.append(["fitness (eq. 26)"] + [_fmt(r.get("fitness")) for r in recs])
-    for ch in ("overall", "speed", "position"):
+    chans = ["speed", "position"] + (["current"] if any(
+        "current" in (r.get("rmse_over_noise") or {}) for r in recs) else [])
+    for ch in ["overall"] + chans:
         rows.append([f"rmse/noise {ch}"] + [_fmt((r.get("rmse_over_noise") or {}).get(ch), ".3g")
                                              for r in recs])
-    for ch in ("speed", "position"):
+    for ch in chans:
         rows.append([f"fit % {ch}"] + [_fmt((r.get("fit_percent") or {}).get(ch), ".2f")
                                        for r in recs])
     group("closed-loop position step of the identified model")

@@ -17,30 +17,14 @@ from ..fileio import write_json
 from ..schemas import ModelFile, read_json, validate
 from .effects import Effect
 from .effectset import EffectSet, param_key
-from .servo import PLANT_NAMES, PLANT_UNITS, ServoParams
+from .plants import PLANTS, VoltagePlant, plant_class
+from .servo import ServoParams
 
 FORMAT = "labrig-model/1"
 
+#: the voltage-driven DC servo (kept under its earlier name)
+DCServoPlant = VoltagePlant
 
-class DCServoPlant:
-    """The voltage-driven DC servo: armature circuit, back-EMF, rotor, gear, sensors."""
-
-    kind = "dc-servo"
-    names = PLANT_NAMES
-    units = PLANT_UNITS
-    #: generic search bounds (SI units); wide enough for bench servos from 10 W to 1 kW
-    bounds = {"R": (0.1, 100.0), "L": (1e-5, 1.0), "J": (1e-7, 1e-1),
-              "B": (1e-9, 1e-1), "K": (1e-3, 2.0)}
-
-    @staticmethod
-    def servo(params: dict, constants: dict) -> ServoParams:
-        return ServoParams(**{k: float(params[k]) for k in PLANT_NAMES},
-                           Ka=constants.get("Ka", 1.0), N=constants.get("N", 1.0),
-                           Kt=constants.get("Kt", 0.026), Kpot=constants.get("Kpot", 1.0))
-
-
-#: plant kind (the model file's ``structure``) -> plant class
-PLANTS = {DCServoPlant.kind: DCServoPlant}
 
 #: what a fit reports and a model file carries along (never used to compute)
 INFO_KEYS = ("method", "fitness", "rmse_over_noise", "fit_percent", "noise", "seed", "nfev",
@@ -54,12 +38,14 @@ class Model:
     Attributes
     ----------
     params : dict
-        Plant parameters in SI units (R, L, J, B, K for the DC servo).
+        Plant parameters in SI units (R, L, J, B, K for the voltage-driven servo; J, B
+        for a torque-driven axis; M, Fv for a force-driven linear one).
     effects : EffectSet
     effect_params : dict
         ``{effect name: {param: value}}``.
     constants : dict
-        The rig's known constants: Ka, N, Kt, Kpot and the loop gains kp, kv.
+        The rig's known constants: Ka (the amplifier's gain, or a torque/force drive's
+        gain kd), N, Kt, Kpot and the loop gains kp, kv.
     plant : str
         Plant kind, a key of :data:`PLANTS`.
     info : dict
@@ -70,12 +56,13 @@ class Model:
     effects: EffectSet = field(default_factory=EffectSet)
     effect_params: dict = field(default_factory=dict)
     constants: dict = field(default_factory=dict)
-    plant: str = DCServoPlant.kind
+    plant: str = VoltagePlant.kind
     info: dict = field(default_factory=dict)
 
     def __post_init__(self):
         self.effects = EffectSet.parse(self.effects) if not isinstance(self.effects, EffectSet) \
             else self.effects
+        self.plant = plant_class(self.plant, "model structure").kind
 
     @property
     def plant_class(self):
@@ -90,7 +77,7 @@ class Model:
 
     @classmethod
     def from_flat(cls, flat: dict, effects, constants: dict | None = None,
-                  plant: str = DCServoPlant.kind, info: dict | None = None) -> "Model":
+                  plant: str = VoltagePlant.kind, info: dict | None = None) -> "Model":
         effects = EffectSet.parse(effects)
         names = PLANTS[plant].names
         return cls(params={k: float(flat[k]) for k in names}, effects=effects,
@@ -126,10 +113,12 @@ class Model:
     def from_json(cls, doc: dict, origin: str) -> "Model":
         """A validated model document -> Model; effects are loaded as names from a data
         file (a user effect only from a file trusted with ``--trust-code``)."""
-        structure = doc.get("structure") or DCServoPlant.kind
-        if structure not in PLANTS:
-            raise UserError(f"{origin}: key 'structure' is {structure!r}; this labrig knows "
-                            f"{', '.join(PLANTS)}")
+        structure = doc.get("structure") or VoltagePlant.kind
+        structure = plant_class(structure, f"{origin}: key 'structure'").kind
+        missing = [k for k in PLANTS[structure].names if k not in doc["params"]]
+        if missing:
+            raise UserError(f"{origin}: key 'params.{missing[0]}' missing; a {structure} plant "
+                            f"has {', '.join(PLANTS[structure].names)}")
         effects = EffectSet.parse(doc.get("effects", []), origin=f"{origin}: key 'effects'")
         eps = doc.get("effect_params") or {}
         for e in effects:
@@ -158,11 +147,11 @@ class Model:
         """Simulate this model on ``runs``: per run ``{"w": (n,), "theta": (n,)}``."""
         from .simulate import Simulator
 
-        sim = Simulator(runs, self.effects)
+        sim = Simulator(runs, self.effects, plant=self.plant_class)
         plant = np.array([[self.params[k] for k in self.plant_class.names]])
         out = sim.simulate(plant, {e: {k: np.array([v]) for k, v in ps.items()}
                                    for e, ps in self.effect_params.items()})
-        return [{"w": s["w"][0], "theta": s["theta"][0]} for s in out]
+        return [{"w": s["w"][0], "theta": s["theta"][0], "i": s["i"][0]} for s in out]
 
     def describe(self) -> str:
         """One line: the structure and its parameters."""

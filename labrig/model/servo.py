@@ -16,6 +16,9 @@ import numpy as np
 
 PLANT_NAMES = ("R", "L", "J", "B", "K")
 PLANT_UNITS = {"R": "ohm", "L": "H", "J": "kg m^2", "B": "N m s/rad", "K": "N m/A"}
+#: the drive's lag in a torque/force plant (s): far below any sample period (the
+#: truth integrator takes it as instantaneous, the fast simulator's exact hold keeps it)
+DRIVE_LAG_S = 1e-7
 
 
 @dataclass
@@ -31,13 +34,31 @@ class ServoParams:
     N: float = 1.0           # gear ratio
     Kt: float = 0.026        # tacho V per rad/s
     Kpot: float = 1.0        # pot V per rad (output shaft)
+    #: back-EMF constant (V s/rad); None: equal to K (a DC motor). A torque- or force-
+    #: driven plant has none: its current-mode drive cancels the back-EMF
+    Ke: float | None = None
+
+    @property
+    def ke(self) -> float:
+        return self.K if self.Ke is None else self.Ke
+
+    @classmethod
+    def current_mode(cls, J: float, B: float, **constants) -> "ServoParams":
+        """A torque- or force-driven plant (``J w' = kd u - B w``, kd = Ka) in this form:
+        no back-EMF, and a drive lag far below any sample period (labrig.model.plants)."""
+        return cls(R=1.0, L=DRIVE_LAG_S, J=float(J), B=float(B), K=1.0, Ke=0.0, **constants)
 
     @classmethod
     def from_rig(cls, rig, **override) -> "ServoParams":
+        """The simulated rig's plant and constants, whatever its drive."""
         p = rig.plant
-        base = cls(R=p.R, L=p.L, J=p.J, B=p.B, K=p.K, Ka=rig.amplifier.gain,
-                   N=rig.gear_ratio, Kt=rig.sensors.tacho_v_per_rad_s,
-                   Kpot=rig.sensors.pos_v_per_rad)
+        const = {"Ka": rig.amplifier.gain, "N": rig.gear_ratio,
+                 "Kt": rig.sensors.tacho_v_per_rad_s or 1.0, "Kpot": rig.sensors.pos_v_per_rad}
+        if rig.drive == "voltage":
+            base = cls(R=p.R, L=p.L, J=p.J, B=p.B, K=p.K, **const)
+        else:
+            base = cls.current_mode(*((p.J, p.B) if rig.drive == "torque" else (p.M, p.Fv)),
+                                    **const)
         return replace(base, **override)
 
     def plant_dict(self) -> dict:
@@ -49,12 +70,13 @@ class ServoParams:
     # -- identifiable combinations (docs/physics.md, 'Identifiability') ----------
     @property
     def km(self) -> float:
-        """Steady motor speed per bridge volt: Ka K / (B R + K^2)."""
-        return self.Ka * self.K / (self.B * self.R + self.K ** 2)
+        """Steady motor speed per bridge volt: Ka K / (B R + K Ke)."""
+        return self.Ka * self.K / (self.B * self.R + self.K * self.ke)
 
     @property
     def poles(self) -> np.ndarray:
-        a2, a1, a0 = self.J * self.L, self.J * self.R + self.B * self.L, self.B * self.R + self.K ** 2
+        a2, a1 = self.J * self.L, self.J * self.R + self.B * self.L
+        a0 = self.B * self.R + self.K * self.ke
         return np.roots([a2, a1, a0])
 
     @property
@@ -69,8 +91,8 @@ class ServoParams:
 
     @property
     def tau_m_approx(self) -> float:
-        """The paper's first-order tau_m = J R / (B R + K^2)."""
-        return self.J * self.R / (self.B * self.R + self.K ** 2)
+        """The paper's first-order tau_m = J R / (B R + K Ke)."""
+        return self.J * self.R / (self.B * self.R + self.K * self.ke)
 
     def stall_torque(self, runs=None, volts: float = 1.0) -> float:
         return self.K * self.Ka * volts / self.R
@@ -78,7 +100,7 @@ class ServoParams:
     # -- state-space models -------------------------------------------------------
     def A_open(self) -> np.ndarray:
         R, L, J, B, K = self.R, self.L, self.J, self.B, self.K
-        return np.array([[-R / L, -K / L, 0.0], [K / J, -B / J, 0.0], [0.0, 1.0, 0.0]])
+        return np.array([[-R / L, -self.ke / L, 0.0], [K / J, -B / J, 0.0], [0.0, 1.0, 0.0]])
 
     def B_open(self) -> np.ndarray:
         return np.array([[self.Ka / self.L], [0.0], [0.0]])
@@ -118,10 +140,10 @@ class ServoParams:
         return self.B_open() * kp
 
     def speed_tf(self) -> control.TransferFunction:
-        """W/U = Ka K / (J L s^2 + (J R + B L) s + B R + K^2)."""
+        """W/U = Ka K / (J L s^2 + (J R + B L) s + B R + K Ke)."""
         return control.tf([self.Ka * self.K],
                           [self.J * self.L, self.J * self.R + self.B * self.L,
-                           self.B * self.R + self.K ** 2])
+                           self.B * self.R + self.K * self.ke])
 
     def position_step_info(self, kp: float, kv: float) -> dict:
         """Rise time, settling time and overshoot of the closed position loop."""

@@ -29,10 +29,10 @@ import numpy as np
 from ..errors import UserError
 from .effects import Effect, ordered
 
-PLANT = ("R", "L", "J", "B", "K")
-# kernel parameter columns after the plant
-C_D, C_U0, C_ASYM, C_VMAX, C_TC, C_TS, C_A, C_TD = range(5, 13)
-N_COLS = 13
+# kernel parameter columns: R, L, J, B, K (labrig.model.plants: every plant's kernel
+# form), then the effects', then the back-EMF constant Ke (0 for a current-mode drive)
+C_D, C_U0, C_ASYM, C_VMAX, C_TC, C_TS, C_A, C_TD, C_KE = range(5, 14)
+N_COLS = 14
 #: the kernel's effect columns by name: an effect's ``to_kernel`` writes into these
 #: (dead zone, input offset, asymmetry, armature rail, kinetic and breakaway friction
 #: torque, backlash half gap, delay)
@@ -41,7 +41,7 @@ KERNEL_COLUMNS = {"d": C_D, "u0": C_U0, "asym": C_ASYM, "vmax": C_VMAX, "tc": C_
 
 
 class _KernelTable:
-    """Named access to the (P, 13) parameter table for ``Effect.to_kernel``."""
+    """Named access to the (P, 14) parameter table for ``Effect.to_kernel``."""
 
     def __init__(self, prm: np.ndarray):
         self.prm = prm
@@ -71,6 +71,12 @@ class RunData:
     theta: np.ndarray | None
     theta0: float
     amplitude: float
+    #: measured armature current (A), an output of the voltage plant's fit
+    current: np.ndarray | None = None
+    #: the position sensor's quantum (an encoder's count) in position units; 0: unknown
+    pos_q: float = 0.0
+    #: rotary (rad, rad/s) or linear (m, m/s)
+    axis: str = "rotary"
 
     @classmethod
     def from_run(cls, run) -> "RunData":
@@ -80,7 +86,8 @@ class RunData:
         gains = run.gains or {"kp": 0.0, "kv": 0.0}  # open loop: no feedback
         return cls(name=run.name, u=run.u.astype(float), dt=run.dt, loop=run.loop,
                    kp=gains["kp"], kv=gains["kv"], **run.constants,
-                   w=run.speed, theta=th, theta0=theta0, amplitude=run.amplitude)
+                   w=run.speed, theta=th, theta0=theta0, amplitude=run.amplitude,
+                   current=run.current, pos_q=run.pos_quantum, axis=run.axis)
 
 
 class _PlantView:
@@ -105,9 +112,14 @@ class Simulator:
     substeps : int
         Sub-steps per sample where the ZOH cannot be exact (zero-speed crossings,
         stuck rotor, nonlinear closed loops).
+    plant : Plant class, optional
+        The kind of plant (:mod:`labrig.model.plants`); default the voltage-driven servo.
     """
 
-    def __init__(self, runs, effects=(), substeps: int = 16):
+    def __init__(self, runs, effects=(), substeps: int = 16, plant=None):
+        from .plants import VoltagePlant
+
+        self.plant = plant or VoltagePlant
         self.runs = prepare(runs)
         self.effects = ordered(list(effects))
         self.substeps = int(substeps)
@@ -119,11 +131,12 @@ class Simulator:
                                 "simulated on open-loop runs; leave the closed-loop runs out")
 
     def _params(self, plant, effect_params):
-        """Candidate parameters -> the kernel's (P, 13) table, effect arrays, user outputs."""
-        plant = np.atleast_2d(np.asarray(plant, dtype=float))
+        """Candidate parameters -> the kernel's (P, 14) table, effect arrays, user outputs."""
+        plant = self.plant.kernel(np.asarray(plant, dtype=float))
         P = plant.shape[0]
         prm = np.zeros((P, N_COLS))
-        prm[:, :5] = plant
+        prm[:, :5] = plant[:, :5]
+        prm[:, C_KE] = plant[:, 5]
         prm[:, C_VMAX] = np.inf
         ep = {e.name: {k: np.broadcast_to(np.asarray(v, float), (P,))
                        for k, v in (effect_params or {}).get(e.name, {}).items()}
@@ -143,14 +156,15 @@ class Simulator:
 
         Parameters
         ----------
-        plant : array (P, 5)
-            R, L, J, B, K per candidate.
+        plant : array (P, len(plant.names))
+            The plant's parameters per candidate (R, L, J, B, K for the voltage plant).
         effect_params : dict
             ``{effect name: {param: array (P,) or scalar}}``.
 
         Returns
         -------
-        list of dict, one per run, with ``w`` and ``theta`` arrays of shape (P, n).
+        list of dict, one per run, with ``w``, ``theta`` and ``i`` (the armature current,
+        or the drive's torque/force) arrays of shape (P, n).
         """
         prm, ep, user_output = self._params(plant, effect_params)
         disc = {}
@@ -160,15 +174,17 @@ class Simulator:
         """Weighted sum of squared residuals per candidate, without storing trajectories.
 
         ``weights`` is a list, per run, of ``(w_meas, inv_sigma_w, theta_meas,
-        inv_sigma_theta)`` (a missing channel has weight 0). This is the identifiers'
-        hot path: the kernel accumulates the residuals as it goes.
+        inv_sigma_theta, i_meas, inv_sigma_i)`` (a missing channel has weight 0). This is
+        the identifiers' hot path: the kernel accumulates the residuals as it goes.
         """
         prm, ep, user_output = self._params(plant, effect_params)
         if user_output:  # a user's output map needs the trajectories
             total = np.zeros(prm.shape[0])
-            for run, sim, (wm, iw, tm, it) in zip(self.runs, self.simulate(plant, effect_params), weights):
+            sims = self.simulate(plant, effect_params)
+            for run, sim, (wm, iw, tm, it, im, ii) in zip(self.runs, sims, weights):
                 total += iw ** 2 * np.sum((wm - sim["w"]) ** 2, axis=1) if iw else 0.0
                 total += it ** 2 * np.sum((tm - sim["theta"]) ** 2, axis=1) if it else 0.0
+                total += ii ** 2 * np.sum((im - sim["i"]) ** 2, axis=1) if ii else 0.0
             return total
         disc = {}
         total = np.zeros(prm.shape[0])
@@ -205,25 +221,27 @@ class Simulator:
         consts = np.array([run.dt, run.Ka, run.N, run.Kt, run.Kpot, run.kp, run.kv, run.theta0])
         mi = m.astype(np.int64)
         if weights is not None:
-            wm, iw, tm, it = weights
+            wm, iw, tm, it, im, ii = weights
             out = np.zeros(P)
             dummy = np.empty((1, 1))
             _kernel(s, mi, frac, Ad, g_old, g_new, gf, prm, nonlinear, 1 if closed else 0,
-                    self.substeps, consts, dummy, dummy, False,
+                    self.substeps, consts, dummy, dummy, dummy, False,
                     wm if wm is not None else np.zeros(n), float(iw),
-                    tm if tm is not None else np.zeros(n), float(it), out)
+                    tm if tm is not None else np.zeros(n), float(it),
+                    im if im is not None else np.zeros(n), float(ii), out)
             return out
         w = np.empty((P, n))
         th = np.empty((P, n))
+        cur = np.empty((P, n))
         _kernel(s, mi, frac, Ad, g_old, g_new, gf, prm, nonlinear, 1 if closed else 0,
-                self.substeps, consts, w, th, True, np.zeros(1), 0.0, np.zeros(1), 0.0,
-                np.zeros(P))
+                self.substeps, consts, w, th, cur, True, np.zeros(1), 0.0, np.zeros(1), 0.0,
+                np.zeros(1), 0.0, np.zeros(P))
         for eff in user_output:  # a user's output map: per sample, vectorised over candidates
             p = {k: v for k, v in ep[eff.name].items()}
             state = th[:, 0].copy()
             for k in range(n):
                 state, th[:, k] = eff.output(state, th[:, k], **p)
-        return {"w": w, "theta": th}
+        return {"w": w, "theta": th, "i": cur}
 
 
 def _discretise(prm, run: RunData, frac):
@@ -235,7 +253,7 @@ def _discretise(prm, run: RunData, frac):
     P = prm.shape[0]
     R, L, J, B, K = (prm[:, i] for i in range(5))
     A = np.zeros((P, 3, 3))
-    A[:, 0, 0], A[:, 0, 1] = -R / L, -K / L
+    A[:, 0, 0], A[:, 0, 1] = -R / L, -prm[:, C_KE] / L
     A[:, 1, 0], A[:, 1, 1] = K / J, -B / J
     A[:, 2, 1] = 1.0
     bs = np.zeros((P, 3))
@@ -325,7 +343,7 @@ def _play(play, x, a):
 def _substeps(i, w, th, play, s_old, s_new, frac, prm, closed, S, c):
     """Semi-implicit sub-steps through one sample, Karnopp friction (as the truth)."""
     dt, Ka, N, Kt, Kpot, kp, kv = c[0], c[1], c[2], c[3], c[4], c[5], c[6]
-    R, L, J, B, K = prm[0], prm[1], prm[2], prm[3], prm[4]
+    R, L, J, B, K, Ke = prm[0], prm[1], prm[2], prm[3], prm[4], prm[13]
     d, u0, ak, vmax, tc, ts, a = prm[5], prm[6], prm[7], prm[8], prm[9], prm[10], prm[11]
     h = dt / S
     quasi = L / R < h / 10.0
@@ -347,9 +365,9 @@ def _substeps(i, w, th, play, s_old, s_new, frac, prm, closed, S, c):
         else:
             v = s
         if quasi:
-            i = (v - K * w) / R
+            i = (v - Ke * w) / R
         else:
-            i = (i + h / L * (v - K * w)) / (1.0 + h * R / L)
+            i = (i + h / L * (v - Ke * w)) / (1.0 + h * R / L)
         tnf = K * i - B * w
         if tc > 0.0 or ts > 0.0:
             if w == 0.0:
@@ -372,7 +390,7 @@ def _substeps(i, w, th, play, s_old, s_new, frac, prm, closed, S, c):
 
 @numba.njit(cache=True)
 def _candidate(p, s, m, frac, Ad, g_old, g_new, gf, prm, nonlinear, closed, S, c, out_w, out_th,
-               store, wm, iw, tm, it, sse):
+               out_i, store, wm, iw, tm, it, im, ii, sse):
     """Simulate candidate ``p`` on one run (the loop body of the kernels below)."""
     n = s.shape[1]
     shared = s.shape[0] == 1  # the same input sequence for every candidate
@@ -401,8 +419,11 @@ def _candidate(p, s, m, frac, Ad, g_old, g_new, gf, prm, nonlinear, closed, S, c
         if store:
             out_w[p, k] = w
             out_th[p, k] = yth
+            out_i[p, k] = i
         else:
             acc += (iw * (wm[k] - w)) ** 2 + (it * (tm[k] - yth)) ** 2
+            if ii != 0.0:
+                acc += (ii * (im[k] - i)) ** 2
         ko = k - mp - 1
         kn = k - mp
         s_old = s[row, ko] if ko >= 0 else 0.0
@@ -456,24 +477,23 @@ def _candidate(p, s, m, frac, Ad, g_old, g_new, gf, prm, nonlinear, closed, S, c
     sse[p] = acc
 
 
-
 # Two drivers with distinct code (numba's cache would otherwise hand the parallel
 # dispatcher the serial build of a shared function). Threads pay off for a swarm; for
 # the few rows of a finite-difference Jacobian the wake-up costs more than the work.
 @numba.njit(parallel=True, cache=True)
 def _kernel_par(s, m, frac, Ad, g_old, g_new, gf, prm, nonlinear, closed, S, c, out_w, out_th,
-                store, wm, iw, tm, it, sse):
+                out_i, store, wm, iw, tm, it, im, ii, sse):
     for p in numba.prange(prm.shape[0]):
         _candidate(p, s, m, frac, Ad, g_old, g_new, gf, prm, nonlinear, closed, S, c, out_w,
-                   out_th, store, wm, iw, tm, it, sse)
+                   out_th, out_i, store, wm, iw, tm, it, im, ii, sse)
 
 
 @numba.njit(cache=True)
 def _kernel_ser(s, m, frac, Ad, g_old, g_new, gf, prm, nonlinear, closed, S, c, out_w, out_th,
-                store, wm, iw, tm, it, sse):
+                out_i, store, wm, iw, tm, it, im, ii, sse):
     for p in range(prm.shape[0]):
         _candidate(p, s, m, frac, Ad, g_old, g_new, gf, prm, nonlinear, closed, S, c, out_w,
-                   out_th, store, wm, iw, tm, it, sse)
+                   out_th, out_i, store, wm, iw, tm, it, im, ii, sse)
 
 
 def _kernel(*args):

@@ -58,7 +58,7 @@ def simulate_truth(p: ServoParams, u: np.ndarray, dt: float, *, effects=(),
     fric = by_stage.get("friction", [])
     outp = by_stage.get("output", [])
 
-    R, L, J, B, K, Ka = p.R, p.L, p.J, p.B, p.K, p.Ka
+    R, L, J, B, K, Ka, Ke = p.R, p.L, p.J, p.B, p.K, p.Ka, p.ke
     # inductance invisible at this step (docs/physics.md, 'The simulators')
     quasi_static = L / R < h / 10
     i, w, th = map(float, x0)
@@ -82,10 +82,10 @@ def simulate_truth(p: ServoParams, u: np.ndarray, dt: float, *, effects=(),
             v = min(max(Ka * v, -rail_v), rail_v)
             for e, ep in by_stage.get("drive", []):
                 v = float(e.apply(np.float64(v), **ep))
-            if quasi_static:
-                i = (v - K * w) / R
+            if quasi_static:  # (a current-mode drive: Ke = 0, the drive sets K i)
+                i = (v - Ke * w) / R
             else:
-                i = (i + h / L * (v - K * w)) / (1.0 + h * R / L)
+                i = (i + h / L * (v - Ke * w)) / (1.0 + h * R / L)
             tnf = K * i - B * w
             if fric:
                 tc, ts = 0.0, 0.0

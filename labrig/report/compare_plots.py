@@ -12,13 +12,14 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from ..residuals import REGIME_TEXT  # noqa: E402
+from ..residuals import AXIS_UNITS, REGIME_TEXT  # noqa: E402
 
 REGIME_COLOURS = {"start": "tab:green", "reversal": "tab:red", "accel": "tab:orange",
                   "steady": "tab:blue", "coast": "tab:purple", "rest": "0.7"}
 
 
-UNITS = {"speed": "rad/s (motor)", "position": "rad (output)"}
+def _units(rr: dict) -> dict:
+    return rr.get("units") or AXIS_UNITS["rotary"]
 
 
 def plot_run_comparison(rr: dict, ax=None, title: str = ""):
@@ -35,14 +36,14 @@ def plot_run_comparison(rr: dict, ax=None, title: str = ""):
         ax.plot(rr["t"], c["simulated"], color="tab:red", lw=1.0, ls="--",
                 label=f"model (fit {c['fit_percent']:.1f} %)")
         ax.set_xlabel("time (s)")
-        ax.set_ylabel(f"{chans[0]} {UNITS[chans[0]]}")
+        ax.set_ylabel(f"{chans[0]} {_units(rr)[chans[0]]}")
         ax.legend(fontsize=8)
         ax.set_title(title or rr["name"])
         return ax.figure
     fig = plt.figure(figsize=(12, 3.2 * len(chans) + 2.8))
     gs = fig.add_gridspec(2 * len(chans) + 1, 2, height_ratios=[3, 2] * len(chans) + [2.2])
     t = rr["t"]
-    units = UNITS
+    units = _units(rr)
     for i, ch in enumerate(chans):
         c = rr["channels"][ch]
         ax = fig.add_subplot(gs[2 * i, :])
