@@ -110,7 +110,7 @@ def cross_validate(runs, model: Model, folds: Folds, *, sigmas, weights, seed: i
         masks = None if all(fold.train[i].all() for i in idx) else [fold.train[i] for i in idx]
         f = fit(sub, model.effects, start, dict(fixed or {}), seed=seed, weights=weights,
                 reach=reach, max_nfev=max_nfev, masks=masks)
-        fm = Model.from_flat(f.params, model.effects, model.constants)
+        fm = Model.from_flat(f.params, model.effects, model.constants, plant=model.plant)
         test_idx = [i for i, m in enumerate(fold.test) if m.any()]
         sims = fm.simulate([runs[i] for i in test_idx])
         sq, cnt = 0.0, 0

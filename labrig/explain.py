@@ -45,8 +45,9 @@ def context(model: Model, runs) -> dict:
     amplitude, the plant's R and K, and ``to_input`` when effects sit in front."""
     amps = [r.amplitude for r in runs if r.loop == "open"] or [1.0]
     amax = _largest_input(runs)
+    sp = model.servo()  # R = K = 1 on a torque/force plant: a friction level is kd tc_v
     ctx = {"Ka": float(runs[0].constants["Ka"]), "amin": min(amps),
-           "R": float(model.params.get("R", np.nan)), "K": float(model.params.get("K", np.nan))}
+           "R": float(sp.R), "K": float(sp.K), "plant": model.plant}
     _, front = input_chain(model)
     if front:
         ctx["to_input"] = lambda level: input_for(model, level, amax)

@@ -143,4 +143,5 @@ def without(model: Model, name: str) -> Model:
     """``model`` with the effect ``name`` taken out (its parameters dropped)."""
     effects = [e for e in model.effects if e.name != name]
     flat = {k: v for k, v in model.flat().items() if not k.startswith(f"{name}.")}
-    return Model.from_flat(flat, effects, model.constants, info=dict(model.info or {}))
+    return Model.from_flat(flat, effects, model.constants, plant=model.plant,
+                           info=dict(model.info or {}))

@@ -158,6 +158,7 @@ class RunAnalysis:
     skipped: str | None = None
     notes: list[str] = field(default_factory=list)
     figure: str | None = None         # where its edges figure was saved, if it was
+    speed_unit: str = "rad/s"         # the axis's (m/s on a linear axis)
 
     @property
     def tau_s(self) -> float | None:

@@ -25,7 +25,7 @@ def analyse_run(run) -> RunAnalysis:
     AnalysisError
         When the run has no edges, a constant input or never settles.
     """
-    ra = RunAnalysis(name=run.name, loop=run.loop, fs=run.fs)
+    ra = RunAnalysis(name=run.name, loop=run.loop, fs=run.fs, speed_unit=run.units[1])
     if run.loop != "open":
         ra.skipped = CLOSED_LOOP_SKIP
         return ra

@@ -41,7 +41,9 @@ def common_model_options(p):
     p.add_argument("--fix", help="fixed parameters, e.g. R=8.2,L=0.009 (SI units)")
     p.add_argument("--bounds", help="search bounds, e.g. R=1:20,deadband.d_v=0:1")
     p.add_argument("--config", help="TOML with [bounds], [fixed] and effects = [...]")
-    p.add_argument("--weights", default="p=1,q=1", help="position and speed weights (default p=1,q=1)")
+    p.add_argument("--weights", default="p=1,q=1",
+                   help="weights of position p, speed q and, when measured, armature "
+                        "current i (default p=1,q=1,i=1)")
     add_through_option(p)
 
 
@@ -84,8 +86,8 @@ def cmd_identify(args):
     bounds = {**cfg.get("bounds", {}), **parse_assignments(args.bounds, "--bounds", pair=True)}
     fixed = {**cfg.get("fixed", {}), **parse_assignments(args.fix, "--fix")}
     w = parse_assignments(args.weights, "--weights")
-    if set(w) - {"p", "q"}:
-        raise UserError("--weights: only p (position) and q (speed)")
+    if set(w) - {"p", "q", "i"}:
+        raise UserError("--weights: only p (position), q (speed) and i (current)")
     methods = ["jfo", "pso", "co"] if args.method == "all" else [args.method]
     # before the fit, not after it
     refuse_existing([args.output] if args.output else [], args.force)
@@ -103,7 +105,8 @@ def cmd_identify(args):
                 bar.update(it)
                 bar.note(f"best fitness {best:.4g}")
             res = identify(runs, m, effects, seed=args.seed, bounds=bounds, fixed=fixed,
-                           p=w.get("p", 1.0), q=w.get("q", 1.0), pop=args.pop, iters=args.iters,
+                           p=w.get("p", 1.0), q=w.get("q", 1.0), c=w.get("i", 1.0),
+                           pop=args.pop, iters=args.iters,
                            starts=args.starts, polish=args.polish, start=start, callback=cb,
                            dataset=dataset, rule=args.rule)
         results.append(res)

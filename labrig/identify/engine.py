@@ -220,7 +220,7 @@ def identify(runs, method: str = "co", effects: list[Effect] = (), *, seed: int 
              polish: bool = False, start: dict | None = None, callback=None,
              dataset: dict | None = None, identifiability: bool = True,
              max_nfev: int | None = None, rule: str = "paper", masks=None,
-             reach=None, subsample: int | None = None) -> Identification:
+             reach=None, subsample: int | None = None, c: float = 1.0) -> Identification:
     """Fit the servo model to ``runs``.
 
     Parameters
@@ -233,8 +233,9 @@ def identify(runs, method: str = "co", effects: list[Effect] = (), *, seed: int 
     bounds, fixed : dict
         ``{name: (lower, upper)}`` and ``{name: value}``; names are R, L, J, B, K
         and ``effect.param``.
-    p, q : float
-        Weights of position and speed (each already divided by its noise level).
+    p, q, c : float
+        Weights of position, speed and (voltage plant, when measured) armature current,
+        each already divided by its noise level.
     start : dict, optional
         Physical parameters to start from (a saved model): CO starts there, JFO and
         PSO are polished from the better of their result and the start.
@@ -254,7 +255,7 @@ def identify(runs, method: str = "co", effects: list[Effect] = (), *, seed: int 
     effects = EffectSet.parse(effects)
     space = build_space(effects, bounds, fixed, reach=reach or Reach.of(runs),
                         plant=plant_of_runs(runs))
-    obj = Objective(runs, effects, space, p=p, q=q, masks=masks)
+    obj = Objective(runs, effects, space, p=p, q=q, masks=masks, c=c)
     constants = dataset_constants(runs)
     lo, hi = space.search_bounds()
     x0 = space.to_search(initial_point(space, effects, runs, constants, start))

@@ -118,7 +118,7 @@ class Objective:
         self.space = space
         self.p, self.q, self.c = float(p), float(q), float(c)
         if self.p < 0 or self.q < 0 or self.c < 0 or self.p + self.q == 0:
-            raise UserError("weights: p and q must be >= 0 and not both 0")
+            raise UserError("weights: p, q and i must be >= 0, and p and q not both 0")
         self.plant = space.plant
         self.n_plant = len(self.plant.names)
         self.sim = Simulator(self.runs, self.effects, substeps=substeps, plant=self.plant)

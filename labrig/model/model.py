@@ -22,8 +22,6 @@ from .servo import ServoParams
 
 FORMAT = "labrig-model/1"
 
-#: the voltage-driven DC servo (kept under its earlier name)
-DCServoPlant = VoltagePlant
 
 
 #: what a fit reports and a model file carries along (never used to compute)

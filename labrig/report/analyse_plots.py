@@ -103,7 +103,7 @@ def plot_edges(ra, ax=None):
     for a in axes[-1]:
         a.set_xlabel("time from edge (s)", fontsize=8)
     for a in axes[:, 0]:
-        a.set_ylabel("motor speed (rad/s)", fontsize=8)
+        a.set_ylabel(f"speed ({ra.speed_unit})", fontsize=8)
     axes.flat[0].legend(fontsize=7, loc="best")
     if ax is None:
         more = f" (first {MAX_EDGES} of {len(ra.edges)})" if len(ra.edges) > MAX_EDGES else ""
@@ -174,8 +174,8 @@ def plot_speed_vs_voltage(res, ax=None):
     ax.axhline(0, color="0.6", lw=0.8)
     ax.axvline(0, color="0.6", lw=0.8)
     ax.set_xlabel("input voltage Vm (V)")
-    ax.set_ylabel("steady motor speed (rad/s)")
-    ax.set_title(f"Speed against voltage — km {_fmt(res.km, '.4g')} rad/s per V, "
+    ax.set_ylabel(f"steady speed ({res.speed_unit})")
+    ax.set_title(f"Speed against voltage — km {_fmt(res.km, '.4g')} {res.speed_unit} per V, "
                  f"deadband {_fmt(res.deadband_v, '.3f')} V", fontsize=10)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8, loc="upper left")
@@ -197,7 +197,7 @@ def _draw_line(ax, line, vmax):
         v0 = v0 if v0 * sgn > 0 else 0.0
         vv = np.linspace(v0, sgn * vmax * 1.05, 50)
         ax.plot(vv, line.km * vv + c, "-", color="C3", lw=1,
-                label=f"fit: slope {line.km:.4g} rad/s per V" if key == "fwd" or
+                label=f"fit: slope {line.km:.4g} per V" if key == "fwd" or
                 "fwd" not in line.intercepts else None)
 
 
@@ -232,7 +232,7 @@ def plot_km_vs_amplitude(res, ax=None):
     if res.km is not None and res.line.region == "linear":
         ax.axhline(res.km, color="C3", ls="--", lw=1, label=f"incremental km {res.km:.4g}")
     ax.set_xlabel("amplitude |Vm| (V)")
-    ax.set_ylabel("Km = w / Vm (rad/s per V)")
+    ax.set_ylabel(f"Km = w / Vm ({res.speed_unit} per V)")
     ax.set_ylim(bottom=0)
     ax.set_title(f"Km against amplitude: {res.gain_trend}", fontsize=10)
     ax.grid(alpha=0.3)

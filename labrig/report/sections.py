@@ -95,8 +95,8 @@ def _analysis(story: Story, key, title) -> Section:
     if by_amp:
         cells = markup(", ").join(markup("{} V: <b>{}</b>", num(a, ".3g"), num(k, ".2f"))
                                   for a, k in sorted(by_amp, key=lambda x: x[0]))
-        blocks.append(Text(markup("K<sub>m</sub> = &omega;/V by amplitude: {} rad/s per V.",
-                                  cells), "small"))
+        blocks.append(Text(markup("K<sub>m</sub> = &omega;/V by amplitude: {} {} per V.",
+                                  cells, res.speed_unit), "small"))
     blocks.append(TableBlock(summary))
     if res.verdict:
         blocks.append(Verdict(markup("<b>Verdict.</b> {}", res.verdict)))
@@ -252,7 +252,7 @@ def cards(story: Story) -> list[Card]:
                                         f"{sum(r.loop == 'closed' for r in runs)} closed loop")]
     a = story.analysis
     if a is not None:
-        out.append(Card("km (analysis)", num(a.km, ".4g"), "rad/s per V"))
+        out.append(Card("km (analysis)", num(a.km, ".4g"), f"{a.speed_unit} per V"))
         out.append(Card("tau_m (analysis)", dash_or(a.tau_s, lambda x: f"{1e3 * x:.0f} ms"),
                         f"gain trend: {a.gain_trend or '–'}"))
     b = story.best_ident

@@ -49,11 +49,11 @@ def plot_overview(runs):
             bot.plot(t, r.u, color=c, lw=0.8)
         if loop == "open":
             top.set_title("open loop: motor speed", fontsize=10)
-            top.set_ylabel("speed (rad/s, motor)")
+            top.set_ylabel("speed (m/s)" if runs[0].axis == "linear" else "speed (rad/s, motor)")
             bot.set_ylabel("u (V)")
         else:
             top.set_title("closed loop: output angle (dashed: reference)", fontsize=10)
-            top.set_ylabel("angle (rad, output)")
+            top.set_ylabel("position (m)" if runs[0].axis == "linear" else "angle (rad, output)")
             bot.set_ylabel("reference (V)")
         bot.set_xlabel("time (s)")
         for ax in (top, bot):
