@@ -166,9 +166,6 @@ def import_csv(src: Path | str, outdir: Path | str, mapping: dict[str, str], *,
                         "gain is --amplifier-gain")
     if axis == "linear" and gear_ratio != 1.0:
         raise UserError("--gear-ratio: a linear axis has none (positions are the carriage's)")
-    if "current" in mapping and drive != "voltage":
-        raise UserError(f"--map current=: a {drive}-driven axis's current is its command, not "
-                        "a measurement labrig fits; leave it out")
     if loop not in ("open", "closed"):
         raise UserError(f"--loop: expected open or closed, got '{loop}'")
     experiment = {"loop": loop, "waveform": waveform}

@@ -241,3 +241,27 @@ def test_diagnose_auto_finds_the_hidden_effect_on_every_plant(tmp_path, drive, s
                           res.model.constants)
     assert sp.km == pytest.approx(true_sp.km, rel=0.10)
     assert sp.tau_m == pytest.approx(true_sp.tau_m, rel=0.10)
+
+
+def test_a_mystery_rig_of_a_linear_axis_is_drawn_run_and_graded(tmp_path):
+    """`mystery new --rig configs/rig_linear_axis.toml`: the plant's own parameters drawn
+    around the base rig, hidden effects sized for a linear axis; reveal speaks of kg and
+    m/s; check grades a model identified with the hidden effects."""
+    from labrig.mystery import PLANT_SPREAD, new_mystery
+
+    doc = new_mystery(4, "configs/rig_linear_axis.toml")
+    assert doc["rig"]["drive"] == "force" and set(doc["plant"]) == {"M_kg", "Fv_ns_per_m"}
+    assert abs(doc["plant"]["M_kg"] / 2.5 - 1) <= PLANT_SPREAD + 1e-3
+    mfile = tmp_path / "axis.mystery"
+    labrig("mystery", "new", "--seed", "4", "--rig", "configs/rig_linear_axis.toml",
+           "-o", mfile, check=0)
+    shown = labrig("mystery", "reveal", mfile, check=0).stdout
+    assert "force-driven linear axis" in shown and " kg" in shown and "m/s per V" in shown
+    runs = tmp_path / "runs"
+    labrig("sweep", "--sim", "--rig", mfile, "-o", runs, check=0)
+    hidden = ",".join(doc["effects"])
+    labrig("identify", runs, "--effects", hidden, "--seed", "1", "-o", tmp_path / "m.json", check=0)
+    graded = json.loads(labrig("mystery", "check", mfile, tmp_path / "m.json", "--json",
+                               check=0).stdout)
+    assert graded["found"] == sorted(doc["effects"]) and graded["pass"], graded["verdict"]
+    assert abs(graded["plant"]["km"]["error_percent"]) < 5

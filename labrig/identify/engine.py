@@ -279,6 +279,9 @@ def identify(runs, method: str = "co", effects: list[Effect] = (), *, seed: int 
     phys = space.to_physical(res.x[None, :])[0]
     metrics = obj.metrics(phys)
     ident = analyse_identifiability(obj, res.x, constants["Ka"]) if identifiability else {}
+    dataset = dict(dataset or {})
+    if any(r.current is not None for r in runs) and not space.plant.current_output:
+        dataset["current_unused"] = True
     return Identification(method=name, effects=effects, space=space,
                           params=space.as_dict(phys), result=res, metrics=metrics,
                           identifiable=ident, seconds=time.perf_counter() - t0,

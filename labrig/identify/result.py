@@ -183,12 +183,15 @@ def fit_warnings(fit_percent: dict, where: str) -> list[str]:
 
 def identification_warnings(ident: Any) -> list[str]:
     """Bound and fit warnings of an ``engine.Identification``."""
-    from ..model.servo import PLANT_UNITS
-
-    units = dict(PLANT_UNITS)
+    plant = ident.space.plant
+    units = dict(plant.units)
     units.update({key: p.unit for key, p in ident.effects.units()})
+    notes = []
+    if not plant.current_output and ident.dataset.get("current_unused"):
+        notes.append(f"the runs' current channel is kept but not fitted: on a "
+                     f"{plant.kind}-driven plant the current is the drive's command")
     return (bound_warnings(ident.space, ident.params, units)
-            + fit_warnings(ident.metrics.get("fit_percent", {}), "all runs"))
+            + fit_warnings(ident.metrics.get("fit_percent", {}), "all runs") + notes)
 
 
 # --------------------------------------------------------------------------
