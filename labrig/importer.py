@@ -20,7 +20,8 @@ import pandas as pd
 from .errors import RunFileError, UserError
 from .model.plants import check_axis
 from .schemas import Controller, check_run_name
-from .runs import Run, make_meta, read_csv_columns, write_run
+from .csvfile import read_csv_columns
+from .runs import Run, make_meta, write_run
 
 #: physical units per axis -> factor to the axis's SI unit
 SPEED_UNITS = {"rotary": {"rad/s": 1.0, "rpm": 2 * math.pi / 60.0, "deg/s": math.pi / 180.0},

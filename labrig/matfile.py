@@ -1,4 +1,4 @@
-"""Named channels of a MATLAB .mat file, read like ``runs.read_csv_columns`` reads a CSV.
+"""Named channels of a MATLAB .mat file, read like ``csvfile.read_csv_columns`` reads a CSV.
 
 MAT v4, v6 and v7 files are read with :func:`scipy.io.loadmat`; v7.3 files are HDF5 and
 are read with h5py when it is installed. A channel is a numeric vector named by its
@@ -18,7 +18,7 @@ import numpy as np
 
 from labrig.errors import RunFileError
 
-#: a larger file is refused before reading (the same bound as runs.MAX_CSV_BYTES)
+#: a larger file is refused before reading (the same bound as csvfile.MAX_CSV_BYTES)
 MAX_MAT_BYTES = 2_000_000_000
 _HDF5_MAGIC = b"\x89HDF\r\n\x1a\n"
 _SPEC = re.compile(r"([A-Za-z]\w*(?:\.[A-Za-z]\w*)*)(?:\[(\d+)\])?")

@@ -17,8 +17,7 @@ import numpy as np
 import pandas as pd
 
 from .errors import AnalysisError, RunFileError, UserError
-from .csvfile import (KNOWN_COLUMNS, SENSOR_COLUMNS, read_run_csv,  # noqa: F401
-                      read_csv_columns)
+from .csvfile import SENSOR_COLUMNS, read_run_csv
 from .fileio import atomic_write, json_default
 
 FORMAT = "labrig-run/1"

@@ -22,6 +22,9 @@ SENSORS = {
                              "pos_offset_v": -4.0},
                   "linear": {"tacho_v_per_rad_s": 2.0, "pos_v_per_rad": 2.0,
                              "pos_offset_v": -4.0}},
+    # a pot and no tacho
+    "pot": {"rotary": {"tacho_v_per_rad_s": 0.0, "pos_v_per_rad": 0.5, "pos_offset_v": -4.0},
+            "linear": {"tacho_v_per_rad_s": 0.0, "pos_v_per_rad": 2.0, "pos_offset_v": -4.0}},
     # an encoder and nothing else: the Arduino + H-bridge + gear motor of a student lab
     "encoder": {"rotary": {"tacho_v_per_rad_s": 0.0, "encoder_counts_per_unit": 1000 / (2 * np.pi)},
                 "linear": {"tacho_v_per_rad_s": 0.0, "encoder_counts_per_unit": 2e5}},
@@ -213,6 +216,9 @@ MATRIX = [
     ("torque", "encoder", {"deadband": {"d_v": 0.3}}, "deadband", "d_v", 0.3),
     ("force", "tacho+pot", {"deadband": {"d_v": 0.3}}, "deadband", "d_v", 0.3),
     ("force", "encoder", {"coulomb_friction": {"tc_v": 0.3}}, "coulomb_friction", "Fc", 6.0),
+    ("voltage", "pot", {"coulomb_friction": {"tc_v": 0.2}}, "coulomb_friction", "tc_v", 0.2),
+    ("torque", "pot", {"deadband": {"d_v": 0.3}}, "deadband", "d_v", 0.3),
+    ("force", "pot", {"deadband": {"d_v": 0.3}}, "deadband", "d_v", 0.3),
 ]
 
 
@@ -265,3 +271,44 @@ def test_a_mystery_rig_of_a_linear_axis_is_drawn_run_and_graded(tmp_path):
                                check=0).stdout)
     assert graded["found"] == sorted(doc["effects"]) and graded["pass"], graded["verdict"]
     assert abs(graded["plant"]["km"]["error_percent"]) < 5
+
+
+@pytest.mark.parametrize("patch, message", [
+    ({"rig": {"drive": "force", "axis": "rotary"}}, "key 'rig.axis'"),
+    ({"rig": {"drive": "pneumatic"}}, "rig.drive"),
+    ({"experiment": {"loop": "closed", "controller": {"kind": "lqr", "kp": 1.0}}},
+     "experiment.controller.kind"),
+    ({"experiment": {"loop": "closed"}}, "must state its controller"),
+    ({"sensors": {"pos_quantum": -1.0}}, "sensors.pos_quantum"),
+])
+def test_a_sidecar_that_does_not_describe_a_plant_is_refused(tmp_path, patch, message):
+    """Each bad key: one line naming the file and the key, exit 2, no traceback."""
+    src = tmp_path / "x.csv"
+    src.write_text("time,u,x\n" + "".join(f"{k * 0.01},{k % 7},{k}\n" for k in range(50)))
+    labrig("import", src, "--map", "t=time,u=u,pos=x", "-o", tmp_path / "o", check=0)
+    side = tmp_path / "o" / "x.json"
+    meta = json.loads(side.read_text())
+    for sec, body in patch.items():
+        meta[sec].update(body)
+    side.write_text(json.dumps(meta))
+    proc = labrig("identify", tmp_path / "o")
+    assert proc.returncode == 2 and message in proc.stderr and "x.json" in proc.stderr, proc.stderr
+    assert "Traceback" not in proc.stderr and len(proc.stderr.strip().splitlines()) == 1
+
+
+def test_friction_in_newton_metres_has_an_interval_only_when_the_data_fix_it(tmp_path):
+    """On the voltage plant Tc = tc_v Ka K / R slides along the (R, L, J, B, K) family
+    unless the current is measured: no interval without it, one with it."""
+    plan = square_plan(amps=(1.2, 2.5), periods=1)
+    hidden = {"coulomb_friction": {"tc_v": 0.2}}
+    out = {}
+    for sensors in ("tacho+pot", "tacho+pot+current"):
+        runs = read_dataset(sim_dataset(tmp_path, plant_rig("voltage", sensors, hidden), plan,
+                                        sensors))
+        res = identify(runs, "co", [get_effect("coulomb_friction")], seed=1, starts=4)
+        out[sensors] = res.physical()["Tc"]
+    assert out["tacho+pot"]["interval95"] is None
+    lo, hi = out["tacho+pot+current"]["interval95"]
+    truth = 0.2 * 5.0 * 0.05 / 8.0   # tc_v Ka K / R, N m
+    assert lo <= out["tacho+pot+current"]["value"] <= hi
+    assert out["tacho+pot+current"]["value"] == pytest.approx(truth, rel=0.10)

@@ -123,10 +123,17 @@ class Identification:
         F0 for a force-driven one; R, L, J, B, K and friction for the voltage plant). The
         interval is null where the parameter is not identifiable or fixed."""
         pars = (self.identifiable or {}).get("parameters", {})
+        plant = self.space.plant
+        # a friction in N m on the voltage plant is tc_v Ka K / R: it has an interval only
+        # when R and K have theirs (with the current measured), never along the symmetry
+        unseen = [n for n in plant.names if n in ("R", "K") and not (
+            (pars.get(n) or {}).get("interval95") or (pars.get(n) or {}).get("fixed"))]
         out = {}
-        for name, (v, unit, key, scale) in self.space.plant.physical(
+        for name, (v, unit, key, scale) in plant.physical(
                 self.plant, self.effect_params, self.constants).items():
             iv = (pars.get(key) or {}).get("interval95")
+            if key not in plant.names and unseen:
+                iv = None
             out[name] = {"value": v, "unit": unit,
                          "interval95": None if iv is None else sorted([iv[0] * scale, iv[1] * scale])}
         return out

@@ -40,8 +40,6 @@ class Plant:
     combinations: tuple = ("km", "tau_m_s")
     #: whether a measured armature current is an output of this model
     current_output = False
-    #: what the input gain ``Ka`` is (for texts)
-    gain_word = "amplifier gain (V/V)"
     #: parameter name -> the rig file's key under [plant]
     toml_keys: dict = {}
 
@@ -120,7 +118,6 @@ class TorquePlant(Plant):
     units = {"J": "kg m^2", "B": "N m s/rad"}
     bounds = {"J": (1e-8, 10.0), "B": (1e-9, 10.0)}
     toml_keys = {"J": "J_kgm2", "B": "B_nms_per_rad"}
-    gain_word = "drive gain kd (N m per input V)"
     friction_names = ("Tc", "T0", "N m")
 
     @classmethod
@@ -148,7 +145,6 @@ class ForcePlant(TorquePlant):
     units = {"M": "kg", "Fv": "N s/m"}
     bounds = {"M": (1e-4, 1e5), "Fv": (1e-6, 1e6)}
     toml_keys = {"M": "M_kg", "Fv": "Fv_ns_per_m"}
-    gain_word = "drive gain kd (N per input V)"
     friction_names = ("Fc", "F0", "N")
 
 
