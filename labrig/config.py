@@ -281,7 +281,8 @@ def load_rig(path: Path | str | None = None) -> RigConfig:
 #: a plan that asks for more samples than this is a typo (3600 s at 100 kHz would
 #: allocate gigabytes and run for minutes): refused before anything moves
 MAX_PLAN_SAMPLES = 20_000_000
-_STEMS = {"square": "sq", "step": "step", "staircase": "stair", "constant": "const"}
+_STEMS = {"square": "sq", "step": "step", "staircase": "stair", "constant": "const",
+          "pwl": "pwl"}
 
 
 def load_plan(path: Path | str | None = None, rig: RigConfig | None = None) -> list[Experiment]:
@@ -301,6 +302,8 @@ def load_plan(path: Path | str | None = None, rig: RigConfig | None = None) -> l
         raw.setdefault("sample_rate_hz", rate)
         for amp in (amps if amps is not None else [raw.get("amplitude_v", 1.5)]):
             e = dict(raw, amplitude_v=amp)
+            if e.get("waveform") == "pwl":
+                e["points"] = [list(p) for p in e.get("points") or []]
             if "name" not in e or amps is not None:
                 stem = _STEMS[e.get("waveform", "square")]
                 prefix = "cl_" if e.get("loop") == "closed" else ""
@@ -316,6 +319,27 @@ def load_plan(path: Path | str | None = None, rig: RigConfig | None = None) -> l
                           f"labrig records in one sweep ({MAX_PLAN_SAMPLES:,}); shorten the "
                           "experiments or lower sample_rate_hz")
     return out
+
+
+def _check_points(where, points, fs) -> None:
+    """A pwl waveform's breakpoints: 2..64 of them, times from 0 and rising by at least a
+    sample (the firmware's table holds whole samples)."""
+    from .bridge.base import PWL_MAX_POINTS
+
+    if not points or len(points) < 2:
+        raise ConfigError(f"{where}: a pwl waveform needs 'points' = [[t_s, u_v], ...], at "
+                          "least two")
+    if len(points) > PWL_MAX_POINTS:
+        raise ConfigError(f"{where}: {len(points)} breakpoints; a pwl waveform holds at most "
+                          f"{PWL_MAX_POINTS}")
+    if points[0][0] != 0:
+        raise ConfigError(f"{where}: the first breakpoint must be at t = 0 (after the "
+                          f"lead-in), got {points[0][0]:g} s")
+    for i in range(1, len(points)):
+        if points[i][0] - points[i - 1][0] < 1.0 / fs:
+            raise ConfigError(f"{where}: breakpoint {i + 1} at {points[i][0]:g} s is not at "
+                              f"least one sample after the one before ({points[i - 1][0]:g} "
+                              "s); times must rise")
 
 
 def _check_experiment(path, k, e) -> Experiment:
@@ -334,6 +358,17 @@ def _check_experiment(path, k, e) -> Experiment:
                               "lower the frequency or raise sample_rate_hz")
     if wave == "staircase" and not e.get("levels"):
         raise ConfigError(f"{where}: a staircase needs 'levels' (a list of volts)")
+    if wave == "pwl":
+        _check_points(where, e.get("points"), e["sample_rate_hz"])
+    elif e.get("points"):
+        raise ConfigError(f"{where}: 'points' belong to waveform = \"pwl\"; remove them or "
+                          "set the waveform")
+    for name in e.get("between") or []:
+        from .model.effects import CATALOGUE
+
+        if name not in CATALOGUE:
+            raise ConfigError(f"{where}: 'between' names {name!r}, not a catalogue effect; "
+                              f"use {', '.join(sorted(CATALOGUE))}")
     exp = Experiment(**e)
     if exp.n_samples > MAX_PLAN_SAMPLES:
         raise ConfigError(f"{where}: {exp.n_samples:,} samples is more than labrig records "

@@ -105,6 +105,8 @@ class SidecarExperiment(_Open):
     duration_s: Num(gt=0, le=1e6) = None
     step_s: Num(gt=0, le=1e5) = None
     levels: list[Num(-1e3, 1e3)] = None
+    points: list[Annotated[list[Num(-1e5, 1e5)], Field(min_length=2, max_length=2)]] = None
+    between: list[Annotated[str, Field(max_length=300)]] = None
     sample_rate_hz: Num(gt=0, le=1e6) = None
     position_gain: Num(0, 1e6) = None
     velocity_gain: Num(0, 1e6) = None
@@ -222,7 +224,7 @@ class RigFile(_Closed):
 class ExperimentSpec(_Closed):
     name: RunName = None
     loop: Optional[Literal["open", "closed"]] = None
-    waveform: Optional[Literal["square", "step", "staircase", "constant"]] = None
+    waveform: Optional[Literal["square", "step", "staircase", "constant", "pwl"]] = None
     amplitude_v: Num(-50, 50) = None
     amplitudes_v: Annotated[list[Num(-50, 50)], Field(min_length=1, max_length=1000)] = None
     frequency_hz: Num(1e-3, 1e3) = None
@@ -235,6 +237,12 @@ class ExperimentSpec(_Closed):
     sample_rate_hz: Num(1, 1e5) = None
     position_gain: Num(0, 1e4) = None
     velocity_gain: Num(0, 1e4) = None
+    #: the two effects a proposed experiment tells apart (labrig propose): catalogue names
+    between: Annotated[list[Annotated[str, Field(pattern=r"^[a-z_]{1,40}$")]],
+                       Field(min_length=2, max_length=2)] = None
+    #: pwl breakpoints [[t_s, u_v], ...] (labrig.config checks order and count)
+    points: Annotated[list[Annotated[list[Num(-3600, 3600)], Field(min_length=2, max_length=2)]],
+                      Field(max_length=1000)] = None
 
 
 class PlanFile(_Closed):

@@ -13,6 +13,21 @@ import numpy as np
 from ..defaults import LOOP_GAINS
 
 
+#: breakpoints of a ``pwl`` waveform (the firmware's table holds as many)
+PWL_MAX_POINTS = 64
+
+
+def pwl_values(points, k: np.ndarray, fs: float) -> np.ndarray:
+    """A piecewise-linear waveform at sample counts ``k`` (0 at the first breakpoint's
+    time, i.e. after the lead-in): linear between breakpoints, held after the last.
+
+    Breakpoint times are rounded to whole samples, as the firmware's table holds them.
+    """
+    ks = np.array([round(float(t) * fs) for t, _ in points], dtype=float)
+    us = np.array([float(u) for _, u in points], dtype=float)
+    return np.interp(np.asarray(k, dtype=float), ks, us)
+
+
 @dataclass
 class Experiment:
     """One experiment of a sweep plan, in bridge volts and seconds.
@@ -21,7 +36,9 @@ class Experiment:
     (the bridge drives the reference of a position loop with tacho feedback).
     ``waveform`` is ``square`` (+-amplitude about offset, starting positive),
     ``step`` (0 -> amplitude after the lead-in), ``staircase`` (``levels`` in turn,
-    each held for ``step_s``) or ``constant``.
+    each held for ``step_s``), ``constant`` or ``pwl`` (piecewise linear through
+    ``points`` ``[[t_s, u_v], ...]`` after the lead-in, at most :data:`PWL_MAX_POINTS`,
+    held after the last).
     """
 
     name: str
@@ -38,12 +55,17 @@ class Experiment:
     sample_rate_hz: float = 1000.0
     position_gain: float = LOOP_GAINS["position_gain"]
     velocity_gain: float = LOOP_GAINS["velocity_gain"]
+    points: list = field(default_factory=list)
+    #: the two effects this experiment was proposed to tell apart (``labrig propose``)
+    between: list = field(default_factory=list)
 
     @property
     def total_s(self) -> float:
         """Length of the whole record (lead-in included)."""
         if self.duration_s is not None:
             return float(self.duration_s)
+        if self.waveform == "pwl":
+            return self.lead_in_s + float(self.points[-1][0]) if self.points else self.lead_in_s
         if self.waveform == "square":
             return self.lead_in_s + self.periods / self.frequency_hz
         if self.waveform == "staircase":
@@ -75,11 +97,15 @@ class Experiment:
             idx = np.clip(kk // per, 0, max(len(self.levels) - 1, 0))
             lv = np.asarray(self.levels, dtype=float) if self.levels else np.zeros(1)
             out = lv[idx] + self.offset_v
+        elif self.waveform == "pwl":
+            out = pwl_values(self.points, kk, fs) + self.offset_v
         return np.where(kk >= 0, out, 0.0)
 
     def peak_v(self) -> float:
         if self.waveform == "staircase":
             return max((abs(v + self.offset_v) for v in self.levels), default=0.0)
+        if self.waveform == "pwl":
+            return max((abs(u + self.offset_v) for _, u in self.points), default=0.0)
         return abs(self.amplitude_v) + abs(self.offset_v)
 
     def to_sidecar(self) -> dict:
@@ -88,6 +114,14 @@ class Experiment:
             d.pop("position_gain"), d.pop("velocity_gain")
         if self.waveform != "staircase":
             d.pop("levels"), d.pop("step_s")
+        if self.waveform == "pwl":
+            d["points"] = [[float(t), float(u)] for t, u in self.points]
+            for k in ("amplitude_v", "frequency_hz", "periods"):
+                d.pop(k)
+        else:
+            d.pop("points")
+        if not self.between:
+            d.pop("between")
         if d.get("duration_s") is None:
             d.pop("duration_s")
         return d

@@ -7,3 +7,4 @@ from . import loop  # noqa: F401
 from . import demo  # noqa: F401
 from . import mystery  # noqa: F401
 from . import report  # noqa: F401
+from . import propose  # noqa: F401

@@ -95,11 +95,22 @@ def cmd_diagnose(args):
                        progress=lambda i, name: (bar.update(i), bar.note(f"re-fitting {name}")))
     if args.output and res.recommendation:
         res.recommended_model().save(args.output)
+    check = _decide(runs, model, args.seed)
     if args.json:
-        emit_json(res.to_json())
+        emit_json({**res.to_json(), **({"proposal_check": check.to_json()} if check else {})})
     else:
         print(res.to_text())
+        if check:
+            print("\n" + check.to_text())
     return 0
+
+
+def _decide(runs, model, seed):
+    """Runs proposed by `labrig propose` among the data: how the pair's separation moved."""
+    from ..propose import decide
+
+    with Progress("the proposed runs", total=None) as bar:
+        return decide(runs, model, seed=seed, log=bar.log)
 
 
 AUTO_FILES = ("model.json", "ladder.json", "ladder.png", "diagnosis.json")
@@ -144,10 +155,13 @@ def _auto(args, runs, model, fixed, weights) -> int:
         write_json(out / "ladder.json", res.ladder.to_json())
         write_json(out / "diagnosis.json", res.to_json())
         save(res.plot(), out / "ladder.png", dpi=120)
+    check = _decide(runs, model, args.seed)
     if args.json:
-        emit_json(res.to_json())
+        emit_json({**res.to_json(), **({"proposal_check": check.to_json()} if check else {})})
     else:
         print(res.to_text())
+        if check:
+            print("\n" + check.to_text())
         if out:
             print(f"\nwritten to {out}/: {', '.join(AUTO_FILES)}")
     return 0

@@ -1,0 +1,70 @@
+"""``labrig propose``: the experiment that tells two explanations apart."""
+from __future__ import annotations
+
+from pathlib import Path
+
+from .registry import command, emit_json, float_opt
+from .progress import Progress
+
+
+@command("propose", "propose the experiment that tells two explanations apart")
+def cmd_propose(args):
+    """Fit the model with each of two effects (by default the model's effect and its usual
+    look-alike), search the inputs the rig can play (ramps through zero, dwells near the
+    threshold, coast-downs, reversals, staircases) for the one that best separates them
+    after the rival re-fits (T-optimal), and write it as a plan to run with `labrig sweep`."""
+    from ..config import load_rig
+    from ..model.model import Model
+    from ..propose import propose
+    from ..report.figures import save
+    from .identification import read_for_fit
+    from .registry import refuse_existing
+
+    out = Path(args.output)
+    figure = out.with_suffix(".png")
+    refuse_existing([out, figure], args.force)
+    runs, _ = read_for_fit(args)
+    model = Model.load(args.model)
+    amax = None
+    if args.rig:  # the rig file may allow more than the data use
+        rig = load_rig(args.rig)
+        amax = min(rig.bridge.output_limit_v, rig.amplifier.output_limit_v / rig.amplifier.gain)
+    with Progress("propose", total=None) as bar:
+        prop = propose(runs, model, args.between, budget_s=args.budget_s, amax=amax,
+                       seed=args.seed, log=bar.log)
+    from ..fileio import atomic_write
+
+    atomic_write(out, prop.to_toml())
+    save(prop.plot(), figure, dpi=120)
+    if args.json:
+        emit_json({**prop.to_json(), "plan": str(out), "figure": str(figure)})
+    else:
+        print(prop.to_text())
+        print(f"\nplan: {out}   figure: {figure}\nnext: labrig sweep --sim|--port DEV --plan "
+              f"{out} -o {Path(args.data[0]) / 'new'}, then labrig diagnose "
+              f"{args.data[0]} {Path(args.data[0]) / 'new'}")
+    return 0
+
+
+def _configure(p):
+    from .identification import add_through_option
+
+    p.add_argument("data", nargs="+", help="folder(s) of runs")
+    p.add_argument("--model", required=True,
+                   help="the current model (e.g. from `labrig diagnose --auto -o DIR`)")
+    p.add_argument("--between", help="the two effects to tell apart, e.g. "
+                                     "deadband,coulomb_friction (default: the model's effect "
+                                     "and its usual look-alike)")
+    p.add_argument("--budget-s", type=float_opt, default=20.0,
+                   help="at most this many seconds of new data (default 20)")
+    p.add_argument("--rig", help="rig file: the inputs may then use up to its output limit "
+                                 "(default: the largest input the data use)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the fits and the noise")
+    p.add_argument("-o", "--output", required=True,
+                   help="the plan to write (TOML); its figure goes beside it (.png)")
+    p.add_argument("--force", action="store_true", help="replace an existing plan or figure")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    add_through_option(p)
+
+
+cmd_propose.configure = _configure
