@@ -28,6 +28,9 @@ from .noise import Weights, channel_floors
 from .refit import fit, refit_with, without
 from .runs import Run
 
+#: the question an experiment answers is between kinds of physics: an asymmetric dead zone
+#: is asked about as a dead zone (its asymmetry is a parameter, not another explanation)
+SIMPLEST = {"asymmetric_deadband": "deadband"}
 #: the usual rival of each effect: what explains the same data about as well
 RIVALS = {"deadband": "coulomb_friction", "coulomb_friction": "deadband",
           "stiction": "deadband", "asymmetric_deadband": "coulomb_friction",
@@ -282,10 +285,12 @@ def propose(runs: list[Run], model: Model, between: str | None = None, *,
         raise UserError("propose needs at least one open-loop run (its rig plays the input)")
     pair = default_pair(model, between)
     say = log or (lambda s: None)
+    # the pair's effects, and any of their families (a dead zone for a dead zone), go out
+    families = {get_effect(n).family_name for n in pair}
     base = model
-    for name in pair:
-        if name in base.names:
-            base = without(base, name)
+    for e in list(model.effects):
+        if e.name in pair or e.family_name in families:
+            base = without(base, e.name)
     reach = Reach.of(runs, base)
     hyps, family = [], []
     for name in pair:
@@ -409,9 +414,10 @@ def decide(runs: list[Run], model: Model | None = None, *, seed: int = 0, log=No
     out, prev = {}, {}
     for label, data in (("before", old), ("after", runs)):
         base = linear_model(data, seed=seed)
-        if model is not None:  # the model's other effects stay
+        if model is not None:  # the model's other effects stay (not the pair's families)
+            families = {get_effect(n).family_name for n in pair}
             for e in model.effects:
-                if e.name not in pair:
+                if e.name not in pair and e.family_name not in families:
                     base = _best_fit_with(data, base, e.name, seed, None).model()
         res = {}
         for name in pair:

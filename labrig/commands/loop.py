@@ -81,6 +81,8 @@ def cmd_diagnose(args):
     runs, model = _load(args)
     fixed = parse_assignments(args.fix, "--fix")
     weights = _weights(args.weights)
+    if args.ask_rig and not args.auto:
+        raise UserError("--ask-rig: only with --auto (the confusable pairs come from its rounds)")
     if args.auto:
         return _auto(args, runs, model, fixed, weights)
     refuse_existing([args.output] if args.output else [], args.force)  # before the 30 s
@@ -141,6 +143,8 @@ def _auto(args, runs, model, fixed, weights) -> int:
 
     if args.max_rounds < 1:
         raise UserError(f"--max-rounds: {args.max_rounds} adds nothing; give 1 or more")
+    if args.ask_rig and not (args.sim or args.port):
+        raise UserError("--ask-rig: say which rig to ask, --sim or --port DEV")
     out = Path(args.output) if args.output else None
     if out:
         refuse_existing([out] + [out / f for f in AUTO_FILES], args.force, what="folder")
@@ -156,15 +160,62 @@ def _auto(args, runs, model, fixed, weights) -> int:
         write_json(out / "diagnosis.json", res.to_json())
         save(res.plot(), out / "ladder.png", dpi=120)
     check = _decide(runs, model, args.seed)
+    asked = _ask_rig(args, runs, res) if args.ask_rig else None
     if args.json:
-        emit_json({**res.to_json(), **({"proposal_check": check.to_json()} if check else {})})
+        emit_json({**res.to_json(), **({"proposal_check": check.to_json()} if check else {}),
+                   **({"asked": asked} if asked else {})})
     else:
         print(res.to_text())
         if check:
             print("\n" + check.to_text())
         if out:
             print(f"\nwritten to {out}/: {', '.join(AUTO_FILES)}")
+        if asked:
+            print("\n" + asked["text"])
     return 0
+
+
+def _ask_rig(args, runs, res) -> dict:
+    """``--ask-rig``: propose the experiment for the first confusable pair, play it on the
+    rig (within the rig file's limits), and decide with the new run."""
+    from ..acquire import sweep
+    from ..config import load_plan, load_rig
+    from ..fileio import atomic_write
+    from ..propose import decide, propose
+    from ..runs import read_dataset
+    from .registry import refuse_existing
+
+    if not res.confusable:
+        return {"text": "asked the rig nothing: no two effects explain the data about "
+                        "equally well", "pair": None}
+    from ..propose import SIMPLEST
+
+    first, second = (SIMPLEST.get(n, n) for n in (res.confusable[0].first,
+                                                  res.confusable[0].second))
+    rig = load_rig(args.rig)
+    newdir = Path(args.data[0]) / "asked"
+    refuse_existing([newdir, newdir / "plan.toml", newdir / "proposed.csv"], args.force,
+                    what="folder")
+    with Progress("ask the rig", total=None) as bar:
+        prop = propose(runs, res.model, f"{first},{second}", budget_s=args.budget_s,
+                       seed=args.seed, log=bar.log)
+        newdir.mkdir(parents=True, exist_ok=True)
+        atomic_write(newdir / "plan.toml", prop.to_toml())
+        if args.sim:
+            from ..bridge.sim import SimRig
+
+            bridge = SimRig(rig)
+        else:
+            from ..bridge.serial import SerialBridge
+
+            bridge = SerialBridge(args.port, rig)
+        bar.log(f"playing {prop.chosen.candidate.label} on the rig")
+        sweep(bridge, load_plan(newdir / "plan.toml", rig), rig, newdir)
+        d = decide(read_dataset([*args.data, newdir]), res.model, seed=args.seed, log=bar.log)
+    return {"pair": list(prop.pair), "proposal": prop.to_json(), "folder": str(newdir),
+            "decision": d.to_json(),
+            "text": f"asked the rig: {prop.chosen.candidate.label} ({prop.why}); runs in "
+                    f"{newdir}/\n{d.to_text()}"}
 
 
 def _configure_diagnose(p):
@@ -182,6 +233,17 @@ def _configure_diagnose(p):
                         "again until nothing more earns its parameters")
     p.add_argument("--max-rounds", type=int, default=3,
                    help="with --auto: add at most this many effects (default 3)")
+    p.add_argument("--ask-rig", action="store_true",
+                   help="with --auto: when two effects explain the data about equally well, "
+                        "propose the experiment that tells them apart, play it on the rig "
+                        "(--sim or --port) into DATA/asked and decide")
+    src = p.add_mutually_exclusive_group()
+    src.add_argument("--sim", action="store_true", help="--ask-rig on the simulated rig")
+    src.add_argument("--port", help="--ask-rig on the board at this serial device")
+    p.add_argument("--rig", help="--ask-rig: the rig file (its limits hold); default "
+                                 "configs/rig_default.toml")
+    p.add_argument("--budget-s", type=float, default=20.0,
+                   help="--ask-rig: at most this many seconds of new data (default 20)")
     p.add_argument("--force", action="store_true", help="replace an existing -o file")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     add_through_option(p)
