@@ -29,6 +29,9 @@ class Way:
     way: str          # "loop", "input" or "open" (no closed-loop run)
     why: str
     runs: int = 0     # closed-loop runs concerned
+    #: worth saying: a digital controller or a logged controller output (an MS150's analog
+    #: loop has only one way and is fitted through it as always)
+    told: bool = False
 
     def to_json(self) -> dict:
         return {"way": self.way, "why": self.why, "closed_loop_runs": self.runs}
@@ -53,6 +56,7 @@ def choose_way(runs: list[Run], through: str = "auto") -> tuple[list[Run], Way]:
     if not closed:
         return runs, Way("open", "open-loop runs: the input drives the plant directly")
     logged = [r for r in closed if "drive" in r.data]
+    told = bool(logged) or any(r.controller for r in closed)
     if through == "auto":
         through = "input" if len(logged) == len(closed) else "loop"
     if through == "input":
@@ -65,7 +69,7 @@ def choose_way(runs: list[Run], through: str = "auto") -> tuple[list[Run], Way]:
                "is seen directly, whatever the controller (a stiff loop hides the plant "
                "when fitted through it)")
         return [as_open_loop(r) if r.loop == "closed" else r for r in runs], \
-            Way("input", why, len(closed))
+            Way("input", why, len(closed), told)
     for r in closed:
         c = r.controller or {}
         if c.get("ki"):
@@ -78,4 +82,4 @@ def choose_way(runs: list[Run], through: str = "auto") -> tuple[list[Run], Way]:
            " (a stiff loop hides the plant: check the intervals)")
     if any((r.controller or {}).get("output_limit_v") for r in closed):
         why += "; the controller's output limit is not simulated through the loop"
-    return runs, Way("loop", why, len(closed))
+    return runs, Way("loop", why, len(closed), told)

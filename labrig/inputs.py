@@ -119,6 +119,10 @@ def candidates(*, threshold: float, amax: float, tau: float, budget_s: float,
         if len(pts) <= PWL_MAX_POINTS and pts[-1][0] <= budget_s + 1e-9 and \
                 max(abs(u) for _, u in pts) <= amax + 1e-9:
             out.append(Candidate(kind, pts, label))
+            # and its mirror image: the same test starting the other way (the travel the
+            # data allow may differ by direction)
+            out.append(Candidate(kind, [[t, -u if u else 0.0] for t, u in pts],
+                                 label + ", mirrored"))
 
     for U in sorted({min(f * th, amax) for f in (1.5, 2.5)} | {0.5 * amax, amax}):
         for T in (budget_s / 4, budget_s / 2, budget_s):

@@ -250,6 +250,23 @@ def variants(runs, base: Model, hyp: Hypothesis, reach, *, seed: int, weights: W
     return out
 
 
+def _travel(runs) -> tuple[float, float]:
+    """How far the data moved the axis from a run's start (either way: the data do not
+    say where the sensor's ends are)."""
+    spans = [float(np.ptp(r.position)) for r in runs if r.position is not None]
+    return (1.05 * max(spans),) * 2 if spans else (np.inf, np.inf)
+
+
+def _sensor_range(rig) -> tuple[float, float]:
+    """How far the rig's position sensor follows the axis from 0 (where the simulated rig
+    starts every run), forwards and backwards, with a 10 % margin; an encoder has no end."""
+    s, lo_hi = rig.sensors, rig.bridge.adc_range_v
+    if s.encoder_counts_per_unit > 0:
+        return np.inf, np.inf
+    ends = sorted(((v - s.pos_offset_v) / s.pos_v_per_rad) for v in lo_hi)
+    return 0.9 * max(ends[1], 0.0), 0.9 * max(-ends[0], 0.0)
+
+
 def _separation(pa: dict, pb: dict, template: Run, sig: dict) -> float:
     d = 0.0
     if template.has_tacho and "speed" in sig:
@@ -261,7 +278,7 @@ def _separation(pa: dict, pb: dict, template: Run, sig: dict) -> float:
 
 def propose(runs: list[Run], model: Model, between: str | None = None, *,
             budget_s: float = 20.0, amax: float | None = None, seed: int = 0,
-            weights: Weights = Weights(), log=None) -> Proposal:
+            weights: Weights = Weights(), log=None, rig=None) -> Proposal:
     """Propose the input of at most ``budget_s`` seconds that best separates the pair.
 
     Parameters
@@ -273,6 +290,9 @@ def propose(runs: list[Run], model: Model, between: str | None = None, *,
         ``"a,b"``; default the model's effect and its usual rival (:data:`RIVALS`).
     amax : float, optional
         Largest input allowed (V); default the largest the data already use.
+    rig : RigConfig, optional
+        The rig: its position sensor's range bounds the travel (default: the travel the
+        data show, either way).
     """
     from .model.reach import Reach
     from .model.simulate import prepare
@@ -314,14 +334,15 @@ def propose(runs: list[Run], model: Model, between: str | None = None, *,
         "models")
     syn = [synthetic_run(template, c, f"cand{k}") for k, c in enumerate(cands)]
     preds = [[_simulate(m, syn) for m in fam] for fam in family]
-    # the travel the sensors are known to follow: an input that drives the axis further
-    # (a pot beyond its range, off the end of a linear axis) is not proposed
-    spans = [float(np.ptp(r.position)) for r in runs if r.position is not None]
-    travel = 1.05 * max(spans) if spans else np.inf
+    # the travel the sensors are known to follow, each way from where a run starts: an
+    # input that drives the axis further (a pot beyond its range, off the end of a linear
+    # axis) is not proposed
+    up, down = _travel(runs) if rig is None else _sensor_range(rig)
     judged = []
     for k, c in enumerate(cands):
-        reach_k = max(float(np.ptp(fam[0][k]["theta"])) for fam in preds)
-        if reach_k > travel:
+        ups = max(float(np.max(fam[0][k]["theta"] - fam[0][k]["theta"][0])) for fam in preds)
+        downs = max(float(np.max(fam[0][k]["theta"][0] - fam[0][k]["theta"])) for fam in preds)
+        if ups > up or downs > down:
             continue
         j = Judged(c, _separation(preds[0][0][k], preds[1][0][k], template, sig))
         # the worst case over every plausible truth, the rival taking its closest variant:
@@ -330,9 +351,10 @@ def propose(runs: list[Run], model: Model, between: str | None = None, *,
                        for h in (0, 1) for pt in preds[h])
         judged.append(j)
     if not judged:
-        raise UserError(f"every candidate input drives the axis further than the data "
-                        f"({travel:.3g} {template.units[0]}) in {budget_s:g} s; record a run "
-                        "with more travel, or give a shorter --budget-s")
+        raise UserError(f"every candidate input drives the axis further than the data did "
+                        f"(+{up:.3g} / -{down:.3g} {template.units[0]} from the start) in "
+                        f"{budget_s:g} s; record a run with more travel, or give a shorter "
+                        "--budget-s")
     chosen = max(judged, key=lambda j: (j.robust, -j.candidate.duration))
     say(f"re-fitting each explanation to the other's prediction: {chosen.candidate.label}")
     rng = np.random.default_rng(seed)

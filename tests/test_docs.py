@@ -103,3 +103,18 @@ def test_readme_quotes_the_recorded_auto_benchmark():
     row = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "bench_auto.py"), "--markdown"],
                          capture_output=True, text=True, check=True).stdout.strip()
     assert row in (ROOT / "README.md").read_text()
+
+
+def test_readme_quotes_the_recorded_propose_benchmark():
+    """The README's propose row is the one benchmarks/bench_propose.py writes from its
+    recorded result (benchmarks/results_propose.json)."""
+    import json
+    import subprocess
+    import sys
+
+    row = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "bench_propose.py"),
+                          "--markdown"], capture_output=True, text=True, check=True).stdout.strip()
+    readme = (ROOT / "README.md").read_text()
+    assert row in readme
+    load = json.loads((ROOT / "benchmarks" / "results_propose.json").read_text())["loadavg_before"]
+    assert f"load average {load:.1f} at the start): one" in readme

@@ -129,7 +129,7 @@ def cmd_identify(args):
             emit_json({**dicts[best.method], "method": "all", "best": best.method,
                        "results": dicts, "warnings": all_warnings(results)})
     else:
-        if way.runs:
+        if way.told:
             print(f"closed-loop runs ({way.runs}): {way.why}\n")
         print(format_identification(results))
         if args.output:

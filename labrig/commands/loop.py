@@ -14,7 +14,7 @@ def _load(args):
     from .identification import read_for_fit
 
     runs, way = read_for_fit(args)
-    if way.runs and not getattr(args, "json", False):
+    if way.told and not getattr(args, "json", False):
         print(f"closed-loop runs ({way.runs}): {way.why}\n")
     model = Model.load(args.model) if getattr(args, "model", None) else None
     return runs, model
@@ -198,7 +198,7 @@ def _ask_rig(args, runs, res) -> dict:
                     what="folder")
     with Progress("ask the rig", total=None) as bar:
         prop = propose(runs, res.model, f"{first},{second}", budget_s=args.budget_s,
-                       seed=args.seed, log=bar.log)
+                       seed=args.seed, log=bar.log, rig=rig)
         newdir.mkdir(parents=True, exist_ok=True)
         atomic_write(newdir / "plan.toml", prop.to_toml())
         if args.sim:

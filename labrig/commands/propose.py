@@ -25,13 +25,13 @@ def cmd_propose(args):
     refuse_existing([out, figure], args.force)
     runs, _ = read_for_fit(args)
     model = Model.load(args.model)
-    amax = None
-    if args.rig:  # the rig file may allow more than the data use
+    amax, rig = None, None
+    if args.rig:  # the rig file may allow more than the data use, and knows its sensors
         rig = load_rig(args.rig)
         amax = min(rig.bridge.output_limit_v, rig.amplifier.output_limit_v / rig.amplifier.gain)
     with Progress("propose", total=None) as bar:
         prop = propose(runs, model, args.between, budget_s=args.budget_s, amax=amax,
-                       seed=args.seed, log=bar.log)
+                       seed=args.seed, log=bar.log, rig=rig)
     from ..fileio import atomic_write
 
     atomic_write(out, prop.to_toml())
@@ -57,8 +57,9 @@ def _configure(p):
                                      "and its usual look-alike)")
     p.add_argument("--budget-s", type=float_opt, default=20.0,
                    help="at most this many seconds of new data (default 20)")
-    p.add_argument("--rig", help="rig file: the inputs may then use up to its output limit "
-                                 "(default: the largest input the data use)")
+    p.add_argument("--rig", help="rig file: the inputs may then use up to its output limit, "
+                                 "and its position sensor's range bounds the travel (default: "
+                                 "the largest input and the travel the data show)")
     p.add_argument("--seed", type=int, default=0, help="seed of the fits and the noise")
     p.add_argument("-o", "--output", required=True,
                    help="the plan to write (TOML); its figure goes beside it (.png)")

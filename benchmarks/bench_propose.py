@@ -1,0 +1,87 @@
+"""Benchmark: `labrig propose` on one confusable run (whole process).
+
+    python benchmarks/bench_propose.py                # measure, print JSON, write results_propose.json
+    python benchmarks/bench_propose.py --markdown     # the README row from results_propose.json
+
+The data: one 1.5 V step of 3 s at 1 kHz on the default rig with its hidden Coulomb
+friction replaced by a 0.3 V one (`configs/rig_default.toml` hides 0.13 V): a dead zone and
+Coulomb friction fit it equally well. The model: `labrig identify RUNS --effects deadband`.
+Timed: `labrig propose RUNS --model M.json -o plan.toml --json` as a subprocess (interpreter
+start, imports, numba cache load, both fits, the plausible variants, every candidate
+simulated, the rivals re-fitted, plan and figure written), after one warm-up run so the
+numba cache exists. Target: < 30 s on this 2-core machine.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+RESULTS = HERE / "results_propose.json"
+TARGET_S = 30.0
+RIG = "[effects.coulomb_friction]\ntc_v = 0.3\n"
+PLAN = ('[[experiment]]\nname = "step"\nwaveform = "step"\namplitude_v = 1.5\n'
+        'duration_s = 3.0\n')
+
+
+def labrig(*args) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "labrig", *map(str, args)],
+                          capture_output=True, text=True, check=True)
+
+
+def measure() -> dict:
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        (tmp / "rig.toml").write_text(RIG)
+        (tmp / "plan.toml").write_text(PLAN)
+        labrig("sweep", "--sim", "--rig", tmp / "rig.toml", "--plan", tmp / "plan.toml",
+               "-o", tmp / "runs")
+        labrig("identify", tmp / "runs", "--effects", "deadband", "--seed", "1",
+               "-o", tmp / "m.json")
+        labrig("propose", tmp / "runs", "--model", tmp / "m.json", "-o", tmp / "warm.toml")
+        load = os.getloadavg()[0]
+        t0 = time.perf_counter()
+        p = labrig("propose", tmp / "runs", "--model", tmp / "m.json", "-o", tmp / "p.toml",
+                   "--json")
+        seconds = time.perf_counter() - t0
+        doc = json.loads(p.stdout)
+    return {"command": "labrig propose RUNS --model M.json -o PLAN --json (subprocess, "
+                       "whole process)",
+            "seconds": round(seconds, 1), "target_s": TARGET_S, "pass": seconds < TARGET_S,
+            "between": doc["between"], "proposed": doc["proposed"]["label"],
+            "loadavg_before": round(load, 2), "cpus": os.cpu_count(),
+            "python": platform.python_version(), "machine": platform.machine(),
+            "when": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())}
+
+
+def markdown(res: dict) -> str:
+    return (f"| `labrig propose`, one confusable step, dead zone or Coulomb friction "
+            f"(subprocess, whole process) | **{res['seconds']:.1f} s**, proposed "
+            f"{res['proposed']} | < {res['target_s']:.0f} s | "
+            f"{'PASS' if res['pass'] else 'MISS'} |")
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--markdown", action="store_true", help="print the README row of the "
+                    "recorded result and exit")
+    args = ap.parse_args()
+    if args.markdown:
+        print(markdown(json.loads(RESULTS.read_text())))
+        return 0
+    res = measure()
+    RESULTS.write_text(json.dumps(res, indent=2) + "\n")
+    print(json.dumps(res, indent=2))
+    print(markdown(res))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
