@@ -3,7 +3,7 @@ piecewise-linear waveforms (``pwl``), each with the words that say why it separa
 
 Every candidate starts and ends at 0 V, lasts at most the budget, stays within
 ``+-amax`` (the inputs the data already use, or what the rig file allows) and holds at
-most :data:`labrig.bridge.base.PWL_MAX_POINTS` breakpoints. Time scales come from the
+most :data:`MAX_POINTS` breakpoints (the board's table holds 32). Time scales come from the
 model (tau_m: how long the speed needs to settle), levels from the threshold of the
 effects compared (a dead zone's d, a friction level).
 """
@@ -13,7 +13,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .bridge.base import PWL_MAX_POINTS
+#: breakpoints of a proposed input: what the boards' table holds (32), with room to spare,
+#: so a proposal plays on the board as on the simulated rig
+MAX_POINTS = 30
 
 #: what each kind of input is
 KINDS = {
@@ -116,7 +118,7 @@ def candidates(*, threshold: float, amax: float, tau: float, budget_s: float,
 
     def add(kind, segs, label):
         pts = _pts(segs)
-        if len(pts) <= PWL_MAX_POINTS and pts[-1][0] <= budget_s + 1e-9 and \
+        if len(pts) <= MAX_POINTS and pts[-1][0] <= budget_s + 1e-9 and \
                 max(abs(u) for _, u in pts) <= amax + 1e-9:
             out.append(Candidate(kind, pts, label))
             # and its mirror image: the same test starting the other way (the travel the

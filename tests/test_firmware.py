@@ -82,6 +82,30 @@ def test_end_to_end_square_wave():
     assert tacho[600:740].mean() > 2.0 and tacho[1100:1240].mean() < -2.0
 
 
+@pytest.mark.parametrize("board", ["uno", "mega"])
+def test_end_to_end_pwl(board):
+    """A proposed pwl (ramps through zero, a dwell, a coast-down) on the compiled firmware:
+    the board plays the plan to one DAC step, and the motor follows."""
+    exp = Experiment(name="proposed", waveform="pwl", lead_in_s=0.2,
+                     points=[[0, 0.0], [0.5, 2.0], [0.9, 2.0], [1.0, 0.0], [1.4, 0.0],
+                             [2.2, -1.5], [2.4, 0.0]])
+    with Emulator(board, RIG) as emu, SerialBridge(emu.pty, RIG) as bridge:
+        assert "pwl" in bridge.open()["capabilities"]
+        idx, u, blocks = _run(bridge, exp)
+        c = bridge.counters()
+    assert c["dropped_samples"] == 0 and np.array_equal(idx, np.arange(exp.n_samples))
+    assert np.max(np.abs(u - _plan(exp, idx))) <= 1.5 * LSB   # the plan, to a DAC step
+    tacho = np.concatenate([b.tacho for b in blocks])
+    assert tacho[1000:1100].mean() > 2.0 and tacho[2300:2400].mean() < -1.0
+
+
+def test_board_refuses_a_pwl_beyond_its_table():
+    points = [[0.01 * k, 0.5 * (-1) ** k] for k in range(40)]   # 40 > the board's 32
+    with Emulator("uno", RIG) as emu, SerialBridge(emu.pty, RIG) as bridge:
+        with pytest.raises(UserError, match="at most 32 pwl breakpoints"):
+            bridge.configure(Experiment(name="long", waveform="pwl", points=points))
+
+
 def test_refuses_beyond_output_limit():
     with Emulator("uno", RIG) as emu, SerialBridge(emu.pty, RIG) as bridge:
         with pytest.raises(UserError, match="2.5 V"):
@@ -280,3 +304,34 @@ def test_crc_residual_tool_measures_the_framing():
     body = int(re.search(r"passing body: (\d+)", out).group(1))
     assert crc <= 4 * corrupted / 65536 + 5 and body == 0
     assert "## Residual risk of CRC-16" in (FIRMWARE_DIR / "PROTOCOL.md").read_text()
+
+
+def test_a_proposed_plan_plays_through_sweep_port(tmp_path):
+    """`labrig propose` -> `labrig sweep --port` on the compiled firmware: the proposed pwl
+    is played (to a DAC step) and its run carries the pair it was proposed for."""
+    import json
+    import sys
+
+    from labrig.config import load_plan
+    from labrig.runs import read_dataset
+    from conftest import make_rig, sim_dataset
+
+    step = [Experiment(name="step", waveform="step", amplitude_v=1.5, duration_s=3.0)]
+    runs = sim_dataset(tmp_path, make_rig({"coulomb_friction": {"tc_v": 0.3}}), step)
+    model = tmp_path / "m.json"
+    subprocess.run([sys.executable, "-m", "labrig", "identify", str(runs), "--effects",
+                    "deadband", "--starts", "2", "-o", str(model)], check=True,
+                   capture_output=True)
+    plan = tmp_path / "plan.toml"
+    subprocess.run([sys.executable, "-m", "labrig", "propose", str(runs), "--model", str(model),
+                    "-o", str(plan)], check=True, capture_output=True)
+    with Emulator("uno", speed=1.0) as emu:
+        proc = subprocess.run([sys.executable, "-m", "labrig", "sweep", "--port", emu.pty,
+                               "--plan", str(plan), "-o", str(tmp_path / "new")],
+                              capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    run = read_dataset(tmp_path / "new")[0]
+    exp = load_plan(plan)[0]
+    assert run.meta["source"] == "serial" and run.experiment["between"] == exp.between
+    assert np.max(np.abs(run.u - exp.waveform_at(run.t))) <= 1.5 * LSB
+    assert json.loads(run.path.with_suffix(".json").read_text())["experiment"]["points"]

@@ -109,6 +109,39 @@ static void run_ticks(int n, int heartbeat)
 }
 
 /* ---------------- vector tests ---------------- */
+/* The board plays a pwl word for word as the host's rule says (the vector's words come
+ * from labrig.bridge.protocol.pwl_words): linear between breakpoints in integers,
+ * the last breakpoint held, 0 V in the lead-in. */
+static void test_pwl(jnode_t *v)
+{
+    static uint8_t body[256];
+    reset_all();
+    size_t n = unhex(json_get(v, "configure_body")->str, body, sizeof body);
+    uint32_t lead = (uint32_t)json_get(v, "lead_in")->num, total = (uint32_t)json_get(v, "n_samples")->num;
+    uint16_t zero = (uint16_t)json_get(v, "dac_zero")->num;
+    static uint8_t raw[8192];
+    size_t nw = unhex(json_get(v, "words")->str, raw, sizeof raw) / 2;
+    host_send(LR_CONFIGURE, 1, body, n);
+    host_send(LR_START, 2, NULL, 0);
+    lr_core_poll();
+    run_ticks(total + 200, 1);
+    collect();
+    uint32_t bad = 0, seen = 0;
+    for (int i = 0; i < nmsgs; i++) {
+        if (msgs[i].type != LR_SAMPLES) continue;
+        uint32_t first = lr_get32(msgs[i].body);
+        for (int j = 0; j < msgs[i].body[4]; j++) {
+            uint32_t k = first + j;
+            uint16_t got = lr_get16(msgs[i].body + 5 + 8 * j);
+            uint16_t exp = k < lead ? zero : (k - lead < nw ? lr_get16(raw + 2 * (k - lead)) : 0xFFFF);
+            if (got != exp) bad++;
+            seen++;
+        }
+    }
+    CHECK(seen == total && bad == 0, "pwl played as the host's rule says (seen %u of %u, bad %u)",
+          seen, total, bad);
+}
+
 static void test_vectors(const char *path)
 {
     FILE *fp = fopen(path, "rb");
@@ -189,6 +222,7 @@ static void test_vectors(const char *path)
               d.framing_errors == (uint32_t)json_get(s, "framing_errors")->num,
               "stream error counts %u %u", d.crc_errors, d.framing_errors);
     }
+    test_pwl(json_get(root, "pwl"));
     json_free(root);
     free(text);
 }

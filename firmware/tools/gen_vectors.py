@@ -48,6 +48,10 @@ cfg_st = dict(loop="closed", waveform="staircase", sample_rate_hz=500, n_samples
               lead_in_samples=250, segment_samples=250, dac_zero=2048, dac_min=1024,
               dac_max=3072, watchdog_ms=300, levels=[2048, 2458, 2867, 1638],
               position_gain=10.0, velocity_gain=1.0)
+cfg_pwl = dict(loop="open", waveform="pwl", sample_rate_hz=1000, n_samples=1200,
+               lead_in_samples=100, segment_samples=0, dac_zero=2048, dac_min=1024,
+               dac_max=3072, watchdog_ms=500, levels=[2048, 2663, 1433, 2048],
+               pieces=[300, 400, 250])
 hello = (bytes([1, 1]) + (15).to_bytes(2, "little") + (4000).to_bytes(2, "little")
          + bytes([10, 12, 10, 3, 32]) + b"".join(v.to_bytes(2, "little") for v in (2048, 922, 3174, 500))
          + b"labrig-fw 1.0.0 uno")
@@ -57,6 +61,8 @@ frames = [
     ("CONFIGURE square", p.CONFIGURE, 1, p.configure_body(**cfg), p.parse_configure(p.configure_body(**cfg))),
     ("CONFIGURE staircase closed", p.CONFIGURE, 2, p.configure_body(**cfg_st),
      p.parse_configure(p.configure_body(**cfg_st))),
+    ("CONFIGURE pwl", p.CONFIGURE, 5, p.configure_body(**cfg_pwl),
+     p.parse_configure(p.configure_body(**cfg_pwl))),
     ("START", p.START, 3, b"", {}),
     ("STOP", p.STOP, 4, b"", {}),
     ("HEARTBEAT", p.HEARTBEAT, 255, b"", {}),
@@ -114,6 +120,15 @@ got = d.feed(stream)
 out["stream"] = {"wire": H(stream), "frames": [{"type": f.type, "seq": f.seq, "body": H(f.body)} for f in got],
                  "crc_errors": d.crc_errors, "framing_errors": d.framing_errors}
 assert len(got) == 2
+
+# a pwl played by the board: the words after the lead-in, by the rule of PROTOCOL.md
+out["pwl"] = {"configure_body": H(p.configure_body(**cfg_pwl)),
+              "lead_in": cfg_pwl["lead_in_samples"], "n_samples": cfg_pwl["n_samples"],
+              "dac_zero": cfg_pwl["dac_zero"],
+              # u16 little-endian, as hex (one word per sample)
+              "words": H(b"".join(w.to_bytes(2, "little") for w in p.pwl_words(
+                  cfg_pwl["levels"], cfg_pwl["pieces"],
+                  cfg_pwl["n_samples"] - cfg_pwl["lead_in_samples"])))}
 
 path = pathlib.Path(__file__).resolve().parents[1] / "test_vectors.json"
 path.write_text(json.dumps(out, indent=1) + "\n")

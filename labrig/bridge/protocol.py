@@ -30,7 +30,25 @@ TYPE_NAMES = {
     HELLO: "HELLO", SAMPLES: "SAMPLES", STATUS: "STATUS", DONE: "DONE", ERROR: "ERROR",
 }
 LOOPS = {"open": 0, "closed": 1}
-WAVEFORMS = {"constant": 0, "square": 1, "step": 2, "staircase": 3}
+#: HELLO capability bit of the pwl waveform (bits 0-3: constant, square, step, staircase)
+CAP_PWL = 0x10
+#: the longest pwl piece the firmware plays (samples between two breakpoints)
+MAX_PIECE = 0x7FFF
+
+
+def pwl_words(levels: list[int], pieces: list[int], n: int) -> list[int]:
+    """The words a board plays for a pwl after its lead-in, ``n`` samples: in piece i
+    (length L from word a to word b) sample j is ``a + trunc((b - a) j / L)``; the last
+    breakpoint is held."""
+    out = []
+    for a, b, L in zip(levels, levels[1:], pieces):
+        d = b - a
+        out += [a + (d * j // L if d >= 0 else -((-d * j) // L)) for j in range(L)]
+    out += [levels[-1]] * max(0, n - len(out))
+    return out[:n]
+
+
+WAVEFORMS = {"constant": 0, "square": 1, "step": 2, "staircase": 3, "pwl": 4}
 ERROR_CODES = {1: "BAD_FRAME", 2: "BAD_CONFIG", 3: "LIMIT", 4: "NOT_CONFIGURED",
                5: "BUSY", 6: "WATCHDOG", 7: "RATE"}
 BOARDS = {1: "uno", 2: "mega"}
@@ -213,16 +231,24 @@ class StreamDecoder:
 def configure_body(*, loop: str, waveform: str, sample_rate_hz: int, n_samples: int,
                    lead_in_samples: int, segment_samples: int, dac_zero: int, dac_min: int,
                    dac_max: int, watchdog_ms: int, levels: list[int],
-                   position_gain: float = 0.0, velocity_gain: float = 0.0) -> bytes:
-    """Body of a CONFIGURE message; all levels and limits in DAC words."""
+                   position_gain: float = 0.0, velocity_gain: float = 0.0,
+                   pieces: list[int] | None = None) -> bytes:
+    """Body of a CONFIGURE message; all levels and limits in DAC words. A ``pwl``
+    waveform's ``levels`` are its breakpoints and ``pieces`` the samples between them."""
     if not 1 <= len(levels) <= MAX_LEVELS:
         raise ValueError(f"1..{MAX_LEVELS} levels, got {len(levels)}")
+    pieces = list(pieces or [])
+    if waveform == "pwl" and (len(pieces) != len(levels) - 1 or len(levels) < 2
+                              or not all(1 <= L <= MAX_PIECE for L in pieces)):
+        raise ValueError(f"a pwl needs 2..{MAX_LEVELS} breakpoints and one piece of "
+                         f"1..{MAX_PIECE} samples between each two")
     head = _CONFIGURE_FIXED.pack(
         LOOPS[loop], WAVEFORMS[waveform], int(sample_rate_hz), int(n_samples),
         int(lead_in_samples), int(segment_samples), int(dac_zero), int(dac_min), int(dac_max),
         int(watchdog_ms), int(round(position_gain * 100)) & 0xFFFF,
         int(round(velocity_gain * 100)) & 0xFFFF, len(levels))
-    return head + struct.pack(f"<{len(levels)}H", *[int(v) for v in levels])
+    return (head + struct.pack(f"<{len(levels)}H", *[int(v) for v in levels])
+            + struct.pack(f"<{len(pieces)}H", *[int(v) for v in pieces]))
 
 
 def parse_configure(body: bytes) -> dict:
@@ -240,9 +266,12 @@ def parse_configure(body: bytes) -> dict:
     d["position_gain"] /= 100.0
     d["velocity_gain"] /= 100.0
     n = d.pop("n_levels")
-    if not 1 <= n <= MAX_LEVELS or len(body) != _CONFIGURE_FIXED.size + 2 * n:
+    k = n - 1 if d["waveform"] == "pwl" and n else 0
+    if not 1 <= n <= MAX_LEVELS or len(body) != _CONFIGURE_FIXED.size + 2 * n + 2 * k:
         raise BodyError(f"CONFIGURE of {len(body)} bytes does not match its level count {n}")
     d["levels"] = list(struct.unpack_from(f"<{n}H", body, _CONFIGURE_FIXED.size))
+    if d["waveform"] == "pwl":
+        d["pieces"] = list(struct.unpack_from(f"<{k}H", body, _CONFIGURE_FIXED.size + 2 * n))
     return d
 
 

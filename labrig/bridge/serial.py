@@ -304,7 +304,8 @@ class SerialBridge(Bridge):
         self.board_status = self._fetch_status()   # the baseline of the first run's counters
         self._pending.clear()
         return {"firmware": self.hello["firmware"], "board": self.hello["board"],
-                "capabilities": ["square", "step", "staircase", "constant"],
+                "capabilities": ["square", "step", "staircase", "constant"]
+                + (["pwl"] if self.hello["capabilities"] & P.CAP_PWL else []),
                 "max_rate_hz": self.hello["max_rate_hz"], "port": self.port}
 
     def configure(self, exp: Experiment) -> None:

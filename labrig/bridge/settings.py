@@ -106,8 +106,10 @@ def waveform_levels(exp: Experiment) -> list[float]:
         if not exp.levels:
             raise UserError(f"experiment {exp.name!r}: a staircase needs levels")
         return [v + exp.offset_v for v in exp.levels]
+    if exp.waveform == "pwl":
+        return [u + exp.offset_v for _, u in exp.points]
     raise UserError(f"experiment {exp.name!r}: the board cannot generate a {exp.waveform!r} waveform "
-                    "(square, step, staircase or constant)")
+                    "(square, step, staircase, constant or pwl)")
 
 
 def experiment_body(exp: Experiment, s: BridgeSettings, hello: dict) -> bytes:
@@ -141,8 +143,22 @@ def experiment_body(exp: Experiment, s: BridgeSettings, hello: dict) -> bytes:
                         f"available; the board runs 50..{max_rate} Hz at divisors of 2 MHz "
                         "(e.g. 500, 1000, 2000)")
     levels_v = waveform_levels(exp)
-    if len(levels_v) > P.MAX_LEVELS:
-        raise UserError(f"experiment {exp.name!r}: at most {P.MAX_LEVELS} staircase levels")
+    most = min(P.MAX_LEVELS, hello.get("max_levels", P.MAX_LEVELS))
+    if len(levels_v) > most:
+        what = "pwl breakpoints (the board's table)" if exp.waveform == "pwl" else \
+            "staircase levels"
+        raise UserError(f"experiment {exp.name!r}: the board holds at most {most} "
+                        f"{what}, the plan has {len(levels_v)}")
+    pieces = None
+    if exp.waveform == "pwl":
+        if not hello.get("capabilities", P.CAP_PWL) & P.CAP_PWL:
+            raise UserError(f"experiment {exp.name!r}: this board's firmware does not play pwl "
+                            "waveforms; update it (`make -C firmware upload`)")
+        ks = [int(round(t * rate)) for t, _ in exp.points]
+        pieces = [b - a for a, b in zip(ks, ks[1:])]
+        if not all(1 <= L <= P.MAX_PIECE for L in pieces):
+            raise UserError(f"experiment {exp.name!r}: pwl breakpoints must lie 1 to "
+                            f"{P.MAX_PIECE} samples apart at {rate} Hz")
     levels = [volts_to_dac_word(v, s) for v in levels_v]
     zero = volts_to_dac_word(0.0, s)
     wmin, wmax = sorted((volts_to_dac_word(-limit, s), volts_to_dac_word(limit, s)))
@@ -164,4 +180,4 @@ def experiment_body(exp: Experiment, s: BridgeSettings, hello: dict) -> bytes:
         lead_in_samples=int(round(exp.lead_in_s * rate)), segment_samples=segment,
         dac_zero=zero, dac_min=wmin, dac_max=wmax, watchdog_ms=s.watchdog_ms, levels=levels,
         position_gain=exp.position_gain if closed else 0.0,
-        velocity_gain=exp.velocity_gain if closed else 0.0)
+        velocity_gain=exp.velocity_gain if closed else 0.0, pieces=pieces)

@@ -47,7 +47,7 @@ class SimRig(Bridge):
 
     def open(self) -> dict:
         return {"firmware": "labrig-sim", "capabilities": ["open", "closed", "square", "step",
-                                                          "staircase", "constant"]}
+                                                          "staircase", "constant", "pwl"]}
 
     def configure(self, exp: Experiment) -> None:
         limit = self.rig.bridge.output_limit_v

@@ -12,6 +12,7 @@ typedef struct {
     uint16_t rate_hz, dac_zero, dac_min, dac_max, watchdog_ms;
     uint32_t n_samples, lead_in, segment;
     uint16_t levels[LR_MAX_LEVELS];
+    uint16_t pieces[LR_MAX_LEVELS - 1];   /* pwl: samples from breakpoint i to i+1 */
 } config_t;
 
 static config_t cfg;
@@ -35,6 +36,41 @@ static sample_t cur;
 /* waveform generator state, advanced once per tick (no division in the ISR) */
 static uint32_t tick_index, lead_left, seg_left;
 static uint8_t level_idx;
+/* pwl: the piece being played, as a + trunc(d j / L) kept without division per tick
+ * (Bresenham: q += step, and one more count whenever acc passes L) */
+static int16_t pwl_q, pwl_step, pwl_sign;
+static uint16_t pwl_j, pwl_acc, pwl_rem;
+
+static void pwl_piece(uint8_t i)
+{
+    int16_t d = (int16_t)cfg.levels[i + 1] - (int16_t)cfg.levels[i];
+    uint16_t L = cfg.pieces[i];
+    pwl_q = (int16_t)cfg.levels[i];
+    pwl_step = (int16_t)(d / (int16_t)L);
+    pwl_rem = (uint16_t)(d < 0 ? -(d % (int16_t)L) : d % (int16_t)L);
+    pwl_sign = d < 0 ? -1 : 1;
+    pwl_j = 0;
+    pwl_acc = 0;
+}
+
+/* The next pwl word (the ISR calls it once per sample after the lead-in). */
+static uint16_t pwl_next(void)
+{
+    if (level_idx + 1 >= cfg.n_levels) return cfg.levels[cfg.n_levels - 1];  /* held */
+    uint16_t w = (uint16_t)pwl_q;
+    if (++pwl_j >= cfg.pieces[level_idx]) {
+        level_idx++;
+        if (level_idx + 1 < cfg.n_levels) pwl_piece(level_idx);
+        return w;
+    }
+    pwl_q += pwl_step;
+    pwl_acc += pwl_rem;
+    if (pwl_acc >= cfg.pieces[level_idx]) {
+        pwl_acc -= cfg.pieces[level_idx];
+        pwl_q += pwl_sign;
+    }
+    return w;
+}
 
 static uint16_t lim_lo(void) { return (uint16_t)(LR_DAC_ZERO - LR_FW_LIMIT_COUNTS); }
 static uint16_t lim_hi(void) { return (uint16_t)(LR_DAC_ZERO + LR_FW_LIMIT_COUNTS); }
@@ -78,7 +114,7 @@ void lr_core_send_hello(void)
     uint8_t b[64];
     b[0] = LR_PROTOCOL_VERSION;
     b[1] = board;
-    lr_put16(b + 2, 0x000F);          /* capabilities: square|step|staircase|constant */
+    lr_put16(b + 2, 0x001F);          /* capabilities: square|step|staircase|constant|pwl */
     lr_put16(b + 4, max_rate);
     b[6] = LR_BATCH; b[7] = 12; b[8] = 10; b[9] = 3; b[10] = LR_MAX_LEVELS;
     lr_put16(b + 11, LR_DAC_ZERO);
@@ -129,11 +165,21 @@ static int configure(const uint8_t *b, uint16_t len)
     c.watchdog_ms = lr_get16(b + 22);
     /* b[24..27]: loop gains, for the record and the emulator's patch panel */
     c.n_levels = b[28];
-    if (c.n_levels < 1 || c.n_levels > LR_MAX_LEVELS || len != LR_CONFIGURE_FIXED + 2u * c.n_levels)
+    /* pwl: the breakpoints' words, then the n-1 piece lengths in samples */
+    uint16_t extra = c.waveform == LR_WAVE_PWL && c.n_levels ? 2u * (c.n_levels - 1u) : 0u;
+    if (c.n_levels < 1 || c.n_levels > LR_MAX_LEVELS ||
+        len != LR_CONFIGURE_FIXED + 2u * c.n_levels + extra)
         return LR_ERR_BAD_FRAME;
-    if (c.loop > LR_LOOP_CLOSED || c.waveform > LR_WAVE_STAIRCASE || c.n_samples == 0 ||
+    if (c.loop > LR_LOOP_CLOSED || c.waveform > LR_WAVE_PWL || c.n_samples == 0 ||
         c.watchdog_ms < 50)
         return LR_ERR_BAD_CONFIG;
+    if (c.waveform == LR_WAVE_PWL) {
+        if (c.n_levels < 2) return LR_ERR_BAD_CONFIG;
+        for (uint8_t i = 0; i + 1 < c.n_levels; i++) {
+            c.pieces[i] = lr_get16(b + LR_CONFIGURE_FIXED + 2 * c.n_levels + 2 * i);
+            if (c.pieces[i] == 0 || c.pieces[i] > 0x7FFF) return LR_ERR_BAD_CONFIG;
+        }
+    }
     if ((c.waveform == LR_WAVE_SQUARE || c.waveform == LR_WAVE_STAIRCASE) && c.segment == 0)
         return LR_ERR_BAD_CONFIG;
     if (c.waveform == LR_WAVE_SQUARE && c.n_levels != 2) return LR_ERR_BAD_CONFIG;
@@ -191,6 +237,7 @@ static void handle(const lr_frame_t *f)
         {
             uint8_t s = hal_lock();
             tick_index = 0; lead_left = cfg.lead_in; seg_left = cfg.segment; level_idx = 0;
+            if (cfg.waveform == LR_WAVE_PWL) pwl_piece(0);
             ring_head = ring_tail = 0; acquiring = 0;
             ctr.sample_overruns = ctr.ring_overflows = 0;
             state = LR_STATE_RUNNING;
@@ -240,6 +287,8 @@ void lr_core_tick(void)
     if (lead_left) {
         lead_left--;
         w = cfg.dac_zero;
+    } else if (cfg.waveform == LR_WAVE_PWL) {
+        w = pwl_next();
     } else {
         w = cfg.levels[level_idx];
         if (cfg.segment && --seg_left == 0) {
