@@ -141,6 +141,12 @@ class Proposal:
                 + ", ".join(f"{v:.0f} after it with {k} the true one" for k, v in c.refit.items())
                 + " (a few hundred is decisive)")
 
+    def predicted(self):
+        """The proposed run as the template's rig would record it, and each explanation's
+        prediction of it (``w``, ``theta``)."""
+        run = synthetic_run(self.template, self.chosen.candidate, "proposed")
+        return run, [_simulate(h.model, [run])[0] for h in self.hypotheses]
+
     def plot(self, ax=None):
         """Both explanations' predicted responses to the proposed input, with the noise band."""
         from .report.propose_plots import plot_proposal

@@ -15,10 +15,7 @@ def plot_proposal(prop, ax=None):
     """Predicted speed and position of both fitted explanations for the proposed input,
     each with a +-1 noise band, and the input below. With ``ax``, the speed (or, without a
     tacho, the position) only."""
-    from ..propose import _simulate, synthetic_run
-
-    run = synthetic_run(prop.template, prop.chosen.candidate, "proposed")
-    preds = [_simulate(h.model, [run])[0] for h in prop.hypotheses]
+    run, preds = prop.predicted()
     t = run.t
     chans = [(ch, key) for ch, key in (("speed", "w"), ("position", "theta"))
              if ch in prop.sigmas and (run.has_tacho if ch == "speed" else run.has_pos)]
