@@ -173,6 +173,28 @@ def default_pair(model: Model, between: str | None) -> tuple:
                     "stiction, delay, backlash); name the pair with --between a,b")
 
 
+def pair_from_diagnosis(model_path) -> str | None:
+    """The first confusable pair of the ``diagnosis.json`` that ``diagnose --auto -o DIR``
+    wrote beside the model, as ``"a,b"``; None when there is none. The file is data: its
+    names are checked against the catalogue like ``--between``."""
+    from pathlib import Path
+
+    from .schemas import read_json
+
+    path = Path(model_path).parent / "diagnosis.json"
+    if not path.is_file():
+        return None
+    doc = read_json(path, "diagnosis", UserError)
+    pairs = doc.get("confusable") if isinstance(doc, dict) else None
+    if not isinstance(pairs, list) or not pairs:
+        return None
+    pair = pairs[0].get("pair") if isinstance(pairs[0], dict) else None
+    if not (isinstance(pair, list) and len(pair) == 2 and all(isinstance(n, str) for n in pair)):
+        raise UserError(f"{path}: key 'confusable.0.pair' is not two effect names; give the "
+                        "pair with --between a,b")
+    return ",".join(SIMPLEST.get(n, n) for n in pair)
+
+
 def threshold_of(model: Model) -> float:
     """The input level where the model's threshold effect acts (V), 0 when it has none."""
     out = []

@@ -163,3 +163,19 @@ def test_readme_ask_the_rig_walkthrough(tmp_path):
         assert q in flat, q
     assert dec["leader"] == "coulomb_friction"      # the default rig hides Coulomb friction
     assert (runs / "asked" / "plan.toml").exists() and (runs / "asked" / "proposed.csv").exists()
+
+
+def test_default_pair_is_the_diagnosis_first_confusable_pair(tmp_path):
+    """`diagnose --auto -o DIR` writes diagnosis.json beside model.json: propose takes its
+    first confusable pair (an asymmetric dead zone asked about as a dead zone)."""
+    from labrig.errors import UserError
+    from labrig.propose import pair_from_diagnosis
+
+    model = tmp_path / "model.json"
+    assert pair_from_diagnosis(model) is None
+    (tmp_path / "diagnosis.json").write_text(json.dumps(
+        {"confusable": [{"pair": ["asymmetric_deadband", "coulomb_friction"]}]}))
+    assert pair_from_diagnosis(model) == "deadband,coulomb_friction"
+    (tmp_path / "diagnosis.json").write_text(json.dumps({"confusable": [{"pair": [1, 2]}]}))
+    with pytest.raises(UserError, match="confusable.0.pair"):
+        pair_from_diagnosis(model)

@@ -15,7 +15,7 @@ def cmd_propose(args):
     after the rival re-fits (T-optimal), and write it as a plan to run with `labrig sweep`."""
     from ..config import load_rig
     from ..model.model import Model
-    from ..propose import propose
+    from ..propose import pair_from_diagnosis, propose
     from ..report.figures import save
     from .identification import read_for_fit
     from .registry import refuse_existing
@@ -29,8 +29,9 @@ def cmd_propose(args):
     if args.rig:  # the rig file may allow more than the data use, and knows its sensors
         rig = load_rig(args.rig)
         amax = min(rig.bridge.output_limit_v, rig.amplifier.output_limit_v / rig.amplifier.gain)
+    between = args.between or pair_from_diagnosis(args.model)
     with Progress("propose", total=None) as bar:
-        prop = propose(runs, model, args.between, budget_s=args.budget_s, amax=amax,
+        prop = propose(runs, model, between, budget_s=args.budget_s, amax=amax,
                        seed=args.seed, log=bar.log, rig=rig)
     from ..fileio import atomic_write
 
@@ -53,8 +54,10 @@ def _configure(p):
     p.add_argument("--model", required=True,
                    help="the current model (e.g. from `labrig diagnose --auto -o DIR`)")
     p.add_argument("--between", help="the two effects to tell apart, e.g. "
-                                     "deadband,coulomb_friction (default: the model's effect "
-                                     "and its usual look-alike)")
+                                     "deadband,coulomb_friction (default: the first confusable "
+                                     "pair of the diagnosis.json beside the model, as `diagnose "
+                                     "--auto -o DIR` writes it; else the model's effect and "
+                                     "its usual look-alike)")
     p.add_argument("--budget-s", type=float_opt, default=20.0,
                    help="at most this many seconds of new data (default 20)")
     p.add_argument("--rig", help="rig file: the inputs may then use up to its output limit, "
