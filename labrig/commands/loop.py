@@ -200,6 +200,8 @@ def _ask_rig(args, runs, res) -> dict:
         prop = propose(runs, res.model, f"{first},{second}", budget_s=args.budget_s,
                        seed=args.seed, log=bar.log, rig=rig)
         newdir.mkdir(parents=True, exist_ok=True)
+        for old in (newdir / "proposed.csv", newdir / "proposed.json"):   # --force: replaced
+            old.unlink(missing_ok=True)
         atomic_write(newdir / "plan.toml", prop.to_toml())
         if args.sim:
             from ..bridge.sim import SimRig

@@ -23,6 +23,7 @@ def cmd_propose(args):
     out = Path(args.output)
     figure = out.with_suffix(".png")
     refuse_existing([out, figure], args.force)
+    out.parent.mkdir(parents=True, exist_ok=True)   # before the work, not after it
     runs, _ = read_for_fit(args)
     model = Model.load(args.model)
     amax, rig = None, None
