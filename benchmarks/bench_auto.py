@@ -13,26 +13,20 @@ written), after one warm-up run so the numba cache exists. Target: < 60 s on thi
 """
 from __future__ import annotations
 
-import argparse
 import json
 import os
-import platform
-import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
+
+from whole_process import labrig, machine, main
 
 HERE = Path(__file__).resolve().parent
 RESULTS = HERE / "results_auto.json"
 TARGET_S = 60.0
 RIG = HERE.parent / "configs" / "rig_deadzone_rail.toml"
 PLAN = HERE.parent / "configs" / "plan_five.toml"
-
-
-def labrig(*args) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "labrig", *map(str, args)],
-                          capture_output=True, text=True, check=True)
 
 
 def measure() -> dict:
@@ -49,9 +43,7 @@ def measure() -> dict:
             "seconds": round(seconds, 1), "target_s": TARGET_S, "pass": seconds < TARGET_S,
             "effects_found": doc["effects"],
             "final_rmse_over_noise": doc["ladder"][-1]["rmse_over_noise"],
-            "loadavg_before": round(load, 2), "cpus": os.cpu_count(),
-            "python": platform.python_version(), "machine": platform.machine(),
-            "when": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())}
+            **machine(load)}
 
 
 def markdown(res: dict) -> str:
@@ -61,20 +53,5 @@ def markdown(res: dict) -> str:
             f"{'PASS' if res['pass'] else 'MISS'} |")
 
 
-def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--markdown", action="store_true", help="print the README row of the "
-                    "recorded result and exit")
-    args = ap.parse_args()
-    if args.markdown:
-        print(markdown(json.loads(RESULTS.read_text())))
-        return 0
-    res = measure()
-    RESULTS.write_text(json.dumps(res, indent=2) + "\n")
-    print(json.dumps(res, indent=2))
-    print(markdown(res))
-    return 0
-
-
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(main(__doc__, RESULTS, measure, markdown))

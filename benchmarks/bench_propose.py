@@ -13,15 +13,14 @@ numba cache exists. Target: < 30 s on this 2-core machine.
 """
 from __future__ import annotations
 
-import argparse
 import json
 import os
-import platform
-import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
+
+from whole_process import labrig, machine, main
 
 HERE = Path(__file__).resolve().parent
 RESULTS = HERE / "results_propose.json"
@@ -29,11 +28,6 @@ TARGET_S = 30.0
 RIG = "[effects.coulomb_friction]\ntc_v = 0.3\n"
 PLAN = ('[[experiment]]\nname = "step"\nwaveform = "step"\namplitude_v = 1.5\n'
         'duration_s = 3.0\n')
-
-
-def labrig(*args) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "labrig", *map(str, args)],
-                          capture_output=True, text=True, check=True)
 
 
 def measure() -> dict:
@@ -56,9 +50,7 @@ def measure() -> dict:
                        "whole process)",
             "seconds": round(seconds, 1), "target_s": TARGET_S, "pass": seconds < TARGET_S,
             "between": doc["between"], "proposed": doc["proposed"]["label"],
-            "loadavg_before": round(load, 2), "cpus": os.cpu_count(),
-            "python": platform.python_version(), "machine": platform.machine(),
-            "when": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())}
+            **machine(load)}
 
 
 def markdown(res: dict) -> str:
@@ -68,20 +60,5 @@ def markdown(res: dict) -> str:
             f"{'PASS' if res['pass'] else 'MISS'} |")
 
 
-def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--markdown", action="store_true", help="print the README row of the "
-                    "recorded result and exit")
-    args = ap.parse_args()
-    if args.markdown:
-        print(markdown(json.loads(RESULTS.read_text())))
-        return 0
-    res = measure()
-    RESULTS.write_text(json.dumps(res, indent=2) + "\n")
-    print(json.dumps(res, indent=2))
-    print(markdown(res))
-    return 0
-
-
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(main(__doc__, RESULTS, measure, markdown))

@@ -145,7 +145,7 @@ class Proposal:
         """The proposed run as the template's rig would record it, and each explanation's
         prediction of it (``w``, ``theta``)."""
         run = synthetic_run(self.template, self.chosen.candidate, "proposed")
-        return run, [_simulate(h.model, [run])[0] for h in self.hypotheses]
+        return run, [h.model.simulate([run])[0] for h in self.hypotheses]
 
     def plot(self, ax=None):
         """Both explanations' predicted responses to the proposed input, with the noise band."""
@@ -231,19 +231,6 @@ def synthetic_run(template: Run, cand: Candidate, name: str, sim: dict | None = 
     return Run(name=name, data=pd.DataFrame(cols), meta=meta)
 
 
-def _simulate(model: Model, runs: list[Run]) -> list[dict]:
-    return model.simulate(runs)
-
-
-def _sse(pred: dict, run: Run, sig: dict) -> float:
-    out = 0.0
-    if run.has_tacho:
-        out += float(np.sum(((run.speed - pred["w"]) / sig["speed"]) ** 2))
-    if run.has_pos:
-        out += float(np.sum(((run.position - pred["theta"]) / sig["position"]) ** 2))
-    return out
-
-
 #: the parameter that sets where each effect acts (varied over what the data allow)
 THRESHOLDS = {"deadband": "d_v", "coulomb_friction": "tc_v", "stiction": "tc_v",
               "backlash": "a_rad", "delay": "td_s"}
@@ -253,7 +240,7 @@ VARIANT_SHARES = (0.1, 0.3, 0.6)
 PLAUSIBLE = 1.10
 
 
-def variants(runs, base: Model, hyp: Hypothesis, reach, *, seed: int, weights: Weights):
+def variants(runs, hyp: Hypothesis, reach, *, seed: int, weights: Weights):
     """The hypothesis and its plausible neighbours: the threshold parameter fixed across
     the range the data allow and the rest re-fitted; those the data cannot exclude (fit
     within :data:`PLAUSIBLE` of the best) stay. A threshold one run cannot pin down (a
@@ -263,7 +250,7 @@ def variants(runs, base: Model, hyp: Hypothesis, reach, *, seed: int, weights: W
     if key is None:
         return out
     eff = get_effect(hyp.effect)
-    lo, hi = eff.data_bounds(reach).get(key, (None, None))
+    _, hi = eff.data_bounds(reach).get(key, (None, None))
     if hi is None:
         return out
     best = hyp.model.effect_params[hyp.effect][key]
@@ -296,6 +283,8 @@ def _sensor_range(rig) -> tuple[float, float]:
 
 
 def _separation(pa: dict, pb: dict, template: Run, sig: dict) -> float:
+    """Sum of squared differences of two responses (``w``, ``theta``) in noise units, over
+    the channels ``template``'s rig records."""
     d = 0.0
     if template.has_tacho and "speed" in sig:
         d += float(np.sum(((pa["w"] - pb["w"]) / sig["speed"]) ** 2))
@@ -346,7 +335,7 @@ def propose(runs: list[Run], model: Model, between: str | None = None, *,
         ident = refit_with(runs, base, get_effect(name), seed=seed, weights=weights, reach=reach)
         h = Hypothesis(name, ident.model(), float(ident.metrics["rmse_over_noise"]["overall"]))
         hyps.append(h)
-        family.append(variants(runs, base, h, reach, seed=seed, weights=weights))
+        family.append(variants(runs, h, reach, seed=seed, weights=weights))
     floors = channel_floors(prepare(runs))
     sig = {ch: floors[ch].sigma for ch in ("speed", "position") if ch in floors}
     template = opened[0]
@@ -361,7 +350,7 @@ def propose(runs: list[Run], model: Model, between: str | None = None, *,
     say(f"simulating {len(cands)} candidate inputs with {sum(map(len, family))} plausible "
         "models")
     syn = [synthetic_run(template, c, f"cand{k}") for k, c in enumerate(cands)]
-    preds = [[_simulate(m, syn) for m in fam] for fam in family]
+    preds = [[m.simulate(syn) for m in fam] for fam in family]
     # the travel the sensors are known to follow, each way from where a run starts: an
     # input that drives the axis further (a pot beyond its range, off the end of a linear
     # axis) is not proposed
@@ -388,12 +377,14 @@ def propose(runs: list[Run], model: Model, between: str | None = None, *,
     rng = np.random.default_rng(seed)
     for ti, truth in enumerate(hyps):
         rival = hyps[1 - ti]
-        clean = _simulate(truth.model, [synthetic_run(template, chosen.candidate, "p")])[0]
+        clean = truth.model.simulate([synthetic_run(template, chosen.candidate, "p")])[0]
         new = synthetic_run(template, chosen.candidate, "proposed", clean, sig, rng)
         res = fit(runs + [new], rival.model.effects, rival.model.flat(), {}, seed=seed,
                   weights=weights, reach=None, max_nfev=40)
-        chosen.refit[truth.effect] = max(0.0, _sse(_simulate(res.model(), [new])[0], new, sig)
-                                         - _sse(clean, new, sig))
+        measured = {"w": new.speed, "theta": new.position}
+        chosen.refit[truth.effect] = max(
+            0.0, _separation(res.model().simulate([new])[0], measured, template, sig)
+            - _separation(clean, measured, template, sig))
     return Proposal(pair=pair, hypotheses=hyps, judged=judged, chosen=chosen, sigmas=sig,
                     template=template, budget_s=budget_s, amax=amax,
                     seconds=time.perf_counter() - t0, plausible=[len(f) for f in family])

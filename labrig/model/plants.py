@@ -17,6 +17,8 @@ position unit.
 """
 from __future__ import annotations
 
+import abc
+
 import numpy as np
 
 from ..errors import UserError
@@ -26,7 +28,7 @@ from .servo import DRIVE_LAG_S, ServoParams
 AXES = {"rotary": ("rad", "rad/s"), "linear": ("m", "m/s")}
 
 
-class Plant:
+class Plant(abc.ABC):
     """One kind of plant: its parameters, their units and bounds, and its kernel form."""
 
     kind: str = ""
@@ -44,13 +46,14 @@ class Plant:
     toml_keys: dict = {}
 
     @classmethod
+    @abc.abstractmethod
     def servo(cls, params: dict, constants: dict) -> ServoParams:
-        raise NotImplementedError
+        """The plant's parameters and the rig's constants in the simulators' form."""
 
     @classmethod
+    @abc.abstractmethod
     def kernel(cls, plant: np.ndarray) -> np.ndarray:
         """(P, len(names)) plant parameters -> (P, 6) kernel columns R, L, J, B, K, Ke."""
-        raise NotImplementedError
 
     @classmethod
     def position_unit(cls) -> str:
