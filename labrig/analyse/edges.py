@@ -11,7 +11,6 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.optimize import least_squares
 
 from .result import EdgeFit
 from .segments import edge_kind
@@ -182,6 +181,8 @@ def fit_edge(t, y, i_edge, i_end, pre, *, kind="speed", sigma=0.0, min_step=0.0)
     lo = [-np.inf] * (len(x0) - 2) + [math.log(dt / 4), lo_td]
     hi = [np.inf] * (len(x0) - 2) + [math.log(20 * seg_dur), hi_td]
     try:
+        from scipy.optimize import least_squares
+
         sol = least_squares(res, x0, bounds=(lo, hi), loss="soft_l1", f_scale=fscale,
                             x_scale="jac", method="trf", max_nfev=400)
     except (ValueError, np.linalg.LinAlgError) as exc:

@@ -13,6 +13,7 @@ import numpy as np
 
 from ..defaults import LOOP_GAINS
 from ..errors import UserError
+from ..timing import mark
 from ..model.effects import Effect
 from ..model.effectset import EffectSet
 from ..model.model import Model
@@ -269,6 +270,7 @@ def identify(runs, method: str = "co", effects: list[Effect] = (), *, seed: int 
     seed = int(np.random.default_rng().integers(2 ** 31)) if seed is None else int(seed)
     opts = {"pop": pop, "iters": iters, "seed": seed, "starts": starts, "callback": callback,
             "max_nfev": max_nfev, "rule": rule, "subsample": subsample}
+    mark("fit-start")
     try:
         res = METHODS[method](obj, lo, hi, x0 if (start or method == "co") else None, opts)
     except ValueError as exc:  # the optimisers name the bad argument

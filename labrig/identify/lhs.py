@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import numpy as np
-from scipy.stats import qmc
 
 __all__ = ["latin_hypercube"]
 
@@ -31,5 +30,7 @@ def latin_hypercube(n: int, lower: np.ndarray, upper: np.ndarray,
     upper = np.asarray(upper, dtype=float)
     if n <= 0:
         return np.empty((0, lower.size))
+    from scipy.stats import qmc  # ~0.4 s to import: only when a hypercube is drawn
+
     sampler = qmc.LatinHypercube(d=lower.size, rng=rng)
     return qmc.scale(sampler.random(n), lower, upper)

@@ -10,9 +10,12 @@ Closed loop (analog, in the SA150D set-up): amplifier input
 from __future__ import annotations
 
 from dataclasses import dataclass, replace, asdict
+from typing import TYPE_CHECKING
 
-import control
 import numpy as np
+
+if TYPE_CHECKING:  # python-control costs ~0.8 s to import: only the methods that
+    import control  # build its objects load it (labrig's own simulators do not need it)
 
 PLANT_NAMES = ("R", "L", "J", "B", "K")
 PLANT_UNITS = {"R": "ohm", "L": "H", "J": "kg m^2", "B": "N m s/rad", "K": "N m/A"}
@@ -109,17 +112,21 @@ class ServoParams:
         """Outputs: [w (rad/s), theta_out (rad)]."""
         return np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0 / self.N]])
 
-    def open_loop(self) -> control.StateSpace:
+    def open_loop(self) -> "control.StateSpace":
         """u (bridge V) -> [w, theta_out]."""
+        import control
+
         return control.ss(self.A_open(), self.B_open(), self.C_out(), np.zeros((2, 1)),
                           inputs=["u"], outputs=["w", "theta"], states=["i", "w", "theta_m"])
 
-    def closed_loop(self, kp: float, kv: float) -> control.StateSpace:
+    def closed_loop(self, kp: float, kv: float) -> "control.StateSpace":
         """r (bridge V) -> [w, theta_out] with e = kp (r - Kpot theta) - kv Kt w.
 
         Built by python-control's feedback composition of the plant with the
         sensor gains, so the loop is exactly the one in the paper's Fig. 3/eq. 29.
         """
+        import control
+
         plant = self.open_loop()
         sensors = control.ss([], [], [], [[kv * self.Kt, kp * self.Kpot]],
                              inputs=["w", "theta"], outputs=["fb"])
@@ -139,8 +146,10 @@ class ServoParams:
     def B_closed(self, kp: float) -> np.ndarray:
         return self.B_open() * kp
 
-    def speed_tf(self) -> control.TransferFunction:
+    def speed_tf(self) -> "control.TransferFunction":
         """W/U = Ka K / (J L s^2 + (J R + B L) s + B R + K Ke)."""
+        import control
+
         return control.tf([self.Ka * self.K],
                           [self.J * self.L, self.J * self.R + self.B * self.L,
                            self.B * self.R + self.K * self.ke])
@@ -152,6 +161,8 @@ class ServoParams:
         # electrical pole of an identified model (tau_e can be microseconds)
         slow = np.min(np.abs(np.real(np.linalg.eigvals(self.A_closed(kp, kv)))))
         T = np.linspace(0.0, 12.0 / max(slow, 1e-6), 6001)
+        import control
+
         info = control.step_info(sys[1, 0], T=T)
         return {"rise_time_s": float(info["RiseTime"]), "settling_time_s": float(info["SettlingTime"]),
                 "overshoot_percent": float(info["Overshoot"])}
