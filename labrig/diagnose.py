@@ -71,11 +71,13 @@ def bic(sse, n, n_eff, k):
 
 
 def at_bounds(ident) -> list[str]:
-    """Effect parameters of a fit that ended at a bound of the search space, in words."""
-    return [f"{n} = {v:.3g} at its lower bound (absent, or below what these data show)"
-            if side == "lower" else
-            f"{n} = {v:.3g} at its upper bound (beyond what these data reach)"
-            for n, v, side, _ in bound_sides(ident.space, ident.params) if "." in n]
+    """Effect parameters of a fit that ended at a bound of the search space, in words.
+
+    The words name the side and the direction only: what a bound means differs by
+    effect (a dead zone at its lower bound is absent, a rail at its upper one is)."""
+    return [f"{n} = {v:.3g} at the {side} bound {b:.3g} of its search range (the data may "
+            f"want a value {'below' if side == 'lower' else 'above'} it)"
+            for n, v, side, b in bound_sides(ident.space, ident.params) if "." in n]
 
 
 def linear_model(runs, *, seed=0, fixed=None, weights=Weights(), start: Model | None = None) -> Model:

@@ -185,15 +185,16 @@ def test_identify_json_with_an_unbounded_interval(ds, capsys):
     d = strict_loads(out)
     assert d["identifiable"]["parameters"]["coulomb_friction.tc_v"]["interval95"] is None
     # which end it sticks to depends on the noise; either is a bound
-    assert any(re.match(r"coulomb_friction\.tc_v = \S+ V is at its (lower bound 1e-09|upper "
-                        r"bound 1e-08) V: ", w) for w in d["warnings"]), d["warnings"]
+    assert any(re.match(r"coulomb_friction\.tc_v = \S+ V is at the (lower bound 1e-09 V: the "
+                        r"data may want a value below|upper bound 1e-08 V: the data may want a "
+                        r"value above) it; ", w) for w in d["warnings"]), d["warnings"]
 
 
 # -- C. a fit at a bound or below 0 % says so ------------------------------------------
 
 @pytest.mark.parametrize("bound,side,want", [
-    (f"J={P.J / 10}:{P.J / 2}", "upper", "larger"),
-    (f"J={P.J * 2}:{P.J * 10}", "lower", "smaller"),
+    (f"J={P.J / 10}:{P.J / 2}", "upper", "above"),   # the true J lies above the box
+    (f"J={P.J * 2}:{P.J * 10}", "lower", "below"),   # ... and below it
 ])
 def test_identify_warns_when_a_parameter_ends_at_a_bound(ds, capsys, bound, side, want):
     argv = ["identify", ds, "--fix", FIX, "--bounds", bound, "--starts", "1", "--seed", "1"]
@@ -202,7 +203,7 @@ def test_identify_warns_when_a_parameter_ends_at_a_bound(ds, capsys, bound, side
     lo, hi = (float(x) for x in bound[2:].split(":"))
     b = f"{hi if side == 'upper' else lo:.4g} kg m^2"
     line = next(x for x in text.splitlines() if x.startswith("warning: J = "))
-    assert f"is at its {side} bound {b}: the data may want a {want} value" in line
+    assert f"is at the {side} bound {b}: the data may want a value {want} it" in line
     rc, out, err = run(capsys, *argv, "--json")
     assert rc == 0, err
     d = strict_loads(out)
@@ -222,14 +223,32 @@ def test_bound_tolerance_is_in_the_searched_coordinates():
     w = bound_warnings(space, params, {"R": "ohm", "L": "H", "J": "kg m^2"})
     # R = 0.2 is twice its lower bound (0.1 % of the span in ohms would call it "at" 0.1);
     # L sits on its default lower bound; J within 0.1 % of 2 decades of its upper; K is fixed
-    assert w == ["L = 1e-05 H is at its lower bound 1e-05 H: the data may want a smaller "
-                 "value; widen the bound (--bounds L=LOW:HIGH) or check the units",
-                 "J = 9.99e-05 kg m^2 is at its upper bound 0.0001 kg m^2: the data may want "
-                 "a larger value; widen the bound (--bounds J=LOW:HIGH) or check the units"]
+    assert w == ["L = 1e-05 H is at the lower bound 1e-05 H: the data may want a value "
+                 "below it; widen the bound (--bounds L=LOW:HIGH) or check the units",
+                 "J = 9.99e-05 kg m^2 is at the upper bound 0.0001 kg m^2: the data may want "
+                 "a value above it; widen the bound (--bounds J=LOW:HIGH) or check the units"]
     assert fit_warnings({"speed": 12.0, "position": 0.0}, "all runs") == []
     assert fit_warnings({"speed": -12.0}, "run 'a'")[0].startswith(
         "run 'a': speed fit -12.0 % is below zero: the model is worse than a constant")
     assert len(fit_warnings({"position": float("nan")}, "all runs")) == 1
+
+
+def test_diagnosis_words_name_the_side_of_the_bound():
+    # a rail at its upper bound is absent, a dead zone at its lower one is: the words
+    # say only which side and which way the data push, true for every effect
+    from types import SimpleNamespace
+
+    from labrig.diagnose import at_bounds
+
+    space = build_space(["deadband", "saturation"], bounds={"deadband.d_v": (0.001, 2.0),
+                                                             "saturation.vmax_v": (0.5, 30.0)})
+    params = {"R": 3.0, "L": 1e-3, "J": 1e-4, "B": 1e-5, "K": 0.05,
+              "deadband.d_v": 0.001, "saturation.vmax_v": 30.0}
+    assert at_bounds(SimpleNamespace(space=space, params=params)) == [
+        "deadband.d_v = 0.001 at the lower bound 0.001 of its search range (the data may want "
+        "a value below it)",
+        "saturation.vmax_v = 30 at the upper bound 30 of its search range (the data may want "
+        "a value above it)"]
 
 
 def test_compare_warns_when_the_model_is_worse_than_a_constant(ds, model, tmp_path, capsys):

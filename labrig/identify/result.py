@@ -155,11 +155,12 @@ def bound_warnings(space: Any, params: dict, units: dict | None = None) -> list[
     units = units or {}
     out = []
     for n, v, side, bound in at_bounds(space, params):
-        want = "smaller" if side == "lower" else "larger"
+        beyond = "below" if side == "lower" else "above"
         u = units.get(n, "")
         u = f" {u}" if u and u != "-" else ""
-        out.append(f"{n} = {v:.4g}{u} is at its {side} bound {bound:.4g}{u}: the data may want "
-                   f"a {want} value; widen the bound (--bounds {n}=LOW:HIGH) or check the units")
+        out.append(f"{n} = {v:.4g}{u} is at the {side} bound {bound:.4g}{u}: the data may want "
+                   f"a value {beyond} it; widen the bound (--bounds {n}=LOW:HIGH) or check the "
+                   "units")
     return out
 
 
