@@ -233,6 +233,25 @@ def test_bound_tolerance_is_in_the_searched_coordinates():
     assert len(fit_warnings({"position": float("nan")}, "all runs")) == 1
 
 
+def test_identify_explains_the_fitness_it_prints(ds, capsys):
+    # the note under Table 2 says what the "fitness (eq. 26)" row is; check it says the
+    # truth: with every run holding both channels (N/2 samples each) and p = 1, q = 4,
+    # fitness^2 = (rmse_pos^2 + 4 rmse_speed^2) / 2, not rmse/noise overall
+    from labrig.identify.table import FITNESS_NOTE
+
+    argv = ["identify", ds, "--fix", FIX, "--starts", "1", "--seed", "1", "--weights", "p=1,q=4"]
+    rc, text, err = run(capsys, *argv)
+    assert rc == 0, err
+    assert FITNESS_NOTE in text
+    assert "weighted RMSE of position and speed" in FITNESS_NOTE
+    rc, out, err = run(capsys, *argv, "--json")
+    d = strict_loads(out)
+    r = d["rmse_over_noise"]
+    assert d["fitness"] == pytest.approx(math.sqrt((r["position"] ** 2 + 4 * r["speed"] ** 2) / 2),
+                                         rel=1e-9)
+    assert abs(d["fitness"] - r["overall"]) > 0.01 * r["overall"]
+
+
 def test_diagnosis_words_name_the_side_of_the_bound():
     # a rail at its upper bound is absent, a dead zone at its lower one is: the words
     # say only which side and which way the data push, true for every effect

@@ -42,6 +42,14 @@ def identification_dict(res) -> dict:
     return d
 
 
+#: what the "fitness (eq. 26)" row is (labrig.identify.objective.adequacy computes it)
+FITNESS_NOTE = ("fitness (eq. 26 of the seed paper, made dimensionless) = the weighted RMSE "
+                "of position and speed (and current, when measured), each residual in units "
+                "of its channel's noise floor: sqrt((p sum e_pos^2 + q sum e_speed^2) / N) "
+                "over all N samples; with the default p = q = 1 it is rmse/noise overall, "
+                "and 1.0 is the noise floor.")
+
+
 def _fmt(v, spec=".4g"):
     return fmt(v, spec)
 
@@ -129,6 +137,7 @@ def comparison_table(results, best: str | None = None) -> Table:
     heads = [str(r.get("method", "?")).upper() + (" (best)" if r.get("method") == best else "")
              for r in recs]
     table = Table("identified models (Table 2)", [""] + heads, rows)
+    table.notes.append(FITNESS_NOTE)
     prefix = len(recs) > 1
     for r in recs:  # at a bound, fit below zero: the result is suspect
         for w in r.get("warnings") or []:

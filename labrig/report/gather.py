@@ -177,8 +177,10 @@ def _models(story: Story, seed, say) -> list:
               for r in story.idents]
     story.figures["models"] = [Figure("Convergence of the identifiers",
                                       fig_bytes(plot_convergence(curves)),
-                                      "Best fitness (rmse/noise) against iteration; 1.0 is the "
-                                      "noise floor.", wide=False)]
+                                      "Best fitness against iteration: the weighted RMSE "
+                                      "of position and speed, each residual divided by its "
+                                      "noise floor (eq. 26 of the seed paper, made "
+                                      "dimensionless); 1.0 is the noise floor.", wide=False)]
     return live
 
 

@@ -23,7 +23,7 @@ def plot_convergence(results, ax=None):
             ax.axhline(r.fitness, ls="--", label=f"{r.method} (local): {r.fitness:.3g}")
     ax.axhline(1.0, color="k", lw=0.8, ls=":", label="noise floor (1.0)")
     ax.set_xlabel("iteration (CO: start)")
-    ax.set_ylabel("fitness = rmse / noise")
+    ax.set_ylabel("fitness (weighted rmse / noise)")
     ax.set_title("Convergence of the identifiers")
     ax.grid(True, which="both", alpha=0.3)
     ax.legend()
