@@ -1,0 +1,384 @@
+"""The compiled kernels behind :class:`labrig.model.simulate.Simulator`.
+
+Two ways through a run, with the same arithmetic in the same order (so the results are
+bit-for-bit those of either alone):
+
+- the **population kernel** (:func:`_block`) advances a block of candidates one sample at
+  a time, the candidates in the inner loop: the exact zero-order-hold update is then the
+  same few multiply-adds on contiguous arrays, which the compiler turns into SIMD
+  instructions (8 candidates per instruction with AVX-512). Samples where one candidate
+  needs more than the exact update (the speed reaches zero or the rotor is stuck under
+  friction) are flagged in the vector loop and redone for that candidate alone;
+- the **per-candidate kernel** (:func:`_candidate`) takes candidates whose every sample
+  is sub-stepped (an input nonlinearity or backlash inside a closed loop).
+
+Inputs are laid out (samples, columns): one column shared by every candidate, or one per
+candidate (an input map applied per candidate), so a sample's inputs are contiguous.
+"""
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+# kernel parameter columns (labrig.model.simulate writes them)
+C_D, C_U0, C_ASYM, C_VMAX, C_TC, C_TS, C_A, C_TD, C_KE = range(5, 14)
+#: candidates per block of the population kernel: a multiple of the SIMD width whose
+#: state (a few arrays of BLOCK doubles) stays in the first-level cache
+BLOCK = 32
+
+
+def expm_batch(M):
+    """Batched expm; threads only pay off for large populations."""
+    return _expm_par(M) if M.shape[0] >= 32 else _expm_ser(M)
+
+
+@numba.njit(cache=True)
+def _expm_one(A0):
+    n = A0.shape[0]
+    nrm = 0.0
+    for r in range(n):
+        row = 0.0
+        for q in range(n):
+            row += abs(A0[r, q])
+        nrm = max(nrm, row)
+    sq = 0
+    while nrm > 0.5:
+        nrm *= 0.5
+        sq += 1
+    A = A0 / (2.0 ** sq)
+    E = np.eye(n)
+    term = np.eye(n)
+    for k in range(1, 19):
+        term = term @ A / k
+        E = E + term
+    for _ in range(sq):
+        E = E @ E
+    return E
+
+
+@numba.njit(cache=True)
+def _expm_ser(M):
+    out = np.empty_like(M)
+    for p in range(M.shape[0]):
+        out[p] = _expm_one(M[p])
+    return out
+
+
+@numba.njit(parallel=True, cache=True)
+def _expm_par(M):
+    out = np.empty_like(M)
+    for p in numba.prange(M.shape[0]):
+        out[p] = _expm_one(M[p])
+    return out
+
+
+@numba.njit(cache=True, inline="always")
+def _play(play, x, a):
+    """The play operator (backlash of half gap a): the output follows x only at the gap's ends."""
+    if play < x - a:
+        return x - a
+    if play > x + a:
+        return x + a
+    return play
+
+
+@numba.njit(cache=True)
+def _substeps(i, w, th, play, s_old, s_new, frac, prm, closed, S, c):
+    """Semi-implicit sub-steps through one sample, Karnopp friction (as the truth)."""
+    dt, Ka, N, Kt, Kpot, kp, kv = c[0], c[1], c[2], c[3], c[4], c[5], c[6]
+    R, L, J, B, K, Ke = prm[0], prm[1], prm[2], prm[3], prm[4], prm[13]
+    d, u0, ak, vmax, tc, ts, a = prm[5], prm[6], prm[7], prm[8], prm[9], prm[10], prm[11]
+    h = dt / S
+    quasi = L / R < h / 10.0
+    for j in range(S):
+        s = s_old if j < frac * S - 1e-9 else s_new
+        if closed:
+            seen = play if a > 0.0 else th / N
+            e = kp * (s - Kpot * seen) - kv * Kt * w
+            e = e + u0
+            if ak != 0.0:
+                e = e * (1.0 + ak) if e >= 0.0 else e * (1.0 - ak)
+            if d > 0.0:
+                e = math.copysign(max(abs(e) - d, 0.0), e)
+            v = Ka * e
+            if v > vmax:
+                v = vmax
+            elif v < -vmax:
+                v = -vmax
+        else:
+            v = s
+        if quasi:
+            i = (v - Ke * w) / R
+        else:
+            i = (i + h / L * (v - Ke * w)) / (1.0 + h * R / L)
+        tnf = K * i - B * w
+        if tc > 0.0 or ts > 0.0:
+            if w == 0.0:
+                if abs(tnf) <= ts:
+                    w = 0.0
+                else:
+                    w = h / J * (tnf - math.copysign(ts, tnf))
+            else:
+                wn = w + h / J * (tnf - math.copysign(tc, w))
+                if wn * w <= 0.0 and abs(tnf) <= ts:
+                    wn = 0.0
+                w = wn
+        else:
+            w = w + h / J * tnf
+        th = th + h * w
+        if a > 0.0:
+            play = _play(play, th / N, a)
+    return i, w, th, play
+
+
+@numba.njit(cache=True)
+def _friction_step(i, w, th, play, s_old, s_new, fr, pr, closed, S, c):
+    """One sample of a candidate under friction that the exact update cannot take: a stuck
+    rotor (only the current moves, exactly, while friction holds), else sub-steps."""
+    N = c[2]
+    if w == 0.0:
+        R, L, K, ts = pr[0], pr[1], pr[4], pr[C_TS]
+        if closed:
+            v1 = c[1] * c[5] * (s_old - c[4] * th / N)
+            v2 = c[1] * c[5] * (s_new - c[4] * th / N)
+        else:
+            v1 = s_old
+            v2 = s_new
+        i1 = v1 / R + (i - v1 / R) * math.exp(-R * fr * c[0] / L)
+        i2 = v2 / R + (i1 - v2 / R) * math.exp(-R * (1.0 - fr) * c[0] / L)
+        if abs(K * i1) <= ts and abs(K * i2) <= ts:
+            return i2, w, th, play
+    return _substeps(i, w, th, play, s_old, s_new, fr, pr, closed, S, c)
+
+
+@numba.njit(cache=True)
+def _candidate(p, s, m, frac, prm, closed, S, c, out_w, out_th, out_i, store, wm, iw, tm, it,
+               im, ii, sse):
+    """Candidate ``p`` through one run, every sample sub-stepped (a nonlinear closed loop)."""
+    n = s.shape[0]
+    col = 0 if s.shape[1] == 1 else p
+    N = c[2]
+    acc = 0.0
+    i = 0.0
+    w = 0.0
+    th = c[7] * N
+    play = c[7]
+    pr = prm[p]
+    a = pr[C_A]
+    mp = m[p]
+    for k in range(n):
+        yth = play if a > 0.0 else th / N
+        if store:
+            out_w[p, k] = w
+            out_th[p, k] = yth
+            out_i[p, k] = i
+        else:
+            acc += (iw * (wm[k] - w)) ** 2 + (it * (tm[k] - yth)) ** 2
+            if ii != 0.0:
+                acc += (ii * (im[k] - i)) ** 2
+        ko = k - mp - 1
+        kn = k - mp
+        s_old = s[ko, col] if ko >= 0 else 0.0
+        s_new = s[kn, col] if kn >= 0 else 0.0
+        i, w, th, play = _substeps(i, w, th, play, s_old, s_new, frac[p], pr, closed, S, c)
+    sse[p] = acc
+
+
+# Rows of a block's working array: coefficients, state and flags of each candidate, one
+# row of BLOCK lanes each. One array with rows a constant BLOCK apart lets the compiler
+# prove that the lanes' loads and stores never overlap, so it vectorises without checks.
+(R_A00, R_A01, R_A02, R_A10, R_A11, R_A12, R_A20, R_A21, R_A22M1, R_GN0, R_GN1, R_GN2, R_GO0,
+ R_GO1, R_GO2, R_GF0, R_GF1, R_GF2, R_TC, R_GAP, R_FRIC, R_I, R_W, R_TH, R_PL, R_ACC, R_FLAG,
+ R_I0, R_W0, R_TH0, R_PL0, R_SNEW, R_SOLD, N_ROWS) = range(34)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _block(p0, p1, s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed, S, c, out_w, out_th,
+           out_i, store, wm, iw, tm, it, im, ii, sse):
+    """Candidates p0..p1-1 (at most BLOCK) through one run, the candidates in the inner
+    (SIMD) loop.
+
+    The update is the exact ZOH ``x+ = Ad x + g_new s_new + g_old s_old + gf Tf`` written
+    term by term in the order of the per-candidate code; a term that is zero for one
+    candidate of the block (no delay, no friction) adds an exact zero. ``skip`` marks the
+    candidates another kernel takes (their lanes compute and are discarded).
+    """
+    n = s.shape[0]
+    q = p1 - p0
+    B = BLOCK
+    shared = s.shape[1] == 1
+    N = c[2]
+    X = np.zeros(N_ROWS * B)
+    mp = np.zeros(B, np.int64)
+    delay = False
+    for j in range(q):
+        p = p0 + j
+        A = Ad[p]
+        for r, v in ((R_A00, A[0, 0]), (R_A01, A[0, 1]), (R_A02, A[0, 2]), (R_A10, A[1, 0]),
+                     (R_A11, A[1, 1]), (R_A12, A[1, 2]), (R_A20, A[2, 0]), (R_A21, A[2, 1]),
+                     (R_A22M1, A[2, 2] - 1.0), (R_GN0, g_new[p, 0]), (R_GN1, g_new[p, 1]),
+                     (R_GN2, g_new[p, 2]), (R_GO0, g_old[p, 0]), (R_GO1, g_old[p, 1]),
+                     (R_GO2, g_old[p, 2]), (R_GF0, gf[p, 0]), (R_GF1, gf[p, 1]),
+                     (R_GF2, gf[p, 2]), (R_TC, prm[p, C_TC]), (R_GAP, prm[p, C_A]),
+                     (R_TH, c[7] * N), (R_PL, c[7])):
+            X[r * B + j] = v
+        f = (prm[p, C_TC] > 0.0 or prm[p, C_TS] > 0.0) and not skip[p]
+        X[R_FRIC * B + j] = 1.0 if f else 0.0
+        mp[j] = m[p]
+        delay |= m[p] != 0 or g_old[p, 0] != 0.0 or g_old[p, 1] != 0.0 or g_old[p, 2] != 0.0
+    for k in range(n):
+        if store:  # the trajectories (simulate): the state at the start of the sample
+            for j in range(q):
+                out_w[p0 + j, k] = X[R_W * B + j]
+                out_th[p0 + j, k] = X[R_PL * B + j] if X[R_GAP * B + j] > 0.0 \
+                    else X[R_TH * B + j] / N
+                out_i[p0 + j, k] = X[R_I * B + j]
+        wmk = 0.0 if store else wm[k]
+        tmk = 0.0 if store else tm[k]
+        imk = im[k] if ii != 0.0 else 0.0
+        # this sample's inputs per lane (shared, per candidate, or delayed per candidate)
+        if delay:
+            for j in range(q):
+                kn = k - mp[j]
+                cj = 0 if shared else p0 + j
+                X[R_SNEW * B + j] = s[kn, cj] if kn >= 0 else 0.0
+                X[R_SOLD * B + j] = s[kn - 1, cj] if kn >= 1 else 0.0
+        elif shared:
+            su = s[k, 0]
+            for j in range(q):
+                X[R_SNEW * B + j] = su
+        else:
+            for j in range(q):
+                X[R_SNEW * B + j] = s[k, p0 + j]
+        # The exact update of every lane, branch-free so that it vectorises: every term is
+        # computed for every lane in the order of the per-candidate code, and a term that
+        # is zero for a lane (feedback in open loop, no delay, no friction) adds an exact 0.
+        nflag = 0
+        for j in range(q):
+            i = X[R_I * B + j]
+            w = X[R_W * B + j]
+            th = X[R_TH * B + j]
+            pl = X[R_PL * B + j]
+            gap = X[R_GAP * B + j]
+            s_new = X[R_SNEW * B + j]
+            s_old = X[R_SOLD * B + j]
+            yth = pl if gap > 0.0 else th / N
+            dw = iw * (wmk - w)  # d * d, not d ** 2: numba's power loop stops vectorising
+            dth = it * (tmk - yth)
+            r = X[R_ACC * B + j] + (dw * dw + dth * dth)
+            if ii != 0.0:
+                di = ii * (imk - i)
+                r += di * di
+            X[R_ACC * B + j] = r
+            ni = X[R_A00 * B + j] * i + X[R_A01 * B + j] * w + X[R_GN0 * B + j] * s_new
+            nw = X[R_A10 * B + j] * i + X[R_A11 * B + j] * w + X[R_GN1 * B + j] * s_new
+            nt = X[R_A20 * B + j] * i + X[R_A21 * B + j] * w + th + X[R_GN2 * B + j] * s_new
+            ni += X[R_A02 * B + j] * th
+            nw += X[R_A12 * B + j] * th
+            nt += X[R_A22M1 * B + j] * th
+            ni += X[R_GO0 * B + j] * s_old
+            nw += X[R_GO1 * B + j] * s_old
+            nt += X[R_GO2 * B + j] * s_old
+            tc = X[R_TC * B + j]  # friction against the motion: copysign(tc, w) for w != 0
+            tf = tc if w > 0.0 else (-tc if w < 0.0 else 0.0)
+            ni += X[R_GF0 * B + j] * tf
+            nw += X[R_GF1 * B + j] * tf
+            nt += X[R_GF2 * B + j] * tf
+            # stuck, or the speed reaches zero inside the sample: redone (friction lanes)
+            f = 1 if (X[R_FRIC * B + j] != 0.0) & ((w == 0.0) | (nw * w <= 0.0)) else 0
+            nflag += f
+            X[R_FLAG * B + j] = f
+            X[R_I0 * B + j] = i
+            X[R_W0 * B + j] = w
+            X[R_TH0 * B + j] = th
+            X[R_PL0 * B + j] = pl
+            X[R_I * B + j] = ni
+            X[R_W * B + j] = nw
+            X[R_TH * B + j] = nt
+            x = nt / N  # the play operator, as _play
+            lo = x - gap
+            hi = x + gap
+            X[R_PL * B + j] = (lo if pl < lo else (hi if pl > hi else pl)) if gap > 0.0 else pl
+        if nflag > 0:  # the few samples the exact update cannot take, one at a time
+            for j in range(q):
+                if X[R_FLAG * B + j] != 0.0:
+                    kn = k - mp[j]
+                    cj = 0 if shared else p0 + j
+                    s_new = s[kn, cj] if kn >= 0 else 0.0
+                    s_old = s[kn - 1, cj] if kn >= 1 else 0.0
+                    ni, nw, nt, npl = _friction_step(
+                        X[R_I0 * B + j], X[R_W0 * B + j], X[R_TH0 * B + j], X[R_PL0 * B + j],
+                        s_old, s_new, frac[p0 + j], prm[p0 + j], closed, S, c)
+                    X[R_I * B + j] = ni
+                    X[R_W * B + j] = nw
+                    X[R_TH * B + j] = nt
+                    X[R_PL * B + j] = npl
+    if not store:
+        for j in range(q):
+            if not skip[p0 + j]:
+                sse[p0 + j] = X[R_ACC * B + j]
+
+
+@numba.njit(parallel=True, cache=True)
+def _population_par(threads, s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed, S, c, out_w,
+                    out_th, out_i, store, wm, iw, tm, it, im, ii, sse):
+    P = prm.shape[0]
+    nb = (P + BLOCK - 1) // BLOCK
+    # at least as many blocks as threads: a swarm of 50 is two blocks of 25, not 32 + 18
+    nb = max(nb, min(threads, (P + 7) // 8))
+    size = (P + nb - 1) // nb
+    for b in numba.prange(nb):
+        p0 = b * size
+        p1 = min(P, p0 + size)
+        if p0 < p1:
+            _block(p0, p1, s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed, S, c, out_w,
+                   out_th, out_i, store, wm, iw, tm, it, im, ii, sse)
+
+
+@numba.njit(cache=True)
+def _population_ser(s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed, S, c, out_w, out_th,
+                    out_i, store, wm, iw, tm, it, im, ii, sse):
+    P = prm.shape[0]
+    for p0 in range(0, P, BLOCK):
+        _block(p0, min(P, p0 + BLOCK), s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed, S,
+               c, out_w, out_th, out_i, store, wm, iw, tm, it, im, ii, sse)
+
+
+# Two drivers with distinct code for each kernel (numba's cache would otherwise hand the
+# parallel dispatcher the serial build of a shared function). Threads pay off for a
+# swarm; for the few rows of a finite-difference Jacobian the wake-up costs more.
+@numba.njit(parallel=True, cache=True)
+def _substepped_par(idx, s, m, frac, prm, closed, S, c, out_w, out_th, out_i, store, wm, iw,
+                    tm, it, im, ii, sse):
+    for j in numba.prange(idx.shape[0]):
+        _candidate(idx[j], s, m, frac, prm, closed, S, c, out_w, out_th, out_i, store, wm, iw,
+                   tm, it, im, ii, sse)
+
+
+@numba.njit(cache=True)
+def _substepped_ser(idx, s, m, frac, prm, closed, S, c, out_w, out_th, out_i, store, wm, iw,
+                    tm, it, im, ii, sse):
+    for j in range(idx.shape[0]):
+        _candidate(idx[j], s, m, frac, prm, closed, S, c, out_w, out_th, out_i, store, wm, iw,
+                   tm, it, im, ii, sse)
+
+
+def run_kernels(s, m, frac, Ad, g_old, g_new, gf, prm, nonlinear, closed, S, c, out_w, out_th,
+                out_i, store, wm, iw, tm, it, im, ii, sse):
+    """Every candidate through one run: the population kernel for those the exact update
+    serves, the per-candidate kernel for those sub-stepped throughout."""
+    P = prm.shape[0]
+    idx = np.flatnonzero(nonlinear)
+    if idx.size < P and P >= 16:
+        _population_par(numba.get_num_threads(), s, m, frac, Ad, g_old, g_new, gf, prm,
+                        nonlinear, closed, S, c, out_w, out_th, out_i, store, wm, iw, tm, it,
+                        im, ii, sse)
+    elif idx.size < P:
+        _population_ser(s, m, frac, Ad, g_old, g_new, gf, prm, nonlinear, closed, S, c, out_w,
+                        out_th, out_i, store, wm, iw, tm, it, im, ii, sse)
+    if idx.size:
+        (_substepped_par if idx.size >= 4 else _substepped_ser)(
+            idx, s, m, frac, prm, closed, S, c, out_w, out_th, out_i, store, wm, iw, tm, it,
+            im, ii, sse)
