@@ -24,6 +24,12 @@ import numpy as np
 
 # kernel parameter columns (labrig.model.simulate writes them)
 C_D, C_U0, C_ASYM, C_VMAX, C_TC, C_TS, C_A, C_TD, C_KE = range(5, 14)
+#: the open-loop input map the population kernel applies itself, in this order (every
+#: simulator's order): offset, asymmetry, dead zone, asymmetric dead zone, the gain Ka,
+#: the armature rail; each as the effect's own formula (labrig.model.effects), so the
+#: result is the number numpy gives
+MAP_COLUMNS = ("u0_v", "k", "d_v", "dpos_v", "dneg_v", "vmax_v")
+M_U0, M_K, M_D, M_DP, M_DN, M_VMAX = range(6)
 #: candidates per block of the population kernel: a multiple of the SIMD width whose
 #: state (a few arrays of BLOCK doubles) stays in the first-level cache
 BLOCK = 32
@@ -191,12 +197,26 @@ def _candidate(p, s, m, frac, prm, closed, S, c, out_w, out_th, out_i, store, wm
 # prove that the lanes' loads and stores never overlap, so it vectorises without checks.
 (R_A00, R_A01, R_A02, R_A10, R_A11, R_A12, R_A20, R_A21, R_A22M1, R_GN0, R_GN1, R_GN2, R_GO0,
  R_GO1, R_GO2, R_GF0, R_GF1, R_GF2, R_TC, R_GAP, R_FRIC, R_I, R_W, R_TH, R_PL, R_ACC, R_FLAG,
- R_I0, R_W0, R_TH0, R_PL0, R_SNEW, R_SOLD, N_ROWS) = range(34)
+ R_I0, R_W0, R_TH0, R_PL0, R_SNEW, R_SOLD, R_MAP) = range(34)
+N_ROWS = R_MAP + 6  # then the input map's six parameters
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _input_map(v, u0, k, d, dp, dn, Ka, vmax):
+    """The built-in input and drive effects of one candidate on one held input (V -> V at
+    the armature); an absent effect's parameters (0, or inf for the rail) leave v as is."""
+    v = v + u0
+    v = v * (1.0 + k) if v >= 0 else v * (1.0 - k)
+    sg = 1.0 if v > 0.0 else (-1.0 if v < 0.0 else 0.0)  # np.sign
+    v = sg * max(abs(v) - d, 0.0)
+    v = max(v - dp, 0.0) if v >= 0 else min(v + dn, 0.0)
+    v = v * Ka
+    return min(max(v, -vmax), vmax)  # np.clip
 
 
 @numba.njit(cache=True, error_model="numpy")
 def _block(p0, p1, s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed, S, c, out_w, out_th,
-           out_i, store, wm, iw, tm, it, im, ii, sse):
+           out_i, store, wm, iw, tm, it, im, ii, sse, imap):
     """Candidates p0..p1-1 (at most BLOCK) through one run, the candidates in the inner
     (SIMD) loop.
 
@@ -213,8 +233,12 @@ def _block(p0, p1, s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed, S, c, ou
     X = np.zeros(N_ROWS * B)
     mp = np.zeros(B, np.int64)
     delay = False
+    mapped = imap.shape[0] > 0
     for j in range(q):
         p = p0 + j
+        if mapped:
+            for r in range(6):
+                X[(R_MAP + r) * B + j] = imap[p, r]
         A = Ad[p]
         for r, v in ((R_A00, A[0, 0]), (R_A01, A[0, 1]), (R_A02, A[0, 2]), (R_A10, A[1, 0]),
                      (R_A11, A[1, 1]), (R_A12, A[1, 2]), (R_A20, A[2, 0]), (R_A21, A[2, 1]),
@@ -245,13 +269,30 @@ def _block(p0, p1, s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed, S, c, ou
                 cj = 0 if shared else p0 + j
                 X[R_SNEW * B + j] = s[kn, cj] if kn >= 0 else 0.0
                 X[R_SOLD * B + j] = s[kn - 1, cj] if kn >= 1 else 0.0
-        elif shared:
-            su = s[k, 0]
+        else:  # the held input of the sample before is the redo's s_old (k - 1)
             for j in range(q):
-                X[R_SNEW * B + j] = su
-        else:
-            for j in range(q):
-                X[R_SNEW * B + j] = s[k, p0 + j]
+                X[R_SOLD * B + j] = X[R_SNEW * B + j]
+            if shared:
+                su = s[k, 0]
+                for j in range(q):
+                    X[R_SNEW * B + j] = su
+            else:
+                for j in range(q):
+                    X[R_SNEW * B + j] = s[k, p0 + j]
+        if mapped:  # the candidates' own input maps, applied here (no (n, P) input array)
+            Ka = c[1]
+            for j in range(q):  # (without delay, s_old is the sample before: mapped already)
+                X[R_SNEW * B + j] = _input_map(
+                    X[R_SNEW * B + j], X[(R_MAP + M_U0) * B + j], X[(R_MAP + M_K) * B + j],
+                    X[(R_MAP + M_D) * B + j], X[(R_MAP + M_DP) * B + j],
+                    X[(R_MAP + M_DN) * B + j], Ka, X[(R_MAP + M_VMAX) * B + j])
+            if delay:
+                for j in range(q):
+                    X[R_SOLD * B + j] = _input_map(
+                        X[R_SOLD * B + j], X[(R_MAP + M_U0) * B + j],
+                        X[(R_MAP + M_K) * B + j], X[(R_MAP + M_D) * B + j],
+                        X[(R_MAP + M_DP) * B + j], X[(R_MAP + M_DN) * B + j], Ka,
+                        X[(R_MAP + M_VMAX) * B + j])
         # The exact update of every lane, branch-free so that it vectorises: every term is
         # computed for every lane in the order of the per-candidate code, and a term that
         # is zero for a lane (feedback in open loop, no delay, no friction) adds an exact 0.
@@ -304,13 +345,10 @@ def _block(p0, p1, s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed, S, c, ou
         if nflag > 0:  # the few samples the exact update cannot take, one at a time
             for j in range(q):
                 if X[R_FLAG * B + j] != 0.0:
-                    kn = k - mp[j]
-                    cj = 0 if shared else p0 + j
-                    s_new = s[kn, cj] if kn >= 0 else 0.0
-                    s_old = s[kn - 1, cj] if kn >= 1 else 0.0
                     ni, nw, nt, npl = _friction_step(
                         X[R_I0 * B + j], X[R_W0 * B + j], X[R_TH0 * B + j], X[R_PL0 * B + j],
-                        s_old, s_new, frac[p0 + j], prm[p0 + j], closed, S, c)
+                        X[R_SOLD * B + j], X[R_SNEW * B + j], frac[p0 + j], prm[p0 + j],
+                        closed, S, c)
                     X[R_I * B + j] = ni
                     X[R_W * B + j] = nw
                     X[R_TH * B + j] = nt
@@ -323,7 +361,7 @@ def _block(p0, p1, s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed, S, c, ou
 
 @numba.njit(parallel=True, cache=True)
 def _population_par(threads, s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed, S, c, out_w,
-                    out_th, out_i, store, wm, iw, tm, it, im, ii, sse):
+                    out_th, out_i, store, wm, iw, tm, it, im, ii, sse, imap):
     P = prm.shape[0]
     nb = (P + BLOCK - 1) // BLOCK
     # at least as many blocks as threads: a swarm of 50 is two blocks of 25, not 32 + 18
@@ -334,16 +372,16 @@ def _population_par(threads, s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed
         p1 = min(P, p0 + size)
         if p0 < p1:
             _block(p0, p1, s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed, S, c, out_w,
-                   out_th, out_i, store, wm, iw, tm, it, im, ii, sse)
+                   out_th, out_i, store, wm, iw, tm, it, im, ii, sse, imap)
 
 
 @numba.njit(cache=True)
 def _population_ser(s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed, S, c, out_w, out_th,
-                    out_i, store, wm, iw, tm, it, im, ii, sse):
+                    out_i, store, wm, iw, tm, it, im, ii, sse, imap):
     P = prm.shape[0]
     for p0 in range(0, P, BLOCK):
         _block(p0, min(P, p0 + BLOCK), s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed, S,
-               c, out_w, out_th, out_i, store, wm, iw, tm, it, im, ii, sse)
+               c, out_w, out_th, out_i, store, wm, iw, tm, it, im, ii, sse, imap)
 
 
 # Two drivers with distinct code for each kernel (numba's cache would otherwise hand the
@@ -366,18 +404,22 @@ def _substepped_ser(idx, s, m, frac, prm, closed, S, c, out_w, out_th, out_i, st
 
 
 def run_kernels(s, m, frac, Ad, g_old, g_new, gf, prm, nonlinear, closed, S, c, out_w, out_th,
-                out_i, store, wm, iw, tm, it, im, ii, sse):
+                out_i, store, wm, iw, tm, it, im, ii, sse, imap):
     """Every candidate through one run: the population kernel for those the exact update
-    serves, the per-candidate kernel for those sub-stepped throughout."""
+    serves, the per-candidate kernel for those sub-stepped throughout.
+
+    ``imap`` (P, 6): the open-loop input map per candidate, applied in the kernel to the
+    shared input ``s`` (see :data:`MAP_COLUMNS`); an array of 0 rows when ``s`` is the
+    armature voltage already."""
     P = prm.shape[0]
     idx = np.flatnonzero(nonlinear)
     if idx.size < P and P >= 16:
         _population_par(numba.get_num_threads(), s, m, frac, Ad, g_old, g_new, gf, prm,
                         nonlinear, closed, S, c, out_w, out_th, out_i, store, wm, iw, tm, it,
-                        im, ii, sse)
+                        im, ii, sse, imap)
     elif idx.size < P:
         _population_ser(s, m, frac, Ad, g_old, g_new, gf, prm, nonlinear, closed, S, c, out_w,
-                        out_th, out_i, store, wm, iw, tm, it, im, ii, sse)
+                        out_th, out_i, store, wm, iw, tm, it, im, ii, sse, imap)
     if idx.size:
         (_substepped_par if idx.size >= 4 else _substepped_ser)(
             idx, s, m, frac, prm, closed, S, c, out_w, out_th, out_i, store, wm, iw, tm, it,

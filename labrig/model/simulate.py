@@ -26,14 +26,19 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import UserError
-from .effects import Effect, ordered
-from .kernels import (C_A, C_ASYM, C_D, C_KE, C_TC, C_TD, C_TS, C_U0, C_VMAX, expm_batch,
-                      run_kernels)
+from .effects import (AsymmetricDeadband, Asymmetry, Deadband, Effect, Offset, Saturation,
+                      ordered)
+from .kernels import (C_A, C_ASYM, C_D, C_KE, C_TC, C_TD, C_TS, C_U0, C_VMAX, MAP_COLUMNS,
+                      expm_batch, run_kernels)
 
 # kernel parameter columns: R, L, J, B, K (labrig.model.plants: every plant's kernel
 # form), then the effects' (C_D..C_TD), then the back-EMF constant Ke (0 for a
 # current-mode drive)
 N_COLS = 14
+#: open-loop input and drive effects the kernel applies itself (their formulas are in
+#: labrig.model.kernels._input_map); a subclass or a user's effect takes the numpy path
+_MAPPED = (Offset, Asymmetry, Deadband, AsymmetricDeadband, Saturation)
+_NO_MAP = np.zeros((0, len(MAP_COLUMNS)))
 #: the kernel's effect columns by name: an effect's ``to_kernel`` writes into these
 #: (dead zone, input offset, asymmetry, armature rail, kinetic and breakaway friction
 #: torque, backlash half gap, delay)
@@ -194,6 +199,30 @@ class Simulator:
         return total
 
     # ------------------------------------------------------------------------------
+    def _open_loop_input(self, run: RunData, ep, P):
+        """The open-loop drive: the shared input and the candidates' input maps for the
+        kernel to apply (built-in effects), or the mapped inputs laid out (samples,
+        candidates) when a user's effect is among them."""
+        staged = [e for e in self.effects if e.stage in ("input", "drive")]
+        if not staged:
+            return np.ascontiguousarray(run.u[:, None] * run.Ka), _NO_MAP
+        if all(type(e) in _MAPPED for e in staged):
+            imap = np.zeros((P, len(MAP_COLUMNS)))
+            imap[:, MAP_COLUMNS.index("vmax_v")] = np.inf
+            for e in staged:
+                for k, v in ep[e.name].items():
+                    imap[:, MAP_COLUMNS.index(k)] = v
+            return np.ascontiguousarray(run.u[:, None], dtype=float), imap
+        e = run.u[:, None]  # a sample's inputs contiguous
+        for eff in self.effects:
+            if eff.stage == "input":
+                e = eff.apply(e, **{k: v[None, :] for k, v in ep[eff.name].items()})
+        e = e * run.Ka
+        for eff in self.effects:
+            if eff.stage == "drive":
+                e = eff.apply(e, **{k: v[None, :] for k, v in ep[eff.name].items()})
+        return np.ascontiguousarray(e, dtype=float), _NO_MAP
+
     def _simulate_run(self, run: RunData, prm, ep, user_output, disc, weights=None):
         P, n = prm.shape[0], len(run.u)
         closed = run.loop == "closed"
@@ -204,21 +233,13 @@ class Simulator:
         if key not in disc:  # runs with the same rate and loop share one discretisation
             disc[key] = _discretise(prm, run, frac)
         Ad, g_old, g_new, gf = disc[key]
+        imap = _NO_MAP
         if closed:
             s = run.u[:, None]
             nonlinear = ((prm[:, C_D] != 0) | (prm[:, C_U0] != 0) | (prm[:, C_ASYM] != 0)
                          | np.isfinite(prm[:, C_VMAX]) | (prm[:, C_A] != 0))
         else:
-            # inputs laid out (samples, candidates): a sample's inputs are contiguous
-            e = run.u[:, None]
-            for eff in self.effects:
-                if eff.stage == "input":
-                    e = eff.apply(e, **{k: v[None, :] for k, v in ep[eff.name].items()})
-            e = e * run.Ka
-            for eff in self.effects:
-                if eff.stage == "drive":
-                    e = eff.apply(e, **{k: v[None, :] for k, v in ep[eff.name].items()})
-            s = np.ascontiguousarray(e, dtype=float)
+            s, imap = self._open_loop_input(run, ep, P)
             nonlinear = np.zeros(P, dtype=bool)
         consts = np.array([run.dt, run.Ka, run.N, run.Kt, run.Kpot, run.kp, run.kv, run.theta0])
         mi = m.astype(np.int64)
@@ -229,14 +250,14 @@ class Simulator:
             run_kernels(s, mi, frac, Ad, g_old, g_new, gf, prm, nonlinear, 1 if closed else 0,
                         self.substeps, consts, dummy, dummy, dummy, False,
                         _channel(wm, n), float(iw), _channel(tm, n), float(it),
-                        _channel(im, n), float(ii), out)
+                        _channel(im, n), float(ii), out, imap)
             return out
         w = np.empty((P, n))
         th = np.empty((P, n))
         cur = np.empty((P, n))
         run_kernels(s, mi, frac, Ad, g_old, g_new, gf, prm, nonlinear, 1 if closed else 0,
                     self.substeps, consts, w, th, cur, True, np.zeros(1), 0.0, np.zeros(1), 0.0,
-                    np.zeros(1), 0.0, np.zeros(P))
+                    np.zeros(1), 0.0, np.zeros(P), imap)
         for eff in user_output:  # a user's output map: per sample, vectorised over candidates
             p = {k: v for k, v in ep[eff.name].items()}
             state = th[:, 0].copy()
