@@ -76,9 +76,28 @@ class Ladder:
         return plot_ladder(self, ax=ax)
 
 
-def _label(model: Model, previous: list[str]) -> str:
-    new = [n for n in model.names if n not in previous]
-    return "linear model" if not model.names else "+ " + ", ".join(new or model.names)
+def rung_label(names, previous) -> str:
+    """A rung's label that names exactly the effects of its model.
+
+    ``"+ new"`` only when the model keeps every effect of the rung before it; a model
+    that dropped one is named by its whole effect set, e.g. ``"deadband (without
+    offset)"`` (a chain m0, m_offset, m1 with m1 = deadband alone is not "+ deadband").
+
+    Parameters
+    ----------
+    names : list of str
+        The effects of this rung's model.
+    previous : list of str
+        The effects of the rung before (empty for the first).
+    """
+    names, previous = list(names), list(previous)
+    if not names:
+        return "linear model" if not previous else f"linear model (without {', '.join(previous)})"
+    new = [n for n in names if n not in previous]
+    dropped = [n for n in previous if n not in names]
+    if not dropped:
+        return "+ " + ", ".join(new) if new else ", ".join(names) + " (same effects)"
+    return f"{', '.join(names)} (without {', '.join(dropped)})"
 
 
 def evaluate_ladder(runs, model_paths) -> Ladder:
@@ -86,6 +105,7 @@ def evaluate_ladder(runs, model_paths) -> Ladder:
     ladder, prev = Ladder(), []
     for path in model_paths:
         model = Model.load(path)
-        ladder.steps.append(LadderStep.of(_label(model, prev), model, evaluate(runs, model), path))
+        ladder.steps.append(LadderStep.of(rung_label(model.names, prev), model,
+                                          evaluate(runs, model), path))
         prev = model.names
     return ladder

@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 from .crossval import cross_validate
 from .diagnose import MIN_DBIC, MIN_GAIN, bic, candidate_names, diagnose
 from .evaluation import evaluate
-from .ladder import Ladder, LadderStep
+from .ladder import Ladder, LadderStep, rung_label
 from .model.effects import get_effect
 from .model.model import Model, param_keys
 from .model.reach import Reach
@@ -178,7 +178,8 @@ def search(runs, model: Model | None = None, *, max_rounds: int = 3, seed: int =
         moves.append(Move(kind, names, cv_now, cv, k))
         cv_now = cv
         added += len(names)
-        ladder.steps.append(LadderStep.of(moves[-1].label, model, ev, cv=cv))
+        ladder.steps.append(LadderStep.of(rung_label(model.names, ladder.steps[-1].effects),
+                                          model, ev, cv=cv))
         if on_step:
             on_step(len(ladder.steps) - 1, model)
         model, cv_now = _revise(judge, model, names, cv_now, moves, ladder, k, log, on_step)
@@ -205,7 +206,7 @@ def _revise(judge, model, new, cv_now, moves, ladder, k, log, on_step):
                     f"{cv:.2f}) with fewer parameters")
             moves.append(Move("swap", [old, alt], cv_now, cv, k))
             model, cv_now = m, cv
-            _rung(ladder, moves[-1], model, judge, cv, on_step)
+            _rung(ladder, model, judge, cv, on_step)
             new = [alt if n == old else n for n in new]
     for old in [n for n in model.names if n not in new]:
         for alt in SWAPS.get(old, ()):
@@ -221,7 +222,7 @@ def _revise(judge, model, new, cv_now, moves, ladder, k, log, on_step):
                     log(f"  swap {old} -> {alt}: cross-validated {cv_now:.2f} -> {cv:.2f}")
                 moves.append(Move("swap", [old, alt], cv_now, cv, k))
                 model, cv_now = m, cv
-                _rung(ladder, moves[-1], model, judge, cv, on_step)
+                _rung(ladder, model, judge, cv, on_step)
                 break
     if len(model.names) >= 2:
         for old in [n for n in model.names if n not in new]:
@@ -234,12 +235,14 @@ def _revise(judge, model, new, cv_now, moves, ladder, k, log, on_step):
                     log(f"  remove {old}: cross-validated {cv_now:.2f} -> {cv:.2f} without it")
                 moves.append(Move("remove", [old], cv_now, cv, k))
                 model, cv_now = m, cv
-                _rung(ladder, moves[-1], model, judge, cv, on_step)
+                _rung(ladder, model, judge, cv, on_step)
     return model, cv_now
 
 
-def _rung(ladder, move, model, judge, cv, on_step):
-    ladder.steps.append(LadderStep.of(move.label, model, judge.evaluate(model), cv=cv))
+def _rung(ladder, model, judge, cv, on_step):
+    # the rung names its model's effects (a swap or removal drops one), not the move
+    ladder.steps.append(LadderStep.of(rung_label(model.names, ladder.steps[-1].effects), model,
+                                      judge.evaluate(model), cv=cv))
     if on_step:
         on_step(len(ladder.steps) - 1, model)
 

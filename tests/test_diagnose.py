@@ -184,3 +184,45 @@ def test_diagnose_auto_runs_the_rounds_and_names_the_confusable_pair(tmp_path):
         assert all(p["differ_in"] for p in d["confusable"])
     again = labrig("diagnose", ds, "--auto", "-o", out)
     assert again.returncode == 2 and "--force" in again.stderr
+
+
+@pytest.mark.parametrize("names,previous,label", [
+    ([], [], "linear model"),
+    (["offset"], [], "+ offset"),
+    (["offset", "deadband"], ["offset"], "+ deadband"),
+    (["deadband"], ["offset"], "deadband (without offset)"),   # not "+ deadband"
+    (["deadband", "delay"], ["offset", "deadband"], "deadband, delay (without offset)"),
+    (["deadband"], ["deadband"], "deadband (same effects)"),
+    ([], ["offset"], "linear model (without offset)"),
+])
+def test_rung_label_names_exactly_the_models_effects(names, previous, label):
+    from labrig.ladder import rung_label
+
+    assert rung_label(names, previous) == label
+
+
+def test_ladder_of_saved_models_labels_a_dropped_effect(tmp_path):
+    """Sheet 3's chain m0, m_offset, m1 where m1 has a dead zone but no offset: the third
+    rung is "deadband (without offset)", and its error is the dead zone's alone."""
+    from labrig.ladder import evaluate_ladder
+    from labrig.model.model import Model
+    from labrig.model.servo import ServoParams
+
+    rig = make_rig(effects={"deadband": {"d_v": 0.3}})
+    runs = dataset(tmp_path, {"deadband": {"d_v": 0.3}})
+    plant = ServoParams.from_rig(rig).plant_dict()
+    const = dict(runs[0].constants)
+    chain = [Model(params=plant, constants=const),
+             Model(params=plant, effects=["offset"], effect_params={"offset": {"u0_v": 0.01}},
+                   constants=const),
+             Model(params=plant, effects=["deadband"], effect_params={"deadband": {"d_v": 0.3}},
+                   constants=const)]
+    paths = []
+    for k, m in enumerate(chain):
+        m.save(tmp_path / f"m{k}.json")
+        paths.append(tmp_path / f"m{k}.json")
+    lad = evaluate_ladder(runs, paths)
+    assert [s.label for s in lad.steps] == ["linear model", "+ offset", "deadband (without offset)"]
+    assert [s.effects for s in lad.steps] == [[], ["offset"], ["deadband"]]
+    # the true model (the dead zone alone) is at the noise floor, the linear one far above
+    assert lad.steps[2].rmse_over_noise["overall"] < 1.3 < 3 < lad.steps[0].rmse_over_noise["overall"]
