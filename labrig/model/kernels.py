@@ -214,6 +214,84 @@ def _input_map(v, u0, k, d, dp, dn, Ka, vmax):
     return min(max(v, -vmax), vmax)  # np.clip
 
 
+#: the terms a block's update needs (bits of ``_sweep``'s mode; one build per mode used)
+FEEDBACK, DELAY, FRICTION, PLAY = 1, 2, 4, 8
+#: the modes built: the short update, Coulomb friction alone, a linear closed loop, all
+MODES = (0, FRICTION, FEEDBACK, FEEDBACK | DELAY | FRICTION | PLAY)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, mode):
+    """The exact update of every lane of a block through one sample; returns 1 if
+    friction needs some lane's sample redone (their ``R_FLAG`` is 1).
+
+    Branch-free so that it vectorises: every term is computed for every lane in the order
+    of the per-candidate code, and a term that is zero for a lane (no friction in this
+    lane) adds an exact 0. ``mode`` (a compile-time constant: one build per mode) says
+    which terms any lane of the block needs: feedback, delay, friction, play.
+    """
+    numba.literally(mode)
+    B = BLOCK
+    fb = mode & FEEDBACK
+    dl = mode & DELAY
+    fr = mode & FRICTION
+    pa = mode & PLAY
+    nflag = 0
+    for j in range(q):
+        i = X[R_I * B + j]
+        w = X[R_W * B + j]
+        th = X[R_TH * B + j]
+        s_new = X[R_SNEW * B + j]
+        if pa:
+            pl = X[R_PL * B + j]
+            gap = X[R_GAP * B + j]
+            yth = pl if gap > 0.0 else th / N
+        else:
+            yth = th / N
+        dw = iw * (wmk - w)  # d * d, not d ** 2: numba's power loop stops vectorising
+        dth = it * (tmk - yth)
+        r = X[R_ACC * B + j] + (dw * dw + dth * dth)
+        if ii != 0.0:
+            di = ii * (imk - i)
+            r += di * di
+        X[R_ACC * B + j] = r
+        ni = X[R_A00 * B + j] * i + X[R_A01 * B + j] * w + X[R_GN0 * B + j] * s_new
+        nw = X[R_A10 * B + j] * i + X[R_A11 * B + j] * w + X[R_GN1 * B + j] * s_new
+        nt = X[R_A20 * B + j] * i + X[R_A21 * B + j] * w + th + X[R_GN2 * B + j] * s_new
+        if fb:
+            ni += X[R_A02 * B + j] * th
+            nw += X[R_A12 * B + j] * th
+            nt += X[R_A22M1 * B + j] * th
+        if dl:
+            s_old = X[R_SOLD * B + j]
+            ni += X[R_GO0 * B + j] * s_old
+            nw += X[R_GO1 * B + j] * s_old
+            nt += X[R_GO2 * B + j] * s_old
+        if fr:
+            tc = X[R_TC * B + j]  # friction against the motion: copysign(tc, w), w != 0
+            tf = tc if w > 0.0 else (-tc if w < 0.0 else 0.0)
+            ni += X[R_GF0 * B + j] * tf
+            nw += X[R_GF1 * B + j] * tf
+            nt += X[R_GF2 * B + j] * tf
+            # stuck, or the speed reaches zero inside the sample: redone (friction lanes)
+            f = 1 if (X[R_FRIC * B + j] != 0.0) & ((w == 0.0) | (nw * w <= 0.0)) else 0
+            nflag |= f  # an "or" reduction vectorises; a count or a float sum does not
+            X[R_FLAG * B + j] = f
+            X[R_I0 * B + j] = i
+            X[R_W0 * B + j] = w
+            X[R_TH0 * B + j] = th
+        if pa:
+            X[R_PL0 * B + j] = pl
+            x = nt / N  # the play operator, as _play
+            lo = x - gap
+            hi = x + gap
+            X[R_PL * B + j] = (lo if pl < lo else (hi if pl > hi else pl)) if gap > 0.0 else pl
+        X[R_I * B + j] = ni
+        X[R_W * B + j] = nw
+        X[R_TH * B + j] = nt
+    return nflag
+
+
 @numba.njit(cache=True, error_model="numpy")
 def _block(p0, p1, s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed, S, c, out_w, out_th,
            out_i, store, wm, iw, tm, it, im, ii, sse, imap):
@@ -234,6 +312,8 @@ def _block(p0, p1, s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed, S, c, ou
     mp = np.zeros(B, np.int64)
     delay = False
     mapped = imap.shape[0] > 0
+    friction = False
+    play = False
     for j in range(q):
         p = p0 + j
         if mapped:
@@ -250,8 +330,15 @@ def _block(p0, p1, s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed, S, c, ou
             X[r * B + j] = v
         f = (prm[p, C_TC] > 0.0 or prm[p, C_TS] > 0.0) and not skip[p]
         X[R_FRIC * B + j] = 1.0 if f else 0.0
+        friction |= f
+        play |= prm[p, C_A] > 0.0
         mp[j] = m[p]
         delay |= m[p] != 0 or g_old[p, 0] != 0.0 or g_old[p, 1] != 0.0 or g_old[p, 2] != 0.0
+    # the terms any lane needs, rounded up to a mode that is built
+    mode = (FEEDBACK if closed else 0) | (DELAY if delay else 0) \
+        | (FRICTION if friction else 0) | (PLAY if play else 0)
+    if mode not in (0, FRICTION, FEEDBACK):
+        mode = FEEDBACK | DELAY | FRICTION | PLAY
     for k in range(n):
         if store:  # the trajectories (simulate): the state at the start of the sample
             for j in range(q):
@@ -293,55 +380,14 @@ def _block(p0, p1, s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed, S, c, ou
                         X[(R_MAP + M_K) * B + j], X[(R_MAP + M_D) * B + j],
                         X[(R_MAP + M_DP) * B + j], X[(R_MAP + M_DN) * B + j], Ka,
                         X[(R_MAP + M_VMAX) * B + j])
-        # The exact update of every lane, branch-free so that it vectorises: every term is
-        # computed for every lane in the order of the per-candidate code, and a term that
-        # is zero for a lane (feedback in open loop, no delay, no friction) adds an exact 0.
-        nflag = 0
-        for j in range(q):
-            i = X[R_I * B + j]
-            w = X[R_W * B + j]
-            th = X[R_TH * B + j]
-            pl = X[R_PL * B + j]
-            gap = X[R_GAP * B + j]
-            s_new = X[R_SNEW * B + j]
-            s_old = X[R_SOLD * B + j]
-            yth = pl if gap > 0.0 else th / N
-            dw = iw * (wmk - w)  # d * d, not d ** 2: numba's power loop stops vectorising
-            dth = it * (tmk - yth)
-            r = X[R_ACC * B + j] + (dw * dw + dth * dth)
-            if ii != 0.0:
-                di = ii * (imk - i)
-                r += di * di
-            X[R_ACC * B + j] = r
-            ni = X[R_A00 * B + j] * i + X[R_A01 * B + j] * w + X[R_GN0 * B + j] * s_new
-            nw = X[R_A10 * B + j] * i + X[R_A11 * B + j] * w + X[R_GN1 * B + j] * s_new
-            nt = X[R_A20 * B + j] * i + X[R_A21 * B + j] * w + th + X[R_GN2 * B + j] * s_new
-            ni += X[R_A02 * B + j] * th
-            nw += X[R_A12 * B + j] * th
-            nt += X[R_A22M1 * B + j] * th
-            ni += X[R_GO0 * B + j] * s_old
-            nw += X[R_GO1 * B + j] * s_old
-            nt += X[R_GO2 * B + j] * s_old
-            tc = X[R_TC * B + j]  # friction against the motion: copysign(tc, w) for w != 0
-            tf = tc if w > 0.0 else (-tc if w < 0.0 else 0.0)
-            ni += X[R_GF0 * B + j] * tf
-            nw += X[R_GF1 * B + j] * tf
-            nt += X[R_GF2 * B + j] * tf
-            # stuck, or the speed reaches zero inside the sample: redone (friction lanes)
-            f = 1 if (X[R_FRIC * B + j] != 0.0) & ((w == 0.0) | (nw * w <= 0.0)) else 0
-            nflag += f
-            X[R_FLAG * B + j] = f
-            X[R_I0 * B + j] = i
-            X[R_W0 * B + j] = w
-            X[R_TH0 * B + j] = th
-            X[R_PL0 * B + j] = pl
-            X[R_I * B + j] = ni
-            X[R_W * B + j] = nw
-            X[R_TH * B + j] = nt
-            x = nt / N  # the play operator, as _play
-            lo = x - gap
-            hi = x + gap
-            X[R_PL * B + j] = (lo if pl < lo else (hi if pl > hi else pl)) if gap > 0.0 else pl
+        if mode == 0:  # each call site a constant mode: its own vectorised build
+            nflag = _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, 0)
+        elif mode == FRICTION:
+            nflag = _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, 4)
+        elif mode == FEEDBACK:
+            nflag = _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, 1)
+        else:
+            nflag = _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, 15)
         if nflag > 0:  # the few samples the exact update cannot take, one at a time
             for j in range(q):
                 if X[R_FLAG * B + j] != 0.0:
