@@ -145,6 +145,21 @@ def test_paper_table1_says_saturation():
     json.dumps(d, allow_nan=False)
 
 
+def test_paper_table1_gain_trend_is_the_plain_fall_of_w_over_v():
+    # Table 1: w/V is 2600 rpm/V (272.7 rad/s per V, both directions) at 1.2 V and
+    # 1260 rpm/V (131.9) at 2.5 V: a fall of 51.6 %, which the summary and the verdict
+    # print and explain (a regression slope times span over mean said -70.1 %)
+    from labrig.analyse.text import summary_table
+
+    res = analyse(ROOT / "data" / "paper_table1.csv")
+    assert res.trend["relative_change"] == pytest.approx(131.95 / 272.7 - 1, abs=5e-4)
+    assert res.trend["amplitude_range_v"] == pytest.approx([1.2, 2.5])
+    detail = next(r[2] for r in summary_table(res).rows if r[0] == "gain trend")
+    assert detail.startswith("w/V changes by -51.6 % from 1.2 V to 2.5 V (mean w/V at the "
+                             "largest amplitude over that at the smallest, minus 1)")
+    assert "w/V goes from 272.7 to 131.9 rad/s per V between 1.2 and 2.5 V, -51.6 %" in res.verdict
+
+
 def test_find_segments_noisy_scope_trace():
     rng = np.random.default_rng(0)
     u = np.repeat([0.0, 1.5, -1.5, 1.5, 0.7], 400) + rng.normal(0, 0.01, 2000)

@@ -61,12 +61,19 @@ def summary_table(res) -> Table:
 
 
 def _trend_detail(res) -> str:
+    """The gain trend's number and what it is: the plain change of w/V from the smallest
+    to the largest amplitude, and the band a constant gain may wander in."""
     thr = res.trend.get("threshold", res.tolerance)
     rel = res.trend.get("relative_change")
-    return ("w/V changes by " + (f"{rel * 100:+.1f} %" if rel is not None else "-")
-            + f" over the amplitude range; tolerance {res.tolerance * 100:.0f} %"
+    span = res.trend.get("amplitude_range_v")
+    if rel is None or not span:
+        return "one amplitude only: no trend to judge"
+    return (f"w/V changes by {rel * 100:+.1f} % from {span[0]:.3g} V to {span[1]:.3g} V "
+            "(mean w/V at the largest amplitude over that at the smallest, minus 1); "
+            f"constant within {thr * 100:.1f} %"
             # a noisy trend is judged against two standard errors instead
-            + (f", 2 standard errors = {thr * 100:.1f} %" if thr > res.tolerance else ""))
+            + (f" (2 standard errors of the scatter; the tolerance is {res.tolerance * 100:.0f} %)"
+               if thr > res.tolerance else " (the tolerance)"))
 
 
 def summary_text(res, width: int = 110) -> str:

@@ -20,12 +20,17 @@ TAU_SAME = 0.04
 def gain_trend(v, w, tol):
     """Trend of w/V with amplitude from the steady points (moving, |V| > 0).
 
+    The change is the plain one a student can check by hand: the mean w/V at the
+    largest amplitude over the mean w/V at the smallest, minus 1 (the paper's Table 1:
+    2600 -> 1260 rpm/V between 1.2 and 2.5 V, -51.5 %).
+
     Returns
     -------
     trend : {"constant", "rising", "falling"}
     info : dict
-        ``km_by_amplitude`` [(|V|, mean w/V)], ``relative_change`` over the amplitude
-        range, its ``standard_error`` and the ``threshold`` it was judged against.
+        ``km_by_amplitude`` [(|V|, mean w/V)] by rising amplitude, ``relative_change``
+        (that plain change), its ``standard_error``, the ``threshold`` it was judged
+        against and the ``amplitude_range_v`` it spans.
     """
     v, w = np.asarray(v, float), np.asarray(w, float)
     km = w / v
@@ -37,22 +42,22 @@ def gain_trend(v, w, tol):
         info["relative_change"] = None
         info["note"] = "one amplitude only: the trend with amplitude cannot be judged"
         return "constant", info
-    # straight line of w/V against |V|: relative change over the amplitude range
-    A = np.column_stack([a, np.ones_like(a)])
-    coef, *_ = np.linalg.lstsq(A, km, rcond=None)
-    span = a.max() - a.min()
-    mean = float(np.mean(km))
-    r = float(coef[0] * span / mean)
+    (a0, k0), (a1, k1) = by_amp[0], by_amp[-1]
+    r = float(k1 / k0 - 1.0)
     se = None
     if len(a) > 2:
+        # the scatter of w/V about a straight line in |V| (noise, and any curvature:
+        # conservative), carried to the two end means and their ratio
+        A = np.column_stack([a, np.ones_like(a)])
+        coef, *_ = np.linalg.lstsq(A, km, rcond=None)
         resid = km - A @ coef
         s2 = float(resid @ resid) / (len(a) - 2)
-        cov = s2 * np.linalg.pinv(A.T @ A)
-        se = float(math.sqrt(max(cov[0, 0], 0.0)) * span / abs(mean))
+        n0, n1 = len(groups[0]), len(groups[-1])
+        se = float(abs(k1 / k0) * math.sqrt(s2 / n0 / k0 ** 2 + s2 / n1 / k1 ** 2))
     # a noisy trend needs more than the tolerance: two standard errors
     thr = max(tol, 2 * se) if se is not None else tol
     info.update({"relative_change": r, "standard_error": se, "threshold": thr,
-                 "amplitude_range_v": [float(a.min()), float(a.max())]})
+                 "amplitude_range_v": [a0, a1]})
     if abs(r) <= thr:
         return "constant", info
     return ("rising" if r > 0 else "falling"), info
@@ -98,16 +103,20 @@ def _trend_sentence(res) -> str:
         rng = (f"w/V goes from {kb[0][1]:.4g} to {kb[-1][1]:.4g} {res.speed_unit} per V between "
                f"{kb[0][0]:.3g} and {kb[-1][0]:.3g} V")
     thr = res.trend.get("threshold", GAIN_TOLERANCE) * 100
+    rel = res.trend.get("relative_change")
+    if rng and rel is not None:
+        rng += f", {100 * rel:+.1f} %"
     if res.gain_trend == "constant":
         if len(kb) < 2:
             return ("Only one amplitude was recorded, so the trend of w/V with amplitude "
                     "cannot be judged; record square waves at three or more amplitudes.")
-        return (f"{rng} (constant within {thr:.1f} %): the plant is linear over this "
+        return (f"{rng} (constant: within {thr:.1f} %): the plant is linear over this "
                 "range; a deadband, friction or saturation, if any, lies outside it — "
                 "a staircase from 0.1 V upwards would reveal a threshold.")
     if res.gain_trend == "rising":
         d = f"about {res.deadband_v:.2f} V" if res.deadband_v is not None else "a threshold voltage"
-        return (f"{rng} (rising by more than {thr:.1f} %): each level loses {d} before the "
+        return (f"{rng} (rising: more than the {thr:.1f} % a constant gain may wander): each "
+                f"level loses {d} before the "
                 "motor turns — a deadband (amplifier input stage, brushes) or Coulomb "
                 "friction, which give the same steady-state line." + _lean(res) +
                 " To separate them, apply a slow ramp of u through zero while recording "
@@ -118,7 +127,8 @@ def _trend_sentence(res) -> str:
     wsat = max(abs(L.speed) for L in moving_points(res.levels))
     top = (f"{wsat:.0f} rad/s ({wsat * 30 / math.pi:.0f} rpm)" if res.speed_unit == "rad/s"
            else f"{wsat:.3g} {res.speed_unit}")
-    return (f"{rng} (falling by more than {thr:.1f} %) while the speed levels off near "
+    return (f"{rng} (falling: more than the {thr:.1f} % a constant gain may wander) while "
+            "the speed levels off near "
             f"{top}: saturation — the "
             "amplifier's output rail, a current limit or a clipped speed readout. "
             "To separate them, measure the amplifier output voltage and the armature "

@@ -67,6 +67,7 @@ class SideDoc(_Doc):
 class TrendDoc(_Doc):
     relative_change: Num = None
     threshold: Num = None
+    amplitude_range_v: Optional[list[Num]] = None
 
 
 class AnalysisDoc(_Doc):
