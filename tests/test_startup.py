@@ -57,3 +57,31 @@ def test_identify_path_imports_only_what_it_uses(tmp_path, rig):
     mods = _imported(code)
     assert "numba" in mods
     assert not [m for m in HEAVY if m in mods], [m for m in HEAVY if m in mods]
+
+
+def test_cold_cache_is_announced_once_before_compiling(monkeypatch, capsys):
+    """A cold numba cache: one line on stderr saying what happens and about how long,
+    then the compile; never again in the same process."""
+    from labrig.model import warm
+
+    calls = []
+    monkeypatch.setattr(warm, "_done", False)
+    monkeypatch.setattr(warm, "cache_is_warm", lambda: False)
+    monkeypatch.setattr(warm, "_workload", lambda: calls.append(1))
+    warm.ready()
+    warm.ready()
+    err = capsys.readouterr().err
+    assert err.count("compiling the simulator once") == 1
+    assert f"about {warm.COMPILE_S} s" in err
+    assert calls == [1]
+
+
+def test_installed_cache_is_warm():
+    """The install step (python -m labrig.model.warm, run by make) filled numba's cache,
+    so no command in this suite compiles."""
+    from labrig.model import warm
+
+    out = subprocess.run([sys.executable, "-m", "labrig.model.warm"], capture_output=True,
+                         text=True, check=True)
+    assert "loaded from the cache" in out.stdout or "compiled" in out.stdout
+    assert warm.cache_is_warm()

@@ -259,11 +259,11 @@ def identify(runs, method: str = "co", effects: list[Effect] = (), *, seed: int 
     if not runs:
         raise UserError("the data set is empty: give a folder with at least one run")
     require_excitation(runs, "identify")
-    t0 = time.perf_counter()
     effects = EffectSet.parse(effects)
     space = build_space(effects, bounds, fixed, reach=reach or Reach.of(runs),
                         plant=plant_of_runs(runs))
     obj = Objective(runs, effects, space, p=p, q=q, masks=masks, c=c)
+    t0 = time.perf_counter()  # after the simulator is ready: a first compile is not fitting
     constants = dataset_constants(runs)
     lo, hi = space.search_bounds()
     x0 = space.to_search(initial_point(space, effects, runs, constants, start))

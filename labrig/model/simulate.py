@@ -124,6 +124,9 @@ class Simulator:
 
     def __init__(self, runs, effects=(), substeps: int = 16, plant=None):
         from .plants import VoltagePlant
+        from .warm import ready
+
+        ready()  # a cold numba cache is compiled now, with a message, not inside a timing
 
         self.plant = plant or VoltagePlant
         self.runs = prepare(runs)
