@@ -142,8 +142,9 @@ def evaluate(runs, model: Model, sigmas=None, weights: Weights | None = None) ->
     phys = np.array([flat[n] for n in param_keys(model)])
     sims = obj.simulate_physical(phys[None, :])
     metrics = adequacy(obj.runs, sims, obj.sigma_w, obj.sigma_theta, weights.p, weights.q)
+    quanta = {ch: f.q for ch, f in obj.floors.items()}
     per_run = [run_residuals(rd, {"w": s["w"][0], "theta": s["theta"][0]}, obj.sigma_w,
-                             obj.sigma_theta) for rd, s in zip(obj.runs, sims)]
+                             obj.sigma_theta, quanta) for rd, s in zip(obj.runs, sims)]
     r = np.concatenate([c["residual"] for rr in per_run for c in rr["channels"].values()])
     metrics["counts"] = {ch: sum(len(rr["channels"][ch]["residual"]) for rr in per_run
                                  if ch in rr["channels"]) for ch in ("speed", "position")}

@@ -136,8 +136,15 @@ AXIS_UNITS = {"rotary": {"speed": "rad/s (motor)", "position": "rad (output)"},
               "linear": {"speed": "m/s", "position": "m"}}
 
 
-def run_residuals(rd, sim: dict, sigma_w: float, sigma_theta: float) -> dict:
-    """Residuals of one run in noise units, with regimes and stretches."""
+def run_residuals(rd, sim: dict, sigma_w: float, sigma_theta: float,
+                  quanta: dict | None = None) -> dict:
+    """Residuals of one run in noise units, with regimes and stretches.
+
+    ``quanta`` maps a channel to its quantisation step in the channel's units
+    (:attr:`labrig.noise.NoiseFloor.q`; 0 or absent: none seen). Each channel carries
+    it as ``quantum`` with ``quantum_kind`` (an encoder's count or an ADC step), so a
+    figure can show the staircase a quantised reading leaves in the residual."""
+    quanta = quanta or {}
     w_ref = rd.w if rd.w is not None else np.gradient(rd.theta * rd.N, rd.dt)
     labels = label_regimes(rd.u, w_ref)
     out = {"name": rd.name, "labels": labels, "amplitude": rd.amplitude, "loop": rd.loop,
@@ -154,7 +161,10 @@ def run_residuals(rd, sim: dict, sigma_w: float, sigma_theta: float) -> dict:
                                "rmse_over_noise": float(np.sqrt(np.mean(r ** 2))),
                                "stretches": stretches(r, labels, width),
                                "autocorr": autocorr(r), "crosscorr": crosscorr(r, rd.u),
-                               "band": Z99 / np.sqrt(len(r))}
+                               "band": Z99 / np.sqrt(len(r)),
+                               "quantum": float(quanta.get(ch) or 0.0),
+                               "quantum_kind": "encoder count" if ch == "position" and
+                               getattr(rd, "pos_q", 0.0) > 0 else "ADC step"}
     return out
 
 

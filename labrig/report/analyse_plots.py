@@ -21,7 +21,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from .figures import save_all  # noqa: E402
+from .figures import legend_outside, save_all  # noqa: E402
 
 MAX_EDGES = 16  # per figure; more edges would make unreadable panels
 DPI = 110
@@ -104,11 +104,14 @@ def plot_edges(ra, ax=None):
         a.set_xlabel("time from edge (s)", fontsize=8)
     for a in axes[:, 0]:
         a.set_ylabel(f"speed ({ra.speed_unit})", fontsize=8)
-    axes.flat[0].legend(fontsize=7, loc="best")
+    # one legend for every panel, below them all: inside a panel it would cover data
+    handles, labels = axes.flat[0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="lower center", ncol=len(handles), fontsize=7,
+               frameon=False)
     if ax is None:
         more = f" (first {MAX_EDGES} of {len(ra.edges)})" if len(ra.edges) > MAX_EDGES else ""
         fig.suptitle(f"{ra.name}: edges and first-order fits{more}", fontsize=10)
-        fig.tight_layout()
+        fig.tight_layout(rect=(0, 0.35 / (2.8 * axes.shape[0]), 1, 1))
     return fig
 
 
@@ -152,7 +155,7 @@ def plot_speed_vs_voltage(res, ax=None):
     -------
     matplotlib.figure.Figure
     """
-    fig, ax, own = _axes(ax, (6.4, 4.6))
+    fig, ax, own = _axes(ax, (8.4, 4.6))
     lv = [L for L in res.levels if L.speed is not None]
     mov = [L for L in lv if L.moving]
     rest = [L for L in lv if not L.moving]
@@ -178,7 +181,7 @@ def plot_speed_vs_voltage(res, ax=None):
     ax.set_title(f"Speed against voltage — km {_fmt(res.km, '.4g')} {res.speed_unit} per V, "
                  f"deadband {_fmt(res.deadband_v, '.3f')} V", fontsize=10)
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=8, loc="upper left")
+    legend_outside(ax, "right")
     if own:
         fig.tight_layout()
     return fig
@@ -214,7 +217,7 @@ def plot_km_vs_amplitude(res, ax=None):
     -------
     matplotlib.figure.Figure
     """
-    fig, ax, own = _axes(ax, (6.4, 4.2))
+    fig, ax, own = _axes(ax, (8.4, 4.2))
     pts = [L for L in res.levels if L.km_paper is not None and L.moving]
     for sgn, mk, lab in ((1, "o", "forward"), (-1, "s", "reverse")):
         p = [L for L in pts if np.sign(L.v) == sgn]
@@ -222,21 +225,27 @@ def plot_km_vs_amplitude(res, ax=None):
             ax.plot([abs(L.v) for L in p], [L.km_paper for L in p], mk, mfc="none",
                     label=lab)
     kb = res.trend.get("km_by_amplitude", [])
+    rel = res.trend.get("relative_change")
+    title = f"Km against amplitude: {res.gain_trend}"
     if kb:
         a, k = np.array(kb).T
         ax.plot(a, k, "-", color="0.3", lw=1, label="mean per amplitude")
-        m = float(np.mean(k))
         thr = res.trend.get("threshold", res.tolerance)
-        ax.axhspan(m * (1 - thr / 2), m * (1 + thr / 2), color="C2", alpha=0.15,
-                   label=f"constant band ({100 * thr:.1f} % over the range)")
+        # the trend is w/V at the largest amplitude against w/V at the smallest: a
+        # constant gain keeps the last mean inside this band around the first
+        ax.axhspan(k[0] * (1 - thr), k[0] * (1 + thr), color="C2", alpha=0.15,
+                   label=f"constant: within \u00b1{100 * thr:.1f} %\nof w/V at {a[0]:.3g} V")
+        if rel is not None and len(kb) > 1:
+            title += (f", w/V {100 * rel:+.1f} % from {a[0]:.3g} to {a[-1]:.3g} V\n"
+                      "(mean w/V at the largest amplitude over that at the smallest, minus 1)")
     if res.km is not None and res.line.region == "linear":
         ax.axhline(res.km, color="C3", ls="--", lw=1, label=f"incremental km {res.km:.4g}")
     ax.set_xlabel("amplitude |Vm| (V)")
     ax.set_ylabel(f"Km = w / Vm ({res.speed_unit} per V)")
     ax.set_ylim(bottom=0)
-    ax.set_title(f"Km against amplitude: {res.gain_trend}", fontsize=10)
+    ax.set_title(title, fontsize=9)
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=8, loc="lower right")
+    legend_outside(ax, "right")
     if own:
         fig.tight_layout()
     return fig

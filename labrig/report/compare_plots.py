@@ -13,6 +13,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from ..residuals import AXIS_UNITS, REGIME_TEXT  # noqa: E402
+from .figures import legend_outside  # noqa: E402
 
 REGIME_COLOURS = {"start": "tab:green", "reversal": "tab:red", "accel": "tab:orange",
                   "steady": "tab:blue", "coast": "tab:purple", "rest": "0.7"}
@@ -24,8 +25,10 @@ def _units(rr: dict) -> dict:
 
 def plot_run_comparison(rr: dict, ax=None, title: str = ""):
     """One run: measured vs simulated (fit % in the legend), residuals in noise units
-    with the +-1 noise band and the stretches that leave it shaded by regime, and the
-    residual autocorrelation / input cross-correlation with their 99 % bands.
+    with the +-1 noise band, the +-1 quantum band of a quantised channel (its staircase
+    lies inside it) and the stretches that leave the noise band shaded by regime, and
+    the residual autocorrelation / input cross-correlation with their 99 % bands.
+    Legends sit above their axes, where they cannot cover data.
 
     With ``ax``, only the first channel's overlay is drawn there (a report thumbnail).
     """
@@ -37,10 +40,10 @@ def plot_run_comparison(rr: dict, ax=None, title: str = ""):
                 label=f"model (fit {c['fit_percent']:.1f} %)")
         ax.set_xlabel("time (s)")
         ax.set_ylabel(f"{chans[0]} {_units(rr)[chans[0]]}")
-        ax.legend(fontsize=8)
+        legend_outside(ax, "right")
         ax.set_title(title or rr["name"])
         return ax.figure
-    fig = plt.figure(figsize=(12, 3.2 * len(chans) + 2.8))
+    fig = plt.figure(figsize=(12, 3.8 * len(chans) + 2.8))
     gs = fig.add_gridspec(2 * len(chans) + 1, 2, height_ratios=[3, 2] * len(chans) + [2.2])
     t = rr["t"]
     units = _units(rr)
@@ -51,11 +54,12 @@ def plot_run_comparison(rr: dict, ax=None, title: str = ""):
         ax.plot(t, c["simulated"], color="tab:red", lw=1.0, ls="--",
                 label=f"model (fit {c['fit_percent']:.1f} %)")
         ax.set_ylabel(f"{ch}\n{units[ch]}")
-        ax.legend(loc="upper right", fontsize=8)
+        legend_outside(ax, "above")
         ax.grid(alpha=0.3)
         ax.set_xlim(t[0], t[-1])
         ax2 = fig.add_subplot(gs[2 * i + 1, :], sharex=ax)
         ax2.plot(t, c["residual"], color="0.3", lw=0.6)
+        _quantum_band(ax2, c, units[ch])
         ax2.axhspan(-1, 1, color="tab:green", alpha=0.15, label="noise band (+-1 sigma)")
         seen = set()
         for s in c["stretches"]:
@@ -66,7 +70,7 @@ def plot_run_comparison(rr: dict, ax=None, title: str = ""):
                         color=REGIME_COLOURS.get(reg, "0.5"), alpha=0.25, label=lbl)
         ax2.set_ylabel("residual /\nnoise")
         ax2.grid(alpha=0.3)
-        ax2.legend(loc="upper right", fontsize=7, ncol=4)
+        legend_outside(ax2, "above", fontsize=7)
     ax2.set_xlabel("time (s)")
     # whiteness of the first channel's residual
     c = rr["channels"][chans[0]]
@@ -89,6 +93,21 @@ def plot_run_comparison(rr: dict, ax=None, title: str = ""):
     return fig
 
 
+def _quantum_band(ax, c: dict, unit: str) -> None:
+    """+-1 quantisation step of the channel in noise units: a quantised reading is up to
+    one step off what it measures, so a residual staircase inside this band is the
+    sensor's resolution, not the model's error."""
+    q, sigma = c.get("quantum") or 0.0, c.get("sigma") or 0.0
+    if q <= 0 or sigma <= 0:
+        return
+    qn = q / sigma
+    unit = unit.split(" (")[0]  # "rad/s (motor)": the qualifier is on the axis already
+    for sgn, lbl in ((1, f"+-1 quantum ({c.get('quantum_kind', 'sensor step')} {q:.3g} {unit} "
+                         f"= {qn:.2g} sigma): steps inside it are the sensor's resolution"),
+                     (-1, None)):
+        ax.axhline(sgn * qn, color="k", ls="--", lw=0.9, label=lbl)
+
+
 def plot_ladder(ladder, ax=None):
     """The error ladder: rmse/noise after each added effect, against the noise floor.
 
@@ -96,7 +115,7 @@ def plot_ladder(ladder, ax=None):
     """
     steps = [s.to_json() if hasattr(s, "to_json") else s
              for s in getattr(ladder, "steps", ladder)]
-    fig, ax = plt.subplots(figsize=(7, 4)) if ax is None else (ax.figure, ax)
+    fig, ax = plt.subplots(figsize=(8.5, 4)) if ax is None else (ax.figure, ax)
     x = np.arange(len(steps))
     for ch, mk in (("overall", "o-"), ("speed", "s--"), ("position", "^--")):
         y = [s["rmse_over_noise"].get(ch, np.nan) for s in steps]
@@ -114,7 +133,7 @@ def plot_ladder(ladder, ax=None):
         ax.annotate(f"{s['rmse_over_noise']['overall']:.2f}", (xi, s["rmse_over_noise"]["overall"]),
                     textcoords="offset points", xytext=(6, 6), fontsize=9)
     ax.grid(alpha=0.3, which="both")
-    ax.legend()
+    legend_outside(ax, "right")
     fig.tight_layout()
     return fig
 

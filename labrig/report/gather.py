@@ -262,7 +262,9 @@ def _failures(story: Story, say):
     if cmp_png:
         figs.append(Figure(f"The worst run{': ' + worst if worst else ''}", cmp_png,
                            "Measured against simulated, the residual in noise units with the "
-                           "stretches that leave the noise band, and the whiteness tests."))
+                           "stretches that leave the noise band, the +-1 quantum lines (a "
+                           "quantised reading's staircase stays inside them), and the "
+                           "whiteness tests."))
     story.figures["failures"] = figs
     return ev0
 

@@ -8,6 +8,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from .figures import legend_outside  # noqa: E402
+
 COLOURS = ("tab:blue", "tab:red")
 
 
@@ -24,7 +26,7 @@ def plot_proposal(prop, ax=None):
         fig, axes = ax.figure, [ax]
         chans = chans[:1]
     else:
-        fig, axes = plt.subplots(len(chans) + 1, 1, figsize=(10, 2.6 * (len(chans) + 1)),
+        fig, axes = plt.subplots(len(chans) + 1, 1, figsize=(11.5, 2.6 * (len(chans) + 1)),
                                  sharex=True, height_ratios=[3] * len(chans) + [1.6])
         axes = list(np.atleast_1d(axes))
     for a, (ch, key) in zip(axes, chans):
@@ -35,8 +37,7 @@ def plot_proposal(prop, ax=None):
         unit = units[1] if ch == "speed" else units[0]
         a.set_ylabel(f"{ch} ({unit})")
         a.grid(alpha=0.3)
-        a.legend(loc="upper right", fontsize=8, title="predicted (band: +-1 noise)",
-                 title_fontsize=8)
+        legend_outside(a, "right", title="predicted (band: +-1 noise)", title_fontsize=8)
     if ax is None:
         axes[-1].plot(t, run.u, color="0.25", lw=1.0)
         axes[-1].set_ylabel("u (V)")

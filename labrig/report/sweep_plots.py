@@ -7,6 +7,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from .figures import legend_outside  # noqa: E402
+
 
 def plot_overview(runs):
     """One figure of the whole sweep: response on top, input below; open-loop runs on
@@ -24,7 +26,8 @@ def plot_overview(runs):
     groups = [("open", [r for r in runs if r.loop != "closed"]),
               ("closed", [r for r in runs if r.loop == "closed"])]
     groups = [g for g in groups if g[1]]
-    fig, axes = plt.subplots(2, len(groups), figsize=(6.2 * len(groups) if len(groups) > 1 else 11, 5.6),
+    # each column's legend sits right of its plot (inside it would cover traces)
+    fig, axes = plt.subplots(2, len(groups), figsize=(7.6 * len(groups) if len(groups) > 1 else 12.4, 5.6),
                              squeeze=False, sharex="col", gridspec_kw={"height_ratios": [3, 1.4]})
     for col, (loop, rs) in enumerate(groups):
         top, bot = axes[0, col], axes[1, col]
@@ -58,6 +61,6 @@ def plot_overview(runs):
         bot.set_xlabel("time (s)")
         for ax in (top, bot):
             ax.grid(alpha=0.3)
-        top.legend(fontsize=7, loc="upper right", ncol=2 if len(rs) > 4 else 1)
+        legend_outside(top, "right", fontsize=7, ncol=2 if len(rs) > 8 else 1)
     fig.tight_layout()
     return fig
