@@ -8,3 +8,4 @@ from . import demo  # noqa: F401
 from . import mystery  # noqa: F401
 from . import report  # noqa: F401
 from . import propose  # noqa: F401
+from . import batch  # noqa: F401

@@ -1,0 +1,122 @@
+"""labrig batch: one task over many folders, on joblib and on a Dask cluster."""
+from __future__ import annotations
+
+import csv
+import json
+
+import numpy as np
+import pytest
+
+from conftest import labrig, make_rig, sim_dataset, square_plan
+from labrig.batch import output_names, run_batch
+
+OPTS = {"method": "jfo", "pop": 16, "iters": 20, "seed": 1}
+
+
+@pytest.fixture(scope="module")
+def class_dir(tmp_path_factory):
+    """Three students' runs (Coulomb friction of different sizes) and one broken hand-in."""
+    root = tmp_path_factory.mktemp("class")
+    plan = square_plan(amps=(1.5, 2.5), periods=1)
+    for k, tc in enumerate((0.1, 0.2, 0.3), start=1):
+        sim_dataset(root, make_rig({"coulomb_friction": {"tc_v": tc}}), plan,
+                    name=f"student{k}", seed=k)
+    (root / "broken").mkdir()
+    (root / "broken" / "run.csv").write_text("t,u\n0,1\n")
+    return root
+
+
+def _folders(root):
+    return sorted(p for p in root.iterdir() if p.is_dir())
+
+
+def test_joblib_two_processes_give_the_serial_table(class_dir):
+    rows = []
+    serial = run_batch("identify", _folders(class_dir), options=OPTS, jobs=1)
+    par = run_batch("identify", _folders(class_dir), options=OPTS, jobs=2,
+                    progress=rows.append)
+    assert len(rows) == 4  # the progress saw every folder, the broken one included
+    assert [r["status"] for r in par.rows] == ["failed", "ok", "ok", "ok"]
+    assert par.failed == 1 and "broken" in par.rows[0]["error"]
+    assert "labrig-batch-" not in par.rows[0]["error"]  # the user's path, not the worker's
+    for a, b in zip(serial.rows[1:], par.rows[1:]):  # same seed, same numbers, any worker
+        assert a["figures"] == b["figures"]
+    km = [r["figures"]["km"] for r in par.rows[1:]]
+    assert all(80 < k < 100 for k in km)  # the default rig's Km (about 90 rad/s per V)
+
+
+def test_dask_local_cluster_of_two_workers(class_dir):
+    distributed = pytest.importorskip("dask.distributed")
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                                  dashboard_address=None) as cluster:
+        res = run_batch("identify", _folders(class_dir), options=OPTS,
+                        scheduler=cluster.scheduler_address)
+        assert res.engine.startswith("dask tcp://")
+        workers = len(cluster.scheduler_info["workers"])
+    assert workers == 2
+    ref = run_batch("identify", _folders(class_dir), options=OPTS, jobs=1)
+    assert [r["status"] for r in res.rows] == [r["status"] for r in ref.rows]
+    for a, b in zip(ref.rows[1:], res.rows[1:]):
+        assert a["figures"] == b["figures"]
+
+
+def test_cli_writes_the_table_and_each_model(class_dir, tmp_path):
+    out = tmp_path / "out"
+    p = labrig("batch", "identify", *_folders(class_dir), "-o", out, "--jobs", "2",
+               "--pop", "16", "--iters", "20", "--json", check=0)
+    doc = json.loads(p.stdout)
+    assert doc["folders"] == 4 and doc["failed"] == 1
+    with open(out / "results.csv") as f:
+        table = list(csv.DictReader(f))
+    assert [r["status"] for r in table] == ["failed", "ok", "ok", "ok"]
+    assert table[0]["error"] and not table[1]["error"]
+    assert abs(float(table[1]["km"]) - doc["rows"][1]["figures"]["km"]) < 1e-9
+    for name in ("student1", "student2", "student3"):
+        model = json.loads((out / name / "model.json").read_text())
+        assert model["params"]["R"] > 0
+    assert not (out / "broken").exists()
+    # nothing overwritten without --force, and the refusal is one line, exit 2
+    again = labrig("batch", "identify", *_folders(class_dir), "-o", out, check=2)
+    assert "--force" in again.stderr and "Traceback" not in again.stderr
+
+
+def test_cli_bad_scheduler_is_one_line(class_dir, tmp_path):
+    p = labrig("batch", "analyse", *_folders(class_dir), "-o", tmp_path / "o",
+               "--scheduler", "not-an-address", check=2)
+    assert "tcp://" in p.stderr and "Traceback" not in p.stderr
+    p = labrig("batch", "analyse", *_folders(class_dir), "-o", tmp_path / "o2",
+               "--scheduler", "tcp://127.0.0.1:9", check=2)
+    assert "cannot reach" in p.stderr and "Traceback" not in p.stderr
+
+
+def test_analyse_diagnose_and_check_tasks(class_dir, tmp_path):
+    folders = _folders(class_dir)[1:2]
+    res = run_batch("analyse", folders)
+    assert res.rows[0]["status"] == "ok"
+    assert 0.05 < res.rows[0]["figures"]["deadband_v"] < 0.3  # 0.1 V of friction
+    # a hand-in: the mystery and the student's model beside the runs
+    hand = tmp_path / "hand"
+    hand.mkdir()
+    labrig("mystery", "new", "--seed", "6", "-o", hand / "m.mystery", check=0)
+    labrig("sweep", "--sim", "--rig", hand / "m.mystery", "-o", hand, check=0)
+    labrig("identify", hand, "--method", "co", "-o", hand / "model.json", check=0)
+    res = run_batch("check", [hand])
+    row = res.rows[0]
+    assert row["status"] == "ok", row["error"]
+    assert row["figures"]["score"] >= 0 and row["figures"]["pass"] in (True, False)
+    assert row["files"]["check.json"]["file"] == "m.mystery"  # no worker paths
+
+
+def test_output_names_stay_inside_and_unique(tmp_path):
+    names = output_names([tmp_path / "a b", tmp_path / "x" / "a b", tmp_path / "..", "/"])
+    assert names[0] == "a_b" and names[1] == "a_b_2"
+    assert all("/" not in n and n not in ("", ".", "..") for n in names)
+
+
+@pytest.mark.slow
+def test_diagnose_task_finds_the_hidden_friction(class_dir):
+    res = run_batch("diagnose", _folders(class_dir)[3:4], options={"max_rounds": 1})
+    row = res.rows[0]
+    assert row["status"] == "ok", row["error"]
+    assert "coulomb_friction" in row["figures"]["effects"] or "deadband" in row["figures"]["effects"]
+    assert np.isfinite(row["figures"]["rmse_over_noise"])
