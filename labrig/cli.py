@@ -50,8 +50,22 @@ def build_parser() -> argparse.ArgumentParser:
                              "effects from FILE.py. A user effect is Python code and runs "
                              "with your rights: pass only files you have read (repeatable)")
         func.configure(sp)
+        _names_in_any_case(sp)
         sp.set_defaults(func=func)
     return p
+
+
+def _names_in_any_case(parser: argparse.ArgumentParser) -> None:
+    """Options whose value is one of a list of lower-case names (``--method jfo``,
+    ``--through loop``) take it in any case (``--method JFO``); the command sees the
+    lower-case name. Walks nested subcommands too (``mystery new``)."""
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for sub in action.choices.values():
+                _names_in_any_case(sub)
+        elif (action.choices and action.type is None
+              and all(isinstance(c, str) and c == c.lower() for c in action.choices)):
+            action.type = str.lower
 
 
 def main(argv=None) -> int:

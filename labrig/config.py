@@ -239,7 +239,7 @@ def _check_effects(path, body: dict) -> dict:
     A rig file is data: it may name a user effect (FILE.py:Class) only when the user
     trusted that file on the command line (``--trust-code``), because loading it runs it.
     """
-    from .model.effects import get_effect  # late: the catalogue imports config-free code
+    from .model.effects import catalogue_name, get_effect  # late: the catalogue imports config-free code
 
     out = {}
     for name, params in body.items():
@@ -259,7 +259,8 @@ def _check_effects(path, body: dict) -> dict:
         missing = set(known) - set(params)
         if missing:
             raise ConfigError(f"{path}: [effects.{name}] is missing '{sorted(missing)[0]}'")
-        out[name] = {k: float(v) for k, v in params.items()}
+        # the catalogue's spelling: the simulator looks the parameters up by it
+        out[catalogue_name(name)] = {k: float(v) for k, v in params.items()}
     return out
 
 
@@ -363,12 +364,14 @@ def _check_experiment(path, k, e) -> Experiment:
     elif e.get("points"):
         raise ConfigError(f"{where}: 'points' belong to waveform = \"pwl\"; remove them or "
                           "set the waveform")
-    for name in e.get("between") or []:
-        from .model.effects import CATALOGUE
+    if e.get("between"):
+        from .model.effects import CATALOGUE, catalogue_name
 
-        if name not in CATALOGUE:
-            raise ConfigError(f"{where}: 'between' names {name!r}, not a catalogue effect; "
-                              f"use {', '.join(sorted(CATALOGUE))}")
+        e["between"] = [catalogue_name(n) for n in e["between"]]  # names in any case
+        for name in e["between"]:
+            if name not in CATALOGUE:
+                raise ConfigError(f"{where}: 'between' names {name!r}, not a catalogue "
+                                  f"effect; use {', '.join(sorted(CATALOGUE))}")
     exp = Experiment(**e)
     if exp.n_samples > MAX_PLAN_SAMPLES:
         raise ConfigError(f"{where}: {exp.n_samples:,} samples is more than labrig records "

@@ -29,7 +29,7 @@ from .evaluation import Evaluation, evaluate
 from .explain import context as explain_context
 from .identify.engine import dataset_constants, identify
 from .identify.result import at_bounds as bound_sides
-from .model.effects import CATALOGUE, get_effect
+from .model.effects import CATALOGUE, catalogue_name, get_effect
 from .model.model import Model, param_keys
 from .model.reach import Reach
 from .noise import Weights
@@ -96,7 +96,8 @@ def linear_model(runs, *, seed=0, fixed=None, weights=Weights(), start: Model | 
 def candidate_names(base: Model, candidates=None) -> list[str]:
     """Catalogue effects ``base`` could take: not already in it, not a second friction
     law, output map or delay, not a second member of a family (a second dead zone)."""
-    names = candidates or [n for n in CATALOGUE if n not in base.names]
+    names = [catalogue_name(n) for n in candidates] if candidates else \
+        [n for n in CATALOGUE if n not in base.names]
     taken = {e.stage for e in base.effects if e.stage in ("friction", "output", "delay")}
     families = {e.family_name for e in base.effects}
     out = []

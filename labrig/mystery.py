@@ -269,15 +269,19 @@ def format_reveal(r: dict) -> str:
 
 def _model_effects(model: dict) -> dict:
     """name -> params of a model file's effects (user effects by their class name)."""
-    eps = model.get("effect_params") or {}
+    from .model.effects import catalogue_name
+
+    # a hand-written model may spell a catalogue effect in any case
+    eps = {catalogue_name(k): v for k, v in (model.get("effect_params") or {}).items()}
     out = {}
     for spec in model.get("effects") or []:
-        name = str(spec)
+        name = catalogue_name(str(spec))
         if name in eps:
             out[name] = eps[name]
             continue
         # a user effect "file.py:Class": its params are stored under the effect's name
-        cands = [k for k in eps if k not in out and k not in (model.get("effects") or [])]
+        cands = [k for k in eps if k not in out and k not in
+                 {catalogue_name(str(e)) for e in model.get("effects") or []}]
         out[name] = eps[cands[0]] if cands else {}
     return {k: {p: v for p, v in (ps or {}).items() if isinstance(v, (int, float))}
             for k, ps in out.items()}
@@ -305,7 +309,7 @@ def check(path: Path | str, model_path: Path | str, tolerance: float = PASS_TOLE
     # validated, never loaded: grading reads the effects' names and numbers only, so a
     # student's user effect (FILE.py:Class) is matched by its parameters, not run
     model = read_model_file(model_path)
-    hidden = truth.get("effects", {})
+    hidden = truth.get("effects", {})  # catalogue names, as load_rig spells them
     have = _model_effects(model)
     used: set[str] = set()
     effects = {}

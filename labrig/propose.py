@@ -22,7 +22,7 @@ import pandas as pd
 
 from .errors import UserError
 from .inputs import Candidate, candidates, why
-from .model.effects import get_effect
+from .model.effects import catalogue_name, get_effect
 from .model.model import Model
 from .noise import Weights, channel_floors
 from .refit import fit, refit_with, without
@@ -157,7 +157,7 @@ class Proposal:
 def default_pair(model: Model, between: str | None) -> tuple:
     """``--between a,b``; else the model's effect and its usual rival."""
     if between:
-        names = [n.strip() for n in between.split(",") if n.strip()]
+        names = [catalogue_name(n.strip()) for n in between.split(",") if n.strip()]
         if len(names) != 2:
             raise UserError(f"--between: give two effects, e.g. deadband,coulomb_friction; got "
                             f"{between!r}")
@@ -448,7 +448,7 @@ def decide(runs: list[Run], model: Model | None = None, *, seed: int = 0, log=No
     new = [r for r in runs if r.experiment.get("between")]
     if not new:
         return None
-    pair = tuple(new[0].experiment["between"])
+    pair = tuple(catalogue_name(n) for n in new[0].experiment["between"])
     old = [r for r in runs if not r.experiment.get("between")]
     if not old:
         raise UserError("the proposed runs alone cannot show a change: give the folder they "

@@ -238,7 +238,7 @@ class ExperimentSpec(_Closed):
     position_gain: Num(0, 1e4) = None
     velocity_gain: Num(0, 1e4) = None
     #: the two effects a proposed experiment tells apart (labrig propose): catalogue names
-    between: Annotated[list[Annotated[str, Field(pattern=r"^[a-z_]{1,40}$")]],
+    between: Annotated[list[Annotated[str, Field(pattern=r"^[A-Za-z_]{1,40}$")]],
                        Field(min_length=2, max_length=2)] = None
     #: pwl breakpoints [[t_s, u_v], ...] (labrig.config checks order and count)
     points: Annotated[list[Annotated[list[Num(-3600, 3600)], Field(min_length=2, max_length=2)]],
@@ -290,8 +290,9 @@ class ModelFile(_Open):
 
     @model_validator(mode="after")
     def _params_for_named_effects(self):
+        named = {e.lower() for e in self.effects}  # effect names in any case
         for name in self.effect_params:
-            if name not in self.effects and not any(":" in e for e in self.effects):
+            if name.lower() not in named and not any(":" in e for e in self.effects):
                 raise ValueError(f"effect_params names '{name}', which is not in 'effects'")
         return self
 

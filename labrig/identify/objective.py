@@ -82,8 +82,11 @@ def build_space(effects: list[Effect], bounds: dict | None = None, fixed: dict |
     effects = EffectSet.parse(effects)
     data = {f"{e.name}.{k}": v for e in effects for k, v in
             (e.data_bounds(reach).items() if reach is not None else ())}
-    user = dict(bounds or {})
-    bounds, fixed = {**data, **user}, dict(fixed or {})
+    # "Deadband.d_v" is deadband.d_v: an effect's name is user input in any case
+    known = {key.lower(): key for key, *_ in effects.bounds()}
+    user = {known.get(k.lower(), k): v for k, v in (bounds or {}).items()}
+    fixed = {known.get(k.lower(), k): v for k, v in (fixed or {}).items()}
+    bounds = {**data, **user}
     names, lo, hi, log = [], [], [], []
     for n in plant.names:
         names.append(n)

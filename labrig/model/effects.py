@@ -457,6 +457,14 @@ def load_user_effect(spec: str, origin: str | None = None) -> type[Effect]:
     return _check_effect_class(cls, spec)
 
 
+def catalogue_name(name):
+    """The catalogue's spelling (lower case) of a catalogue effect named in any case
+    (``"Deadband"`` -> ``"deadband"``); any other name (a user effect's FILE.py:Class)
+    unchanged. Effect names are user input in options and files alike."""
+    key = name.strip().lower() if isinstance(name, str) else name
+    return key if key in CATALOGUE else name
+
+
 def get_effect(name: str, origin: str | None = None) -> Effect:
     """An effect instance by catalogue name or ``file.py:ClassName``.
 

@@ -15,7 +15,7 @@ import numpy as np
 from ..errors import UserError
 from ..fileio import write_json
 from ..schemas import ModelFile, read_json, validate
-from .effects import Effect
+from .effects import Effect, catalogue_name
 from .effectset import EffectSet, param_key
 from .plants import PLANTS, VoltagePlant, plant_class
 from .servo import ServoParams
@@ -118,7 +118,8 @@ class Model:
             raise UserError(f"{origin}: key 'params.{missing[0]}' missing; a {structure} plant "
                             f"has {', '.join(PLANTS[structure].names)}")
         effects = EffectSet.parse(doc.get("effects", []), origin=f"{origin}: key 'effects'")
-        eps = doc.get("effect_params") or {}
+        # a hand-written file may spell a catalogue effect in any case ("Deadband")
+        eps = {catalogue_name(k): v for k, v in (doc.get("effect_params") or {}).items()}
         for e in effects:
             for p in e.params:
                 if not isinstance((eps.get(e.name) or {}).get(p.name), (int, float)):
