@@ -34,7 +34,9 @@ def cmd_emulate(args):
 
 
 def _configure(p):
-    p.add_argument("--board", default="uno", choices=["uno", "mega"])
+    p.add_argument("--board", default="uno", choices=["uno", "mega"],
+                   help="the firmware's board: uno (ATmega328P) or mega (ATmega2560) "
+                        "(default uno)")
     p.add_argument("--rig", help="rig file for the plant model (default configs/rig_default.toml)")
     p.add_argument("--speed", type=float, default=1.0,
                    help="1 = real time (default, timeouts as on the bench); 0 = as fast as possible")

@@ -226,7 +226,9 @@ def _configure_diagnose(p):
     p.add_argument("--fix", help="parameters known from other measurements, e.g. R=8.2")
     p.add_argument("--weights", help="channel weights p (position), q (speed), e.g. p=1,q=1 "
                    "(default: balanced so that neither channel drowns the other)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=int, default=0,
+                   help="random seed of the re-fits (and, with --ask-rig, of the proposal); "
+                        "same seed, same result (default 0)")
     p.add_argument("--candidates", help="only these catalogue effects (default: all the model lacks)")
     p.add_argument("-o", "--output", help="save the model with the recommended effect added "
                    "(with --auto: a folder for the final model, the ladder and the rounds)")
@@ -291,7 +293,9 @@ def _configure_ladder(p):
     p.add_argument("data", nargs="+", help="folder(s) of runs")
     p.add_argument("--models", help="comma-separated model files, in order")
     p.add_argument("--max-steps", type=int, default=3, help="automatic mode: at most this many effects")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=int, default=0,
+                   help="automatic mode: random seed of the fits; same seed, same ladder "
+                        "(default 0)")
     p.add_argument("-o", "--output", default="ladder", help="folder for models and the figure")
     p.add_argument("--force", action="store_true", help="replace files already in the folder")
     p.add_argument("--json", action="store_true", help="print one JSON object")
