@@ -106,4 +106,8 @@ def main(argv=None) -> int:
 
 
 def run() -> None:
-    sys.exit(main())
+    from .timing import mark
+
+    code = main()
+    mark("exit")
+    sys.exit(code)

@@ -275,6 +275,7 @@ def identify(runs, method: str = "co", effects: list[Effect] = (), *, seed: int 
         res = METHODS[method](obj, lo, hi, x0 if (start or method == "co") else None, opts)
     except ValueError as exc:  # the optimisers name the bad argument
         raise UserError(str(exc)) from None
+    mark("fit-end")
     name = method
     if method != "co" and (polish or start):
         best = res
@@ -288,6 +289,7 @@ def identify(runs, method: str = "co", effects: list[Effect] = (), *, seed: int 
     phys = space.to_physical(res.x[None, :])[0]
     metrics = obj.metrics(phys)
     ident = analyse_identifiability(obj, res.x, constants["Ka"]) if identifiability else {}
+    mark("identifiability-end")
     dataset = dict(dataset or {})
     if any(r.current is not None for r in runs) and not space.plant.current_output:
         dataset["current_unused"] = True

@@ -197,7 +197,7 @@ def _candidate(p, s, m, frac, prm, closed, S, c, out_w, out_th, out_i, store, wm
 # prove that the lanes' loads and stores never overlap, so it vectorises without checks.
 (R_A00, R_A01, R_A02, R_A10, R_A11, R_A12, R_A20, R_A21, R_A22M1, R_GN0, R_GN1, R_GN2, R_GO0,
  R_GO1, R_GO2, R_GF0, R_GF1, R_GF2, R_TC, R_GAP, R_FRIC, R_I, R_W, R_TH, R_PL, R_ACC, R_FLAG,
- R_I0, R_W0, R_TH0, R_PL0, R_SNEW, R_SOLD, R_MAP) = range(34)
+ R_I0, R_W0, R_TH0, R_PL0, R_SNEW, R_SOLD, R_RR, R_KK, R_TS, R_E1, R_E2, R_MAP) = range(39)
 N_ROWS = R_MAP + 6  # then the input map's six parameters
 
 
@@ -221,7 +221,7 @@ MODES = (0, FRICTION, FEEDBACK, FEEDBACK | DELAY | FRICTION | PLAY)
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, mode):
+def _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, mode):
     """The exact update of every lane of a block through one sample; returns 1 if
     friction needs some lane's sample redone (their ``R_FLAG`` is 1).
 
@@ -267,25 +267,46 @@ def _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, mode):
             ni += X[R_GO0 * B + j] * s_old
             nw += X[R_GO1 * B + j] * s_old
             nt += X[R_GO2 * B + j] * s_old
+        hold = False
         if fr:
             tc = X[R_TC * B + j]  # friction against the motion: copysign(tc, w), w != 0
             tf = tc if w > 0.0 else (-tc if w < 0.0 else 0.0)
             ni += X[R_GF0 * B + j] * tf
             nw += X[R_GF1 * B + j] * tf
             nt += X[R_GF2 * B + j] * tf
-            # stuck, or the speed reaches zero inside the sample: redone (friction lanes)
-            f = 1 if (X[R_FRIC * B + j] != 0.0) & ((w == 0.0) | (nw * w <= 0.0)) else 0
+            # a stuck rotor that friction still holds: only the current moves, exactly
+            # (the first branch of _friction_step, here for every lane at once)
+            fric = X[R_FRIC * B + j] != 0.0
+            s_prev = X[R_SOLD * B + j]
+            if fb:
+                v1 = kakp * (s_prev - kpot * th / N)
+                v2 = kakp * (s_new - kpot * th / N)
+            else:
+                v1 = s_prev
+                v2 = s_new
+            rr = X[R_RR * B + j]
+            kk = X[R_KK * B + j]
+            ts = X[R_TS * B + j]
+            i1 = v1 / rr + (i - v1 / rr) * X[R_E1 * B + j]
+            i2 = v2 / rr + (i1 - v2 / rr) * X[R_E2 * B + j]
+            hold = fric & (w == 0.0) & (abs(kk * i1) <= ts) & (abs(kk * i2) <= ts)
+            # breaking away, or the speed reaches zero inside the sample: redone alone
+            f = 1 if fric & (not hold) & ((w == 0.0) | (nw * w <= 0.0)) else 0
             nflag |= f  # an "or" reduction vectorises; a count or a float sum does not
             X[R_FLAG * B + j] = f
             X[R_I0 * B + j] = i
             X[R_W0 * B + j] = w
             X[R_TH0 * B + j] = th
+            ni = i2 if hold else ni
+            nw = w if hold else nw
+            nt = th if hold else nt
         if pa:
             X[R_PL0 * B + j] = pl
             x = nt / N  # the play operator, as _play
             lo = x - gap
             hi = x + gap
-            X[R_PL * B + j] = (lo if pl < lo else (hi if pl > hi else pl)) if gap > 0.0 else pl
+            npl = (lo if pl < lo else (hi if pl > hi else pl)) if gap > 0.0 else pl
+            X[R_PL * B + j] = pl if hold else npl
         X[R_I * B + j] = ni
         X[R_W * B + j] = nw
         X[R_TH * B + j] = nt
@@ -326,7 +347,12 @@ def _block(p0, p1, s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed, S, c, ou
                      (R_GN2, g_new[p, 2]), (R_GO0, g_old[p, 0]), (R_GO1, g_old[p, 1]),
                      (R_GO2, g_old[p, 2]), (R_GF0, gf[p, 0]), (R_GF1, gf[p, 1]),
                      (R_GF2, gf[p, 2]), (R_TC, prm[p, C_TC]), (R_GAP, prm[p, C_A]),
-                     (R_TH, c[7] * N), (R_PL, c[7])):
+                     (R_TH, c[7] * N), (R_PL, c[7]), (R_RR, prm[p, 0]), (R_KK, prm[p, 4]),
+                     (R_TS, prm[p, C_TS]),
+                     # the stuck rotor's exact current decay over the two parts of a
+                     # sample, as _friction_step computes them
+                     (R_E1, math.exp(-prm[p, 0] * frac[p] * c[0] / prm[p, 1])),
+                     (R_E2, math.exp(-prm[p, 0] * (1.0 - frac[p]) * c[0] / prm[p, 1]))):
             X[r * B + j] = v
         f = (prm[p, C_TC] > 0.0 or prm[p, C_TS] > 0.0) and not skip[p]
         X[R_FRIC * B + j] = 1.0 if f else 0.0
@@ -380,14 +406,15 @@ def _block(p0, p1, s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed, S, c, ou
                         X[(R_MAP + M_K) * B + j], X[(R_MAP + M_D) * B + j],
                         X[(R_MAP + M_DP) * B + j], X[(R_MAP + M_DN) * B + j], Ka,
                         X[(R_MAP + M_VMAX) * B + j])
+        kakp, kpot = c[1] * c[5], c[4]
         if mode == 0:  # each call site a constant mode: its own vectorised build
-            nflag = _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, 0)
+            nflag = _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, 0)
         elif mode == FRICTION:
-            nflag = _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, 4)
+            nflag = _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, 4)
         elif mode == FEEDBACK:
-            nflag = _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, 1)
+            nflag = _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, 1)
         else:
-            nflag = _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, 15)
+            nflag = _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, 15)
         if nflag > 0:  # the few samples the exact update cannot take, one at a time
             for j in range(q):
                 if X[R_FLAG * B + j] != 0.0:
