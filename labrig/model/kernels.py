@@ -32,7 +32,7 @@ MAP_COLUMNS = ("u0_v", "k", "d_v", "dpos_v", "dneg_v", "vmax_v")
 M_U0, M_K, M_D, M_DP, M_DN, M_VMAX = range(6)
 #: candidates per block of the population kernel: a multiple of the SIMD width whose
 #: state (a few arrays of BLOCK doubles) stays in the first-level cache
-BLOCK = 32
+BLOCK = 64
 
 
 def expm_batch(M):
@@ -382,9 +382,10 @@ def _block(p0, p1, s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed, S, c, ou
                 cj = 0 if shared else p0 + j
                 X[R_SNEW * B + j] = s[kn, cj] if kn >= 0 else 0.0
                 X[R_SOLD * B + j] = s[kn - 1, cj] if kn >= 1 else 0.0
-        else:  # the held input of the sample before is the redo's s_old (k - 1)
-            for j in range(q):
-                X[R_SOLD * B + j] = X[R_SNEW * B + j]
+        else:
+            if mode & FRICTION:  # the held input of the sample before: a stuck rotor's s_old
+                for j in range(q):
+                    X[R_SOLD * B + j] = X[R_SNEW * B + j]
             if shared:
                 su = s[k, 0]
                 for j in range(q):

@@ -1,0 +1,129 @@
+"""Benchmark: the fused fitness path against this machine's measured floating-point limit.
+
+    python benchmarks/bench_kernel.py              # measure (about 1 min), write results_kernel.json
+    python benchmarks/bench_kernel.py --markdown   # the README table of the recorded result
+
+One core (numba and BLAS both held to one thread, so the figure is per core):
+
+* the limit: the best of 5 double-precision matrix products (2000 x 2000, OpenBLAS),
+  2 n^3 flops each: the floating-point rate this core reaches on the friendliest code;
+* the kernel: ``Simulator.sse`` (what JFO and PSO call: simulate and sum the squared
+  residuals, no trajectories stored) on the default simulated sweep, a population of 50
+  candidates within a factor 2 of the default rig, median of 15 calls, for the linear
+  model and with each catalogue effect;
+* flops per sample per candidate, counted in the kernel's source for each path (the
+  exact zero-order-hold update of the three states plus the residuals; see
+  benchmarks/README.md, "The kernel and the limit"); the path's limit is peak / flops and
+  its share of it is candidate-samples per second / limit.
+"""
+from __future__ import annotations
+
+import os
+
+os.environ["OPENBLAS_NUM_THREADS"] = "1"   # before numpy loads its BLAS
+os.environ["NUMBA_NUM_THREADS"] = "1"
+
+import statistics  # noqa: E402
+import sys  # noqa: E402
+import tempfile  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+from whole_process import labrig, machine, main  # noqa: E402
+
+RESULTS = Path(__file__).resolve().parent / "results_kernel.json"
+TARGET_SHARE = 0.35
+POP = 50
+TRUTH = np.array([8.0, 0.0085, 5.2245e-5, 1.0e-5, 0.05])
+# flops per sample per candidate, counted in labrig/model/kernels.py (_sweep, _input_map):
+# the update i, w, theta of the linear model: 3 + 3 + 3 multiplications, 2 + 2 + 3
+# additions (16); the residuals: theta / N, two differences, two scalings, two squares
+# and two additions into the sum (9)
+LINEAR = 16 + 9
+FLOPS = {"linear": LINEAR,
+         "coulomb_friction": LINEAR + 6 + 1,      # + gf Tf on three states, nw * w
+         "stiction": LINEAR + 6 + 1,
+         "delay": LINEAR + 6,                     # + g_old s_old on three states
+         "backlash": LINEAR + 3,                  # play: x = theta / N, x - a, x + a
+         "deadband": LINEAR + 3,                  # |v| - d, sign * max, Ka v
+         "offset": LINEAR + 2,                    # v + u0, Ka v
+         "asymmetry": LINEAR + 3,                 # 1 + k, v (1 + k), Ka v
+         "saturation": LINEAR + 1,                # Ka v (the clip is two comparisons)
+         "asymmetric_deadband": LINEAR + 2}       # v - dpos or v + dneg, Ka v
+VALUES = {"coulomb_friction": {"tc_v": (0.05, 0.3)},
+          "stiction": {"tc_v": (0.05, 0.3), "excess": (0.1, 1.0)},
+          "delay": {"td_s": (0.0005, 0.01)}, "backlash": {"a_rad": (0.005, 0.05)},
+          "deadband": {"d_v": (0.05, 0.4)}, "offset": {"u0_v": (-0.1, 0.1)},
+          "asymmetry": {"k": (-0.2, 0.2)}, "saturation": {"vmax_v": (5.0, 12.0)},
+          "asymmetric_deadband": {"dpos_v": (0.05, 0.3), "dneg_v": (0.05, 0.3)}}
+
+
+def peak_gflops(n: int = 2000) -> float:
+    a = np.random.default_rng(0).random((n, n))
+    a @ a
+    best = min(_timed(lambda: a @ a) for _ in range(5))
+    return 2.0 * n ** 3 / best / 1e9
+
+
+def _timed(fn) -> float:
+    t0 = time.perf_counter()
+    fn()
+    return time.perf_counter() - t0
+
+
+def kernel_rates(folder: Path) -> dict:
+    from labrig.model.effects import CATALOGUE
+    from labrig.model.simulate import Simulator
+    from labrig.runs import read_dataset
+
+    runs = read_dataset(folder)
+    openl = [r for r in runs if r.loop == "open"]
+    rng = np.random.default_rng(1)
+    plant = TRUTH * 10.0 ** rng.uniform(-0.3, 0.3, (POP, 5))
+    out = {}
+    for name in FLOPS:
+        effects = [] if name == "linear" else [CATALOGUE[name]()]
+        ep = {name: {k: rng.uniform(lo, hi, POP) for k, (lo, hi) in VALUES[name].items()}} \
+            if effects else {}
+        for subset, rr in (("open", openl), ("all", runs)):
+            sim = Simulator(rr, effects)
+            w = [(r.speed, 1.0, r.position, 30.0, None, 0.0) for r in rr]
+            sim.sse(plant, ep, w)
+            t = statistics.median(_timed(lambda: sim.sse(plant, ep, w)) for _ in range(15))
+            n = sum(len(r.u) for r in rr)
+            out[f"{name}/{subset}"] = {"ms": round(t * 1e3, 3), "samples": n,
+                                       "cand_samples_per_s": POP * n / t}
+    return out
+
+
+def measure() -> dict:
+    load = os.getloadavg()[0]
+    peak = peak_gflops()
+    with tempfile.TemporaryDirectory() as tmp:
+        labrig("sweep", "--sim", "-o", Path(tmp) / "sweep")
+        rates = kernel_rates(Path(tmp) / "sweep")
+    paths = {}
+    for key, r in rates.items():
+        name = key.split("/")[0]
+        limit = peak * 1e9 / FLOPS[name]
+        paths[key] = {**r, "flops": FLOPS[name], "limit_cand_samples_per_s": limit,
+                      "share": round(r["cand_samples_per_s"] / limit, 3)}
+    return {"peak_gflops_one_core": round(peak, 1), "paths": paths,
+            "target_share": TARGET_SHARE, "threads": 1, **machine(load)}
+
+
+def markdown(res: dict) -> str:
+    rows = ["| fitness path (one core, P = 50) | candidate-samples/s | flops/sample | "
+            "share of the limit |", "|---|---|---|---|"]
+    for key, r in res["paths"].items():
+        name, subset = key.split("/")
+        what = "open-loop runs" if subset == "open" else "all 6 runs (2 closed-loop)"
+        rows.append(f"| {name}, {what} | {r['cand_samples_per_s'] / 1e6:.0f} M | {r['flops']} "
+                    f"| **{100 * r['share']:.0f} %** |")
+    return "\n".join(rows)
+
+
+if __name__ == "__main__":
+    sys.exit(main(__doc__, RESULTS, measure, markdown))
