@@ -7,8 +7,6 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import UserError
-from ..identify.config_file import load_identify_config
-from ..identify.table import all_warnings, format_identification, identification_dict
 from .progress import Progress
 from .registry import command, emit_json, refuse_existing
 
@@ -68,7 +66,9 @@ def cmd_identify(args):
     voltage, torque or force driven). Reports the identifiable combinations (Km, tau_m,
     tau_e) first, then the plant's parameters with identifiability warnings, and the
     physical parameters in the axis's units."""
+    from ..identify.config_file import load_identify_config
     from ..identify.engine import identify
+    from ..identify.table import all_warnings, format_identification, identification_dict
     from ..model.effectset import EffectSet
     from ..model.model import Model
 
