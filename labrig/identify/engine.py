@@ -112,11 +112,16 @@ class Identification:
         return self.space.plant.servo(self.plant, self.constants)
 
     def step_info(self) -> dict:
-        c = self.constants
-        try:
-            return self.servo().position_step_info(c["kp"], c["kv"])
-        except Exception:  # an unstable identified loop has no step metrics
-            return {"rise_time_s": None, "settling_time_s": None, "overshoot_percent": None}
+        """Rise time, settling time and overshoot of the position loop with this model
+        (computed once: the text and the JSON both show them)."""
+        if getattr(self, "_step_info", None) is None:
+            c = self.constants
+            try:
+                self._step_info = self.servo().position_step_info(c["kp"], c["kv"])
+            except Exception:  # an unstable identified loop has no step metrics
+                self._step_info = {"rise_time_s": None, "settling_time_s": None,
+                                   "overshoot_percent": None}
+        return dict(self._step_info)
 
     def physical(self) -> dict:
         """The plant and friction in the axis's units: ``{name: {value, unit, interval95}}``
