@@ -133,3 +133,65 @@ def test_cli_json_and_model_file(tmp_path):
     assert m["format"] == "labrig-model/1" and m["dataset"]["runs"]
     # the hidden friction of the default rig (tc_v = 0.13 V) comes back
     assert m["effect_params"]["coulomb_friction"]["tc_v"] == pytest.approx(0.13, rel=0.15)
+
+
+def _consistent(ident):
+    """The rule of the report: a combination has an interval exactly when it is called
+    identifiable, and a warning that calls tau_e unseen comes with no interval for it."""
+    for key in ("km", "tau_m_s", "tau_e_s"):
+        c = ident[key]
+        assert (c["interval95"] is not None) == c["identifiable"], key
+    if any(w.startswith("tau_e = ") and "not seen" in w for w in ident["warnings"]):
+        assert ident["tau_e_s"]["interval95"] is None
+
+
+def test_offset_fit_sees_km_and_tau_m_and_says_so(linear_data):
+    """`identify --effects offset` on a linear rig: Km and tau_m are seen (tight intervals
+    that hold the truth), and so is the 1.07 ms electrical pole at 1 kHz."""
+    rig, runs = linear_data
+    truth = ServoParams.from_rig(rig)
+    ident = identify(runs, "co", [get_effect("offset")], seed=1, starts=4).identifiable
+    _consistent(ident)
+    # (an interval from white-noise statistics on coloured residuals is too narrow to
+    # promise it holds the truth: the value is near it, the interval tight)
+    for key, true, tol in (("km", truth.km, 0.02), ("tau_m_s", truth.tau_m, 0.02),
+                           ("tau_e_s", truth.tau_e, 0.10)):
+        lo, hi = ident[key]["interval95"]
+        assert lo <= ident[key]["value"] <= hi < 1.5 * lo, (key, lo, hi)
+        assert ident[key]["value"] == pytest.approx(true, rel=tol), key
+    assert not any("not seen" in w for w in ident["warnings"])
+
+
+def test_an_invisible_pole_gets_no_interval_and_km_tau_m_keep_theirs(tmp_path):
+    """tau_e = 11 us at 1 kHz: the data cannot see it. It is called unseen, with no
+    interval and a warning naming why; Km and tau_m keep tight intervals (the directions
+    that move tau_e leave them alone)."""
+    rig = make_rig(effects={}, L=8.5e-5)
+    truth = ServoParams.from_rig(rig)
+    assert truth.tau_e < 2e-5
+    runs = read_dataset(sim_dataset(tmp_path, rig, small_plan()))
+    for method, kw in (("co", {"starts": 4}), ("pso", {"pop": 30, "iters": 60})):
+        ident = identify(runs, method, [get_effect("offset")], seed=1, **kw).identifiable
+        _consistent(ident)
+        assert not ident["tau_e_s"]["identifiable"], method
+        assert any(w.startswith("tau_e = ") and "not seen by these data: it is shorter than "
+                   "half a sample period (0.0005 s)" in w for w in ident["warnings"]), method
+        for key, true in (("km", truth.km), ("tau_m_s", truth.tau_m)):
+            lo, hi = ident[key]["interval95"]
+            assert lo <= ident[key]["value"] <= hi < 1.1 * lo, (method, key, lo, hi)
+            assert ident[key]["value"] == pytest.approx(true, rel=0.03), (method, key)
+
+
+def test_table_names_the_methods_of_a_warning_not_all_share():
+    from labrig.identify.table import comparison_table
+
+    w = "tau_e = 2e-06 s (the fast pole) is not seen by these data: ..."
+    rec = {"params": {}, "identifiable": {"structural_rank": 3, "warnings": ["shared"]}}
+    jfo = {**rec, "method": "jfo", "identifiable": {
+        **rec["identifiable"], "tau_e_s": {"value": 4e-4, "identifiable": True,
+                                            "interval95": [3e-4, 6e-4]}}}
+    co = {**rec, "method": "co", "identifiable": {
+        **rec["identifiable"], "warnings": ["shared", w],
+        "tau_e_s": {"value": 2e-6, "identifiable": False, "interval95": None}}}
+    notes = comparison_table([jfo, co]).notes
+    assert "warning: shared" in notes and f"warning: co: {w}" in notes

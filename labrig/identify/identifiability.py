@@ -11,19 +11,39 @@ the raw parameters with warnings.
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from ..model.plants import VoltagePlant
 
 STRUCTURAL = 1e-6
+#: relative singular value under which (R/l, L/l, lJ, lB, K) counts as the exact symmetry
 PRACTICAL = 1e-3
+#: a quantity (a combination, or a direction of the parameters) whose 95 % interval spans
+#: more than this factor is "not seen by these data": no interval is printed for it
+SEEN_SPAN = 2.0
 COMBINATION_UNITS = {"km": "speed per input V", "tau_m_s": "s", "tau_e_s": "s"}
 
 
 def _combos(plant, values: dict, constants: dict) -> np.ndarray:
     sp = plant.servo(values, constants)
-    every = {"km": sp.km, "tau_m_s": sp.tau_m, "tau_e_s": sp.tau_e}
+    every = {"km": sp.km, **_time_constants(sp)}
     return np.array([every[k] for k in plant.combinations])
+
+
+def _time_constants(sp) -> dict:
+    """tau_m (slow) and tau_e (fast) of J L s^2 + (J R + B L) s + (B R + K ke), the poles
+    of :attr:`ServoParams.poles`, by the quadratic formula in the form that keeps both
+    roots' precision when they are decades apart: np.roots loses digits of the slow one,
+    which the finite differences of the intervals would turn into a spread."""
+    a2, a1 = sp.J * sp.L, sp.J * sp.R + sp.B * sp.L
+    a0 = sp.B * sp.R + sp.K * sp.ke
+    disc = a1 * a1 - 4.0 * a2 * a0
+    if disc < 0:  # complex pair: one real part
+        return {"tau_m_s": 2.0 * a2 / a1, "tau_e_s": 2.0 * a2 / a1}
+    big = 0.5 * (a1 + math.sqrt(disc))
+    return {"tau_m_s": big / a0, "tau_e_s": a2 / big}
 
 
 def _coefficients(plant, current: bool):
@@ -40,14 +60,12 @@ def _coefficients(plant, current: bool):
     return coeffs
 
 
-def structural_rank(plant: dict, free: list[str], plant_class=VoltagePlant,
-                    current: bool = False) -> int:
-    """Rank of d(coefficients)/d ln(free plant parameters): for the voltage plant 3 at
-    most from speed and position, 5 with the armature current; 2 for torque/force."""
+def _coefficient_jacobian(plant: dict, free: list[str], plant_class, current: bool):
+    """d(coefficients)/d ln(free plant parameters), or None when none is free."""
     names = plant_class.names
     idx = [names.index(n) for n in free if n in names]
     if not idx:
-        return 0
+        return None
     p = np.array([plant[n] for n in names])
     coeffs = _coefficients(plant_class, current)
     lp = np.log(p)
@@ -56,8 +74,67 @@ def structural_rank(plant: dict, free: list[str], plant_class=VoltagePlant,
         d = np.zeros(len(names))
         d[k] = 1e-6
         Jm[:, c] = (coeffs(lp + d) - coeffs(lp - d)) / 2e-6
+    return Jm
+
+
+def structural_rank(plant: dict, free: list[str], plant_class=VoltagePlant,
+                    current: bool = False) -> int:
+    """Rank of d(coefficients)/d ln(free plant parameters): for the voltage plant 3 at
+    most from speed and position, 5 with the armature current; 2 for torque/force."""
+    Jm = _coefficient_jacobian(plant, free, plant_class, current)
+    if Jm is None:
+        return 0
     s = np.linalg.svd(Jm, compute_uv=False)
     return int(np.sum(s > 1e-6 * s[0]))
+
+
+def structural_null(plant: dict, free: list[str], plant_class=VoltagePlant,
+                    current: bool = False) -> np.ndarray:
+    """The exact symmetries of the model at ``plant``: an orthonormal basis (rows) of the
+    directions in ln(free plant parameters) that leave every transfer-function
+    coefficient unchanged, e.g. (R/l, L/l, l J, l B, K). Empty (0 rows) when the free
+    plant parameters are all identifiable."""
+    plant_free = [n for n in free if n in plant_class.names]
+    Jm = _coefficient_jacobian(plant, plant_free, plant_class, current)
+    if Jm is None:
+        return np.empty((0, 0))
+    _, s, Vt = np.linalg.svd(Jm, full_matrices=True)
+    rank = int(np.sum(s > 1e-6 * s[0]))
+    return Vt[rank:]
+
+
+def _combination_spread(S, G, r0, s2, null, free, plant_names):
+    """How far the data let each combination move: ``(sd, shift)`` of ln(combination)
+    (rows of ``G``, d ln c / d search coordinate) by the delta method, every direction of
+    the fit counted, and the Gauss-Newton step to the local optimum.
+
+    The combinations are unchanged along the model's exact symmetries (``null``: rows in
+    ln(free plant parameters)), so those directions are taken out before inverting;
+    there the sensitivity ``S`` holds only rounding, which would drown any combination.
+    Every other direction counts with its own singular value, however small: a
+    combination that moves along a weak direction (tau_e of a pole faster than the
+    sampling) gets the wide interval the data allow, one that does not keeps a tight one.
+    (A pseudo-inverse with a cut-off would drop the weak directions and hand every
+    combination a tight interval.) The step says where the optimum lies when the fit
+    stopped short of it (JFO and PSO end near, not at, the optimum): an interval must
+    hold it too.
+    """
+    D = S.shape[1]
+    Q = np.eye(D)
+    if len(null):
+        N = np.zeros((len(null), D))
+        N[:, [free.index(n) for n in free if n in plant_names]] = null
+        Q = np.linalg.svd(N, full_matrices=True)[2][len(null):].T  # the rest, orthonormal
+    U, sv, Wt = np.linalg.svd(S @ Q, full_matrices=False)
+    A = Wt @ (G @ Q).T                          # (directions, combinations)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z = np.where(A == 0, 0.0, A / sv[:, None])  # a direction with no singular value: inf
+        sd = np.sqrt(s2 * np.sum(z ** 2, axis=0))
+        # the step only along directions the data see: along a free one it runs off to a
+        # bound (where a fit may rest with a slope), and the spread above already counts it
+        seen = (sv > STRUCTURAL * sv[0]) & (2 * 1.96 * np.sqrt(s2) / sv <= np.log(SEEN_SPAN))
+    shift = -(U.T @ r0)[seen] @ z[seen]
+    return sd, shift
 
 
 def readable_direction(v: np.ndarray, names: list[str]) -> str:
@@ -107,7 +184,13 @@ def analyse_identifiability(objective, x_search: np.ndarray, Ka: float) -> dict:
     U, sv, Vt = np.linalg.svd(S, full_matrices=False)
     rel = sv / sv[0] if sv[0] > 0 else sv
     s2 = float(np.sum(r0 ** 2) / max(m - D, 1))
-    cov = s2 * np.linalg.pinv(S.T @ S, rcond=PRACTICAL ** 2)
+    # a direction is unseen when the data leave it free beyond a factor SEEN_SPAN (95 %):
+    # the same measure that decides the combinations below, so no direction is called
+    # free while a combination that moves along it gets an interval
+    with np.errstate(divide="ignore", invalid="ignore"):
+        unseen = (rel < STRUCTURAL) | (2 * 1.96 * np.sqrt(s2) / sv > np.log(SEEN_SPAN))
+    keep = ~unseen
+    cov = s2 * (Vt[keep].T / sv[keep] ** 2) @ Vt[keep]
     sd = np.sqrt(np.clip(np.diag(cov), 0, None))
     with np.errstate(all="ignore"):
         corr = cov / np.outer(sd, sd)
@@ -132,7 +215,7 @@ def analyse_identifiability(objective, x_search: np.ndarray, Ka: float) -> dict:
     plant_free = [n for n in free if n in plant.names]
     rank = structural_rank(pd, plant_free, plant, current)
     structural_nullity = len(plant_free) - rank
-    small = [k for k, r in enumerate(rel) if r < PRACTICAL]
+    small = [k for k in range(D) if unseen[k]]
     for j, k in enumerate(small):
         kind = "structurally" if rel[k] < STRUCTURAL or j >= len(small) - structural_nullity \
             else "practically"
@@ -153,9 +236,6 @@ def analyse_identifiability(objective, x_search: np.ndarray, Ka: float) -> dict:
     for k in extra:
         warnings.append(f"practically unidentifiable direction (sigma/sigma1 = {rel[k]:.1e}): "
                         f"{readable_direction(Vt[k], free)}")
-    if any(n == "L" for n in plant_free) and pd["L"] / pd["R"] < 0.5 * objective.runs[0].dt:
-        warnings.append("tau_e = L/R is shorter than half a sample period: the electrical pole "
-                        "is barely visible at this sample rate (sample faster or fix L)")
     pairs = []
     for a in range(D):
         for b in range(a + 1, D):
@@ -175,21 +255,31 @@ def analyse_identifiability(objective, x_search: np.ndarray, Ka: float) -> dict:
         G[:, k] = (np.log(_combos(plant, q, consts)) - np.log(base)) / h
         if not free_log[k]:
             G[:, k] /= pd[n]
-    var = np.einsum("ij,jk,ik->i", G, cov, G)
-    sdl = np.sqrt(np.clip(var, 0, None))
-    nullspace = Vt[rel < PRACTICAL]
+    sdl, shift = _combination_spread(S, G, r0, s2, structural_null(pd, free, plant, current),
+                                     free, plant.names)
     comb = {}
     speed = plant.speed_unit()
     units = {**COMBINATION_UNITS, "km": f"{speed} per V"}
-    for key, v, s, g in zip(plant.combinations, base, sdl, G):
-        unit = units[key]
-        # a combination that moves along an unidentifiable direction has no interval
-        # (the pseudo-inverse would silently drop that direction and claim precision)
-        leak = float(np.max(np.abs(nullspace @ g)) / max(np.linalg.norm(g), 1e-300)) if len(nullspace) else 0.0
-        ok = leak < 0.01
-        comb[key] = {"value": float(v), "unit": unit, "identifiable": ok,
-                     "interval95": [float(v * np.exp(-1.96 * s)), float(v * np.exp(1.96 * s))]
-                     if ok else None}
+    for key, v, sc, dc in zip(plant.combinations, base, sdl, shift):
+        # the 95 % interval about the value, stretched to the optimum when the fit
+        # stopped short of it; seen when it spans less than a factor SEEN_SPAN (wider says
+        # nothing: a pole the data barely touch), and only then printed
+        lo, hi = min(dc, 0.0) - 1.96 * sc, max(dc, 0.0) + 1.96 * sc
+        ok = bool(np.isfinite(hi - lo) and hi - lo <= np.log(SEEN_SPAN))
+        comb[key] = {"value": float(v), "unit": units[key], "identifiable": ok,
+                     "interval95": [float(v * np.exp(lo)), float(v * np.exp(hi))] if ok else None}
+    te = comb.get("tau_e_s")
+    if te is not None and not te["identifiable"]:
+        dt = min(r.dt for r in objective.runs)
+        k = plant.combinations.index("tau_e_s")
+        fix = "sample faster, or fix L and R (locked-rotor test: --fix R=..,L=..)"
+        why = (f"it is shorter than half a sample period ({0.5 * dt:.3g} s); {fix}"
+               if te["value"] < 0.5 * dt else
+               "the fit had not settled along it; polish the fit (--polish)"
+               if abs(shift[k]) > 1.96 * sdl[k] else
+               f"the fit barely changes when it moves; {fix}")
+        warnings.append(f"tau_e = {te['value']:.3g} s (the fast pole) is not seen by these data: "
+                        f"{why}")
     params = {}
     for k, n in enumerate(free):
         v = pd[n]
@@ -198,7 +288,7 @@ def analyse_identifiability(objective, x_search: np.ndarray, Ka: float) -> dict:
             iv = [v * np.exp(-1.96 * s), v * np.exp(1.96 * s)]
         else:
             iv = [v - 1.96 * s, v + 1.96 * s]
-        flag = any(abs(Vt[j, k]) > 0.1 for j, r in enumerate(rel) if r < PRACTICAL)
+        flag = any(abs(Vt[j, k]) > 0.1 for j in small)
         params[n] = {"value": float(v), "interval95": None if flag else [float(iv[0]), float(iv[1])],
                      "identifiable": not flag}
     for n, v in sp.fixed.items():

@@ -142,8 +142,15 @@ def comparison_table(results, best: str | None = None) -> Table:
     for r in recs:  # at a bound, fit below zero: the result is suspect
         for w in r.get("warnings") or []:
             table.notes.append(f"warning: {r.get('method')}: {w}" if prefix else f"warning: {w}")
-    for w in dict.fromkeys(w for r in recs for w in (r.get("identifiable") or {}).get("warnings", [])):
-        table.notes.append(f"warning: {w}")
+    # identifiability depends on where each method ended (one sees a pole, another ends
+    # where it is invisible): a warning not shared by every column names its methods
+    said: dict = {}
+    for r in recs:
+        for w in (r.get("identifiable") or {}).get("warnings", []):
+            said.setdefault(w, []).append(str(r.get("method")))
+    for w, methods in said.items():
+        table.notes.append(f"warning: {w}" if len(methods) == len(recs) else
+                           f"warning: {', '.join(methods)}: {w}")
     if any(c.endswith("?") or "? (not seen" in c for row in rows for c in row[1:]):
         table.notes.append("? = not identifiable from these data alone (see the warning); the "
                            "combinations above are.")
