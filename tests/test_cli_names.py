@@ -61,6 +61,16 @@ def test_identify_takes_method_and_effect_names_in_any_case(ds, capsys):
     assert "offset.u0_v" in d["fixed"]
 
 
+def test_the_python_api_takes_a_method_in_any_case(ds):
+    from labrig.identify.engine import identify
+    from labrig.runs import read_dataset
+
+    p = make_rig().plant
+    res = identify(read_dataset([ds]), "PSO", pop=6, iters=2, seed=1, identifiability=False,
+                   fixed={"R": p.R, "L": p.L, "K": p.K})
+    assert res.method == "pso" and res.result.nfev >= 12
+
+
 def test_files_name_effects_in_any_case(tmp_path):
     from labrig.bridge.base import Experiment
     from labrig.config import load_plan, load_rig

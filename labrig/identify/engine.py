@@ -259,6 +259,7 @@ def identify(runs, method: str = "co", effects: list[Effect] = (), *, seed: int 
     subsample : int, optional
         CO from ``start`` with one start: fit on about this many residuals (every k-th).
     """
+    method = method.lower() if isinstance(method, str) else method  # "JFO" is jfo
     if method not in METHODS:
         raise UserError(f"--method: unknown method '{method}'; choose {', '.join(METHODS)} or all")
     if not runs:
