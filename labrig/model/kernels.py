@@ -30,6 +30,9 @@ C_D, C_U0, C_ASYM, C_VMAX, C_TC, C_TS, C_A, C_TD, C_KE = range(5, 14)
 #: result is the number numpy gives
 MAP_COLUMNS = ("u0_v", "k", "d_v", "dpos_v", "dneg_v", "vmax_v")
 M_U0, M_K, M_D, M_DP, M_DN, M_VMAX = range(6)
+#: smaller populations go one candidate at a time (:func:`_candidate`): for a few lanes
+#: the block's per-sample overhead costs more than the vector loop saves
+SMALL = 8
 #: candidates per block of the population kernel: a multiple of the SIMD width whose
 #: state (a few arrays of BLOCK doubles) stays in the first-level cache
 BLOCK = 64
@@ -160,11 +163,14 @@ def _friction_step(i, w, th, play, s_old, s_new, fr, pr, closed, S, c):
 
 
 @numba.njit(cache=True)
-def _candidate(p, s, m, frac, prm, closed, S, c, out_w, out_th, out_i, store, wm, iw, tm, it,
-               im, ii, sse):
-    """Candidate ``p`` through one run, every sample sub-stepped (a nonlinear closed loop)."""
+def _candidate(p, s, m, frac, Ad, g_old, g_new, gf, prm, nonlinear, closed, S, c, out_w, out_th,
+               out_i, store, wm, iw, tm, it, im, ii, sse):
+    """Candidate ``p`` through one run, one sample after the other: the reference the
+    population kernel reproduces bit for bit, and the kernel of candidates sub-stepped
+    throughout (a nonlinear closed loop) and of small populations (a Jacobian's rows),
+    for which a block's per-sample overhead would cost more than its lanes save."""
     n = s.shape[0]
-    col = 0 if s.shape[1] == 1 else p
+    col = 0 if s.shape[1] == 1 else p  # one input column for all, or one per candidate
     N = c[2]
     acc = 0.0
     i = 0.0
@@ -172,8 +178,16 @@ def _candidate(p, s, m, frac, prm, closed, S, c, out_w, out_th, out_i, store, wm
     th = c[7] * N
     play = c[7]
     pr = prm[p]
-    a = pr[C_A]
+    tc, ts, a = pr[C_TC], pr[C_TS], pr[C_A]
+    friction = tc > 0.0 or ts > 0.0
     mp = m[p]
+    A = Ad[p]
+    a00, a01, a02, a10, a11, a12 = A[0, 0], A[0, 1], A[0, 2], A[1, 0], A[1, 1], A[1, 2]
+    a20, a21, a22 = A[2, 0], A[2, 1], A[2, 2]
+    gn0, gn1, gn2 = g_new[p, 0], g_new[p, 1], g_new[p, 2]
+    go0, go1, go2 = g_old[p, 0], g_old[p, 1], g_old[p, 2]
+    gf0, gf1, gf2 = gf[p, 0], gf[p, 1], gf[p, 2]
+    delayed = go0 != 0.0 or go1 != 0.0 or go2 != 0.0
     for k in range(n):
         yth = play if a > 0.0 else th / N
         if store:
@@ -188,7 +202,52 @@ def _candidate(p, s, m, frac, prm, closed, S, c, out_w, out_th, out_i, store, wm
         kn = k - mp
         s_old = s[ko, col] if ko >= 0 else 0.0
         s_new = s[kn, col] if kn >= 0 else 0.0
-        i, w, th, play = _substeps(i, w, th, play, s_old, s_new, frac[p], pr, closed, S, c)
+        exact = not nonlinear[p] and (w != 0.0 or not friction)
+        if not nonlinear[p] and friction and w == 0.0:
+            # stuck rotor: only the current moves, exactly, while friction holds
+            R, L, K = pr[0], pr[1], pr[4]
+            if closed:
+                v1 = c[1] * c[5] * (s_old - c[4] * th / N)
+                v2 = c[1] * c[5] * (s_new - c[4] * th / N)
+            else:
+                v1 = s_old
+                v2 = s_new
+            fr = frac[p]
+            i1 = v1 / R + (i - v1 / R) * math.exp(-R * fr * c[0] / L)
+            i2 = v2 / R + (i1 - v2 / R) * math.exp(-R * (1.0 - fr) * c[0] / L)
+            if abs(K * i1) <= ts and abs(K * i2) <= ts:
+                i = i2
+                continue
+            i, w, th, play = _substeps(i, w, th, play, s_old, s_new, frac[p], pr, closed, S, c)
+            continue
+        if exact:
+            # the generic update, with the terms that are zero for this candidate skipped
+            # (the hot path of every identifier: no friction, no delay, open loop)
+            ni = a00 * i + a01 * w + gn0 * s_new
+            nw = a10 * i + a11 * w + gn1 * s_new
+            nt = a20 * i + a21 * w + th + gn2 * s_new
+            if closed:
+                ni += a02 * th
+                nw += a12 * th
+                nt += (a22 - 1.0) * th
+            if delayed:
+                ni += go0 * s_old
+                nw += go1 * s_old
+                nt += go2 * s_old
+            if friction and w != 0.0:
+                tf = math.copysign(tc, w)
+                ni += gf0 * tf
+                nw += gf1 * tf
+                nt += gf2 * tf
+            if friction and nw * w <= 0.0:
+                # the speed reaches zero inside this sample: resolve it finely
+                i, w, th, play = _substeps(i, w, th, play, s_old, s_new, frac[p], pr, closed, S, c)
+                continue
+            i, w, th = ni, nw, nt
+            if a > 0.0:
+                play = _play(play, th / N, a)
+        else:
+            i, w, th, play = _substeps(i, w, th, play, s_old, s_new, frac[p], pr, closed, S, c)
     sse[p] = acc
 
 
@@ -216,8 +275,10 @@ def _input_map(v, u0, k, d, dp, dn, Ka, vmax):
 
 #: the terms a block's update needs (bits of ``_sweep``'s mode; one build per mode used)
 FEEDBACK, DELAY, FRICTION, PLAY = 1, 2, 4, 8
-#: the modes built: the short update, Coulomb friction alone, a linear closed loop, all
-MODES = (0, FRICTION, FEEDBACK, FEEDBACK | DELAY | FRICTION | PLAY)
+#: the modes built: the short update, Coulomb friction alone, a linear closed loop, and
+#: every term in open and in closed loop (the feedback bit also says how a stuck rotor's
+#: drive is formed: through the loop, or the input itself)
+MODES = (0, FRICTION, FEEDBACK, DELAY | FRICTION | PLAY, FEEDBACK | DELAY | FRICTION | PLAY)
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -363,8 +424,8 @@ def _block(p0, p1, s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed, S, c, ou
     # the terms any lane needs, rounded up to a mode that is built
     mode = (FEEDBACK if closed else 0) | (DELAY if delay else 0) \
         | (FRICTION if friction else 0) | (PLAY if play else 0)
-    if mode not in (0, FRICTION, FEEDBACK):
-        mode = FEEDBACK | DELAY | FRICTION | PLAY
+    if mode not in (0, FRICTION, FEEDBACK):  # every term; feedback only in a closed loop
+        mode = (FEEDBACK if closed else 0) | DELAY | FRICTION | PLAY
     for k in range(n):
         if store:  # the trajectories (simulate): the state at the start of the sample
             for j in range(q):
@@ -414,6 +475,8 @@ def _block(p0, p1, s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed, S, c, ou
             nflag = _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, 4)
         elif mode == FEEDBACK:
             nflag = _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, 1)
+        elif mode == DELAY | FRICTION | PLAY:
+            nflag = _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, 14)
         else:
             nflag = _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, 15)
         if nflag > 0:  # the few samples the exact update cannot take, one at a time
@@ -449,32 +512,23 @@ def _population_par(threads, s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed
                    out_th, out_i, store, wm, iw, tm, it, im, ii, sse, imap)
 
 
-@numba.njit(cache=True)
-def _population_ser(s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed, S, c, out_w, out_th,
-                    out_i, store, wm, iw, tm, it, im, ii, sse, imap):
-    P = prm.shape[0]
-    for p0 in range(0, P, BLOCK):
-        _block(p0, min(P, p0 + BLOCK), s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed, S,
-               c, out_w, out_th, out_i, store, wm, iw, tm, it, im, ii, sse, imap)
-
-
 # Two drivers with distinct code for each kernel (numba's cache would otherwise hand the
 # parallel dispatcher the serial build of a shared function). Threads pay off for a
 # swarm; for the few rows of a finite-difference Jacobian the wake-up costs more.
 @numba.njit(parallel=True, cache=True)
-def _substepped_par(idx, s, m, frac, prm, closed, S, c, out_w, out_th, out_i, store, wm, iw,
-                    tm, it, im, ii, sse):
+def _each_par(idx, s, m, frac, Ad, g_old, g_new, gf, prm, nonlinear, closed, S, c, out_w,
+                    out_th, out_i, store, wm, iw, tm, it, im, ii, sse):
     for j in numba.prange(idx.shape[0]):
-        _candidate(idx[j], s, m, frac, prm, closed, S, c, out_w, out_th, out_i, store, wm, iw,
-                   tm, it, im, ii, sse)
+        _candidate(idx[j], s, m, frac, Ad, g_old, g_new, gf, prm, nonlinear, closed, S, c,
+                   out_w, out_th, out_i, store, wm, iw, tm, it, im, ii, sse)
 
 
 @numba.njit(cache=True)
-def _substepped_ser(idx, s, m, frac, prm, closed, S, c, out_w, out_th, out_i, store, wm, iw,
-                    tm, it, im, ii, sse):
+def _each_ser(idx, s, m, frac, Ad, g_old, g_new, gf, prm, nonlinear, closed, S, c, out_w,
+                    out_th, out_i, store, wm, iw, tm, it, im, ii, sse):
     for j in range(idx.shape[0]):
-        _candidate(idx[j], s, m, frac, prm, closed, S, c, out_w, out_th, out_i, store, wm, iw,
-                   tm, it, im, ii, sse)
+        _candidate(idx[j], s, m, frac, Ad, g_old, g_new, gf, prm, nonlinear, closed, S, c,
+                   out_w, out_th, out_i, store, wm, iw, tm, it, im, ii, sse)
 
 
 def run_kernels(s, m, frac, Ad, g_old, g_new, gf, prm, nonlinear, closed, S, c, out_w, out_th,
@@ -484,17 +538,18 @@ def run_kernels(s, m, frac, Ad, g_old, g_new, gf, prm, nonlinear, closed, S, c, 
 
     ``imap`` (P, 6): the open-loop input map per candidate, applied in the kernel to the
     shared input ``s`` (see :data:`MAP_COLUMNS`); an array of 0 rows when ``s`` is the
-    armature voltage already."""
+    armature voltage already (always, for fewer than :data:`SMALL` candidates)."""
     P = prm.shape[0]
+    if P < SMALL:  # a Jacobian's few rows: one candidate at a time costs less
+        _each_ser(np.arange(P), s, m, frac, Ad, g_old, g_new, gf, prm, nonlinear, closed, S,
+                  c, out_w, out_th, out_i, store, wm, iw, tm, it, im, ii, sse)
+        return
     idx = np.flatnonzero(nonlinear)
-    if idx.size < P and P >= 16:
+    if idx.size < P:
         _population_par(numba.get_num_threads(), s, m, frac, Ad, g_old, g_new, gf, prm,
                         nonlinear, closed, S, c, out_w, out_th, out_i, store, wm, iw, tm, it,
                         im, ii, sse, imap)
-    elif idx.size < P:
-        _population_ser(s, m, frac, Ad, g_old, g_new, gf, prm, nonlinear, closed, S, c, out_w,
-                        out_th, out_i, store, wm, iw, tm, it, im, ii, sse, imap)
     if idx.size:
-        (_substepped_par if idx.size >= 4 else _substepped_ser)(
-            idx, s, m, frac, prm, closed, S, c, out_w, out_th, out_i, store, wm, iw, tm, it,
-            im, ii, sse)
+        (_each_par if idx.size >= 4 else _each_ser)(
+            idx, s, m, frac, Ad, g_old, g_new, gf, prm, nonlinear, closed, S, c, out_w, out_th,
+            out_i, store, wm, iw, tm, it, im, ii, sse)

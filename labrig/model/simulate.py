@@ -29,7 +29,7 @@ from ..errors import UserError
 from .effects import (AsymmetricDeadband, Asymmetry, Deadband, Effect, Offset, Saturation,
                       ordered)
 from .kernels import (C_A, C_ASYM, C_D, C_KE, C_TC, C_TD, C_TS, C_U0, C_VMAX, MAP_COLUMNS,
-                      expm_batch, run_kernels)
+                      SMALL, expm_batch, run_kernels)
 
 # kernel parameter columns: R, L, J, B, K (labrig.model.plants: every plant's kernel
 # form), then the effects' (C_D..C_TD), then the back-EMF constant Ke (0 for a
@@ -209,7 +209,7 @@ class Simulator:
         staged = [e for e in self.effects if e.stage in ("input", "drive")]
         if not staged:
             return np.ascontiguousarray(run.u[:, None] * run.Ka), _NO_MAP
-        if all(type(e) in _MAPPED for e in staged):
+        if P >= SMALL and all(type(e) in _MAPPED for e in staged):
             imap = np.zeros((P, len(MAP_COLUMNS)))
             imap[:, MAP_COLUMNS.index("vmax_v")] = np.inf
             for e in staged:

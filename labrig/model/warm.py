@@ -23,8 +23,8 @@ _done = False
 def _dispatchers():
     from . import kernels
 
-    return [kernels._population_par, kernels._population_ser, kernels._substepped_par,
-            kernels._substepped_ser, kernels._expm_par, kernels._expm_ser]
+    return [kernels._population_par, kernels._each_par, kernels._each_ser,
+            kernels._expm_par, kernels._expm_ser]
 
 
 def cache_is_warm() -> bool:
@@ -55,7 +55,7 @@ def _workload() -> None:
         sim = Simulator(runs, [CATALOGUE[n]() for n in names])
         ep = {n: values[n] for n in names}
         weights = [(r.w, 1.0, r.theta, 1.0, None, 0.0) for r in runs]
-        for P in (3, 40):  # the serial and the parallel drivers (expm's from 32)
+        for P in (3, 40):  # one at a time and the population kernel (expm's threads from 32)
             sim.sse(np.tile(plant, (P, 1)), ep, weights)
         sim.simulate(np.tile(plant, (3, 1)), ep)
 
