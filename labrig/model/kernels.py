@@ -538,11 +538,16 @@ def run_kernels(s, m, frac, Ad, g_old, g_new, gf, prm, nonlinear, closed, S, c, 
 
     ``imap`` (P, 6): the open-loop input map per candidate, applied in the kernel to the
     shared input ``s`` (see :data:`MAP_COLUMNS`); an array of 0 rows when ``s`` is the
-    armature voltage already (always, for fewer than :data:`SMALL` candidates)."""
+    armature voltage already (always for trajectories and for fewer than :data:`SMALL`
+    candidates: those go one candidate at a time)."""
     P = prm.shape[0]
-    if P < SMALL:  # a Jacobian's few rows: one candidate at a time costs less
-        _each_ser(np.arange(P), s, m, frac, Ad, g_old, g_new, gf, prm, nonlinear, closed, S,
-                  c, out_w, out_th, out_i, store, wm, iw, tm, it, im, ii, sse)
+    if store or P < SMALL:
+        # trajectories: each candidate writes its own contiguous rows (the lanes of a block
+        # would scatter across them every sample); a Jacobian's few rows: no block
+        # overhead. One candidate at a time, threads across candidates.
+        (_each_par if P >= 16 else _each_ser)(  # threads wake slower than 16 candidates run
+            np.arange(P), s, m, frac, Ad, g_old, g_new, gf, prm, nonlinear, closed, S, c,
+            out_w, out_th, out_i, store, wm, iw, tm, it, im, ii, sse)
         return
     idx = np.flatnonzero(nonlinear)
     if idx.size < P:
@@ -550,6 +555,6 @@ def run_kernels(s, m, frac, Ad, g_old, g_new, gf, prm, nonlinear, closed, S, c, 
                         nonlinear, closed, S, c, out_w, out_th, out_i, store, wm, iw, tm, it,
                         im, ii, sse, imap)
     if idx.size:
-        (_each_par if idx.size >= 4 else _each_ser)(
+        (_each_par if idx.size >= 16 else _each_ser)(
             idx, s, m, frac, Ad, g_old, g_new, gf, prm, nonlinear, closed, S, c, out_w, out_th,
             out_i, store, wm, iw, tm, it, im, ii, sse)

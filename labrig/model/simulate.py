@@ -202,14 +202,14 @@ class Simulator:
         return total
 
     # ------------------------------------------------------------------------------
-    def _open_loop_input(self, run: RunData, ep, P):
+    def _open_loop_input(self, run: RunData, ep, P, vector: bool):
         """The open-loop drive: the shared input and the candidates' input maps for the
-        kernel to apply (built-in effects), or the mapped inputs laid out (samples,
-        candidates) when a user's effect is among them."""
+        population kernel to apply (``vector``: built-in effects), or the mapped inputs laid
+        out (samples, candidates) for the per-candidate kernel or a user's effect."""
         staged = [e for e in self.effects if e.stage in ("input", "drive")]
         if not staged:
             return np.ascontiguousarray(run.u[:, None] * run.Ka), _NO_MAP
-        if P >= SMALL and all(type(e) in _MAPPED for e in staged):
+        if vector and all(type(e) in _MAPPED for e in staged):
             imap = np.zeros((P, len(MAP_COLUMNS)))
             imap[:, MAP_COLUMNS.index("vmax_v")] = np.inf
             for e in staged:
@@ -242,7 +242,7 @@ class Simulator:
             nonlinear = ((prm[:, C_D] != 0) | (prm[:, C_U0] != 0) | (prm[:, C_ASYM] != 0)
                          | np.isfinite(prm[:, C_VMAX]) | (prm[:, C_A] != 0))
         else:
-            s, imap = self._open_loop_input(run, ep, P)
+            s, imap = self._open_loop_input(run, ep, P, weights is not None and P >= SMALL)
             nonlinear = np.zeros(P, dtype=bool)
         consts = np.array([run.dt, run.Ka, run.N, run.Kt, run.Kpot, run.kp, run.kv, run.theta0])
         mi = m.astype(np.int64)

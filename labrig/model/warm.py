@@ -28,10 +28,15 @@ def _dispatchers():
 
 
 def cache_is_warm() -> bool:
-    """True when numba's cache holds every driver kernel (checked without compiling)."""
+    """True when numba's cache holds every driver kernel, compiled from the kernels' source
+    as it is now (an index older than the source is stale: numba would recompile)."""
+    from . import kernels
+
     try:
-        return all(os.path.exists(d._cache._cache_file._index_path) for d in _dispatchers())
-    except AttributeError:  # another numba's private layout: assume cold, warm again
+        source = os.path.getmtime(kernels.__file__)
+        indexes = [d._cache._cache_file._index_path for d in _dispatchers()]
+        return all(os.path.exists(p) and os.path.getmtime(p) >= source for p in indexes)
+    except (AttributeError, OSError):  # another numba's private layout: assume cold
         return False
 
 
@@ -84,8 +89,11 @@ def ready() -> None:
 
 def main() -> int:
     """``python -m labrig.model.warm``: the install step that fills the cache."""
-    cold = not cache_is_warm()
-    seconds = warm()
+    # run as a script this file is ``__main__``; the simulators ask the imported module
+    from labrig.model import warm as module
+
+    cold = not module.cache_is_warm()
+    seconds = module.warm()
     print(f"labrig: simulator kernels {'compiled' if cold else 'loaded from the cache'} "
           f"in {seconds:.1f} s")
     return 0
