@@ -94,27 +94,48 @@ def test_links_between_documents_resolve():
     assert not broken, "broken links:\n" + "\n".join(broken)
 
 
-def test_readme_quotes_the_recorded_auto_benchmark():
-    """The README's diagnose --auto row is the one benchmarks/bench_auto.py writes from
-    its recorded result (benchmarks/results_auto.json)."""
+def _markdown(script: str) -> str:
     import subprocess
     import sys
 
-    row = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "bench_auto.py"), "--markdown"],
-                         capture_output=True, text=True, check=True).stdout.strip()
-    assert row in (ROOT / "README.md").read_text()
+    return subprocess.run([sys.executable, str(ROOT / "benchmarks" / script), "--markdown"],
+                          capture_output=True, text=True, check=True).stdout.strip()
 
 
-def test_readme_quotes_the_recorded_propose_benchmark():
-    """The README's propose row is the one benchmarks/bench_propose.py writes from its
-    recorded result (benchmarks/results_propose.json)."""
+def test_readme_quotes_the_recorded_whole_process_benchmark():
+    """The README's performance rows are the ones benchmarks/bench_user.py writes from its
+    recorded run (benchmarks/results_user.json), with that run's load average and the
+    reference's seconds per candidate."""
     import json
-    import subprocess
-    import sys
 
-    row = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "bench_propose.py"),
-                          "--markdown"], capture_output=True, text=True, check=True).stdout.strip()
     readme = (ROOT / "README.md").read_text()
-    assert row in readme
-    load = json.loads((ROOT / "benchmarks" / "results_propose.json").read_text())["loadavg_before"]
-    assert f"load average {load:.1f} at the start): one" in readme
+    for row in _markdown("bench_user.py").splitlines():
+        assert row in readme, row
+    rec = json.loads((ROOT / "benchmarks" / "results_user.json").read_text())
+    assert f"load average {rec['loadavg_before']:.1f} at the start" in readme
+    ref = rec["reference_per_candidate_s"]
+    for key in ("linear", "coulomb", "loop"):
+        assert f"{ref[key]:.3f} s per candidate" in readme, key
+    jfo = rec["identify"]["jfo_linear"]
+    prose = " ".join(readme.split())  # the figures in the text, whatever the line breaks
+    marks = jfo["marks"]
+    assert (f"fitting starts {marks['fit-start']:.2f} s after launch, the fit ends at "
+            f"{marks['fit-end']:.2f} s, identifiability at {marks['identifiability-end']:.2f} s, "
+            f"and the process ends at {marks['exit']:.2f} s") in prose
+    assert f"under {jfo['nfev'] * ref['linear'] / 1000:.1f} s" in prose
+    from labrig.model.warm import COMPILE_S
+
+    assert f"compiling the simulator once (about {COMPILE_S} s on a 2-core machine" in prose
+
+
+def test_readme_quotes_the_recorded_kernel_benchmark():
+    """The kernel-against-the-limit table and the measured peak are those of
+    benchmarks/results_kernel.json."""
+    import json
+
+    readme = (ROOT / "README.md").read_text()
+    assert _markdown("bench_kernel.py") in readme
+    rec = json.loads((ROOT / "benchmarks" / "results_kernel.json").read_text())
+    assert f"{rec['peak_gflops_one_core']:.1f} GFLOP/s" in readme
+    share = rec["paths"]["linear/open"]["share"]
+    assert f"**{100 * share:.0f} %** on the open-loop runs" in " ".join(readme.split())
