@@ -203,22 +203,9 @@ def _candidate(p, s, m, frac, Ad, g_old, g_new, gf, prm, nonlinear, closed, S, c
         s_old = s[ko, col] if ko >= 0 else 0.0
         s_new = s[kn, col] if kn >= 0 else 0.0
         exact = not nonlinear[p] and (w != 0.0 or not friction)
-        if not nonlinear[p] and friction and w == 0.0:
-            # stuck rotor: only the current moves, exactly, while friction holds
-            R, L, K = pr[0], pr[1], pr[4]
-            if closed:
-                v1 = c[1] * c[5] * (s_old - c[4] * th / N)
-                v2 = c[1] * c[5] * (s_new - c[4] * th / N)
-            else:
-                v1 = s_old
-                v2 = s_new
-            fr = frac[p]
-            i1 = v1 / R + (i - v1 / R) * math.exp(-R * fr * c[0] / L)
-            i2 = v2 / R + (i1 - v2 / R) * math.exp(-R * (1.0 - fr) * c[0] / L)
-            if abs(K * i1) <= ts and abs(K * i2) <= ts:
-                i = i2
-                continue
-            i, w, th, play = _substeps(i, w, th, play, s_old, s_new, frac[p], pr, closed, S, c)
+        if not nonlinear[p] and friction and w == 0.0:  # stuck rotor
+            i, w, th, play = _friction_step(i, w, th, play, s_old, s_new, frac[p], pr, closed,
+                                            S, c)
             continue
         if exact:
             # the generic update, with the terms that are zero for this candidate skipped
