@@ -28,8 +28,9 @@ import numpy as np
 from ..errors import UserError
 from .effects import (AsymmetricDeadband, Asymmetry, Deadband, Effect, Offset, Saturation,
                       ordered)
-from .kernels import (C_A, C_ASYM, C_D, C_KE, C_TC, C_TD, C_TS, C_U0, C_VMAX, MAP_COLUMNS,
-                      SMALL, expm_batch, run_kernels)
+from .candidate_kernel import (C_A, C_ASYM, C_D, C_KE, C_TC, C_TD, C_TS, C_U0, C_VMAX,
+                               expm_batch)
+from .kernels import MAP_COLUMNS, SMALL, run_kernels
 
 # kernel parameter columns: R, L, J, B, K (labrig.model.plants: every plant's kernel
 # form), then the effects' (C_D..C_TD), then the back-EMF constant Ke (0 for a

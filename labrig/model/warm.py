@@ -21,48 +21,58 @@ _done = False
 
 
 def _dispatchers():
-    from . import kernels
+    from . import candidate_kernel, kernels
 
-    return [kernels._population_par, kernels._each_par, kernels._each_ser,
-            kernels._expm_par, kernels._expm_ser]
+    return [kernels.population_par, candidate_kernel.each_par, candidate_kernel.each_ser,
+            candidate_kernel.expm_par, candidate_kernel.expm_ser]
 
 
 def cache_is_warm() -> bool:
     """True when numba's cache holds every driver kernel, compiled from the kernels' source
-    as it is now (an index older than the source is stale: numba would recompile)."""
-    from . import kernels
+    as it is now (an index older than its source is stale: numba would recompile)."""
+    import sys as _sys
 
     try:
-        source = os.path.getmtime(kernels.__file__)
-        indexes = [d._cache._cache_file._index_path for d in _dispatchers()]
-        return all(os.path.exists(p) and os.path.getmtime(p) >= source for p in indexes)
-    except (AttributeError, OSError):  # another numba's private layout: assume cold
+        return all(os.path.exists(p) and os.path.getmtime(p)
+                   >= os.path.getmtime(_sys.modules[d.py_func.__module__].__file__)
+                   for d in _dispatchers() for p in [d._cache._cache_file._index_path])
+    except (AttributeError, KeyError, OSError):  # another numba's private layout: cold
         return False
 
 
 def _workload() -> None:
-    """Every kernel and mode on a tiny problem: open and closed loop, serial and parallel
-    drivers, trajectories and fitness, every kind of effect."""
-    from .effects import CATALOGUE
-    from .simulate import RunData, Simulator
+    """Every driver and mode on a tiny problem, with the argument types the simulator
+    passes: open and closed loop, friction, delay and play, an input map, trajectories and
+    fitness, one candidate at a time and the population kernel (threads from 16)."""
+    from .candidate_kernel import C_A, C_D, C_TC, C_TS, C_VMAX, expm_batch
+    from .kernels import MAP_COLUMNS, run_kernels
 
-    t = np.arange(200) * 1e-3
-    u = np.where((t > 0.02) & (t < 0.12), 1.5, -1.5)
-    common = dict(dt=1e-3, Ka=4.0, N=30.0, Kt=0.0095, Kpot=1.0, theta0=0.0, amplitude=1.5)
-    runs = [RunData(name="o", u=u, loop="open", kp=0.0, kv=0.0, w=u * 0, theta=u * 0, **common),
-            RunData(name="c", u=u * 0.3, loop="closed", kp=1.0, kv=0.3, w=u * 0, theta=u * 0,
-                    **common)]
-    plant = np.array([8.0, 0.0085, 5.2e-5, 1.0e-5, 0.05])
-    values = {"coulomb_friction": {"tc_v": 0.1}, "deadband": {"d_v": 0.2},
-              "delay": {"td_s": 0.0015}, "backlash": {"a_rad": 0.01}}
-    for names in ([], ["coulomb_friction"], ["deadband"], ["delay", "backlash"],
-                  ["coulomb_friction", "deadband", "delay", "backlash"]):
-        sim = Simulator(runs, [CATALOGUE[n]() for n in names])
-        ep = {n: values[n] for n in names}
-        weights = [(r.w, 1.0, r.theta, 1.0, None, 0.0) for r in runs]
-        for P in (3, 40):  # one at a time and the population kernel (expm's threads from 32)
-            sim.sse(np.tile(plant, (P, 1)), ep, weights)
-        sim.simulate(np.tile(plant, (3, 1)), ep)
+    n = 60
+    u = np.where(np.arange(n) % 30 < 15, 1.5, -1.5)
+    consts = np.array([1e-3, 4.0, 30.0, 0.0095, 1.0, 1.0, 0.3, 0.0])
+    for P in (3, 20, 40):
+        M = np.zeros((P, 5, 5))
+        M[:, 0, 0], M[:, 1, 1] = -900.0, -0.2
+        E = expm_batch(M * 1e-3)  # the serial and (from 32) the threaded expm
+        Ad = np.ascontiguousarray(E[:, :3, :3])
+        g = np.ascontiguousarray(E[:, :3, 3])
+        for closed, nonlinear, mapped, extra in ((0, False, False, None), (0, False, True, C_TC),
+                                                  (1, False, False, C_A), (1, True, False, C_D)):
+            prm = np.zeros((P, 14))
+            prm[:, :5] = [8.0, 0.0085, 5.2e-5, 1.0e-5, 0.05]
+            prm[:, C_VMAX] = np.inf
+            if extra is not None:
+                prm[:, extra] = 0.01
+                prm[:, C_TS] = prm[:, C_TC]
+            m = np.zeros(P, np.int64)
+            m[0] = 1  # a delayed lane
+            imap = np.zeros((P if mapped else 0, len(MAP_COLUMNS)))
+            s = np.ascontiguousarray(u[:, None])
+            for store in (False, True):
+                out = (np.empty((P, n)),) * 3 if store else (np.empty((1, 1)),) * 3
+                run_kernels(s, m, np.zeros(P), Ad, g, g, g, prm,
+                            np.full(P, nonlinear, dtype=bool), closed, 4, consts, *out, store,
+                            u * 0.0, 1.0, u * 0.0, 1.0, u * 0.0, 0.0, np.zeros(P), imap)
 
 
 def warm() -> float:

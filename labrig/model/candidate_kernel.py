@@ -1,0 +1,237 @@
+"""The per-candidate kernels: one candidate through a run, sample after sample.
+
+The reference the population kernel (:mod:`labrig.model.kernels`) reproduces bit for bit,
+and the kernel of the cases it leaves: trajectories (each candidate writes its own
+contiguous rows), a Jacobian's few rows, and closed loops with an input nonlinearity or
+backlash inside the loop (semi-implicit sub-steps throughout, Karnopp friction, as the
+truth integrator). Also the batched matrix exponential of the exact zero-order hold.
+"""
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+# kernel parameter columns: R, L, J, B, K, then the effects', then the back-EMF constant
+# (labrig.model.simulate writes them)
+C_D, C_U0, C_ASYM, C_VMAX, C_TC, C_TS, C_A, C_TD, C_KE = range(5, 14)
+
+
+def expm_batch(M):
+    """Batched expm; threads only pay off for large populations."""
+    return expm_par(M) if M.shape[0] >= 32 else expm_ser(M)
+
+
+@numba.njit(cache=True)
+def _expm_one(A0):
+    n = A0.shape[0]
+    nrm = 0.0
+    for r in range(n):
+        row = 0.0
+        for q in range(n):
+            row += abs(A0[r, q])
+        nrm = max(nrm, row)
+    sq = 0
+    while nrm > 0.5:
+        nrm *= 0.5
+        sq += 1
+    A = A0 / (2.0 ** sq)
+    E = np.eye(n)
+    term = np.eye(n)
+    for k in range(1, 19):
+        term = term @ A / k
+        E = E + term
+    for _ in range(sq):
+        E = E @ E
+    return E
+
+
+@numba.njit(cache=True)
+def expm_ser(M):
+    out = np.empty_like(M)
+    for p in range(M.shape[0]):
+        out[p] = _expm_one(M[p])
+    return out
+
+
+@numba.njit(parallel=True, cache=True)
+def expm_par(M):
+    out = np.empty_like(M)
+    for p in numba.prange(M.shape[0]):
+        out[p] = _expm_one(M[p])
+    return out
+
+
+@numba.njit(cache=True, inline="always")
+def _play(play, x, a):
+    """The play operator (backlash of half gap a): the output follows x only at the gap's ends."""
+    if play < x - a:
+        return x - a
+    if play > x + a:
+        return x + a
+    return play
+
+
+@numba.njit(cache=True)
+def _substeps(i, w, th, play, s_old, s_new, frac, prm, closed, S, c):
+    """Semi-implicit sub-steps through one sample, Karnopp friction (as the truth)."""
+    dt, Ka, N, Kt, Kpot, kp, kv = c[0], c[1], c[2], c[3], c[4], c[5], c[6]
+    R, L, J, B, K, Ke = prm[0], prm[1], prm[2], prm[3], prm[4], prm[13]
+    d, u0, ak, vmax, tc, ts, a = prm[5], prm[6], prm[7], prm[8], prm[9], prm[10], prm[11]
+    h = dt / S
+    quasi = L / R < h / 10.0
+    for j in range(S):
+        s = s_old if j < frac * S - 1e-9 else s_new
+        if closed:
+            seen = play if a > 0.0 else th / N
+            e = kp * (s - Kpot * seen) - kv * Kt * w
+            e = e + u0
+            if ak != 0.0:
+                e = e * (1.0 + ak) if e >= 0.0 else e * (1.0 - ak)
+            if d > 0.0:
+                e = math.copysign(max(abs(e) - d, 0.0), e)
+            v = Ka * e
+            if v > vmax:
+                v = vmax
+            elif v < -vmax:
+                v = -vmax
+        else:
+            v = s
+        if quasi:
+            i = (v - Ke * w) / R
+        else:
+            i = (i + h / L * (v - Ke * w)) / (1.0 + h * R / L)
+        tnf = K * i - B * w
+        if tc > 0.0 or ts > 0.0:
+            if w == 0.0:
+                if abs(tnf) <= ts:
+                    w = 0.0
+                else:
+                    w = h / J * (tnf - math.copysign(ts, tnf))
+            else:
+                wn = w + h / J * (tnf - math.copysign(tc, w))
+                if wn * w <= 0.0 and abs(tnf) <= ts:
+                    wn = 0.0
+                w = wn
+        else:
+            w = w + h / J * tnf
+        th = th + h * w
+        if a > 0.0:
+            play = _play(play, th / N, a)
+    return i, w, th, play
+
+
+@numba.njit(cache=True)
+def friction_step(i, w, th, play, s_old, s_new, fr, pr, closed, S, c):
+    """One sample of a candidate under friction that the exact update cannot take: a stuck
+    rotor (only the current moves, exactly, while friction holds), else sub-steps."""
+    N = c[2]
+    if w == 0.0:
+        R, L, K, ts = pr[0], pr[1], pr[4], pr[C_TS]
+        if closed:
+            v1 = c[1] * c[5] * (s_old - c[4] * th / N)
+            v2 = c[1] * c[5] * (s_new - c[4] * th / N)
+        else:
+            v1 = s_old
+            v2 = s_new
+        i1 = v1 / R + (i - v1 / R) * math.exp(-R * fr * c[0] / L)
+        i2 = v2 / R + (i1 - v2 / R) * math.exp(-R * (1.0 - fr) * c[0] / L)
+        if abs(K * i1) <= ts and abs(K * i2) <= ts:
+            return i2, w, th, play
+    return _substeps(i, w, th, play, s_old, s_new, fr, pr, closed, S, c)
+
+
+@numba.njit(cache=True)
+def _candidate(p, s, m, frac, Ad, g_old, g_new, gf, prm, nonlinear, closed, S, c, out_w, out_th,
+               out_i, store, wm, iw, tm, it, im, ii, sse):
+    """Candidate ``p`` through one run, one sample after the other: the reference the
+    population kernel reproduces bit for bit, and the kernel of candidates sub-stepped
+    throughout (a nonlinear closed loop) and of small populations (a Jacobian's rows),
+    for which a block's per-sample overhead would cost more than its lanes save."""
+    n = s.shape[0]
+    col = 0 if s.shape[1] == 1 else p  # one input column for all, or one per candidate
+    N = c[2]
+    acc = 0.0
+    i = 0.0
+    w = 0.0
+    th = c[7] * N
+    play = c[7]
+    pr = prm[p]
+    tc, ts, a = pr[C_TC], pr[C_TS], pr[C_A]
+    friction = tc > 0.0 or ts > 0.0
+    mp = m[p]
+    A = Ad[p]
+    a00, a01, a02, a10, a11, a12 = A[0, 0], A[0, 1], A[0, 2], A[1, 0], A[1, 1], A[1, 2]
+    a20, a21, a22 = A[2, 0], A[2, 1], A[2, 2]
+    gn0, gn1, gn2 = g_new[p, 0], g_new[p, 1], g_new[p, 2]
+    go0, go1, go2 = g_old[p, 0], g_old[p, 1], g_old[p, 2]
+    gf0, gf1, gf2 = gf[p, 0], gf[p, 1], gf[p, 2]
+    delayed = go0 != 0.0 or go1 != 0.0 or go2 != 0.0
+    for k in range(n):
+        yth = play if a > 0.0 else th / N
+        if store:
+            out_w[p, k] = w
+            out_th[p, k] = yth
+            out_i[p, k] = i
+        else:
+            acc += (iw * (wm[k] - w)) ** 2 + (it * (tm[k] - yth)) ** 2
+            if ii != 0.0:
+                acc += (ii * (im[k] - i)) ** 2
+        ko = k - mp - 1
+        kn = k - mp
+        s_old = s[ko, col] if ko >= 0 else 0.0
+        s_new = s[kn, col] if kn >= 0 else 0.0
+        exact = not nonlinear[p] and (w != 0.0 or not friction)
+        if not nonlinear[p] and friction and w == 0.0:  # stuck rotor
+            i, w, th, play = friction_step(i, w, th, play, s_old, s_new, frac[p], pr, closed,
+                                            S, c)
+            continue
+        if exact:
+            # the generic update, with the terms that are zero for this candidate skipped
+            # (the hot path of every identifier: no friction, no delay, open loop)
+            ni = a00 * i + a01 * w + gn0 * s_new
+            nw = a10 * i + a11 * w + gn1 * s_new
+            nt = a20 * i + a21 * w + th + gn2 * s_new
+            if closed:
+                ni += a02 * th
+                nw += a12 * th
+                nt += (a22 - 1.0) * th
+            if delayed:
+                ni += go0 * s_old
+                nw += go1 * s_old
+                nt += go2 * s_old
+            if friction and w != 0.0:
+                tf = math.copysign(tc, w)
+                ni += gf0 * tf
+                nw += gf1 * tf
+                nt += gf2 * tf
+            if friction and nw * w <= 0.0:
+                # the speed reaches zero inside this sample: resolve it finely
+                i, w, th, play = _substeps(i, w, th, play, s_old, s_new, frac[p], pr, closed, S, c)
+                continue
+            i, w, th = ni, nw, nt
+            if a > 0.0:
+                play = _play(play, th / N, a)
+        else:
+            i, w, th, play = _substeps(i, w, th, play, s_old, s_new, frac[p], pr, closed, S, c)
+    sse[p] = acc
+
+
+# Two drivers with distinct code (numba's cache would otherwise hand the parallel
+# dispatcher the serial build of a shared function). Threads pay off from about 16
+# candidates; for the few rows of a finite-difference Jacobian the wake-up costs more.
+@numba.njit(parallel=True, cache=True)
+def each_par(idx, s, m, frac, Ad, g_old, g_new, gf, prm, nonlinear, closed, S, c, out_w,
+                    out_th, out_i, store, wm, iw, tm, it, im, ii, sse):
+    for j in numba.prange(idx.shape[0]):
+        _candidate(idx[j], s, m, frac, Ad, g_old, g_new, gf, prm, nonlinear, closed, S, c,
+                   out_w, out_th, out_i, store, wm, iw, tm, it, im, ii, sse)
+
+
+@numba.njit(cache=True)
+def each_ser(idx, s, m, frac, Ad, g_old, g_new, gf, prm, nonlinear, closed, S, c, out_w,
+                    out_th, out_i, store, wm, iw, tm, it, im, ii, sse):
+    for j in range(idx.shape[0]):
+        _candidate(idx[j], s, m, frac, Ad, g_old, g_new, gf, prm, nonlinear, closed, S, c,
+                   out_w, out_th, out_i, store, wm, iw, tm, it, im, ii, sse)
