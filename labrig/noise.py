@@ -109,37 +109,11 @@ def quantisation_step(y: np.ndarray) -> float:
     return q if q > 1e-6 * max(np.ptp(levels), 1e-300) else 0.0
 
 
-# The floors need only the quadratic Savitzky-Golay smoother of one odd window. Its weights
-# have a closed form, and importing scipy.signal costs about 0.9 s on every command that
-# identifies, so it is written out here; tests/test_noise.py checks both against
-# scipy.signal.savgol_coeffs / savgol_filter(mode="interp") to 1e-12.
-def _quadratic_weights(window: int) -> np.ndarray:
-    """Savitzky-Golay weights of a centred quadratic (or cubic) fit over ``window`` samples:
-    h_k = 3 (3 m^2 + 3 m - 1 - 5 k^2) / ((2m + 3)(2m + 1)(2m - 1)), k = -m..m."""
-    m = window // 2
-    k = np.arange(-m, m + 1, dtype=float)
-    return 3.0 * (3 * m * m + 3 * m - 1 - 5 * k * k) / ((2 * m + 3) * (2 * m + 1) * (2 * m - 1))
-
-
-def _smooth_quadratic(y: np.ndarray, window: int) -> np.ndarray:
-    """The local quadratic fit of every sample; the first and last half windows take the
-    quadratic fitted to the first and last whole window (savgol_filter's "interp" mode)."""
-    m = window // 2
-    out = np.convolve(y, _quadratic_weights(window)[::-1], mode="same")
-    t = np.arange(window, dtype=float)
-    for sl, ts in ((slice(0, window), t[:m]), (slice(len(y) - window, len(y)), t[window - m:])):
-        coef = np.polynomial.polynomial.polyfit(t, y[sl], 2)
-        edge = np.polynomial.polynomial.polyval(ts, coef)
-        if sl.start == 0:
-            out[:m] = edge
-        else:
-            out[len(y) - m:] = edge
-    return out
-
-
 def _residual_filter(window: int) -> np.ndarray:
     """g = delta - h: what the local quadratic fit leaves of a sample's neighbourhood."""
-    g = -_quadratic_weights(window)
+    from scipy.signal import savgol_coeffs  # a heavy import: only where floors are measured
+
+    g = -savgol_coeffs(window, 2)
     g[window // 2] += 1.0
     return g
 
@@ -152,7 +126,11 @@ def _block_variances(y: np.ndarray, speed: np.ndarray, window: int):
     """(mean square, lag-1 product mean, moving) per block of one run's detrended signal."""
     if len(y) < max(window + 2, 16):
         return np.empty(0), np.empty(0), np.empty(0, bool)
-    r = y - _smooth_quadratic(y, window)
+    # scipy's own filter, not a copy: the fits downstream are sensitive to the last bits
+    # of the floors (a closed-form copy, equal to 1e-14, flipped a proposal's outcome)
+    from scipy.signal import savgol_filter
+
+    r = y - savgol_filter(y, window, 2, mode="interp")
     n = len(y) // BLOCK if len(y) >= 2 * BLOCK else 1
     size = len(y) // n
     smax = max(float(np.max(np.abs(speed))), 1e-300)
