@@ -16,6 +16,7 @@ import os
 import re
 import tempfile
 import time
+from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -27,7 +28,7 @@ MAX_FOLDER_BYTES = 200 * 2 ** 20
 _KEPT = re.compile(r"^[\w.\- ]+\.(csv|json|mystery|toml|mat)$", re.IGNORECASE)
 
 
-class Task:
+class Task(ABC):
     """One kind of work on one folder. Subclasses set ``name``, ``figures`` and ``run``."""
 
     name = ""
@@ -35,9 +36,9 @@ class Task:
     #: the key figures, in the order of the table's columns
     figures: tuple = ()
 
+    @abstractmethod
     def run(self, folder: Path, options: dict) -> tuple[dict, dict]:
         """Returns (key figures, {file name: JSON-able object to write for this folder})."""
-        raise NotImplementedError
 
 
 class Analyse(Task):
@@ -249,6 +250,10 @@ def run_batch(task: str, folders, *, options: dict | None = None, jobs: int = 1,
     if not folders:
         raise UserError("batch: give at least one folder")
     options = dict(options or {})
+    if options.get("effects"):  # a bad name is the user's mistake, once, not every folder's
+        from .model.effectset import EffectSet
+
+        EffectSet.parse(options["effects"])
     names = output_names(folders)
     rows: list[dict | None] = [None] * len(folders)
     work = []

@@ -87,6 +87,10 @@ def test_cli_bad_scheduler_is_one_line(class_dir, tmp_path):
     p = labrig("batch", "analyse", *_folders(class_dir), "-o", tmp_path / "o2",
                "--scheduler", "tcp://127.0.0.1:9", check=2)
     assert "cannot reach" in p.stderr and "Traceback" not in p.stderr
+    # an unknown effect is the user's mistake once, before any folder runs
+    p = labrig("batch", "identify", *_folders(class_dir), "-o", tmp_path / "o3",
+               "--effects", "nonsense", check=2)
+    assert "unknown effect 'nonsense'" in p.stderr and not (tmp_path / "o3").exists()
 
 
 def test_analyse_diagnose_and_check_tasks(class_dir, tmp_path):
