@@ -163,8 +163,8 @@ def _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, mode):
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _block(p0, p1, s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed, S, c, out_w, out_th,
-           out_i, store, wm, iw, tm, it, im, ii, sse, imap):
+def _block(p0, p1, s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed, S, c, wm, iw, tm, it,
+           im, ii, sse, imap):
     """Candidates p0..p1-1 (at most BLOCK) through one run, the candidates in the inner
     (SIMD) loop.
 
@@ -215,14 +215,8 @@ def _block(p0, p1, s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed, S, c, ou
     if mode not in (0, FRICTION, FEEDBACK):  # every term; feedback only in a closed loop
         mode = (FEEDBACK if closed else 0) | DELAY | FRICTION | PLAY
     for k in range(n):
-        if store:  # the trajectories (simulate): the state at the start of the sample
-            for j in range(q):
-                out_w[p0 + j, k] = X[R_W * B + j]
-                out_th[p0 + j, k] = X[R_PL * B + j] if X[R_GAP * B + j] > 0.0 \
-                    else X[R_TH * B + j] / N
-                out_i[p0 + j, k] = X[R_I * B + j]
-        wmk = 0.0 if store else wm[k]
-        tmk = 0.0 if store else tm[k]
+        wmk = wm[k]
+        tmk = tm[k]
         imk = im[k] if ii != 0.0 else 0.0
         # this sample's inputs per lane (shared, per candidate, or delayed per candidate)
         if delay:
@@ -278,15 +272,16 @@ def _block(p0, p1, s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed, S, c, ou
                     X[R_W * B + j] = nw
                     X[R_TH * B + j] = nt
                     X[R_PL * B + j] = npl
-    if not store:
-        for j in range(q):
-            if not skip[p0 + j]:
-                sse[p0 + j] = X[R_ACC * B + j]
+    for j in range(q):
+        if not skip[p0 + j]:
+            sse[p0 + j] = X[R_ACC * B + j]
 
 
 @numba.njit(parallel=True, cache=True)
-def population_par(threads, s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed, S, c, out_w,
-                    out_th, out_i, store, wm, iw, tm, it, im, ii, sse, imap):
+def population_par(threads, s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed, S, c, wm, iw,
+                   tm, it, im, ii, sse, imap):
+    """The fitness (sum of squared residuals) of every candidate the exact update serves,
+    blocks of candidates across threads; trajectories go one candidate at a time."""
     P = prm.shape[0]
     nb = (P + BLOCK - 1) // BLOCK
     # at least as many blocks as threads: a swarm of 50 is two blocks of 25, not 32 + 18
@@ -296,8 +291,8 @@ def population_par(threads, s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed,
         p0 = b * size
         p1 = min(P, p0 + size)
         if p0 < p1:
-            _block(p0, p1, s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed, S, c, out_w,
-                   out_th, out_i, store, wm, iw, tm, it, im, ii, sse, imap)
+            _block(p0, p1, s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed, S, c, wm, iw,
+                   tm, it, im, ii, sse, imap)
 
 
 def run_kernels(s, m, frac, Ad, g_old, g_new, gf, prm, nonlinear, closed, S, c, out_w, out_th,
@@ -321,8 +316,7 @@ def run_kernels(s, m, frac, Ad, g_old, g_new, gf, prm, nonlinear, closed, S, c, 
     idx = np.flatnonzero(nonlinear)
     if idx.size < P:
         population_par(numba.get_num_threads(), s, m, frac, Ad, g_old, g_new, gf, prm,
-                        nonlinear, closed, S, c, out_w, out_th, out_i, store, wm, iw, tm, it,
-                        im, ii, sse, imap)
+                       nonlinear, closed, S, c, wm, iw, tm, it, im, ii, sse, imap)
     if idx.size:
         (each_par if idx.size >= 16 else each_ser)(
             idx, s, m, frac, Ad, g_old, g_new, gf, prm, nonlinear, closed, S, c, out_w, out_th,
