@@ -33,10 +33,15 @@ from pathlib import Path
 
 import pytest
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import quoted  # noqa: E402
+
 ROOT = Path(__file__).resolve().parent.parent
 SHEETS = sorted((ROOT / "docs" / "exercises").glob("[0-9]*.md"))
 FENCE = re.compile(r"^```\s*([A-Za-z0-9_+-]*)\s*(.*)$")
 EXPECT = re.compile(r"#\s*expect-exit:\s*(\d+)\s*$")
+#: README sections whose every decimal figure and percentage a check must declare
+README_MEASURED = ("The missing-physics loop", "Your rig is not an MS150")
 FORBIDDEN = {"|", "||", "&&", ";", ">", ">>", "<", "&", "2>", "2>&1"}
 
 
@@ -92,6 +97,42 @@ def _env() -> dict:
     return env
 
 
+def run_command(argv: list[str], workdir: Path) -> tuple[subprocess.CompletedProcess, float]:
+    """One ``labrig ...`` or ``python ...`` line, run from this interpreter in ``workdir``."""
+    cmd = ([sys.executable, "-m", "labrig"] if argv[0] == "labrig" else [sys.executable]) + argv[1:]
+    t0 = time.monotonic()
+    proc = subprocess.run(cmd, cwd=workdir, env=_env(), capture_output=True, text=True,
+                          timeout=600)
+    return proc, time.monotonic() - t0
+
+
+def check_quoted(docs: list[Path], workdir: Path, records: list[dict]) -> list[str]:
+    """Run each ``check`` of ``docs`` in ``workdir`` (a line the sheet ran is not run again)
+    and list every quoted figure its command no longer gives."""
+    ran = {" ".join(shlex.split(r["line"], comments=True)): r["stdout"] for r in records}
+    problems = []
+    for doc in docs:
+        for c in quoted.parse(doc):
+            problems += quoted.problems_in_text(c)
+            failed = None
+            for line in c.after + [c.command]:
+                argv = shlex.split(line)
+                key = " ".join(argv)
+                if key in ran:
+                    continue
+                proc, _ = run_command(argv, workdir)
+                if proc.returncode != 0:
+                    failed = (f"{doc.name}:{c.line_no}: `{line}` exited {proc.returncode}: "
+                              f"{proc.stderr.strip()[-300:]}")
+                    break
+                ran[key] = proc.stdout
+            if failed:
+                problems.append(failed)
+                continue
+            problems += quoted.problems_in_output(c, ran[" ".join(c.argv)])
+    return problems
+
+
 def run_sheet(sheet: Path, workdir: Path, echo: bool = False) -> list[dict]:
     """Run every step of ``sheet`` in ``workdir``; returns one record per command."""
     setup_workdir(workdir)
@@ -105,11 +146,7 @@ def run_sheet(sheet: Path, workdir: Path, echo: bool = False) -> list[dict]:
                 print(f"## wrote {name}", flush=True)
             continue
         _, argv, rc, line_no, line = step
-        cmd = ([sys.executable, "-m", "labrig"] if argv[0] == "labrig" else [sys.executable]) + argv[1:]
-        t0 = time.monotonic()
-        proc = subprocess.run(cmd, cwd=workdir, env=_env(), capture_output=True, text=True,
-                              timeout=600)
-        dt = time.monotonic() - t0
+        proc, dt = run_command(argv, workdir)
         rec = {"line": line, "line_no": line_no, "rc": proc.returncode, "expected": rc,
                "seconds": dt, "stdout": proc.stdout, "stderr": proc.stderr}
         records.append(rec)
@@ -146,13 +183,45 @@ def test_real_rig_commands_are_not_in_bash_blocks():
                 assert "--port" not in st[1], f"{s.name}:{st[3]}: --port belongs in a ```text block"
 
 
+def _docs_of(sheet: Path) -> list[Path]:
+    return [sheet, ROOT / "docs" / "instructor" / sheet.name]
+
+
+def test_quoted_figures_are_declared_beside_their_command():
+    """Static: every check parses, its figures stand in the text beside it, and the
+    measured sections quote no figure that no check declares."""
+    problems = []
+    for sheet in SHEETS:
+        for doc in _docs_of(sheet):
+            for c in quoted.parse(doc):
+                assert c.argv[0] in ("labrig", "python"), f"{doc.name}:{c.line_no}: {c.command}"
+                problems += quoted.problems_in_text(c)
+            problems += quoted.unchecked_figures(doc)
+        assert any(quoted.parse(d) for d in _docs_of(sheet)), f"{sheet.name}: no checked figures"
+    assert not problems, "\n".join(problems)
+
+
+@pytest.mark.slow
+def test_readme_figures(tmp_path):
+    """The README's loop story quotes what its commands give now."""
+    setup_workdir(tmp_path)
+    readme = ROOT / "README.md"
+    problems = quoted.unchecked_figures(readme, README_MEASURED)
+    problems += check_quoted([readme], tmp_path, [])
+    assert not problems, "README figures out of date:\n" + "\n".join(problems)
+
+
 @pytest.mark.parametrize("sheet", SHEETS, ids=[s.stem for s in SHEETS])
 def test_sheet_runs(sheet, tmp_path):
+    """The sheet runs as written, and every figure it and its instructor notes quote is
+    what the commands give now."""
     records = run_sheet(sheet, tmp_path)
     assert records
     for r in records:
         if r["expected"] != 0:  # a demonstrated error is one line, not a traceback
             assert "Traceback" not in r["stderr"] and r["stderr"].strip(), r["line"]
+    problems = check_quoted(_docs_of(sheet), tmp_path, records)
+    assert not problems, "quoted figures out of date:\n" + "\n".join(problems)
 
 
 if __name__ == "__main__":  # run sheets by hand, printing outputs and times
@@ -161,4 +230,6 @@ if __name__ == "__main__":  # run sheets by hand, printing outputs and times
         print(f"#### {arg} in {wd}", flush=True)
         t0 = time.monotonic()
         recs = run_sheet(Path(arg), wd, echo=True)
+        for line in check_quoted(_docs_of(Path(arg).resolve()), wd, recs) or ["quoted figures: all hold"]:
+            print(line, flush=True)
         print(f"#### {arg}: {len(recs)} commands, {time.monotonic() - t0:.1f} s", flush=True)
