@@ -14,10 +14,11 @@ import pandas as pd
 from .errors import RunFileError
 
 REQUIRED_COLUMNS = ("t", "u")
-SENSOR_COLUMNS = ("tacho", "pos")
+#: ``speed`` is physical speed (an import without a tacho), in the sidecar's speed_unit
+SENSOR_COLUMNS = ("tacho", "speed", "pos")
 #: every column labrig reads; ``gap`` flags samples the link lost (interpolated)
 #: ``drive`` is a closed loop's logged controller output (input volts), ``u`` its reference
-KNOWN_COLUMNS = ("t", "u", "tacho", "pos", "ref", "current", "drive", "gap")
+KNOWN_COLUMNS = ("t", "u", "tacho", "speed", "pos", "ref", "current", "drive", "gap")
 #: relative spread of the sampling interval still called uniform (scope exports
 #: print t with few digits; a missing sample doubles dt and is caught)
 UNIFORM_TOL = 0.02
@@ -33,7 +34,7 @@ MAX_ROWS = 20_000_000
 #: how people name labrig's columns elsewhere: a header with one of these where the
 #: labrig name is missing is a misspelling to fix, not an extra column to ignore
 SYNONYMS = {"time": "t", "time_s": "t", "input": "u", "voltage": "u", "u_v": "u",
-            "speed": "tacho", "velocity": "tacho", "omega": "tacho", "w": "tacho",
+            "velocity": "speed", "omega": "speed", "w": "speed",
             "position": "pos", "angle": "pos", "theta": "pos", "reference": "ref",
             "i": "current", "ia": "current"}
 CHUNK_ROWS = 500_000
@@ -142,7 +143,7 @@ def _read_numeric(path: Path, cols: list[str], numeric: list[str]) -> pd.DataFra
 def read_run_csv(csv_path: Path, fs: float | None = None) -> pd.DataFrame:
     cols = _read_header(csv_path, "; expected a header row t,u,tacho,pos and one row per "
                                   "sample")
-    if not any(c in ("t", "u", "tacho", "pos") for c in cols):
+    if not any(c in ("t", "u", *SENSOR_COLUMNS) for c in cols):
         raise RunFileError(f"{csv_path}: no header row; the first line must name the "
                            "columns, e.g. t,u,tacho,pos")
     _no_duplicates(csv_path, cols)
@@ -157,8 +158,8 @@ def read_run_csv(csv_path: Path, fs: float | None = None) -> pd.DataFrame:
             raise RunFileError(f"{csv_path}: column '{c}' missing (header has "
                                f"{', '.join(cols)}); a run needs t and u")
     if not any(c in cols for c in SENSOR_COLUMNS):
-        raise RunFileError(f"{csv_path}: both 'tacho' and 'pos' missing; a run needs at "
-                           "least one sensor column")
+        raise RunFileError(f"{csv_path}: no sensor column ('tacho', 'speed' or 'pos'); a "
+                           "run needs at least one")
     numeric = [c for c in cols if c in KNOWN_COLUMNS]
     df = _read_numeric(csv_path, cols, numeric)
     if len(df) < 2:

@@ -1,12 +1,15 @@
 """``labrig import``: bring a scope/DAQ export, another lab's CSV or a MATLAB .mat file
 in as a run.
 
-Physical speed and position columns are converted to the axis's SI units (rad, rad/s
-on a rotary axis; m, m/s on a linear one) and stored as a unit "virtual sensor" (1 V
-per unit), so the run is self-describing and ``Run.speed`` returns them. Encoder
+Physical speed is converted to the axis's SI unit (rad/s on a rotary axis, m/s on a
+linear one) and stored as what it is: a ``speed`` column, with ``sensors.speed_unit``
+naming that unit, so the run is self-describing and nothing pretends there was a tacho
+(``labrig analyse`` then reports no tacho volts and no Kt). Physical position is
+converted to rad or m and stored through a unit "virtual pot" (1 V per unit). Encoder
 counts are kept as counts with their resolution (the position's known quantum). Raw
-sensor volts are kept as volts with the gains given on the command line. The drive
-(voltage, torque, force), the axis and a closed loop's controller go into the sidecar.
+sensor volts (``tacho=``, ``pos=``) are kept as volts with the gains given on the
+command line. The drive (voltage, torque, force), the axis and a closed loop's
+controller go into the sidecar.
 """
 from __future__ import annotations
 
@@ -28,6 +31,8 @@ SPEED_UNITS = {"rotary": {"rad/s": 1.0, "rpm": 2 * math.pi / 60.0, "deg/s": math
                "linear": {"m/s": 1.0, "mm/s": 1e-3}}
 POS_UNITS = {"rotary": {"rad": 1.0, "deg": math.pi / 180.0, "rev": 2 * math.pi},
              "linear": {"m": 1.0, "mm": 1e-3}}
+#: the SI speed unit a ``speed`` column is stored in, per axis
+SI_SPEED = {"rotary": "rad/s", "linear": "m/s"}
 TIME_UNITS = {"s": 1.0, "ms": 1e-3}
 MAP_TARGETS = ("t", "u", "speed", "pos", "tacho", "ref", "current")
 
@@ -203,9 +208,9 @@ def import_csv(src: Path | str, outdir: Path | str, mapping: dict[str, str], *,
     if closed_ref and "u" in mapping:
         cols["drive"] = frame[mapping["u"]]
     sensors = {}
-    if "speed" in mapping:
-        cols["tacho"] = frame[mapping["speed"]] * speed_factor
-        sensors["tacho_v_per_rad_s"] = 1.0
+    if "speed" in mapping:  # physical speed: kept as speed, never as made-up tacho volts
+        cols["speed"] = frame[mapping["speed"]] * speed_factor
+        sensors["speed_unit"] = SI_SPEED[axis]
     if "tacho" in mapping:
         cols["tacho"] = frame[mapping["tacho"]]
         sensors["tacho_v_per_rad_s"] = float(tacho_gain)

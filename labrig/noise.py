@@ -205,8 +205,8 @@ def noise_floor(signals, speeds, channel: str = "speed", unit: str = "rad/s",
 
 
 def run_speed(rd) -> np.ndarray:
-    """The speed that says whether a run is moving: the tacho, else the position's
-    derivative (motor side)."""
+    """The speed that says whether a run is moving: the measured speed (a tacho or an
+    imported speed column), else the position's derivative (motor side)."""
     if rd.w is not None:
         return rd.w
     return np.gradient(rd.theta * rd.N, rd.dt)

@@ -223,6 +223,8 @@ def synthetic_run(template: Run, cand: Candidate, name: str, sim: dict | None = 
         th = th + rng.normal(0.0, noise.get("position", 0.0), n)
     if template.has_tacho:
         cols["tacho"] = w * template.kt
+    elif template.has_speed:  # imported speed: stored as speed, as the template's is
+        cols["speed"] = w
     if template.has_pos:
         cols["pos"] = th * template.kpot + template.pos_offset
     meta = copy.deepcopy(template.meta)
@@ -286,7 +288,7 @@ def _separation(pa: dict, pb: dict, template: Run, sig: dict) -> float:
     """Sum of squared differences of two responses (``w``, ``theta``) in noise units, over
     the channels ``template``'s rig records."""
     d = 0.0
-    if template.has_tacho and "speed" in sig:
+    if template.has_speed and "speed" in sig:
         d += float(np.sum(((pa["w"] - pb["w"]) / sig["speed"]) ** 2))
     if template.has_pos and "position" in sig:
         d += float(np.sum(((pa["theta"] - pb["theta"]) / sig["position"]) ** 2))

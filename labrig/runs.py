@@ -1,9 +1,10 @@
 """Run files (docs/design.md, 'Run files'): read, validate, write atomically, import foreign CSVs.
 
-A run is ``stem.csv`` (raw volts: t, u, tacho and/or pos, optional ref, current)
-plus ``stem.json`` (sidecar: format, sample rate, experiment, sensors, rig). Loading
-gives physical units through the sidecar's calibration: ``Run.speed`` is the motor
-speed in rad/s (tacho / Kt) and ``Run.position`` the output-shaft angle in rad
+A run is ``stem.csv`` (raw volts: t, u, tacho and/or pos, optional ref, current; or,
+imported without a tacho, physical ``speed`` instead of ``tacho``) plus ``stem.json``
+(sidecar: format, sample rate, experiment, sensors, rig). Loading gives physical units
+through the sidecar's calibration: ``Run.speed`` is the motor speed in rad/s (tacho / Kt,
+or the ``speed`` column as it is) and ``Run.position`` the output-shaft angle in rad
 ((pos - offset) / Kpot).
 """
 from __future__ import annotations
@@ -21,6 +22,9 @@ from .csvfile import SENSOR_COLUMNS, read_run_csv
 from .fileio import atomic_write, json_default
 
 FORMAT = "labrig-run/1"
+#: the order labrig writes a run's columns in (others follow); a run has ``tacho`` or
+#: ``speed``, never both, so speed lands right after u either way
+COLUMN_ORDER = ("t", "u", "tacho", "speed", "pos", "ref", "current")
 
 
 @dataclass
@@ -56,7 +60,13 @@ class Run:
 
     @property
     def has_tacho(self) -> bool:
+        """A tachogenerator's volts (``tacho``): Kt is known and can be checked."""
         return "tacho" in self.data
+
+    @property
+    def has_speed(self) -> bool:
+        """A speed channel: the tacho, or physical speed imported without one (``speed``)."""
+        return self.has_tacho or "speed" in self.data
 
     @property
     def has_pos(self) -> bool:
@@ -124,14 +134,15 @@ class Run:
     @property
     def constants(self) -> dict:
         """The rig constants a model of this run needs: Ka, N, Kt, Kpot (a channel the
-        run does not have gets 1.0: it is never used). Under a stated controller the
+        run does not have gets 1.0: it is never used; an imported ``speed`` column is
+        already in the axis's unit, so its Kt is 1.0 too). Under a stated controller the
         loop is closed on the position in axis units: Kpot = 1 and Kt = 1/N make the
         simulators' ``kv Kt w`` the controller's ``kd x'``."""
         if self.controller is not None:
             return {"Ka": self.amplifier_gain, "N": self.gear_ratio, "Kt": 1.0 / self.gear_ratio,
                     "Kpot": 1.0}
-        return {"Ka": self.amplifier_gain, "N": self.gear_ratio,
-                "Kt": float(self.sensors.get("tacho_v_per_rad_s") or 1.0),
+        kt = 1.0 if "speed" in self.data else float(self.sensors.get("tacho_v_per_rad_s") or 1.0)
+        return {"Ka": self.amplifier_gain, "N": self.gear_ratio, "Kt": kt,
                 "Kpot": float(self.sensors.get("pos_v_per_rad") or 1.0)}
 
     @property
@@ -171,7 +182,10 @@ class Run:
     # -- physical units -----------------------------------------------------
     @property
     def speed(self) -> np.ndarray | None:
-        """Motor speed in rad/s from the tacho, or None for a position-only run."""
+        """Motor speed in the axis's unit (rad/s, m/s): the ``speed`` column as it is, else
+        the tacho's volts over Kt; None for a position-only run."""
+        if "speed" in self.data:
+            return self.data["speed"].to_numpy(float)
         if not self.has_tacho:
             return None
         return self.data["tacho"].to_numpy(float) / self.kt
@@ -280,19 +294,44 @@ def require_excitation(runs, what: str = "identify") -> None:
     flat = all(all(np.ptp(r.data[c].to_numpy(float)) == 0 for c in SENSOR_COLUMNS
                    if c in r.data) for r in runs)
     if flat:
-        raise AnalysisError(f"runs {names}: tacho and pos are constant in every run while u "
+        cols = [c for c in SENSOR_COLUMNS if any(c in r.data for r in runs)]
+        raise AnalysisError(f"runs {names}: {' and '.join(cols)} "
+                            f"{'are' if len(cols) > 1 else 'is'} constant in every run while u "
                             f"changes, so there is nothing to {what}; is the motor powered "
                             "and are the sensors wired?")
 
 
 def _check_against_sidecar(csv_path, json_path, data, meta):
     sensors = meta["sensors"]
+    if "speed" in data:
+        _check_speed_column(csv_path, json_path, data, meta)
     need = ([("tacho_v_per_rad_s", "tacho")] if "tacho" in data else []) + \
            ([("pos_v_per_rad", "pos")] if "pos" in data else [])
     for key, col in need:
         if sensors.get(key) is None:
             raise RunFileError(f"{json_path}: key 'sensors.{key}' missing; it must be a "
                                f"nonzero number (the run has a '{col}' column to convert)")
+
+
+def _check_speed_column(csv_path, json_path, data, meta):
+    """A ``speed`` column is physical speed: alone (a tacho's volts would be a second,
+    disagreeing speed) and in the unit the sidecar states, the axis's."""
+    if "tacho" in data:
+        raise RunFileError(f"{csv_path}: both a 'speed' and a 'tacho' column; a run measures "
+                           "speed once: keep 'tacho' (volts, with sensors.tacho_v_per_rad_s) "
+                           "or 'speed' (with sensors.speed_unit), not both")
+    rig = meta.get("rig", {})
+    axis = rig.get("axis") or ("linear" if rig.get("drive") == "force" else "rotary")
+    want = "m/s" if axis == "linear" else "rad/s"
+    unit = meta["sensors"].get("speed_unit")
+    if unit is None:
+        raise RunFileError(f"{json_path}: key 'sensors.speed_unit' missing; the run has a "
+                           f"'speed' column, so say its unit: add \"speed_unit\": \"{want}\" "
+                           "(the axis's unit) to 'sensors'")
+    if unit != want:
+        raise RunFileError(f"{json_path}: key 'sensors.speed_unit' = {unit!r} but the axis is "
+                           f"{axis} ({want}); convert the 'speed' column to {want} or fix "
+                           "rig.axis")
 
 
 # -- writing -------------------------------------------------------------------
@@ -328,8 +367,8 @@ def write_run(run: Run, directory: Path | str, overwrite: bool = False) -> Path:
     if not overwrite and json_path.exists():
         raise RunFileError(f"{json_path}: a run named '{run.name}' already exists; choose "
                            "another output folder or remove it first")
-    cols = [c for c in ("t", "u", "tacho", "pos", "ref", "current") if c in run.data] + \
-           [c for c in run.data.columns if c not in ("t", "u", "tacho", "pos", "ref", "current")]
+    cols = [c for c in COLUMN_ORDER if c in run.data] + \
+           [c for c in run.data.columns if c not in COLUMN_ORDER]
     atomic_write(csv_path, run.data[cols].to_csv(index=False, float_format="%.7g",
                                                   lineterminator="\n"))
     atomic_write(json_path, json.dumps(run.meta, indent=2, default=json_default) + "\n")

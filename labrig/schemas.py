@@ -115,6 +115,8 @@ class SidecarExperiment(_Open):
 
 class SidecarSensors(_Open):
     tacho_v_per_rad_s: Gain = None
+    #: the unit of a ``speed`` column (physical speed, no tacho): the axis's SI unit
+    speed_unit: Optional[Literal["rad/s", "m/s"]] = None
     pos_v_per_rad: Gain = None
     pos_offset_v: Num(-1e3, 1e3) = None
     #: the position sensor's quantum in the axis's unit (an encoder's count)

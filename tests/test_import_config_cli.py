@@ -1,4 +1,5 @@
 """labrig import, configuration files and CLI exit codes."""
+import json
 import math
 
 import numpy as np
@@ -6,7 +7,7 @@ import pytest
 
 from labrig.config import load_plan, load_rig, rig_from_dict
 from labrig.errors import ConfigError
-from labrig.runs import read_run
+from labrig.runs import Run, read_dataset, read_run
 from conftest import ROOT, labrig
 
 
@@ -25,6 +26,30 @@ def test_import_staircase_speed_only_100hz_rpm(tmp_path):
     np.testing.assert_allclose(run.speed[-1], 1350 * 2 * math.pi / 60, rtol=1e-6)
 
 
+@pytest.mark.parametrize("cli,unit,value", [
+    ((), "rad/s", 3000 * 2 * math.pi / 60),                       # 314.159... rad/s
+    (("--drive", "force", "--input-gain", "20"), "m/s", 0.25),     # 250 mm/s on a carriage
+])
+def test_imported_speed_is_stored_as_speed_with_its_unit(tmp_path, cli, unit, value):
+    # physical speed is speed: no 'tacho' column, no tacho gain, the unit in the sidecar
+    src = tmp_path / "drive_log.csv"
+    given = 3000 if unit == "rad/s" else 250
+    src.write_text("Time,CH1,V\n" + "".join(f"{i * 0.01:.2f},1,{given}\n" for i in range(20)))
+    labrig("import", src, "-o", tmp_path / "ds", "--map", "t=Time,u=CH1,speed=V",
+           "--speed-unit", "rpm" if unit == "rad/s" else "mm/s", *cli, check=0)
+    csv = (tmp_path / "ds" / "drive_log.csv").read_text().splitlines()
+    assert csv[0] == "t,u,speed"
+    stored = float(csv[1].split(",")[2])
+    assert stored == pytest.approx(float(f"{value:.7g}"), rel=1e-9)   # the conversion, rounded
+    assert stored == pytest.approx(value, rel=5e-7)                   # as every column is
+    sensors = json.loads((tmp_path / "ds" / "drive_log.json").read_text())["sensors"]
+    assert sensors == {"speed_unit": unit}
+    run = read_run(tmp_path / "ds" / "drive_log.csv")
+    assert run.has_speed and not run.has_tacho and run.units[1] == unit
+    np.testing.assert_array_equal(run.speed, np.full(20, stored))
+    assert run.constants["Kt"] == 1.0
+
+
 def test_import_square_wave_raw_volts(tmp_path):
     t = np.arange(2000) / 1000
     u = np.where((t // 0.5) % 2 == 0, 1.5, -1.5)
@@ -38,6 +63,9 @@ def test_import_square_wave_raw_volts(tmp_path):
     np.testing.assert_allclose(run.speed[10], 140, rtol=1e-3)
     np.testing.assert_allclose(run.position[1000], 0.2, atol=1e-3)
     assert run.gear_ratio == 30
+    # raw tacho volts stay volts, with their gain
+    assert run.has_tacho and "speed" not in run.data and run.kt == 0.026
+    assert "speed_unit" not in run.sensors
 
 
 @pytest.mark.parametrize("args,msg", [
@@ -110,3 +138,73 @@ def test_seed_paper_table1_present():
     tab = read_table1(ROOT / "data" / "paper_table1.csv")
     assert len(tab) == 8
     assert tab["speed_rpm"].abs().max() == 3150
+
+
+# -- an imported speed through analyse and identify ------------------------------------
+
+@pytest.fixture(scope="module")
+def imported_speed(tmp_path_factory):
+    """Simulated square waves exported as another lab would (rpm and degrees, no tacho)
+    and imported: runs with a 'speed' column and a pot. Returns (folder, rig)."""
+    from labrig.importer import import_csv
+    from conftest import make_rig, sim_dataset, square_plan
+
+    tmp = tmp_path_factory.mktemp("imported_speed")
+    rig = make_rig(effects={})
+    plan = square_plan(amps=(1.2, 2.0), rate=200.0, periods=1, freq=0.5, lead=0.3)
+    for r in read_dataset(sim_dataset(tmp, rig, plan)):
+        src = tmp / f"{r.name}_export.csv"
+        rows = zip(r.t, r.u, r.speed * 30 / math.pi, np.degrees(r.position))
+        src.write_text("Time,CH1,RPM,deg\n" + "".join(f"{a:.4f},{b:.6g},{c:.9g},{d:.9g}\n"
+                                                      for a, b, c, d in rows))
+        import_csv(src, tmp / "imported", {"t": "Time", "u": "CH1", "speed": "RPM", "pos": "deg"},
+                   speed_unit="rpm", pos_unit="deg", gear_ratio=rig.gear_ratio,
+                   amplifier_gain=rig.amplifier.gain, waveform="square", name=r.name)
+    return tmp / "imported", rig
+
+
+def test_analyse_of_imported_speed_shows_no_tacho_volts_and_no_kt(imported_speed, capsys):
+    from labrig.analyse import analyse
+    from labrig.analyse.text import NO_TACHO
+    from labrig.cli import main
+    from labrig.model.servo import ServoParams
+
+    ds, rig = imported_speed
+    res = analyse(ds)
+    assert res.km == pytest.approx(ServoParams.from_rig(rig).km, rel=0.02)
+    levels, summary = res.table_rows()
+    vt = levels.columns.index("Vt (V)")
+    assert all(row[vt] == "-" for row in levels.rows)
+    assert dict((r[0], r[1]) for r in summary.rows)["kt"] == NO_TACHO
+    assert main(["analyse", str(ds)]) == 0
+    text = capsys.readouterr().out
+    assert NO_TACHO in text and "V per rad/s" not in text and "configured" not in text
+    assert main(["analyse", str(ds), "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["kt"] is None and doc["kt_configured"] is None and doc["kt_mismatch"] is None
+    assert all(r["sensor"] == "speed" and r["kt_est"] is None for r in doc["runs"])
+
+
+def test_identify_on_imported_speed_is_the_fit_of_the_old_virtual_tacho(imported_speed):
+    """The data did not change, only their storage: a CO fit on the 'speed' runs is
+    bit-identical to one on the same samples stored the old way (tacho volts at 1 V per
+    rad/s)."""
+    from labrig.identify.engine import identify
+    from labrig.model.servo import ServoParams
+
+    ds, rig = imported_speed
+    runs = read_dataset(ds)
+    old = []
+    for r in runs:
+        meta = json.loads(json.dumps(r.meta))
+        meta["sensors"] = {k: v for k, v in meta["sensors"].items() if k != "speed_unit"}
+        meta["sensors"]["tacho_v_per_rad_s"] = 1.0
+        old.append(Run(r.name, r.data.rename(columns={"speed": "tacho"}), meta))
+    assert all(np.array_equal(a.speed, b.speed) for a, b in zip(runs, old))
+    assert [a.constants for a in runs] == [b.constants for b in old]
+    new_fit = identify(runs, "co", seed=1, starts=2)
+    old_fit = identify(old, "co", seed=1, starts=2)
+    assert new_fit.params == old_fit.params
+    assert new_fit.metrics == old_fit.metrics
+    assert new_fit.identifiable["km"]["value"] == pytest.approx(ServoParams.from_rig(rig).km,
+                                                                rel=0.02)

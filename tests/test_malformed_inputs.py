@@ -158,7 +158,7 @@ def _csv(header=HEAD, rows=None, edit=None):
 
 CSV_CASES = {
     "Tacho capital": (_csv("t,u,Tacho,pos"), "'Tacho' in the header looks like 'tacho'"),
-    "speed for tacho": (_csv("t,u,speed,pos"), "looks like 'tacho'"),
+    "speed without its unit": (_csv("t,u,speed,pos"), "key 'sensors.speed_unit' missing"),
     "Time for t": (_csv("Time,u,tacho,pos"), "looks like 't'"),
     "position for pos": (_csv("t,u,tacho,position"), "looks like 'pos'"),
     "U capital": (_csv("t,U,tacho,pos"), "looks like 'u'"),
@@ -181,7 +181,7 @@ CSV_CASES = {
     "empty": ("", "empty"),
     "blank lines": ("\n\n\n", "empty"),
     "no header": (_csv(header=ROWS[0]), "no header"),
-    "no sensors": ("t,u\n0,0\n0.005,1\n0.01,1\n", "both 'tacho' and 'pos' missing"),
+    "no sensors": ("t,u\n0,0\n0.005,1\n0.01,1\n", "no sensor column"),
     "no u": ("t,tacho,pos\n0,0,0\n0.005,1,0\n", "column 'u' missing"),
 }
 

@@ -61,12 +61,19 @@ def corrupt(tmp_path, csv_text=None, meta=None, drop_json=False):
 
 
 GOOD_ROWS = "0,0,0,0\n0.001,1,0,0\n0.002,1,0.1,0\n"
+
+
+def speed_meta(unit):
+    """A sidecar for a run with a physical 'speed' column in ``unit``."""
+    return dict(META, sensors={"speed_unit": unit, "pos_v_per_rad": 0.5})
+
+
 CASES = {
     "empty file": ("", None, "empty"),
     "no header": ("0,0,0,0\n0.001,1,0,0\n", None, "no header"),
     "missing t": ("u,tacho,pos\n0,0,0\n1,0,0\n", None, "column 't' missing"),
     "missing u": ("t,tacho,pos\n0,0,0\n0.001,0,0\n", None, "column 'u' missing"),
-    "no sensors": ("t,u\n0,0\n0.001,1\n", None, "both 'tacho' and 'pos' missing"),
+    "no sensors": ("t,u\n0,0\n0.001,1\n", None, "no sensor column"),
     "non-numeric": ("t,u,tacho,pos\n0,0,0,0\n0.001,abc,0,0\n", None, "row 3, column 'u'.*non-numeric"),
     "nan": ("t,u,tacho,pos\n0,0,0,0\n0.001,1,nan,0\n", None, "row 3, column 'tacho': NaN"),
     "inf": ("t,u,tacho,pos\n0,0,0,0\n0.001,1,0,inf\n", None, "row 3, column 'pos': NaN or inf"),
@@ -81,6 +88,16 @@ CASES = {
                       "sample_rate_hz.*1000 Hz"),
     "bad loop": ("t,u,tacho,pos\n" + GOOD_ROWS, dict(META, experiment={"loop": "sideways"}),
                  "experiment.loop"),
+    # a 'speed' column is physical speed: its unit stated, the axis's, and never a tacho too
+    "speed without unit": ("t,u,speed,pos\n" + GOOD_ROWS, META,
+                           r"r.json: key 'sensors.speed_unit' missing.*add \"speed_unit\": "
+                           r"\"rad/s\""),
+    "speed unit unknown": ("t,u,speed,pos\n" + GOOD_ROWS, speed_meta("rpm"),
+                           "key 'sensors.speed_unit' = 'rpm': input should be 'rad/s' or 'm/s'"),
+    "speed unit of the other axis": ("t,u,speed,pos\n" + GOOD_ROWS, speed_meta("m/s"),
+                                     "'sensors.speed_unit' = 'm/s' but the axis is rotary"),
+    "speed and tacho": ("t,u,tacho,speed,pos\n0,0,0,0,0\n0.001,1,0,0,0\n0.002,1,0.1,4,0\n",
+                        speed_meta("rad/s"), "r.csv: both a 'speed' and a 'tacho' column"),
 }
 
 
@@ -92,6 +109,26 @@ def test_bad_run_files(tmp_path, case):
         read_run(path)
     assert str(path.name) in str(exc.value) or path.with_suffix(".json").name in str(exc.value)
     assert "\n" not in str(exc.value)
+
+
+def test_speed_column_round_trip(tmp_path):
+    """Physical speed (an import without a tacho) is written after u and read as it is."""
+    t = np.arange(50) / 1000.0
+    df = pd.DataFrame({"pos": -4 + 0.5 * t, "t": t, "u": np.ones(50), "speed": 150.0 + t})
+    path = write_run(Run("s", df, speed_meta("rad/s")), tmp_path)
+    assert path.read_text().splitlines()[0] == "t,u,speed,pos"
+    run = read_run(path)
+    assert run.has_speed and not run.has_tacho
+    np.testing.assert_allclose(run.speed, 150.0 + t, rtol=1e-7)
+    assert run.constants["Kt"] == 1.0 and run.sensors["speed_unit"] == "rad/s"
+
+
+def test_speed_column_without_unit_cli_exit_2(tmp_path):
+    path = corrupt(tmp_path, "t,u,speed,pos\n" + GOOD_ROWS)
+    proc = labrig("analyse", path)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
+    assert proc.stderr.strip().count("\n") == 0
+    assert "r.json: key 'sensors.speed_unit' missing" in proc.stderr
 
 
 def test_missing_file_and_sidecar(tmp_path):

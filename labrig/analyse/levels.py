@@ -27,7 +27,8 @@ class Signal:
     Attributes
     ----------
     kind : {"speed", "angle"}
-        Motor speed from the tacho (rad/s), else motor angle from the pot (rad).
+        Motor speed from the tacho or an imported speed column (rad/s), else motor
+        angle from the pot (rad).
     y : ndarray
     sigma : float
         Noise of one sample of ``y``.
@@ -97,7 +98,7 @@ def _flat_start(t, i, a, edges, tau_run):
 def segment_flat_parts(run, seg, sig: Signal, edges, tau_run, min_step) -> list[FlatPart]:
     """The steady part of every segment of a run (``settled=False`` where none)."""
     t, y, kind = run.t, sig.y, sig.kind
-    # the pot gives the Kt cross-check where the tacho gives the speed
+    # the pot gives the Kt cross-check where a tacho gives the speed
     pot = run.position * run.gear_ratio if (run.has_pos and kind == "speed") else None
     need = max(5, int(round(0.5 * (tau_run or 0) / run.dt)))
     parts = []
@@ -111,8 +112,7 @@ def segment_flat_parts(run, seg, sig: Signal, edges, tau_run, min_step) -> list[
                 part = FlatPart(True, sp, spr, b - fa)
                 if pot is not None and b - fa >= 5:
                     part.pot_speed = flat_speed("angle", t, pot, fa, b, tail)[0]
-                    part.tacho_v = sp * run.kt
-                elif run.has_tacho:
+                if run.has_tacho:  # imported speed has no tacho volts to show or check
                     part.tacho_v = sp * run.kt
         if not part.settled and b - a >= 10:
             # a level where the motor never moves (lead-in, inside the deadband) is

@@ -150,7 +150,7 @@ class RunAnalysis:
     name: str
     loop: str
     fs: float
-    sensor: str | None = None
+    sensor: str | None = None         # "tacho", "speed" (imported, no tacho) or "pos"
     levels: list[Level] = field(default_factory=list)
     edges: list[EdgeFit] = field(default_factory=list)
     kt_est: float | None = None
@@ -214,7 +214,8 @@ class AnalysisResult:
         steady-state-only data.
     kt : float or None
         Tacho sensitivity measured from the position pot (V per rad/s); None where
-        no run has both sensors (or the data give it otherwise, e.g. a table).
+        no run has both a tacho and a pot (or the data give it otherwise, e.g. a table),
+        e.g. when the speed was imported in physical units.
     gain_trend : {"constant", "rising", "falling"}
         How w/V changes with amplitude, judged with ``tolerance``.
     runs : list of RunAnalysis

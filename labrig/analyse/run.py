@@ -32,7 +32,7 @@ def analyse_run(run) -> RunAnalysis:
     where = f"run '{run.name}'" + (f" ({run.path})" if run.path else "")
     seg = _segments(run, where)
     sig = measured_signal(run)
-    ra.sensor = "tacho" if sig.kind == "speed" else "pos"
+    ra.sensor = speed_source(run) if sig.kind == "speed" else "pos"
     ra.kt_configured = run.kt if run.has_tacho else None
     min_step = _min_step(run.t, sig, seg)
     ra.edges = fit_run_edges(run.t, sig.y, seg, kind=sig.kind, sigma=sig.sigma,
@@ -50,8 +50,15 @@ def analyse_run(run) -> RunAnalysis:
     return ra
 
 
+def speed_source(run) -> str:
+    """Where a run's speed comes from: ``"tacho"`` (volts over a known Kt) or ``"speed"``
+    (physical speed imported without a tacho: no tacho volts, no Kt to check)."""
+    return "tacho" if run.has_tacho else "speed"
+
+
 def measured_signal(run) -> Signal:
-    """Motor speed from the tacho, else motor angle from the pot, with its noise."""
+    """Motor speed (tacho or imported speed), else motor angle from the pot, with its
+    noise."""
     if run.speed is not None:
         y = run.speed
         return Signal("speed", y, robust_std(np.diff(y)) / math.sqrt(2))

@@ -7,6 +7,8 @@ from ..tables import Table, fmt
 
 LEVEL_COLUMNS = ["run", "Vm (V)", "n (rpm)", "w (rad/s)", "spread", "Vt (V)", "Km=w/V",
                  "tau (ms)", "note"]
+#: the kt cell when the speed was imported in physical units: there are no tacho volts
+NO_TACHO = "not measured (no tacho: speed imported)"
 
 
 def table_rows(res) -> list[Table]:
@@ -55,9 +57,17 @@ def summary_table(res) -> Table:
     kt_detail = ""
     if res.kt_configured is not None:
         kt_detail = f"configured {res.kt_configured:.4g}" + (", MISMATCH" if res.kt_mismatch else "")
-    rows.append(["kt", g(res.kt, ".4g", " V per rad/s"), kt_detail])
+    kt = NO_TACHO if res.kt is None and speed_without_tacho(res) else \
+        g(res.kt, ".4g", " V per rad/s")
+    rows.append(["kt", kt, kt_detail])
     rows.append(["gain trend", res.gain_trend, _trend_detail(res)])
     return Table("Summary", ["quantity", "value", "detail"], rows)
+
+
+def speed_without_tacho(res) -> bool:
+    """The analysed runs measured speed, but none with a tacho (imported speed)."""
+    sensors = {getattr(r, "sensor", None) for r in res.runs if not getattr(r, "skipped", None)}
+    return "speed" in sensors and "tacho" not in sensors
 
 
 def _trend_detail(res) -> str:

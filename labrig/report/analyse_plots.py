@@ -95,7 +95,7 @@ def plot_edges(ra, ax=None):
     else:
         axes = np.atleast_2d(np.asarray(ax, dtype=object))
         fig = axes.flat[0].figure
-    src = "tacho" if ra.sensor == "tacho" else "pot (derivative, smoothed)"
+    src = {"tacho": "tacho", "speed": "imported"}.get(ra.sensor, "pot (derivative, smoothed)")
     for a, e in zip(axes.flat, edges):
         _draw_edge(a, e, src)
     for a in axes.flat[n:]:

@@ -16,11 +16,11 @@ COLOURS = ("tab:blue", "tab:red")
 def plot_proposal(prop, ax=None):
     """Predicted speed and position of both fitted explanations for the proposed input,
     each with a +-1 noise band, and the input below. With ``ax``, the speed (or, without a
-    tacho, the position) only."""
+    speed channel, the position) only."""
     run, preds = prop.predicted()
     t = run.t
     chans = [(ch, key) for ch, key in (("speed", "w"), ("position", "theta"))
-             if ch in prop.sigmas and (run.has_tacho if ch == "speed" else run.has_pos)]
+             if ch in prop.sigmas and (run.has_speed if ch == "speed" else run.has_pos)]
     units = run.units
     if ax is not None:
         fig, axes = ax.figure, [ax]

@@ -52,11 +52,17 @@ def sweep_table(runs) -> Table:
                      num(exp.get("frequency_hz"), ".3g", "Hz"), str(len(r)),
                      num(len(r) / r.fs, ".3g", "s"), num(r.fs, "g", "Hz"),
                      r.meta.get("source", "–"),
-                     ", ".join(s for s, ok in (("tacho", r.has_tacho), ("pot", r.has_pos)) if ok),
-                     dropped])
+                     _sensors(r), dropped])
     return Table("runs", ["run", "loop", "waveform", "amplitude", "frequency", "samples",
                           "length", "rate", "source", "sensors", "dropped"], rows,
                  numeric=(3, 4, 5, 6, 7, 10))
+
+
+def _sensors(run) -> str:
+    """What a run measured: a tacho, a speed imported in physical units, a pot."""
+    return ", ".join(s for s, ok in (("tacho", run.has_tacho),
+                                     ("speed (imported)", run.has_speed and not run.has_tacho),
+                                     ("pot", run.has_pos)) if ok)
 
 
 def _sweep(story: Story, key, title) -> Section:

@@ -36,7 +36,7 @@ def plot_overview(runs):
             c = cmap(0.1 + 0.8 * i / max(len(rs) - 1, 1))
             t = r.t - r.t[0]
             if loop == "open":
-                y = r.speed if r.has_tacho else None
+                y = r.speed if r.has_speed else None
                 if y is None and r.has_pos:
                     y = np.gradient(r.position * r.gear_ratio, r.dt)
                 top.plot(t, y, color=c, lw=0.8, label=r.name)
