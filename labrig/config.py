@@ -188,7 +188,7 @@ def rig_from_dict(doc: dict, path: str = "<rig>") -> RigConfig:
             if key.endswith("range_v"):
                 value = (float(value[0]), float(value[1]))
             setattr(obj, _ATTRS.get(sec, {}).get(key, key), value)
-    rig.effects = _check_effects(path, checked.effects)
+    rig.effects = _check_effects(path, checked.effects, rig.bridge.output_limit_v)
     _check_plant(path, rig, checked)
     return rig
 
@@ -233,8 +233,11 @@ def rig_to_doc(rig: RigConfig) -> dict:
     return doc
 
 
-def _check_effects(path, body: dict) -> dict:
+def _check_effects(path, body: dict, volts_limit: float = 0.0) -> dict:
     """Hidden effects by catalogue name, every parameter given and within its bounds.
+
+    A threshold in input volts may reach the bridge's own output limit ``volts_limit``
+    (a 12 V H-bridge's dead zone is volts wide, an MS150 bridge's a fraction of one).
 
     A rig file is data: it may name a user effect (FILE.py:Class) only when the user
     trusted that file on the command line (``--trust-code``), because loading it runs it.
@@ -253,9 +256,10 @@ def _check_effects(path, body: dict) -> dict:
                 raise ConfigError(f"{path}: unknown key 'effects.{name}.{k}'; "
                                   f"{name} has {', '.join(sorted(known))}")
             p = known[k]
-            if not p.lower <= v <= p.upper:
+            upper = max(p.upper, volts_limit) if p.unit == "V" else p.upper
+            if not p.lower <= v <= upper:
                 raise ConfigError(f"{path}: key 'effects.{name}.{k}' = {v:g} is out of range "
-                                  f"[{p.lower:g}, {p.upper:g}] {p.unit}")
+                                  f"[{p.lower:g}, {upper:g}] {p.unit}")
         missing = set(known) - set(params)
         if missing:
             raise ConfigError(f"{path}: [effects.{name}] is missing '{sorted(missing)[0]}'")

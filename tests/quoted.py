@@ -14,11 +14,12 @@ HTML comment beside it, naming the command and where its output holds the figure
   folder, after the sheet's own commands; a line the sheet itself runs is not run twice);
 - each following line is ``WHERE QUOTED [±TOL[%]]``: ``WHERE`` is a dotted path into the
   command's JSON output (list items by number, ``*F`` scales, e.g. ``tau_s*1000`` for ms)
-  or ``/REGEX/`` with one group, searched in its text output; ``QUOTED`` is the figure
+  or ``/REGEX/`` with one group, searched in its text output (``/REGEX/*F`` scales too); ``QUOTED`` is the figure
   exactly as the text writes it (``−51.6``, ``0.130``, ``+13.2``);
 - the tolerance, unless given, is one unit in the last quoted digit (``96.9``: ±0.1);
 - the quoted figure must appear in the text that follows the comment, up to the next
-  ``check`` comment or heading: a figure and its command stay together;
+  ``check`` comment or heading (checks stacked one after another share the text after
+  the last): a figure and its command stay together;
 - a line ``after: labrig sweep --sim -o runs`` names a command to run first (once per
   folder, in order; a sheet's own commands need none: its checks run after the sheet);
 - a line ``given: 0.8 1.2 2.5`` lists settings the text quotes (amplitudes, gains the
@@ -70,11 +71,12 @@ class Quote:
 
     def measure(self, stdout: str) -> float:
         """The figure in the command's output (JSON path or /regex/)."""
-        if self.where.startswith("/") and self.where.endswith("/") and len(self.where) > 1:
-            m = re.search(self.where[1:-1], stdout)
+        if self.where.startswith("/"):
+            pattern, _, scale = self.where[1:].rpartition("/")
+            m = re.search(pattern, stdout)
             if not m:
-                raise LookupError(f"/{self.where[1:-1]}/ not found in the output")
-            return number(m.group(1))
+                raise LookupError(f"/{pattern}/ not found in the output")
+            return number(m.group(1)) * (float(scale[1:]) if scale else 1.0)
         path, _, scale = self.where.partition("*")
         obj = json.loads(stdout)
         for key in path.split("."):
@@ -108,7 +110,11 @@ def parse(doc: Path, text: str | None = None) -> list[Check]:
     matches = list(CHECK.finditer(text))
     checks = []
     for k, m in enumerate(matches):
-        nxt = matches[k + 1].start() if k + 1 < len(matches) else len(text)
+        # checks stacked one after another vouch together for the text after the last
+        j, after = k + 1, m.end()
+        while j < len(matches) and not text[after:matches[j].start()].strip():
+            after, j = matches[j].end(), j + 1
+        nxt = matches[j].start() if j < len(matches) else len(text)
         h = HEADING.search(text, m.end())
         end = min(nxt, h.start() if h else len(text))
         c = Check(doc, _line_of(text, m.start()), m.group(1).strip(), region=text[m.end():end])
@@ -130,6 +136,9 @@ def parse(doc: Path, text: str | None = None) -> list[Check]:
             if line.startswith("/"):  # a regex may hold spaces: it ends at the last '/'
                 cut = line.rindex("/")
                 where, quoted = line[:cut + 1], line[cut + 1:].strip()
+                if quoted.startswith("*"):  # /REGEX/*F: scaled, like a JSON path
+                    factor, _, quoted = quoted.partition(" ")
+                    where, quoted = where + factor, quoted.strip()
             else:
                 where, _, quoted = line.partition(" ")
                 quoted = quoted.strip()
