@@ -248,7 +248,12 @@ def test_edge_conditions_are_booleans_and_the_note_is_derived():
     assert edge(no_response=True).note == "no speed change (the motor did not respond)"
     assert edge(fit_failed=True).note == "fit failed (boom)"
     assert edge(not_settled=True, tau_at_bound=True).note == (
-        "time constant longer than half the segment: not settled; time constant at its bound")
+        "time constant longer than half the segment: not settled; time constant at a bound "
+        "of the search")
+    low = EdgeFit(index=0, t_s=0.0, v_from=0.0, v_to=1.0, kind="speed", tau_at_bound=True,
+                  fit=StepFit(tau=1e-4, tau_bound="lower"))
+    assert low.note == ("time constant at its lower bound, a quarter of a sample: faster "
+                        "than this sampling can show")
     assert edge(poor_fit=True, t63_disagrees=True).to_json()["note"] == (
         "poor first-order fit (residual 23 % of the step); 63 % point disagrees with the fit")
 

@@ -59,6 +59,8 @@ class StepFit:
     error: str | None = None
     not_settled: bool = False
     tau_at_bound: bool = False
+    #: which bound: "lower" (a quarter sample) or "upper" (20 segment lengths); "" if none
+    tau_bound: str = ""
     poor_fit: bool = False
 
     @property
@@ -198,6 +200,8 @@ def fit_edge(t, y, i_edge, i_end, pre, *, kind="speed", sigma=0.0, min_step=0.0)
         # residual of an angle fit in speed units: angle error over the fit window
         r = (_model_angle(s - td, c, y0, y1, tau) - yy) / max(seg_dur, dt)
     nrmse = float(np.sqrt(np.mean(r ** 2)) / max(abs(y1 - y0), 1e-12))
+    bound = ("lower" if math.log(tau) <= lo[-2] + 1e-6 else
+             "upper" if math.log(tau) >= hi[-2] - 1e-6 else "")
     if kind == "angle":
         # the derivative smoothed over ~tau/3 for the cross-check
         ws = _smooth_derivative(yy, dt, max(5, int(tau / dt / 3)))
@@ -205,8 +209,7 @@ def fit_edge(t, y, i_edge, i_end, pre, *, kind="speed", sigma=0.0, min_step=0.0)
     return StepFit(y0=float(y0), y1=float(y1), tau=float(tau), td=float(td), tau63=t63,
                    nrmse=nrmse, seg_dur=seg_dur, s=s, w=ws, model=fit,
                    not_settled=tau > seg_dur / 2,
-                   tau_at_bound=(math.log(tau) <= lo[-2] + 1e-6
-                                 or math.log(tau) >= hi[-2] - 1e-6),
+                   tau_at_bound=bool(bound), tau_bound=bound,
                    poor_fit=nrmse > 0.15)
 
 

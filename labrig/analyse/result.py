@@ -101,7 +101,12 @@ class EdgeFit:
         if self.not_settled:
             notes.append("time constant longer than half the segment: not settled")
         if self.tau_at_bound:
-            notes.append("time constant at its bound")
+            side = self.fit.tau_bound if self.fit is not None else ""
+            notes.append({"lower": "time constant at its lower bound, a quarter of a sample: "
+                                   "faster than this sampling can show",
+                          "upper": "time constant at its upper bound, 20 segment lengths: "
+                                   "the speed barely moved"}.get(side, "time constant at a "
+                                                                      "bound of the search"))
         if self.poor_fit:
             notes.append(f"poor first-order fit (residual {100 * self.fit.nrmse:.0f} % of the step)")
         if self.t63_disagrees:

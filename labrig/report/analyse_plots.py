@@ -178,8 +178,9 @@ def plot_speed_vs_voltage(res, ax=None):
     ax.axvline(0, color="0.6", lw=0.8)
     ax.set_xlabel("input voltage Vm (V)")
     ax.set_ylabel(f"steady speed ({res.speed_unit})")
+    dz = "not measurable" if res.deadband_v is None else f"{res.deadband_v:.3f} V"
     ax.set_title(f"Speed against voltage — km {_fmt(res.km, '.4g')} {res.speed_unit} per V, "
-                 f"deadband {_fmt(res.deadband_v, '.3f')} V", fontsize=10)
+                 f"deadband {dz}", fontsize=10)
     ax.grid(alpha=0.3)
     legend_outside(ax, "right")
     if own:
