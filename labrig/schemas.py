@@ -18,8 +18,8 @@ import typing
 from pathlib import Path
 from typing import Annotated, Any, Literal, Optional
 
-from pydantic import (AfterValidator, BaseModel, ConfigDict, Field, ValidationError,
-                      model_validator)
+from pydantic import (AfterValidator, BaseModel, BeforeValidator, ConfigDict, Field,
+                      ValidationError, model_validator)
 
 from .errors import UserError
 
@@ -223,10 +223,16 @@ class RigFile(_Closed):
 
 # -- sweep plan -------------------------------------------------------------------------
 
+def _lower(v):
+    """Keywords in any case ("Open", "SQUARE"), as names are on the command line."""
+    return v.lower() if isinstance(v, str) else v
+
+
 class ExperimentSpec(_Closed):
     name: RunName = None
-    loop: Optional[Literal["open", "closed"]] = None
-    waveform: Optional[Literal["square", "step", "staircase", "constant", "pwl"]] = None
+    loop: Annotated[Optional[Literal["open", "closed"]], BeforeValidator(_lower)] = None
+    waveform: Annotated[Optional[Literal["square", "step", "staircase", "constant", "pwl"]],
+                        BeforeValidator(_lower)] = None
     amplitude_v: Num(-50, 50) = None
     amplitudes_v: Annotated[list[Num(-50, 50)], Field(min_length=1, max_length=1000)] = None
     frequency_hz: Num(1e-3, 1e3) = None

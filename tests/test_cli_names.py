@@ -125,3 +125,19 @@ def test_mystery_check_finds_an_effect_named_in_another_case(tmp_path):
     (tmp_path / "m.json").write_text(json.dumps(model))
     res = check(mys, tmp_path / "m.json")
     assert res["effects"][name]["status"] == "found" and res["effects"][name]["as"] == name
+
+
+def test_plan_keywords_in_any_case(tmp_path):
+    """A plan's loop and waveform are keywords like method names: any case is the same
+    keyword, and a wrong one is still refused with the choices named."""
+    from labrig.config import load_plan
+    from labrig.errors import ConfigError
+
+    p = tmp_path / "plan.toml"
+    p.write_text('[[experiment]]\nloop = "Open"\nwaveform = "SQUARE"\namplitudes_v = [1.0]\n'
+                 'frequency_hz = 0.25\nperiods = 1\n')
+    (exp,) = load_plan(p)
+    assert (exp.loop, exp.waveform) == ("open", "square")
+    p.write_text(p.read_text().replace("SQUARE", "Sine"))
+    with pytest.raises(ConfigError, match="'square', 'step'"):
+        load_plan(p)
