@@ -177,3 +177,47 @@ def test_stale_tmp_files_are_removed_when_a_sweep_starts(tmp_path):
     labrig("sweep", "--sim", "--plan", plan, "-o", out, "--resume", check=0)
     assert not left.exists() and other.exists()
     assert [r.name for r in read_dataset(out)] == ["sq_1.00V", "sq_1.50V"]
+
+
+def test_a_trusted_user_effect_in_a_rig_file_gets_its_parameters(tmp_path):
+    """A rig file may hide a user effect (FILE.py:Class, trusted on the command line):
+    the simulated rig applies it with the parameters the file gives, exactly as the
+    catalogue effect of the same physics."""
+    import pandas as pd
+
+    from labrig.acquire import sweep
+    from labrig.bridge.base import Experiment
+    from labrig.bridge.sim import SimRig
+    from labrig.config import rig_from_dict
+    from labrig.model.effects import reset_trust, trust_code
+
+    user = tmp_path / "mine.py"
+    user.write_text('''
+from labrig.model.effects import Effect, Param
+
+
+class MyCoulomb(Effect):
+    name = "my_coulomb"
+    stage = "friction"
+    params = (Param("tc_v", "V", 1e-3, 2.0, "friction as the input voltage that balances it"),)
+
+    def friction(self, plant, tc_v):
+        t = tc_v * plant.Ka * plant.K / plant.R
+        return t, t
+''')
+
+    def tacho(effects, name):
+        rig = rig_from_dict({"effects": effects}, "r.toml")
+        exp = Experiment(name="sq", amplitude_v=0.6, periods=1, sample_rate_hz=200.0)
+        sweep(SimRig(rig, seed=1), [exp], rig, tmp_path / name)
+        return pd.read_csv(tmp_path / name / "sq.csv")["tacho"].to_numpy()
+
+    trust_code([user])
+    try:
+        mine = tacho({f"{user}:MyCoulomb": {"tc_v": 0.3}}, "mine")
+    finally:
+        reset_trust()
+    cat = tacho({"coulomb_friction": {"tc_v": 0.3}}, "cat")
+    lin = tacho({}, "lin")
+    assert np.max(np.abs(mine - lin)) > 0.2            # 0.3 V of friction shows (tacho V)
+    assert np.array_equal(mine, cat)

@@ -39,6 +39,8 @@ class SimRig(Bridge):
         if rig.digital_loop:  # a PD on the position in axis units (RigConfig.digital_loop)
             self.params = replace(self.params, Kpot=1.0, Kt=1.0 / rig.gear_ratio)
         self.effects = [get_effect(n) for n in rig.effects]
+        # by the effect's own name: a user effect is keyed "file.py:Class" in the rig file
+        self._effect_params = {e.name: rig.effects[n] for e, n in zip(self.effects, rig.effects)}
         self._exp: Experiment | None = None
         self._data: dict | None = None
         self._pos = 0
@@ -102,7 +104,7 @@ class SimRig(Bridge):
         t = np.arange(exp.n_samples) * dt
         u = quantise(exp.waveform_at(t), br.dac_bits, *br.dac_range_v)
         sim = simulate_truth(self.params, u, dt, effects=self.effects,
-                             effect_params=rig.effects, loop=exp.loop,
+                             effect_params=self._effect_params, loop=exp.loop,
                              kp=exp.position_gain, kv=exp.velocity_gain,
                              substeps=self.substeps, rail_v=rig.amplifier.output_limit_v)
         # one stream per experiment name: adding an experiment never changes the others
