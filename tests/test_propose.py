@@ -138,30 +138,17 @@ def test_propose_refuses_bad_options(tmp_path, args, message):
 
 
 @pytest.mark.slow
-def test_readme_ask_the_rig_walkthrough(tmp_path):
-    """README step 5, as written: two steps, `diagnose --auto --ask-rig --sim`; the numbers
-    the README quotes are the ones the commands print."""
-    from pathlib import Path
-
+def test_ask_the_rig_plays_the_proposal_and_decides(tmp_path):
+    """`diagnose --auto --ask-rig --sim` on two steps of the default rig (README step 5,
+    whose figures tests/test_exercises.py checks): it proposes, plays the proposal on the
+    simulated rig into runs3/asked/ and decides for the friction the rig hides."""
     runs = tmp_path / "runs3"
     labrig("sweep", "--sim", "--plan", "configs/plan_two_steps.toml", "-o", runs, check=0)
     d = json.loads(labrig("diagnose", runs, "--auto", "--ask-rig", "--sim", "--json",
                           check=0).stdout)
-    lad, asked = d["ladder"], d["asked"]
-    dec = asked["decision"]
-    other = next(k for k in dec["rmse_over_noise_after"] if k != dec["leader"])
-    readme = (Path(__file__).resolve().parent.parent / "README.md").read_text()
-    quoted = [f"(rmse/noise {lad[0]['rmse_over_noise']['overall']:.2f} -> "
-              f"{lad[-1]['rmse_over_noise']['overall']:.2f})",
-              f"*{asked['proposal']['proposed']['label']}*",
-              f"goes from {dec['separation_before']:.3f} to {dec['separation_after']:.3f}",
-              f"{dec['leader']} explains the data "
-              f"({dec['rmse_over_noise_after'][dec['leader']]:.2f} against "
-              f"{dec['rmse_over_noise_after'][other]:.2f})"]
-    flat = " ".join(readme.split())
-    for q in quoted:
-        assert q in flat, q
+    dec = d["asked"]["decision"]
     assert dec["leader"] == "coulomb_friction"      # the default rig hides Coulomb friction
+    assert dec["separation_after"] > dec["separation_before"]
     assert (runs / "asked" / "plan.toml").exists() and (runs / "asked" / "proposed.csv").exists()
 
 
