@@ -139,3 +139,10 @@ def test_readme_quotes_the_recorded_kernel_benchmark():
     assert f"{rec['peak_gflops_one_core']:.1f} GFLOP/s" in readme
     share = rec["paths"]["linear/open"]["share"]
     assert f"**{100 * share:.0f} %** on the open-loop runs" in " ".join(readme.split())
+
+
+def test_readme_quotes_the_recorded_startup_benchmark():
+    """The start-up paragraph (fitting's start against the floor numba sets) is the one
+    benchmarks/bench_startup.py writes from benchmarks/results_startup.json."""
+    prose = " ".join((ROOT / "README.md").read_text().split())
+    assert " ".join(_markdown("bench_startup.py").split()) in prose

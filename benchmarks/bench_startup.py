@@ -1,0 +1,103 @@
+"""Benchmark: how soon `labrig identify` starts fitting, against the floor numba sets.
+
+    python benchmarks/bench_startup.py              # measure (about 1 min), write results_startup.json
+    python benchmarks/bench_startup.py --markdown   # the README paragraph of the recorded result
+
+In ONE run, on this machine, each a new process, median of 7 (after one warm-up):
+
+* ``python -c pass``: the interpreter alone;
+* ``import numpy``;
+* ``import numpy, numba``;
+* the numba floor: a module holding ONE trivial ``@njit(cache=True)`` function, its cache
+  filled beforehand, imported and called once. Every program whose kernels are numba
+  functions pays this before its first kernel call, however little else it imports;
+* ``labrig --help``;
+* ``labrig identify DIR --method jfo --seed 1`` on the default simulated sweep: the phase
+  mark ``fit-start`` (``LABRIG_LAUNCHED_AT``), the moment the optimiser's first population
+  is simulated.
+
+The issue's target is fitting within 0.3 s of launch.
+"""
+from __future__ import annotations
+
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from whole_process import machine, main
+
+HERE = Path(__file__).resolve().parent
+RESULTS = HERE / "results_startup.json"
+TARGET_S = 0.3
+REPEAT = 7
+TINY = "import numba\n\n\n@numba.njit(cache=True)\ndef f(x):\n    return 2.0 * x\n"
+
+
+def _wall(argv, cwd=None, env=None) -> float:
+    t0 = time.perf_counter()
+    subprocess.run(argv, cwd=cwd, env=env, check=True, capture_output=True)
+    return time.perf_counter() - t0
+
+
+def _median(argv, **kw) -> float:
+    _wall(argv, **kw)  # warm-up: files in the OS cache, numba's cache written
+    return round(statistics.median(_wall(argv, **kw) for _ in range(REPEAT)), 3)
+
+
+def _fit_start(data: Path, out: Path) -> float:
+    marks = []
+    for i in range(REPEAT + 1):
+        env = dict(os.environ, LABRIG_LAUNCHED_AT=repr(time.time()))
+        p = subprocess.run([sys.executable, "-m", "labrig", "identify", str(data), "--method",
+                            "jfo", "--seed", "1", "-o", str(out), "--force"], env=env,
+                           check=True, capture_output=True, text=True)
+        for line in p.stderr.splitlines():
+            if line.startswith("labrig-timing fit-start "):
+                marks.append(float(line.split()[2]))
+        if i == 0:
+            marks.clear()  # warm-up
+    return round(statistics.median(marks), 3)
+
+
+def measure() -> dict:
+    py = sys.executable
+    load = os.getloadavg()[0]
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        (tmp / "tiny.py").write_text(TINY)
+        data = tmp / "runs"
+        subprocess.run([py, "-m", "labrig", "sweep", "--sim", "-o", str(data)], check=True,
+                       capture_output=True)
+        res = {
+            "interpreter_s": _median([py, "-c", "pass"]),
+            "numpy_s": _median([py, "-c", "import numpy"]),
+            "numba_import_s": _median([py, "-c", "import numpy, numba"]),
+            "numba_floor_s": _median([py, "-c", "import tiny; tiny.f(1.0)"], cwd=tmp),
+            "help_s": _median([py, "-m", "labrig", "--help"]),
+            "fit_start_s": _fit_start(data, tmp / "m.json"),
+        }
+    res["target_s"] = TARGET_S
+    res["machine"] = machine(load)
+    return res
+
+
+def markdown(r: dict) -> str:
+    verdict = "met" if r["fit_start_s"] <= r["target_s"] else "**missed**"
+    return (f"**Start-up** (`python benchmarks/bench_startup.py`, `benchmarks/results_startup."
+            f"json`, {r['machine']['when']}, medians of {REPEAT} new processes): "
+            f"`labrig identify` starts fitting {r['fit_start_s']:.2f} s after launch; the "
+            f"target, {r['target_s']:.1f} s, is {verdict}. The floor under it: the "
+            f"interpreter alone takes {r['interpreter_s']:.2f} s, with numpy "
+            f"{r['numpy_s']:.2f} s, with numba imported {r['numba_import_s']:.2f} s, and a "
+            f"program whose only work is ONE trivial cached numba function, called once, "
+            f"{r['numba_floor_s']:.2f} s. Any start-up of numba kernels on this machine "
+            f"is above the target before labrig reads a file; `labrig --help`, which "
+            f"loads no kernels, takes {r['help_s']:.2f} s.")
+
+
+if __name__ == "__main__":
+    sys.exit(main(__doc__, RESULTS, measure, markdown))
