@@ -166,3 +166,33 @@ def test_default_pair_is_the_diagnosis_first_confusable_pair(tmp_path):
     (tmp_path / "diagnosis.json").write_text(json.dumps({"confusable": [{"pair": [1, 2]}]}))
     with pytest.raises(UserError, match="confusable.0.pair"):
         pair_from_diagnosis(model)
+
+
+@pytest.mark.slow
+def test_the_decision_does_not_hang_on_the_last_digits_of_the_noise_floor(tmp_path, monkeypatch):
+    """Stiction hidden, dead zone vs stiction: a noise floor 1e-13 larger turns the proposal
+    from a ramp into dwells at several levels (the candidates are nearly tied). On the
+    dwells the re-fit with the true structure must still reach the floor: it is also
+    started from the earlier fit's plant with the effect scanned afresh (it stalled at
+    rmse/noise 22 when it was not)."""
+    import dataclasses
+
+    import labrig.noise as noise
+
+    floor = noise.noise_floor
+
+    def nudged(*a, **k):
+        f = floor(*a, **k)
+        return dataclasses.replace(f, sigma=f.sigma * (1 + 1e-13))
+
+    monkeypatch.setattr(noise, "noise_floor", nudged)
+    pair = ("deadband", "stiction")
+    rig, runs, model = _confusable(tmp_path, "stiction", pair)
+    prop = propose(runs, model, ",".join(pair), budget_s=20.0, seed=0)
+    plan = tmp_path / "plan.toml"
+    plan.write_text(prop.to_toml())
+    sweep(SimRig(rig), load_plan(plan), rig, tmp_path / "ds" / "new")
+    d = decide(read_dataset([tmp_path / "ds", tmp_path / "ds" / "new"]), model, seed=0)
+    assert d.leader == "stiction", d.to_text()
+    assert d.after["stiction"] <= 1.1, d.to_text()            # at the floor, not stalled
+    assert Decision.separation(d.after) >= 3.0, d.to_text()
