@@ -22,7 +22,15 @@ HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent.parent
 
 
+class Exists(Exception):
+    """A log is already there and --force was not given."""
+
+
 def make(out: Path, force: bool = False) -> list[Path]:
+    """Write the logs into ``out``; refuse before writing any if one exists (no --force)."""
+    there = sorted(out.glob("step_*.csv"))
+    if there and not force:
+        raise Exists(f"{there[0]} exists; pass --force to replace the logs")
     out.mkdir(parents=True, exist_ok=True)
     written = []
     with tempfile.TemporaryDirectory() as tmp:
@@ -32,8 +40,6 @@ def make(out: Path, force: bool = False) -> list[Path]:
                         "-o", str(Path(tmp) / "runs")], check=True, capture_output=True)
         for src in sorted((Path(tmp) / "runs").glob("sq_*.csv")):
             dst = out / src.name.replace("sq_", "step_")
-            if dst.exists() and not force:
-                raise SystemExit(f"{dst} exists; pass --force to replace it")
             with open(src, newline="") as f:
                 rows = list(csv.DictReader(f))
             with open(dst, "w", newline="") as f:
@@ -48,5 +54,10 @@ def make(out: Path, force: bool = False) -> list[Path]:
 
 if __name__ == "__main__":
     args = [a for a in sys.argv[1:] if a != "--force"]
-    for p in make(Path(args[0]) if args else HERE, force="--force" in sys.argv):
+    try:
+        made = make(Path(args[0]) if args else HERE, force="--force" in sys.argv)
+    except Exists as exc:  # a refusal is the user's to fix: one line, exit 2
+        print(f"make.py: error: {exc}", file=sys.stderr)
+        sys.exit(2)
+    for p in made:
         print(f"wrote {p}")

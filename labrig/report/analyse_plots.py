@@ -168,8 +168,12 @@ def plot_speed_vs_voltage(res, ax=None):
                 label="at rest")
     _draw_line(ax, res.line, vmax=max([abs(L.v) for L in lv] + [0.1]))
     if res.deadband_v is not None and res.deadband_v > 0:
-        ax.axvspan(-res.deadband_v, res.deadband_v, color="C1", alpha=0.2,
-                   label=f"deadband \u00b1{res.deadband_v:.3f} V")
+        # where the two lines meet zero speed: a rig stronger one way has a lopsided band
+        fwd = res.line.deadband_fwd if res.line.deadband_fwd is not None else res.deadband_v
+        rev = res.line.deadband_rev if res.line.deadband_rev is not None else res.deadband_v
+        label = (f"deadband \u00b1{res.deadband_v:.3f} V" if abs(fwd - rev) < 5e-4 else
+                 f"deadband -{rev:.3f} to +{fwd:.3f} V")
+        ax.axvspan(-rev, fwd, color="C1", alpha=0.2, label=label)
     if res.breakaway_v is not None:
         for sgn in (1, -1):
             ax.axvline(sgn * res.breakaway_v, color="C2", ls="--", lw=1,
