@@ -21,7 +21,7 @@ import numpy as np
 import pandas as pd
 
 from .errors import RunFileError, UserError
-from .model.plants import check_axis
+from .model.plants import AXES, check_axis
 from .schemas import Controller, check_run_name
 from .csvfile import read_csv_columns
 from .runs import Run, make_meta, write_run
@@ -31,8 +31,6 @@ SPEED_UNITS = {"rotary": {"rad/s": 1.0, "rpm": 2 * math.pi / 60.0, "deg/s": math
                "linear": {"m/s": 1.0, "mm/s": 1e-3}}
 POS_UNITS = {"rotary": {"rad": 1.0, "deg": math.pi / 180.0, "rev": 2 * math.pi},
              "linear": {"m": 1.0, "mm": 1e-3}}
-#: the SI speed unit a ``speed`` column is stored in, per axis
-SI_SPEED = {"rotary": "rad/s", "linear": "m/s"}
 TIME_UNITS = {"s": 1.0, "ms": 1e-3}
 MAP_TARGETS = ("t", "u", "speed", "pos", "tacho", "ref", "current")
 
@@ -210,7 +208,7 @@ def import_csv(src: Path | str, outdir: Path | str, mapping: dict[str, str], *,
     sensors = {}
     if "speed" in mapping:  # physical speed: kept as speed, never as made-up tacho volts
         cols["speed"] = frame[mapping["speed"]] * speed_factor
-        sensors["speed_unit"] = SI_SPEED[axis]
+        sensors["speed_unit"] = AXES[axis][1]
     if "tacho" in mapping:
         cols["tacho"] = frame[mapping["tacho"]]
         sensors["tacho_v_per_rad_s"] = float(tacho_gain)

@@ -20,6 +20,7 @@ import pandas as pd
 from .errors import AnalysisError, RunFileError, UserError
 from .csvfile import SENSOR_COLUMNS, read_run_csv
 from .fileio import atomic_write, json_default
+from .model.plants import AXES
 
 FORMAT = "labrig-run/1"
 #: the order labrig writes a run's columns in (others follow); a run has ``tacho`` or
@@ -114,8 +115,7 @@ class Run:
     @property
     def axis(self) -> str:
         """``rotary`` (rad, rad/s) or ``linear`` (m, m/s)."""
-        return self.meta.get("rig", {}).get("axis") or \
-            ("linear" if self.drive == "force" else "rotary")
+        return axis_of(self.meta)
 
     @property
     def units(self) -> tuple[str, str]:
@@ -301,6 +301,12 @@ def require_excitation(runs, what: str = "identify") -> None:
                             "and are the sensors wired?")
 
 
+def axis_of(meta: dict) -> str:
+    """A sidecar's axis: as stated, else what its drive implies (a force moves a carriage)."""
+    rig = meta.get("rig", {})
+    return rig.get("axis") or ("linear" if rig.get("drive") == "force" else "rotary")
+
+
 def _check_against_sidecar(csv_path, json_path, data, meta):
     sensors = meta["sensors"]
     if "speed" in data:
@@ -320,9 +326,8 @@ def _check_speed_column(csv_path, json_path, data, meta):
         raise RunFileError(f"{csv_path}: both a 'speed' and a 'tacho' column; a run measures "
                            "speed once: keep 'tacho' (volts, with sensors.tacho_v_per_rad_s) "
                            "or 'speed' (with sensors.speed_unit), not both")
-    rig = meta.get("rig", {})
-    axis = rig.get("axis") or ("linear" if rig.get("drive") == "force" else "rotary")
-    want = "m/s" if axis == "linear" else "rad/s"
+    axis = axis_of(meta)
+    want = AXES[axis][1]
     unit = meta["sensors"].get("speed_unit")
     if unit is None:
         raise RunFileError(f"{json_path}: key 'sensors.speed_unit' missing; the run has a "

@@ -16,6 +16,25 @@ from labrig.config import load_rig
 
 ROOT = Path(__file__).resolve().parent.parent
 
+#: a user's own effect file, as a student writes it: dry friction (tests of user effects)
+MY_COULOMB_PY = '''
+from labrig.model.effects import Effect, Param
+
+
+class MyCoulomb(Effect):
+    """Dry friction: a constant torque against the motion."""
+    name = "my_coulomb"
+    stage = "friction"
+    params = (Param("tc_v", "V", 1e-3, 2.0, "friction as the input voltage that balances it"),)
+
+    def friction(self, plant, tc_v):
+        t = tc_v * plant.Ka * plant.K / plant.R   # the stall torque of tc_v volts
+        return t, t                               # (kinetic, breakaway)
+
+    def initial_guess(self, runs, plant):
+        return {"tc_v": 0.1}
+'''
+
 
 def make_rig(effects=None, noise=True, **plant):
     """The default rig with its hidden effects replaced by ``effects``."""

@@ -8,7 +8,7 @@ from labrig.diagnose import diagnose
 from labrig.identify.engine import identify
 from labrig.model.effects import get_effect
 from labrig.runs import read_dataset
-from conftest import labrig, make_rig, sim_dataset, square_plan
+from conftest import MY_COULOMB_PY, labrig, make_rig, sim_dataset, square_plan
 
 # realistic magnitudes (docs/physics.md, 'Effect catalogue') and the parameter each
 # effect must recover
@@ -111,23 +111,7 @@ def test_cli_loop_and_user_effect(tmp_path):
     for e in d["ranking"]:
         assert set(e) >= {"effect", "rmse_over_noise", "improvement", "delta_bic", "params", "explanation"}
     user = tmp_path / "my_effects.py"
-    user.write_text('''
-from labrig.model.effects import Effect, Param
-
-
-class MyCoulomb(Effect):
-    """Dry friction: a constant torque against the motion."""
-    name = "my_coulomb"
-    stage = "friction"
-    params = (Param("tc_v", "V", 1e-3, 2.0, "friction as the input voltage that balances it"),)
-
-    def friction(self, plant, tc_v):
-        t = tc_v * plant.Ka * plant.K / plant.R   # the stall torque of tc_v volts
-        return t, t                               # (kinetic, breakaway)
-
-    def initial_guess(self, runs, plant):
-        return {"tc_v": 0.1}
-''')
+    user.write_text(MY_COULOMB_PY)
     proc = labrig("identify", ds, "--model", tmp_path / "m0.json", "--effects", f"{user}:MyCoulomb",
                   "--json", "-o", tmp_path / "m1.json", check=0)
     d = json.loads(proc.stdout)

@@ -11,7 +11,7 @@ import pytest
 from labrig.acquire import sweep
 from labrig.bridge.sim import SimRig
 from labrig.runs import read_dataset, read_run
-from conftest import ROOT, labrig, make_rig, square_plan
+from conftest import MY_COULOMB_PY, ROOT, labrig, make_rig, square_plan
 
 
 def test_cli_sweep_writes_valid_runs(tmp_path):
@@ -192,19 +192,7 @@ def test_a_trusted_user_effect_in_a_rig_file_gets_its_parameters(tmp_path):
     from labrig.model.effects import reset_trust, trust_code
 
     user = tmp_path / "mine.py"
-    user.write_text('''
-from labrig.model.effects import Effect, Param
-
-
-class MyCoulomb(Effect):
-    name = "my_coulomb"
-    stage = "friction"
-    params = (Param("tc_v", "V", 1e-3, 2.0, "friction as the input voltage that balances it"),)
-
-    def friction(self, plant, tc_v):
-        t = tc_v * plant.Ka * plant.K / plant.R
-        return t, t
-''')
+    user.write_text(MY_COULOMB_PY)
 
     def tacho(effects, name):
         rig = rig_from_dict({"effects": effects}, "r.toml")

@@ -40,8 +40,11 @@ class StepFit:
         Nothing was fitted: fewer than six samples, or no speed change.
     error : str or None
         The optimiser's error message when it raised.
-    not_settled, tau_at_bound, poor_fit : bool
+    not_settled, poor_fit : bool
         Conditions of a fit that ran (see :class:`~labrig.analyse.EdgeFit`).
+    tau_bound : str
+        The bound of the search tau sits at ("lower", "upper"), "" if none;
+        ``tau_at_bound`` says whether it does.
     """
 
     y0: float | None = None
@@ -58,10 +61,14 @@ class StepFit:
     no_response: bool = False
     error: str | None = None
     not_settled: bool = False
-    tau_at_bound: bool = False
-    #: which bound: "lower" (a quarter sample) or "upper" (20 segment lengths); "" if none
+    #: which bound tau sits at: "lower" (a quarter sample) or "upper" (20 segment
+    #: lengths); "" if none
     tau_bound: str = ""
     poor_fit: bool = False
+
+    @property
+    def tau_at_bound(self) -> bool:
+        return bool(self.tau_bound)
 
     @property
     def ran(self) -> bool:
@@ -209,7 +216,7 @@ def fit_edge(t, y, i_edge, i_end, pre, *, kind="speed", sigma=0.0, min_step=0.0)
     return StepFit(y0=float(y0), y1=float(y1), tau=float(tau), td=float(td), tau63=t63,
                    nrmse=nrmse, seg_dur=seg_dur, s=s, w=ws, model=fit,
                    not_settled=tau > seg_dur / 2,
-                   tau_at_bound=bool(bound), tau_bound=bound,
+                   tau_bound=bound,
                    poor_fit=nrmse > 0.15)
 
 

@@ -19,6 +19,14 @@ if TYPE_CHECKING:  # only for annotations: edges.py imports this module
 GAIN_TOLERANCE = 0.03
 
 
+#: what an edge's time constant at a bound of the search means, by bound
+TAU_BOUND_NOTES = {
+    "lower": "time constant at its lower bound, a quarter of a sample: faster than this "
+             "sampling can show",
+    "upper": "time constant at its upper bound, 20 segment lengths: the speed barely moved",
+}
+
+
 @dataclass
 class EdgeFit:
     """One edge of the input and the first-order fit of the speed after it.
@@ -102,11 +110,7 @@ class EdgeFit:
             notes.append("time constant longer than half the segment: not settled")
         if self.tau_at_bound:
             side = self.fit.tau_bound if self.fit is not None else ""
-            notes.append({"lower": "time constant at its lower bound, a quarter of a sample: "
-                                   "faster than this sampling can show",
-                          "upper": "time constant at its upper bound, 20 segment lengths: "
-                                   "the speed barely moved"}.get(side, "time constant at a "
-                                                                      "bound of the search"))
+            notes.append(TAU_BOUND_NOTES.get(side, "time constant at a bound of the search"))
         if self.poor_fit:
             notes.append(f"poor first-order fit (residual {100 * self.fit.nrmse:.0f} % of the step)")
         if self.t63_disagrees:

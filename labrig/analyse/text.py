@@ -66,7 +66,7 @@ def summary_table(res) -> Table:
 
 def speed_without_tacho(res) -> bool:
     """The analysed runs measured speed, but none with a tacho (imported speed)."""
-    sensors = {getattr(r, "sensor", None) for r in res.runs if not getattr(r, "skipped", None)}
+    sensors = {r.sensor for r in res.runs if not r.skipped}
     return "speed" in sensors and "tacho" not in sensors
 
 
