@@ -175,7 +175,7 @@ def rms_over_noise(refs, sims, sigma_w) -> float:
 # -- labrig ------------------------------------------------------------------------------------
 COLD_SNIPPET = r"""
 import json, sys, time, numpy as np
-from labrig.runs import read_dataset
+from labrig.io.runs import read_dataset
 from labrig.model.simulate import Simulator
 from labrig.model.effects import get_effect
 runs = read_dataset(sys.argv[1])
@@ -209,7 +209,7 @@ def time_calls(fn, repeats: int) -> dict:
 
 
 def bench_identify(runs, method, effects, repeats, **kw) -> dict:
-    from labrig.identify.engine import identify
+    from labrig.identification.engine import identify
 
     rows = []
     for k in range(repeats):
@@ -265,7 +265,7 @@ def main(argv=None) -> int:
     import labrig
     from labrig.model.effects import get_effect
     from labrig.model.simulate import Simulator, prepare
-    from labrig.runs import read_dataset
+    from labrig.io.runs import read_dataset
 
     res: dict = {"quick": args.quick, "loadavg": {"start": load()},
                  "machine": {"cpu_count": os.cpu_count(),
@@ -297,7 +297,7 @@ def main(argv=None) -> int:
         first_lin = time.perf_counter() - t0
         t0 = time.perf_counter(); sim_nl.simulate(plant, ep)
         first_nl = time.perf_counter() - t0
-        from labrig.identify.objective import Objective, build_space
+        from labrig.identification.objective import Objective, build_space
         weights = {}
         for name, effs in (("linear", []), ("coulomb", [coulomb])):
             weights[name] = Objective(runs, effs, build_space(effs))._weights
@@ -338,7 +338,7 @@ def main(argv=None) -> int:
         ref_nl["cand_per_s"] = 1.0 / ref_nl["per_candidate_s"]
         # how close each reference is to labrig's simulation (candidate 0), so the reader
         # sees both compute the same physics to within the measurement noise
-        from labrig.identify.objective import noise_level
+        from labrig.identification.objective import noise_level
         sigma_w = float(np.median([noise_level(r.w) for r in rd]))
         keep: list = []
         reference_linear(rd, plant[0], keep)

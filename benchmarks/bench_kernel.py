@@ -76,7 +76,7 @@ def _timed(fn) -> float:
 def kernel_rates(folder: Path) -> dict:
     from labrig.model.effects import CATALOGUE
     from labrig.model.simulate import Simulator
-    from labrig.runs import read_dataset
+    from labrig.io.runs import read_dataset
 
     runs = read_dataset(folder)
     openl = [r for r in runs if r.loop == "open"]

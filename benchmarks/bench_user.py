@@ -171,7 +171,7 @@ def first_run() -> dict:
 
 def measure() -> dict:
     from labrig.model.simulate import prepare
-    from labrig.runs import read_dataset
+    from labrig.io.runs import read_dataset
 
     load = os.getloadavg()[0]
     res: dict = {}

@@ -1,3 +1,45 @@
-"""labrig: a hardware-in-the-loop acquisition and identification station for DC-servo labs."""
+"""labrig: a hardware-in-the-loop acquisition and identification station for DC-servo labs.
 
-__version__ = "0.1.0"
+``import labrig as lr`` gives the verbs of the lab (docs/api.md)::
+
+    runs = lr.read_runs("data/sweep_default")
+    res = lr.analyse(runs)                       # deadband, Km, tau_m
+    fit = lr.identify(runs)                      # the linear model (CO)
+    diag = lr.diagnose(runs, fit)                # which effect is missing, with evidence
+    final = lr.auto(runs)                        # the loop to the end, with its ladder
+
+Every result shows a summary as text, and its tables and figure in a notebook. The
+names are loaded on first use, so ``import labrig`` stays quick.
+"""
+from labrig.core.version import __version__
+
+#: public name -> module that defines it
+_PUBLIC = {
+    "read_runs": "labrig.api", "analyse": "labrig.api", "identify": "labrig.api",
+    "diagnose": "labrig.api", "auto": "labrig.api", "propose": "labrig.api",
+    "compare": "labrig.api", "ladder": "labrig.api", "effects": "labrig.api",
+    "load_model": "labrig.api",
+    "Model": "labrig.model.model", "Run": "labrig.io.runs", "Effect": "labrig.model.effects",
+    "Param": "labrig.model.effect_base",
+    "AnalysisResult": "labrig.analysis.result", "Identification": "labrig.identification.engine",
+    "Diagnosis": "labrig.loop.ranking", "AutoDiagnosis": "labrig.loop.auto",
+    "Evaluation": "labrig.loop.evaluation", "Ladder": "labrig.loop.ladder",
+    "Proposal": "labrig.loop.propose", "Catalogue": "labrig.model.catalogue",
+    "LabrigError": "labrig.core.errors", "UserError": "labrig.core.errors",
+}
+
+__all__ = list(_PUBLIC) + ["__version__"]
+
+
+def __getattr__(name):
+    if name in _PUBLIC:
+        import importlib
+
+        value = getattr(importlib.import_module(_PUBLIC[name]), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module 'labrig' has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted(set(globals()) | set(__all__))

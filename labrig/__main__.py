@@ -1,3 +1,3 @@
-from .cli import run
+from labrig.cli import run
 
 run()

@@ -9,8 +9,8 @@ import argparse
 import sys
 import traceback
 
-from . import __version__
-from .errors import LabrigError, UserError
+from labrig.core.version import __version__
+from labrig.core.errors import LabrigError, UserError
 
 
 class _TrustCode(argparse.Action):
@@ -18,7 +18,7 @@ class _TrustCode(argparse.Action):
     FILE.py (a user effect is code that runs; see labrig.model.effects.trust_code)."""
 
     def __call__(self, parser, namespace, values, option_string=None):
-        from .model.effects import trust_code
+        from labrig.model.effects import trust_code
 
         trust_code([values])
         getattr(namespace, self.dest, None) or setattr(namespace, self.dest, [])
@@ -36,9 +36,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--version", action="version", version=f"labrig {__version__}")
     p.add_argument("--debug", action="store_true", help="show tracebacks")
     sub = p.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
-    from . import commands  # noqa: F401  (registers the subcommands)
-    from .commands.registry import COMMANDS
-    from .model.effects import reset_trust
+    import labrig.commands  # noqa: F401  (registers the subcommands)
+    from labrig.commands.registry import COMMANDS
+    from labrig.model.effects import reset_trust
 
     reset_trust()  # trust is given per command line, never carried over
 
@@ -69,10 +69,15 @@ def _names_in_any_case(parser: argparse.ArgumentParser) -> None:
 
 
 def main(argv=None) -> int:
-    from .errors import Interrupted
+    from labrig.core.errors import Interrupted
 
     argv = sys.argv[1:] if argv is None else argv
     debug = "--debug" in argv
+    # figures go to files: the command line picks the file backend, the library never
+    # does (a notebook keeps its inline backend)
+    import matplotlib
+
+    matplotlib.use("Agg")
     if not debug:  # wild candidates overflow on purpose during a search; not news for users
         import warnings
 
@@ -114,7 +119,7 @@ def run() -> None:
     """
     import os
 
-    from .timing import mark
+    from labrig.core.timing import mark
 
     code = main()
     mark("exit")

@@ -9,10 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from labrig.bridge.base import Experiment
+from labrig.io.experiment import Experiment
 from labrig.bridge.sim import SimRig
-from labrig.acquire import sweep
-from labrig.config import load_rig
+from labrig.bridge.sweep import sweep
+from labrig.io.config import load_rig
 
 ROOT = Path(__file__).resolve().parent.parent
 

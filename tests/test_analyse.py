@@ -6,11 +6,11 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from labrig.analyse import analyse, find_segments
-from labrig.bridge.base import Experiment
-from labrig.errors import AnalysisError
+from labrig.analysis import analyse, find_segments
+from labrig.io.experiment import Experiment
+from labrig.core.errors import AnalysisError
 from labrig.model.servo import ServoParams
-from labrig.runs import Run, make_meta, read_dataset, write_run
+from labrig.io.runs import Run, make_meta, read_dataset, write_run
 from conftest import ROOT, labrig, make_rig, sim_dataset, square_plan
 
 # short plans keep the suite fast: half-periods of 1 s are > 6 time constants
@@ -149,7 +149,7 @@ def test_paper_table1_gain_trend_is_the_plain_fall_of_w_over_v():
     # Table 1: w/V is 2600 rpm/V (272.7 rad/s per V, both directions) at 1.2 V and
     # 1260 rpm/V (131.9) at 2.5 V: a fall of 51.6 %, which the summary and the verdict
     # print and explain (a regression slope times span over mean said -70.1 %)
-    from labrig.analyse.text import summary_table
+    from labrig.analysis.text import summary_table
 
     res = analyse(ROOT / "data" / "paper_table1.csv")
     assert res.trend["relative_change"] == pytest.approx(131.95 / 272.7 - 1, abs=5e-4)
@@ -238,7 +238,7 @@ def test_json_keys_pinned_and_to_dict_alias(linear_ds):
 
 
 def test_edge_conditions_are_booleans_and_the_note_is_derived():
-    from labrig.analyse import EdgeFit, StepFit
+    from labrig.analysis import EdgeFit, StepFit
 
     def edge(**flags):
         return EdgeFit(index=0, t_s=0.0, v_from=0.0, v_to=1.0, kind="from_rest",
@@ -293,7 +293,7 @@ def test_edge_flags_from_real_fits():
 
 
 def test_table_rows_are_tables_and_the_summary_prints_them(linear_ds):
-    from labrig.tables import Table
+    from labrig.core.tables import Table
 
     res = analyse(linear_ds[0])
     levels, summary = res.table_rows()
@@ -315,7 +315,7 @@ def test_figures_are_objects_drawn_on_demand(linear_ds, tmp_path, monkeypatch):
     import matplotlib.pyplot as plt
     from matplotlib.figure import Figure
 
-    from labrig.report.analyse_plots import plot_edges, plot_km_vs_amplitude
+    from labrig.analysis.plots import plot_edges, plot_km_vs_amplitude
 
     monkeypatch.chdir(tmp_path)
     res = analyse(linear_ds[0])
@@ -358,7 +358,7 @@ def test_saving_closes_figures_and_records_paths(linear_ds, tmp_path):
 def test_package_modules_are_small_and_share_no_private_names():
     import ast
 
-    pkg = ROOT / "labrig" / "analyse"
+    pkg = ROOT / "labrig" / "analysis"
     for f in pkg.glob("*.py"):
         src = f.read_text(encoding="utf-8")
         assert len(src.splitlines()) <= 400, f.name

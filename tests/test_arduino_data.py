@@ -34,7 +34,7 @@ def test_a_log_imports_as_an_encoder_run(tmp_path):
     src = DATA / "step_6.00V.csv"
     labrig("import", src, "--map", "t=ms,u=u_V,pos=count", "--time-unit", "ms",
            "--pos-unit", "counts:1320", "--gear-ratio", "30", "-o", tmp_path, check=0)
-    from labrig.runs import read_run
+    from labrig.io.runs import read_run
 
     run = read_run(tmp_path / "step_6.00V.csv")
     assert run.fs == 200.0
@@ -50,8 +50,8 @@ def test_a_log_imports_as_an_encoder_run(tmp_path):
 def test_a_dead_zone_may_be_volts_wide_on_a_12_v_bridge():
     """Input thresholds are bounded by what the rig's bridge can output: 2.1 V is a real
     H-bridge dead zone at 12 V, while on the MS150's 2.5 V bridge 3 V is refused."""
-    from labrig.config import load_rig, rig_from_dict
-    from labrig.errors import ConfigError
+    from labrig.io.config import load_rig, rig_from_dict
+    from labrig.core.errors import ConfigError
 
     rig = load_rig(ROOT / "configs" / "rig_arduino_hbridge.toml")
     assert rig.effects["asymmetric_deadband"] == {"dpos_v": 1.5, "dneg_v": 2.1}

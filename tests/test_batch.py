@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from conftest import labrig, make_rig, sim_dataset, square_plan
-from labrig.batch import output_names, run_batch
+from labrig.classroom.batch import output_names, run_batch
 
 OPTS = {"method": "jfo", "pop": 16, "iters": 20, "seed": 1}
 

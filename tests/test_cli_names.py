@@ -62,8 +62,8 @@ def test_identify_takes_method_and_effect_names_in_any_case(ds, capsys):
 
 
 def test_the_python_api_takes_a_method_in_any_case(ds):
-    from labrig.identify.engine import identify
-    from labrig.runs import read_dataset
+    from labrig.identification.engine import identify
+    from labrig.io.runs import read_dataset
 
     p = make_rig().plant
     res = identify(read_dataset([ds]), "PSO", pop=6, iters=2, seed=1, identifiability=False,
@@ -72,12 +72,12 @@ def test_the_python_api_takes_a_method_in_any_case(ds):
 
 
 def test_files_name_effects_in_any_case(tmp_path):
-    from labrig.bridge.base import Experiment
-    from labrig.config import load_plan, load_rig
-    from labrig.diagnose import candidate_names
+    from labrig.io.experiment import Experiment
+    from labrig.io.config import load_plan, load_rig
+    from labrig.loop.diagnose import candidate_names
     from labrig.model.model import Model
-    from labrig.propose import default_pair
-    from labrig.runs import read_dataset
+    from labrig.loop.propose import default_pair
+    from labrig.io.runs import read_dataset
 
     # a rig file: [effects.Deadband] is the dead zone, and the simulated rig plays it
     text = (ROOT / "configs" / "rig_default.toml").read_text()
@@ -111,7 +111,7 @@ def test_files_name_effects_in_any_case(tmp_path):
 
 
 def test_mystery_check_finds_an_effect_named_in_another_case(tmp_path):
-    from labrig.mystery import check, load_mystery
+    from labrig.classroom.mystery import check, load_mystery
 
     mys = tmp_path / "lab.mystery"
     assert main(["mystery", "new", "--seed", "7", "-o", str(mys)]) == 0
@@ -130,8 +130,8 @@ def test_mystery_check_finds_an_effect_named_in_another_case(tmp_path):
 def test_plan_keywords_in_any_case(tmp_path):
     """A plan's loop and waveform are keywords like method names: any case is the same
     keyword, and a wrong one is still refused with the choices named."""
-    from labrig.config import load_plan
-    from labrig.errors import ConfigError
+    from labrig.io.config import load_plan
+    from labrig.core.errors import ConfigError
 
     p = tmp_path / "plan.toml"
     p.write_text('[[experiment]]\nloop = "Open"\nwaveform = "SQUARE"\namplitudes_v = [1.0]\n'

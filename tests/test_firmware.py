@@ -12,11 +12,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from labrig.bridge.base import Experiment
+from labrig.io.experiment import Experiment
 from labrig.bridge.emulate import APT_PACKAGES, FIRMWARE_DIR, Emulator, missing_tools
 from labrig.bridge.serial import SerialBridge, bridge_settings, volts_to_dac_word
-from labrig.config import RigConfig
-from labrig.errors import RigError, UserError
+from labrig.io.config import RigConfig
+from labrig.core.errors import RigError, UserError
 from linkproxy import B2H, LinkProxy
 
 _missing = missing_tools()
@@ -180,7 +180,7 @@ def test_cli_sweep_on_emulated_board_then_board_vanishes(tmp_path):
     the board vanishing mid-sweep gives exit 1, one clear line, and intact finished runs."""
     import sys
 
-    from labrig.runs import read_dataset
+    from labrig.io.runs import read_dataset
 
     plan = tmp_path / "plan.toml"
     plan.write_text("[defaults]\nlead_in_s = 0.3\n[[experiment]]\namplitudes_v = [1.2, 2.0, 2.5]\n"
@@ -203,7 +203,7 @@ def test_cli_sweep_on_emulated_board_then_board_vanishes(tmp_path):
         assert len(r) == 2300 and r.meta["bridge"]["dropped_samples"] == 0
         assert r.meta["source"] == "serial"
     # the finished runs are real data: the analyser reads them
-    from labrig.analyse import analyse
+    from labrig.analysis import analyse
 
     res = analyse([tmp_path / "ds"]).to_dict()
     assert res["km"] is not None and 80 < res["km"] < 115
@@ -215,7 +215,7 @@ def test_sigterm_mid_run_stops_the_board_at_zero(tmp_path, emulators):
     import signal
     import sys
 
-    from labrig.runs import read_dataset
+    from labrig.io.runs import read_dataset
 
     log = tmp_path / "dac.log"
     plan = tmp_path / "plan.toml"
@@ -312,8 +312,8 @@ def test_a_proposed_plan_plays_through_sweep_port(tmp_path):
     import json
     import sys
 
-    from labrig.config import load_plan
-    from labrig.runs import read_dataset
+    from labrig.io.config import load_plan
+    from labrig.io.runs import read_dataset
     from conftest import make_rig, sim_dataset
 
     step = [Experiment(name="step", waveform="step", amplitude_v=1.5, duration_s=3.0)]

@@ -5,15 +5,15 @@ import json
 import numpy as np
 import pytest
 
-from labrig.bridge.base import Experiment
-from labrig.config import load_rig
-from labrig.errors import UserError
-from labrig.identify.engine import identify
+from labrig.io.experiment import Experiment
+from labrig.io.config import load_rig
+from labrig.core.errors import UserError
+from labrig.identification.engine import identify
 from labrig.model.effects import get_effect
 from labrig.model.servo import ServoParams
 from labrig.model.simulate import Simulator
 from labrig.model.truth import simulate_truth
-from labrig.runs import read_dataset
+from labrig.io.runs import read_dataset
 from conftest import labrig, make_rig, sim_dataset, square_plan
 
 
@@ -183,7 +183,7 @@ def test_an_invisible_pole_gets_no_interval_and_km_tau_m_keep_theirs(tmp_path):
 
 
 def test_table_names_the_methods_of_a_warning_not_all_share():
-    from labrig.identify.table import comparison_table
+    from labrig.identification.table import comparison_table
 
     w = "tau_e = 2e-06 s (the fast pole) is not seen by these data: ..."
     rec = {"params": {}, "identifiable": {"structural_rank": 3, "warnings": ["shared"]}}

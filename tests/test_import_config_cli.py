@@ -5,9 +5,9 @@ import math
 import numpy as np
 import pytest
 
-from labrig.config import load_plan, load_rig, rig_from_dict
-from labrig.errors import ConfigError
-from labrig.runs import Run, read_dataset, read_run
+from labrig.io.config import load_plan, load_rig, rig_from_dict
+from labrig.core.errors import ConfigError
+from labrig.io.runs import Run, read_dataset, read_run
 from conftest import ROOT, labrig
 
 
@@ -133,7 +133,7 @@ def test_cli_exit_codes(tmp_path):
 
 
 def test_seed_paper_table1_present():
-    from labrig.table1 import read_table1
+    from labrig.io.steady_table import read_table1
 
     tab = read_table1(ROOT / "data" / "paper_table1.csv")
     assert len(tab) == 8
@@ -146,7 +146,7 @@ def test_seed_paper_table1_present():
 def imported_speed(tmp_path_factory):
     """Simulated square waves exported as another lab would (rpm and degrees, no tacho)
     and imported: runs with a 'speed' column and a pot. Returns (folder, rig)."""
-    from labrig.importer import import_csv
+    from labrig.io.importer import import_csv
     from conftest import make_rig, sim_dataset, square_plan
 
     tmp = tmp_path_factory.mktemp("imported_speed")
@@ -164,8 +164,8 @@ def imported_speed(tmp_path_factory):
 
 
 def test_analyse_of_imported_speed_shows_no_tacho_volts_and_no_kt(imported_speed, capsys):
-    from labrig.analyse import analyse
-    from labrig.analyse.text import NO_TACHO
+    from labrig.analysis import analyse
+    from labrig.analysis.text import NO_TACHO
     from labrig.cli import main
     from labrig.model.servo import ServoParams
 
@@ -189,7 +189,7 @@ def test_identify_on_imported_speed_is_the_fit_of_the_old_virtual_tacho(imported
     """The data did not change, only their storage: a CO fit on the 'speed' runs is
     bit-identical to one on the same samples stored the old way (tacho volts at 1 V per
     rad/s)."""
-    from labrig.identify.engine import identify
+    from labrig.identification.engine import identify
     from labrig.model.servo import ServoParams
 
     ds, rig = imported_speed

@@ -8,7 +8,7 @@ import pytest
 from conftest import make_rig, sim_dataset, square_plan
 from labrig.model.effects import CATALOGUE
 from labrig.model.simulate import Simulator
-from labrig.runs import read_dataset
+from labrig.io.runs import read_dataset
 
 VALUES = {"coulomb_friction": {"tc_v": (0.05, 0.3)},
           "stiction": {"tc_v": (0.05, 0.3), "excess": (0.1, 1.0)},
@@ -26,7 +26,7 @@ COMBOS = [[], ["coulomb_friction"], ["stiction"], ["deadband"], ["delay"], ["bac
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory):
     """Two open-loop square waves and the rig's two closed-loop runs (200 Hz: quick)."""
-    from labrig.bridge.base import Experiment
+    from labrig.io.experiment import Experiment
 
     plan = square_plan(amps=(0.6, 2.0), rate=200.0, periods=1) + [
         Experiment(name="cl", amplitude_v=0.5, frequency_hz=0.25, periods=1, lead_in_s=0.5,

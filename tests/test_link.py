@@ -11,14 +11,14 @@ import time
 import numpy as np
 import pytest
 
-from labrig.acquire import sweep
+from labrig.bridge.sweep import sweep
 from labrig.bridge import protocol as P
-from labrig.bridge.base import Experiment
+from labrig.io.experiment import Experiment
 from labrig.bridge.emulate import APT_PACKAGES, missing_tools
 from labrig.bridge.serial import SerialBridge, bridge_settings, volts_to_dac_word
-from labrig.config import load_rig
-from labrig.errors import RigError
-from labrig.runs import read_dataset
+from labrig.io.config import load_rig
+from labrig.core.errors import RigError
+from labrig.io.runs import read_dataset
 from conftest import ROOT
 from linkproxy import B2H, H2B, LinkProxy
 
@@ -272,7 +272,7 @@ SEED = 5
 def test_sweep_through_faults_in_both_directions(tmp_path, emulators, rig):
     """`labrig sweep --port` through a link with 1e-3 per-byte faults both ways: exit 0,
     not one wrong sample, and per-run counts that match what the proxy did to that run."""
-    from labrig.config import load_plan
+    from labrig.io.config import load_plan
 
     plan_file = tmp_path / "plan.toml"
     plan_file.write_text(ACCEPT_PLAN)

@@ -402,7 +402,7 @@ def test_bad_identify_options(tmp_path, capsys, opt):
 def _craft_mystery(path: Path, rig_doc: dict, seed=1) -> Path:
     """A mystery file with any content, encoded as labrig would (bypassing its checks):
     what someone who read the source could hand an instructor."""
-    from labrig.mysteryfile import encode
+    from labrig.io.mysteryfile import encode
 
     path.write_text(encode({"rig": rig_doc, "seed": seed}))
     return path
@@ -431,7 +431,7 @@ def test_bad_mystery(tmp_path, capsys, case, command):
 
 @pytest.mark.parametrize("case", ["header", "truncated", "empty", "binary"])
 def test_damaged_mystery(tmp_path, capsys, case):
-    from labrig.mystery import new_mystery, write_mystery
+    from labrig.classroom.mystery import new_mystery, write_mystery
 
     path = write_mystery(new_mystery(3), tmp_path / "m.mystery", seed=3)
     lines = path.read_text().splitlines()
@@ -448,7 +448,7 @@ def test_damaged_mystery(tmp_path, capsys, case):
 
 @pytest.mark.parametrize("case", ["R text", "not json", "deep", "format", "params list"])
 def test_mystery_check_bad_model(tmp_path, capsys, case):
-    from labrig.mystery import new_mystery, write_mystery
+    from labrig.classroom.mystery import new_mystery, write_mystery
 
     path = write_mystery(new_mystery(3), tmp_path / "m.mystery", seed=3)
     m = tmp_path / "student.json"
@@ -553,7 +553,7 @@ def test_closed_loop_import_needs_its_gains(tmp_path, capsys, opts, msg):
 
 
 def test_closed_loop_import_records_the_gains(tmp_path, capsys):
-    from labrig.runs import read_run
+    from labrig.io.runs import read_run
 
     src = tmp_path / "scope.csv"
     src.write_text(SRC)

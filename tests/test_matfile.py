@@ -1,4 +1,4 @@
-"""MAT files (labrig.matfile): channels by name from v4/v5/v7 and v7.3 (HDF5) files; every
+"""MAT files (labrig.io.matfile): channels by name from v4/v5/v7 and v7.3 (HDF5) files; every
 bad case is one RunFileError line naming the file and the variable."""
 import sys
 
@@ -7,9 +7,9 @@ import pytest
 import scipy.io as sio
 from scipy.io.matlab import MatlabObject
 
-from labrig import matfile
-from labrig.errors import RunFileError
-from labrig.matfile import list_mat_variables, read_mat_columns
+from labrig.io import matfile
+from labrig.core.errors import RunFileError
+from labrig.io.matfile import list_mat_variables, read_mat_columns
 
 RNG_SEED = 20240611
 

@@ -7,12 +7,12 @@ import json
 import numpy as np
 import pytest
 
-from labrig.errors import UserError
+from labrig.core.errors import UserError
 from labrig.model import simulate
 from labrig.model.effects import CATALOGUE, Effect, FrictionEffect, InputEffect, Param, get_effect
 from labrig.model.effectset import EffectSet
 from labrig.model.model import Model
-from labrig.runs import read_dataset
+from labrig.io.runs import read_dataset
 
 from conftest import make_rig, sim_dataset, square_plan
 
@@ -116,8 +116,8 @@ def test_results_are_tabular_and_plottable(runs):
     """Evaluation, Diagnosis and Ladder give pandas tables, rich tables and figures."""
     import matplotlib.pyplot as plt
 
-    from labrig.evaluation import evaluate
-    from labrig.ladder import Ladder, LadderStep
+    from labrig.loop.evaluation import evaluate
+    from labrig.loop.ladder import Ladder, LadderStep
 
     m = Model(PLANT, EffectSet.parse("deadband"), {"deadband": {"d_v": 0.3}}, CONST)
     ev = evaluate(runs, m)

@@ -1,4 +1,4 @@
-"""Tests for labrig.identify optimisers (JFO, PSO, CO); seeded and fast."""
+"""Tests for labrig.identification optimisers (JFO, PSO, CO); seeded and fast."""
 
 from __future__ import annotations
 
@@ -8,11 +8,10 @@ import numpy as np
 import pytest
 from scipy.optimize import curve_fit
 
-from labrig.identify.jellyfish import (JellyfishSolver, jellyfish, logistic_init,
-                                       wrap_bounds)
-from labrig.identify.local import batch_jacobian, covariance, local, polish
-from labrig.identify.pso import PSOSolver, apply_boundary, constriction, pso
-from labrig.identify.result import IdentResult
+from labrig.identification.jellyfish import JellyfishSolver, jellyfish, logistic_init, wrap_bounds
+from labrig.identification.local import batch_jacobian, covariance, local, polish
+from labrig.identification.pso import PSOSolver, apply_boundary, constriction, pso
+from labrig.identification.result import IdentResult
 
 
 # ---------------------------------------------------------------- problems

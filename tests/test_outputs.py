@@ -6,12 +6,12 @@ import os
 import re
 
 import numpy as np
-import labrig.search  # noqa: F401  (imported before any patching: it binds diagnose)
+import labrig.loop.search  # noqa: F401  (imported before any patching: it binds diagnose)
 import pytest
 
 from labrig.cli import main
 from labrig.commands.registry import emit_json
-from labrig.identify.objective import build_space
+from labrig.identification.objective import build_space
 from conftest import make_rig, sim_dataset, square_plan
 
 P = make_rig().plant
@@ -64,7 +64,7 @@ def test_identify_refuses_existing_model_before_fitting_and_force_replaces(ds, t
     out = tmp_path / "model.json"
     out.write_text("keep")
     with monkeypatch.context() as m:
-        m.setattr("labrig.identify.engine.identify", no_call)
+        m.setattr("labrig.identification.engine.identify", no_call)
         rc, _, err = run(capsys, "identify", ds, "--fix", FIX, "--starts", "1", "-o", out)
     assert_refused(rc, err, out)
     assert out.read_text() == "keep"
@@ -78,7 +78,7 @@ def test_identify_refuses_existing_convergence_figure(ds, tmp_path, capsys, monk
     (tmp_path / "figs").mkdir()
     fig = tmp_path / "figs" / "convergence.png"
     fig.write_text("keep")
-    monkeypatch.setattr("labrig.identify.engine.identify", no_call)
+    monkeypatch.setattr("labrig.identification.engine.identify", no_call)
     rc, _, err = run(capsys, "identify", ds, "--figures", tmp_path / "figs")
     assert_refused(rc, err, fig)
 
@@ -91,9 +91,9 @@ def test_identify_output_that_is_a_folder_is_a_user_error(ds, tmp_path, capsys):
 @pytest.mark.parametrize("cmd", ["compare", "diagnose", "ladder", "report", "mystery"])
 def test_every_output_file_is_refused_before_the_work(cmd, ds, model, tmp_path, capsys,
                                                       monkeypatch):
-    for target in ("labrig.diagnose.evaluate", "labrig.diagnose.diagnose",
-                   "labrig.search.auto_ladder", "labrig.ladder.evaluate_ladder",
-                   "labrig.report.html.build_report", "labrig.mystery.new_mystery"):
+    for target in ("labrig.loop.diagnose.evaluate", "labrig.loop.diagnose.diagnose",
+                   "labrig.loop.search.auto_ladder", "labrig.loop.ladder.evaluate_ladder",
+                   "labrig.report.html.build_report", "labrig.classroom.mystery.new_mystery"):
         monkeypatch.setattr(target, no_call)
     folder = tmp_path / "o"
     folder.mkdir()
@@ -111,7 +111,7 @@ def test_every_output_file_is_refused_before_the_work(cmd, ds, model, tmp_path, 
 
 
 def test_ladder_automatic_mode_refuses_its_step_files(ds, tmp_path, capsys, monkeypatch):
-    monkeypatch.setattr("labrig.search.auto_ladder", no_call)
+    monkeypatch.setattr("labrig.loop.search.auto_ladder", no_call)
     (tmp_path / "step0.json").write_text("keep")
     rc, _, err = run(capsys, "ladder", ds, "-o", tmp_path)
     assert_refused(rc, err, tmp_path / "step0.json")
@@ -216,7 +216,7 @@ def test_identify_warns_when_a_parameter_ends_at_a_bound(ds, capsys, bound, side
 
 
 def test_bound_tolerance_is_in_the_searched_coordinates():
-    from labrig.identify.result import bound_warnings, fit_warnings
+    from labrig.identification.result import bound_warnings, fit_warnings
 
     space = build_space([], bounds={"R": (0.1, 100.0), "J": (1e-6, 1e-4)}, fixed={"K": 0.05})
     params = {"R": 0.2, "L": 1e-5, "J": 0.999e-4, "B": 1e-4, "K": 0.05}
@@ -237,7 +237,7 @@ def test_identify_explains_the_fitness_it_prints(ds, capsys):
     # the note under Table 2 says what the "fitness (eq. 26)" row is; check it says the
     # truth: with every run holding both channels (N/2 samples each) and p = 1, q = 4,
     # fitness^2 = (rmse_pos^2 + 4 rmse_speed^2) / 2, not rmse/noise overall
-    from labrig.identify.table import FITNESS_NOTE
+    from labrig.identification.table import FITNESS_NOTE
 
     argv = ["identify", ds, "--fix", FIX, "--starts", "1", "--seed", "1", "--weights", "p=1,q=4"]
     rc, text, err = run(capsys, *argv)
@@ -257,7 +257,7 @@ def test_diagnosis_words_name_the_side_of_the_bound():
     # say only which side and which way the data push, true for every effect
     from types import SimpleNamespace
 
-    from labrig.diagnose import at_bounds
+    from labrig.loop.diagnose import at_bounds
 
     space = build_space(["deadband", "saturation"], bounds={"deadband.d_v": (0.001, 2.0),
                                                              "saturation.vmax_v": (0.5, 30.0)})

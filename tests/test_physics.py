@@ -3,7 +3,7 @@ import numpy as np
 import control
 import pytest
 
-from labrig.config import load_rig
+from labrig.io.config import load_rig
 from labrig.model.effects import get_effect
 from labrig.model.servo import ServoParams
 from labrig.model.truth import simulate_truth

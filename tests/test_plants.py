@@ -6,14 +6,14 @@ import json
 import numpy as np
 import pytest
 
-from labrig.config import rig_from_dict
-from labrig.errors import ConfigError
-from labrig.identify.engine import identify
+from labrig.io.config import rig_from_dict
+from labrig.core.errors import ConfigError
+from labrig.identification.engine import identify
 from labrig.model.effects import get_effect
 from labrig.model.plants import ForcePlant, TorquePlant, VoltagePlant
 from labrig.model.simulate import Simulator
 from labrig.model.truth import simulate_truth
-from labrig.runs import read_dataset
+from labrig.io.runs import read_dataset
 from conftest import labrig, sim_dataset, square_plan
 
 SENSORS = {
@@ -227,7 +227,7 @@ MATRIX = [
                          ids=[f"{m[0]}-{m[1]}" for m in MATRIX])
 def test_diagnose_auto_finds_the_hidden_effect_on_every_plant(tmp_path, drive, sensors, hidden,
                                                               effect, key, truth):
-    from labrig.auto import auto_diagnose
+    from labrig.loop.auto import auto_diagnose
 
     rig = plant_rig(drive, sensors, effects=hidden)
     runs = read_dataset(sim_dataset(tmp_path, rig, square_plan(amps=(1.0, 1.7, 2.5), periods=1)))
@@ -253,7 +253,7 @@ def test_a_mystery_rig_of_a_linear_axis_is_drawn_run_and_graded(tmp_path):
     """`mystery new --rig configs/rig_linear_axis.toml`: the plant's own parameters drawn
     around the base rig, hidden effects sized for a linear axis; reveal speaks of kg and
     m/s; check grades a model identified with the hidden effects."""
-    from labrig.mystery import PLANT_SPREAD, new_mystery
+    from labrig.classroom.mystery import PLANT_SPREAD, new_mystery
 
     doc = new_mystery(4, "configs/rig_linear_axis.toml")
     assert doc["rig"]["drive"] == "force" and set(doc["plant"]) == {"M_kg", "Fv_ns_per_m"}

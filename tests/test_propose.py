@@ -5,16 +5,17 @@ import json
 import numpy as np
 import pytest
 
-from labrig.acquire import sweep
-from labrig.bridge.base import Experiment
+from labrig.bridge.sweep import sweep
+from labrig.io.experiment import Experiment
 from labrig.bridge.sim import SimRig
-from labrig.config import load_plan
-from labrig.diagnose import linear_model
-from labrig.errors import ConfigError
+from labrig.io.config import load_plan
+from labrig.loop.diagnose import linear_model
+from labrig.core.errors import ConfigError
 from labrig.model.effects import get_effect
-from labrig.propose import Decision, decide, propose
-from labrig.refit import refit_with
-from labrig.runs import read_dataset
+from labrig.loop.decide import Decision, decide
+from labrig.loop.propose import propose
+from labrig.loop.refit import refit_with
+from labrig.io.runs import read_dataset
 from conftest import labrig, make_rig, sim_dataset
 
 HIDDEN = {"deadband": {"d_v": 0.3}, "coulomb_friction": {"tc_v": 0.3},
@@ -155,8 +156,8 @@ def test_ask_the_rig_plays_the_proposal_and_decides(tmp_path):
 def test_default_pair_is_the_diagnosis_first_confusable_pair(tmp_path):
     """`diagnose --auto -o DIR` writes diagnosis.json beside model.json: propose takes its
     first confusable pair (an asymmetric dead zone asked about as a dead zone)."""
-    from labrig.errors import UserError
-    from labrig.propose import pair_from_diagnosis
+    from labrig.core.errors import UserError
+    from labrig.loop.propose import pair_from_diagnosis
 
     model = tmp_path / "model.json"
     assert pair_from_diagnosis(model) is None
@@ -177,7 +178,7 @@ def test_the_decision_does_not_hang_on_the_last_digits_of_the_noise_floor(tmp_pa
     rmse/noise 22 when it was not)."""
     import dataclasses
 
-    import labrig.noise as noise
+    import labrig.analysis.noise as noise
 
     floor = noise.noise_floor
 

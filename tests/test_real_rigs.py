@@ -7,13 +7,13 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from labrig.auto import auto_diagnose
-from labrig.bridge.base import Experiment
-from labrig.crossval import make_folds
+from labrig.loop.auto import auto_diagnose
+from labrig.io.experiment import Experiment
+from labrig.loop.crossval import make_folds
 from labrig.model.effects import get_effect
 from labrig.model.reach import Reach
-from labrig.noise import noise_floor
-from labrig.runs import read_dataset
+from labrig.analysis.noise import noise_floor
+from labrig.io.runs import read_dataset
 from conftest import make_rig, sim_dataset, square_plan
 
 FIVE = (0.6, 0.9, 1.2, 1.8, 2.5)
@@ -26,7 +26,7 @@ def test_floor_of_an_analogue_tacho_is_its_noise(tmp_path):
     rms of both, sqrt(0.010^2 + 0.0195^2/12) / Kt, measured moving and at rest."""
     runs = read_dataset(sim_dataset(tmp_path, make_rig(), square_plan(amps=(1.2, 2.5))))
     from labrig.model.simulate import prepare
-    from labrig.noise import channel_floors
+    from labrig.analysis.noise import channel_floors
 
     f = channel_floors(prepare(runs))["speed"]
     truth = np.hypot(0.010, 20.0 / 1024 / np.sqrt(12)) / 0.026
@@ -110,7 +110,7 @@ def _encoder(tmp_path, effects):
 
 def _staircase(tmp_path, effects):
     """One long run: a staircase up, down through zero, and back (18 levels of 0.8 s)."""
-    from labrig.acquire import sweep
+    from labrig.bridge.sweep import sweep
     from labrig.bridge.sim import SimRig
 
     levels = [0.5, 1.0, 1.5, 2.0, 2.5, 0.0, -0.5, -1.0, -1.5, -2.0, -2.5, 0.0,

@@ -14,8 +14,8 @@ import subprocess
 import numpy as np
 import pytest
 
-from labrig import __version__
-from labrig.bridge.base import Experiment
+from labrig.core.version import __version__
+from labrig.io.experiment import Experiment
 
 from conftest import labrig, make_rig, sim_dataset, square_plan
 
@@ -277,7 +277,7 @@ def test_the_page_renders_the_cli_tables(full_report, work):
 def test_analysis_json_gives_the_same_tables_as_the_live_analysis(dataset):
     """analysis.json read back is the AnalysisResult it was written from: the same
     table cells, less the tacho volts the JSON does not keep."""
-    from labrig.analyse import analyse
+    from labrig.analysis import analyse
     from labrig.report.artefacts import AnalysisDoc
     from labrig.report.blocks import without_empty_columns
 
@@ -296,8 +296,7 @@ def test_analysis_json_gives_the_same_tables_as_the_live_analysis(dataset):
 
 
 def test_artefacts_that_do_not_fit_are_ignored_with_a_note(tmp_path):
-    from labrig.report.artefacts import (AnalysisDoc, DiagnosisDoc, IdentifyAllDoc, LadderDoc,
-                                         read_artefact)
+    from labrig.report.artefacts import AnalysisDoc, DiagnosisDoc, IdentifyAllDoc, LadderDoc, read_artefact
 
     notes = []
     cases = {"a.json": ("{not json", AnalysisDoc, "not valid JSON"),
@@ -355,7 +354,7 @@ def test_text_is_escaped_and_markup_only_where_made(tmp_path):
 
     from labrig.report.blocks import TableBlock, markup
     from labrig.report.render import environment
-    from labrig.tables import Table
+    from labrig.core.tables import Table
 
     m = markup("<b>{}</b>", HOSTILE)
     assert isinstance(m, Markup) and m == f"<b>{html_escaped(HOSTILE)}</b>"

@@ -5,8 +5,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from labrig.errors import RunFileError
-from labrig.runs import Run, make_meta, read_dataset, read_run, write_run
+from labrig.core.errors import RunFileError
+from labrig.io.runs import Run, make_meta, read_dataset, read_run, write_run
 from conftest import labrig
 
 META = {"format": "labrig-run/1", "sample_rate_hz": 1000,

@@ -10,12 +10,12 @@ import numpy as np
 import pytest
 
 from labrig.bridge import protocol as P
-from labrig.bridge.base import Experiment
+from labrig.io.experiment import Experiment
 from labrig.bridge.serial import SerialBridge
 from labrig.bridge.settings import bridge_settings, dac_word_to_volts, volts_to_dac_word
 from labrig.bridge.transport import ScriptedTransport, SerialTransport, ack
-from labrig.config import RigConfig
-from labrig.errors import RigError, UserError
+from labrig.io.config import RigConfig
+from labrig.core.errors import RigError, UserError
 
 VECTORS = json.loads((Path(__file__).resolve().parents[1] / "firmware" / "test_vectors.json").read_text())
 RIG = RigConfig()

@@ -32,8 +32,8 @@ def test_identify_path_imports_only_what_it_uses(tmp_path, rig):
     and scipy.signal (the floors' Savitzky-Golay filter, which brings scipy.stats and
     scipy.optimize with it) yes; python-control, matplotlib, h5py, dask, joblib no."""
     folder = sim_dataset(tmp_path, rig, square_plan(amps=(1.5,), periods=1), seed=1)
-    code = ("from labrig.runs import read_dataset\n"
-            "from labrig.identify.objective import Objective, build_space\n"
+    code = ("from labrig.io.runs import read_dataset\n"
+            "from labrig.identification.objective import Objective, build_space\n"
             "from labrig.model.effectset import EffectSet\n"
             f"runs = read_dataset([r'{folder}'])\n"
             "space = build_space(EffectSet.parse([]), None, None)\n"

@@ -8,9 +8,9 @@ import time
 import numpy as np
 import pytest
 
-from labrig.acquire import sweep
+from labrig.bridge.sweep import sweep
 from labrig.bridge.sim import SimRig
-from labrig.runs import read_dataset, read_run
+from labrig.io.runs import read_dataset, read_run
 from conftest import MY_COULOMB_PY, ROOT, labrig, make_rig, square_plan
 
 
@@ -185,10 +185,10 @@ def test_a_trusted_user_effect_in_a_rig_file_gets_its_parameters(tmp_path):
     catalogue effect of the same physics."""
     import pandas as pd
 
-    from labrig.acquire import sweep
-    from labrig.bridge.base import Experiment
+    from labrig.bridge.sweep import sweep
+    from labrig.io.experiment import Experiment
     from labrig.bridge.sim import SimRig
-    from labrig.config import rig_from_dict
+    from labrig.io.config import rig_from_dict
     from labrig.model.effects import reset_trust, trust_code
 
     user = tmp_path / "mine.py"

@@ -15,8 +15,8 @@ import pandas as pd
 import pytest
 
 from labrig.cli import main
-from labrig.errors import RunFileError, UserError
-from labrig.runs import Run, make_meta, read_run, write_run
+from labrig.core.errors import RunFileError, UserError
+from labrig.io.runs import Run, make_meta, read_run, write_run
 
 ROOT = Path(__file__).resolve().parent.parent
 DATA = ROOT / "data" / "sweep_default"
@@ -110,7 +110,7 @@ def test_identify_config_naming_user_effect_is_refused(evil, capsys):
 
 
 def test_mystery_check_never_runs_the_students_code(evil, capsys):
-    from labrig.mystery import new_mystery, write_mystery
+    from labrig.classroom.mystery import new_mystery, write_mystery
 
     path = write_mystery(new_mystery(10), evil / "c.mystery", seed=10)
     m = _model(evil / "student.json", ["evil.py:Evil"], {"evil": {"tc_v": 0.2}})
@@ -225,7 +225,7 @@ def test_ten_million_row_run_reads_in_bounded_memory(tmp_path):
     (d / "big.json").write_text(json.dumps(meta))
     code = ("import resource, sys\n"
             "resource.setrlimit(resource.RLIMIT_AS, (3 << 30, 3 << 30))\n"
-            "from labrig.runs import read_run\n"
+            "from labrig.io.runs import read_run\n"
             f"r = read_run({str(d / 'big.csv')!r})\n"
             "print(len(r), resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)\n")
     p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,

@@ -18,8 +18,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from labrig.config import RigConfig
-from labrig.errors import RigError, UserError
+from labrig.io.config import RigConfig
+from labrig.core.errors import RigError, UserError
 
 FIRMWARE_DIR = Path(os.environ.get("LABRIG_FIRMWARE_DIR",
                                    Path(__file__).resolve().parents[2] / "firmware"))
@@ -89,7 +89,7 @@ class Emulator:
     Parameters
     ----------
     board : {"uno", "mega"}
-    rig : labrig.config.RigConfig, optional
+    rig : labrig.io.config.RigConfig, optional
         Rig whose plant the harness simulates; ``RigConfig()`` (the default rig's values,
         without its hidden friction) when not given.
     speed : float

@@ -17,14 +17,14 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from labrig.bridge import protocol as P
-from labrig.bridge.base import Bridge, Experiment, SampleBlock
-from labrig.bridge.settings import (TIMER_HZ, adc_counts_to_volts, bridge_settings,
-                                    dac_word_to_volts, experiment_body, volts_to_dac_word)
+from labrig.bridge.base import Bridge, SampleBlock
+from labrig.io.experiment import Experiment
+from labrig.bridge.settings import TIMER_HZ, adc_counts_to_volts, bridge_settings, dac_word_to_volts, experiment_body, volts_to_dac_word
 from labrig.bridge.transport import SerialTransport, Transport, link_hint
-from labrig.errors import LabrigError, RigError, UserError
+from labrig.core.errors import LabrigError, RigError, UserError
 
-if TYPE_CHECKING:   # annotation only: labrig.config imports the bridge package
-    from labrig.config import RigConfig
+if TYPE_CHECKING:   # annotation only: labrig.io.config imports the bridge package
+    from labrig.io.config import RigConfig
 
 # the conversions lived here before settings.py; importers of this module keep working
 __all__ = ["SerialBridge", "SerialTransport", "TIMER_HZ", "Transport", "adc_counts_to_volts",
@@ -42,7 +42,7 @@ class SerialBridge(Bridge):
     port_or_transport : str, path or Transport
         Serial device, opened through :class:`SerialTransport`, or a transport to use
         as it is (e.g. a :class:`~labrig.bridge.transport.ScriptedTransport` in tests).
-    rig : labrig.config.RigConfig
+    rig : labrig.io.config.RigConfig
         Rig configuration; only ``rig.bridge`` is used (see :func:`bridge_settings`).
     baudrate : int
         Link speed of a serial device; the firmware runs at 500000.

@@ -12,11 +12,11 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from labrig.bridge import protocol as P
-from labrig.bridge.base import Experiment
-from labrig.errors import UserError
+from labrig.io.experiment import Experiment
+from labrig.core.errors import UserError
 
-if TYPE_CHECKING:   # annotation only: labrig.config imports the bridge package
-    from labrig.config import RigConfig
+if TYPE_CHECKING:   # annotation only: labrig.io.config imports the bridge package
+    from labrig.io.config import RigConfig
 
 TIMER_HZ = 2_000_000   # Timer1 count rate: only rates dividing it are exact
 
@@ -54,7 +54,7 @@ def bridge_settings(rig: RigConfig) -> BridgeSettings:
 
     Parameters
     ----------
-    rig : labrig.config.RigConfig
+    rig : labrig.io.config.RigConfig
         The rig; ``RigConfig()`` is the default rig, whose ``bridge`` holds the defaults
         of ``configs/rig_default.toml``.
 

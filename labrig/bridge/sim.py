@@ -11,11 +11,12 @@ from dataclasses import replace
 
 import numpy as np
 
-from ..errors import UserError
-from ..model.effects import get_effect
-from ..model.servo import ServoParams
-from ..model.truth import simulate_truth
-from .base import Bridge, Experiment, SampleBlock
+from labrig.core.errors import UserError
+from labrig.model.effects import get_effect
+from labrig.model.servo import ServoParams
+from labrig.model.truth import simulate_truth
+from labrig.bridge.base import Bridge, SampleBlock
+from labrig.io.experiment import Experiment
 
 
 def quantise(v: np.ndarray, bits: int, lo: float, hi: float) -> np.ndarray:

@@ -13,7 +13,7 @@ import time
 from collections.abc import Callable, Sequence
 
 from labrig.bridge import protocol as P
-from labrig.errors import RigError
+from labrig.core.errors import RigError
 
 
 class Transport(abc.ABC):
@@ -39,7 +39,7 @@ class Transport(abc.ABC):
 
     @abc.abstractmethod
     def open(self) -> None:
-        """Open the link; raise :class:`~labrig.errors.RigError` with the cure on failure."""
+        """Open the link; raise :class:`~labrig.core.errors.RigError` with the cure on failure."""
 
     @abc.abstractmethod
     def close(self) -> None:

@@ -4,9 +4,9 @@ from __future__ import annotations
 import signal
 from pathlib import Path
 
-from .registry import command, float_opt
-from ..errors import Terminated, UserError
-from .progress import Progress
+from labrig.commands.registry import command, float_opt
+from labrig.core.errors import Terminated, UserError
+from labrig.commands.progress import Progress
 
 
 @command("sweep", "acquire a sweep on the board (--port) or the simulated rig (--sim)")
@@ -14,21 +14,21 @@ def cmd_sweep(args):
     """Acquire a sweep: one run per experiment of the plan, each written atomically as it
     finishes. Interrupting (Ctrl-C, SIGTERM, SIGHUP) stops the board at 0 V and keeps every
     finished run; --resume continues. Exit codes: 130 Ctrl-C, 143 SIGTERM, 129 SIGHUP."""
-    from ..acquire import sweep
-    from ..config import load_plan, load_rig
+    from labrig.bridge.sweep import sweep
+    from labrig.io.config import load_plan, load_rig
 
     rig = load_rig(args.rig)
     plan = load_plan(args.plan, rig)
     if args.sim == bool(args.port):
         raise UserError("give exactly one of --sim or --port DEV")
     if args.sim:
-        from ..bridge.sim import SimRig
+        from labrig.bridge.sim import SimRig
 
         bridge = SimRig(rig, seed=args.seed)
         if args.realtime:
             bridge = _Paced(bridge)
     else:
-        from ..bridge.serial import SerialBridge
+        from labrig.bridge.serial import SerialBridge
 
         bridge = SerialBridge(args.port, rig)
     total = sum(e.n_samples for e in plan)
@@ -60,7 +60,7 @@ cmd_sweep.configure = _configure_sweep
 class _StopSignals:
     """SIGTERM and SIGHUP end a sweep the way Ctrl-C does.
 
-    The handler raises :class:`~labrig.errors.Terminated` wherever the sweep is, so
+    The handler raises :class:`~labrig.core.errors.Terminated` wherever the sweep is, so
     ``acquire.sweep``'s ``finally`` sends STOP and ZERO and closes the port. Further
     SIGTERM/SIGHUP/SIGINT are ignored until that path has run (a second signal must not
     cut the board's stop short); a signal that lands while the sweep is already closing
@@ -119,7 +119,7 @@ def cmd_import(args):
     matrix's column as m[k]): t, u and speed and/or pos in physical units, or raw volts
     tacho=/pos= with gains; current= and, in closed loop, ref=. Choose the plant with
     --drive and --axis."""
-    from ..importer import import_csv, parse_controller, parse_map
+    from labrig.io.importer import import_csv, parse_controller, parse_map
 
     mapping = parse_map(args.map)
     path = import_csv(args.src, args.output, mapping, speed_unit=args.speed_unit,

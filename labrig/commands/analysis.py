@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import sys
 
-from .registry import command, emit_json
+from labrig.commands.registry import command, emit_json
 
 
 @command("analyse", "deadband, Km, tau_m, Kt and the gain-vs-amplitude verdict of a dataset")
@@ -13,8 +13,8 @@ def cmd_analyse(args):
     paper's Table 1 and a verdict; --json prints one JSON object; -o writes figures."""
     from pathlib import Path
 
-    from ..analyse import analyse
-    from .registry import refuse_existing
+    from labrig.analysis import analyse
+    from labrig.commands.registry import refuse_existing
 
     res = analyse(args.paths, tolerance=args.tolerance)
     if args.output:
@@ -31,7 +31,7 @@ def cmd_analyse(args):
 
 def _save(res, figs, out):
     """Save each figure as PNG and close it at once (one figure in memory at a time)."""
-    from ..report.analyse_plots import save_figures
+    from labrig.analysis.plots import save_figures
 
     saved = save_figures(figs, out)
     res.record_figures(saved)          # the paths go into --json and the summary
@@ -40,7 +40,7 @@ def _save(res, figs, out):
 
 
 def _configure(p):
-    from .registry import float_opt
+    from labrig.commands.registry import float_opt
 
     p.add_argument("paths", nargs="+", metavar="DIR",
                    help="dataset folder(s) or run files, or a steady-state table CSV")

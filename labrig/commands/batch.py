@@ -3,8 +3,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from .registry import command, emit_json, float_opt
-from .progress import Progress
+from labrig.commands.registry import command, emit_json, float_opt
+from labrig.commands.progress import Progress
 
 TASK_NAMES = ("analyse", "identify", "diagnose", "check")
 
@@ -17,9 +17,9 @@ def cmd_batch(args):
     results.json (folder, status, key figures, error message) and each folder's model or
     report under -o OUT/NAME/. A folder that fails is a row with its message; the others
     go on."""
-    from ..batch import run_batch, write_batch
-    from ..errors import UserError
-    from .registry import refuse_existing
+    from labrig.classroom.batch import run_batch, write_batch
+    from labrig.core.errors import UserError
+    from labrig.commands.registry import refuse_existing
 
     out = Path(args.output)
     refuse_existing([out, out / "results.csv", out / "results.json"], args.force,

@@ -11,7 +11,7 @@ import sys
 import time
 from pathlib import Path
 
-from .registry import command
+from labrig.commands.registry import command
 
 
 def _say(text):
@@ -19,7 +19,7 @@ def _say(text):
 
 
 def _dump(obj, path):
-    from ..fileio import atomic_write, json_default
+    from labrig.core.fileio import atomic_write, json_default
 
     atomic_write(Path(path), json.dumps(obj, indent=2, default=json_default) + "\n")
 
@@ -29,22 +29,22 @@ def cmd_demo(args):
     """Run the main job on the simulated rig: sweep, analyse, identify with JFO, PSO and
     CO, diagnose what the model misses, add the recommended effect, compare, error
     ladder, report. Everything lands in the output folder."""
-    from ..acquire import sweep
-    from ..analyse import analyse
-    from ..bridge.sim import SimRig
-    from ..identify.table import format_identification
-    from ..config import load_plan, load_rig
-    from ..diagnose import diagnose
-    from ..evaluation import evaluate
-    from ..identify.engine import identify
-    from ..ladder import evaluate_ladder
-    from ..model.effects import get_effect
-    from ..model.model import Model
-    from ..report.compare_plots import plot_regimes, plot_run_comparison
-    from ..report.figures import save
-    from ..report.html import build_report
-    from ..report.identify_plots import plot_convergence
-    from ..runs import read_dataset
+    from labrig.bridge.sweep import sweep
+    from labrig.analysis import analyse
+    from labrig.bridge.sim import SimRig
+    from labrig.identification.table import format_identification
+    from labrig.io.config import load_plan, load_rig
+    from labrig.loop.diagnose import diagnose
+    from labrig.loop.evaluation import evaluate
+    from labrig.identification.engine import identify
+    from labrig.loop.ladder import evaluate_ladder
+    from labrig.model.effects import get_effect
+    from labrig.model.model import Model
+    from labrig.loop.plots import plot_regimes, plot_run_comparison
+    from labrig.core.figures import save
+    from labrig.report.html import build_report
+    from labrig.identification.plots import plot_convergence
+    from labrig.io.runs import read_dataset
 
     t0 = time.perf_counter()
     out = Path(args.output)

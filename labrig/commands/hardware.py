@@ -5,7 +5,7 @@ import signal
 import sys
 import time
 
-from .registry import command
+from labrig.commands.registry import command
 
 
 @command("emulate", "run the real firmware under simavr and serve it on a pty")
@@ -13,8 +13,8 @@ def cmd_emulate(args):
     """Build (if needed) and run the compiled bridge firmware in simavr, with the ADC fed
     by a plant model of the rig. Prints the pty path as the first line of stdout, then
     serves until interrupted: `labrig sweep --port <pty> -o DIR` runs the whole lab on it."""
-    from ..bridge.emulate import Emulator
-    from ..config import load_rig
+    from labrig.bridge.emulate import Emulator
+    from labrig.io.config import load_rig
 
     rig = load_rig(args.rig)
     emu = Emulator(board=args.board, rig=rig, speed=args.speed)

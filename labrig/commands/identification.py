@@ -6,9 +6,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import UserError
-from .progress import Progress
-from .registry import command, emit_json, refuse_existing
+from labrig.core.errors import UserError
+from labrig.commands.progress import Progress
+from labrig.commands.registry import command, emit_json, refuse_existing
 
 
 def parse_assignments(text: str | None, opt: str, pair: bool = False) -> dict:
@@ -54,8 +54,8 @@ def add_through_option(p):
 
 def read_for_fit(args):
     """The data set as it will be fitted (closed-loop runs by --through) and the way."""
-    from ..closedloop import choose_way
-    from ..runs import read_dataset
+    from labrig.identification.closedloop import choose_way
+    from labrig.io.runs import read_dataset
 
     return choose_way(read_dataset(args.data), getattr(args, "through", "auto"))
 
@@ -66,11 +66,11 @@ def cmd_identify(args):
     voltage, torque or force driven). Reports the identifiable combinations (Km, tau_m,
     tau_e) first, then the plant's parameters with identifiability warnings, and the
     physical parameters in the axis's units."""
-    from ..identify.config_file import load_identify_config
-    from ..identify.engine import identify
-    from ..identify.table import all_warnings, format_identification, identification_dict
-    from ..model.effectset import EffectSet
-    from ..model.model import Model
+    from labrig.identification.config_file import load_identify_config
+    from labrig.identification.engine import identify
+    from labrig.identification.table import all_warnings, format_identification, identification_dict
+    from labrig.model.effectset import EffectSet
+    from labrig.model.model import Model
 
     runs, way = read_for_fit(args)
     # the command line first: naming FILE.py:Class there is the user's own choice
@@ -114,8 +114,8 @@ def cmd_identify(args):
     if args.output:
         best.model().save(args.output)
     if args.figures:
-        from ..report.figures import save
-        from ..report.identify_plots import plot_convergence
+        from labrig.core.figures import save
+        from labrig.identification.plots import plot_convergence
 
         Path(args.figures).mkdir(parents=True, exist_ok=True)
         save(plot_convergence(results), Path(args.figures) / "convergence.png", dpi=120)

@@ -3,15 +3,15 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from .registry import command, emit_json
-from ..errors import UserError
-from .identification import add_through_option
-from .progress import Progress
+from labrig.commands.registry import command, emit_json
+from labrig.core.errors import UserError
+from labrig.commands.identification import add_through_option
+from labrig.commands.progress import Progress
 
 
 def _load(args):
-    from ..model.model import Model
-    from .identification import read_for_fit
+    from labrig.model.model import Model
+    from labrig.commands.identification import read_for_fit
 
     runs, way = read_for_fit(args)
     if way.told and not getattr(args, "json", False):
@@ -25,11 +25,11 @@ def cmd_compare(args):
     """For every run: measured and simulated speed and position (fit % in the legend),
     residuals in noise units with the stretches outside the noise band shaded by regime,
     residual autocorrelation and input cross-correlation with their bands."""
-    from ..evaluation import evaluate
-    from ..report.compare_plots import plot_regimes, plot_run_comparison
-    from ..report.figures import save
+    from labrig.loop.evaluation import evaluate
+    from labrig.loop.plots import plot_regimes, plot_run_comparison
+    from labrig.core.figures import save
 
-    from .registry import refuse_existing
+    from labrig.commands.registry import refuse_existing
 
     runs, model = _load(args)
     out = Path(args.output)
@@ -74,9 +74,9 @@ def cmd_diagnose(args):
     floor), then rank every catalogue effect the model lacks: re-fitted from scanned
     starts, compared on BIC and by cross-validation, each with its evidence and the
     experiment that would confirm it."""
-    from ..diagnose import diagnose
-    from .identification import parse_assignments
-    from .registry import refuse_existing
+    from labrig.loop.diagnose import diagnose
+    from labrig.commands.identification import parse_assignments
+    from labrig.commands.registry import refuse_existing
 
     runs, model = _load(args)
     fixed = parse_assignments(args.fix, "--fix")
@@ -89,7 +89,7 @@ def cmd_diagnose(args):
     with Progress("diagnose", total=8) as bar:
         cands = [c.strip() for c in args.candidates.split(",")] if args.candidates else None
         if cands:
-            from ..model.effects import get_effect
+            from labrig.model.effects import get_effect
 
             for c in cands:
                 get_effect(c)  # unknown names fail here, with the catalogue listed
@@ -109,7 +109,7 @@ def cmd_diagnose(args):
 
 def _decide(runs, model, seed):
     """Runs proposed by `labrig propose` among the data: how the pair's separation moved."""
-    from ..propose import decide
+    from labrig.loop.decide import decide
 
     with Progress("the proposed runs", total=None) as bar:
         return decide(runs, model, seed=seed, log=bar.log)
@@ -122,8 +122,8 @@ def _weights(text):
     """``--weights p=..,q=..`` -> Weights (None: balanced on the starting model)."""
     if not text:
         return None
-    from ..noise import Weights
-    from .identification import parse_assignments
+    from labrig.analysis.noise import Weights
+    from labrig.commands.identification import parse_assignments
 
     w = parse_assignments(text, "--weights")
     if set(w) - {"p", "q"}:
@@ -136,10 +136,10 @@ def _weights(text):
 
 def _auto(args, runs, model, fixed, weights) -> int:
     """``diagnose --auto``: the rounds to the end; -o is a folder of their results."""
-    from ..auto import auto_diagnose
-    from ..fileio import write_json
-    from ..report.figures import save
-    from .registry import refuse_existing
+    from labrig.loop.auto import auto_diagnose
+    from labrig.core.fileio import write_json
+    from labrig.core.figures import save
+    from labrig.commands.registry import refuse_existing
 
     if args.max_rounds < 1:
         raise UserError(f"--max-rounds: {args.max_rounds} adds nothing; give 1 or more")
@@ -178,17 +178,18 @@ def _auto(args, runs, model, fixed, weights) -> int:
 def _ask_rig(args, runs, res) -> dict:
     """``--ask-rig``: propose the experiment for the first confusable pair, play it on the
     rig (within the rig file's limits), and decide with the new run."""
-    from ..acquire import sweep
-    from ..config import load_plan, load_rig
-    from ..fileio import atomic_write
-    from ..propose import decide, propose
-    from ..runs import read_dataset
-    from .registry import refuse_existing
+    from labrig.bridge.sweep import sweep
+    from labrig.io.config import load_plan, load_rig
+    from labrig.core.fileio import atomic_write
+    from labrig.loop.decide import decide
+    from labrig.loop.propose import propose
+    from labrig.io.runs import read_dataset
+    from labrig.commands.registry import refuse_existing
 
     if not res.confusable:
         return {"text": "asked the rig nothing: no two effects explain the data about "
                         "equally well", "pair": None}
-    from ..propose import SIMPLEST
+    from labrig.loop.propose import SIMPLEST
 
     first, second = (SIMPLEST.get(n, n) for n in (res.confusable[0].first,
                                                   res.confusable[0].second))
@@ -204,11 +205,11 @@ def _ask_rig(args, runs, res) -> dict:
             old.unlink(missing_ok=True)
         atomic_write(newdir / "plan.toml", prop.to_toml())
         if args.sim:
-            from ..bridge.sim import SimRig
+            from labrig.bridge.sim import SimRig
 
             bridge = SimRig(rig)
         else:
-            from ..bridge.serial import SerialBridge
+            from labrig.bridge.serial import SerialBridge
 
             bridge = SerialBridge(args.port, rig)
         bar.log(f"playing {prop.chosen.candidate.label} on the rig")
@@ -261,12 +262,12 @@ def cmd_ladder(args):
     """Evaluate a chain of models (`--models m0.json,m1.json,...`, as saved by
     `labrig identify --model PREV --effects NEW -o NEXT`), or, without --models, run the
     loop automatically: identify, diagnose, add the recommended effect, repeat."""
-    from ..ladder import evaluate_ladder
-    from ..search import auto_ladder
-    from ..report.figures import save
-    from .identification import read_for_fit
+    from labrig.loop.ladder import evaluate_ladder
+    from labrig.loop.search import auto_ladder
+    from labrig.core.figures import save
+    from labrig.commands.identification import read_for_fit
 
-    from .registry import refuse_existing
+    from labrig.commands.registry import refuse_existing
 
     runs, _ = read_for_fit(args)
     out = Path(args.output)

@@ -3,8 +3,8 @@ from __future__ import annotations
 
 import argparse
 
-from .registry import command, emit_json
-from ..errors import UserError
+from labrig.commands.registry import command, emit_json
+from labrig.core.errors import UserError
 
 
 @command("mystery", "mystery rigs for the lab: new (student file), reveal, check (grading)")
@@ -13,10 +13,10 @@ def cmd_mystery(args):
     effects (use it with `labrig sweep --sim --rig FILE.mystery`); `reveal FILE` shows the
     truth (instructor); `check FILE MODEL.json` grades a model against it. The file is
     obfuscated against casual reading, not encrypted."""
-    from .. import mystery as m
+    from labrig.classroom import mystery as m
 
     if args.action == "new":
-        from .registry import refuse_existing
+        from labrig.commands.registry import refuse_existing
 
         refuse_existing([args.output], args.force)  # the same words as every other -o
         doc = m.new_mystery(args.seed, args.rig)
@@ -46,7 +46,7 @@ def cmd_mystery(args):
 
 
 def _configure(p):
-    from .registry import float_opt
+    from labrig.commands.registry import float_opt
 
     sub = p.add_subparsers(dest="action", metavar="ACTION")
     dbg = dict(action="store_true", default=argparse.SUPPRESS, help="show tracebacks")

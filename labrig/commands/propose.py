@@ -3,8 +3,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from .registry import command, emit_json, float_opt
-from .progress import Progress
+from labrig.commands.registry import command, emit_json, float_opt
+from labrig.commands.progress import Progress
 
 
 @command("propose", "propose the experiment that tells two explanations apart")
@@ -13,12 +13,12 @@ def cmd_propose(args):
     look-alike), search the inputs the rig can play (ramps through zero, dwells near the
     threshold, coast-downs, reversals, staircases) for the one that best separates them
     after the rival re-fits (T-optimal), and write it as a plan to run with `labrig sweep`."""
-    from ..config import load_rig
-    from ..model.model import Model
-    from ..propose import pair_from_diagnosis, propose
-    from ..report.figures import save
-    from .identification import read_for_fit
-    from .registry import refuse_existing
+    from labrig.io.config import load_rig
+    from labrig.model.model import Model
+    from labrig.loop.propose import pair_from_diagnosis, propose
+    from labrig.core.figures import save
+    from labrig.commands.identification import read_for_fit
+    from labrig.commands.registry import refuse_existing
 
     out = Path(args.output)
     figure = out.with_suffix(".png")
@@ -34,7 +34,7 @@ def cmd_propose(args):
     with Progress("propose", total=None) as bar:
         prop = propose(runs, model, between, budget_s=args.budget_s, amax=amax,
                        seed=args.seed, log=bar.log, rig=rig)
-    from ..fileio import atomic_write
+    from labrig.core.fileio import atomic_write
 
     atomic_write(out, prop.to_toml())
     save(prop.plot(), figure, dpi=120)
@@ -49,7 +49,7 @@ def cmd_propose(args):
 
 
 def _configure(p):
-    from .identification import add_through_option
+    from labrig.commands.identification import add_through_option
 
     p.add_argument("data", nargs="+", help="folder(s) of runs")
     p.add_argument("--model", required=True,

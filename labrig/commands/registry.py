@@ -27,7 +27,7 @@ def emit_json(obj) -> None:
     Non-finite numbers (an unbounded interval, the rmse of a diverged candidate)
     become null: strict JSON has no inf/nan, and they are results, not bugs.
     """
-    from ..fileio import dumps
+    from labrig.core.fileio import dumps
 
     sys.stdout.write(dumps(obj))
 
@@ -47,7 +47,7 @@ def refuse_existing(paths, force: bool, what: str = "file") -> None:
     ``what="folder"``: ``paths[0]`` is the output folder (it may exist; it must not be
     a file) and the rest are the files the command would write into it.
     """
-    from ..errors import UserError
+    from labrig.core.errors import UserError
 
     paths = [Path(p) for p in paths]
     if what == "folder":

@@ -4,8 +4,8 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from .registry import command
-from ..errors import UserError
+from labrig.commands.registry import command
+from labrig.core.errors import UserError
 
 
 @command("report", "the whole story in one self-contained HTML page (figures embedded)")
@@ -20,8 +20,8 @@ def cmd_report(args):
     (--work; default: the parent of DIR when it holds any, as `labrig demo -o OUT`
     leaves them); what is missing is computed: the analysis, a CO identification,
     and -- unless --quick -- the diagnosis (about 30 s) and the ladder."""
-    from ..report.html import build_report, find_work
-    from .registry import refuse_existing
+    from labrig.report.html import build_report, find_work
+    from labrig.commands.registry import refuse_existing
 
     # before the analysis, identification and diagnosis (which can take a minute)
     refuse_existing([args.output], args.force)

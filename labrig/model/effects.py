@@ -42,9 +42,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import UserError
-from .effect_base import (STAGE_BASES, STAGES, DelayEffect, DriveEffect, Effect,  # noqa: F401
-                          FrictionEffect, InputEffect, OutputEffect, Param)
+from labrig.core.errors import UserError
+from labrig.model.effect_base import STAGE_BASES, STAGES, DelayEffect, DriveEffect, Effect, FrictionEffect, InputEffect, OutputEffect, Param
 
 
 

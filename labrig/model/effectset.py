@@ -12,8 +12,8 @@ from collections.abc import Iterable, Sequence
 
 import numpy as np
 
-from ..errors import UserError
-from .effects import Effect, get_effect, ordered
+from labrig.core.errors import UserError
+from labrig.model.effects import Effect, get_effect, ordered
 
 #: stages of which a model holds at most one effect (they do not compose)
 SINGLE_STAGES = ("friction", "output", "delay")

@@ -23,7 +23,7 @@ import math
 import numba
 import numpy as np
 
-from .candidate_kernel import C_A, C_TC, C_TS, each_par, each_ser, friction_step
+from labrig.model.candidate_kernel import C_A, C_TC, C_TS, each_par, each_ser, friction_step
 
 #: the open-loop input map the population kernel applies itself, in this order (every
 #: simulator's order): offset, asymmetry, dead zone, asymmetric dead zone, the gain Ka,

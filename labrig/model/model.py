@@ -12,13 +12,13 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import UserError
-from ..fileio import write_json
-from ..schemas import ModelFile, read_json, validate
-from .effects import Effect, catalogue_name
-from .effectset import EffectSet, param_key
-from .plants import PLANTS, VoltagePlant, plant_class
-from .servo import ServoParams
+from labrig.core.errors import UserError
+from labrig.core.fileio import write_json
+from labrig.core.schemas import ModelFile, read_json, validate
+from labrig.model.effects import Effect, catalogue_name
+from labrig.model.effectset import EffectSet, param_key
+from labrig.model.plants import PLANTS, VoltagePlant, plant_class
+from labrig.model.servo import ServoParams
 
 FORMAT = "labrig-model/1"
 
@@ -29,7 +29,7 @@ INFO_KEYS = ("method", "fitness", "rmse_over_noise", "fit_percent", "noise", "se
              "identifiable", "dataset")
 
 
-@dataclass
+@dataclass(repr=False)
 class Model:
     """A DC-servo model: plant parameters, effects and their parameters, constants.
 
@@ -144,13 +144,26 @@ class Model:
     # -- simulation ------------------------------------------------------------------------
     def simulate(self, runs) -> list[dict]:
         """Simulate this model on ``runs``: per run ``{"w": (n,), "theta": (n,)}``."""
-        from .simulate import Simulator
+        from labrig.model.simulate import Simulator
 
         sim = Simulator(runs, self.effects, plant=self.plant_class)
         plant = np.array([[self.params[k] for k in self.plant_class.names]])
         out = sim.simulate(plant, {e: {k: np.array([v]) for k, v in ps.items()}
                                    for e, ps in self.effect_params.items()})
         return [{"w": s["w"][0], "theta": s["theta"][0], "i": s["i"][0]} for s in out]
+
+    def __repr__(self) -> str:
+        return f"Model({self.plant}: {self.describe()})"
+
+    def _repr_html_(self) -> str:
+        from labrig.core.tables import Table, fmt, table_html
+
+        t = Table(f"{' + '.join(['linear'] + self.names)} ({self.plant} plant)",
+                  ["parameter", "value"], numeric=(1,))
+        t.rows = [[k, fmt(v, ".4g")] for k, v in self.params.items()]
+        t.rows += [[f"{e}.{k}", fmt(v, ".4g")] for e, ps in self.effect_params.items()
+                   for k, v in ps.items()]
+        return table_html(t)
 
     def describe(self) -> str:
         """One line: the structure and its parameters."""
@@ -167,7 +180,7 @@ def param_keys(model: Model) -> list[str]:
 
 
 def read_model_file(path: Path | str) -> dict:
-    """A model file parsed and validated (schema :class:`labrig.schemas.ModelFile`), as a
+    """A model file parsed and validated (schema :class:`labrig.core.schemas.ModelFile`), as a
     plain dict; nothing in it is loaded or run (``mystery check`` grades it as is)."""
     path = Path(path)
     doc = read_json(path, "model file", UserError,

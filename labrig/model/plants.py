@@ -21,8 +21,8 @@ import abc
 
 import numpy as np
 
-from ..errors import UserError
-from .servo import DRIVE_LAG_S, ServoParams
+from labrig.core.errors import UserError
+from labrig.model.servo import DRIVE_LAG_S, ServoParams
 
 #: the axes: position and speed units
 AXES = {"rotary": ("rad", "rad/s"), "linear": ("m", "m/s")}

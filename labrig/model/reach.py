@@ -45,7 +45,7 @@ class Reach:
 
     @classmethod
     def of(cls, runs, model=None) -> "Reach":
-        """From runs (``labrig.runs.Run``) and the model the new effect would join."""
+        """From runs (``labrig.io.runs.Run``) and the model the new effect would join."""
         open_amps = [r.amplitude for r in runs if r.loop == "open" and r.amplitude > 0]
         # the amplifier's input: u in open loop; in closed loop the error kp (r - theta),
         # up to kp times a reference step of 2A

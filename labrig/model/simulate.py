@@ -25,12 +25,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import UserError
-from .effects import (AsymmetricDeadband, Asymmetry, Deadband, Effect, Offset, Saturation,
-                      ordered)
-from .candidate_kernel import (C_A, C_ASYM, C_D, C_KE, C_TC, C_TD, C_TS, C_U0, C_VMAX,
-                               expm_batch)
-from .kernels import MAP_COLUMNS, SMALL, run_kernels
+from labrig.core.errors import UserError
+from labrig.model.effects import AsymmetricDeadband, Asymmetry, Deadband, Effect, Offset, Saturation, ordered
+from labrig.model.candidate_kernel import C_A, C_ASYM, C_D, C_KE, C_TC, C_TD, C_TS, C_U0, C_VMAX, expm_batch
+from labrig.model.kernels import MAP_COLUMNS, SMALL, run_kernels
 
 # kernel parameter columns: R, L, J, B, K (labrig.model.plants: every plant's kernel
 # form), then the effects' (C_D..C_TD), then the back-EMF constant Ke (0 for a
@@ -124,8 +122,8 @@ class Simulator:
     """
 
     def __init__(self, runs, effects=(), substeps: int = 16, plant=None):
-        from .plants import VoltagePlant
-        from .warm import ready
+        from labrig.model.plants import VoltagePlant
+        from labrig.model.warm import ready
 
         ready()  # a cold numba cache is compiled now, with a message, not inside a timing
 

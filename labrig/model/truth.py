@@ -13,8 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .effects import Effect, ordered
-from .servo import ServoParams
+from labrig.model.effects import Effect, ordered
+from labrig.model.servo import ServoParams
 
 
 def simulate_truth(p: ServoParams, u: np.ndarray, dt: float, *, effects=(),

@@ -21,7 +21,7 @@ _done = False
 
 
 def _dispatchers():
-    from . import candidate_kernel, kernels
+    from labrig.model import candidate_kernel, kernels
 
     return [kernels.population_par, candidate_kernel.each_par, candidate_kernel.each_ser,
             candidate_kernel.expm_par, candidate_kernel.expm_ser]
@@ -44,8 +44,8 @@ def _workload() -> None:
     """Every driver and mode on a tiny problem, with the argument types the simulator
     passes: open and closed loop, friction, delay and play, an input map, trajectories and
     fitness, one candidate at a time and the population kernel (threads from 16)."""
-    from .candidate_kernel import C_A, C_D, C_TC, C_TS, C_VMAX, expm_batch
-    from .kernels import MAP_COLUMNS, run_kernels
+    from labrig.model.candidate_kernel import C_A, C_D, C_TC, C_TS, C_VMAX, expm_batch
+    from labrig.model.kernels import MAP_COLUMNS, run_kernels
 
     n = 60
     u = np.where(np.arange(n) % 30 < 15, 1.5, -1.5)

@@ -18,12 +18,12 @@ from typing import Any, Literal, Optional
 import numpy as np
 from pydantic import BaseModel, ConfigDict, ValidationError, field_validator
 
-from ..analyse.result import GAIN_TOLERANCE, AnalysisResult, Level, LineFit, RunAnalysis
-from ..diagnosis import Candidate, Diagnosis
-from ..identify.result import IdentResult
-from ..ladder import Ladder, LadderStep
-from ..residuals import REGIMES
-from ..schemas import MAX_JSON_BYTES, describe
+from labrig.analysis.result import GAIN_TOLERANCE, AnalysisResult, Level, LineFit, RunAnalysis
+from labrig.loop.ranking import Candidate, Diagnosis
+from labrig.identification.result import IdentResult
+from labrig.loop.ladder import Ladder, LadderStep
+from labrig.loop.residuals import REGIMES
+from labrig.core.schemas import MAX_JSON_BYTES, describe
 
 Num = Optional[float]
 Regime = Literal[REGIMES]

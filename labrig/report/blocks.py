@@ -15,8 +15,8 @@ from typing import ClassVar
 
 from markupsafe import Markup
 
-from ..tables import Table
-from .story import Figure
+from labrig.core.tables import Table
+from labrig.report.story import Figure
 
 
 def esc(x) -> Markup:
@@ -112,7 +112,7 @@ class Row:
 
 @dataclass
 class TableBlock:
-    """A :class:`labrig.tables.Table` as the page shows it.
+    """A :class:`labrig.core.tables.Table` as the page shows it.
 
     The table is drawn as it is -- title (or ``heading``), columns, rows and notes --
     so the page and the CLI show the same cells. A row ``["-- label", "", ...]`` is a

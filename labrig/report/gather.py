@@ -11,10 +11,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ..errors import UserError
-from .artefacts import (AnalysisDoc, DiagnosisDoc, IdentifyAllDoc, IdentRecord, LadderDoc,
-                        Regimes, read_artefact)
-from .story import Figure, Story, fig_bytes
+from labrig.core.errors import UserError
+from labrig.report.artefacts import AnalysisDoc, DiagnosisDoc, IdentifyAllDoc, IdentRecord, LadderDoc, Regimes, read_artefact
+from labrig.report.story import Figure, Story, fig_bytes
 
 
 def gather(data_dir, work=None, quick=False, seed=1, log=None) -> Story:
@@ -37,7 +36,7 @@ def gather(data_dir, work=None, quick=False, seed=1, log=None) -> Story:
     -------
     Story
     """
-    from ..runs import read_dataset
+    from labrig.io.runs import read_dataset
 
     data_dir = Path(data_dir)
     story = Story(data_dir=data_dir, work=Path(work) if work else None,
@@ -79,7 +78,7 @@ def _same_runs(names, story: Story) -> bool:
 # -- the sections ----------------------------------------------------------------------
 
 def _sweep(story: Story) -> None:
-    from .sweep_plots import plot_overview
+    from labrig.analysis.run_plots import plot_overview
 
     story.sources["sweep"] = str(story.data_dir)
     story.figures["sweep"] = [Figure("Measured runs", fig_bytes(plot_overview(story.runs)),
@@ -88,7 +87,7 @@ def _sweep(story: Story) -> None:
 
 
 def _analysis(story: Story, say) -> None:
-    from ..analyse import analyse
+    from labrig.analysis import analyse
 
     w = story.work
     doc = _artefact(story, "analysis.json", AnalysisDoc)
@@ -114,7 +113,7 @@ def _analysis(story: Story, say) -> None:
         if live is not None:
             if res is None:
                 res = live
-                story.sources["analysis"] = "computed by this report (labrig.analyse)"
+                story.sources["analysis"] = "computed by this report (labrig.analysis)"
             if not pngs:
                 # figures() draws on access: one figure in memory at a time
                 for name, fig in live.figures().items():
@@ -136,7 +135,7 @@ def _analysis(story: Story, say) -> None:
 def _models(story: Story, seed, say) -> list:
     """The identified models: identify_all.json, else model0.json's fit, else CO now.
     Returns the live Identification objects (empty when read from files)."""
-    from .identify_plots import plot_convergence
+    from labrig.identification.plots import plot_convergence
 
     w = story.work
     doc = _artefact(story, "identify_all.json", IdentifyAllDoc)
@@ -157,7 +156,7 @@ def _models(story: Story, seed, say) -> list:
                                        "identify_all.json` for JFO, PSO and CO side by side)")
     live = []
     if not story.idents:
-        from ..identify.engine import identify
+        from labrig.identification.engine import identify
 
         say("report: identifying the linear model with CO (a few seconds)")
         res = identify(story.runs, "co", [], seed=seed, starts=4,
@@ -186,7 +185,7 @@ def _models(story: Story, seed, say) -> list:
 
 def _model0(story: Story, live) -> None:
     """The linear model the later sections judge: model0.json, else the best fit."""
-    from ..model.model import Model
+    from labrig.model.model import Model
 
     w = story.work
     if w and (w / "model0.json").is_file():
@@ -211,7 +210,7 @@ def _model0(story: Story, live) -> None:
 def _failures(story: Story, say):
     """Regime table, regimes figure and the worst run's comparison. Returns the live
     evaluation of the linear model when it had to be computed (else None)."""
-    from .compare_plots import plot_regimes, plot_run_comparison
+    from labrig.loop.plots import plot_regimes, plot_run_comparison
 
     w = story.work
     doc = _artefact(story, "diagnosis.json", DiagnosisDoc)
@@ -230,7 +229,7 @@ def _failures(story: Story, say):
                 break
     ev0 = None
     if story.model0 is not None and (doc is None or reg_png is None or cmp_png is None):
-        from ..evaluation import evaluate
+        from labrig.loop.evaluation import evaluate
 
         say("report: simulating the linear model on every run")
         ev0 = evaluate(story.runs, story.model0)
@@ -284,11 +283,11 @@ def _diagnosis(story: Story, seed, say):
         story.missing["diagnosis"] = (f"labrig diagnose {story.data_dir} --json > diagnosis.json "
                                       "(no model to diagnose here)")
         return None
-    from ..diagnose import diagnose
+    from labrig.loop.diagnose import diagnose
 
     say("report: diagnosing the linear model (tries every catalogue effect, ~30 s)")
     story.diagnosis = diagnose(story.runs, story.model0, seed=seed)
-    story.sources["diagnosis"] = f"computed by this report (labrig.diagnose, seed {seed})"
+    story.sources["diagnosis"] = f"computed by this report (labrig.loop.diagnose, seed {seed})"
     return story.diagnosis
 
 
@@ -306,7 +305,7 @@ def _ladder(story: Story, diag_live, ev0, say) -> None:
             "model0.json,model1.json --json > ladder.json` in the work folder, or the report "
             "without --quick")
     elif w and (w / "model0.json").is_file() and (w / "model1.json").is_file():
-        from ..ladder import evaluate_ladder
+        from labrig.loop.ladder import evaluate_ladder
 
         say("report: evaluating the error ladder")
         ladder = evaluate_ladder(story.runs, [str(w / "model0.json"), str(w / "model1.json")])
@@ -325,7 +324,7 @@ def _ladder(story: Story, diag_live, ev0, say) -> None:
 
 def _ladder_from_diagnosis(story: Story, diag_live, ev0):
     """Linear model, then + the recommended effect as fitted by the diagnosis."""
-    from ..ladder import Ladder, LadderStep
+    from labrig.loop.ladder import Ladder, LadderStep
 
     d = story.diagnosis
     rec = d.recommendation

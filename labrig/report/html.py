@@ -24,10 +24,10 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from ..errors import UserError
-from .gather import gather
-from .render import render, write
-from .story import Story, fig_bytes
+from labrig.core.errors import UserError
+from labrig.report.gather import gather
+from labrig.report.render import render, write
+from labrig.report.story import Story, fig_bytes
 
 __all__ = ["ARTEFACTS", "Story", "build_report", "fig_bytes", "find_work", "gather", "render"]
 

@@ -1,15 +1,15 @@
 """Section 3: the identified models side by side (the paper's Table 2, done right).
 
-The table is :func:`labrig.identify.table.comparison_table` of the identification
+The table is :func:`labrig.identification.table.comparison_table` of the identification
 records, the same builder the CLI prints, whether the fits were read or computed.
 """
 from __future__ import annotations
 
-from ..identify.table import comparison_table
-from ..tables import Table
-from .artefacts import IdentRecord
-from .blocks import Bullets, Figures, Heading, Section, TableBlock, Text, markup
-from .story import Story
+from labrig.identification.table import comparison_table
+from labrig.core.tables import Table
+from labrig.report.artefacts import IdentRecord
+from labrig.report.blocks import Bullets, Figures, Heading, Section, TableBlock, Text, markup
+from labrig.report.story import Story
 
 def comparison(records: list[IdentRecord], best: str | None) -> Table:
     """Table 2 exactly as ``labrig identify --method all`` prints it (one builder)."""

@@ -16,9 +16,9 @@ from pathlib import Path
 import jinja2
 from markupsafe import Markup
 
-from .. import __version__
-from .sections import cards, sections
-from .story import Story
+from labrig.core.version import __version__
+from labrig.report.sections import cards, sections
+from labrig.report.story import Story
 
 TEMPLATES = Path(__file__).resolve().parent / "templates"
 
@@ -66,7 +66,7 @@ def render(story: Story, created: datetime | None = None) -> str:
 def write(page: str, output) -> Path:
     """Write ``page`` to ``output`` atomically (its folder is made if needed), with the
     user's usual file mode: a report is for sharing."""
-    from ..fileio import atomic_write
+    from labrig.core.fileio import atomic_write
 
     out = Path(output)
     out.parent.mkdir(parents=True, exist_ok=True)

@@ -3,18 +3,17 @@
 Tables the CLI also prints are the result objects' own ``table_rows()``
 (``AnalysisResult``, ``Diagnosis``, ``Ladder``); the report adds a column where it shows
 a little more. Tables only the page has (the sweep, the error by regime) are built here
-as :class:`labrig.tables.Table` too, so the template draws every table one way.
+as :class:`labrig.core.tables.Table` too, so the template draws every table one way.
 """
 from __future__ import annotations
 
 import math
 
-from ..residuals import REGIME_TEXT
-from ..tables import Table
-from .blocks import (Card, Figures, Heading, Section, TableBlock, Text, Verdict, dash_or,
-                     markup, num, pct, with_column, without_empty_columns)
-from .model_table import models_section
-from .story import SECTIONS, Story
+from labrig.loop.residuals import REGIME_TEXT
+from labrig.core.tables import Table
+from labrig.report.blocks import Card, Figures, Heading, Section, TableBlock, Text, Verdict, dash_or, markup, num, pct, with_column, without_empty_columns
+from labrig.report.model_table import models_section
+from labrig.report.story import SECTIONS, Story
 
 
 def sections(story: Story) -> list[Section]:

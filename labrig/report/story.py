@@ -11,14 +11,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from .figures import png_bytes
+from labrig.core.figures import png_bytes
 
 if TYPE_CHECKING:  # annotations only: gathering imports the heavy modules lazily
-    from ..analyse.result import AnalysisResult
-    from ..diagnosis import Diagnosis
-    from ..ladder import Ladder
-    from ..model.model import Model
-    from .artefacts import IdentRecord, Regimes
+    from labrig.analysis.result import AnalysisResult
+    from labrig.loop.ranking import Diagnosis
+    from labrig.loop.ladder import Ladder
+    from labrig.model.model import Model
+    from labrig.report.artefacts import IdentRecord, Regimes
 
 #: section key -> heading, in page order
 SECTIONS = (("sweep", "1. The sweep"),
@@ -30,7 +30,7 @@ SECTIONS = (("sweep", "1. The sweep"),
 
 
 def fig_bytes(fig, dpi: int = 110) -> bytes:
-    """``fig`` as PNG bytes, closed after (see :func:`labrig.report.figures.png_bytes`)."""
+    """``fig`` as PNG bytes, closed after (see :func:`labrig.core.figures.png_bytes`)."""
     return png_bytes(fig, dpi)
 
 
@@ -57,7 +57,7 @@ class Story:
         The folder of runs.
     work : Path or None
         The work folder whose artefacts were read (None: everything computed here).
-    runs : list of labrig.runs.Run
+    runs : list of labrig.io.runs.Run
     quick : bool
         The diagnosis and the ladder were not computed (their files still count).
     sources : dict

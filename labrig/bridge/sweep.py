@@ -1,0 +1,150 @@
+"""Sweeps: run a plan on any bridge, save each run atomically as it finishes.
+
+The same code drives the simulated rig and the serial bridge. On every exit path
+(normal end, error, Ctrl-C) the bridge is stopped and zeroed; every run finished
+before an interruption stays on disk, complete.
+"""
+from __future__ import annotations
+
+import glob
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+import pandas as pd
+
+from labrig.bridge.base import Bridge
+from labrig.io.experiment import Experiment
+from labrig.core.errors import RigError, UserError
+from labrig.io.runs import Run, make_meta, run_exists, write_run
+
+
+def acquire(bridge: Bridge, exp: Experiment, rig, progress: Callable[[int], None] | None = None,
+            timeout: float = 5.0) -> Run:
+    """Configure, start and stream one experiment; return it as a Run (not yet saved).
+
+    The run always has the planned ``exp.n_samples`` rows. Samples lost on the link --
+    inside the run or at its end -- are filled (interpolated inside, the last received
+    value held at the end, the first one before the first received sample) and flagged
+    with ``gap = 1``; the ``gap`` column exists only when something was lost.
+    """
+    bridge.configure(exp)
+    bridge.start()
+    blocks = []
+    got = 0
+    n = int(exp.n_samples)
+    while True:
+        blk = bridge.read(timeout=timeout)
+        if blk is None:
+            break
+        blocks.append(blk)
+        if progress:
+            progress(int(blk.index[-1]) + 1 - got)
+        got = int(blk.index[-1]) + 1
+        if got >= n:
+            break
+    bridge.stop()
+    if progress and got < n:
+        progress(n - got)   # a lost tail: the run is over all the same
+    if not blocks:
+        raise RigError(f"experiment '{exp.name}': the bridge returned no samples")
+    idx = np.concatenate([b.index for b in blocks]).astype(np.int64)
+    keep = idx < n   # a bridge never sends more, but a record never grows past the plan
+    idx = idx[keep]
+    raw = {"u": np.concatenate([b.u for b in blocks])[keep]}
+    for ch in ("tacho", "pos", "ref", "current"):  # the channels this rig has
+        if getattr(blocks[0], ch) is not None:
+            raw[ch] = np.concatenate([getattr(b, ch) for b in blocks])[keep]
+    full = np.arange(n)
+    cols = {"t": full / exp.sample_rate_hz}
+    # a dropped sample must not shift time nor shorten the run: fill it (np.interp holds
+    # the end values beyond the first and last received sample) and flag it in the 'gap'
+    # column, so the run stays uniform and nobody mistakes it for data
+    complete = len(idx) == n
+    for k, v in raw.items():
+        cols[k] = v if complete else np.interp(full, idx, v)
+    if not complete:
+        gap = np.ones(n, dtype=np.int8)
+        gap[idx] = 0
+        cols["gap"] = gap
+    experiment = exp.to_sidecar()
+    controller = rig.controller_sidecar(exp)
+    if controller is not None:
+        experiment["controller"] = controller
+    meta = make_meta(sample_rate_hz=exp.sample_rate_hz, experiment=experiment,
+                     sensors=rig.sensors_sidecar(), rig=rig.rig_sidecar(),
+                     source=bridge.source, bridge=bridge.counters())
+    return Run(name=exp.name, data=pd.DataFrame(cols), meta=meta)
+
+
+def check_plan(plan: list[Experiment], rig) -> None:
+    """Refuse a plan beyond the configured output limit before anything moves."""
+    limit = rig.bridge.output_limit_v
+    for exp in plan:
+        if exp.peak_v() > limit + 1e-9:
+            raise UserError(f"plan experiment '{exp.name}': peak {exp.peak_v():.3g} V exceeds "
+                            f"the output limit {limit:g} V (rig bridge.output_limit_v)")
+
+
+def remove_stale_tmp(outdir: Path | str, names) -> list[Path]:
+    """Remove the temporary files a killed atomic write left for the runs ``names``.
+
+    ``runs.write_run`` writes ``.NAME.csv.*.tmp`` / ``.NAME.json.*.tmp`` next to the run and
+    renames them into place; a SIGKILL in between leaves them behind. Only those of the
+    plan's run names go: anything else in the folder is not ours to delete.
+
+    Returns
+    -------
+    list of Path
+        The files removed.
+    """
+    outdir = Path(outdir)
+    gone = []
+    if not outdir.is_dir():
+        return gone
+    for name in names:
+        for ext in ("csv", "json"):
+            for p in outdir.glob(f".{glob.escape(name)}.{ext}.*.tmp"):
+                p.unlink(missing_ok=True)
+                gone.append(p)
+    return gone
+
+
+def sweep(bridge: Bridge, plan: list[Experiment], rig, outdir: Path | str, *,
+          resume: bool = False, on_start=None, on_progress=None, on_done=None) -> list[Path]:
+    """Run every experiment of ``plan`` on ``bridge`` and write it to ``outdir``.
+
+    With ``resume`` the runs already complete in ``outdir`` are skipped; without it
+    an existing run is an error (nothing is overwritten silently). Temporary files a
+    killed write left for the plan's runs are removed first (:func:`remove_stale_tmp`).
+    """
+    check_plan(plan, rig)
+    outdir = Path(outdir)
+    todo = []
+    for exp in plan:
+        if run_exists(outdir, exp.name):
+            if resume:
+                continue
+            raise UserError(f"{outdir / exp.name}.json exists; use --resume to continue this "
+                            "sweep or choose an empty output folder")
+        todo.append(exp)
+    remove_stale_tmp(outdir, [exp.name for exp in plan])
+    written: list[Path] = []
+    try:
+        bridge.open()
+        for exp in todo:
+            if on_start:
+                on_start(exp)
+            run = acquire(bridge, exp, rig, progress=on_progress)
+            written.append(write_run(run, outdir, overwrite=resume))
+            if on_done:
+                on_done(exp, run)
+    finally:
+        # every exit path: Ctrl-C, a rig fault, a full disk -- leave the output at 0 V
+        try:
+            bridge.stop()
+        except Exception:
+            pass
+        bridge.zero()
+        bridge.close()
+    return written

@@ -1,0 +1,65 @@
+"""How a result shows itself: a one-screen ``repr`` in a terminal, its tables and its
+figure in a notebook.
+
+A result class mixes in :class:`Displayable` and has ``table_rows()`` (one
+:class:`~labrig.core.tables.Table` or a list) and ``plot(ax=None)``; ``headline()``
+gives the first line. Nothing here computes: it only presents what the result holds.
+"""
+from __future__ import annotations
+
+import base64
+import io
+
+from labrig.core.tables import Table, table_html
+
+#: a repr longer than this many lines is cut, and says how to see the rest
+REPR_LINES = 30
+
+
+class Displayable:
+    """Mixin: ``__repr__`` (one screen of text) and ``_repr_html_`` (tables + figure)."""
+
+    def headline(self) -> str:
+        return type(self).__name__
+
+    def _tables(self) -> list[Table]:
+        rows = self.table_rows()
+        return [rows] if isinstance(rows, Table) else list(rows)
+
+    def __repr__(self) -> str:
+        try:
+            text = "\n\n".join(t.to_text(width=100) for t in self._tables())
+        except Exception as exc:  # a repr never raises: say what is missing instead
+            text = f"(no table: {type(exc).__name__}: {exc})"
+        lines = [f"<{self.headline()}>"] + text.splitlines()
+        if len(lines) > REPR_LINES:
+            lines = lines[:REPR_LINES - 1] + [f"... {len(lines) - REPR_LINES + 1} more lines: "
+                                              ".table_rows(), .to_pandas() or .to_json()"]
+        return "\n".join(lines)
+
+    def _figure_for_html(self):
+        return self.plot()
+
+    def _repr_html_(self) -> str:
+        from html import escape
+
+        parts = [f"<div><b>{escape(self.headline())}</b></div>"]
+        parts += [table_html(t) for t in self._tables()]
+        try:
+            fig = self._figure_for_html()
+        except Exception as exc:  # a table without a figure beats no output at all
+            fig, parts = None, parts + [f"<div><small>(no figure: {escape(str(exc))})</small></div>"]
+        if fig is not None:
+            parts.append(figure_html(fig))
+        return "\n".join(parts)
+
+
+def figure_html(fig) -> str:
+    """A matplotlib figure as an inline PNG ``<img>``; the figure is closed after."""
+    import matplotlib.pyplot as plt
+
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=80, bbox_inches="tight")
+    plt.close(fig)
+    data = base64.b64encode(buf.getvalue()).decode("ascii")
+    return f'<img src="data:image/png;base64,{data}" style="max-width:100%"/>'

@@ -1,0 +1,85 @@
+"""Closed-loop runs: two ways to identify the plant, and which one a data set allows.
+
+``loop``   through the loop: the reference is the input and the controller (its gains
+           from the run's sidecar) is part of the simulated model. Needs nothing else,
+           but a stiff loop hides the plant: its response is set mostly by the
+           controller, so the plant's parameters barely change the fit.
+``input``  from the controller's logged output (the run's ``drive`` column) as the
+           plant's input, as if the run were open loop: the plant is seen directly,
+           whatever the controller. What a benchmark's own method does when the drive
+           command was recorded.
+
+``auto`` takes ``input`` when every closed-loop run logged its controller output, else
+``loop``; the reason is reported with the fit.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+from labrig.core.errors import UserError
+from labrig.io.runs import Run
+
+WAYS = ("auto", "loop", "input")
+
+
+@dataclass
+class Way:
+    """How the closed-loop runs of a data set are fitted, and why."""
+
+    way: str          # "loop", "input" or "open" (no closed-loop run)
+    why: str
+    runs: int = 0     # closed-loop runs concerned
+    #: worth saying: a digital controller or a logged controller output (an MS150's analog
+    #: loop has only one way and is fitted through it as always)
+    told: bool = False
+
+    def to_json(self) -> dict:
+        return {"way": self.way, "why": self.why, "closed_loop_runs": self.runs}
+
+
+def as_open_loop(run: Run) -> Run:
+    """A closed-loop run with its logged controller output as the plant's input."""
+    data = run.data.copy()
+    data["ref"] = data["u"]
+    data["u"] = data.pop("drive")
+    exp = {k: v for k, v in run.experiment.items()
+           if k not in ("controller", "position_gain", "velocity_gain")}
+    meta = {**run.meta, "experiment": {**exp, "loop": "open", "fitted_from": "controller output"}}
+    return replace(run, data=data, meta=meta, _cache={})
+
+
+def choose_way(runs: list[Run], through: str = "auto") -> tuple[list[Run], Way]:
+    """The runs as they will be fitted, and the way chosen (see the module text)."""
+    if through not in WAYS:
+        raise UserError(f"--through: '{through}' unknown; choose {', '.join(WAYS)}")
+    closed = [r for r in runs if r.loop == "closed"]
+    if not closed:
+        return runs, Way("open", "open-loop runs: the input drives the plant directly")
+    logged = [r for r in closed if "drive" in r.data]
+    told = bool(logged) or any(r.controller for r in closed)
+    if through == "auto":
+        through = "input" if len(logged) == len(closed) else "loop"
+    if through == "input":
+        if len(logged) < len(closed):
+            missing = next(r.name for r in closed if "drive" not in r.data)
+            raise UserError(f"--through input: run '{missing}' has no logged controller output "
+                            "(column 'drive'); fit it through the loop (--through loop) or "
+                            "import the controller output with --map u=COLUMN,ref=COLUMN")
+        why = ("fitted from the logged controller output as the plant's input: the plant "
+               "is seen directly, whatever the controller (a stiff loop hides the plant "
+               "when fitted through it)")
+        return [as_open_loop(r) if r.loop == "closed" else r for r in runs], \
+            Way("input", why, len(closed), told)
+    for r in closed:
+        c = r.controller or {}
+        if c.get("ki"):
+            raise UserError(f"run '{r.name}': its controller has an integral term (ki = "
+                            f"{c['ki']:g}), which labrig does not simulate through the loop; fit "
+                            "from the logged controller output (--through input)")
+    why = ("fitted through the loop: the reference is the input and the controller's gains "
+           "are part of the model" + ("" if logged else
+                                      "; no controller output was logged") +
+           " (a stiff loop hides the plant: check the intervals)")
+    if any((r.controller or {}).get("output_limit_v") for r in closed):
+        why += "; the controller's output limit is not simulated through the loop"
+    return runs, Way("loop", why, len(closed), told)

@@ -1,0 +1,317 @@
+"""Identification: fit the servo model (R, L, J, B, K + chosen effects) to a data set
+with JFO, PSO or CO, then report fit quality and identifiability.
+
+``identify(runs, method=...)`` is the thin public function; the optimisers live in
+``jellyfish.py``, ``pso.py`` and ``local.py`` and share one result type.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from labrig.core.defaults import LOOP_GAINS
+from labrig.core.errors import UserError
+from labrig.core.timing import mark
+from labrig.model.effects import Effect
+from labrig.model.effectset import EffectSet
+from labrig.model.model import Model
+from labrig.model.reach import Reach
+from labrig.model.plants import plant_of_runs
+from labrig.model.servo import ServoParams
+from labrig.io.runs import require_excitation
+from labrig.identification.identifiability import analyse_identifiability
+from labrig.identification.jellyfish import jellyfish
+from labrig.identification.local import local, polish as _polish
+from labrig.identification.objective import Objective, Space, build_space
+from labrig.identification.pso import pso
+from labrig.identification.result import IdentResult
+from labrig.core.display import Displayable
+
+
+def _run_jfo(obj, lo, hi, x0, o):
+    return jellyfish(obj.fitness_batch, lo, hi, pop=o["pop"], iters=o["iters"], seed=o["seed"],
+                     rule=o.get("rule", "paper"), callback=o.get("callback"))
+
+
+def _run_pso(obj, lo, hi, x0, o):
+    return pso(obj.fitness_batch, lo, hi, pop=o["pop"], iters=o["iters"], seed=o["seed"],
+               callback=o.get("callback"))
+
+
+def _run_co(obj, lo, hi, x0, o):
+    """Multi-start least squares. The starts are screened on every k-th residual (about
+    8000 of them: the trust-region SVD, not the simulation, is what costs), and the best
+    start is then polished on all residuals, which also gives the covariance."""
+    cb = o.get("callback")
+    root_cb = (lambda k, f: cb(k, float(np.sqrt(f)))) if cb else None
+    stride = max(1, obj.m // 8000)
+    if o.get("subsample") and o["starts"] == 1:
+        # the loop's many warm re-fits: every k-th residual (at 1 kHz neighbours are
+        # strongly correlated, so the optimum barely moves; the SVD costs k times less)
+        k = max(1, obj.m // o["subsample"])
+        res = local(lambda x: obj.residuals(x)[::k], lo, hi, x0=x0, starts=1, seed=o["seed"],
+                    jac_batch=lambda X: obj.residuals_jac_batch(X)[:, ::k],
+                    max_nfev=o.get("max_nfev"), callback=root_cb)
+        res.fun = float(np.sqrt(res.fun))
+        res.history = [float(np.sqrt(h)) for h in res.history]
+        return res
+    full = lambda x: local(obj.residuals, lo, hi, x0=x, starts=1, seed=o["seed"],  # noqa: E731
+                           jac_batch=obj.residuals_jac_batch, max_nfev=o.get("max_nfev"))
+    if o["starts"] > 1 and stride > 1:
+        screen = local(lambda x: obj.residuals(x)[::stride], lo, hi, x0=x0, starts=o["starts"],
+                       seed=o["seed"], jac_batch=lambda X: obj.residuals_jac_batch(X)[:, ::stride],
+                       max_nfev=o.get("max_nfev"), callback=root_cb)
+        res = full(screen.x)
+        res.nfev += screen.nfev
+        res.nit = screen.nit
+        res.history = list(screen.history) + list(res.history)
+        res.message = (f"best of {o['starts']} starts screened on every {stride}th residual, "
+                       f"then polished on all: {res.message}")
+    else:
+        res = local(obj.residuals, lo, hi, x0=x0, starts=o["starts"], seed=o["seed"],
+                    jac_batch=obj.residuals_jac_batch, max_nfev=o.get("max_nfev"), callback=root_cb)
+    # local reports mean squares; the fitness (and its history) is the root
+    res.fun = float(np.sqrt(res.fun))
+    res.history = [float(np.sqrt(h)) for h in res.history]
+    return res
+
+
+#: method name -> runner(objective, lower, upper, x0, options) -> IdentResult
+METHODS = {"jfo": _run_jfo, "pso": _run_pso, "co": _run_co}
+
+
+@dataclass(repr=False)
+class Identification(Displayable):
+    """An identified model and everything known about how good it is."""
+
+    method: str
+    effects: list[Effect]
+    space: Space
+    params: dict                      # every parameter, physical units
+    result: IdentResult
+    metrics: dict
+    identifiable: dict
+    seconds: float
+    constants: dict
+    dataset: dict = field(default_factory=dict)
+    #: live, not in the JSON: the runs it was fitted to (for the overlay figure)
+    runs: list | None = field(default=None, compare=False)
+
+    def headline(self) -> str:
+        m = self.metrics
+        return (f"Identification ({self.method}; effects: {', '.join(self.effects.names) or 'none'}): "
+                f"fitness {m['fitness']:.4g}, rmse/noise {m['rmse_over_noise']['overall']:.2f}")
+
+    @property
+    def plant(self) -> dict:
+        return {k: self.params[k] for k in self.space.plant.names}
+
+    @property
+    def effect_params(self) -> dict:
+        return self.effects.nest(self.params)
+
+    @property
+    def fitness(self) -> float:
+        return self.metrics["fitness"]
+
+    def servo(self) -> ServoParams:
+        return self.space.plant.servo(self.plant, self.constants)
+
+    def step_info(self) -> dict:
+        """Rise time, settling time and overshoot of the position loop with this model
+        (computed once: the text and the JSON both show them)."""
+        if getattr(self, "_step_info", None) is None:
+            c = self.constants
+            try:
+                self._step_info = self.servo().position_step_info(c["kp"], c["kv"])
+            except Exception:  # an unstable identified loop has no step metrics
+                self._step_info = {"rise_time_s": None, "settling_time_s": None,
+                                   "overshoot_percent": None}
+        return dict(self._step_info)
+
+    def physical(self) -> dict:
+        """The plant and friction in the axis's units: ``{name: {value, unit, interval95}}``
+        (J, B, Tc, T0 in kg m^2, N m s/rad, N m, N m for a torque-driven axis; M, Fv, Fc,
+        F0 for a force-driven one; R, L, J, B, K and friction for the voltage plant). The
+        interval is null where the parameter is not identifiable or fixed."""
+        pars = (self.identifiable or {}).get("parameters", {})
+        plant = self.space.plant
+        # a friction in N m on the voltage plant is tc_v Ka K / R: it has an interval only
+        # when R and K have theirs (with the current measured), never along the symmetry
+        unseen = [n for n in plant.names if n in ("R", "K") and not (
+            (pars.get(n) or {}).get("interval95") or (pars.get(n) or {}).get("fixed"))]
+        out = {}
+        for name, (v, unit, key, scale) in plant.physical(
+                self.plant, self.effect_params, self.constants).items():
+            iv = (pars.get(key) or {}).get("interval95")
+            if key not in plant.names and unseen:
+                iv = None
+            out[name] = {"value": v, "unit": unit,
+                         "interval95": None if iv is None else sorted([iv[0] * scale, iv[1] * scale])}
+        return out
+
+    def to_dict(self) -> dict:
+        """The JSON of ``identify --json`` (docs/design.md, 'Commands')."""
+        plant = self.space.plant
+        return {"method": self.method, "effects": [e.name for e in self.effects],
+                "plant": plant.kind, "axis": plant.axis,
+                "units": {"position": plant.position_unit(), "speed": plant.speed_unit()},
+                "params": self.plant, "effect_params": self.effect_params,
+                "physical": self.physical(),
+                "fixed": sorted(self.space.fixed),
+                "fitness": self.metrics["fitness"],
+                "rmse_over_noise": self.metrics["rmse_over_noise"],
+                "fit_percent": self.metrics["fit_percent"],
+                "identifiable": self.identifiable, "nfev": int(self.result.nfev),
+                "nit": int(self.result.nit), "seconds": round(self.seconds, 3),
+                "seed": self.result.seed, "message": self.result.message,
+                "history": [float(h) for h in self.result.history],
+                "step_info": self.step_info(), "noise": self.metrics["noise"],
+                "per_run": self.metrics["per_run"]}
+
+    def to_json(self) -> dict:
+        """What ``labrig identify --json`` prints: :meth:`to_dict` with unbounded
+        intervals null and the bound and fit warnings under ``warnings``."""
+        from labrig.identification.table import identification_dict
+
+        return identification_dict(self)
+
+    def table_rows(self):
+        """The Table 2 column of this fit (:func:`labrig.identification.table.comparison_table`)."""
+        from labrig.identification.table import comparison_table
+
+        return comparison_table([self])
+
+    def to_pandas(self):
+        """Every parameter with its value (physical units) and whether it was fixed."""
+        import pandas as pd
+
+        return pd.DataFrame([{"parameter": n, "value": v, "fixed": n in self.space.fixed}
+                             for n, v in self.params.items()]).set_index("parameter")
+
+    def plot(self, ax=None, kind: str = "fit"):
+        """``kind="fit"``: the model on the runs it was fitted to (measured and simulated,
+        one panel per run); ``kind="convergence"``: best fitness against iteration (JFO
+        and PSO; CO's local starts have no iterations to show)."""
+        from labrig.identification.plots import plot_convergence, plot_fit
+
+        if kind == "fit" and self.runs:
+            return plot_fit(self, self.runs, ax=ax)
+        return plot_convergence([self], ax=ax)
+
+    def model(self) -> Model:
+        """The identified model (what ``-o model.json`` saves)."""
+        return Model.from_flat(self.params, self.effects, self.constants,
+                               plant=self.space.plant.kind, info={
+            "method": self.method, "fitness": self.metrics["fitness"],
+            "rmse_over_noise": self.metrics["rmse_over_noise"],
+            "fit_percent": self.metrics["fit_percent"], "noise": self.metrics["noise"],
+            "seed": self.result.seed, "nfev": int(self.result.nfev),
+            "identifiable": {k: self.identifiable[k] for k in self.space.plant.combinations
+                             if k in self.identifiable},
+            "dataset": self.dataset})
+
+
+def dataset_constants(runs) -> dict:
+    """Known rig constants from the runs' sidecars (the first run speaks for all)."""
+    closed = [r.gains for r in runs if r.loop == "closed"]
+    # step metrics are for the data's own loop, else for the lab's standard loop
+    gains = closed[0] if closed else {"kp": LOOP_GAINS["position_gain"],
+                                      "kv": LOOP_GAINS["velocity_gain"]}
+    return {**runs[0].constants, **gains}
+
+
+def initial_point(space: Space, effects, runs, constants, start: dict | None) -> dict:
+    """A physical starting point: the start model where given, else the middle of the
+    (log) box for the plant and each effect's data-driven guess."""
+    mid = {n: float(np.sqrt(lo * hi)) if lg else 0.5 * (lo + hi)
+           for n, lo, hi, lg in zip(space.names, space.lower, space.upper, space.log)}
+    point = dict(mid)
+    if start:
+        point.update({k: v for k, v in start.items() if k in point})
+    plant = space.plant.servo(point, constants)
+    for key, v in EffectSet.parse(effects).initial_guess(runs, plant).items():
+        if not (start and key in start):
+            point[key] = v
+    point.update(space.fixed)
+    return point
+
+
+def identify(runs, method: str = "co", effects: list[Effect] = (), *, seed: int | None = None,
+             bounds: dict | None = None, fixed: dict | None = None, p: float = 1.0,
+             q: float = 1.0, pop: int = 50, iters: int = 200, starts: int = 8,
+             polish: bool = False, start: dict | None = None, callback=None,
+             dataset: dict | None = None, identifiability: bool = True,
+             max_nfev: int | None = None, rule: str = "paper", masks=None,
+             reach=None, subsample: int | None = None, c: float = 1.0) -> Identification:
+    """Fit the servo model to ``runs``.
+
+    Parameters
+    ----------
+    runs : list of Run
+    method : {"jfo", "pso", "co"}
+    effects : list of Effect
+    seed : int, optional
+        Recorded in the result; the same seed reproduces the fit exactly.
+    bounds, fixed : dict
+        ``{name: (lower, upper)}`` and ``{name: value}``; names are R, L, J, B, K
+        and ``effect.param``.
+    p, q, c : float
+        Weights of position, speed and (voltage plant, when measured) armature current,
+        each already divided by its noise level.
+    start : dict, optional
+        Physical parameters to start from (a saved model): CO starts there, JFO and
+        PSO are polished from the better of their result and the start.
+    masks : list of bool arrays, optional
+        Per run, the samples to fit (a cross-validation fold); default all.
+    reach : Reach, optional
+        What the data can see (bounds of threshold effects); default from ``runs``.
+    subsample : int, optional
+        CO from ``start`` with one start: fit on about this many residuals (every k-th).
+    """
+    method = method.lower() if isinstance(method, str) else method  # "JFO" is jfo
+    if method not in METHODS:
+        raise UserError(f"--method: unknown method '{method}'; choose {', '.join(METHODS)} or all")
+    if not runs:
+        raise UserError("the data set is empty: give a folder with at least one run")
+    require_excitation(runs, "identify")
+    effects = EffectSet.parse(effects)
+    space = build_space(effects, bounds, fixed, reach=reach or Reach.of(runs),
+                        plant=plant_of_runs(runs))
+    obj = Objective(runs, effects, space, p=p, q=q, masks=masks, c=c)
+    t0 = time.perf_counter()  # after the simulator is ready: a first compile is not fitting
+    constants = dataset_constants(runs)
+    lo, hi = space.search_bounds()
+    x0 = space.to_search(initial_point(space, effects, runs, constants, start))
+    seed = int(np.random.default_rng().integers(2 ** 31)) if seed is None else int(seed)
+    opts = {"pop": pop, "iters": iters, "seed": seed, "starts": starts, "callback": callback,
+            "max_nfev": max_nfev, "rule": rule, "subsample": subsample}
+    mark("fit-start")
+    try:
+        res = METHODS[method](obj, lo, hi, x0 if (start or method == "co") else None, opts)
+    except ValueError as exc:  # the optimisers name the bad argument
+        raise UserError(str(exc)) from None
+    mark("fit-end")
+    name = method
+    if method != "co" and (polish or start):
+        best = res
+        if start is not None and np.sqrt(np.mean(obj.residuals(x0) ** 2) * obj.m) < res.fun:
+            best = IdentResult(x=x0, fun=float(res.fun), nfev=res.nfev, nit=res.nit,
+                               history=res.history, seed=res.seed, method=method)
+        res = _polish(best, obj.residuals, lo, hi, jac_batch=obj.residuals_jac_batch)
+        res.fun = float(np.sqrt(res.fun))  # polish keeps the global history (already a root)
+        name = f"{method}+co"
+    res.nfev = max(int(res.nfev), obj.nfev)
+    phys = space.to_physical(res.x[None, :])[0]
+    metrics = obj.metrics(phys)
+    ident = analyse_identifiability(obj, res.x, constants["Ka"]) if identifiability else {}
+    mark("identifiability-end")
+    dataset = dict(dataset or {})
+    if any(r.current is not None for r in runs) and not space.plant.current_output:
+        dataset["current_unused"] = True
+    return Identification(method=name, effects=effects, space=space,
+                          params=space.as_dict(phys), result=res, metrics=metrics,
+                          identifiable=ident, seconds=time.perf_counter() - t0,
+                          constants=constants, dataset=dataset or {}, runs=list(runs))

@@ -1,0 +1,266 @@
+"""The identification objective (the paper's eq. 26, made dimensionless).
+
+Each channel's residual is divided by its noise level, estimated from the data, so
+the weights p (position) and q (speed) are pure numbers and ``rmse_over_noise``
+of 1.0 means the model explains everything the noise allows:
+
+    fitness = sqrt( (p sum (theta_m - theta_s)^2 / s_theta^2
+                    + q sum (w_m - w_s)^2 / s_w^2) / (N_theta + N_w) )
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from labrig.core.errors import UserError
+from labrig.model.effects import Effect
+from labrig.model.effectset import EffectSet
+from labrig.model.plants import VoltagePlant
+from labrig.model.simulate import Simulator, prepare
+from labrig.analysis.noise import channel_floors
+
+#: generic plant bounds of the voltage-driven servo (SI units)
+DEFAULT_BOUNDS = VoltagePlant.bounds
+
+
+@dataclass
+class Space:
+    """The search space: plant and effect parameters, fixed ones removed.
+
+    Positive parameters spanning decades are searched as log10; the optimisers see
+    only the free coordinates in ``lower``/``upper``.
+    """
+
+    names: list[str]               # all parameter names: the plant's, then "effect.param"
+    lower: np.ndarray              # physical bounds of every parameter
+    upper: np.ndarray
+    log: np.ndarray                # bool per parameter
+    fixed: dict = field(default_factory=dict)  # name -> physical value
+    plant: type = VoltagePlant     # the plant class (labrig.model.plants)
+
+    @property
+    def free(self) -> list[str]:
+        return [n for n in self.names if n not in self.fixed]
+
+    @property
+    def free_idx(self) -> np.ndarray:
+        return np.array([i for i, n in enumerate(self.names) if n not in self.fixed], int)
+
+    def _fwd(self, v, idx):
+        return np.where(self.log[idx], np.log10(np.maximum(v, 1e-300)), v)
+
+    def search_bounds(self):
+        i = self.free_idx
+        return self._fwd(self.lower[i], i), self._fwd(self.upper[i], i)
+
+    def to_search(self, physical: dict) -> np.ndarray:
+        i = self.free_idx
+        v = np.array([physical[self.names[k]] for k in i], float)
+        lo, hi = self.lower[i], self.upper[i]
+        return self._fwd(np.clip(v, lo, hi), i)
+
+    def to_physical(self, X: np.ndarray) -> np.ndarray:
+        """(P, D_free) search coordinates -> (P, D_all) physical values."""
+        X = np.atleast_2d(X)
+        out = np.empty((X.shape[0], len(self.names)))
+        i = self.free_idx
+        out[:, i] = np.where(self.log[i], 10.0 ** X, X)
+        for n, v in self.fixed.items():
+            out[:, self.names.index(n)] = v
+        return out
+
+    def as_dict(self, row: np.ndarray) -> dict:
+        return {n: float(v) for n, v in zip(self.names, row)}
+
+
+def build_space(effects: list[Effect], bounds: dict | None = None, fixed: dict | None = None,
+                reach=None, plant=VoltagePlant) -> Space:
+    """The search space of ``plant`` (a class of :mod:`labrig.model.plants`) and
+    ``effects``; ``reach`` (:class:`labrig.model.reach.Reach`) replaces the catalogue's
+    bounds of threshold effects by what the data can see."""
+    effects = EffectSet.parse(effects)
+    data = {f"{e.name}.{k}": v for e in effects for k, v in
+            (e.data_bounds(reach).items() if reach is not None else ())}
+    # "Deadband.d_v" is deadband.d_v: an effect's name is user input in any case
+    known = {key.lower(): key for key, *_ in effects.bounds()}
+    user = {known.get(k.lower(), k): v for k, v in (bounds or {}).items()}
+    fixed = {known.get(k.lower(), k): v for k, v in (fixed or {}).items()}
+    bounds = {**data, **user}
+    names, lo, hi, log = [], [], [], []
+    for n in plant.names:
+        names.append(n)
+        a, b = bounds.pop(n, plant.bounds[n])
+        lo.append(a), hi.append(b), log.append(True)
+    for key, a0, b0, lg in effects.bounds():
+        a, b = bounds.pop(key, (a0, b0))
+        names.append(key), lo.append(a), hi.append(b), log.append(bool(lg and a > 0))
+    if bounds:
+        raise UserError(f"--bounds: unknown parameter '{sorted(bounds)[0]}'; the model has "
+                        f"{', '.join(names)}")
+    for n, v in fixed.items():
+        if n not in names:
+            raise UserError(f"--fix: unknown parameter '{n}'; the model has {', '.join(names)}")
+    for n, a, b in zip(names, lo, hi):
+        if not a < b:
+            raise UserError(f"--bounds: {n} has lower {a:g} >= upper {b:g}")
+    if len(fixed) >= len(names):
+        raise UserError("--fix: every parameter is fixed; nothing left to identify")
+    return Space(names, np.array(lo, float), np.array(hi, float), np.array(log), fixed, plant)
+
+
+class Objective:
+    """Population-vectorised residuals and fitness of a model on a data set."""
+
+    def __init__(self, runs, effects: list[Effect], space: Space, p: float = 1.0,
+                 q: float = 1.0, substeps: int = 16, masks=None, c: float = 1.0):
+        if not runs:
+            raise UserError("the data set is empty: give a folder with at least one run")
+        self.runs = prepare(runs)
+        self.effects = EffectSet.parse(effects)
+        self.space = space
+        self.p, self.q, self.c = float(p), float(q), float(c)
+        if self.p < 0 or self.q < 0 or self.c < 0 or self.p + self.q == 0:
+            raise UserError("weights: p, q and i must be >= 0, and p and q not both 0")
+        self.plant = space.plant
+        self.n_plant = len(self.plant.names)
+        self.sim = Simulator(self.runs, self.effects, substeps=substeps, plant=self.plant)
+        #: each channel's noise floor, measured moving and at rest (labrig.analysis.noise)
+        self.floors = channel_floors(self.runs, (self.plant.position_unit(),
+                                                   self.plant.speed_unit()))
+        if not self.plant.current_output:  # a current-mode drive's current says nothing new
+            self.floors.pop("current", None)
+        self.sigma_w = self.floors["speed"].sigma if "speed" in self.floors else 1.0
+        self.sigma_theta = self.floors["position"].sigma if "position" in self.floors else 1.0
+        self.sigma_i = self.floors["current"].sigma if "current" in self.floors else 1.0
+        self.use_w = "speed" in self.floors and self.q > 0
+        self.use_theta = "position" in self.floors and self.p > 0
+        self.use_i = "current" in self.floors and self.c > 0
+        #: per run, the samples the fit sees (cross-validation folds); None: all
+        self.masks = None if masks is None else [np.asarray(m, bool) for m in masks]
+        counts = [len(r.u) if self.masks is None else int(m.sum())
+                  for r, m in zip(self.runs, self.masks or [None] * len(self.runs))]
+        self.n_w = sum(c for r, c in zip(self.runs, counts) if r.w is not None) if self.use_w else 0
+        self.n_theta = sum(c for r, c in zip(self.runs, counts)
+                           if r.theta is not None) if self.use_theta else 0
+        self.n_i = sum(c for r, c in zip(self.runs, counts)
+                       if r.current is not None) if self.use_i else 0
+        self.m = self.n_w + self.n_theta + self.n_i
+        self.nfev = 0
+        self._weights = [(r.w, np.sqrt(self.q) / self.sigma_w if self.use_w and r.w is not None else 0.0,
+                          r.theta, np.sqrt(self.p) / self.sigma_theta
+                          if self.use_theta and r.theta is not None else 0.0,
+                          r.current, np.sqrt(self.c) / self.sigma_i
+                          if self.use_i and r.current is not None else 0.0) for r in self.runs]
+
+    # -- parameters -------------------------------------------------------------------
+    def split(self, phys: np.ndarray):
+        """(P, D_all) physical -> plant (P, n_plant), {effect: {param: (P,)}}."""
+        return phys[:, :self.n_plant], self.effects.split(phys, offset=self.n_plant)
+
+    def simulate_physical(self, phys: np.ndarray) -> list[dict]:
+        plant, ep = self.split(np.atleast_2d(phys))
+        return self.sim.simulate(plant, ep)
+
+    # -- residuals ----------------------------------------------------------------------
+    def _stack(self, sims) -> np.ndarray:
+        P = sims[0]["w"].shape[0]
+        R = np.empty((P, self.m))
+        k = 0
+        for j, (r, s) in enumerate(zip(self.runs, sims)):
+            for use, meas, sim, scale in ((self.use_theta, r.theta, s["theta"], np.sqrt(self.p) / self.sigma_theta),
+                                          (self.use_w, r.w, s["w"], np.sqrt(self.q) / self.sigma_w),
+                                          (self.use_i, r.current, s["i"], np.sqrt(self.c) / self.sigma_i)):
+                if use and meas is not None:
+                    if self.masks is not None:
+                        meas, sim = meas[self.masks[j]], sim[:, self.masks[j]]
+                    out = R[:, k:k + len(meas)]
+                    np.subtract(meas[None, :], sim, out=out)
+                    out *= scale
+                    k += len(meas)
+        # a wild candidate (unstable, overflowing) must not poison the optimiser's sums
+        np.clip(R, -1e6, 1e6, out=R)
+        R[np.isnan(R)] = 1e6
+        return R
+
+    def residuals_batch(self, X: np.ndarray) -> np.ndarray:
+        """(P, D_free) search points -> (P, m) normalised residuals."""
+        X = np.atleast_2d(X)
+        self.nfev += X.shape[0]
+        with np.errstate(all="ignore"):
+            return self._stack(self.simulate_physical(self.space.to_physical(X)))
+
+    def residuals(self, x: np.ndarray) -> np.ndarray:
+        return self.residuals_batch(x[None, :])[0] / np.sqrt(self.m)
+
+    def residuals_jac_batch(self, X: np.ndarray) -> np.ndarray:
+        return self.residuals_batch(X) / np.sqrt(self.m)
+
+    def fitness_batch(self, X: np.ndarray) -> np.ndarray:
+        """(P, D_free) -> (P,) fitness; the fused kernel never stores trajectories."""
+        X = np.atleast_2d(X)
+        if self.masks is not None:  # a fold: the residuals of its samples
+            R = self.residuals_batch(X)
+            f = np.sqrt(np.sum(R ** 2, axis=1) / self.m)
+            return np.where(np.isfinite(f), f, np.inf)
+        self.nfev += X.shape[0]
+        plant, ep = self.split(self.space.to_physical(X))
+        with np.errstate(all="ignore"):
+            f = np.sqrt(self.sim.sse(plant, ep, self._weights) / self.m)
+        return np.where(np.isfinite(f), f, np.inf)
+
+    # -- adequacy measures (docs/physics.md, 'The objective') -------------------------
+    def metrics(self, phys_row: np.ndarray) -> dict:
+        sims = self.simulate_physical(phys_row[None, :])
+        return adequacy(self.runs, sims, self.sigma_w, self.sigma_theta, self.p, self.q,
+                        sigma_i=self.sigma_i if self.use_i else None, c=self.c,
+                        units=self.plant.position_unit())
+
+
+def fit_percent(y: np.ndarray, yhat: np.ndarray) -> float:
+    """MATLAB ``compare``'s fit: 100 (1 - ||y - yhat|| / ||y - mean(y)||)."""
+    return float(100 * (1 - np.linalg.norm(y - yhat) / max(np.linalg.norm(y - y.mean()), 1e-300)))
+
+
+def adequacy(runs, sims, sigma_w, sigma_theta, p=1.0, q=1.0, index=0, sigma_i=None,
+             c=1.0, units="rad") -> dict:
+    """fitness, rmse_over_noise (overall/per channel/per run) and fit_percent; the
+    current is a channel when ``sigma_i`` is given (a voltage plant with current measured)."""
+    sq = {"speed": [], "position": [], "current": []}
+    meas = {"speed": [], "position": [], "current": []}
+    per_run = {}
+    for r, s in zip(runs, sims):
+        entry = {}
+        for ch, y, yh, sig in (("speed", r.w, s["w"][index], sigma_w),
+                               ("position", r.theta, s["theta"][index], sigma_theta),
+                               ("current", getattr(r, "current", None) if sigma_i else None,
+                                s["i"][index] if "i" in s else None, sigma_i)):
+            if y is None:
+                continue
+            e = (y - yh) / sig
+            sq[ch].append(e ** 2)
+            meas[ch].append((y, yh))
+            entry[ch] = float(np.sqrt(np.mean(e ** 2)))
+        per_run[r.name] = entry
+    # the keys keep the rotary names (speed_rad_s, position_rad); ``units`` says the axis's
+    noise = {"speed_rad_s": sigma_w, "position_rad": sigma_theta}
+    if units != "rad":
+        noise["units"] = {"position": units, "speed": units + "/s"}
+    if sigma_i:
+        noise["current_a"] = sigma_i
+    out = {"rmse_over_noise": {}, "fit_percent": {}, "per_run": per_run, "noise": noise}
+    tot, n = 0.0, 0
+    for ch, w in (("speed", q), ("position", p), ("current", c)):
+        if not sq[ch]:
+            continue
+        e2 = np.concatenate(sq[ch])
+        out["rmse_over_noise"][ch] = float(np.sqrt(np.mean(e2)))
+        tot += w * e2.sum()
+        n += len(e2)
+        y = np.concatenate([a for a, _ in meas[ch]])
+        yh = np.concatenate([b for _, b in meas[ch]])
+        out["fit_percent"][ch] = fit_percent(y, yh)
+    allsq = np.concatenate([np.concatenate(v) for v in sq.values() if v])
+    out["rmse_over_noise"]["overall"] = float(np.sqrt(np.mean(allsq)))
+    out["fitness"] = float(np.sqrt(tot / n))
+    return out

@@ -1,0 +1,171 @@
+"""How an identification is shown: the paper's Table 2 (done right: the identifiable
+combinations first, then R..K, methods side by side), the JSON of ``identify --json``,
+and the warnings that make a suspect fit say so."""
+from __future__ import annotations
+
+import math
+
+from labrig.model.effectset import param_key
+from labrig.model.plants import plant_class
+from labrig.core.tables import Table, fmt
+from labrig.identification.result import identification_warnings
+
+
+def null_unbounded(identifiable: dict) -> dict:
+    """A copy of an identifiability dict in which an interval with an infinite or NaN
+    end is null, as an interval the data do not bound at all already is (a [0, inf]
+    interval says nothing, and strict JSON cannot carry it)."""
+    def fix(d):
+        if isinstance(d, dict) and d.get("interval95") is not None and \
+                not all(isinstance(x, (int, float)) and math.isfinite(x) for x in d["interval95"]):
+            return {**d, "interval95": None}
+        return d
+
+    out = dict(identifiable)
+    for key in ("km", "tau_m_s", "tau_e_s"):
+        if key in out:
+            out[key] = fix(out[key])
+    if isinstance(out.get("physical"), dict):
+        out["physical"] = {n: fix(d) for n, d in out["physical"].items()}
+    if isinstance(out.get("parameters"), dict):
+        out["parameters"] = {n: fix(d) for n, d in out["parameters"].items()}
+    return out
+
+
+def identification_dict(res) -> dict:
+    """``res.to_dict()`` (keys unchanged) with unbounded intervals null and the bound and
+    fit warnings under ``warnings``."""
+    d = res.to_dict()
+    d["identifiable"] = null_unbounded(d.get("identifiable") or {})
+    d["physical"] = null_unbounded({"physical": d.get("physical") or {}})["physical"]
+    d["warnings"] = identification_warnings(res)
+    return d
+
+
+#: what the "fitness (eq. 26)" row is (labrig.identification.objective.adequacy computes it)
+FITNESS_NOTE = ("fitness (eq. 26 of the seed paper, made dimensionless) = the weighted RMSE "
+                "of position and speed (and current, when measured), each residual in units "
+                "of its channel's noise floor: sqrt((p sum e_pos^2 + q sum e_speed^2) / N) "
+                "over all N samples; with the default p = q = 1 it is rmse/noise overall, "
+                "and 1.0 is the noise floor.")
+
+
+def _fmt(v, spec=".4g"):
+    return fmt(v, spec)
+
+
+def _record(r) -> dict:
+    """An Identification (live) or its JSON record (read back) as the JSON record."""
+    if hasattr(r, "to_json"):
+        return r.to_json()
+    if hasattr(r, "model_dump"):
+        return r.model_dump()
+    return dict(r)
+
+
+def _interval(d) -> str:
+    if not d or d.get("value") is None:
+        return "-"
+    iv = d.get("interval95")
+    if d.get("identifiable") is False or not iv or any(x is None for x in iv):
+        return f"{d['value']:.4g} ? (not seen by these data)"
+    return f"{d['value']:.4g} [{iv[0]:.3g}, {iv[1]:.3g}]"
+
+
+def _parameter(r: dict, name: str) -> str:
+    info = ((r.get("identifiable") or {}).get("parameters") or {}).get(name) or {}
+    v = _fmt(r["params"].get(name))
+    if info.get("fixed"):
+        return f"{v} (fixed)"
+    return v + (" ?" if info.get("identifiable") is False else "")
+
+
+def comparison_table(results, best: str | None = None) -> Table:
+    """The paper's Table 2, done right: the identifiable combinations first, then R..K
+    (one member of the family the data allow), the fit, the identified model's
+    closed-loop step and the cost; one column per method.
+
+    ``results``: live :class:`~labrig.identification.engine.Identification` objects or their
+    JSON records (``identify --json``), so the CLI and the report print the same table.
+    """
+    recs = [_record(r) for r in results]
+    rows: list = []
+    plant = plant_class(recs[0].get("plant") or "voltage") if recs else plant_class("voltage")
+    speed = plant.speed_unit()
+
+    def group(label):
+        rows.append([f"-- {label}"] + [""] * len(recs))
+
+    group("identifiable combinations (95 % intervals)")
+    labels = {"km": f"Km ({speed} per V)", "tau_m_s": "tau_m (s)", "tau_e_s": "tau_e (s)"}
+    for key in plant.combinations:
+        rows.append([labels[key]] + [_interval((r.get("identifiable") or {}).get(key))
+                                     for r in recs])
+    rank = (recs[0].get("identifiable") or {}).get("structural_rank") if recs else None
+    group("physical parameters" + ("" if plant.kind != "voltage" or rank == 5 else
+                                   " (one member of the family the data allow)"))
+    for n in plant.names:
+        rows.append([f"{n} ({plant.units[n]})"] + [_parameter(r, n) for r in recs])
+    extra = list(dict.fromkeys(n for r in recs for n in (r.get("physical") or {})
+                               if n not in plant.names))
+    for n in extra:  # friction and offset in the axis's units
+        unit = next(r["physical"][n]["unit"] for r in recs if n in (r.get("physical") or {}))
+        rows.append([f"{n} ({unit})"] + [_interval((r.get("physical") or {}).get(n)) for r in recs])
+    keys = list(dict.fromkeys((e, k) for r in recs for e, ps in (r.get("effect_params") or {}).items()
+                              for k in ps))
+    for e, k in keys:
+        rows.append([param_key(e, k)] + [_fmt((r.get("effect_params") or {}).get(e, {}).get(k))
+                                    for r in recs])
+    group("fit")
+    rows.append(["fitness (eq. 26)"] + [_fmt(r.get("fitness")) for r in recs])
+    chans = ["speed", "position"] + (["current"] if any(
+        "current" in (r.get("rmse_over_noise") or {}) for r in recs) else [])
+    for ch in ["overall"] + chans:
+        rows.append([f"rmse/noise {ch}"] + [_fmt((r.get("rmse_over_noise") or {}).get(ch), ".3g")
+                                             for r in recs])
+    for ch in chans:
+        rows.append([f"fit % {ch}"] + [_fmt((r.get("fit_percent") or {}).get(ch), ".2f")
+                                       for r in recs])
+    group("closed-loop position step of the identified model")
+    for key, label in (("rise_time_s", "rise time (s)"), ("settling_time_s", "settling time (s)"),
+                       ("overshoot_percent", "overshoot (%)")):
+        rows.append([label] + [_fmt((r.get("step_info") or {}).get(key), ".3g") for r in recs])
+    group("cost")
+    rows.append(["evaluations (nfev)"] + [_fmt(r.get("nfev"), "d") for r in recs])
+    rows.append(["seconds"] + [_fmt(r.get("seconds"), ".1f") for r in recs])
+    rows.append(["seed"] + [_fmt(r.get("seed"), "d") for r in recs])
+    heads = [str(r.get("method", "?")).upper() + (" (best)" if r.get("method") == best else "")
+             for r in recs]
+    table = Table("identified models (Table 2)", [""] + heads, rows)
+    table.notes.append(FITNESS_NOTE)
+    prefix = len(recs) > 1
+    for r in recs:  # at a bound, fit below zero: the result is suspect
+        for w in r.get("warnings") or []:
+            table.notes.append(f"warning: {r.get('method')}: {w}" if prefix else f"warning: {w}")
+    # identifiability depends on where each method ended (one sees a pole, another ends
+    # where it is invisible): a warning not shared by every column names its methods
+    said: dict = {}
+    for r in recs:
+        for w in (r.get("identifiable") or {}).get("warnings", []):
+            said.setdefault(w, []).append(str(r.get("method")))
+    for w, methods in said.items():
+        table.notes.append(f"warning: {w}" if len(methods) == len(recs) else
+                           f"warning: {', '.join(methods)}: {w}")
+    if any(c.endswith("?") or "? (not seen" in c for row in rows for c in row[1:]):
+        table.notes.append("? = not identifiable from these data alone (see the warning); the "
+                           "combinations above are.")
+    return table
+
+
+def format_identification(results) -> str:
+    """Table 2 as text (rich), warnings under it."""
+    return comparison_table(results).to_text()
+
+
+def all_warnings(results) -> list[str]:
+    """Bound and fit warnings of each result; prefixed by the method when several."""
+    if len(results) == 1:
+        return identification_warnings(results[0])
+    return [f"{r.method}: {w}" for r in results for w in identification_warnings(r)]
+
+

@@ -1,0 +1,387 @@
+"""Rig and sweep-plan configuration: TOML files -> validated dataclasses.
+
+Every key is checked: an unknown key or a value out of its physical range is a
+``ConfigError`` naming the file and the key, so a typo never silently falls back
+to a default.
+"""
+from __future__ import annotations
+
+import dataclasses
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from labrig.io.experiment import Experiment
+from labrig.core.errors import ConfigError, UserError
+from labrig.core.schemas import PlanFile, RigFile, validate
+
+CONFIG_DIR = Path(__file__).resolve().parents[2] / "configs"
+DEFAULT_RIG = CONFIG_DIR / "rig_default.toml"
+DEFAULT_PLAN = CONFIG_DIR / "plan_default.toml"
+
+
+def packaged_config(name: str) -> Path:
+    """Configs ship inside the package too, so a wheel install finds them."""
+    local = CONFIG_DIR / name
+    if local.exists():
+        return local
+    return Path(__file__).resolve().parents[1] / "configs" / name
+
+
+# -- the rig --------------------------------------------------------------------
+
+@dataclass
+class Plant:
+    """Every plant's parameters; the rig's ``drive`` says which are used
+    (labrig.model.plants): R..K (voltage), J, B (torque), M, Fv (force)."""
+
+    R: float = 8.0
+    L: float = 0.0085
+    J: float = 5.2245e-5
+    B: float = 1.0e-5
+    K: float = 0.05
+    M: float = 2.0
+    Fv: float = 20.0
+
+    def as_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+    def values(self, drive: str = "voltage") -> dict:
+        """The parameters of the plant ``drive`` names."""
+        from labrig.model.plants import plant_class
+
+        return {k: getattr(self, k) for k in plant_class(drive).names}
+
+
+@dataclass
+class Amplifier:
+    gain: float = 5.0
+    output_limit_v: float = 13.0
+
+
+@dataclass
+class Sensors:
+    """Per axis unit: rad and rad/s on a rotary axis, m and m/s on a linear one."""
+
+    tacho_v_per_rad_s: float = 0.026   # 0: no tacho
+    pos_v_per_rad: float = 0.5
+    pos_offset_v: float = -4.0
+    #: an encoder instead of the pot: counts per rad (rotary) or per m (linear); 0: a pot
+    encoder_counts_per_unit: float = 0.0
+    #: a current-sense channel (V per A of armature current); 0: none
+    current_v_per_a: float = 0.0
+
+
+@dataclass
+class BridgeConfig:
+    sample_rate_hz: float = 1000.0
+    output_limit_v: float = 2.5
+    dac_bits: int = 12
+    dac_range_v: tuple = (-5.0, 5.0)
+    adc_bits: int = 10
+    adc_range_v: tuple = (-10.0, 10.0)
+    watchdog_ms: float = 500.0
+    calibration: dict = field(default_factory=dict)
+
+    @property
+    def adc_quantum_v(self) -> float:
+        lo, hi = self.adc_range_v
+        return (hi - lo) / 2 ** self.adc_bits
+
+
+@dataclass
+class Noise:
+    tacho_v: float = 0.010
+    pos_v: float = 0.004
+    current_v: float = 0.005
+    seed: int = 1
+
+
+@dataclass
+class RigConfig:
+    """A whole rig: plant, amplifier, gear, sensors, bridge, noise and hidden effects."""
+
+    name: str = "rig"
+    #: what the input drives (labrig.model.plants) and the axis it moves
+    drive: str = "voltage"
+    axis: str = "rotary"
+    gear_ratio: float = 30.0
+    plant: Plant = field(default_factory=Plant)
+    amplifier: Amplifier = field(default_factory=Amplifier)
+    sensors: Sensors = field(default_factory=Sensors)
+    bridge: BridgeConfig = field(default_factory=BridgeConfig)
+    noise: Noise = field(default_factory=Noise)
+    #: hidden effects of the simulated rig: catalogue name -> {param: value}
+    effects: dict = field(default_factory=dict)
+    source: str = ""
+
+    @property
+    def digital_loop(self) -> bool:
+        """A closed loop of this rig is a digital PD on the position in axis units (an
+        encoder or no tacho), not the MS150's analog loop on sensor volts."""
+        return self.sensors.encoder_counts_per_unit > 0 or self.sensors.tacho_v_per_rad_s == 0
+
+    def controller_sidecar(self, exp) -> dict | None:
+        """The ``experiment.controller`` of a closed-loop run on a digital loop."""
+        if exp.loop != "closed" or not self.digital_loop:
+            return None
+        return {"kind": "pd", "kp": float(exp.position_gain), "kd": float(exp.velocity_gain),
+                "ki": 0.0, "feedback": "position"}
+
+    def sensors_sidecar(self) -> dict:
+        s = self.sensors
+        out = {"pos_v_per_rad": s.pos_v_per_rad, "pos_offset_v": s.pos_offset_v}
+        if s.tacho_v_per_rad_s > 0:
+            out["tacho_v_per_rad_s"] = s.tacho_v_per_rad_s
+        if s.encoder_counts_per_unit > 0:  # the pos column holds counts
+            out.update(pos_v_per_rad=s.encoder_counts_per_unit, pos_offset_v=0.0,
+                       pos_kind="encoder", pos_quantum=1.0 / s.encoder_counts_per_unit)
+        if s.current_v_per_a > 0:
+            out["current_a_per_v"] = 1.0 / s.current_v_per_a
+        return out
+
+    def rig_sidecar(self) -> dict:
+        out = {"gear_ratio": self.gear_ratio, "amplifier_gain": self.amplifier.gain,
+               "name": self.name}
+        if self.drive != "voltage" or self.axis != "rotary":
+            out.update(drive=self.drive, axis=self.axis)
+        if self.drive != "voltage":
+            out["input_gain"] = self.amplifier.gain
+        return out
+
+
+#: TOML key -> dataclass attribute, per section (the TOML names carry the units)
+_ATTRS = {
+    "rig": {"name": "name", "gear_ratio": "gear_ratio", "drive": "drive", "axis": "axis"},
+    "plant": {"R_ohm": "R", "L_h": "L", "J_kgm2": "J", "B_nms_per_rad": "B",
+              "K_nm_per_a": "K", "M_kg": "M", "Fv_ns_per_m": "Fv"},
+}
+
+
+def read_toml(path: Path | str, what: str) -> dict:
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(f"{path}: {what} file not found")
+    if path.stat().st_size > 1_000_000:
+        raise ConfigError(f"{path}: too big for a {what} file (over 1 MB); is this the "
+                          "right file?")
+    try:
+        return tomllib.loads(path.read_text(encoding="utf-8"))
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{path}: not valid TOML ({exc}); fix the syntax") from None
+    except (UnicodeDecodeError, RecursionError):
+        raise ConfigError(f"{path}: not a text TOML file") from None
+
+
+def rig_from_dict(doc: dict, path: str = "<rig>") -> RigConfig:
+    """Validate a parsed rig document (schema :class:`labrig.core.schemas.RigFile`) and
+    build the ``RigConfig``; keys left out keep the dataclass defaults."""
+    checked = validate(RigFile, doc, path, ConfigError, section_word=True)
+    rig = RigConfig(source=str(path))
+    targets = {"rig": rig, "plant": rig.plant, "amplifier": rig.amplifier,
+               "sensors": rig.sensors, "bridge": rig.bridge, "noise": rig.noise}
+    for sec, obj in targets.items():
+        body = getattr(checked, sec)
+        if body is None:
+            continue
+        for key, value in body.model_dump(exclude_unset=True).items():
+            if key.endswith("range_v"):
+                value = (float(value[0]), float(value[1]))
+            setattr(obj, _ATTRS.get(sec, {}).get(key, key), value)
+    rig.effects = _check_effects(path, checked.effects, rig.bridge.output_limit_v)
+    _check_plant(path, rig, checked)
+    return rig
+
+
+def _check_plant(path, rig: RigConfig, checked) -> None:
+    """The drive and axis agree, a linear or torque axis has no gear unless stated, and
+    only a voltage plant has an armature current to sense."""
+    from labrig.model.plants import check_axis
+
+    section = checked.rig.model_dump(exclude_unset=True) if checked.rig else {}
+    if "axis" not in section:
+        rig.axis = "linear" if rig.drive == "force" else "rotary"
+    try:
+        check_axis(rig.drive, rig.axis, f"{path}: key 'rig.axis'")
+    except UserError as exc:
+        raise ConfigError(str(exc)) from None
+    if rig.drive != "voltage" and "gear_ratio" not in section:
+        rig.gear_ratio = 1.0
+    if rig.axis == "linear" and rig.gear_ratio != 1.0:
+        raise ConfigError(f"{path}: key 'rig.gear_ratio' = {rig.gear_ratio:g}, but a linear axis "
+                          "has none (the position is the carriage's, in m); remove it")
+    if rig.sensors.current_v_per_a > 0 and rig.drive != "voltage":
+        raise ConfigError(f"{path}: key 'sensors.current_v_per_a': a {rig.drive}-driven plant's "
+                          "current is its command, not a measurement labrig fits; remove it")
+    if rig.sensors.tacho_v_per_rad_s == 0 and rig.sensors.encoder_counts_per_unit == 0 \
+            and rig.sensors.pos_v_per_rad == 0:
+        raise ConfigError(f"{path}: [sensors] has neither a tacho nor a position sensor")
+
+
+def rig_to_doc(rig: RigConfig) -> dict:
+    """The rig as the full TOML document (every key, defaults filled in)."""
+    inverse = {sec: {attr: key for key, attr in m.items()} for sec, m in _ATTRS.items()}
+    doc = {"rig": {"name": rig.name, "drive": rig.drive, "axis": rig.axis,
+                   "gear_ratio": rig.gear_ratio}}
+    for sec in ("plant", "amplifier", "sensors", "bridge", "noise"):
+        body = dataclasses.asdict(getattr(rig, sec))
+        if sec == "plant":  # only the parameters of the rig's plant
+            body = rig.plant.values(rig.drive)
+        doc[sec] = {inverse.get(sec, {}).get(k, k): (list(v) if isinstance(v, tuple) else v)
+                    for k, v in body.items() if not (k == "calibration" and not v)}
+    doc["effects"] = {k: dict(v) for k, v in rig.effects.items()}
+    return doc
+
+
+def _check_effects(path, body: dict, volts_limit: float = 0.0) -> dict:
+    """Hidden effects by catalogue name, every parameter given and within its bounds.
+
+    A threshold in input volts may reach the bridge's own output limit ``volts_limit``
+    (a 12 V H-bridge's dead zone is volts wide, an MS150 bridge's a fraction of one).
+
+    A rig file is data: it may name a user effect (FILE.py:Class) only when the user
+    trusted that file on the command line (``--trust-code``), because loading it runs it.
+    """
+    from labrig.model.effects import catalogue_name, get_effect  # late: the catalogue imports config-free code
+
+    out = {}
+    for name, params in body.items():
+        try:
+            eff = get_effect(name, origin=f"{path}: [effects.{name}]")
+        except UserError as exc:
+            raise ConfigError(str(exc)) from None
+        known = {p.name: p for p in eff.params}
+        for k, v in params.items():
+            if k not in known:
+                raise ConfigError(f"{path}: unknown key 'effects.{name}.{k}'; "
+                                  f"{name} has {', '.join(sorted(known))}")
+            p = known[k]
+            upper = max(p.upper, volts_limit) if p.unit == "V" else p.upper
+            if not p.lower <= v <= upper:
+                raise ConfigError(f"{path}: key 'effects.{name}.{k}' = {v:g} is out of range "
+                                  f"[{p.lower:g}, {upper:g}] {p.unit}")
+        missing = set(known) - set(params)
+        if missing:
+            raise ConfigError(f"{path}: [effects.{name}] is missing '{sorted(missing)[0]}'")
+        # the catalogue's spelling: the simulator looks the parameters up by it
+        out[catalogue_name(name)] = {k: float(v) for k, v in params.items()}
+    return out
+
+
+def load_rig(path: Path | str | None = None) -> RigConfig:
+    """Read and validate a rig TOML file (default: configs/rig_default.toml).
+
+    A mystery rig (``*.mystery``, see ``labrig mystery``) is decoded transparently.
+    """
+    path = Path(path) if path is not None else packaged_config("rig_default.toml")
+    if path.suffix == ".mystery":
+        from labrig.io.mysteryfile import decode
+
+        return rig_from_dict(decode(path)["rig"], str(path))
+    return rig_from_dict(read_toml(path, "rig"), str(path))
+
+
+# -- sweep plans ----------------------------------------------------------------
+
+#: a plan that asks for more samples than this is a typo (3600 s at 100 kHz would
+#: allocate gigabytes and run for minutes): refused before anything moves
+MAX_PLAN_SAMPLES = 20_000_000
+_STEMS = {"square": "sq", "step": "step", "staircase": "stair", "constant": "const",
+          "pwl": "pwl"}
+
+
+def load_plan(path: Path | str | None = None, rig: RigConfig | None = None) -> list[Experiment]:
+    """Read a sweep plan: ``[[experiment]]`` tables; ``amplitudes_v = [...]`` expands
+    one table into one experiment per amplitude (schema :class:`labrig.core.schemas.PlanFile`)."""
+    path = Path(path) if path is not None else packaged_config("plan_default.toml")
+    doc = read_toml(path, "plan")
+    if "experiment" not in doc:
+        raise ConfigError(f"{path}: no [[experiment]] tables; a plan needs at least one")
+    plan = validate(PlanFile, doc, path, ConfigError)
+    defaults = plan.defaults.model_dump(exclude_unset=True) if plan.defaults else {}
+    rate = rig.bridge.sample_rate_hz if rig else 1000.0
+    out: list[Experiment] = []
+    for k, spec in enumerate(plan.experiment, 1):
+        raw = {**defaults, **spec.model_dump(exclude_unset=True)}
+        amps = raw.pop("amplitudes_v", None)
+        raw.setdefault("sample_rate_hz", rate)
+        for amp in (amps if amps is not None else [raw.get("amplitude_v", 1.5)]):
+            e = dict(raw, amplitude_v=amp)
+            if e.get("waveform") == "pwl":
+                e["points"] = [list(p) for p in e.get("points") or []]
+            if "name" not in e or amps is not None:
+                stem = _STEMS[e.get("waveform", "square")]
+                prefix = "cl_" if e.get("loop") == "closed" else ""
+                e["name"] = f"{prefix}{stem}_{amp:+.2f}V".replace("+", "")
+            out.append(_check_experiment(path, k, e))
+    names = [e.name for e in out]
+    dup = {n for n in names if names.count(n) > 1}
+    if dup:
+        raise ConfigError(f"{path}: experiment name '{sorted(dup)[0]}' is used twice")
+    total = sum(e.n_samples for e in out)
+    if total > MAX_PLAN_SAMPLES:
+        raise ConfigError(f"{path}: the plan asks for {total:,} samples in all, more than "
+                          f"labrig records in one sweep ({MAX_PLAN_SAMPLES:,}); shorten the "
+                          "experiments or lower sample_rate_hz")
+    return out
+
+
+def _check_points(where, points, fs) -> None:
+    """A pwl waveform's breakpoints: 2..64 of them, times from 0 and rising by at least a
+    sample (the firmware's table holds whole samples)."""
+    from labrig.io.experiment import PWL_MAX_POINTS
+
+    if not points or len(points) < 2:
+        raise ConfigError(f"{where}: a pwl waveform needs 'points' = [[t_s, u_v], ...], at "
+                          "least two")
+    if len(points) > PWL_MAX_POINTS:
+        raise ConfigError(f"{where}: {len(points)} breakpoints; a pwl waveform holds at most "
+                          f"{PWL_MAX_POINTS}")
+    if points[0][0] != 0:
+        raise ConfigError(f"{where}: the first breakpoint must be at t = 0 (after the "
+                          f"lead-in), got {points[0][0]:g} s")
+    for i in range(1, len(points)):
+        if points[i][0] - points[i - 1][0] < 1.0 / fs:
+            raise ConfigError(f"{where}: breakpoint {i + 1} at {points[i][0]:g} s is not at "
+                              f"least one sample after the one before ({points[i - 1][0]:g} "
+                              "s); times must rise")
+
+
+def _check_experiment(path, k, e) -> Experiment:
+    """What one key cannot say alone: the waveform's needs and the sampling theorem."""
+    where = f"{path}: experiment {k} ({e.get('name')})"
+    wave = e.get("waveform", "square")
+    if wave == "square" and not e["amplitude_v"] > 0:
+        raise ConfigError(f"{where}: a square wave needs amplitude_v > 0, got "
+                          f"{e['amplitude_v']:g} (it swings +-amplitude; use offset_v to "
+                          "shift it; a step may be negative)")
+    if wave == "square":
+        f, fs = e.get("frequency_hz", 0.25), e["sample_rate_hz"]
+        if f > fs / 10:
+            raise ConfigError(f"{where}: frequency_hz = {f:g} is above a tenth of the sample "
+                              f"rate ({fs:g} Hz): each half period needs at least 5 samples; "
+                              "lower the frequency or raise sample_rate_hz")
+    if wave == "staircase" and not e.get("levels"):
+        raise ConfigError(f"{where}: a staircase needs 'levels' (a list of volts)")
+    if wave == "pwl":
+        _check_points(where, e.get("points"), e["sample_rate_hz"])
+    elif e.get("points"):
+        raise ConfigError(f"{where}: 'points' belong to waveform = \"pwl\"; remove them or "
+                          "set the waveform")
+    if e.get("between"):
+        from labrig.model.effects import CATALOGUE, catalogue_name
+
+        e["between"] = [catalogue_name(n) for n in e["between"]]  # names in any case
+        for name in e["between"]:
+            if name not in CATALOGUE:
+                raise ConfigError(f"{where}: 'between' names {name!r}, not a catalogue "
+                                  f"effect; use {', '.join(sorted(CATALOGUE))}")
+    exp = Experiment(**e)
+    if exp.n_samples > MAX_PLAN_SAMPLES:
+        raise ConfigError(f"{where}: {exp.n_samples:,} samples is more than labrig records "
+                          f"in one run ({MAX_PLAN_SAMPLES:,}); shorten it or lower "
+                          "sample_rate_hz")
+    if exp.n_samples < 2:
+        raise ConfigError(f"{where}: lasts {exp.total_s:g} s, under two samples; make it "
+                          "longer")
+    return exp

@@ -1,0 +1,258 @@
+"""``labrig import``: bring a scope/DAQ export, another lab's CSV or a MATLAB .mat file
+in as a run.
+
+Physical speed is converted to the axis's SI unit (rad/s on a rotary axis, m/s on a
+linear one) and stored as what it is: a ``speed`` column, with ``sensors.speed_unit``
+naming that unit, so the run is self-describing and nothing pretends there was a tacho
+(``labrig analyse`` then reports no tacho volts and no Kt). Physical position is
+converted to rad or m and stored through a unit "virtual pot" (1 V per unit). Encoder
+counts are kept as counts with their resolution (the position's known quantum). Raw
+sensor volts (``tacho=``, ``pos=``) are kept as volts with the gains given on the
+command line. The drive (voltage, torque, force), the axis and a closed loop's
+controller go into the sidecar.
+"""
+from __future__ import annotations
+
+import math
+import re
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from labrig.core.errors import RunFileError, UserError
+from labrig.model.plants import AXES, check_axis
+from labrig.core.schemas import Controller, check_run_name
+from labrig.io.csvfile import read_csv_columns
+from labrig.io.runs import Run, make_meta, write_run
+
+#: physical units per axis -> factor to the axis's SI unit
+SPEED_UNITS = {"rotary": {"rad/s": 1.0, "rpm": 2 * math.pi / 60.0, "deg/s": math.pi / 180.0},
+               "linear": {"m/s": 1.0, "mm/s": 1e-3}}
+POS_UNITS = {"rotary": {"rad": 1.0, "deg": math.pi / 180.0, "rev": 2 * math.pi},
+             "linear": {"m": 1.0, "mm": 1e-3}}
+TIME_UNITS = {"s": 1.0, "ms": 1e-3}
+MAP_TARGETS = ("t", "u", "speed", "pos", "tacho", "ref", "current")
+
+
+def parse_map(text: str) -> dict[str, str]:
+    """``"t=Time,u=CH1,speed=RPM"`` -> ``{"t": "Time", ...}`` (validated)."""
+    out = {}
+    for item in filter(None, (s.strip() for s in text.split(","))):
+        if "=" not in item:
+            raise UserError(f"--map: '{item}' is not TARGET=COLUMN (e.g. t=Time,u=CH1,speed=RPM)")
+        key, col = (s.strip() for s in item.split("=", 1))
+        if key not in MAP_TARGETS:
+            raise UserError(f"--map: unknown target '{key}'; expected one of {', '.join(MAP_TARGETS)}")
+        out[key] = col
+    if "t" not in out:
+        raise UserError("--map: 't=COLUMN' missing; t and u (or ref, in closed loop) are required")
+    if "u" not in out and "ref" not in out:
+        raise UserError("--map: 'u=COLUMN' missing; t and u (or ref, in closed loop) are required")
+    if not ({"speed", "tacho", "pos"} & set(out)):
+        raise UserError("--map: map at least one of speed=, tacho= or pos=")
+    if "speed" in out and "tacho" in out:
+        raise UserError("--map: give speed= (physical units) or tacho= (volts), not both")
+    return out
+
+
+def parse_controller(text: str | None) -> dict | None:
+    """``"pd:kp=2,kd=0.1"`` -> the run's ``experiment.controller`` (validated)."""
+    if text is None:
+        return None
+    kind, _, rest = text.partition(":")
+    body = {"kind": kind.strip().lower()}
+    names = {"kp": "kp", "kd": "kd", "ki": "ki", "limit": "output_limit_v"}
+    for item in filter(None, (s.strip() for s in rest.split(","))):
+        key, _, val = item.partition("=")
+        if key.strip() not in names:
+            raise UserError(f"--controller: unknown gain '{key.strip()}'; use kp, kd, ki, limit "
+                            "(e.g. pd:kp=2,kd=0.1)")
+        try:
+            body[names[key.strip()]] = float(val)
+        except ValueError:
+            raise UserError(f"--controller: '{item}' is not NAME=NUMBER") from None
+    if body["kind"] not in ("pd", "pid"):
+        raise UserError(f"--controller: kind '{kind}' unknown; use pd or pid (e.g. pd:kp=2,kd=0.1)")
+    if "kp" not in body:
+        raise UserError("--controller: kp missing (e.g. pd:kp=2,kd=0.1)")
+    if body["kind"] == "pd" and body.get("ki"):
+        raise UserError("--controller: a pd controller has no ki; write pid:kp=..,kd=..,ki=..")
+    from labrig.core.schemas import validate
+
+    return validate(Controller, body, "--controller", UserError).model_dump(exclude_none=True)
+
+
+def _units(axis: str, pos_unit: str, speed_unit: str) -> tuple[float | None, float, float]:
+    """Counts per axis unit (an encoder) or None, the position and speed factors."""
+    if pos_unit.startswith("counts:"):
+        try:
+            per = float(pos_unit.split(":", 1)[1])
+        except ValueError:
+            per = float("nan")
+        if not math.isfinite(per) or per <= 0:
+            raise UserError(f"--pos-unit: '{pos_unit}' is not counts:N with N > 0 counts per "
+                            f"{'revolution' if axis == 'rotary' else 'metre'}")
+        return (per / (2 * math.pi) if axis == "rotary" else per), 1.0, \
+            _factor("--speed-unit", speed_unit, SPEED_UNITS, axis)
+    return None, _factor("--pos-unit", pos_unit, POS_UNITS, axis), \
+        _factor("--speed-unit", speed_unit, SPEED_UNITS, axis)
+
+
+def _factor(opt, unit, table, axis):
+    if unit in table[axis]:
+        return table[axis][unit]
+    other = "linear" if axis == "rotary" else "rotary"
+    if unit in table[other]:
+        raise UserError(f"{opt}: '{unit}' is a unit of a {other} axis, and this import is "
+                        f"{axis}; add --axis {other} (with --drive force for a linear axis) or "
+                        f"use {', '.join(table[axis])}")
+    raise UserError(f"{opt}: unknown unit '{unit}'; expected one of {', '.join(table[axis])}"
+                    + (", counts:N" if opt == "--pos-unit" else ""))
+
+
+def read_columns(src: Path, columns: list[str]) -> dict:
+    """Named channels of a CSV export or a MATLAB .mat file."""
+    if src.suffix.lower() == ".mat":
+        from labrig.io.matfile import read_mat_columns
+
+        return read_mat_columns(src, columns)
+    return read_csv_columns(src, columns)
+
+
+def import_csv(src: Path | str, outdir: Path | str, mapping: dict[str, str], *,
+               speed_unit: str | None = None, pos_unit: str | None = None,
+               time_unit: str = "s",
+               tacho_gain: float | None = None, pos_gain: float | None = None,
+               pos_offset: float = 0.0, gear_ratio: float = 1.0, amplifier_gain: float = 1.0,
+               name: str | None = None, waveform: str = "custom", loop: str = "open",
+               overwrite: bool = False, position_gain: float | None = None,
+               velocity_gain: float | None = None, drive: str = "voltage",
+               axis: str | None = None, input_gain: float | None = None,
+               controller: dict | None = None, current_gain: float = 1.0) -> Path:
+    """Convert a foreign CSV or .mat file into a labrig run in ``outdir``; return the CSV path.
+
+    ``drive`` and ``axis`` choose the plant (:mod:`labrig.model.plants`); a torque/force
+    drive needs ``input_gain`` (N m or N per input volt). In closed loop a mapped ``ref``
+    is the loop's reference and ``u`` the logged controller output (kept as ``drive``).
+    """
+    src = Path(src)
+    if name is None:  # a file name may hold spaces or brackets; a run name may not
+        name = re.sub(r"[^A-Za-z0-9_.+\-]", "_", src.stem).lstrip(".") or "run"
+    check_run_name(name, "--name")
+    if axis is None:  # from the drive; a unit never switches the plant behind the user
+        axis = "linear" if drive == "force" else "rotary"
+    check_axis(drive, axis)
+    pos_unit = pos_unit or next(iter(POS_UNITS[axis]))
+    speed_unit = speed_unit or next(iter(SPEED_UNITS[axis]))
+    counts_per_unit, pos_factor, speed_factor = _units(axis, pos_unit, speed_unit)
+    if time_unit not in TIME_UNITS:
+        raise UserError(f"--time-unit: unknown unit '{time_unit}'; expected one of "
+                        f"{', '.join(TIME_UNITS)}")
+    for opt, val, positive in (("--tacho-gain", tacho_gain, False), ("--pos-gain", pos_gain, False),
+                               ("--pos-offset", pos_offset, None),
+                               ("--gear-ratio", gear_ratio, True),
+                               ("--amplifier-gain", amplifier_gain, True),
+                               ("--input-gain", input_gain, True),
+                               ("--current-gain", current_gain, False)):
+        if val is None:
+            continue
+        if not math.isfinite(val) or (positive and val <= 0) or (positive is False and val == 0):
+            need = "a positive number" if positive else "a nonzero number" \
+                if positive is False else "a finite number"
+            raise UserError(f"{opt}: {val:g} is not {need}")
+    if drive != "voltage" and input_gain is None:
+        raise UserError(f"--input-gain: a {drive}-driven axis needs its drive's gain kd "
+                        f"({'N m' if drive == 'torque' else 'N'} per input volt), e.g. "
+                        "--input-gain 20")
+    if drive == "voltage" and input_gain is not None:
+        raise UserError("--input-gain: only for --drive torque or force; a voltage drive's "
+                        "gain is --amplifier-gain")
+    if axis == "linear" and gear_ratio != 1.0:
+        raise UserError("--gear-ratio: a linear axis has none (positions are the carriage's)")
+    if loop not in ("open", "closed"):
+        raise UserError(f"--loop: expected open or closed, got '{loop}'")
+    experiment = {"loop": loop, "waveform": waveform}
+    if loop == "closed":
+        # fitted through the loop, the controller is part of the model: without its
+        # gains the fit would be of a different system
+        if controller is not None:
+            if position_gain is not None or velocity_gain is not None:
+                raise UserError("--controller: give the controller or --position-gain/"
+                                "--velocity-gain (the MS150's analog loop), not both")
+            experiment["controller"] = controller
+        else:
+            for opt, v in (("--position-gain", position_gain), ("--velocity-gain", velocity_gain)):
+                if v is None or not math.isfinite(v) or v < 0:
+                    raise UserError(f"--controller: a closed-loop import needs its controller, "
+                                    "e.g. --controller pd:kp=2,kd=0.1 (or the MS150 loop's "
+                                    f"{opt}); got none")
+            experiment.update(position_gain=float(position_gain),
+                              velocity_gain=float(velocity_gain))
+    elif controller is not None or position_gain is not None or velocity_gain is not None:
+        raise UserError("--controller/--position-gain/--velocity-gain: only with --loop closed")
+    elif "u" not in mapping:
+        raise UserError("--map: 'u=COLUMN' missing; an open-loop run needs its input")
+    if "pos" in mapping and pos_gain is None and "tacho" in mapping:
+        raise UserError("--pos-gain is needed with raw-volt columns (tacho=...,pos=...)")
+    if "tacho" in mapping and tacho_gain is None:
+        raise UserError("--tacho-gain (V per rad/s) is needed when mapping raw tacho volts")
+    frame = read_columns(src, list(mapping.values()))
+    t = frame[mapping["t"]] * TIME_UNITS[time_unit]
+    t = t - t[0]
+    closed_ref = loop == "closed" and "ref" in mapping
+    # in closed loop the run's u is the reference; a logged controller output is 'drive'
+    cols = {"t": t, "u": frame[mapping["ref"] if closed_ref else mapping["u"]]}
+    if closed_ref and "u" in mapping:
+        cols["drive"] = frame[mapping["u"]]
+    sensors = {}
+    if "speed" in mapping:  # physical speed: kept as speed, never as made-up tacho volts
+        cols["speed"] = frame[mapping["speed"]] * speed_factor
+        sensors["speed_unit"] = AXES[axis][1]
+    if "tacho" in mapping:
+        cols["tacho"] = frame[mapping["tacho"]]
+        sensors["tacho_v_per_rad_s"] = float(tacho_gain)
+    if "pos" in mapping:
+        if counts_per_unit is not None:  # encoder counts, kept as counts
+            cols["pos"] = frame[mapping["pos"]]
+            sensors.update(pos_v_per_rad=counts_per_unit, pos_offset_v=0.0, pos_kind="encoder",
+                           pos_quantum=1.0 / counts_per_unit)
+        elif pos_gain is None:  # physical position: unit virtual pot
+            cols["pos"] = frame[mapping["pos"]] * pos_factor
+            sensors["pos_v_per_rad"] = 1.0
+            sensors["pos_offset_v"] = 0.0
+        else:
+            cols["pos"] = frame[mapping["pos"]]
+            sensors["pos_v_per_rad"] = float(pos_gain)
+            sensors["pos_offset_v"] = float(pos_offset)
+    if "current" in mapping:
+        cols["current"] = frame[mapping["current"]]
+        sensors["current_a_per_v"] = float(current_gain)
+    if "ref" in mapping and not closed_ref:
+        cols["ref"] = frame[mapping["ref"]]
+    dt = np.diff(t)
+    if (dt <= 0).any():
+        i = int(np.argmax(dt <= 0))
+        raise RunFileError(f"{src}: row {i + 3}, column '{mapping['t']}': time is not "
+                           "increasing; sort the export or remove repeated rows")
+    fs = 1.0 / float(np.median(dt))
+    if abs(fs - round(fs)) < 1e-3 * fs:
+        fs = float(round(fs))
+    rig = {"gear_ratio": float(gear_ratio), "amplifier_gain": float(amplifier_gain),
+           "name": f"imported from {src.name}", "drive": drive, "axis": axis}
+    if input_gain is not None:
+        rig["input_gain"] = float(input_gain)
+    run = Run(name=name or src.stem, data=pd.DataFrame(cols),
+              meta=make_meta(sample_rate_hz=fs, source="import",
+                             experiment=experiment,
+                             sensors=sensors,
+                             rig=rig,
+                             imported_from=str(src.name)))
+    from labrig.core.schemas import Sidecar, validate  # never write a run nobody can read back
+
+    validate(Sidecar, run.meta, f"{src} (as imported)", RunFileError)
+    path = write_run(run, outdir, overwrite=overwrite)
+    from labrig.io.runs import read_run  # validate what we wrote, exactly as every reader will
+
+    read_run(path)
+    return path

@@ -1,0 +1,240 @@
+"""Named channels of a MATLAB .mat file, read like ``csvfile.read_csv_columns`` reads a CSV.
+
+MAT v4, v6 and v7 files are read with :func:`scipy.io.loadmat`; v7.3 files are HDF5 and
+are read with h5py when it is installed. A channel is a numeric vector named by its
+variable: ``s.a.b`` is field ``b`` of field ``a`` of the (scalar) struct ``s``, and
+``m[k]`` is column ``k`` (0-based) of the matrix ``m``. Only numeric arrays are read:
+nothing in the file can make code run (no pickle; MATLAB objects, function handles, text
+and cells are refused as "not numeric"). Every problem is one :class:`RunFileError`
+line that names the file, the variable and the fix.
+"""
+from __future__ import annotations
+
+import difflib
+import re
+from pathlib import Path
+
+import numpy as np
+
+from labrig.core.errors import RunFileError
+
+#: a larger file is refused before reading (the same bound as csvfile.MAX_CSV_BYTES)
+MAX_MAT_BYTES = 2_000_000_000
+_HDF5_MAGIC = b"\x89HDF\r\n\x1a\n"
+_SPEC = re.compile(r"([A-Za-z]\w*(?:\.[A-Za-z]\w*)*)(?:\[(\d+)\])?")
+_NUMERIC = {"double", "single", "logical", "int8", "uint8", "int16", "uint16",
+            "int32", "uint32", "int64", "uint64"}
+
+
+def read_mat_columns(path: Path | str, columns: list[str]) -> dict[str, np.ndarray]:
+    """Named numeric channels of a MAT file, each a 1-D float64 array of the same length.
+
+    Parameters
+    ----------
+    path : Path or str
+        A MATLAB v4, v6, v7 or v7.3 .mat file (v7.3 needs h5py).
+    columns : list of str
+        ``x``, ``struct.field.field`` or ``matrix[k]`` (column k, 0-based; a row or column
+        vector is one column, so only ``[0]`` applies to it).
+
+    Returns
+    -------
+    dict of str to numpy.ndarray
+        Keyed by the names in `columns`.
+
+    Raises
+    ------
+    RunFileError
+        The file or a channel is missing, unreadable, not numeric, complex, shorter than
+        two samples or not finite, or the channels differ in length.
+    """
+    path = Path(path)
+    specs = [_parse(path, c) for c in columns]
+    root, names = _load(path, list(dict.fromkeys(n.split(".")[0] for n, _ in specs)))
+    out = {col: _channel(path, col, name, k, _lookup(path, root, names, col, name))
+           for col, (name, k) in zip(columns, specs)}
+    for col in columns[1:]:
+        if len(out[col]) != len(out[columns[0]]):
+            raise RunFileError(f"{path}: channels '{columns[0]}' ({len(out[columns[0]])} "
+                               f"samples) and '{col}' ({len(out[col])} samples) differ in "
+                               "length; save channels of the same recording")
+    return out
+
+
+def list_mat_variables(path: Path | str) -> list[str]:
+    """Top-level variable names of a MAT file (any version), in file order, each struct
+    followed by its fields (``s``, ``s.a``, ``s.b``); see :func:`read_mat_columns`."""
+    root, names = _load(Path(path), None, read=False)
+    out = []
+    for name in names:
+        out.append(name)
+        if isinstance(root.get(name), dict):
+            out += [f"{name}.{f}" for f in root[name]]
+    return out
+
+
+def _parse(path: Path, col: str) -> tuple[str, int | None]:
+    m = _SPEC.fullmatch(col.strip())
+    if m is None:
+        raise RunFileError(f"{path}: '{col}' is not a channel name; write 'var', "
+                           "'struct.field' or 'var[k]' for column k (0-based)")
+    return m.group(1), None if m.group(2) is None else int(m.group(2))
+
+
+def _load(path: Path, tops: list[str] | None, read: bool = True) -> tuple[dict, list[str]]:
+    """(the variables `tops` as trees, all top-level names); `tops` None: the structs."""
+    if not path.is_file():
+        raise RunFileError(f"{path}: file not found")
+    size = path.stat().st_size
+    if size > MAX_MAT_BYTES:
+        raise RunFileError(f"{path}: {size / 1e9:.1f} GB is more than labrig reads "
+                           f"({MAX_MAT_BYTES / 1e9:.0f} GB); save fewer or shorter channels")
+    if size == 0:
+        raise RunFileError(f"{path}: not a MAT file (the file is empty)")
+    with path.open("rb") as fh:
+        head = fh.read(520)
+    # v7.3 is HDF5 behind a 512-byte MATLAB text header; scipy cannot read it
+    if not (head.startswith(b"MATLAB 7.3") or _HDF5_MAGIC in (head[:8], head[512:520])):
+        from scipy.io import loadmat, whosmat
+        try:
+            whos = whosmat(str(path), appendmat=False)
+            names = [n for n, _, _ in whos]
+            if tops is None:
+                tops = [n for n, _, cls in whos if cls == "struct"]
+            with path.open("rb") as fh:  # struct_as_record=False: structs as attributes
+                got = loadmat(fh, appendmat=False, struct_as_record=False,
+                              variable_names=tops) if tops else {}
+            return {k: _tree_v5(v) for k, v in got.items() if k in names}, names
+        except NotImplementedError:
+            pass  # scipy says v7.3 (HDF5) despite the header: read it as HDF5 below
+        except Exception as exc:  # scipy raises many types for a damaged/foreign file
+            if b"\0" not in head[:128]:  # a real header holds binary version bytes
+                raise RunFileError(f"{path}: not a MAT file (it is text, e.g. a CSV "
+                                   "renamed; import it as a CSV)") from None
+            raise RunFileError(f"{path}: not a readable MAT file ({exc}); re-save it in "
+                               "MATLAB with save(..., '-v7')") from None
+    try:
+        import h5py
+    except ImportError:
+        raise RunFileError(f"{path}: the file is MATLAB v7.3 (HDF5); install h5py (pip "
+                           "install h5py) or re-save it in MATLAB with save(..., '-v7')") from None
+    try:
+        with h5py.File(path, "r") as f:
+            names = [k for k in f if not k.startswith("#")]  # #refs#, #subsystem#
+            tops = names if tops is None else tops
+            return {t: _tree_h5(f[t], read) for t in tops if t in names}, names
+    except OSError as exc:
+        raise RunFileError(f"{path}: not a readable MATLAB v7.3 (HDF5) file ({exc}); "
+                           "re-save it in MATLAB with save(..., '-v7')") from None
+
+
+def _tree_v5(v):
+    """A scipy value as a tree: dict (struct), ndarray (numeric) or str (what it is)."""
+    from scipy import sparse
+    from scipy.io import matlab as m
+    if sparse.issparse(v):
+        return "a sparse matrix (save full(x) instead)"
+    # the MATLAB wrappers subclass ndarray: test them first
+    if isinstance(v, m.MatlabFunction):
+        return "a function handle"
+    if isinstance(v, m.MatlabObject):
+        return f"a MATLAB object of class '{v.classname}'"
+    if isinstance(v, m.MatlabOpaque) or not isinstance(v, np.ndarray):
+        return "a MATLAB object"
+    if v.dtype.kind in "US":
+        return "text (a char array)"
+    if v.dtype.kind == "O" or v.dtype.names:
+        if v.size and isinstance(v.flat[0], m.mat_struct):
+            if v.size > 1:
+                return f"a {'x'.join(map(str, v.shape))} struct array (not one struct)"
+            return {f: _tree_v5(getattr(v.flat[0], f)) for f in v.flat[0]._fieldnames}
+        return "a cell array"
+    return v
+
+
+def _tree_h5(node, read: bool):
+    """An HDF5 node as a tree like :func:`_tree_v5`, transposed back to MATLAB's shape."""
+    import h5py
+    cls = node.attrs.get("MATLAB_class", b"")
+    cls = cls.decode() if isinstance(cls, bytes) else str(cls)
+    if isinstance(node, h5py.Group):
+        if "MATLAB_sparse" in node.attrs:
+            return "a sparse matrix (save full(x) instead)"
+        if cls in ("struct", ""):
+            return {k: _tree_h5(node[k], read) for k in node}
+        return f"a MATLAB object of class '{cls}'"
+    kinds = {"char": "text (a char array)", "cell": "a cell array",
+             "function_handle": "a function handle"}
+    if cls in kinds or (cls and cls not in _NUMERIC):
+        return kinds.get(cls, f"a MATLAB object of class '{cls}'")
+    if not read:
+        return ""
+    if node.attrs.get("MATLAB_empty", 0):  # the dataset then holds the dimensions
+        return np.zeros((0, 0))
+    if node.dtype.names and {"real", "imag"} <= set(node.dtype.names):
+        raw = node[()]
+        return np.asarray(raw["real"] + 1j * raw["imag"]).T
+    if node.dtype.kind not in "biuf":
+        return f"not numeric (HDF5 type {node.dtype})"
+    return np.asarray(node[()]).T
+
+
+def _names(items) -> str:
+    items = list(items)
+    more = f", ... ({len(items)} in all)" if len(items) > 20 else ""
+    return ", ".join(items[:20]) + more if items else "nothing"
+
+
+def _lookup(path: Path, root: dict, names: list[str], col: str, name: str):
+    node, where = root, ""
+    for part in name.split("."):
+        if not isinstance(node, dict):
+            what = node if isinstance(node, str) else "a numeric array"
+            raise RunFileError(f"{path}: variable '{col}' not found: '{where}' is {what}, "
+                               "not a struct")
+        if part not in node:
+            have = names if not where else list(node)
+            close = difflib.get_close_matches(part, have, n=1, cutoff=0.6)
+            hint = f" (did you mean '{where + '.' if where else ''}{close[0]}'?)" if close else ""
+            what = f"struct '{where}' has fields" if where else "the file has"
+            raise RunFileError(f"{path}: variable '{col}' not found{hint}; {what} "
+                               f"{_names(have)}")
+        node, where = node[part], f"{where}.{part}" if where else part
+    return node
+
+
+def _channel(path: Path, col: str, name: str, k: int | None, val) -> np.ndarray:
+    if isinstance(val, dict):
+        val = f"a struct (name a field, e.g. '{name}.{next(iter(val), 'field')}')"
+    if isinstance(val, str):
+        raise RunFileError(f"{path}: variable '{name}' is {val}, not numeric; save each "
+                           "channel as a numeric vector")
+    if np.iscomplexobj(val):
+        raise RunFileError(f"{path}: variable '{name}' is complex; save real({name}) and "
+                           f"imag({name}) as separate channels")
+    if val.size == 0:
+        raise RunFileError(f"{path}: variable '{name}' is empty")
+    if val.ndim > 2:
+        raise RunFileError(f"{path}: variable '{name}' is a {'x'.join(map(str, val.shape))}"
+                           " array; save one channel per variable")
+    arr = val.reshape(-1, 1) if val.ndim < 2 or val.shape[0] == 1 else val  # vector: 1 column
+    rows, ncols = arr.shape
+    if k is not None and k >= ncols:
+        raise RunFileError(f"{path}: '{col}' asks for column {k} but '{name}' is "
+                           f"{rows}x{ncols} (columns 0..{ncols - 1}, 0-based)")
+    if k is None and ncols > 1:
+        rows_hint = f", or save it transposed ({name}.') if the channels are rows" \
+            if rows < ncols else ""
+        raise RunFileError(f"{path}: variable '{name}' is a {rows}x{ncols} matrix, not one "
+                           f"channel; name a column as '{name}[k]' (k = 0..{ncols - 1}, "
+                           f"0-based) or save one channel per variable{rows_hint}")
+    x = arr[:, k or 0].astype(np.float64)
+    if x.size < 2:
+        raise RunFileError(f"{path}: variable '{col}' has only one sample; a channel needs "
+                           "at least two")
+    bad = ~np.isfinite(x)
+    if bad.any():
+        i = int(np.argmax(bad))
+        raise RunFileError(f"{path}: variable '{col}' has a non-finite value ({x[i]}) at "
+                           f"index {i} (0-based); fill or trim it before importing")
+    return x

@@ -1,0 +1,180 @@
+"""``labrig diagnose --auto``: the missing-physics loop run to the end.
+
+:func:`labrig.loop.search.search` adds, pairs, swaps and removes effects round after round
+until the cross-validated error stops falling (or ``max_rounds`` effects were added).
+The result holds the final model, the error ladder (in-sample and cross-validated),
+the moves of the search, the thresholds of the final model stated through the effects
+in front of them, and the *confusable pairs*: candidates that explain the data about
+equally well, with the regime where their predictions differ most (where an experiment
+should look).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from labrig.loop.ranking import Candidate, Diagnosis
+from labrig.loop.explain import thresholds
+from labrig.loop.ladder import Ladder
+from labrig.model.effects import get_effect
+from labrig.model.model import Model
+from labrig.loop.residuals import REGIME_TEXT
+from labrig.core.tables import Table, fmt
+from labrig.core.display import Displayable
+
+#: two candidates are confusable when their errors differ by less than this (relative)
+CONFUSABLE = 0.10
+
+
+@dataclass
+class ConfusablePair:
+    """Two effects that explain the data about equally well."""
+
+    first: str
+    second: str
+    rmse_over_noise: tuple
+    differ_in: dict | None  # {"channel", "regime", "first", "second"}: where they differ most
+    round: int
+
+    def to_json(self) -> dict:
+        return {"pair": [self.first, self.second], "rmse_over_noise": list(self.rmse_over_noise),
+                "differ_in": self.differ_in, "round": self.round}
+
+
+@dataclass(repr=False)
+class AutoDiagnosis(Displayable):
+    """Every round's diagnosis, the final model, its ladder and the confusable pairs."""
+
+    rounds: list[Diagnosis]
+    model: Model
+    ladder: Ladder
+    confusable: list[ConfusablePair] = field(default_factory=list)
+    moves: list = field(default_factory=list)
+    thresholds: str = ""
+
+    def headline(self) -> str:
+        return (f"AutoDiagnosis: final effects {', '.join(self.model.names) or 'none'} after "
+                f"{len(self.rounds)} round(s)")
+
+    @property
+    def added(self) -> list[str]:
+        """Effects added, in order (a pair adds two; swaps and removals not counted)."""
+        return [e for m in self.moves if m.kind in ("add", "pair") for e in m.effects]
+
+    @property
+    def verdict(self) -> str:
+        if not self.rounds:
+            return ""
+        last = self.rounds[-1]
+        head = (f"Final model: {', '.join(self.model.names) or 'no effects'}. "
+                + (self.thresholds + " " if self.thresholds else ""))
+        return head + last.verdict if not last.recommendation else head
+
+    def to_json(self) -> dict:
+        first = self.rounds[0] if self.rounds else None
+        return {"effects": self.model.names, "added": self.added,
+                "moves": [m.to_json() for m in self.moves],
+                "final_model": self.model.to_json(), "ladder": self.ladder.to_json()["steps"],
+                "confusable": [p.to_json() for p in self.confusable],
+                "thresholds": self.thresholds,
+                "noise": first.noise if first else {}, "weights": first.weights if first else {},
+                "cross_validation": first.cross_validation if first else None,
+                "rounds": [d.to_json() for d in self.rounds],
+                "verdict": self.verdict}
+
+    def table_rows(self) -> list[Table]:
+        pairs = Table("confusable pairs", ["round", "pair", "rmse/noise", "they differ most in"])
+        pairs.notes.append("about equally good explanations: an experiment should decide")
+        for p in self.confusable:
+            d = p.differ_in
+            where = (f"{REGIME_TEXT[d['regime']]} of the {d['channel']} "
+                     f"({d['first']:.2f} vs {d['second']:.2f})") if d else "-"
+            pairs.rows.append([str(p.round), f"{p.first} / {p.second}",
+                               f"{fmt(p.rmse_over_noise[0], '.2f')} / "
+                               f"{fmt(p.rmse_over_noise[1], '.2f')}", where])
+        if not self.confusable:
+            pairs.notes.append("none: every supported effect was clearly better than the next")
+        return [self.ladder.table_rows(), pairs]
+
+    def to_text(self) -> str:
+        out = [t.to_text() + "\n" for t in self.table_rows()]
+        if self.moves:
+            out.append("moves: " + "; ".join(f"round {m.round}: {m.label} (cross-validated "
+                                              f"{m.cv_before:.2f} -> {m.cv_after:.2f})"
+                                              for m in self.moves))
+        if self.rounds:
+            first = self.rounds[0]
+            for v in first.noise.values():
+                out.append(f"noise floor, {v['method']}")
+            if first.cross_validation:
+                out.append(f"cross-validation: {first.cross_validation['folds']} folds, "
+                           f"{first.cross_validation['kind']}")
+        out.append(f"final model: {self.model.describe()}")
+        out.append(self.verdict)
+        return "\n".join(out)
+
+    def plot(self, ax=None):
+        return self.ladder.plot(ax=ax)
+
+
+def confusable_pairs(diag: Diagnosis, round_no: int, margin: float = CONFUSABLE) -> list:
+    """Candidates of one round that clearly improve the model (by the diagnosis' minimum
+    gain) and lie within ``margin`` of the best one, each paired with the best, and the
+    regime where their errors differ most. Members of one family (a symmetric and an
+    asymmetric dead zone, Coulomb friction and stiction) are not pairs: one is the other
+    with a parameter more, and the search already prefers the simpler."""
+    useful = [c for c in diag.ranking if c.improvement >= diag.criteria["min_improvement"]]
+    if len(useful) < 2:
+        return []
+    best = min(useful, key=lambda c: c.rmse_over_noise)
+    out = []
+    for c in useful:
+        if c is best or c.rmse_over_noise > (1 + margin) * best.rmse_over_noise:
+            continue
+        if get_effect(c.effect).family_name == get_effect(best.effect).family_name:
+            continue  # one is the other with a parameter more: not a different explanation
+        out.append(ConfusablePair(best.effect, c.effect, (best.rmse_over_noise, c.rmse_over_noise),
+                                  _where_they_differ(best, c), round_no))
+    return out
+
+
+def _where_they_differ(a: Candidate, b: Candidate) -> dict | None:
+    best = None
+    for ch, regs in (a.regimes or {}).get("by_regime", {}).items():
+        for reg, va in regs.items():
+            vb = (b.regimes or {}).get("by_regime", {}).get(ch, {}).get(reg)
+            if vb is None or va["share_of_time"] < 0.005:
+                continue
+            gap = abs(va["rmse_over_noise"] - vb["rmse_over_noise"])
+            if best is None or gap > best[0]:
+                best = (gap, {"channel": ch, "regime": reg, "first": va["rmse_over_noise"],
+                              "second": vb["rmse_over_noise"]})
+    return best[1] if best else None
+
+
+def auto_diagnose(runs, model: Model | None = None, *, max_rounds: int = 3, seed: int = 0,
+                  fixed: dict | None = None, weights=None, log=None) -> AutoDiagnosis:
+    """Run the search (:func:`labrig.loop.search.search`) and name the confusable pairs of
+    every round.
+
+    Parameters
+    ----------
+    runs : list of Run
+    model : Model, optional
+        Where to start (default: the linear model, identified by the first round).
+    max_rounds : int
+        At most this many effects are added.
+    seed : int
+    fixed : dict, optional
+        Parameters known from other measurements.
+    weights : Weights, optional
+        Channel weights (default: balanced on the starting model).
+    log : callable(str), optional
+    """
+    from labrig.loop.search import search
+
+    res = search(runs, model, max_rounds=max_rounds, seed=seed, fixed=fixed, weights=weights,
+                 log=log)
+    pairs = [p for k, diag in enumerate(res.rounds, 1) for p in confusable_pairs(diag, k)]
+    return AutoDiagnosis(rounds=res.rounds, model=res.model, ladder=res.ladder,
+                         confusable=pairs, moves=res.moves,
+                         thresholds=thresholds(res.model, runs))

@@ -1,0 +1,114 @@
+"""Did the proposed runs decide? Both explanations fitted with and without them.
+
+``labrig diagnose DIR DIR/new`` calls :func:`decide` when some runs carry
+``experiment.between`` (they were proposed by :func:`labrig.loop.propose.propose`).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from labrig.core.display import Displayable
+from labrig.core.errors import UserError
+from labrig.core.tables import Table
+from labrig.io.runs import Run
+from labrig.loop.refit import refit_with, without
+from labrig.model.effects import catalogue_name, get_effect
+from labrig.model.model import Model
+
+
+@dataclass(repr=False)
+class Decision(Displayable):
+    """How well each of a pair explains the data before and after the proposed runs."""
+
+    pair: tuple
+    before: dict          # effect -> rmse/noise on the runs without the proposed ones
+    after: dict           # effect -> rmse/noise on all runs
+    new_runs: list
+
+    @staticmethod
+    def separation(r: dict) -> float:
+        """The worse explanation's rmse/noise over the better one's, minus one."""
+        lo, hi = sorted(r.values())
+        return hi / lo - 1.0
+
+    @property
+    def leader(self) -> str:
+        return min(self.after, key=self.after.get)
+
+    def to_json(self) -> dict:
+        return {"between": list(self.pair), "new_runs": self.new_runs,
+                "rmse_over_noise_before": self.before, "rmse_over_noise_after": self.after,
+                "separation_before": self.separation(self.before),
+                "separation_after": self.separation(self.after), "leader": self.leader}
+
+    def headline(self) -> str:
+        return f"Decision between {self.pair[0]} and {self.pair[1]}: {self.leader} explains better"
+
+    def table_rows(self) -> Table:
+        t = Table("rmse/noise before and after the proposed runs",
+                  ["explanation", "before", "after"], numeric=(1, 2))
+        t.rows = [[e, f"{self.before[e]:.2f}", f"{self.after[e]:.2f}"] for e in self.pair]
+        t.notes.append(f"separation (worse over better, minus one): "
+                       f"{self.separation(self.before):.3f} before, "
+                       f"{self.separation(self.after):.3f} after")
+        return t
+
+    def _figure_for_html(self):
+        return None
+
+    def to_text(self) -> str:
+        a, b = self.pair
+        sb, sa = self.separation(self.before), self.separation(self.after)
+        other = b if self.leader == a else a
+        grew = f", {sa / sb:.1f} times" if sb > 0.01 else ""
+        return (f"the run(s) proposed to tell {a} and {b} apart ({', '.join(self.new_runs)}): "
+                f"separation {sb:.3f} before, {sa:.3f} after (worse rmse/noise over better, "
+                f"minus one{grew}). {self.leader} explains the data better (rmse/noise "
+                f"{self.after[self.leader]:.2f} against {self.after[other]:.2f}).")
+
+
+def _best_fit_with(runs, base: Model, effect: str, seed: int, start: Model | None):
+    """The best of a re-fit from ``start`` and a fit from scanned starts on ``base``."""
+    from labrig.loop.refit import refit
+
+    fits = [refit_with(runs, base, get_effect(effect), seed=seed)]
+    if start is not None:
+        fits.append(refit(runs, start, seed=seed))
+        # the earlier fit's plant with the effect scanned afresh: new runs may show the
+        # effect where the earlier ones could not place its parameters (a breakaway)
+        fits.append(refit_with(runs, without(start, effect), get_effect(effect), seed=seed))
+    return min(fits, key=lambda f: f.fitness)
+
+
+def decide(runs: list[Run], model: Model | None = None, *, seed: int = 0, log=None):
+    """When some runs were proposed to tell two effects apart (``experiment.between``),
+    fit both explanations with and without them; None when no run was proposed."""
+    from labrig.loop.diagnose import linear_model
+
+    new = [r for r in runs if r.experiment.get("between")]
+    if not new:
+        return None
+    pair = tuple(catalogue_name(n) for n in new[0].experiment["between"])
+    old = [r for r in runs if not r.experiment.get("between")]
+    if not old:
+        raise UserError("the proposed runs alone cannot show a change: give the folder they "
+                        "were proposed for too (labrig diagnose DIR DIR/new)")
+    say = log or (lambda s: None)
+    out, prev = {}, {}
+    for label, data in (("before", old), ("after", runs)):
+        base = linear_model(data, seed=seed)
+        if model is not None:  # the model's other effects stay (not the pair's families)
+            families = {get_effect(n).family_name for n in pair}
+            for e in model.effects:
+                if e.name not in pair and e.family_name not in families:
+                    base = _best_fit_with(data, base, e.name, seed, None).model()
+        res = {}
+        for name in pair:
+            say(f"fitting {name} on the runs {'with' if label == 'after' else 'without'} "
+                "the proposed ones")
+            # after: also from the fit before, which already explains the old runs
+            fit_ = _best_fit_with(data, base, name, seed, prev.get(name))
+            prev[name] = fit_.model()
+            res[name] = float(fit_.metrics["rmse_over_noise"]["overall"])
+        out[label] = res
+    return Decision(pair, out["before"], out["after"], [r.name for r in new])

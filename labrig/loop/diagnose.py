@@ -1,0 +1,268 @@
+"""The missing-physics loop: where the model fails, which catalogue effect is missing,
+and the evidence, in numbers and in words.
+
+``diagnose(runs, model)``:
+
+1. simulates the current model and locates its error by regime and amplitude against
+   each channel's honest noise floor (``labrig.analysis.noise``), with the channels weighted so
+   that neither drowns the other;
+2. re-fits the model with every catalogue effect it lacks, from starts scanned over
+   the range the data can see and in two basins of the electrical pole
+   (``labrig.loop.refit``), so no threshold starts on a plateau;
+3. compares the candidates on equal terms: BIC with the sample count corrected for
+   the colour of simulation residuals, and the error on data the fits did not see,
+   by cross-validation (``labrig.loop.crossval``: whole runs held out in turn, or blocks
+   of a single long run), so an extra parameter cannot win by overfitting or by luck;
+4. explains the winner: what it is in the rig, where its signature shows in these
+   runs (the regimes that carry the held-out evidence), and the experiment that would
+   confirm it. ``recommendation`` is None when nothing earns its parameters.
+"""
+from __future__ import annotations
+
+import math
+import time
+
+from labrig.loop.crossval import cross_validate, make_folds, regime_evidence
+from labrig.loop.ranking import Candidate, Diagnosis
+from labrig.core.errors import UserError
+from labrig.loop.evaluation import Evaluation, evaluate
+from labrig.loop.explain import context as explain_context
+from labrig.identification.engine import dataset_constants, identify
+from labrig.identification.result import at_bounds as bound_sides
+from labrig.model.effects import CATALOGUE, catalogue_name, get_effect
+from labrig.model.model import Model, param_keys
+from labrig.model.reach import Reach
+from labrig.analysis.noise import Weights
+from labrig.loop.refit import refit, refit_with
+from labrig.loop.residuals import REGIME_TEXT, worst_regime
+from labrig.io.runs import require_excitation
+
+#: a candidate must lower the cross-validated (and the in-sample) error by this much
+MIN_GAIN = 0.05
+#: and be strongly supported by BIC (Kass & Raftery: |dBIC| > 10 is "very strong")
+MIN_DBIC = -10.0
+#: below this rmse/noise the model is called at the noise floor (in words only: the
+#: decision is the cross-validation's)
+FLOOR = 1.15
+#: candidates cross-validated per round (the best by in-sample error)
+CV_CANDIDATES = 4
+#: relative penalty per extra parameter when held-out errors are compared
+PARSIMONY = 0.02
+
+
+def balanced_weights(ev: Evaluation) -> Weights:
+    """Channel weights that give each channel the same say at the starting model: each
+    channel's squared error divided by its own mean square, normalised so the weights
+    average to one over the samples (equal to p = q = 1 when both channels miss by the
+    same factor, as on an analogue rig)."""
+    r = ev.metrics["rmse_over_noise"]
+    if "speed" not in r or "position" not in r:
+        return Weights()
+    q, p = 1.0 / max(r["speed"], 1.0) ** 2, 1.0 / max(r["position"], 1.0) ** 2
+    n = ev.metrics.get("counts", {})
+    nw, nt = n.get("speed", 1), n.get("position", 1)
+    scale = (nw + nt) / (q * nw + p * nt)
+    return Weights(p=p * scale, q=q * scale)
+
+
+def bic(sse, n, n_eff, k):
+    """BIC with the effective sample count (residual colour corrected)."""
+    return n_eff * math.log(max(sse, 1e-300) / n) + k * math.log(n_eff)
+
+
+def at_bounds(ident) -> list[str]:
+    """Effect parameters of a fit that ended at a bound of the search space, in words.
+
+    The words name the side and the direction only: what a bound means differs by
+    effect (a dead zone at its lower bound is absent, a rail at its upper one is)."""
+    return [f"{n} = {v:.3g} at the {side} bound {b:.3g} of its search range (the data may "
+            f"want a value {'below' if side == 'lower' else 'above'} it)"
+            for n, v, side, b in bound_sides(ident.space, ident.params) if "." in n]
+
+
+def linear_model(runs, *, seed=0, fixed=None, weights=Weights(), start: Model | None = None) -> Model:
+    """The model without effects, identified: CO from four starts (or from ``start``),
+    then both basins of the electrical pole."""
+    if start is None:
+        ident = identify(runs, "co", [], seed=seed, starts=4, fixed=fixed, identifiability=False,
+                         p=weights.p, q=weights.q)
+        start = ident.model()
+    else:
+        ident = None
+    again = refit(runs, start, seed=seed, fixed=fixed, weights=weights)
+    return again.model() if ident is None else min([ident, again], key=lambda f: f.fitness).model()
+
+
+def candidate_names(base: Model, candidates=None) -> list[str]:
+    """Catalogue effects ``base`` could take: not already in it, not a second friction
+    law, output map or delay, not a second member of a family (a second dead zone)."""
+    names = [catalogue_name(n) for n in candidates] if candidates else \
+        [n for n in CATALOGUE if n not in base.names]
+    taken = {e.stage for e in base.effects if e.stage in ("friction", "output", "delay")}
+    families = {e.family_name for e in base.effects}
+    out = []
+    for n in names:
+        eff = get_effect(n)
+        if eff.stage in taken or eff.family_name in families:
+            continue
+        out.append(n)
+    return out
+
+
+def diagnose(runs, model: Model | None = None, *, candidates=None, seed: int = 0,
+             fixed: dict | None = None, progress=None, weights: Weights | None = None,
+             folds=None) -> Diagnosis:
+    """Locate the model's error and rank the missing effects.
+
+    Parameters
+    ----------
+    runs : list of Run
+    model : Model, optional
+        The current model; default: the linear model identified here (CO).
+    candidates : list of str, optional
+        Catalogue names to try (default: every effect the model lacks).
+    seed : int
+    fixed : dict, optional
+        Parameters known from other measurements.
+    progress : callable(i, name), optional
+    weights : Weights, optional
+        Channel weights (default: balanced on the starting model).
+    folds : Folds, optional
+        Cross-validation folds (default: :func:`labrig.loop.crossval.make_folds`).
+
+    Returns
+    -------
+    Diagnosis
+    """
+    from labrig.model.warm import ready
+
+    ready()  # a first compile is announced and kept out of the timing
+    t0 = time.perf_counter()
+    if not runs:
+        raise UserError("the data set is empty: give a folder with at least one run")
+    require_excitation(runs, "diagnose")
+    fixed = dict(fixed or {})
+    if model is None:
+        base = linear_model(runs, seed=seed, fixed=fixed)
+        base_source = "identified without effects (co)"
+        if weights is None:
+            weights = balanced_weights(evaluate(runs, base))
+            if weights != Weights():  # the linear fit again, on the balanced objective
+                base = linear_model(runs, seed=seed, fixed=fixed, weights=weights, start=base)
+    else:
+        base = model
+        base_source = "the given model"
+    weights = weights or balanced_weights(evaluate(runs, base))
+    ev0 = evaluate(runs, base, weights=weights)
+    sig = ev0.sigmas
+    n = ev0.n
+    rho = min(max(ev0.rho1, 0.0), 0.995)
+    n_eff = max(n * (1 - rho) / (1 + rho), 10.0)
+    k0 = len(param_keys(base)) - len(fixed)
+    bic0 = bic(ev0.wsse, n, n_eff, k0)
+    f0 = ev0.fitness
+    reach = Reach.of(runs, base)
+
+    ranking: list[Candidate] = []
+    for i, name in enumerate(candidate_names(base, candidates)):
+        eff = get_effect(name)
+        if progress:
+            progress(i, name)
+        ident = refit_with(runs, base, eff, seed=seed, fixed=fixed, weights=weights, reach=reach)
+        cand = ident.model()
+        ev = evaluate(runs, cand, sig, weights=weights)
+        bic1 = bic(ev.wsse, n, n_eff, k0 + len(eff.params))
+        ranking.append(Candidate(effect=name, rmse_over_noise=ev.rmse,
+                                 improvement=1.0 - ev.fitness / f0, delta_bic=bic1 - bic0,
+                                 params=dict(cand.effect_params[name]),
+                                 fit_percent=ev.metrics["fit_percent"], model=cand,
+                                 evaluation=ev, at_bound=at_bounds(ident)))
+
+    folds = folds or make_folds(runs)
+    cv0 = cross_validate(runs, base, folds, sigmas=sig, weights=weights, seed=seed,
+                         fixed=fixed, reach=reach)
+    by_fit = sorted(ranking, key=lambda c: -c.improvement)
+    for c in [c for c in by_fit if c.improvement >= MIN_GAIN][:CV_CANDIDATES]:
+        cv = cross_validate(runs, c.model, folds, sigmas=sig, weights=weights, seed=seed,
+                            fixed=fixed, reach=Reach.of(runs, c.model))
+        better = sum(b < a for a, b in zip(cv0.per_fold, cv.per_fold))
+        c.cross_validated = {"baseline": cv0.rmse, "with_effect": cv.rmse,
+                             "improvement": 1.0 - cv.rmse / cv0.rmse,
+                             "folds_improved": better, "folds": len(folds.folds),
+                             "evidence": regime_evidence(cv0, cv)}
+    for c in ranking:
+        cv = c.cross_validated
+        c.supported = bool(cv is not None and c.delta_bic < MIN_DBIC
+                           and c.improvement >= MIN_GAIN and cv["improvement"] >= MIN_GAIN
+                           and cv["folds_improved"] > cv["folds"] / 2)
+    ranking.sort(key=lambda c: (c.cross_validated is None,
+                                _score(c) if c.cross_validated else 0.0, c.delta_bic))
+    supported = [c for c in ranking if c.supported]
+    rec = supported[0].effect if supported else None
+    for c in ranking:
+        c.explanation = explain(c, ev0, explain_context(c.model, runs))
+    worst = worst_regime(ev0.regimes)
+    regimes = {"by_regime": ev0.regimes["by_regime"], "by_amplitude": ev0.regimes["by_amplitude"],
+               "worst": None if worst is None else {"channel": worst[0], "regime": worst[1],
+                                                     "rmse_over_noise": worst[2]},
+               "noise": ev0.metrics["noise"]}
+    rmse0 = ev0.rmse
+    if rec is not None:
+        verdict = f"Add {rec}: " + next(c for c in ranking if c.effect == rec).explanation
+    elif rmse0 <= FLOOR:
+        verdict = (f"The model is at the noise floor (rmse/noise {rmse0:.2f}) and no effect "
+                   "predicts held-out data better: nothing is missing that these data can show.")
+    else:
+        verdict = (f"The model misses (rmse/noise {rmse0:.2f}) but no catalogue effect earns its "
+                   "parameters on BIC and on held-out data; the cause may be outside the catalogue "
+                   "(write your own effect: docs/physics.md, 'Writing your own effect'), in the "
+                   "sensors' calibration, or in effects that only act together (diagnose --auto "
+                   "tries pairs).")
+    return Diagnosis(
+        baseline={"source": base_source, "effects": base.names,
+                  "fitness": ev0.metrics["fitness"],
+                  "rmse_over_noise": ev0.metrics["rmse_over_noise"],
+                  "fit_percent": ev0.metrics["fit_percent"], "bic": bic0,
+                  "n": n, "n_effective": n_eff, "cross_validated": cv0.rmse},
+        regimes=regimes, ranking=ranking, recommendation=rec, verdict=verdict,
+        cross_validation={"kind": folds.kind, "folds": len(folds.folds),
+                          "baseline": cv0.rmse, "channels": cv0.channels},
+        noise={ch: f.to_json() for ch, f in ev0.floors.items()},
+        weights=weights.to_json(),
+        criteria={"min_improvement": MIN_GAIN, "max_delta_bic": MIN_DBIC, "floor": FLOOR},
+        seconds=round(time.perf_counter() - t0, 2), base=base, evaluation=ev0,
+        constants=dataset_constants(runs), dataset=[r.name for r in runs], folds=folds,
+        cv_baseline=cv0)
+
+
+def _score(c: Candidate) -> float:
+    """Cross-validated error with a mild penalty per extra parameter, so a simpler effect
+    that predicts held-out data about as well ranks first (a symmetric dead zone over an
+    asymmetric one that fits no better, Coulomb friction over stiction)."""
+    extra = len(get_effect(c.effect).params) - 1
+    return c.cross_validated["with_effect"] * (1 + PARSIMONY * extra)
+
+
+def explain(entry: Candidate, ev0: Evaluation, const: dict) -> str:
+    """Plain words with numbers: what, where in these runs, how much, how to confirm."""
+    eff = entry.model.effects.by_name(entry.effect)
+    cv = entry.cross_validated
+    if cv:
+        held = (f" Cross-validated: {cv['baseline']:.2f} -> {cv['with_effect']:.2f} on held-out "
+                f"data, better in {cv['folds_improved']} of {cv['folds']} folds.")
+        ev = cv.get("evidence") or []
+        if ev:
+            held += " The held-out evidence is in the " + "; ".join(
+                f"{REGIME_TEXT[d['regime']]} of the {d['channel']} ({d['base']:.2f} -> "
+                f"{d['candidate']:.2f}, {100 * d['share_of_time']:.0f} % of the time)" for d in ev) + "."
+    else:
+        held = " Not cross-validated (its in-sample gain is below the threshold)."
+    bound = (" The fit ended at a bound: " + "; ".join(entry.at_bound) + ".") if entry.at_bound else ""
+    verdict = ("It earns its parameters." if entry.supported else
+               "It does not earn its parameters on these data.")
+    r0 = ev0.rmse
+    return (f"{eff.summary[0].upper()}{eff.summary[1:]}. Fitted: "
+            f"{eff.explain_params(entry.params, const)}. "
+            f"rmse/noise {r0:.2f} -> {entry.rmse_over_noise:.2f} on all runs, "
+            f"delta BIC {entry.delta_bic:.0f}.{held}{bound} {verdict} "
+            f"Expected signature: {eff.signature}. To confirm: {eff.experiment}.")

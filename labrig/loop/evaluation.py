@@ -1,0 +1,161 @@
+"""A model simulated on runs: the numbers every command judges it by.
+
+:func:`evaluate` returns an :class:`Evaluation`: fitness, rmse/noise and fit % (overall,
+per channel, per run), the residuals of every run with their regimes, the regime table,
+and the residuals' sum of squares and lag-1 correlation for the BIC.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from labrig.identification.objective import Objective, adequacy, build_space
+from labrig.model.model import Model, param_keys
+from labrig.analysis.noise import Weights
+from labrig.loop.residuals import autocorr, regime_table, run_residuals, worst_regime, worst_run
+from labrig.core.tables import Table, fmt
+from labrig.core.display import Displayable
+
+
+@dataclass(repr=False)
+class Evaluation(Displayable):
+    """How well a model explains runs.
+
+    Attributes
+    ----------
+    metrics : dict
+        ``fitness``, ``rmse_over_noise`` and ``fit_percent`` (overall and per channel),
+        ``per_run`` and ``noise`` (the keys of ``labrig identify --json``).
+    per_run : list of dict
+        Residuals per run (``labrig.loop.residuals.run_residuals``).
+    regimes : dict
+        The regime table (``by_regime``, ``by_amplitude``).
+    sse, n : float, int
+        Sum of squared normalised residuals and their count.
+    sigmas : tuple
+        The noise levels (speed rad/s, position rad) the residuals are divided by.
+    rho1 : float
+        Mean lag-1 autocorrelation of the residuals (the colour the BIC corrects for).
+    floors : dict
+        The channels' :class:`labrig.analysis.noise.NoiseFloor` (how the noise was measured).
+    weights : Weights
+        The channel weights of ``fitness``.
+    """
+
+    metrics: dict
+    per_run: list
+    regimes: dict
+    sse: float
+    n: int
+    sigmas: tuple
+    rho1: float
+    floors: dict = field(default_factory=dict, repr=False)
+    weights: Weights = Weights()
+
+    def headline(self) -> str:
+        return (f"Evaluation: rmse/noise {self.metrics['rmse_over_noise']['overall']:.2f} "
+                f"on {len(self.per_run)} run(s)")
+
+    @property
+    def rmse(self) -> float:
+        """Overall rmse/noise (1.0 is the noise floor)."""
+        return self.metrics["rmse_over_noise"]["overall"]
+
+    @property
+    def fitness(self) -> float:
+        """The weighted rmse/noise the fits minimise (equal to ``rmse`` at p = q = 1)."""
+        return self.metrics["fitness"]
+
+    @property
+    def wsse(self) -> float:
+        """Weighted sum of squared normalised residuals (for the BIC)."""
+        return self.fitness ** 2 * self.n
+
+    def worst_regime(self):
+        return worst_regime(self.regimes)
+
+    def worst_run(self) -> dict:
+        return worst_run(self.per_run)
+
+    def to_json(self) -> dict:
+        return {"fitness": self.metrics["fitness"],
+                "rmse_over_noise": self.metrics["rmse_over_noise"],
+                "fit_percent": self.metrics["fit_percent"], "noise": self.metrics["noise"],
+                "regimes": self.regimes}
+
+    def runs(self) -> list[dict]:
+        """Per run: fit % and rmse/noise per channel and the worst stretch outside the
+        noise band (the ``runs`` of ``labrig compare --json``, without figures)."""
+        out = []
+        for rr in self.per_run:
+            ch = rr["channels"]
+            st = sorted((s for c in ch.values() for s in c["stretches"]), key=lambda s: -s["rms"])
+            out.append({"run": rr["name"],
+                        "fit_percent": {k: c["fit_percent"] for k, c in ch.items()},
+                        "rmse_over_noise": {k: c["rmse_over_noise"] for k, c in ch.items()},
+                        "worst_stretch": {"regime": st[0]["regime"],
+                                          "t_s": float(rr["t"][st[0]["start"]]),
+                                          "rms_over_noise": st[0]["rms"]} if st else None})
+        return out
+
+    def to_pandas(self):
+        """Per run and channel: fit % and rmse/noise, one row each."""
+        import pandas as pd
+
+        return pd.DataFrame([{"run": r["run"], "channel": ch, "fit_percent": r["fit_percent"][ch],
+                              "rmse_over_noise": r["rmse_over_noise"][ch]}
+                             for r in self.runs() for ch in r["fit_percent"]])
+
+    def warnings(self) -> list[str]:
+        """A run whose fit % is below zero (the model is worse than a constant)."""
+        from labrig.identification.result import fit_warnings
+
+        return [w for r in self.runs() for w in fit_warnings(r["fit_percent"], f"run '{r['run']}'")]
+
+    def table_rows(self) -> Table:
+        """Per run: fit % and rmse/noise of each channel, and the worst stretch."""
+        rows = []
+        for r in self.runs():
+            f, e, st = r["fit_percent"], r["rmse_over_noise"], r["worst_stretch"]
+            worst = (f"{st['regime']} at {st['t_s']:.2f} s ({st['rms_over_noise']:.1f} x noise)"
+                     if st else "-")
+            rows.append([r["run"], fmt(f.get("speed"), ".1f"), fmt(f.get("position"), ".1f"),
+                         fmt(e.get("speed"), ".2f"), fmt(e.get("position"), ".2f"), worst])
+        return Table("model against measurement", ["run", "fit % speed", "fit % pos",
+                                                   "rmse/noise w", "rmse/noise th",
+                                                   "worst stretch"], rows,
+                     numeric=(1, 2, 3, 4))
+
+    def plot(self, ax=None):
+        """The regime table as a figure (``labrig.loop.plots.plot_regimes``)."""
+        from labrig.loop.plots import plot_regimes
+
+        return plot_regimes(self.regimes, ax=ax)
+
+
+def evaluate(runs, model: Model, sigmas=None, weights: Weights | None = None) -> Evaluation:
+    """Simulate ``model`` on ``runs``; ``sigmas`` fixes the noise levels (to compare
+    candidates on equal terms), else they are measured from the runs
+    (:mod:`labrig.analysis.noise`); ``weights`` are the channel weights of the fitness."""
+    weights = weights or Weights()
+    space = build_space(model.effects, plant=model.plant_class)
+    obj = Objective(runs, model.effects, space, p=weights.p, q=weights.q)
+    if sigmas is not None:
+        obj.sigma_w, obj.sigma_theta = sigmas
+    flat = model.flat()
+    phys = np.array([flat[n] for n in param_keys(model)])
+    sims = obj.simulate_physical(phys[None, :])
+    metrics = adequacy(obj.runs, sims, obj.sigma_w, obj.sigma_theta, weights.p, weights.q)
+    quanta = {ch: f.q for ch, f in obj.floors.items()}
+    per_run = [run_residuals(rd, {"w": s["w"][0], "theta": s["theta"][0]}, obj.sigma_w,
+                             obj.sigma_theta, quanta) for rd, s in zip(obj.runs, sims)]
+    r = np.concatenate([c["residual"] for rr in per_run for c in rr["channels"].values()])
+    metrics["counts"] = {ch: sum(len(rr["channels"][ch]["residual"]) for rr in per_run
+                                 if ch in rr["channels"]) for ch in ("speed", "position")}
+    rho1 = float(np.mean([autocorr(c["residual"], 1)[0] for rr in per_run
+                          for c in rr["channels"].values()]))
+    return Evaluation(metrics=metrics, per_run=per_run, regimes=regime_table(per_run),
+                      sse=float(np.sum(r ** 2)), n=int(len(r)),
+                      sigmas=(obj.sigma_w, obj.sigma_theta), rho1=rho1, floors=obj.floors,
+                      weights=weights)

@@ -1,0 +1,167 @@
+"""Inputs a rig can play that tell effects apart: a small family of physically meaningful
+piecewise-linear waveforms (``pwl``), each with the words that say why it separates.
+
+Every candidate starts and ends at 0 V, lasts at most the budget, stays within
+``+-amax`` (the inputs the data already use, or what the rig file allows) and holds at
+most :data:`MAX_POINTS` breakpoints (the board's table holds 32). Time scales come from the
+model (tau_m: how long the speed needs to settle), levels from the threshold of the
+effects compared (a dead zone's d, a friction level).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+#: breakpoints of a proposed input: what the boards' table holds (32), with room to spare,
+#: so a proposal plays on the board as on the simulated rig
+MAX_POINTS = 30
+
+#: what each kind of input is
+KINDS = {
+    "ramp": "a slow ramp through zero",
+    "dwells": "dwells from rest at levels just above the threshold",
+    "coast": "coast-downs from speed (the drive cut to 0 V)",
+    "reversals": "reversals at several speeds",
+    "staircase": "a staircase of levels through the threshold",
+}
+#: what an effect does under each kind of input, in plain words
+BEHAVIOUR = {
+    ("ramp", "deadband"): "with a dead zone the motor creeps up from |u| = d and coasts freely "
+                          "through zero speed",
+    ("ramp", "coulomb_friction"): "with Coulomb friction it starts at the same input but is "
+                                  "braked to a standstill at every reversal, where it waits "
+                                  "until the drive overcomes the friction again",
+    ("ramp", "stiction"): "with stiction it is held until the breakaway level and then jumps",
+    ("dwells", "deadband"): "a dead zone lets the motor creep up from the threshold on, the "
+                            "same way every time",
+    ("dwells", "coulomb_friction"): "Coulomb friction lets it creep up from the same level",
+    ("dwells", "stiction"): "stiction holds it until the drive passes the breakaway level, "
+                            "then it jumps to speed",
+    ("coast", "deadband"): "with a dead zone the motor coasts freely and the speed decays "
+                           "exponentially with tau_m",
+    ("coast", "coulomb_friction"): "with Coulomb friction the friction keeps braking, so the "
+                                   "speed falls faster and stops in a finite time",
+    ("coast", "stiction"): "with stiction the friction keeps braking and holds the motor once "
+                           "it stops",
+    ("reversals", "deadband"): "with a dead zone the motor coasts through every reversal "
+                               "while the input crosses the zone",
+    ("reversals", "coulomb_friction"): "with Coulomb friction it is braked to a stop at every "
+                                       "reversal and waits there until the drive overcomes "
+                                       "the friction",
+    ("reversals", "stiction"): "with stiction it sticks at every reversal until the "
+                               "breakaway level",
+    ("ramp", "backlash"): "backlash keeps the output still at the reversal while the motor "
+                          "crosses the gap",
+    ("ramp", "delay"): "a delay shifts the whole response by the same time",
+    ("coast", "backlash"): "backlash lets the output stop before the motor does",
+    ("coast", "delay"): "a delay starts every coast-down late by the same time",
+    ("reversals", "backlash"): "backlash keeps the output still while the motor crosses the "
+                               "gap, for a time that grows as the speed falls",
+    ("reversals", "delay"): "a delay shifts every response by the same time, whatever the speed",
+    ("staircase", "deadband"): "with a dead zone every step's speed rises from the threshold on",
+    ("staircase", "coulomb_friction"): "with friction the steps below the friction level stay "
+                                       "at rest and the others start braked",
+    ("staircase", "stiction"): "with stiction the motor stays at rest until a step passes the "
+                               "breakaway level, then jumps",
+}
+ALIAS = {"asymmetric_deadband": "deadband"}
+
+
+def why(kind: str, pair) -> str:
+    """Why ``kind`` of input separates the two effects of ``pair``, in plain words."""
+    said = [BEHAVIOUR.get((kind, ALIAS.get(e, e))) for e in pair]
+    told = "; ".join(x for x in said if x)
+    return f"{KINDS[kind]}: {told}" if told else \
+        f"{KINDS[kind]}: the two explanations predict different responses to it"
+
+
+@dataclass
+class Candidate:
+    """One input the rig could play."""
+
+    kind: str
+    points: list          # [[t_s, u_v], ...], t from 0
+    label: str            # e.g. "ramp +-1.2 V over 12 s"
+
+    @property
+    def duration(self) -> float:
+        return float(self.points[-1][0])
+
+    def values(self, fs: float, lead_in: float) -> np.ndarray:
+        """The input per sample at ``fs`` after ``lead_in`` s at 0 V (as the rig plays it)."""
+        from labrig.io.experiment import pwl_values
+
+        n0 = int(round(lead_in * fs))
+        n = n0 + int(round(self.duration * fs)) + 1
+        k = np.arange(n) - n0
+        return np.where(k >= 0, pwl_values(self.points, k, fs), 0.0)
+
+
+def _pts(segments) -> list:
+    """[(duration, level), ...] of straight pieces -> breakpoints from (0, 0)."""
+    t, out = 0.0, [[0.0, 0.0]]
+    for dur, level in segments:
+        t += dur
+        out.append([round(t, 4), round(float(level), 4)])
+    return out
+
+
+def candidates(*, threshold: float, amax: float, tau: float, budget_s: float,
+               dt: float) -> list[Candidate]:
+    """The candidate inputs for effects whose threshold is ``threshold`` V (0 when they
+    have none, like a delay and backlash)."""
+    edge = max(10 * dt, 0.01)                  # a fast edge the drive can follow
+    settle = float(np.clip(4 * tau, 0.2, budget_s / 6))
+    th = threshold if threshold > 0 else 0.3 * amax
+    out: list[Candidate] = []
+
+    def add(kind, segs, label):
+        pts = _pts(segs)
+        if len(pts) <= MAX_POINTS and pts[-1][0] <= budget_s + 1e-9 and \
+                max(abs(u) for _, u in pts) <= amax + 1e-9:
+            out.append(Candidate(kind, pts, label))
+            # and its mirror image: the same test starting the other way (the travel the
+            # data allow may differ by direction)
+            out.append(Candidate(kind, [[t, -u if u else 0.0] for t, u in pts],
+                                 label + ", mirrored"))
+
+    for U in sorted({min(f * th, amax) for f in (1.5, 2.5)} | {0.5 * amax, amax}):
+        for T in (budget_s / 4, budget_s / 2, budget_s):
+            add("ramp", [(T / 4, -U), (T / 2, U), (T / 4, 0.0)],
+                f"ramp through zero +-{U:.2f} V over {T:.0f} s")
+    # dwells near the fitted threshold, and (where it is uncertain) across the whole range
+    near = [min(f * th, amax) for f in (0.9, 1.1, 1.3, 1.6, 2.0)]
+    spread = [f * amax for f in (0.15, 0.25, 0.35, 0.45, 0.6, 0.8, 1.0)]
+    for levels, what in ((near, f"0.9-2.0 x {th:.2f} V"),
+                         (spread, f"{spread[0]:.2f}-{spread[-1]:.2f} V")):
+        for dwell in (settle, 2 * settle):
+            segs, sign = [], 1.0
+            for lv in levels:
+                segs += [(edge, sign * lv), (dwell, sign * lv), (edge, 0.0), (dwell / 2, 0.0)]
+                sign = -sign
+            add("dwells", segs, f"dwells at {what}, {dwell:.2f} s each")
+    for U in sorted({0.5 * amax, amax}):
+        segs = []
+        for sign in (1.0, -1.0, 1.0, -1.0):
+            segs += [(edge, sign * U), (settle, sign * U), (edge, 0.0), (settle, 0.0)]
+        add("coast", segs, f"coast-downs from {U:.2f} V")
+    for U in sorted({0.5 * amax, amax}):
+        for ramp in (settle, 3 * settle):
+            segs = [(ramp, U), (settle / 2, U)]
+            for _ in range(3):
+                segs += [(2 * ramp, -U), (settle / 2, -U), (2 * ramp, U), (settle / 2, U)]
+            segs.append((ramp, 0.0))
+            add("reversals", segs, f"reversals +-{U:.2f} V, ramps of {2 * ramp:.2f} s")
+    # square reversals from several speeds: a gap's dead time grows as the speed falls,
+    # a delay's does not
+    for hold in (1.5 * tau, 3 * tau):
+        segs = []
+        for f in (0.3, 0.6, 1.0, 0.45, 0.8):
+            segs += [(edge, f * amax), (hold, f * amax), (edge, -f * amax), (hold, -f * amax)]
+        segs.append((edge, 0.0))
+        add("reversals", segs, f"reversals from 0.3-1.0 x {amax:.2f} V, {hold:.2f} s each")
+    for levels in ([min(f * th, amax) for f in (0.5, 0.8, 1.0, 1.2, 1.5, 2.0, 3.0)], spread):
+        add("staircase", [seg for lv in levels for seg in ((edge, lv), (settle, lv))]
+            + [(edge, 0.0)], f"staircase {levels[0]:.2f}-{levels[-1]:.2f} V")
+    return out

@@ -1,0 +1,116 @@
+"""The error ladder: the model's error after each added effect, against the noise floor.
+
+:func:`evaluate_ladder` judges a chain of saved models;
+:func:`labrig.loop.search.auto_ladder` builds the chain itself. Both return a :class:`Ladder`.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from labrig.loop.evaluation import Evaluation, evaluate
+from labrig.model.model import Model
+from labrig.core.tables import Table, fmt
+from labrig.core.display import Displayable
+
+
+@dataclass
+class LadderStep:
+    """One rung: the model's label, its effects and how well it explains the runs."""
+
+    label: str
+    effects: list
+    rmse_over_noise: dict
+    fit_percent: dict
+    fitness: float
+    model: str | None = None
+    #: weighted rmse/noise on held-out data (``diagnose --auto``); None: not validated
+    cross_validated: float | None = None
+
+    @classmethod
+    def of(cls, label: str, model: Model, ev: Evaluation, path=None,
+           cv: float | None = None) -> "LadderStep":
+        return cls(label=label, effects=list(model.names),
+                   rmse_over_noise=ev.metrics["rmse_over_noise"],
+                   fit_percent=ev.metrics["fit_percent"], fitness=ev.metrics["fitness"],
+                   model=str(path) if path else None, cross_validated=cv)
+
+    def to_json(self) -> dict:
+        return {"label": self.label, "effects": self.effects,
+                "rmse_over_noise": self.rmse_over_noise, "fit_percent": self.fit_percent,
+                "fitness": self.fitness, "cross_validated": self.cross_validated,
+                "model": self.model}
+
+
+@dataclass(repr=False)
+class Ladder(Displayable):
+    """The error after each step; ``to_json()`` is ``labrig ladder --json``."""
+
+    steps: list[LadderStep] = field(default_factory=list)
+
+    def headline(self) -> str:
+        return f"Ladder: {len(self.steps)} rung(s)"
+
+    def to_json(self) -> dict:
+        return {"steps": [s.to_json() for s in self.steps]}
+
+    def to_pandas(self):
+        import pandas as pd
+
+        return pd.DataFrame([{"step": s.label,
+                              **{f"rmse/noise {k}": v for k, v in s.rmse_over_noise.items()},
+                              **{f"fit % {k}": v for k, v in s.fit_percent.items()}}
+                             for s in self.steps])
+
+    def table_rows(self) -> Table:
+        t = Table("the error ladder (rmse/noise; 1.00 is the noise floor)",
+                  ["step", "rmse/noise", "speed", "position", "cross-validated", "fit % w",
+                   "fit % th"], numeric=(1, 2, 3, 4, 5, 6))
+        for s in self.steps:
+            r, f = s.rmse_over_noise, s.fit_percent
+            t.rows.append([s.label, fmt(r.get("overall"), ".2f"), fmt(r.get("speed"), ".2f"),
+                           fmt(r.get("position"), ".2f"), fmt(s.cross_validated, ".2f"),
+                           fmt(f.get("speed"), ".2f"), fmt(f.get("position"), ".2f")])
+        if any(s.cross_validated is not None for s in self.steps):
+            t.notes.append("cross-validated: the weighted error on data each fit did not see")
+        return t
+
+    def plot(self, ax=None):
+        from labrig.loop.plots import plot_ladder
+
+        return plot_ladder(self, ax=ax)
+
+
+def rung_label(names, previous) -> str:
+    """A rung's label that names exactly the effects of its model.
+
+    ``"+ new"`` only when the model keeps every effect of the rung before it; a model
+    that dropped one is named by its whole effect set, e.g. ``"deadband (without
+    offset)"`` (a chain m0, m_offset, m1 with m1 = deadband alone is not "+ deadband").
+
+    Parameters
+    ----------
+    names : list of str
+        The effects of this rung's model.
+    previous : list of str
+        The effects of the rung before (empty for the first).
+    """
+    names, previous = list(names), list(previous)
+    if not names:
+        return "linear model" if not previous else f"linear model (without {', '.join(previous)})"
+    new = [n for n in names if n not in previous]
+    dropped = [n for n in previous if n not in names]
+    if not dropped:
+        return "+ " + ", ".join(new) if new else ", ".join(names) + " (same effects)"
+    return f"{', '.join(names)} (without {', '.join(dropped)})"
+
+
+def evaluate_ladder(runs, model_paths) -> Ladder:
+    """Evaluate saved models (paths, or Models already loaded) in order (``labrig ladder
+    --models m0.json,m1.json``)."""
+    ladder, prev = Ladder(), []
+    for path in model_paths:
+        model, path = (path, None) if isinstance(path, Model) else (Model.load(path), path)
+        ladder.steps.append(LadderStep.of(rung_label(model.names, prev), model,
+                                          evaluate(runs, model), path))
+        prev = model.names
+    return ladder

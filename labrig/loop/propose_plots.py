@@ -1,0 +1,48 @@
+"""Figure of a proposed experiment: what each explanation predicts for it, with the noise
+band, and the input the rig will play."""
+from __future__ import annotations
+
+import matplotlib.pyplot as plt
+import numpy as np
+
+from labrig.core.figures import legend_outside
+
+COLOURS = ("tab:blue", "tab:red")
+
+
+def plot_proposal(prop, ax=None):
+    """Predicted speed and position of both fitted explanations for the proposed input,
+    each with a +-1 noise band, and the input below. With ``ax``, the speed (or, without a
+    speed channel, the position) only."""
+    run, preds = prop.predicted()
+    t = run.t
+    chans = [(ch, key) for ch, key in (("speed", "w"), ("position", "theta"))
+             if ch in prop.sigmas and (run.has_speed if ch == "speed" else run.has_pos)]
+    units = run.units
+    if ax is not None:
+        fig, axes = ax.figure, [ax]
+        chans = chans[:1]
+    else:
+        fig, axes = plt.subplots(len(chans) + 1, 1, figsize=(11.5, 2.6 * (len(chans) + 1)),
+                                 sharex=True, height_ratios=[3] * len(chans) + [1.6])
+        axes = list(np.atleast_1d(axes))
+    for a, (ch, key) in zip(axes, chans):
+        s = prop.sigmas[ch]
+        for h, p, c in zip(prop.hypotheses, preds, COLOURS):
+            a.plot(t, p[key], color=c, lw=1.1, label=f"with {h.effect}")
+            a.fill_between(t, p[key] - s, p[key] + s, color=c, alpha=0.18, lw=0)
+        unit = units[1] if ch == "speed" else units[0]
+        a.set_ylabel(f"{ch} ({unit})")
+        a.grid(alpha=0.3)
+        legend_outside(a, "right", title="predicted (band: +-1 noise)", title_fontsize=8)
+    if ax is None:
+        axes[-1].plot(t, run.u, color="0.25", lw=1.0)
+        axes[-1].set_ylabel("u (V)")
+        axes[-1].set_xlabel("time (s)")
+        axes[-1].grid(alpha=0.3)
+        c = prop.chosen
+        fig.suptitle(f"{prop.pair[0]} or {prop.pair[1]}? proposed: {c.candidate.label}\n"
+                     f"separation {c.naive:.0f} (naive), {c.worst:.0f} after the rival "
+                     "re-fits (noise units)", fontsize=10)
+        fig.tight_layout()
+    return fig

@@ -1,0 +1,178 @@
+"""The result of ``labrig diagnose``: typed, with its JSON, its tables and its figure.
+
+:func:`labrig.loop.diagnose.diagnose` computes a :class:`Diagnosis`; the CLI prints
+:meth:`Diagnosis.to_text`, ``--json`` prints :meth:`Diagnosis.to_json` and the report
+renders :meth:`Diagnosis.table_rows`, so nothing is formatted twice.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+from labrig.loop.evaluation import Evaluation
+from labrig.model.model import Model
+from labrig.loop.residuals import REGIME_TEXT
+from labrig.core.tables import Table, fmt
+from labrig.core.display import Displayable
+
+
+@dataclass
+class Candidate:
+    """One catalogue effect tried on the data: re-fitted, scored and explained."""
+
+    effect: str
+    rmse_over_noise: float
+    improvement: float
+    delta_bic: float
+    params: dict
+    fit_percent: dict
+    #: held-out evidence: baseline and candidate cross-validated rmse/noise, the folds
+    #: it improved, and the regimes that carry the gain
+    cross_validated: dict | None = None
+    supported: bool = False
+    explanation: str = ""
+    #: parameters whose fit ended at a bound of the search space
+    at_bound: list = field(default_factory=list)
+    #: live, not in the JSON: the re-fitted model and its evaluation on all runs
+    model: Model | None = field(default=None, repr=False)
+    evaluation: Evaluation | None = field(default=None, repr=False)
+
+    @property
+    def regimes(self) -> dict | None:
+        return self.evaluation.regimes if self.evaluation is not None else None
+
+    def to_json(self) -> dict:
+        d = {"effect": self.effect, "rmse_over_noise": self.rmse_over_noise,
+             "improvement": self.improvement, "delta_bic": self.delta_bic,
+             "params": self.params, "fit_percent": self.fit_percent}
+        if self.cross_validated is not None:
+            d["cross_validated"] = self.cross_validated
+        d["at_bound"] = list(self.at_bound)
+        d["supported"] = self.supported
+        d["explanation"] = self.explanation
+        return d
+
+
+@dataclass(repr=False)
+class Diagnosis(Displayable):
+    """Where the model fails and which effect is missing, with the evidence.
+
+    ``to_json()`` gives the keys of ``labrig diagnose --json``: baseline, regimes,
+    ranking, recommendation, verdict, cross_validation, noise, weights, criteria, seconds.
+    """
+
+    baseline: dict
+    regimes: dict
+    ranking: list[Candidate]
+    recommendation: str | None
+    verdict: str
+    cross_validation: dict | None
+    criteria: dict
+    seconds: float
+    #: each channel's noise floor and how it was measured; the channel weights
+    noise: dict = field(default_factory=dict)
+    weights: dict = field(default_factory=dict)
+    #: live: the diagnosed model, its evaluation, the rig constants and run names
+    base: Model | None = field(default=None, repr=False)
+    evaluation: Evaluation | None = field(default=None, repr=False)
+    constants: dict = field(default_factory=dict, repr=False)
+    dataset: list = field(default_factory=list, repr=False)
+    folds: object = field(default=None, repr=False)
+    cv_baseline: object = field(default=None, repr=False)
+
+    def headline(self) -> str:
+        r = self.baseline["rmse_over_noise"]["overall"]
+        return (f"Diagnosis: rmse/noise {r:.2f} with effects "
+                f"{', '.join(self.baseline['effects']) or 'none'}; recommendation: "
+                f"{self.recommendation or 'none'}")
+
+    def candidate(self, effect: str) -> Candidate:
+        return next(c for c in self.ranking if c.effect == effect)
+
+    def recommended_model(self) -> Model | None:
+        """The re-fitted model with the recommended effect, ready to save."""
+        if not self.recommendation:
+            return None
+        return self.model_with(self.recommendation)
+
+    def model_with(self, effect: str) -> Model:
+        c = self.candidate(effect)
+        return replace(c.model, constants=dict(self.constants),
+                       info={"method": "co (diagnose re-fit)",
+                             "rmse_over_noise": {"overall": c.rmse_over_noise},
+                             "dataset": {"runs": list(self.dataset)}})
+
+    def to_json(self) -> dict:
+        return {"baseline": self.baseline, "regimes": self.regimes,
+                "ranking": [c.to_json() for c in self.ranking],
+                "recommendation": self.recommendation, "verdict": self.verdict,
+                "cross_validation": self.cross_validation, "noise": self.noise,
+                "weights": self.weights, "criteria": self.criteria,
+                "seconds": self.seconds}
+
+    def to_pandas(self):
+        """The ranking as a DataFrame, one row per candidate effect."""
+        import pandas as pd
+
+        return pd.DataFrame([{"effect": c.effect, "rmse_over_noise": c.rmse_over_noise,
+                              "improvement": c.improvement, "delta_bic": c.delta_bic,
+                              "cross_validated": (c.cross_validated or {}).get("with_effect"),
+                              "supported": c.supported} for c in self.ranking])
+
+    # -- presentation ---------------------------------------------------------------------
+    def table_rows(self) -> list[Table]:
+        """Where it fails (by regime), and the ranking of candidates."""
+        regimes = Table("where it fails (rmse/noise by regime; share of time)",
+                        ["channel", "regime", "rmse/noise", "share of time"], numeric=(2, 3))
+        for ch, regs in self.regimes["by_regime"].items():
+            for r, v in sorted(regs.items(), key=lambda kv: -kv[1]["rmse_over_noise"]):
+                regimes.rows.append([ch, REGIME_TEXT[r], fmt(v["rmse_over_noise"], ".2f"),
+                                     f"{100 * v['share_of_time']:.0f} %"])
+        for ch, amps in self.regimes["by_amplitude"].items():
+            regimes.notes.append(f"{ch} by run amplitude: "
+                                 + ", ".join(f"{k} {v:.2f}" for k, v in amps.items()))
+        ranking = Table("candidates (re-fitted with each effect the model lacks)",
+                        ["rank", "effect", "rmse/noise", "gain", "dBIC", "cross-validated",
+                         "folds", "supported"], numeric=(0, 2, 3, 4))
+        for i, c in enumerate(self.ranking, 1):
+            cv = c.cross_validated
+            ranking.rows.append([str(i), c.effect, fmt(c.rmse_over_noise, ".2f"),
+                                 f"{100 * c.improvement:.0f} %", fmt(c.delta_bic, ".0f"),
+                                 f"{cv['baseline']:.2f} -> {cv['with_effect']:.2f}" if cv else "-",
+                                 f"{cv['folds_improved']}/{cv['folds']}" if cv else "-",
+                                 ("yes" if c.supported else "no") + (" (at bound)" if c.at_bound else "")])
+        cvd = self.cross_validation
+        if cvd:
+            ranking.notes.append(f"cross-validation: {cvd['folds']} folds, {cvd['kind']}; "
+                                 "gain is in the weighted error the fits minimise")
+        if self.noise:
+            ranking.notes.append("noise floors: " + "; ".join(v["method"] for v in self.noise.values()))
+        if self.weights:
+            ranking.notes.append(f"channel weights: speed {self.weights['speed']:.3g}, position "
+                                 f"{self.weights['position']:.3g} (each channel's squared error "
+                                 "over its own at the starting model; --weights overrides)")
+        return [regimes, ranking]
+
+    def to_text(self) -> str:
+        b = self.baseline
+        r = b["rmse_over_noise"]
+        out = [f"baseline ({b['source']}; effects: {', '.join(b['effects']) or 'none'}): "
+               f"rmse/noise {r['overall']:.2f} (speed {fmt(r.get('speed'), '.2f')}, "
+               f"position {fmt(r.get('position'), '.2f')}); 1.0 is the noise floor", ""]
+        out += [t.to_text() + "\n" for t in self.table_rows()]
+        out += [f"recommendation: {self.recommendation or 'none'}", "", self.verdict]
+        if self.recommendation:
+            out.append(f"\nnext: labrig identify DATA --model MODEL.json --effects "
+                       f"{self.recommendation} -o next.json")
+        return "\n".join(out)
+
+    def plot(self, ax=None, kind: str = "ranking"):
+        """``kind="ranking"``: the candidates with their evidence (in-sample and
+        cross-validated rmse/noise, dBIC, folds) beside where the model fails;
+        ``kind="regimes"``: rmse/noise by regime for every channel."""
+        if kind == "regimes":
+            from labrig.loop.plots import plot_regimes
+
+            return plot_regimes(self.regimes, ax=ax)
+        from labrig.loop.ranking_plots import plot_ranking
+
+        return plot_ranking(self, ax=ax)

@@ -1,0 +1,50 @@
+"""The figure of a diagnosis: the ranking of candidate effects with its evidence, beside
+where the model fails."""
+from __future__ import annotations
+
+import matplotlib.pyplot as plt
+
+from labrig.loop.plots import plot_regimes
+
+
+def plot_ranking(diag, ax=None):
+    """Each candidate's rmse/noise in-sample (bar) and cross-validated (dot), against the
+    model without it and the noise floor; supported candidates in colour, dBIC and the
+    folds that improved written beside each bar.
+
+    Without ``ax``: a figure with the ranking and where the model fails (the first
+    channel's regimes). Returns the figure.
+    """
+    if ax is None:
+        fig, (ax, ax2) = plt.subplots(1, 2, figsize=(11, 0.45 * max(len(diag.ranking), 4) + 1.6),
+                                      gridspec_kw={"width_ratios": [3, 2]})
+        plot_regimes(diag.regimes, ax=ax2, title="")
+        ax2.set_title("where the model fails (" + next(iter(diag.regimes["by_regime"])) + ")",
+                      fontsize=9)
+    else:
+        fig = ax.figure
+    ranking = diag.ranking
+    names = [c.effect for c in ranking][::-1]
+    vals = [c.rmse_over_noise for c in ranking][::-1]
+    colours = ["tab:green" if c.supported else "0.7" for c in ranking][::-1]
+    y = range(len(names))
+    ax.barh(list(y), vals, color=colours)
+    for i, c in zip(y, ranking[::-1]):
+        cv = c.cross_validated
+        if cv:
+            ax.plot(cv["with_effect"], i, "o", color="k", ms=4)
+        note = f"dBIC {c.delta_bic:.0f}" + (f", {cv['folds_improved']}/{cv['folds']} folds"
+                                             if cv else "")
+        ax.annotate(note, (vals[i], i), xytext=(4, 0), textcoords="offset points",
+                    va="center", fontsize=7)
+    base = diag.baseline["rmse_over_noise"]["overall"]
+    ax.axvline(base, color="tab:red", ls="--", lw=1, label=f"without: {base:.2f}")
+    ax.axvline(1.0, color="k", ls=":", lw=1, label="noise floor (1.0)")
+    ax.set_yticks(list(y))
+    ax.set_yticklabels(names, fontsize=8)
+    ax.set_xlabel("rmse / noise (bar: in-sample; dot: cross-validated)")
+    ax.set_xlim(0, max(vals + [base]) * 1.35 if vals else base * 1.35)
+    ax.set_title("candidates, best first (green: supported)", fontsize=9)
+    ax.legend(fontsize=7, loc="lower right")
+    fig.tight_layout()
+    return fig

@@ -1,0 +1,147 @@
+"""Re-fitting a model with one effect more (or one fewer) without getting stuck.
+
+A local optimiser started from the current model fails in two ways that real rigs
+show at once:
+
+- **plateaus**: a threshold (dead zone, rail, friction level, gear gap) that starts
+  outside what the data reach has no gradient, so its re-fit "gains 0 %";
+- **basins**: the linear model's electrical pole can absorb a transport delay
+  (tau_e of 0.1 s for a 31 ms delay), and warm starts never leave that basin.
+
+So every re-fit first *scans* the new effect's parameters over the range the data can
+see (:meth:`labrig.model.effects.Effect.scan_grid`, one population call of the fast
+simulator, in two basins: the current electrical pole and a structurally different
+one), then polishes the best point of each basin with CO and keeps the better fit.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from labrig.identification.engine import dataset_constants, identify, initial_point
+from labrig.model.plants import plant_of_runs
+from labrig.identification.objective import Objective, build_space
+from labrig.model.model import Model
+from labrig.analysis.noise import Weights
+
+#: the loop's re-fits see about this many residuals (every k-th)
+SUBSAMPLE = 16000
+#: a basin whose best scan point is this much worse than the other's is not polished
+BASIN_MARGIN = 1.5
+
+
+def fit(runs, effects, start: dict, fixed: dict, *, seed: int, weights: Weights,
+        reach, max_nfev: int = 60, masks=None):
+    """One CO fit from ``start`` (bounds from ``reach``)."""
+    return identify(runs, "co", effects, seed=seed, start=start, fixed=fixed, starts=1,
+                    identifiability=False, max_nfev=max_nfev, p=weights.p, q=weights.q,
+                    masks=masks, reach=reach, subsample=SUBSAMPLE)
+
+
+def _alternative_pole(params: dict, dt: float) -> dict:
+    """The same plant with its electrical pole in the other basin: far below the sample
+    period when it sits above it (room for a delay), onto it when it sits far below
+    (where tau_e has no gradient at all). A torque/force plant has no electrical pole:
+    one basin."""
+    if "L" not in params:
+        return None
+    tau_e = params["L"] / params["R"]
+    L = params["R"] * (0.05 * dt if tau_e > 0.5 * dt else 2.0 * dt)
+    return {**params, "L": L}
+
+
+def _swapped_poles(params: dict) -> dict | None:
+    """The plant with its two time constants exchanged, when the electrical one is the
+    slower: a second-order response barely tells which pole is which, and a fit can land
+    with tau_e = 0.15 s and tau_m = 4 ms, the wrong way round for any servo motor."""
+    if "L" not in params:
+        return None
+    R, L, J, B, K = (params[k] for k in ("R", "L", "J", "B", "K"))
+    tau_e, tau_m = L / R, J * R / (B * R + K * K)
+    if tau_e <= tau_m:
+        return None
+    return {**params, "L": R * tau_m, "J": tau_e * (B * R + K * K) / R}
+
+
+def starts_for(runs, base_params: dict, effects, new, reach, fixed: dict,
+               weights: Weights) -> list[dict]:
+    """The best scanned start in each basin, best first (at most two)."""
+    space = build_space(effects, None, fixed, reach=reach, plant=plant_of_runs(runs))
+    obj = Objective(runs, effects, space, p=weights.p, q=weights.q)
+    grid = new.scan_grid(reach) if new is not None else {}
+    npts = len(next(iter(grid.values()))) if grid else 1
+    basins = [b for b in (base_params, _alternative_pole(base_params, reach.dt)) if b]
+    swapped = _swapped_poles(base_params) if not {"L", "J"} & set(fixed) else None
+    if swapped is not None:
+        basins = [swapped, base_params]
+    points = []
+    for b in basins:
+        for k in range(npts):
+            pt = dict(b)
+            for name, values in grid.items():
+                pt[f"{new.name}.{name}"] = float(values[k])
+            points.append(pt)
+    # parameters neither the base nor the grid sets (a user effect without a scan):
+    # the identifiers' own starting point, once
+    fill = initial_point(space, effects, runs, dataset_constants(runs), base_params)
+    X = np.array([space.to_search({**fill, **pt}) for pt in points])
+    f = obj.fitness_batch(X)
+    best = []
+    for j in range(len(basins)):
+        seg = f[j * npts:(j + 1) * npts]
+        k = int(np.argmin(seg))
+        best.append((float(seg[k]), points[j * npts + k]))
+    if swapped is None:
+        best.sort(key=lambda t: t[0])
+    # (with swapped poles both are polished: the right way round is tried first)
+    keep = [best[0][1]]
+    if len(best) > 1 and (swapped is not None or best[1][0] <= BASIN_MARGIN * best[0][0]):
+        keep.append(best[1][1])
+    return keep
+
+
+def refit_with(runs, base: Model, effect, *, seed: int = 0, fixed: dict | None = None,
+               weights: Weights = Weights(), reach=None):
+    """``base`` plus ``effect``, re-fitted from scanned starts in two basins; returns the
+    best :class:`labrig.identification.engine.Identification`."""
+    from labrig.model.reach import Reach
+
+    reach = reach or Reach.of(runs, base)
+    effects = base.effects + [effect]
+    fixed = dict(fixed or {})
+    params = {**base.flat(), **fixed}
+    starts = starts_for(runs, params, effects, effect, reach, fixed, weights)
+    fits = [fit(runs, effects, s, fixed, seed=seed, weights=weights, reach=reach)
+            for s in starts]
+    return best_fit(fits)
+
+
+def best_fit(fits):
+    """The lowest fitness; within 1 % of it, a plant whose electrical pole is the faster
+    (the physical reading of an almost symmetric pair of poles)."""
+    low = min(f.fitness for f in fits)
+    near = [f for f in fits if f.fitness <= 1.01 * low]
+    right = [f for f in near if "L" not in f.params or f.params["L"] / f.params["R"]
+             <= f.params["J"] * f.params["R"] / (f.params["B"] * f.params["R"] + f.params["K"] ** 2)]
+    return min(right or near, key=lambda f: f.fitness)
+
+
+def refit(runs, model: Model, *, seed: int = 0, fixed: dict | None = None,
+          weights: Weights = Weights(), reach=None):
+    """``model`` re-fitted as it is (both basins of the electrical pole)."""
+    from labrig.model.reach import Reach
+
+    reach = reach or Reach.of(runs, model)
+    fixed = dict(fixed or {})
+    params = {**model.flat(), **fixed}
+    starts = starts_for(runs, params, model.effects, None, reach, fixed, weights)
+    fits = [fit(runs, model.effects, s, fixed, seed=seed, weights=weights, reach=reach)
+            for s in starts]
+    return best_fit(fits)
+
+
+def without(model: Model, name: str) -> Model:
+    """``model`` with the effect ``name`` taken out (its parameters dropped)."""
+    effects = [e for e in model.effects if e.name != name]
+    flat = {k: v for k, v in model.flat().items() if not k.startswith(f"{name}.")}
+    return Model.from_flat(flat, effects, model.constants, plant=model.plant,
+                           info=dict(model.info or {}))

@@ -1,0 +1,217 @@
+"""Where a model fails: residuals by regime, the noise band, whiteness (docs/physics.md,
+'Diagnosis').
+
+Every sample of a run gets a regime label from the measured input and speed:
+
+``start``     start from rest: the rotor was (nearly) still when the input stepped
+``reversal``  the input reversed while the rotor was turning: from the edge until the
+              speed has crossed zero and come off it
+``accel``     the rest of a transient towards a new speed
+``steady``    the speed has settled on a non-zero input
+``coast``     the input went to zero and the rotor runs down
+``rest``      zero input, rotor still (lead-in)
+
+Computation only; the figures live in ``labrig.loop.plots``.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from labrig.identification.objective import fit_percent
+
+REGIMES = ("start", "reversal", "accel", "steady", "coast", "rest")
+REGIME_TEXT = {"start": "start from rest", "reversal": "reversal through zero speed",
+               "accel": "acceleration", "steady": "steady state", "coast": "coast-down",
+               "rest": "at rest"}
+Z99 = 2.58
+
+
+def _edges(u: np.ndarray) -> np.ndarray:
+    """Sample indices where the held input changes (beyond DAC-step noise)."""
+    du = np.abs(np.diff(u))
+    scale = max(np.ptp(u), 1e-9)
+    return np.flatnonzero(du > 0.02 * scale) + 1
+
+
+def label_regimes(u: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """One regime label per sample (array of str), from the input and a speed signal."""
+    n = len(u)
+    lab = np.empty(n, dtype=object)
+    wmax = max(np.max(np.abs(w)), 1e-9)
+    still = 0.05 * wmax
+    bounds = np.r_[0, _edges(u), n]
+    for k0, k1 in zip(bounds[:-1], bounds[1:]):
+        if k1 <= k0:
+            continue
+        seg_u = float(np.median(u[k0:k1]))
+        tail = w[k0 + int(0.8 * (k1 - k0)):k1]
+        w_end = float(np.median(tail)) if len(tail) else float(w[k1 - 1])
+        w0 = float(w[k0])
+        span = max(abs(w_end - w0), still)
+        settled = np.flatnonzero(np.abs(w[k0:k1] - w_end) < 0.05 * span)
+        ks = k0 + (int(settled[0]) if len(settled) else k1 - k0)
+        zero_cmd = abs(seg_u) < 1e-6 * max(np.max(np.abs(u)), 1e-9) or abs(seg_u) < 1e-3
+        if zero_cmd:
+            lab[k0:ks] = "coast" if abs(w0) > still else "rest"
+            lab[ks:k1] = "rest"
+            continue
+        if abs(w0) <= still:
+            lab[k0:ks] = "start"
+        elif np.sign(w0) != np.sign(w_end):
+            cross = np.flatnonzero(np.sign(w[k0:k1]) != np.sign(w0))
+            kz = k0 + (int(cross[0]) if len(cross) else ks - k0)
+            kr = min(ks, kz + max(1, (kz - k0) // 2))
+            lab[k0:kr] = "reversal"
+            lab[kr:ks] = "accel"
+        else:
+            lab[k0:ks] = "accel"
+        lab[ks:k1] = "steady"
+    return lab
+
+
+def moving_rms(x: np.ndarray, width: int) -> np.ndarray:
+    width = max(1, int(width))
+    c = np.convolve(x ** 2, np.ones(width) / width, mode="same")
+    return np.sqrt(c)
+
+
+def stretches(r_norm: np.ndarray, labels: np.ndarray, width: int, level: float = 2.0):
+    """Contiguous stretches where the noise-normalised residual leaves the band.
+
+    A moving RMS over ``width`` samples above ``level`` (the noise band is 1.0) marks
+    a stretch; each is named by its dominant regime.
+    """
+    m = moving_rms(r_norm, width) > level
+    out = []
+    k = 0
+    n = len(m)
+    while k < n:
+        if not m[k]:
+            k += 1
+            continue
+        j = k
+        while j < n and m[j]:
+            j += 1
+        # one piece per regime, so a long excursion shows where it starts and turns
+        a = k
+        while a < j:
+            b = a
+            while b < j and labels[b] == labels[a]:
+                b += 1
+            out.append({"start": a, "stop": b, "regime": str(labels[a]),
+                        "rms": float(np.sqrt(np.mean(r_norm[a:b] ** 2)))})
+            a = b
+        k = j
+    return out
+
+
+def autocorr(r: np.ndarray, lags: int = 25) -> np.ndarray:
+    r = r - r.mean()
+    d = float(np.dot(r, r)) or 1.0
+    return np.array([np.dot(r[:-k], r[k:]) / d for k in range(1, lags + 1)])
+
+
+def crosscorr(r: np.ndarray, u: np.ndarray, lags: int = 25) -> tuple[np.ndarray, np.ndarray]:
+    """Cross-correlation of the residual with the input increments, lags -L..L.
+
+    The increments (not the levels) because a square wave's levels are almost
+    constant: what the model mistimes is the response to each change.
+    """
+    du = np.diff(u, prepend=u[0])
+    r = r - r.mean()
+    du = du - du.mean()
+    d = np.sqrt(np.dot(r, r) * np.dot(du, du)) or 1.0
+    ks = np.arange(-lags, lags + 1)
+    out = []
+    for k in ks:
+        if k >= 0:
+            out.append(np.dot(r[k:], du[:len(du) - k]) / d)
+        else:
+            out.append(np.dot(r[:k], du[-k:]) / d)
+    return ks, np.array(out)
+
+
+#: the channels' units on each axis, as figures label them
+AXIS_UNITS = {"rotary": {"speed": "rad/s (motor)", "position": "rad (output)"},
+              "linear": {"speed": "m/s", "position": "m"}}
+
+
+def run_residuals(rd, sim: dict, sigma_w: float, sigma_theta: float,
+                  quanta: dict | None = None) -> dict:
+    """Residuals of one run in noise units, with regimes and stretches.
+
+    ``quanta`` maps a channel to its quantisation step in the channel's units
+    (:attr:`labrig.analysis.noise.NoiseFloor.q`; 0 or absent: none seen). Each channel carries
+    it as ``quantum`` with ``quantum_kind`` (an encoder's count or an ADC step), so a
+    figure can show the staircase a quantised reading leaves in the residual."""
+    quanta = quanta or {}
+    w_ref = rd.w if rd.w is not None else np.gradient(rd.theta * rd.N, rd.dt)
+    labels = label_regimes(rd.u, w_ref)
+    out = {"name": rd.name, "labels": labels, "amplitude": rd.amplitude, "loop": rd.loop,
+           "t": np.arange(len(rd.u)) * rd.dt, "channels": {},
+           "units": AXIS_UNITS[getattr(rd, "axis", "rotary")]}
+    width = max(3, int(0.02 / rd.dt))  # 20 ms: long enough to beat the noise, short for edges
+    for ch, y, yh, sig in (("speed", rd.w, sim["w"], sigma_w),
+                           ("position", rd.theta, sim["theta"], sigma_theta)):
+        if y is None:
+            continue
+        r = (y - yh) / sig
+        out["channels"][ch] = {"measured": y, "simulated": yh, "residual": r, "sigma": sig,
+                               "fit_percent": fit_percent(y, yh),
+                               "rmse_over_noise": float(np.sqrt(np.mean(r ** 2))),
+                               "stretches": stretches(r, labels, width),
+                               "autocorr": autocorr(r), "crosscorr": crosscorr(r, rd.u),
+                               "band": Z99 / np.sqrt(len(r)),
+                               "quantum": float(quanta.get(ch) or 0.0),
+                               "quantum_kind": "encoder count" if ch == "position" and
+                               getattr(rd, "pos_q", 0.0) > 0 else "ADC step"}
+    return out
+
+
+def worst_run(per_run: list[dict]) -> dict:
+    """The run whose worst channel is furthest from the noise floor."""
+    return max(per_run, key=lambda rr: max((c["rmse_over_noise"] for c in rr["channels"].values()),
+                                           default=0.0))
+
+
+def regime_table(per_run: list[dict]) -> dict:
+    """rmse/noise per regime (all runs) and per amplitude, per channel, with shares."""
+    table = {"by_regime": {}, "by_amplitude": {}}
+    for ch in ("speed", "position"):
+        acc = {}
+        amp = {}
+        for rr in per_run:
+            c = rr["channels"].get(ch)
+            if c is None:
+                continue
+            r2 = c["residual"] ** 2
+            for reg in REGIMES:
+                m = rr["labels"] == reg
+                if m.any():
+                    a = acc.setdefault(reg, [0.0, 0])
+                    a[0] += float(r2[m].sum())
+                    a[1] += int(m.sum())
+            key = f"{'closed' if rr['loop'] == 'closed' else 'open'} {rr['amplitude']:.2f} V"
+            b = amp.setdefault(key, [0.0, 0])
+            b[0] += float(r2.sum())
+            b[1] += len(r2)
+        tot = sum(v[0] for v in acc.values()) or 1.0
+        ntot = sum(v[1] for v in acc.values()) or 1
+        table["by_regime"][ch] = {reg: {"rmse_over_noise": float(np.sqrt(s / n)),
+                                        "share_of_error": s / tot, "share_of_time": n / ntot}
+                                  for reg, (s, n) in acc.items()}
+        table["by_amplitude"][ch] = {k: float(np.sqrt(s / n)) for k, (s, n) in sorted(amp.items())}
+    return table
+
+
+def worst_regime(table: dict) -> tuple[str, str, float] | None:
+    """(channel, regime, rmse/noise) where the error is most over-represented."""
+    best = None
+    for ch, regs in table["by_regime"].items():
+        for reg, v in regs.items():
+            if v["share_of_time"] < 0.005:
+                continue
+            score = v["rmse_over_noise"]
+            if best is None or score > best[2]:
+                best = (ch, reg, score)
+    return best

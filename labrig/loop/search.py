@@ -1,0 +1,273 @@
+"""The search for the model's structure: not greedy, judged on held-out data.
+
+Each round diagnoses the current model (every missing effect re-fitted from scanned
+starts, the best cross-validated) and then:
+
+- **adds** the recommended effect, or, when no single effect brings the error near the
+  noise floor, the best **pair** of the leading candidates (two effects that only
+  explain the data together: a dead zone in front of a rail);
+- **swaps** an earlier choice for a look-alike when the new model makes the look-alike
+  predict better (stiction for a dead zone, stiction for Coulomb friction);
+- **removes** an earlier effect that no longer earns its place once a later one is in
+  (backward elimination).
+
+It stops when the cross-validated error stops falling. Folds, noise floors and channel
+weights are fixed in the first round, so every rung of the ladder is judged alike.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from labrig.loop.crossval import cross_validate
+from labrig.loop.diagnose import MIN_DBIC, MIN_GAIN, bic, candidate_names, diagnose
+from labrig.loop.evaluation import evaluate
+from labrig.loop.ladder import Ladder, LadderStep, rung_label
+from labrig.model.effects import get_effect
+from labrig.model.model import Model, param_keys
+from labrig.model.reach import Reach
+from labrig.loop.refit import refit, refit_with, without
+
+#: no single effect is "near the floor" above this rmse/noise: try pairs
+NEAR_FLOOR = 1.5
+#: candidates (by in-sample gain) whose pairs are tried
+PAIR_POOL = 3
+#: a swap must lower the cross-validated error by this much
+SWAP_GAIN = 0.02
+#: the simpler member of a family, taken when it predicts held-out data about as well
+SIMPLER = {"asymmetric_deadband": "deadband", "stiction": "coulomb_friction"}
+#: "about as well": within this share
+SIMPLER_MARGIN = 0.02
+#: look-alikes: effects an earlier choice may be swapped for
+SWAPS = {"deadband": ("stiction", "coulomb_friction", "asymmetric_deadband"),
+         "coulomb_friction": ("stiction", "deadband"),
+         "stiction": ("coulomb_friction", "deadband"),
+         "asymmetric_deadband": ("deadband",),
+         "delay": ("backlash",), "backlash": ("delay",)}
+
+
+@dataclass
+class Move:
+    """One step of the search: what changed and the cross-validated error after it."""
+
+    kind: str            # "add", "pair", "swap", "remove"
+    effects: list        # the effect(s) added, or [old, new] for a swap, [old] for a removal
+    cv_before: float
+    cv_after: float
+    round: int
+
+    @property
+    def label(self) -> str:
+        e = self.effects
+        if self.kind == "swap":
+            return f"{e[0]} -> {e[1]}"
+        return ("- " if self.kind == "remove" else "+ ") + ", ".join(e)
+
+    def to_json(self) -> dict:
+        return {"kind": self.kind, "effects": list(self.effects), "label": self.label,
+                "cross_validated_before": self.cv_before, "cross_validated_after": self.cv_after,
+                "round": self.round}
+
+
+@dataclass
+class SearchResult:
+    rounds: list
+    ladder: Ladder
+    model: Model
+    moves: list = field(default_factory=list)
+
+
+class _Judge:
+    """Evaluates and cross-validates models on the first round's terms."""
+
+    def __init__(self, runs, first, seed, fixed):
+        self.runs, self.seed, self.fixed = runs, seed, fixed
+        self.folds, self.sigmas = first.folds, first.evaluation.sigmas
+        self.weights = first.evaluation.weights
+        ev0 = first.evaluation
+        rho = min(max(ev0.rho1, 0.0), 0.995)
+        self.n = ev0.n
+        self.n_eff = max(self.n * (1 - rho) / (1 + rho), 10.0)
+
+    def evaluate(self, model):
+        return evaluate(self.runs, model, self.sigmas, weights=self.weights)
+
+    def cv(self, model) -> float:
+        return cross_validate(self.runs, model, self.folds, sigmas=self.sigmas,
+                              weights=self.weights, seed=self.seed, fixed=self.fixed,
+                              reach=Reach.of(self.runs, model)).rmse
+
+    def bic(self, model, ev) -> float:
+        k = len(param_keys(model)) - len(self.fixed)
+        return bic(ev.wsse, self.n, self.n_eff, k)
+
+    def add(self, model, name):
+        return refit_with(self.runs, model, get_effect(name), seed=self.seed, fixed=self.fixed,
+                          weights=self.weights).model()
+
+
+def _pool(ranking) -> list:
+    """The leading candidates, one per family: the simplest member unless a richer one
+    gains MIN_GAIN more (an asymmetric dead zone only when it is clearly asymmetric)."""
+    best: dict = {}
+    for c in sorted(ranking, key=lambda c: len(get_effect(c.effect).params)):
+        fam = get_effect(c.effect).family_name
+        if fam not in best or c.improvement >= best[fam].improvement + MIN_GAIN:
+            best[fam] = c
+    return sorted(best.values(), key=lambda c: -c.improvement)[:PAIR_POOL]
+
+
+def _pair(judge: _Judge, diag, log):
+    """The best pair of the leading candidates, when no single one is near the floor:
+    ``(model, cv, names)`` or None."""
+    pool = _pool(diag.ranking)
+    if not pool or min(c.rmse_over_noise for c in pool) <= NEAR_FLOOR:
+        return None
+    best = None
+    for i, a in enumerate(pool):
+        for b in pool[i + 1:]:
+            if b.effect not in candidate_names(a.model):
+                continue  # two friction laws, two dead zones: not a pair
+            m = judge.add(a.model, b.effect)
+            ev = judge.evaluate(m)
+            if best is None or ev.fitness < best[1].fitness:
+                best = (m, ev, [a.effect, b.effect])
+    if best is None:
+        return None
+    if log:
+        log(f"  trying the pair {' + '.join(best[2])} (no single effect is near the floor)")
+    return best[0], best[1], judge.cv(best[0]), best[2]
+
+
+def search(runs, model: Model | None = None, *, max_rounds: int = 3, seed: int = 0,
+           fixed: dict | None = None, weights=None, log=None, on_step=None) -> SearchResult:
+    """Add, pair, swap and remove effects until the cross-validated error stops falling.
+
+    ``on_step(k, model)`` is called for every rung (k = 0 is the starting model);
+    ``max_rounds`` bounds the number of effects added.
+    """
+    fixed = dict(fixed or {})
+    rounds, moves = [], []
+    diag = diagnose(runs, model, seed=seed, fixed=fixed, weights=weights)
+    rounds.append(diag)
+    judge = _Judge(runs, diag, seed, fixed)
+    model = diag.base
+    cv_now = diag.cv_baseline.rmse
+    ladder = Ladder([LadderStep.of("linear model" if not model.names else "given model", model,
+                                   diag.evaluation, cv=cv_now)])
+    if on_step:
+        on_step(0, model)
+    added = 0
+    for k in range(1, max_rounds + 1):
+        if log:
+            log(f"round {k}: {diag.verdict[:160]}")
+        step = None
+        if diag.recommendation:
+            c = diag.candidate(diag.recommendation)
+            step = ("add", [c.effect], c.model, c.evaluation, c.cross_validated["with_effect"])
+        pair = _pair(judge, diag, log) if added + 2 <= max_rounds else None
+        if pair is not None:
+            m, ev, cv, names = pair
+            single_cv = step[4] if step else cv_now
+            dbic = judge.bic(m, ev) - judge.bic(step[2] if step else model,
+                                                step[3] if step else diag.evaluation)
+            if cv < (1 - MIN_GAIN) * single_cv and dbic < MIN_DBIC:
+                step = ("pair", names, m, ev, cv)
+        if step is None:
+            break
+        kind, names, model, ev, cv = step
+        moves.append(Move(kind, names, cv_now, cv, k))
+        cv_now = cv
+        added += len(names)
+        ladder.steps.append(LadderStep.of(rung_label(model.names, ladder.steps[-1].effects),
+                                          model, ev, cv=cv))
+        if on_step:
+            on_step(len(ladder.steps) - 1, model)
+        model, cv_now = _revise(judge, model, names, cv_now, moves, ladder, k, log, on_step)
+        if added >= max_rounds:
+            break
+        diag = diagnose(runs, model, seed=seed, fixed=fixed, weights=judge.weights,
+                        folds=judge.folds)
+        rounds.append(diag)
+    return SearchResult(rounds=rounds, ladder=ladder, model=model, moves=moves)
+
+
+def _revise(judge, model, new, cv_now, moves, ladder, k, log, on_step):
+    """Simpler family members, swaps of earlier choices for look-alikes, then backward
+    elimination."""
+    for old in list(model.names):
+        alt = SIMPLER.get(old)
+        if alt is None:
+            continue
+        m = judge.add(without(model, old), alt)
+        cv = judge.cv(m)
+        if cv <= (1 + SIMPLER_MARGIN) * cv_now:
+            if log:
+                log(f"  {alt} instead of {old}: as good on held-out data ({cv_now:.2f} -> "
+                    f"{cv:.2f}) with fewer parameters")
+            moves.append(Move("swap", [old, alt], cv_now, cv, k))
+            model, cv_now = m, cv
+            _rung(ladder, model, judge, cv, on_step)
+            new = [alt if n == old else n for n in new]
+    for old in [n for n in model.names if n not in new]:
+        for alt in SWAPS.get(old, ()):
+            if alt in model.names:
+                continue
+            reduced = without(model, old)
+            if alt not in candidate_names(reduced):
+                continue
+            m = judge.add(reduced, alt)
+            cv = judge.cv(m)
+            if cv < (1 - SWAP_GAIN) * cv_now:
+                if log:
+                    log(f"  swap {old} -> {alt}: cross-validated {cv_now:.2f} -> {cv:.2f}")
+                moves.append(Move("swap", [old, alt], cv_now, cv, k))
+                model, cv_now = m, cv
+                _rung(ladder, model, judge, cv, on_step)
+                break
+    if len(model.names) >= 2:
+        for old in [n for n in model.names if n not in new]:
+            m = refit(judge.runs, without(model, old), seed=judge.seed, fixed=judge.fixed,
+                      weights=judge.weights).model()
+            cv = judge.cv(m)
+            # the mirror of adding: an effect stays when taking it out costs MIN_GAIN
+            if cv < cv_now / (1 - MIN_GAIN):
+                if log:
+                    log(f"  remove {old}: cross-validated {cv_now:.2f} -> {cv:.2f} without it")
+                moves.append(Move("remove", [old], cv_now, cv, k))
+                model, cv_now = m, cv
+                _rung(ladder, model, judge, cv, on_step)
+    return model, cv_now
+
+
+def _rung(ladder, model, judge, cv, on_step):
+    # the rung names its model's effects (a swap or removal drops one), not the move
+    ladder.steps.append(LadderStep.of(rung_label(model.names, ladder.steps[-1].effects), model,
+                                      judge.evaluate(model), cv=cv))
+    if on_step:
+        on_step(len(ladder.steps) - 1, model)
+
+
+def auto_ladder(runs, max_steps=3, outdir=None, seed=0, log=print) -> Ladder:
+    """The ladder of :func:`search` from the linear model; each rung's model is saved as
+    ``outdir/step<k>.json`` when ``outdir`` is given."""
+    from pathlib import Path
+
+    from labrig.loop.diagnose import linear_model
+
+    out = Path(outdir) if outdir else None
+    paths: dict = {}
+
+    def save(k, model):
+        if out:
+            path = out / f"step{k}.json"
+            model.save(path)
+            paths[k] = str(path)
+
+    if max_steps < 1:  # no round: the linear model alone
+        model = linear_model(runs, seed=seed)
+        save(0, model)
+        return Ladder([LadderStep.of("linear model", model, evaluate(runs, model), paths.get(0))])
+    res = search(runs, max_rounds=max_steps, seed=seed, log=log, on_step=save)
+    for k, step in enumerate(res.ladder.steps):
+        step.model = paths.get(k)
+    return res.ladder

@@ -1,0 +1,51 @@
+"""The effect catalogue as a result a user can read: each effect's parameters, what it
+is in the rig, where it shows in the residuals and the experiment that confirms it."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from labrig.core.display import Displayable
+from labrig.core.tables import Table
+
+
+@dataclass(repr=False)
+class Catalogue(Displayable):
+    """The effects a model can hold (``lr.effects()``); ``[name]`` gives the class."""
+
+    effects: dict = field(default_factory=dict)
+
+    @classmethod
+    def builtin(cls) -> "Catalogue":
+        from labrig.model.effects import CATALOGUE
+
+        return cls(dict(CATALOGUE))
+
+    def __getitem__(self, name: str):
+        return self.effects[name]
+
+    def __iter__(self):
+        return iter(self.effects)
+
+    def __len__(self) -> int:
+        return len(self.effects)
+
+    def headline(self) -> str:
+        return f"Catalogue: {len(self.effects)} effects"
+
+    def table_rows(self) -> Table:
+        t = Table("the effect catalogue", ["effect", "stage", "parameters", "what it is"])
+        for name, e in self.effects.items():
+            params = ", ".join(f"{p.name} ({p.unit})" for p in e.params)
+            t.rows.append([name, e.stage, params, e.summary])
+        return t
+
+    def to_pandas(self):
+        import pandas as pd
+
+        return pd.DataFrame([{"effect": n, "stage": e.stage,
+                              "parameters": [p.name for p in e.params],
+                              "summary": e.summary, "signature": e.signature,
+                              "experiment": e.experiment} for n, e in self.effects.items()])
+
+    def _figure_for_html(self):
+        return None
