@@ -15,7 +15,7 @@ from labrig.core.version import __version__
 
 #: public name -> module that defines it
 _PUBLIC = {
-    "read_runs": "labrig.api", "analyse": "labrig.api", "identify": "labrig.api",
+    "sweep": "labrig.api", "read_runs": "labrig.api", "analyse": "labrig.api", "identify": "labrig.api",
     "diagnose": "labrig.api", "auto": "labrig.api", "propose": "labrig.api",
     "compare": "labrig.api", "ladder": "labrig.api", "effects": "labrig.api",
     "load_model": "labrig.api",

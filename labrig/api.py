@@ -22,8 +22,45 @@ from os import PathLike
 from labrig.core.defaults import METHOD, SEED
 from labrig.core.errors import UserError
 
-__all__ = ["read_runs", "analyse", "identify", "diagnose", "auto", "propose", "compare",
+__all__ = ["sweep", "read_runs", "analyse", "identify", "diagnose", "auto", "propose", "compare",
            "ladder", "effects", "load_model"]
+
+
+def sweep(output, plan=None, rig=None, *, port: str | None = None, seed: int | None = None,
+          resume: bool = False, on_progress=None):
+    """Play a plan on the simulated rig (default) or the board at ``port`` and write one
+    run per experiment to ``output`` (``labrig sweep``); returns the runs read back.
+
+    Parameters
+    ----------
+    output : str or Path
+        Folder for the runs; an existing run there is refused unless ``resume``.
+    plan, rig : str or Path, optional
+        Plan and rig files (TOML; a rig may be a ``.mystery`` file); default the lab's
+        standard plan and the MS150 rig.
+    port : str, optional
+        Serial device of the bridge; without it the simulated rig plays the plan.
+    seed : int, optional
+        Noise seed of the simulated rig (default: the rig file's).
+    on_progress : callable(n_samples), optional
+        Called as samples arrive.
+    """
+    from labrig.bridge.sweep import sweep as _sweep
+    from labrig.io.config import load_plan, load_rig
+
+    rig_cfg = load_rig(rig)
+    experiments = load_plan(plan, rig_cfg)
+    if port:
+        from labrig.bridge.serial import SerialBridge
+
+        bridge = SerialBridge(port, rig_cfg)
+    else:
+        from labrig.bridge.sim import SimRig
+
+        bridge = SimRig(rig_cfg, seed=seed)
+    written = _sweep(bridge, experiments, rig_cfg, output, resume=resume,
+                     on_progress=on_progress)
+    return _runs([str(p) for p in written]) if written else _runs(output)
 
 
 def read_runs(source, *, through: str = "auto"):

@@ -144,3 +144,24 @@ def test_folders_are_layers():
     upward = sorted((m, d) for m, deps in graph.items() for d in deps
                     if level[_part(d)] > level[_part(m)])
     assert upward == []
+
+
+def test_what_the_loop_knows_of_an_effect_lives_on_the_effect():
+    """No table keyed by effect name in the loop: a user's own effect takes part in the
+    search and in proposals through its own attributes, like a built-in one."""
+    from labrig.loop.inputs import KINDS
+    from labrig.model.effects import CATALOGUE
+
+    names = set(CATALOGUE)
+    tables = []
+    for f in (PKG / "loop").glob("*.py"):
+        for node in ast.walk(ast.parse(f.read_text())):
+            if isinstance(node, ast.Dict) and any(
+                    isinstance(k, ast.Constant) and k.value in names for k in node.keys):
+                tables.append(f"{f.name}:{node.lineno}")
+    assert tables == []
+    for name, cls in CATALOGUE.items():
+        e = cls()
+        for other in (e.rival, e.simpler, e.proposed_as, *e.look_alikes):
+            assert not other or other in names, (name, other)
+        assert set(e.responses) <= set(KINDS), name

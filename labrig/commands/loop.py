@@ -189,9 +189,9 @@ def _ask_rig(args, runs, res) -> dict:
     if not res.confusable:
         return {"text": "asked the rig nothing: no two effects explain the data about "
                         "equally well", "pair": None}
-    from labrig.loop.propose import SIMPLEST
+    from labrig.loop.propose import proposed_as
 
-    first, second = (SIMPLEST.get(n, n) for n in (res.confusable[0].first,
+    first, second = (proposed_as(n) for n in (res.confusable[0].first,
                                                   res.confusable[0].second))
     rig = load_rig(args.rig)
     newdir = Path(args.data[0]) / "asked"

@@ -58,8 +58,8 @@ def plot_fit(ident, runs, ax=None, max_runs: int = 4):
             y, yhat, label = rd.w, sim["w"], f"speed ({speed_u})"
         else:
             y, yhat, label = rd.theta, sim["theta"], f"position ({pos_u})"
-        a.plot(t, y, color="0.55", lw=1.0, label="measured")
-        a.plot(t, yhat, color="tab:blue", lw=1.2, label="model")
+        a.plot(t, y, color="0.6", lw=2.4, label="measured")
+        a.plot(t, yhat, color="tab:blue", lw=0.9, label="model")
         a.set_ylabel(label, fontsize=8)
         a.set_title(run.name, fontsize=9, loc="left")
         a.grid(True, alpha=0.3)

@@ -127,11 +127,22 @@ class Evaluation(Displayable):
                                                    "worst stretch"], rows,
                      numeric=(1, 2, 3, 4))
 
-    def plot(self, ax=None):
-        """The regime table as a figure (``labrig.loop.plots.plot_regimes``)."""
-        from labrig.loop.plots import plot_regimes
+    def plot(self, ax=None, kind: str = "overlay", run: str | None = None):
+        """``kind="overlay"``: one run (``run`` by name; default the worst), measured
+        against simulated, with the residual in noise units, its noise band and the
+        stretches outside it shaded by regime (``labrig compare``'s figure);
+        ``kind="regimes"``: rmse/noise by regime."""
+        from labrig.loop.plots import plot_regimes, plot_run_comparison
 
-        return plot_regimes(self.regimes, ax=ax)
+        if kind == "regimes":
+            return plot_regimes(self.regimes, ax=ax)
+        if run is None:
+            rr = self.worst_run()
+        else:
+            rr = next((r for r in self.per_run if r["name"] == run), None)
+            if rr is None:
+                raise KeyError(f"run {run!r} is not one of {[r['name'] for r in self.per_run]}")
+        return plot_run_comparison(rr, ax=ax)
 
 
 def evaluate(runs, model: Model, sigmas=None, weights: Weights | None = None) -> Evaluation:

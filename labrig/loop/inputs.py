@@ -12,6 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from labrig.model.effects import get_effect
 
 #: breakpoints of a proposed input: what the boards' table holds (32), with room to spare,
 #: so a proposal plays on the board as on the simulated rig
@@ -25,52 +26,12 @@ KINDS = {
     "reversals": "reversals at several speeds",
     "staircase": "a staircase of levels through the threshold",
 }
-#: what an effect does under each kind of input, in plain words
-BEHAVIOUR = {
-    ("ramp", "deadband"): "with a dead zone the motor creeps up from |u| = d and coasts freely "
-                          "through zero speed",
-    ("ramp", "coulomb_friction"): "with Coulomb friction it starts at the same input but is "
-                                  "braked to a standstill at every reversal, where it waits "
-                                  "until the drive overcomes the friction again",
-    ("ramp", "stiction"): "with stiction it is held until the breakaway level and then jumps",
-    ("dwells", "deadband"): "a dead zone lets the motor creep up from the threshold on, the "
-                            "same way every time",
-    ("dwells", "coulomb_friction"): "Coulomb friction lets it creep up from the same level",
-    ("dwells", "stiction"): "stiction holds it until the drive passes the breakaway level, "
-                            "then it jumps to speed",
-    ("coast", "deadband"): "with a dead zone the motor coasts freely and the speed decays "
-                           "exponentially with tau_m",
-    ("coast", "coulomb_friction"): "with Coulomb friction the friction keeps braking, so the "
-                                   "speed falls faster and stops in a finite time",
-    ("coast", "stiction"): "with stiction the friction keeps braking and holds the motor once "
-                           "it stops",
-    ("reversals", "deadband"): "with a dead zone the motor coasts through every reversal "
-                               "while the input crosses the zone",
-    ("reversals", "coulomb_friction"): "with Coulomb friction it is braked to a stop at every "
-                                       "reversal and waits there until the drive overcomes "
-                                       "the friction",
-    ("reversals", "stiction"): "with stiction it sticks at every reversal until the "
-                               "breakaway level",
-    ("ramp", "backlash"): "backlash keeps the output still at the reversal while the motor "
-                          "crosses the gap",
-    ("ramp", "delay"): "a delay shifts the whole response by the same time",
-    ("coast", "backlash"): "backlash lets the output stop before the motor does",
-    ("coast", "delay"): "a delay starts every coast-down late by the same time",
-    ("reversals", "backlash"): "backlash keeps the output still while the motor crosses the "
-                               "gap, for a time that grows as the speed falls",
-    ("reversals", "delay"): "a delay shifts every response by the same time, whatever the speed",
-    ("staircase", "deadband"): "with a dead zone every step's speed rises from the threshold on",
-    ("staircase", "coulomb_friction"): "with friction the steps below the friction level stay "
-                                       "at rest and the others start braked",
-    ("staircase", "stiction"): "with stiction the motor stays at rest until a step passes the "
-                               "breakaway level, then jumps",
-}
-ALIAS = {"asymmetric_deadband": "deadband"}
 
 
 def why(kind: str, pair) -> str:
-    """Why ``kind`` of input separates the two effects of ``pair``, in plain words."""
-    said = [BEHAVIOUR.get((kind, ALIAS.get(e, e))) for e in pair]
+    """Why ``kind`` of input separates the two effects of ``pair``, in plain words (each
+    effect says how it responds: :attr:`labrig.model.effect_base.Effect.responses`)."""
+    said = [get_effect(e).responses.get(kind) for e in pair]
     told = "; ".join(x for x in said if x)
     return f"{KINDS[kind]}: {told}" if told else \
         f"{KINDS[kind]}: the two explanations predict different responses to it"

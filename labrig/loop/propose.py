@@ -30,13 +30,6 @@ from labrig.io.runs import Run
 from labrig.core.display import Displayable
 from labrig.core.tables import Table
 
-#: the question an experiment answers is between kinds of physics: an asymmetric dead zone
-#: is asked about as a dead zone (its asymmetry is a parameter, not another explanation)
-SIMPLEST = {"asymmetric_deadband": "deadband"}
-#: the usual rival of each effect: what explains the same data about as well
-RIVALS = {"deadband": "coulomb_friction", "coulomb_friction": "deadband",
-          "stiction": "deadband", "asymmetric_deadband": "coulomb_friction",
-          "delay": "backlash", "backlash": "delay"}
 LEAD_IN_S = 0.5
 
 
@@ -187,8 +180,8 @@ def default_pair(model: Model, between: str | None) -> tuple:
             raise UserError("--between: the two effects must differ")
         return tuple(names)
     for e in model.effects:
-        if e.name in RIVALS:
-            return e.name, RIVALS[e.name]
+        if e.rival:
+            return e.name, e.rival
     raise UserError("the model has no effect with a usual look-alike (dead zone, friction, "
                     "stiction, delay, backlash); name the pair with --between a,b")
 
@@ -212,7 +205,13 @@ def pair_from_diagnosis(model_path) -> str | None:
     if not (isinstance(pair, list) and len(pair) == 2 and all(isinstance(n, str) for n in pair)):
         raise UserError(f"{path}: key 'confusable.0.pair' is not two effect names; give the "
                         "pair with --between a,b")
-    return ",".join(SIMPLEST.get(n, n) for n in pair)
+    return ",".join(proposed_as(n) for n in pair)
+
+
+def proposed_as(name: str) -> str:
+    """The effect a proposal tests in place of ``name`` (the symmetric form of an
+    asymmetric one; :attr:`~labrig.model.effect_base.Effect.proposed_as`)."""
+    return get_effect(name).proposed_as or name
 
 
 def threshold_of(model: Model) -> float:
@@ -253,9 +252,6 @@ def synthetic_run(template: Run, cand: Candidate, name: str, sim: dict | None = 
     return Run(name=name, data=pd.DataFrame(cols), meta=meta)
 
 
-#: the parameter that sets where each effect acts (varied over what the data allow)
-THRESHOLDS = {"deadband": "d_v", "coulomb_friction": "tc_v", "stiction": "tc_v",
-              "backlash": "a_rad", "delay": "td_s"}
 #: variants of a hypothesis: the threshold fixed at these shares of its data bound
 VARIANT_SHARES = (0.1, 0.3, 0.6)
 #: a variant is plausible while its fit is within this factor of the best
@@ -268,10 +264,10 @@ def variants(runs, hyp: Hypothesis, reach, *, seed: int, weights: Weights):
     within :data:`PLAUSIBLE` of the best) stay. A threshold one run cannot pin down (a
     dead zone from a single step: d and the gain trade off) then spans its range."""
     out = [hyp.model]
-    key = THRESHOLDS.get(hyp.effect)
+    eff = get_effect(hyp.effect)
+    key = eff.threshold or None
     if key is None:
         return out
-    eff = get_effect(hyp.effect)
     _, hi = eff.data_bounds(reach).get(key, (None, None))
     if hi is None:
         return out
@@ -326,7 +322,7 @@ def propose(runs: list[Run], model: Model, between: str | None = None, *,
     model : Model
         The current model; the pair's effects are swapped in and out of it.
     between : str, optional
-        ``"a,b"``; default the model's effect and its usual rival (:data:`RIVALS`).
+        ``"a,b"``; default the model's effect and its usual rival (its ``rival``).
     amax : float, optional
         Largest input allowed (V); default the largest the data already use.
     rig : RigConfig, optional

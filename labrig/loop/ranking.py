@@ -152,6 +152,10 @@ class Diagnosis(Displayable):
                                  "over its own at the starting model; --weights overrides)")
         return [regimes, ranking]
 
+    def _tables(self) -> list[Table]:
+        regimes, ranking = self.table_rows()
+        return [ranking, regimes]   # in a notebook, the ranking first: it is the answer
+
     def to_text(self) -> str:
         b = self.baseline
         r = b["rmse_over_noise"]

@@ -21,6 +21,8 @@ def plot_ranking(diag, ax=None):
         plot_regimes(diag.regimes, ax=ax2, title="")
         ax2.set_title("where the model fails (" + next(iter(diag.regimes["by_regime"])) + ")",
                       fontsize=9)
+        for label in ax2.get_xticklabels():
+            label.set_horizontalalignment("right")
     else:
         fig = ax.figure
     ranking = diag.ranking
@@ -35,7 +37,8 @@ def plot_ranking(diag, ax=None):
             ax.plot(cv["with_effect"], i, "o", color="k", ms=4)
         note = f"dBIC {c.delta_bic:.0f}" + (f", {cv['folds_improved']}/{cv['folds']} folds"
                                              if cv else "")
-        ax.annotate(note, (vals[i], i), xytext=(4, 0), textcoords="offset points",
+        ax.annotate(note, (max(vals[i], cv["with_effect"] if cv else 0.0), i), xytext=(6, 0),
+                    textcoords="offset points",
                     va="center", fontsize=7)
     base = diag.baseline["rmse_over_noise"]["overall"]
     ax.axvline(base, color="tab:red", ls="--", lw=1, label=f"without: {base:.2f}")

@@ -33,16 +33,8 @@ NEAR_FLOOR = 1.5
 PAIR_POOL = 3
 #: a swap must lower the cross-validated error by this much
 SWAP_GAIN = 0.02
-#: the simpler member of a family, taken when it predicts held-out data about as well
-SIMPLER = {"asymmetric_deadband": "deadband", "stiction": "coulomb_friction"}
 #: "about as well": within this share
 SIMPLER_MARGIN = 0.02
-#: look-alikes: effects an earlier choice may be swapped for
-SWAPS = {"deadband": ("stiction", "coulomb_friction", "asymmetric_deadband"),
-         "coulomb_friction": ("stiction", "deadband"),
-         "stiction": ("coulomb_friction", "deadband"),
-         "asymmetric_deadband": ("deadband",),
-         "delay": ("backlash",), "backlash": ("delay",)}
 
 
 @dataclass
@@ -195,7 +187,7 @@ def _revise(judge, model, new, cv_now, moves, ladder, k, log, on_step):
     """Simpler family members, swaps of earlier choices for look-alikes, then backward
     elimination."""
     for old in list(model.names):
-        alt = SIMPLER.get(old)
+        alt = get_effect(old).simpler or None
         if alt is None:
             continue
         m = judge.add(without(model, old), alt)
@@ -209,7 +201,7 @@ def _revise(judge, model, new, cv_now, moves, ladder, k, log, on_step):
             _rung(ladder, model, judge, cv, on_step)
             new = [alt if n == old else n for n in new]
     for old in [n for n in model.names if n not in new]:
-        for alt in SWAPS.get(old, ()):
+        for alt in get_effect(old).look_alikes:
             if alt in model.names:
                 continue
             reduced = without(model, old)

@@ -60,6 +60,23 @@ class Effect(abc.ABC):
     #: (empty: the effect's own name)
     family: str = ""
 
+    # -- what the loop knows about the effect (a user's effect may set these too) --
+    #: the parameter that sets where the effect acts (a proposal varies it over what
+    #: the data allow); empty: none
+    threshold: str = ""
+    #: a member of the family with fewer parameters, tried in its place by the search
+    simpler: str = ""
+    #: effects whose residuals look like this one's, in the order the search tries to
+    #: swap them in for it
+    look_alikes: tuple = ()
+    #: its usual look-alike: what ``labrig propose`` separates it from by default
+    rival: str = ""
+    #: the effect a proposal tests in its place (the symmetric form of an asymmetric one)
+    proposed_as: str = ""
+    #: how it responds to each kind of input a proposal can play
+    #: (:data:`labrig.loop.inputs.KINDS`), in plain words
+    responses: dict = {}
+
     @property
     def family_name(self) -> str:
         return self.family or self.name

@@ -43,13 +43,10 @@ from pathlib import Path
 import numpy as np
 
 from labrig.core.errors import UserError
-from labrig.model.effect_base import STAGE_BASES, STAGES, DelayEffect, DriveEffect, Effect, FrictionEffect, InputEffect, OutputEffect, Param
+from labrig.model.effect_base import (STAGE_BASES, STAGES, DelayEffect, DriveEffect,  # noqa: F401
+                                      Effect, FrictionEffect, InputEffect, OutputEffect, Param)
+from labrig.model.friction import CoulombFriction, Stiction, run_amplitudes as _run_amplitudes
 
-
-
-def _run_amplitudes(runs) -> np.ndarray:
-    amps = [r.amplitude for r in runs if r.loop == "open"]
-    return np.array(amps or [1.0])
 
 
 class Deadband(InputEffect):
@@ -63,6 +60,20 @@ class Deadband(InputEffect):
     """
 
     name = "deadband"
+    threshold = "d_v"
+    rival = "coulomb_friction"
+    look_alikes = ("stiction", "coulomb_friction", "asymmetric_deadband")
+    responses = {
+        "ramp": ("with a dead zone the motor creeps up from |u| = d and coasts freely "
+                 "through zero speed"),
+        "dwells": ("a dead zone lets the motor creep up from the threshold on, the same "
+                   "way every time"),
+        "coast": ("with a dead zone the motor coasts freely and the speed decays "
+                  "exponentially with tau_m"),
+        "reversals": ("with a dead zone the motor coasts through every reversal while the "
+                      "input crosses the zone"),
+        "staircase": "with a dead zone every step's speed rises from the threshold on",
+    }
     stage = "input"
     params = (Param("d_v", "V", 1e-3, 2.0, "dead-zone half width at the bridge input"),)
     summary = "a dead zone of the amplifier input: below d volts the motor gets nothing"
@@ -129,91 +140,6 @@ class Saturation(DriveEffect):
         return {"vmax_v": 0.8 * plant.Ka * float(np.max(_run_amplitudes(runs)))}
 
 
-class CoulombFriction(FrictionEffect):
-    """Dry friction ``Tc sign(w)`` with stiction through a Karnopp stick band.
-
-    Physics: brushes and bearings rub with a torque nearly independent of speed;
-    at rest the rotor stays stuck until the drive torque exceeds the breakaway
-    torque (equal to Tc here; ``stiction`` makes it larger). Residual signature:
-    apparent tau too short, a kink where w crosses 0, coast-downs that stop in
-    finite time, relative error ~1/A.
-
-    The parameter is the friction expressed in volts at the bridge input,
-    ``tc_v = Tc R / (Ka K)``: the input whose stall torque just balances it. Tc in
-    N m is not identifiable from speed and position alone (it scales with R and J
-    along the model's symmetry, docs/physics.md, 'Identifiability'); tc_v is, and it
-    is directly comparable with a deadband.
-    """
-
-    name = "coulomb_friction"
-    stage = "friction"
-    family = "friction law"
-    params = (Param("tc_v", "V", 1e-3, 5.0, "Coulomb friction as the bridge voltage that balances "
-                    "it at stall (Tc = tc_v Ka K / R)"),)
-    summary = "dry friction of brushes and bearings: a constant torque against motion"
-    signature = ("apparent gain rises with amplitude like a deadband, but reversals "
-                 "decelerate faster into zero speed and leave it later, with a kink at w = 0")
-    experiment = ("a coast-down from speed with the amplifier off (the speed falls "
-                  "linearly and stops in finite time) or a slow ramp in both directions")
-    def explain_params(self, params, context):
-        # Tc in N m slides along the model's symmetry with R and J; in the model it is
-        text = (f"tc_v = {params['tc_v']:.3g} V: friction cancels the first "
-                f"{params['tc_v']:.3g} V of drive ({100 * params['tc_v'] / context['amin']:.0f} % "
-                f"of the smallest amplitude, {context['amin']:.2g} V)")
-        # in the physics' units: armature volts (the torque Tc = tc_v Ka K / R needs R or K
-        # known, --fix: along the model's symmetry it slides with R and J)
-        text += f", {params['tc_v'] * context['Ka']:.3g} V at the armature"
-        to_input = context.get("to_input")
-        if to_input is not None:  # behind a dead zone or an offset
-            up, down = to_input(params["tc_v"])
-            text += f"; the motor keeps turning for inputs above {up:.3g} V or below {down:.3g} V"
-        return text
-
-    def data_bounds(self, reach):
-        return {"tc_v": (1e-3, reach.amax)}
-
-    def scan_grid(self, reach):
-        return {"tc_v": np.linspace(0.02, 0.9, 12) * reach.amax}
-
-    def friction(self, plant, tc_v):
-        t = tc_v * plant.Ka * plant.K / plant.R
-        return t, t
-
-    def initial_guess(self, runs, plant):
-        return {"tc_v": 0.05 * float(np.min(_run_amplitudes(runs)))}
-
-
-class Stiction(FrictionEffect):
-    """Coulomb friction plus a higher breakaway torque (Karnopp): ``ts = tc*(1 + s)``."""
-
-    name = "stiction"
-    stage = "friction"
-    family = "friction law"
-    params = (Param("tc_v", "V", 1e-3, 5.0, "Coulomb friction as a bridge voltage (see coulomb_friction)"),
-              Param("excess", "-", 0.01, 3.0, "breakaway excess: Ts = Tc (1 + excess)"))
-    summary = "static friction: starting from rest needs more torque than keeping moving"
-    signature = "a delay before each start from rest, near the breakaway voltage only"
-    experiment = "a very slow ramp from rest: the motor jumps into motion at breakaway"
-    def explain_params(self, params, context):
-        return (CoulombFriction().explain_params(params, context)
-                + f", breakaway {1 + params['excess']:.2f} x Coulomb")
-
-    def friction(self, plant, tc_v, excess):
-        t = tc_v * plant.Ka * plant.K / plant.R
-        return t, t * (1.0 + excess)
-
-    def data_bounds(self, reach):
-        return {"tc_v": (1e-3, reach.amax)}
-
-    def scan_grid(self, reach):
-        tc = np.linspace(0.02, 0.8, 8) * reach.amax
-        return {"tc_v": np.tile(tc, 2), "excess": np.repeat([0.3, 1.0], len(tc))}
-
-    def initial_guess(self, runs, plant):
-        g = CoulombFriction().initial_guess(runs, plant)
-        return {"tc_v": g["tc_v"], "excess": 0.5}
-
-
 class Backlash(OutputEffect):
     """Gear play: a play operator of half-gap ``a`` on the output-shaft angle.
 
@@ -223,6 +149,16 @@ class Backlash(OutputEffect):
     """
 
     name = "backlash"
+    threshold = "a_rad"
+    rival = "delay"
+    look_alikes = ("delay",)
+    responses = {
+        "ramp": ("backlash keeps the output still at the reversal while the motor crosses "
+                 "the gap"),
+        "coast": "backlash lets the output stop before the motor does",
+        "reversals": ("backlash keeps the output still while the motor crosses the gap, "
+                      "for a time that grows as the speed falls"),
+    }
     stage = "output"
     params = (Param("a_rad", "rad", 1e-4, 0.5, "half the gear play, at the output shaft"),)
     summary = "play in the gearbox: the output shaft lags the motor by up to the gap"
@@ -257,6 +193,14 @@ class Delay(DelayEffect):
     """
 
     name = "delay"
+    threshold = "td_s"
+    rival = "backlash"
+    look_alikes = ("backlash",)
+    responses = {
+        "ramp": "a delay shifts the whole response by the same time",
+        "coast": "a delay starts every coast-down late by the same time",
+        "reversals": "a delay shifts every response by the same time, whatever the speed",
+    }
     stage = "delay"
     params = (Param("td_s", "s", 1e-5, 0.1, "transport delay"),)
     summary = "a pure time delay between the bridge output and the motor's response"
@@ -335,6 +279,11 @@ class AsymmetricDeadband(InputEffect):
     """
 
     name = "asymmetric_deadband"
+    simpler = "deadband"
+    rival = "coulomb_friction"
+    proposed_as = "deadband"
+    look_alikes = ("deadband",)
+    responses = Deadband.responses
     stage = "input"
     family = "dead zone"
     params = (Param("dpos_v", "V", 1e-3, 2.0, "dead zone for positive inputs"),

@@ -1,0 +1,87 @@
+"""The public API: `import labrig as lr` gives the verbs and types a user needs, each
+takes a folder, files or runs, and every result shows itself readably."""
+from __future__ import annotations
+
+import json
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+import labrig as lr
+
+ROOT = Path(__file__).resolve().parent.parent
+DATA = ROOT / "data" / "sweep_default"
+
+
+def test_every_public_name_is_documented_and_resolves():
+    doc = (ROOT / "docs" / "api.md").read_text()
+    for name in lr.__all__:
+        if name == "__version__":
+            continue
+        assert re.search(rf"`(lr\.)?{name}\b", doc), f"{name} is not in docs/api.md"
+        assert getattr(lr, name) is not None
+    assert "docs/api.md" in (ROOT / "README.md").read_text()
+
+
+def test_import_is_light_and_picks_no_backend():
+    code = ("import sys, labrig as lr; "
+            "print(sorted(m for m in ('numba', 'matplotlib', 'scipy') if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True).stdout.strip()
+    assert out == "[]"
+    # the whole library imported, still no backend chosen: a notebook keeps its own
+    code = ("import matplotlib; import labrig.report.html, labrig.loop.auto, "
+            "labrig.analysis.plots; print(matplotlib.rcParams._get_backend_or_none())")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True, env={"PATH": "/usr/bin:/bin", "MPLBACKEND": ""}).stdout
+    assert out.strip() == "None"
+
+
+def test_verbs_take_a_folder_files_or_runs_alike():
+    runs = lr.read_runs(DATA)
+    files = sorted(str(p) for p in DATA.glob("*.csv"))
+    assert [r.name for r in lr.read_runs(files)] == [r.name for r in runs]
+    assert [r.name for r in lr.read_runs([runs[0], files[1]])] == sorted(
+        [runs[0].name, Path(files[1]).stem])
+    a = lr.identify(str(DATA), seed=3, starts=2)
+    b = lr.identify(runs, seed=3, starts=2)
+    assert a.method == "co"                       # the command line's default
+    assert a.metrics["fitness"] == pytest.approx(b.metrics["fitness"], rel=1e-12)
+    with pytest.raises(lr.UserError, match="source"):
+        lr.read_runs(42)
+    with pytest.raises(lr.UserError, match="source: empty"):
+        lr.read_runs([])
+
+
+def test_results_show_one_screen_and_html(tmp_path):
+    runs = lr.read_runs(DATA)
+    fit = lr.identify(runs, seed=1, starts=2)
+    ev = lr.compare(runs, fit)
+    lad = lr.ladder(runs, [fit])
+    model_file = fit.model().save(tmp_path / "m.json")
+    assert lr.load_model(model_file).params == pytest.approx(fit.model().params)
+    for obj in (fit, ev, lad, lr.analyse(runs), lr.effects()):
+        text = repr(obj)
+        assert text.startswith("<") and len(text.splitlines()) <= 30, type(obj).__name__
+        html = obj._repr_html_()
+        assert "<table>" in html
+    for obj in (fit, ev, lad):   # the results of the loop show their figure
+        assert "data:image/png;base64" in obj._repr_html_()
+    assert repr(runs[0]).startswith("Run('cl_sq_0.50V': 900 samples at 200 Hz")
+    assert repr(fit.model()).startswith("Model(voltage: linear (R = ")
+    # the fit overlays the model on every run it was fitted to (CO too)
+    fig = fit.plot()
+    assert len(fig.axes) == 4 and fig.axes[0].get_lines()
+    assert fit.plot(kind="convergence").axes
+    assert json.dumps(fit.to_json())
+
+
+def test_catalogue_lists_every_effect_with_its_physics():
+    cat = lr.effects()
+    df = cat.to_pandas()
+    assert {"deadband", "coulomb_friction", "stiction", "backlash", "delay"} <= set(df.effect)
+    assert all(df.summary.str.len() > 20) and all(df.signature.str.len() > 10)
+    assert cat["deadband"].name == "deadband"
