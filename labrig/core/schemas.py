@@ -412,3 +412,11 @@ def _model_in(annotation):
         if found is not None:
             return found
     return None
+
+
+class JsonDoc(BaseModel):
+    """Base of the documents of labrig's own JSON outputs (``--json``, the artefacts the
+    report reads): declared keys are typed; any other key is carried along (newer
+    writers), and a test checks that labrig's own writers declare every key they write."""
+
+    model_config = ConfigDict(extra="allow")

@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from labrig.core.defaults import LOOP_GAINS
+from labrig.core.defaults import LOOP_GAINS, METHOD
 from labrig.core.errors import UserError
 from labrig.core.timing import mark
 from labrig.model.effects import Effect
@@ -239,13 +239,35 @@ def initial_point(space: Space, effects, runs, constants, start: dict | None) ->
     return point
 
 
-def identify(runs, method: str = "co", effects: list[Effect] = (), *, seed: int | None = None,
-             bounds: dict | None = None, fixed: dict | None = None, p: float = 1.0,
-             q: float = 1.0, pop: int = 50, iters: int = 200, starts: int = 8,
-             polish: bool = False, start: dict | None = None, callback=None,
-             dataset: dict | None = None, identifiability: bool = True,
-             max_nfev: int | None = None, rule: str = "paper", masks=None,
-             reach=None, subsample: int | None = None, c: float = 1.0) -> Identification:
+@dataclass(frozen=True)
+class FitOptions:
+    """How hard and on what an identifier works (``labrig identify``'s tuning options).
+
+    ``pop``, ``iters``: population and iterations of JFO/PSO; ``starts``: CO's scanned
+    starts; ``polish``: finish JFO/PSO with CO; ``p``, ``q``, ``c``: weights of the
+    position, speed and (voltage plant, when measured) current channels, each already
+    divided by its noise level; ``rule``: JFO's time-control rule; ``max_nfev``: CO's
+    evaluation budget; ``subsample``: CO from a start on about this many residuals;
+    ``identifiability``: compute the intervals and warnings.
+    """
+
+    pop: int = 50
+    iters: int = 200
+    starts: int = 8
+    polish: bool = False
+    p: float = 1.0
+    q: float = 1.0
+    c: float = 1.0
+    rule: str = "paper"
+    max_nfev: int | None = None
+    subsample: int | None = None
+    identifiability: bool = True
+
+
+def identify(runs, method: str = METHOD, effects: list[Effect] = (), *, seed: int | None = None,
+             bounds: dict | None = None, fixed: dict | None = None, start: dict | None = None,
+             options: FitOptions | None = None, callback=None, dataset: dict | None = None,
+             masks=None, reach=None, **settings) -> Identification:
     """Fit the servo model to ``runs``.
 
     Parameters
@@ -258,9 +280,8 @@ def identify(runs, method: str = "co", effects: list[Effect] = (), *, seed: int 
     bounds, fixed : dict
         ``{name: (lower, upper)}`` and ``{name: value}``; names are R, L, J, B, K
         and ``effect.param``.
-    p, q, c : float
-        Weights of position, speed and (voltage plant, when measured) armature current,
-        each already divided by its noise level.
+    options : FitOptions, optional
+        The tuning options; or give its fields as keywords (``settings``: ``pop=30``).
     start : dict, optional
         Physical parameters to start from (a saved model): CO starts there, JFO and
         PSO are polished from the better of their result and the start.
@@ -271,6 +292,7 @@ def identify(runs, method: str = "co", effects: list[Effect] = (), *, seed: int 
     subsample : int, optional
         CO from ``start`` with one start: fit on about this many residuals (every k-th).
     """
+    o = options if options is not None else FitOptions(**settings)
     method = method.lower() if isinstance(method, str) else method  # "JFO" is jfo
     if method not in METHODS:
         raise UserError(f"--method: unknown method '{method}'; choose {', '.join(METHODS)} or all")
@@ -280,14 +302,14 @@ def identify(runs, method: str = "co", effects: list[Effect] = (), *, seed: int 
     effects = EffectSet.parse(effects)
     space = build_space(effects, bounds, fixed, reach=reach or Reach.of(runs),
                         plant=plant_of_runs(runs))
-    obj = Objective(runs, effects, space, p=p, q=q, masks=masks, c=c)
+    obj = Objective(runs, effects, space, p=o.p, q=o.q, masks=masks, c=o.c)
     t0 = time.perf_counter()  # after the simulator is ready: a first compile is not fitting
     constants = dataset_constants(runs)
     lo, hi = space.search_bounds()
     x0 = space.to_search(initial_point(space, effects, runs, constants, start))
     seed = int(np.random.default_rng().integers(2 ** 31)) if seed is None else int(seed)
-    opts = {"pop": pop, "iters": iters, "seed": seed, "starts": starts, "callback": callback,
-            "max_nfev": max_nfev, "rule": rule, "subsample": subsample}
+    opts = {"pop": o.pop, "iters": o.iters, "seed": seed, "starts": o.starts, "callback": callback,
+            "max_nfev": o.max_nfev, "rule": o.rule, "subsample": o.subsample}
     mark("fit-start")
     try:
         res = METHODS[method](obj, lo, hi, x0 if (start or method == "co") else None, opts)
@@ -295,7 +317,7 @@ def identify(runs, method: str = "co", effects: list[Effect] = (), *, seed: int 
         raise UserError(str(exc)) from None
     mark("fit-end")
     name = method
-    if method != "co" and (polish or start):
+    if method != "co" and (o.polish or start):
         best = res
         if start is not None and np.sqrt(np.mean(obj.residuals(x0) ** 2) * obj.m) < res.fun:
             best = IdentResult(x=x0, fun=float(res.fun), nfev=res.nfev, nit=res.nit,
@@ -306,7 +328,7 @@ def identify(runs, method: str = "co", effects: list[Effect] = (), *, seed: int 
     res.nfev = max(int(res.nfev), obj.nfev)
     phys = space.to_physical(res.x[None, :])[0]
     metrics = obj.metrics(phys)
-    ident = analyse_identifiability(obj, res.x, constants["Ka"]) if identifiability else {}
+    ident = analyse_identifiability(obj, res.x, constants["Ka"]) if o.identifiability else {}
     mark("identifiability-end")
     dataset = dict(dataset or {})
     if any(r.current is not None for r in runs) and not space.plant.current_output:

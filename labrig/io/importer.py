@@ -13,6 +13,8 @@ controller go into the sidecar.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import math
 import re
 from pathlib import Path
@@ -120,87 +122,107 @@ def read_columns(src: Path, columns: list[str]) -> dict:
     return read_csv_columns(src, columns)
 
 
-def import_csv(src: Path | str, outdir: Path | str, mapping: dict[str, str], *,
-               speed_unit: str | None = None, pos_unit: str | None = None,
-               time_unit: str = "s",
-               tacho_gain: float | None = None, pos_gain: float | None = None,
-               pos_offset: float = 0.0, gear_ratio: float = 1.0, amplifier_gain: float = 1.0,
-               name: str | None = None, waveform: str = "custom", loop: str = "open",
-               overwrite: bool = False, position_gain: float | None = None,
-               velocity_gain: float | None = None, drive: str = "voltage",
-               axis: str | None = None, input_gain: float | None = None,
-               controller: dict | None = None, current_gain: float = 1.0) -> Path:
+@dataclass(frozen=True)
+class ImportOptions:
+    """How to read a foreign file: units, sensor gains, the plant and the loop (the
+    options of ``labrig import``, with its defaults)."""
+
+    speed_unit: str | None = None
+    pos_unit: str | None = None
+    time_unit: str = "s"
+    tacho_gain: float | None = None
+    pos_gain: float | None = None
+    pos_offset: float = 0.0
+    gear_ratio: float = 1.0
+    amplifier_gain: float = 1.0
+    waveform: str = "custom"
+    loop: str = "open"
+    position_gain: float | None = None
+    velocity_gain: float | None = None
+    drive: str = "voltage"
+    axis: str | None = None
+    input_gain: float | None = None
+    controller: dict | None = None
+    current_gain: float = 1.0
+
+
+def import_csv(src: Path | str, outdir: Path | str, mapping: dict[str, str],
+               options: ImportOptions | None = None, *, name: str | None = None,
+               overwrite: bool = False, **settings) -> Path:
     """Convert a foreign CSV or .mat file into a labrig run in ``outdir``; return the CSV path.
 
+    ``options`` (or its fields as keywords, ``settings``) say how to read the file;
     ``drive`` and ``axis`` choose the plant (:mod:`labrig.model.plants`); a torque/force
     drive needs ``input_gain`` (N m or N per input volt). In closed loop a mapped ``ref``
     is the loop's reference and ``u`` the logged controller output (kept as ``drive``).
     """
+    o = options if options is not None else ImportOptions(**settings)
+    axis, pos_unit, speed_unit = o.axis, o.pos_unit, o.speed_unit
     src = Path(src)
     if name is None:  # a file name may hold spaces or brackets; a run name may not
         name = re.sub(r"[^A-Za-z0-9_.+\-]", "_", src.stem).lstrip(".") or "run"
     check_run_name(name, "--name")
     if axis is None:  # from the drive; a unit never switches the plant behind the user
-        axis = "linear" if drive == "force" else "rotary"
-    check_axis(drive, axis)
+        axis = "linear" if o.drive == "force" else "rotary"
+    check_axis(o.drive, axis)
     pos_unit = pos_unit or next(iter(POS_UNITS[axis]))
     speed_unit = speed_unit or next(iter(SPEED_UNITS[axis]))
     counts_per_unit, pos_factor, speed_factor = _units(axis, pos_unit, speed_unit)
-    if time_unit not in TIME_UNITS:
-        raise UserError(f"--time-unit: unknown unit '{time_unit}'; expected one of "
+    if o.time_unit not in TIME_UNITS:
+        raise UserError(f"--time-unit: unknown unit '{o.time_unit}'; expected one of "
                         f"{', '.join(TIME_UNITS)}")
-    for opt, val, positive in (("--tacho-gain", tacho_gain, False), ("--pos-gain", pos_gain, False),
-                               ("--pos-offset", pos_offset, None),
-                               ("--gear-ratio", gear_ratio, True),
-                               ("--amplifier-gain", amplifier_gain, True),
-                               ("--input-gain", input_gain, True),
-                               ("--current-gain", current_gain, False)):
+    for opt, val, positive in (("--tacho-gain", o.tacho_gain, False), ("--pos-gain", o.pos_gain, False),
+                               ("--pos-offset", o.pos_offset, None),
+                               ("--gear-ratio", o.gear_ratio, True),
+                               ("--amplifier-gain", o.amplifier_gain, True),
+                               ("--input-gain", o.input_gain, True),
+                               ("--current-gain", o.current_gain, False)):
         if val is None:
             continue
         if not math.isfinite(val) or (positive and val <= 0) or (positive is False and val == 0):
             need = "a positive number" if positive else "a nonzero number" \
                 if positive is False else "a finite number"
             raise UserError(f"{opt}: {val:g} is not {need}")
-    if drive != "voltage" and input_gain is None:
-        raise UserError(f"--input-gain: a {drive}-driven axis needs its drive's gain kd "
-                        f"({'N m' if drive == 'torque' else 'N'} per input volt), e.g. "
+    if o.drive != "voltage" and o.input_gain is None:
+        raise UserError(f"--input-gain: a {o.drive}-driven axis needs its drive's gain kd "
+                        f"({'N m' if o.drive == 'torque' else 'N'} per input volt), e.g. "
                         "--input-gain 20")
-    if drive == "voltage" and input_gain is not None:
+    if o.drive == "voltage" and o.input_gain is not None:
         raise UserError("--input-gain: only for --drive torque or force; a voltage drive's "
                         "gain is --amplifier-gain")
-    if axis == "linear" and gear_ratio != 1.0:
+    if axis == "linear" and o.gear_ratio != 1.0:
         raise UserError("--gear-ratio: a linear axis has none (positions are the carriage's)")
-    if loop not in ("open", "closed"):
-        raise UserError(f"--loop: expected open or closed, got '{loop}'")
-    experiment = {"loop": loop, "waveform": waveform}
-    if loop == "closed":
+    if o.loop not in ("open", "closed"):
+        raise UserError(f"--loop: expected open or closed, got '{o.loop}'")
+    experiment = {"loop": o.loop, "waveform": o.waveform}
+    if o.loop == "closed":
         # fitted through the loop, the controller is part of the model: without its
         # gains the fit would be of a different system
-        if controller is not None:
-            if position_gain is not None or velocity_gain is not None:
+        if o.controller is not None:
+            if o.position_gain is not None or o.velocity_gain is not None:
                 raise UserError("--controller: give the controller or --position-gain/"
                                 "--velocity-gain (the MS150's analog loop), not both")
-            experiment["controller"] = controller
+            experiment["controller"] = o.controller
         else:
-            for opt, v in (("--position-gain", position_gain), ("--velocity-gain", velocity_gain)):
+            for opt, v in (("--position-gain", o.position_gain), ("--velocity-gain", o.velocity_gain)):
                 if v is None or not math.isfinite(v) or v < 0:
                     raise UserError(f"--controller: a closed-loop import needs its controller, "
                                     "e.g. --controller pd:kp=2,kd=0.1 (or the MS150 loop's "
                                     f"{opt}); got none")
-            experiment.update(position_gain=float(position_gain),
-                              velocity_gain=float(velocity_gain))
-    elif controller is not None or position_gain is not None or velocity_gain is not None:
+            experiment.update(position_gain=float(o.position_gain),
+                              velocity_gain=float(o.velocity_gain))
+    elif o.controller is not None or o.position_gain is not None or o.velocity_gain is not None:
         raise UserError("--controller/--position-gain/--velocity-gain: only with --loop closed")
     elif "u" not in mapping:
         raise UserError("--map: 'u=COLUMN' missing; an open-loop run needs its input")
-    if "pos" in mapping and pos_gain is None and "tacho" in mapping:
+    if "pos" in mapping and o.pos_gain is None and "tacho" in mapping:
         raise UserError("--pos-gain is needed with raw-volt columns (tacho=...,pos=...)")
-    if "tacho" in mapping and tacho_gain is None:
+    if "tacho" in mapping and o.tacho_gain is None:
         raise UserError("--tacho-gain (V per rad/s) is needed when mapping raw tacho volts")
     frame = read_columns(src, list(mapping.values()))
-    t = frame[mapping["t"]] * TIME_UNITS[time_unit]
+    t = frame[mapping["t"]] * TIME_UNITS[o.time_unit]
     t = t - t[0]
-    closed_ref = loop == "closed" and "ref" in mapping
+    closed_ref = o.loop == "closed" and "ref" in mapping
     # in closed loop the run's u is the reference; a logged controller output is 'drive'
     cols = {"t": t, "u": frame[mapping["ref"] if closed_ref else mapping["u"]]}
     if closed_ref and "u" in mapping:
@@ -211,23 +233,23 @@ def import_csv(src: Path | str, outdir: Path | str, mapping: dict[str, str], *,
         sensors["speed_unit"] = AXES[axis][1]
     if "tacho" in mapping:
         cols["tacho"] = frame[mapping["tacho"]]
-        sensors["tacho_v_per_rad_s"] = float(tacho_gain)
+        sensors["tacho_v_per_rad_s"] = float(o.tacho_gain)
     if "pos" in mapping:
         if counts_per_unit is not None:  # encoder counts, kept as counts
             cols["pos"] = frame[mapping["pos"]]
             sensors.update(pos_v_per_rad=counts_per_unit, pos_offset_v=0.0, pos_kind="encoder",
                            pos_quantum=1.0 / counts_per_unit)
-        elif pos_gain is None:  # physical position: unit virtual pot
+        elif o.pos_gain is None:  # physical position: unit virtual pot
             cols["pos"] = frame[mapping["pos"]] * pos_factor
             sensors["pos_v_per_rad"] = 1.0
             sensors["pos_offset_v"] = 0.0
         else:
             cols["pos"] = frame[mapping["pos"]]
-            sensors["pos_v_per_rad"] = float(pos_gain)
-            sensors["pos_offset_v"] = float(pos_offset)
+            sensors["pos_v_per_rad"] = float(o.pos_gain)
+            sensors["pos_offset_v"] = float(o.pos_offset)
     if "current" in mapping:
         cols["current"] = frame[mapping["current"]]
-        sensors["current_a_per_v"] = float(current_gain)
+        sensors["current_a_per_v"] = float(o.current_gain)
     if "ref" in mapping and not closed_ref:
         cols["ref"] = frame[mapping["ref"]]
     dt = np.diff(t)
@@ -238,10 +260,10 @@ def import_csv(src: Path | str, outdir: Path | str, mapping: dict[str, str], *,
     fs = 1.0 / float(np.median(dt))
     if abs(fs - round(fs)) < 1e-3 * fs:
         fs = float(round(fs))
-    rig = {"gear_ratio": float(gear_ratio), "amplifier_gain": float(amplifier_gain),
-           "name": f"imported from {src.name}", "drive": drive, "axis": axis}
-    if input_gain is not None:
-        rig["input_gain"] = float(input_gain)
+    rig = {"gear_ratio": float(o.gear_ratio), "amplifier_gain": float(o.amplifier_gain),
+           "name": f"imported from {src.name}", "drive": o.drive, "axis": axis}
+    if o.input_gain is not None:
+        rig["input_gain"] = float(o.input_gain)
     run = Run(name=name or src.stem, data=pd.DataFrame(cols),
               meta=make_meta(sample_rate_hz=fs, source="import",
                              experiment=experiment,

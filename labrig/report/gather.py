@@ -12,7 +12,8 @@ from __future__ import annotations
 from pathlib import Path
 
 from labrig.core.errors import UserError
-from labrig.report.artefacts import AnalysisDoc, DiagnosisDoc, IdentifyAllDoc, IdentRecord, LadderDoc, Regimes, read_artefact
+from labrig.report.artefacts import (AnalysisDoc, DiagnosisDoc, IdentifyAllDoc, IdentRecord,
+                                     LadderDoc, Regimes, read_artefact)
 from labrig.report.story import Figure, Story, fig_bytes
 
 
