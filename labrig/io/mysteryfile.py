@@ -8,7 +8,7 @@ File format (``labrig-mystery/1``)::
 
 The payload is JSON -> zlib -> XOR with a SHA-256 counter keystream of a fixed key and
 the salt -> base64. **This is obfuscation against casual reading (a student opening the
-file in an editor, or grep), not security**: the key is in labrig/mysteryfile.py and anyone
+file in an editor, or grep), not security**: the key is in labrig/io/mysteryfile.py and anyone
 who reads it can decode a mystery file. Do not use it to hide anything that matters.
 A SHA-256 digest of the JSON inside the payload detects a damaged or edited file.
 """
