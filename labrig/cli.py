@@ -31,8 +31,29 @@ class _Parser(argparse.ArgumentParser):
         raise UserError(message)
 
 
+#: ``labrig --help``: the order of work, above the list of commands
+DESCRIPTION = """\
+DC-servo lab: acquire, analyse, identify, diagnose.
+
+The order of work (sweep/import -> analyse -> identify -> diagnose -> propose):
+  1. sweep / import   record runs on the rig (sweep --sim or --port), or bring a
+                      scope/DAQ export in as runs (import)
+  2. analyse          deadband, Km, tau_m and the gain-vs-amplitude verdict
+  3. identify         fit the plant (+ effects): a model file (-o model.json)
+  4. diagnose         where the model fails, which effect is missing (--auto: to
+                      the end)
+  5. propose          the experiment that tells two explanations apart; sweep
+                      it, then diagnose the old and the new runs together"""
+
+#: ``labrig --help``: below the list of commands
+EPILOG = """\
+Each command's own options: labrig COMMAND --help (e.g. labrig identify --help).
+Every command also takes --debug and --trust-code FILE.py, listed last in its help."""
+
+
 def build_parser() -> argparse.ArgumentParser:
-    p = _Parser(prog="labrig", description="DC-servo lab: acquire, analyse, identify, diagnose.")
+    p = _Parser(prog="labrig", description=DESCRIPTION, epilog=EPILOG,
+                formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--version", action="version", version=f"labrig {__version__}")
     p.add_argument("--debug", action="store_true", help="show tracebacks")
     sub = p.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
@@ -44,12 +65,13 @@ def build_parser() -> argparse.ArgumentParser:
 
     for name, (func, help_) in COMMANDS.items():
         sp = sub.add_parser(name, help=help_, description=(func.__doc__ or help_).strip())
+        func.configure(sp)
+        # the options every command takes come last, after the command's own
         sp.add_argument("--debug", action="store_true", help="show tracebacks")
         sp.add_argument("--trust-code", action=_TrustCode, metavar="FILE.py",
                         help="let the model, rig or config files this command reads name user "
                              "effects from FILE.py. A user effect is Python code and runs "
                              "with your rights: pass only files you have read (repeatable)")
-        func.configure(sp)
         _names_in_any_case(sp)
         sp.set_defaults(func=func)
     return p

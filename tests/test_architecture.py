@@ -26,7 +26,7 @@ LAYERS = [
     ["classroom"],   # batches and mystery rigs
     ["report"],      # the HTML report
     ["api"],         # the public verbs (labrig.api, re-exported by labrig)
-    ["lab"],         # the lab station in the browser
+    ["lab"],         # the lab station in the browser (Panel)
     ["commands"],    # one module per subcommand
     ["cli", "__main__"],
     ["labrig"],      # the package itself: the public names

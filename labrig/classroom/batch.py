@@ -60,13 +60,14 @@ class Identify(Task):
                "at_bound")
 
     def run(self, folder, options):
+        from labrig.core.defaults import METHOD
         from labrig.identification.engine import identify
         from labrig.identification.table import identification_dict
         from labrig.model.effectset import EffectSet
         from labrig.io.runs import read_dataset
 
         runs = read_dataset([folder])
-        res = identify(runs, options.get("method", "jfo"),
+        res = identify(runs, options.get("method", METHOD),
                        EffectSet.parse(options.get("effects") or []),
                        seed=options.get("seed", 1), pop=options.get("pop", 50),
                        iters=options.get("iters", 200))

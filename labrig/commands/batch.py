@@ -5,6 +5,7 @@ from pathlib import Path
 
 from labrig.commands.registry import command, emit_json, float_opt
 from labrig.commands.progress import Progress
+from labrig.core.defaults import METHOD
 
 TASK_NAMES = ("analyse", "identify", "diagnose", "check")
 
@@ -70,7 +71,7 @@ def _configure(p):
                    help="random seed of every fit (default 1: the same folder gives the "
                         "same result, whichever worker runs it)")
     p.add_argument("--method", type=str.lower, choices=("jfo", "pso", "co"),
-                   help="identify: the optimiser (default jfo)")
+                   help=f"identify: the optimiser (default {METHOD}, as labrig identify)")
     p.add_argument("--effects", help="identify: effects to fit, comma separated (default none)")
     p.add_argument("--pop", type=int, help="identify: population of JFO/PSO (default 50)")
     p.add_argument("--iters", type=int, help="identify: iterations of JFO/PSO (default 200)")

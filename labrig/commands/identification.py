@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
+from labrig.core.defaults import METHOD
 from labrig.core.errors import UserError
 from labrig.commands.progress import Progress
 from labrig.commands.registry import command, emit_json, refuse_existing
@@ -139,8 +140,8 @@ def cmd_identify(args):
 
 def _configure(p):
     common_model_options(p)
-    p.add_argument("--method", default="co", choices=["jfo", "pso", "co", "all"],
-                   help="identifier (default co; all = the paper's Table 2 side by side)")
+    p.add_argument("--method", default=METHOD, choices=["jfo", "pso", "co", "all"],
+                   help=f"identifier (default {METHOD}; all = the paper's Table 2 side by side)")
     p.add_argument("--seed", type=int, help="random seed (recorded; same seed, same result)")
     p.add_argument("--model", help="start from a saved model (its effects are kept)")
     p.add_argument("-o", "--output", help="save the model (best method) as JSON")

@@ -1,9 +1,11 @@
 """``labrig compare``, ``labrig diagnose`` and ``labrig ladder``: the missing-physics loop."""
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 from labrig.commands.registry import command, emit_json
+from labrig.core.defaults import SEED
 from labrig.core.errors import UserError
 from labrig.commands.identification import add_through_option
 from labrig.commands.progress import Progress
@@ -98,13 +100,27 @@ def cmd_diagnose(args):
     if args.output and res.recommendation:
         res.recommended_model().save(args.output)
     check = _decide(runs, model, args.seed)
+    saved = _saved_text(args.output, res.recommendation) if args.output else None
     if args.json:
         emit_json({**res.to_json(), **({"proposal_check": check.to_json()} if check else {})})
+        if saved and not res.recommendation:  # stdout is the JSON: the warning goes beside it
+            print(f"labrig: {saved}", file=sys.stderr)
     else:
         print(res.to_text())
         if check:
             print("\n" + check.to_text())
+        if saved:
+            print(f"\n{saved}")
     return 0
+
+
+def _saved_text(output, recommendation) -> str:
+    """What ``diagnose -o FILE`` did with FILE, in one line."""
+    if recommendation:
+        return f"model saved to {output}"
+    kept = " (the file already there is left as it was)" if Path(output).exists() else ""
+    return (f"nothing saved to {output}: there is no recommendation (no effect earns its "
+            f"parameters), so there is no new model to save{kept}")
 
 
 def _decide(runs, model, seed):
@@ -227,12 +243,13 @@ def _configure_diagnose(p):
     p.add_argument("--fix", help="parameters known from other measurements, e.g. R=8.2")
     p.add_argument("--weights", help="channel weights p (position), q (speed), e.g. p=1,q=1 "
                    "(default: balanced so that neither channel drowns the other)")
-    p.add_argument("--seed", type=int, default=0,
+    p.add_argument("--seed", type=int, default=SEED,
                    help="random seed of the re-fits (and, with --ask-rig, of the proposal); "
-                        "same seed, same result (default 0)")
+                        f"same seed, same result (default {SEED})")
     p.add_argument("--candidates", help="only these catalogue effects (default: all the model lacks)")
     p.add_argument("-o", "--output", help="save the model with the recommended effect added "
-                   "(with --auto: a folder for the final model, the ladder and the rounds)")
+                   "(nothing is saved when there is no recommendation; with --auto: a folder "
+                   "for the final model, the ladder and the rounds)")
     p.add_argument("--auto", action="store_true",
                    help="run the rounds to the end: add the recommended effect and diagnose "
                         "again until nothing more earns its parameters")
@@ -294,9 +311,9 @@ def _configure_ladder(p):
     p.add_argument("data", nargs="+", help="folder(s) of runs")
     p.add_argument("--models", help="comma-separated model files, in order")
     p.add_argument("--max-steps", type=int, default=3, help="automatic mode: at most this many effects")
-    p.add_argument("--seed", type=int, default=0,
+    p.add_argument("--seed", type=int, default=SEED,
                    help="automatic mode: random seed of the fits; same seed, same ladder "
-                        "(default 0)")
+                        f"(default {SEED})")
     p.add_argument("-o", "--output", default="ladder", help="folder for models and the figure")
     p.add_argument("--force", action="store_true", help="replace files already in the folder")
     p.add_argument("--json", action="store_true", help="print one JSON object")

@@ -5,6 +5,7 @@ from pathlib import Path
 
 from labrig.commands.registry import command, emit_json, float_opt
 from labrig.commands.progress import Progress
+from labrig.core.defaults import SEED
 
 
 @command("propose", "propose the experiment that tells two explanations apart")
@@ -12,7 +13,11 @@ def cmd_propose(args):
     """Fit the model with each of two effects (by default the model's effect and its usual
     look-alike), search the inputs the rig can play (ramps through zero, dwells near the
     threshold, coast-downs, reversals, staircases) for the one that best separates them
-    after the rival re-fits (T-optimal), and write it as a plan to run with `labrig sweep`."""
+    after the rival re-fits (T-optimal), and write it as a plan to run with `labrig sweep`.
+    The predicted difference it reports is the sum of squared differences of the two
+    predictions, in noise units (a few hundred is decisive); the separation `labrig
+    diagnose DIR DIR/new` reports afterwards is the worse rmse/noise over the better,
+    minus one."""
     from labrig.io.config import load_rig
     from labrig.model.model import Model
     from labrig.loop.propose import pair_from_diagnosis, propose
@@ -64,7 +69,8 @@ def _configure(p):
     p.add_argument("--rig", help="rig file: the inputs may then use up to its output limit, "
                                  "and its position sensor's range bounds the travel (default: "
                                  "the largest input and the travel the data show)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the fits and the noise")
+    p.add_argument("--seed", type=int, default=SEED,
+                   help=f"seed of the fits and the noise (default {SEED})")
     p.add_argument("-o", "--output", required=True,
                    help="the plan to write (TOML); its figure goes beside it (.png)")
     p.add_argument("--force", action="store_true", help="replace an existing plan or figure")

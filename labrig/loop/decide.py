@@ -27,7 +27,9 @@ class Decision(Displayable):
 
     @staticmethod
     def separation(r: dict) -> float:
-        """The worse explanation's rmse/noise over the better one's, minus one."""
+        """The worse explanation's rmse/noise over the better one's, minus one: what every
+        text line calls *separation* (a proposal's sum of squares in noise units is its
+        *predicted difference*, labrig.loop.propose)."""
         lo, hi = sorted(r.values())
         return hi / lo - 1.0
 
@@ -48,7 +50,7 @@ class Decision(Displayable):
         t = Table("rmse/noise before and after the proposed runs",
                   ["explanation", "before", "after"], numeric=(1, 2))
         t.rows = [[e, f"{self.before[e]:.2f}", f"{self.after[e]:.2f}"] for e in self.pair]
-        t.notes.append(f"separation (worse over better, minus one): "
+        t.notes.append(f"separation (worse rmse/noise over better, minus one): "
                        f"{self.separation(self.before):.3f} before, "
                        f"{self.separation(self.after):.3f} after")
         return t

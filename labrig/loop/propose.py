@@ -7,9 +7,16 @@ then every candidate input of :mod:`labrig.loop.inputs` is simulated with both (
 population call of the fast simulator per model), and the most promising few are judged
 by the T-optimal criterion of Atkinson and Fedorov: the rival is re-fitted to the
 other's predicted response (old data and the new run together, with the noise the rig
-has) and what it still cannot explain is the separation. A naive difference of the two
-fitted models overstates it, because the rival adjusts. Both directions are tried (either
-explanation may be the true one) and the input whose worse direction separates most wins.
+has) and what it still cannot explain is the predicted difference. A naive difference of
+the two fitted models overstates it, because the rival adjusts. Both directions are tried
+(either explanation may be the true one) and the input whose worse direction differs most
+wins.
+
+The *predicted difference* is the sum of squared differences of the two predictions, in
+noise units (:func:`_difference`). It is not the *separation* that
+:mod:`labrig.loop.decide` reports once the run is made (the worse explanation's
+rmse/noise over the better one's, minus one); the JSON keys keep their names
+(``separation``, ``naive``, ``after_refit``).
 """
 from __future__ import annotations
 
@@ -31,6 +38,9 @@ from labrig.core.display import Displayable
 from labrig.core.tables import Table
 
 LEAD_IN_S = 0.5
+#: what a proposal predicts, in the words every text line uses ("separation" is the
+#: decision's rmse ratio minus one, labrig.loop.decide)
+DIFFERENCE = "sum of squared differences of the two predictions, in noise units"
 
 
 @dataclass
@@ -47,9 +57,9 @@ class Judged:
     """One candidate input and how well it separates the pair."""
 
     candidate: Candidate
-    naive: float                      # sum of squared differences of the fits, noise units
+    naive: float                      # predicted difference of the best fits (noise units)
     robust: float = 0.0               # the worst over plausible truths and rival variants
-    refit: dict = field(default_factory=dict)   # true effect -> separation after the rival re-fits
+    refit: dict = field(default_factory=dict)   # true effect -> difference after the rival re-fits
 
     @property
     def worst(self) -> float | None:
@@ -97,7 +107,7 @@ class Proposal(Displayable):
         a, b = self.pair
         lines = [f"# Proposed by `labrig propose`: the experiment that best tells {a} and {b} "
                  "apart.", f"# {self.chosen.candidate.label}: {self.why}.",
-                 f"# Predicted separation (noise units, sum of squares): {self.chosen.naive:.0f} "
+                 f"# Predicted difference ({DIFFERENCE}): {self.chosen.naive:.0f} "
                  f"before the rival re-fits, {self.chosen.worst:.0f} after.", "",
                  "[[experiment]]"]
         for k in ("name", "loop", "waveform", "lead_in_s", "sample_rate_hz"):
@@ -126,17 +136,19 @@ class Proposal(Displayable):
         a, b = self.pair
         fits = "; ".join(f"with {h.effect}: rmse/noise {h.rmse_over_noise:.2f}"
                          for h in self.hypotheses)
-        rows = "\n".join(f"  {j.candidate.label:<45} {j.naive:12.0f} {j.robust:14.0f}"
-                         for j in sorted(self.judged, key=lambda j: -j.robust)[:8])
+        best = sorted(self.judged, key=lambda j: -j.robust)[:8]
+        w = max([45] + [len(j.candidate.label) for j in best])   # labels whole, aligned
+        rows = "\n".join(f"  {j.candidate.label:<{w}} {j.naive:12.0f} {j.robust:14.0f}"
+                         for j in best)
         return (f"between {a} and {b} ({fits})\n\n"
-                f"candidate inputs (at most {self.budget_s:g} s, within +-{self.amax:.2f} V; "
-                "separation = sum of squared differences in noise units, of the best fits "
-                "and the worst over the models the data cannot exclude "
-                f"({' and '.join(map(str, self.plausible))})):\n"
-                f"  {'input':<45} {'best fits':>12} {'worst case':>14}\n{rows}\n\n"
+                f"candidate inputs (at most {self.budget_s:g} s, within +-{self.amax:.2f} V) "
+                f"and their predicted difference ({DIFFERENCE}): of the best fits, and the "
+                "worst case over the models the data cannot exclude "
+                f"({' and '.join(map(str, self.plausible))}):\n"
+                f"  {'input':<{w}} {'best fits':>12} {'worst case':>14}\n{rows}\n\n"
                 f"proposed: {c.candidate.label} ({c.candidate.duration:.1f} s)\n"
                 f"why: {self.why}.\n"
-                f"predicted separation: {c.naive:.0f} before the rival re-fits, "
+                f"predicted difference ({DIFFERENCE}): {c.naive:.0f} before the rival re-fits, "
                 + ", ".join(f"{v:.0f} after it with {k} the true one" for k, v in c.refit.items())
                 + " (a few hundred is decisive)")
 
@@ -150,8 +162,8 @@ class Proposal(Displayable):
                        numeric=(1, 2))
         inputs.rows = [[j.candidate.label, f"{j.naive:.0f}", f"{j.robust:.0f}"]
                        for j in sorted(self.judged, key=lambda j: -j.robust)[:8]]
-        inputs.notes.append("sum of squared differences of the two predictions, in noise "
-                            f"units; proposed: {self.chosen.candidate.label}")
+        inputs.notes.append(f"predicted difference ({DIFFERENCE}); "
+                            f"proposed: {self.chosen.candidate.label}")
         return [fits, inputs]
 
     def predicted(self):
@@ -300,9 +312,9 @@ def _sensor_range(rig) -> tuple[float, float]:
     return 0.9 * max(ends[1], 0.0), 0.9 * max(-ends[0], 0.0)
 
 
-def _separation(pa: dict, pb: dict, template: Run, sig: dict) -> float:
-    """Sum of squared differences of two responses (``w``, ``theta``) in noise units, over
-    the channels ``template``'s rig records."""
+def _difference(pa: dict, pb: dict, template: Run, sig: dict) -> float:
+    """The predicted difference: sum of squared differences of two responses (``w``,
+    ``theta``) in noise units, over the channels ``template``'s rig records."""
     d = 0.0
     if template.has_speed and "speed" in sig:
         d += float(np.sum(((pa["w"] - pb["w"]) / sig["speed"]) ** 2))
@@ -381,10 +393,10 @@ def propose(runs: list[Run], model: Model, between: str | None = None, *,
         downs = max(float(np.max(fam[0][k]["theta"][0] - fam[0][k]["theta"])) for fam in preds)
         if ups > up or downs > down:
             continue
-        j = Judged(c, _separation(preds[0][0][k], preds[1][0][k], template, sig))
+        j = Judged(c, _difference(preds[0][0][k], preds[1][0][k], template, sig))
         # the worst case over every plausible truth, the rival taking its closest variant:
         # an input that only separates the best fits is a bet on their thresholds
-        j.robust = min(min(_separation(pt[k], pr[k], template, sig) for pr in preds[1 - h])
+        j.robust = min(min(_difference(pt[k], pr[k], template, sig) for pr in preds[1 - h])
                        for h in (0, 1) for pt in preds[h])
         judged.append(j)
     if not judged:
@@ -403,8 +415,8 @@ def propose(runs: list[Run], model: Model, between: str | None = None, *,
                   weights=weights, reach=None, max_nfev=40)
         measured = {"w": new.speed, "theta": new.position}
         chosen.refit[truth.effect] = max(
-            0.0, _separation(res.model().simulate([new])[0], measured, template, sig)
-            - _separation(clean, measured, template, sig))
+            0.0, _difference(res.model().simulate([new])[0], measured, template, sig)
+            - _difference(clean, measured, template, sig))
     return Proposal(pair=pair, hypotheses=hyps, judged=judged, chosen=chosen, sigmas=sig,
                     template=template, budget_s=budget_s, amax=amax,
                     seconds=time.perf_counter() - t0, plausible=[len(f) for f in family])

@@ -14,6 +14,13 @@ from labrig.loop.residuals import REGIME_TEXT
 from labrig.core.tables import Table, fmt
 from labrig.core.display import Displayable
 
+#: how labrig.loop.diagnose ranks and picks candidates, for the table's notes (the loop's
+#: diagnose imports this module, so it cannot be imported here; tests/test_messages.py
+#: checks that the two agree): the penalty per extra parameter of ``_score`` and the
+#: number of candidates cross-validated
+PARSIMONY = 0.02
+CV_CANDIDATES = 4
+
 
 @dataclass
 class Candidate:
@@ -140,6 +147,7 @@ class Diagnosis(Displayable):
                                  f"{cv['baseline']:.2f} -> {cv['with_effect']:.2f}" if cv else "-",
                                  f"{cv['folds_improved']}/{cv['folds']}" if cv else "-",
                                  ("yes" if c.supported else "no") + (" (at bound)" if c.at_bound else "")])
+        ranking.notes += self._ranking_rules()
         cvd = self.cross_validation
         if cvd:
             ranking.notes.append(f"cross-validation: {cvd['folds']} folds, {cvd['kind']}; "
@@ -151,6 +159,28 @@ class Diagnosis(Displayable):
                                  f"{self.weights['position']:.3g} (each channel's squared error "
                                  "over its own at the starting model; --weights overrides)")
         return [regimes, ranking]
+
+    def _ranking_rules(self) -> list[str]:
+        """The ranking table's notes: what it is ordered by and when an effect is
+        supported, with the thresholds this diagnosis used (its ``criteria``)."""
+        crit = self.criteria or {}
+        gain = crit.get("min_improvement")
+        dbic = crit.get("max_delta_bic")
+        gain = "the minimum gain" if gain is None else f"{100 * gain:g} %"
+        dbic = "the BIC threshold" if dbic is None else f"{dbic:g}"
+        return [
+            "ordered by: the cross-validated rmse/noise, raised "
+            f"{100 * PARSIMONY:g} % per parameter beyond the effect's first (a simpler effect "
+            "that predicts held-out data about as well ranks first); candidates that were not "
+            "cross-validated come last, by dBIC",
+            f"supported = yes only when all four hold: dBIC below {dbic}, gain of at least "
+            f"{gain}, the cross-validated error falls by at least {gain}, and more than "
+            "half of the folds improved; so a strongly negative dBIC alone is not enough",
+            f"cross-validated '-': not cross-validated (only the {CV_CANDIDATES} largest gains "
+            f"of at least {gain} are), hence not supported; '(at bound)': a fitted "
+            "parameter ended at a bound of its search range (a warning: it does not enter "
+            "the decision)",
+        ]
 
     def _tables(self) -> list[Table]:
         regimes, ranking = self.table_rows()

@@ -16,6 +16,7 @@ weights are fixed in the first round, so every rung of the ladder is judged alik
 """
 from __future__ import annotations
 
+import textwrap
 from dataclasses import dataclass, field
 
 from labrig.loop.crossval import cross_validate
@@ -35,6 +36,25 @@ PAIR_POOL = 3
 SWAP_GAIN = 0.02
 #: "about as well": within this share
 SIMPLER_MARGIN = 0.02
+#: log lines are wrapped at this width (words whole, never cut)
+LOG_WIDTH = 100
+
+
+def wrap_log(text: str, width: int = LOG_WIDTH) -> str:
+    """One log message, wrapped at word boundaries with a hanging indent: continuation
+    lines line up under the text after the leading spaces and a label ending in ": "
+    (``round 2: ...``), so a long verdict is shown whole, never cut mid-word."""
+    body = text.lstrip(" ")
+    lead = text[:len(text) - len(body)]
+    label, sep, _ = body.partition(": ")
+    hang = lead + " " * (len(label) + len(sep) if sep and len(label) <= 12 else 4)
+    return textwrap.fill(body, width=width, initial_indent=lead, subsequent_indent=hang,
+                         break_long_words=False, break_on_hyphens=False)
+
+
+def _say(log, text: str) -> None:
+    if log:
+        log(wrap_log(text))
 
 
 @dataclass
@@ -125,8 +145,7 @@ def _pair(judge: _Judge, diag, log):
                 best = (m, ev, [a.effect, b.effect])
     if best is None:
         return None
-    if log:
-        log(f"  trying the pair {' + '.join(best[2])} (no single effect is near the floor)")
+    _say(log, f"  trying the pair {' + '.join(best[2])} (no single effect is near the floor)")
     return best[0], best[1], judge.cv(best[0]), best[2]
 
 
@@ -150,8 +169,7 @@ def search(runs, model: Model | None = None, *, max_rounds: int = 3, seed: int =
         on_step(0, model)
     added = 0
     for k in range(1, max_rounds + 1):
-        if log:
-            log(f"round {k}: {diag.verdict[:160]}")
+        _say(log, f"round {k}: {diag.verdict}")
         step = None
         if diag.recommendation:
             c = diag.candidate(diag.recommendation)
@@ -193,9 +211,8 @@ def _revise(judge, model, new, cv_now, moves, ladder, k, log, on_step):
         m = judge.add(without(model, old), alt)
         cv = judge.cv(m)
         if cv <= (1 + SIMPLER_MARGIN) * cv_now:
-            if log:
-                log(f"  {alt} instead of {old}: as good on held-out data ({cv_now:.2f} -> "
-                    f"{cv:.2f}) with fewer parameters")
+            _say(log, f"  {alt} instead of {old}: as good on held-out data ({cv_now:.2f} -> "
+                      f"{cv:.2f}) with fewer parameters")
             moves.append(Move("swap", [old, alt], cv_now, cv, k))
             model, cv_now = m, cv
             _rung(ladder, model, judge, cv, on_step)
@@ -210,8 +227,7 @@ def _revise(judge, model, new, cv_now, moves, ladder, k, log, on_step):
             m = judge.add(reduced, alt)
             cv = judge.cv(m)
             if cv < (1 - SWAP_GAIN) * cv_now:
-                if log:
-                    log(f"  swap {old} -> {alt}: cross-validated {cv_now:.2f} -> {cv:.2f}")
+                _say(log, f"  swap {old} -> {alt}: cross-validated {cv_now:.2f} -> {cv:.2f}")
                 moves.append(Move("swap", [old, alt], cv_now, cv, k))
                 model, cv_now = m, cv
                 _rung(ladder, model, judge, cv, on_step)
@@ -223,8 +239,8 @@ def _revise(judge, model, new, cv_now, moves, ladder, k, log, on_step):
             cv = judge.cv(m)
             # the mirror of adding: an effect stays when taking it out costs MIN_GAIN
             if cv < cv_now / (1 - MIN_GAIN):
-                if log:
-                    log(f"  remove {old}: cross-validated {cv_now:.2f} -> {cv:.2f} without it")
+                _say(log, f"  remove {old}: cross-validated {cv_now:.2f} -> {cv:.2f} "
+                          "without it")
                 moves.append(Move("remove", [old], cv_now, cv, k))
                 model, cv_now = m, cv
                 _rung(ladder, model, judge, cv, on_step)

@@ -1,0 +1,141 @@
+"""The lab page's work, done in a worker process through the public verbs.
+
+Each job takes plain arguments (folders, model JSON) and returns a plain dict: the
+result's own ``to_json()`` (the numbers the CLI's ``--json`` prints for the same data and
+seed), its tables as HTML and its figures as PNG bytes, drawn by the result's own
+``plot()``. The page computes nothing of its own: it shows what these return.
+"""
+from __future__ import annotations
+
+import io
+from pathlib import Path
+
+from labrig.core.defaults import SEED
+from labrig.core.tables import Table, table_html
+
+#: the seed of every fit the page makes (the CLI gives the same numbers with --seed 0)
+LAB_SEED = SEED
+
+
+def _png(fig) -> bytes:
+    import matplotlib.pyplot as plt
+
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=90, bbox_inches="tight")
+    plt.close(fig)
+    return buf.getvalue()
+
+
+def _html(tables) -> list[str]:
+    tables = [tables] if isinstance(tables, Table) else list(tables)
+    return [table_html(t) for t in tables]
+
+
+def _model(doc):
+    from labrig.model.model import Model
+
+    return None if doc is None else Model.from_json(doc, "the lab page's model")
+
+
+def _runs(folders):
+    import labrig.api as lr
+
+    return lr.read_runs([str(f) for f in folders])
+
+
+def fit(folders, model_doc=None, add=(), remove=(), label="") -> dict:
+    """A rung: the model (``model_doc``, or the linear model) with ``add`` effects added and
+    ``remove`` taken out, fitted on the runs (CO, the lab's seed), with its overlay on
+    every run."""
+    import labrig.api as lr
+    from labrig.loop.refit import without
+
+    runs = _runs(folders)
+    base = _model(model_doc)
+    for name in remove:
+        base = without(base, name)
+    if base is not None and not base.names and not add:
+        base = None     # back to the linear model: fitted afresh, as identify does
+    ident = lr.identify(runs, effects=list(add), model=base, seed=LAB_SEED)
+    model = ident.model()
+    ev = lr.compare(runs, model)
+    return {"label": label or "linear model", "model": model.to_json(),
+            "effects": model.names, "fit": ident.to_json(),
+            "rmse_over_noise": ev.metrics["rmse_over_noise"],
+            "fit_percent": ev.metrics["fit_percent"],
+            "overlays": {rr["name"]: _png(ev.plot(run=rr["name"])) for rr in ev.per_run},
+            "worst": ev.worst_run()["name"], "tables": _html(ev.table_rows())}
+
+
+def diagnose(folders, model_doc) -> dict:
+    """The ranking of the effects the model lacks, with the evidence, the confusable pairs
+    and each effect's physics sentence."""
+    import labrig.api as lr
+    from labrig.loop.auto import confusable_pairs
+    from labrig.model.effects import get_effect
+
+    diag = lr.diagnose(_runs(folders), _model(model_doc), seed=LAB_SEED)
+    pairs = confusable_pairs(diag, 1)
+    rows = []
+    for c in diag.ranking:
+        cv = c.cross_validated
+        rows.append({"effect": c.effect, "rmse_over_noise": c.rmse_over_noise,
+                     "delta_bic": c.delta_bic,
+                     "cross_validated": cv["with_effect"] if cv else None,
+                     "folds": f"{cv['folds_improved']}/{cv['folds']}" if cv else "-",
+                     "supported": c.supported, "at_bound": list(c.at_bound),
+                     "confusable_with": [p.second if p.first == c.effect else p.first
+                                         for p in pairs if c.effect in (p.first, p.second)],
+                     "physics": get_effect(c.effect).summary})
+    return {"json": diag.to_json(), "rows": rows, "recommendation": diag.recommendation,
+            "verdict": diag.verdict, "pairs": [p.to_json() for p in pairs],
+            "figure": _png(diag.plot()), "tables": _html(diag.table_rows())}
+
+
+def ladder(folders, model_docs) -> dict:
+    """The error ladder of the rungs so far."""
+    import labrig.api as lr
+
+    lad = lr.ladder(_runs(folders), [_model(d) for d in model_docs])
+    return {"json": lad.to_json(), "figure": _png(lad.plot()), "tables": _html(lad.table_rows())}
+
+
+def auto(folders, max_rounds=3, log=None) -> dict:
+    """``diagnose --auto``: the rungs it climbed, each fitted as a rung of the page."""
+    import labrig.api as lr
+
+    res = lr.auto(_runs(folders), max_rounds=max_rounds, seed=LAB_SEED, log=log)
+    return {"json": res.to_json(), "model": res.model.to_json(), "effects": res.model.names,
+            "figure": _png(res.plot()), "tables": _html(res.ladder.table_rows()),
+            "verdict": res.verdict}
+
+
+def propose(folders, model_doc, between: str) -> dict:
+    """The experiment that separates the pair: its plan, both predictions and why."""
+    import labrig.api as lr
+
+    prop = lr.propose(_runs(folders), _model(model_doc), between, seed=LAB_SEED)
+    return {"json": prop.to_json(), "plan": prop.to_toml(), "text": prop.to_text(),
+            "figure": _png(prop.plot()), "pair": list(prop.pair)}
+
+
+def decide(folders, model_doc) -> dict:
+    """Both explanations fitted with and without the proposed runs."""
+    from labrig.loop.decide import decide as _decide
+
+    d = _decide(_runs(folders), _model(model_doc), seed=LAB_SEED)
+    if d is None:
+        return {"json": None, "text": "no proposed run in these folders"}
+    return {"json": d.to_json(), "text": d.to_text(), "leader": d.leader,
+            "tables": _html(d.table_rows())}
+
+
+def save_model(model_doc, path, overwrite: bool = False) -> str:
+    """Write a rung's model as the CLI's model file (refused if it exists, unless told)."""
+    from labrig.core.errors import UserError
+
+    path = Path(path)
+    if path.exists() and not overwrite:
+        raise UserError(f"{path} exists; tick 'replace' to overwrite it")
+    _model(model_doc).save(path)
+    return str(path)

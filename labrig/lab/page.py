@@ -1,0 +1,309 @@
+"""The lab page: Panel components over a :class:`~labrig.lab.station.Station`.
+
+A thin view: every number and figure on it comes from the library through the station
+(the sweep, and the jobs' results of the public verbs). Three tabs follow the lab: watch
+the runs come in, close the loop (fit, diagnose, add / remove / replace, auto, the
+ladder always in view), and ask the rig. A periodic callback (10 per second) moves the
+live samples and finished jobs onto the page, so the page never waits on the rig or a fit.
+"""
+from __future__ import annotations
+
+import base64
+import time
+
+import panel as pn
+from bokeh.models import ColumnDataSource
+from bokeh.plotting import figure
+
+from labrig.core.errors import LabrigError
+from labrig.lab.plan_form import PlanForm
+from labrig.lab.station import Station, as_array
+
+#: display refresh period (ms): at least 10 updates per second
+REFRESH_MS = 100
+
+
+def _img(png: bytes | None, width=None) -> str:
+    if not png:
+        return ""
+    data = base64.b64encode(png).decode("ascii")
+    style = f"max-width:{width}px;width:100%" if width else "width:100%"
+    return f'<img src="data:image/png;base64,{data}" style="{style}"/>'
+
+
+class LabPage:
+    """One browser session's page. ``owner``: this session may drive the rig."""
+
+    def __init__(self, station: Station, session: str):
+        self.st = station
+        self.session = session
+        self.owner = station.claim(session)
+        self._seen = None
+        self._build()
+
+    # -- layout ----------------------------------------------------------------------
+    def _build(self) -> None:
+        st = self.st
+        b = st.rig.bridge
+        limits = (f"rig: {st.rig_name} · bridge ±{b.output_limit_v:g} V, {b.sample_rate_hz:g} Hz"
+                  f" · folder: {st.folder}")
+        self.banner = pn.pane.Alert(
+            "Another page drives this rig: you are watching (read-only).",
+            alert_type="warning", visible=not self.owner)
+        self.error = pn.pane.Alert("", alert_type="danger", visible=False,
+                                   css_classes=["lab-error"])
+        header = pn.Column(pn.pane.Markdown(f"## labrig lab\n{limits}"), self.banner, self.error)
+        self.tabs = pn.Tabs(("Acquire", self._acquire_tab()), ("The loop", self._loop_tab()),
+                            ("Ask the rig", self._ask_tab()), dynamic=False)
+        self.view = pn.Column(header, self.tabs, sizing_mode="stretch_width")
+        self._set_owner(self.owner)
+
+    def _acquire_tab(self):
+        self.form = PlanForm(self.st.rig)
+        self.start = pn.widgets.Button(name="Start", button_type="primary",
+                                       css_classes=["lab-start"])
+        self.stop = pn.widgets.Button(name="Stop", button_type="danger", css_classes=["lab-stop"])
+        self.start.on_click(self._on_start)
+        self.stop.on_click(lambda e: self.st.stop())
+        self.counters = pn.pane.Markdown("", css_classes=["lab-counters"])
+        self.sweep_note = pn.pane.Markdown("", css_classes=["lab-sweep-note"])
+        self.runs_list = pn.pane.Markdown("", css_classes=["lab-runs"])
+        self.src = ColumnDataSource({"t": [], "u": [], "speed": [], "pos": []})
+        plots = []
+        for key, label in (("u", "input u (V)"), ("speed", "speed (rad/s)"),
+                           ("pos", "position (rad)")):
+            f = figure(height=170, sizing_mode="stretch_width", title=label,
+                       toolbar_location=None, x_axis_label="time (s)" if key == "pos" else None)
+            f.line("t", key, source=self.src, line_width=1.2)
+            plots.append(pn.pane.Bokeh(f, sizing_mode="stretch_width"))
+        self._drivers = [self.start, self.stop]
+        return pn.Row(pn.Column(self.form.view, pn.Row(self.start, self.stop), self.counters,
+                                self.sweep_note, self.runs_list, width=380),
+                      pn.Column(*plots, sizing_mode="stretch_width"),
+                      sizing_mode="stretch_width")
+
+    def _loop_tab(self):
+        self.fit_btn = pn.widgets.Button(name="Fit the linear model", button_type="primary",
+                                         css_classes=["lab-fit"])
+        self.auto_btn = pn.widgets.Button(name="Auto (diagnose --auto)", css_classes=["lab-auto"])
+        self.cancel_btn = pn.widgets.Button(name="Cancel", button_type="warning",
+                                            css_classes=["lab-cancel"])
+        self.fit_btn.on_click(lambda e: self._do(self.st.fit_linear))
+        self.auto_btn.on_click(lambda e: self._do(self.st.auto))
+        self.cancel_btn.on_click(lambda e: self.st.cancel())
+        self.status = pn.pane.Markdown("", css_classes=["lab-status"])
+        self.progress = pn.indicators.Progress(active=False, visible=False, width=200)
+        self.now = pn.pane.Markdown("", css_classes=["lab-rmse"])
+        self.run_pick = pn.widgets.Select(name="run", options=[], width=200)
+        self.run_pick.param.watch(lambda e: self._show_overlay(), "value")
+        self.overlay = pn.pane.HTML("", sizing_mode="stretch_width", css_classes=["lab-overlay"])
+        self.ladder = pn.pane.HTML("", sizing_mode="stretch_width", css_classes=["lab-ladder"])
+        self.evidence = pn.pane.HTML("", sizing_mode="stretch_width", css_classes=["lab-evidence"])
+        self.add_pick = pn.widgets.Select(name="add", options=[], width=200)
+        self.add_btn = pn.widgets.Button(name="Add", button_type="success", css_classes=["lab-add"])
+        self.rm_pick = pn.widgets.Select(name="remove", options=[], width=200)
+        self.rm_btn = pn.widgets.Button(name="Remove", css_classes=["lab-remove"])
+        self.rep_new = pn.widgets.Select(name="by", options=[], width=200)
+        self.rep_btn = pn.widgets.Button(name="Replace", css_classes=["lab-replace"])
+        self.add_btn.on_click(lambda e: self._do(self.st.add, self.add_pick.value))
+        self.rm_btn.on_click(lambda e: self._do(self.st.remove, self.rm_pick.value))
+        self.rep_btn.on_click(lambda e: self._do(self.st.replace, self.rm_pick.value,
+                                                 self.rep_new.value))
+        self.save_name = pn.widgets.TextInput(name="save the current model as",
+                                              value="model.json", width=200)
+        self.save_force = pn.widgets.Checkbox(name="replace", value=False)
+        self.save_btn = pn.widgets.Button(name="Save model", css_classes=["lab-save"])
+        self.save_btn.on_click(self._on_save)
+        self.save_note = pn.pane.Markdown("")
+        self._drivers += [self.fit_btn, self.auto_btn, self.cancel_btn, self.add_btn,
+                          self.rm_btn, self.rep_btn, self.save_btn]
+        actions = pn.Column(
+            pn.Row(self.fit_btn, self.auto_btn, self.cancel_btn, self.progress), self.status,
+            self.now, pn.pane.Markdown("#### The error falls"), self.ladder,
+            pn.Row(self.add_pick, self.add_btn),
+            pn.Row(self.rm_pick, self.rm_btn, self.rep_new, self.rep_btn),
+            self.evidence, pn.Row(self.save_name, self.save_force, self.save_btn),
+            self.save_note, sizing_mode="stretch_width")
+        return pn.Row(pn.Column(self.run_pick, self.overlay, sizing_mode="stretch_width"),
+                      actions, sizing_mode="stretch_width")
+
+    def _ask_tab(self):
+        self.pair_pick = pn.widgets.Select(name="between", options=[], width=320)
+        self.propose_btn = pn.widgets.Button(name="Propose the experiment",
+                                             css_classes=["lab-propose"])
+        self.propose_btn.on_click(lambda e: self._do(self.st.propose, self.pair_pick.value))
+        self.proposal = pn.pane.HTML("", sizing_mode="stretch_width", css_classes=["lab-proposal"])
+        self.which = pn.widgets.RadioButtonGroup(name="which", options=["-"], button_type="light")
+        self.why = pn.widgets.TextInput(name="why (one line)", placeholder="because ...",
+                                        width=420, css_classes=["lab-why"])
+        self.predict_btn = pn.widgets.Button(name="Record my prediction",
+                                             css_classes=["lab-predict"])
+        self.predict_btn.on_click(self._on_predict)
+        self.play_btn = pn.widgets.Button(name="Play it on the rig", button_type="primary",
+                                          disabled=True, css_classes=["lab-play"])
+        self.play_btn.on_click(lambda e: self._do(self.st.play_proposal))
+        self.prediction = pn.pane.Markdown("", css_classes=["lab-prediction"])
+        self.decision = pn.pane.HTML("", css_classes=["lab-decision"])
+        self._drivers += [self.propose_btn, self.predict_btn, self.play_btn]
+        return pn.Column(pn.Row(self.pair_pick, self.propose_btn), self.proposal,
+                         pn.Row(self.which, self.why, self.predict_btn, self.play_btn),
+                         pn.Row(self.prediction, self.decision), sizing_mode="stretch_width")
+
+    # -- actions ---------------------------------------------------------------------
+    def _do(self, action, *args) -> None:
+        if not self.owner:
+            return
+        self._page_error = ""
+        try:
+            action(*args)
+        except (LabrigError, RuntimeError, ValueError) as exc:
+            self._show_error(str(exc))
+
+    _page_error = ""
+
+    def _show_error(self, text: str) -> None:
+        """One line on the page, never a traceback; it stays until the next action."""
+        self._page_error = text.splitlines()[0] if text else ""
+        self._paint_error()
+
+    def _paint_error(self) -> None:
+        text = self._page_error or (self.st.error if self.st.error != "cancelled" else "")
+        if self.error.object != text:
+            self.error.object = text
+        self.error.visible = bool(text)
+
+    def _on_start(self, event) -> None:
+        plan = self.form.plan()
+        if plan is not None:
+            self._do(self.st.start_sweep, plan)
+
+    def _on_save(self, event) -> None:
+        from labrig.lab.jobs import save_model
+
+        if not self.st.rungs:
+            return self._show_error("no model yet: fit one first")
+        name = self.save_name.value.strip()
+        if not name or "/" in name or name.startswith("."):
+            return self._show_error("save: a file name inside the folder, e.g. model.json")
+        try:
+            path = save_model(self.st.model(), self.st.folder / name, self.save_force.value)
+            self.save_note.object = f"saved to {path}"
+        except LabrigError as exc:
+            self._show_error(str(exc))
+
+    def _on_predict(self, event) -> None:
+        if self.which.value in (None, "-") or not self.why.value.strip():
+            return self._show_error("say which explanation you expect, and why, in one line")
+        self.st.predict(self.which.value, self.why.value)
+
+    # -- refresh ---------------------------------------------------------------------
+    def _set_owner(self, owner: bool) -> None:
+        self.owner = owner
+        self.banner.visible = not owner
+        for w in self._drivers:
+            w.disabled = not owner
+
+    def refresh(self) -> None:
+        st = self.st
+        if not self.owner and st.claim(self.session):   # the owner left: this page drives
+            self._set_owner(True)
+        live = st.live
+        self.src.data = {"t": as_array(live.t), "u": as_array(live.u),
+                         "speed": as_array(live.speed) if live.speed else as_array(live.t) * 0,
+                         "pos": as_array(live.pos) if live.pos else as_array(live.t) * 0}
+        c = live.counters
+        self.counters.object = (
+            f"**{live.name or 'no run yet'}** · samples {live.samples}/{live.n_planned} · gaps "
+            f"{c.get('dropped_samples', 0)} · CRC errors {c.get('crc_errors', 0)} · "
+            f"retries {c.get('retries', 0)}" + (" · **running**" if st.sweeping else ""))
+        self.sweep_note.object = st.sweep_note
+        self.runs_list.object = "runs in the folder: " + (", ".join(st.runs_on_disk()) or "none")
+        if self.owner and st.poll():
+            self._show_loop()
+        elif self._seen != (len(st.rungs), id(st.diagnosis), id(st.ladder), id(st.proposal),
+                            id(st.decision)):
+            self._show_loop()
+        busy = st.busy()
+        self.progress.visible = self.progress.active = busy
+        self.status.object = (f"working: {st.worker.name} ({time.monotonic() - st.worker.started:.0f} s)"
+                              if busy else "") + ("  \n" + st.log[-1] if busy and st.log else "")
+        self._paint_error()
+        for w in (self.fit_btn, self.auto_btn, self.add_btn, self.rm_btn, self.rep_btn,
+                  self.propose_btn, self.start):
+            w.disabled = not self.owner or busy or st.sweeping
+        self.cancel_btn.disabled = not self.owner or not busy
+        self.play_btn.disabled = (not self.owner or busy or st.sweeping or st.proposal is None
+                                  or st.prediction is None)
+        if st.proposal and st.prediction and not st.sweeping and st.written \
+                and st.decision is None and not busy and self.owner and self._asked:
+            self._asked = False
+            self._do(st.decide)
+        if st.sweeping and st.proposal and st.prediction:
+            self._asked = True
+
+    _asked = False
+
+    def _show_loop(self) -> None:
+        st = self.st
+        self._seen = (len(st.rungs), id(st.diagnosis), id(st.ladder), id(st.proposal),
+                      id(st.decision))
+        if st.rungs:
+            r = st.rungs[-1]
+            rm = r["rmse_over_noise"]
+            self.now.object = (f"### rmse/noise {rm['overall']:.2f}\n"
+                               f"model: {' + '.join(['linear'] + r['effects'])} "
+                               "(1.00 is the noise floor)")
+            runs = list(r["overlays"])
+            if self.run_pick.options != runs:
+                self.run_pick.options = runs
+                self.run_pick.value = r["worst"]
+            self._show_overlay()
+            self.rm_pick.options = list(r["effects"])
+        if st.diagnosis:
+            d = st.diagnosis
+            self.add_pick.options = [row["effect"] for row in d["rows"]]
+            if d["recommendation"]:
+                self.add_pick.value = d["recommendation"]
+            self.rep_new.options = [row["effect"] for row in d["rows"]]
+            self.evidence.object = _evidence_html(d)
+            pairs = [",".join(p["pair"]) for p in d["pairs"]]
+            self.pair_pick.options = pairs or ["no confusable pair in this diagnosis"]
+        if st.ladder:
+            self.ladder.object = _img(st.ladder["figure"], 520) + "".join(st.ladder["tables"])
+        if st.proposal:
+            p = st.proposal
+            self.proposal.object = (_img(p["figure"]) + "<pre>" + _esc(p["text"]) + "</pre>")
+            self.which.options = list(p["pair"])
+        if st.prediction:
+            pr = st.prediction
+            self.prediction.object = f"**your prediction:** {pr['which']} — {pr['why']}"
+        if st.decision:
+            self.decision.object = ("<b>the rig says:</b> " + _esc(st.decision["text"])
+                                    + "".join(st.decision.get("tables", [])))
+
+    def _show_overlay(self) -> None:
+        if self.st.rungs and self.run_pick.value in self.st.rungs[-1]["overlays"]:
+            self.overlay.object = _img(self.st.rungs[-1]["overlays"][self.run_pick.value])
+
+
+def _esc(text: str) -> str:
+    from html import escape
+
+    return escape(text)
+
+
+def _evidence_html(d: dict) -> str:
+    """The catalogue as diagnose ranked it, with its evidence and physics sentence."""
+    head = ("<tr><th>effect</th><th>rmse/noise</th><th>dBIC</th><th>cross-validated</th>"
+            "<th>folds</th><th>supported</th><th>confusable with</th><th>what it is</th></tr>")
+    rows = []
+    for r in d["rows"]:
+        cv = "-" if r["cross_validated"] is None else f"{r['cross_validated']:.2f}"
+        sup = ("yes" if r["supported"] else "no") + (" (at bound)" if r["at_bound"] else "")
+        rows.append(f"<tr><td><b>{_esc(r['effect'])}</b></td><td>{r['rmse_over_noise']:.2f}</td>"
+                    f"<td>{r['delta_bic']:.0f}</td><td>{cv}</td><td>{r['folds']}</td>"
+                    f"<td>{sup}</td><td>{_esc(', '.join(r['confusable_with']))}</td>"
+                    f"<td>{_esc(r['physics'])}</td></tr>")
+    rec = d["recommendation"] or "none"
+    return (f"<p><b>recommendation: {_esc(rec)}</b></p><table class='lab-table'>{head}"
+            + "".join(rows) + f"</table><p>{_esc(d['verdict'])}</p>")

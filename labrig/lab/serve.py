@@ -1,0 +1,86 @@
+"""Serving the lab page with Panel's server (Bokeh/Tornado): one station, one page per
+browser session, the first session owning the rig.
+
+Safe by default: bound to 127.0.0.1; every script, style and font comes from this server
+(Panel serves its own bundle; the page uses no template, icon set or web font that would
+reach out); a closed page, a lost connection or Ctrl-C on the server stops the rig (STOP
+and ZERO) and keeps the finished runs.
+"""
+from __future__ import annotations
+
+import sys
+
+from labrig.lab.station import Station
+
+
+def make_station(folder, *, rig_path=None, port=None, emulate=False, realtime=True) -> Station:
+    """A station on the simulated rig (default), the board at ``port``, or the emulated
+    board (the real firmware in simavr)."""
+    from labrig.io.config import load_rig
+
+    rig = load_rig(rig_path)
+    if port:
+        from labrig.bridge.serial import SerialBridge
+
+        def make():
+            return SerialBridge(port, rig)
+        name = f"board at {port}"
+    elif emulate:
+        from labrig.bridge.emulate import Emulator
+        from labrig.bridge.serial import SerialBridge
+
+        emu = Emulator(rig=rig)
+        pty = emu.start()   # ended with the station (Station.close -> on_close)
+
+        def make():
+            return SerialBridge(pty, rig)
+        name = f"emulated board ({pty})"
+    else:
+        from labrig.bridge.sim import SimRig
+
+        def make():
+            return SimRig(rig)
+        name = "simulated " + (rig.name or "MS150")
+    station = Station(folder, rig, make, realtime=realtime and not port and not emulate,
+                      rig_name=name)
+    if emulate:
+        station.on_close.append(emu.stop)
+    return station
+
+
+def serve(station: Station, *, host: str = "127.0.0.1", port: int = 5006,
+          open_browser: bool = True, log=print) -> None:
+    """Serve the lab page until Ctrl-C; the rig is left at 0 V on every way out."""
+    import panel as pn
+
+    from labrig.lab.page import REFRESH_MS, LabPage
+
+    pn.extension(notifications=False)
+
+    def page():
+        doc = pn.state.curdoc
+        sid = doc.session_context.id if doc and doc.session_context else "local"
+        view = LabPage(station, sid)
+        pn.state.add_periodic_callback(view.refresh, period=REFRESH_MS)
+        pn.state.on_session_destroyed(lambda ctx: station.release(ctx.id))
+        return view.view
+
+    if host not in ("127.0.0.1", "localhost", "::1"):
+        log(f"labrig lab: warning: listening on {host}: anyone on the network who can reach "
+            "this machine can drive the rig")
+    origins = [f"{h}:{port}" for h in ("127.0.0.1", "localhost", host)]
+    server = pn.serve({"/": page}, port=port, address=host, websocket_origin=origins,
+                      show=False, start=False, title="labrig lab", verbose=False)
+    url = f"http://{'127.0.0.1' if host in ('0.0.0.0', '::') else host}:{port}/"
+    log(f"labrig lab: {url} (Ctrl-C stops it; the rig is left at 0 V)")
+    sys.stdout.flush()
+    if open_browser:
+        import webbrowser
+
+        server.io_loop.add_callback(lambda: webbrowser.open(url))
+    try:
+        server.start()
+        server.io_loop.start()
+    finally:
+        station.close()
+        server.stop()

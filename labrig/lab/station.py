@@ -1,0 +1,264 @@
+"""One lab station: a rig, a data folder, the runs coming in and the loop's rungs.
+
+The state behind the lab page, with no page in it: a sweep plays in a thread (every
+block handed to the live view, every run written by the same code as ``labrig sweep``),
+and the loop's fits run in a worker process (:mod:`labrig.lab.jobs`). One browser
+session owns the rig at a time; the others watch.
+"""
+from __future__ import annotations
+
+import collections
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from labrig.bridge.live import LiveBridge
+from labrig.core.errors import Interrupted, LabrigError
+from labrig.lab import jobs
+from labrig.lab.worker import Worker
+
+#: samples kept for the live view per channel (decimated for display only)
+LIVE_POINTS = 4000
+
+
+@dataclass
+class Live:
+    """The run coming in: decimated for the view; counters as the bridge reports them."""
+
+    name: str = ""
+    n_planned: int = 0
+    t: collections.deque = field(default_factory=lambda: collections.deque(maxlen=LIVE_POINTS))
+    u: collections.deque = field(default_factory=lambda: collections.deque(maxlen=LIVE_POINTS))
+    speed: collections.deque = field(default_factory=lambda: collections.deque(maxlen=LIVE_POINTS))
+    pos: collections.deque = field(default_factory=lambda: collections.deque(maxlen=LIVE_POINTS))
+    samples: int = 0
+    counters: dict = field(default_factory=dict)
+
+
+class Station:
+    """The rig, the folder and the loop of one lab bench.
+
+    Parameters
+    ----------
+    folder : Path
+        The data folder: runs are read from it and new sweeps written to it.
+    rig : RigConfig
+    make_bridge : callable() -> Bridge
+        A fresh bridge for each sweep (simulated, serial or the emulated board).
+    realtime : bool
+        Pace a simulated rig to real time, so a run comes in as it would on the bench.
+    """
+
+    def __init__(self, folder, rig, make_bridge, *, realtime: bool = True, rig_name: str = ""):
+        self.folder = Path(folder)
+        self.rig = rig
+        self.rig_name = rig_name
+        self.make_bridge = make_bridge
+        self.realtime = realtime
+        self.owner = None
+        self.live = Live()
+        self.sweeping = False
+        self.sweep_note = ""
+        self.written: list[str] = []
+        self._stop = threading.Event()
+        self._thread = None
+        self.worker = Worker()
+        self.rungs: list[dict] = []        # fit() results, the ladder's rungs
+        self.diagnosis: dict | None = None
+        self.ladder: dict | None = None
+        self.proposal: dict | None = None
+        self.prediction: dict | None = None
+        self.decision: dict | None = None
+        self.error = ""
+        self.log: list[str] = []
+        self._bridge = None
+        self._from_auto = False
+        self.on_close: list = []
+        s = rig.sensors_sidecar()
+        self._kt = s.get("tacho_v_per_rad_s")
+        self._kpot, self._pos0 = s["pos_v_per_rad"], s.get("pos_offset_v", 0.0)
+
+    # -- ownership -------------------------------------------------------------------
+    def claim(self, session: str) -> bool:
+        """The first session owns the rig; the others watch (read-only)."""
+        if self.owner is None:
+            self.owner = session
+        return self.owner == session
+
+    def release(self, session: str) -> None:
+        """A closed page or a lost connection: stop the rig safely, free the station."""
+        if self.owner == session:
+            self.stop()
+            self.owner = None
+
+    # -- acquisition -----------------------------------------------------------------
+    def runs_on_disk(self) -> list[str]:
+        return sorted(p.stem for p in self.folder.glob("*.csv")
+                      if p.with_suffix(".json").exists())
+
+    def start_sweep(self, plan, into: Path | None = None) -> None:
+        """Play ``plan`` (a list of Experiments) in a thread, writing to ``into`` (default
+        the station's folder) exactly as ``labrig sweep`` does."""
+        from labrig.bridge.sweep import check_plan
+
+        if self.sweeping:
+            raise LabrigError("a sweep is running; Stop it first")
+        check_plan(plan, self.rig)    # a bad plan is refused before the rig moves
+        self._stop.clear()
+        self.sweeping, self.sweep_note, self.written = True, "", []
+        self._thread = threading.Thread(target=self._sweep, args=(plan, into or self.folder),
+                                        daemon=True)
+        self._thread.start()
+
+    def _sweep(self, plan, outdir) -> None:
+        from labrig.bridge.sweep import sweep
+
+        bridge = LiveBridge(self.make_bridge(), self._on_block, realtime=self.realtime,
+                            stop=self._stop)
+        self._bridge = bridge
+        current = {}
+
+        def on_start(exp):
+            current["exp"] = exp
+            self.live = Live(name=exp.name, n_planned=exp.n_samples)
+
+        def on_done(exp, run):
+            self.written.append(exp.name)
+
+        try:
+            sweep(bridge, plan, self.rig, outdir, on_start=on_start, on_done=on_done)
+            self.sweep_note = f"{len(self.written)} run(s) written to {outdir}"
+        except Interrupted as exc:
+            self.sweep_note = f"{exc} ({len(self.written)} run(s) written to {outdir})"
+        except LabrigError as exc:
+            self.sweep_note = f"error: {exc}"
+        except Exception as exc:  # a fault of the rig's link: one line, the rig at 0 V
+            self.sweep_note = f"error: {type(exc).__name__}: {exc}"
+        finally:
+            self.sweeping = False
+
+    def _on_block(self, blk) -> None:
+        live = self.live
+        fs = self.rig.bridge.sample_rate_hz
+        step = max(1, int(fs // 500))          # at most 500 points per second on screen
+        idx = blk.index[::step]
+        live.t.extend(idx / fs)
+        live.u.extend(blk.u[::step])
+        if blk.tacho is not None and self._kt:
+            live.speed.extend(blk.tacho[::step] / self._kt)
+        if blk.pos is not None:
+            live.pos.extend((blk.pos[::step] - self._pos0) / self._kpot)
+        live.samples = int(blk.index[-1]) + 1
+        live.counters = dict(self._bridge.counters())
+
+    def stop(self) -> None:
+        """Stop as Ctrl-C does: STOP and ZERO sent, finished runs kept."""
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=10)
+
+    # -- the loop --------------------------------------------------------------------
+    def folders(self) -> list[Path]:
+        out = [self.folder]
+        if (self.folder / "asked").is_dir() and any((self.folder / "asked").glob("*.csv")):
+            out.append(self.folder / "asked")
+        return out
+
+    def busy(self) -> bool:
+        return self.worker.busy
+
+    def submit(self, name, fn, *args, **kw) -> None:
+        self.error = ""
+        self.worker.submit(name, fn, *args, **kw)
+
+    def fit_linear(self) -> None:
+        self.rungs, self.diagnosis, self.ladder = [], None, None
+        self.submit("fit", jobs.fit, [self.folder])
+
+    def add(self, effect: str) -> None:
+        self.submit("fit", jobs.fit, [self.folder], self.model(), add=[effect])
+
+    def remove(self, effect: str) -> None:
+        self.submit("fit", jobs.fit, [self.folder], self.model(), remove=[effect])
+
+    def replace(self, old: str, new: str) -> None:
+        self.submit("fit", jobs.fit, [self.folder], self.model(), add=[new], remove=[old])
+
+    def auto(self) -> None:
+        self.rungs, self.diagnosis, self.ladder = [], None, None
+        self.submit("auto", jobs.auto, [self.folder])
+
+    def propose(self, between: str) -> None:
+        self.proposal, self.prediction, self.decision = None, None, None
+        self.submit("propose", jobs.propose, [self.folder], self.model(), between)
+
+    def predict(self, which: str, why: str) -> None:
+        self.prediction = {"which": which, "why": why.strip(), "at": time.time()}
+
+    def play_proposal(self) -> None:
+        """Play the proposed plan into ``asked/`` (only after a prediction is recorded)."""
+        from labrig.io.config import load_plan
+
+        if self.proposal is None or self.prediction is None:
+            raise LabrigError("record your prediction first: which explanation, and why")
+        asked = self.folder / "asked"
+        asked.mkdir(exist_ok=True)
+        name = f"proposed_{len(list(asked.glob('*.csv'))) + 1}"
+        plan_file = asked / f"{name}.toml"
+        plan_file.write_text(self.proposal["plan"].replace('name = "proposed"', f'name = "{name}"'))
+        self.start_sweep(load_plan(plan_file, self.rig), into=asked)
+
+    def decide(self) -> None:
+        self.submit("decide", jobs.decide, self.folders(), self.model())
+
+    def cancel(self) -> None:
+        self.worker.cancel()
+        self.error = "cancelled"
+
+    def model(self) -> dict | None:
+        return self.rungs[-1]["model"] if self.rungs else None
+
+    def poll(self) -> bool:
+        """Take in a finished job's result; True when something changed."""
+        self.log += self.worker.logs()
+        done = self.worker.poll()
+        if done is None:
+            return False
+        name, value, error = done
+        if error is not None:
+            self.error = str(error).splitlines()[0] if str(error) else type(error).__name__
+            return True
+        if name == "fit":
+            self.rungs.append(value)
+            self.submit("diagnose", jobs.diagnose, [self.folder], self.model())
+        elif name == "diagnose":
+            self.diagnosis = value
+            if self._from_auto:   # the search's own ladder stays
+                self._from_auto = False
+            else:
+                self.submit("ladder", jobs.ladder, [self.folder], [r["model"] for r in self.rungs])
+        elif name == "ladder":
+            self.ladder = value
+        elif name == "auto":
+            self.ladder = {"json": {"steps": value["json"]["ladder"]}, "figure": value["figure"],
+                           "tables": value["tables"]}
+            self._from_auto = True
+            self.submit("fit", jobs.fit, [self.folder], value["model"])
+        elif name == "propose":
+            self.proposal = value
+        elif name == "decide":
+            self.decision = value
+        return True
+
+    def close(self) -> None:
+        self.stop()
+        self.worker.close()
+        for f in self.on_close:
+            f()
+
+
+def as_array(d: collections.deque) -> np.ndarray:
+    return np.fromiter(d, float, len(d))
