@@ -133,7 +133,8 @@ class LabPage:
                                              css_classes=["lab-propose"])
         self.propose_btn.on_click(lambda e: self._do(self.st.propose, self.pair_pick.value))
         self.proposal = pn.pane.HTML("", sizing_mode="stretch_width", css_classes=["lab-proposal"])
-        self.which = pn.widgets.RadioButtonGroup(name="which", options=["-"], button_type="light")
+        self.which = pn.widgets.RadioButtonGroup(name="which", options=["-"], button_type="light",
+                                                 css_classes=["lab-which"])
         self.why = pn.widgets.TextInput(name="why (one line)", placeholder="because ...",
                                         width=420, css_classes=["lab-why"])
         self.predict_btn = pn.widgets.Button(name="Record my prediction",
@@ -220,8 +221,7 @@ class LabPage:
         self.runs_list.object = "runs in the folder: " + (", ".join(st.runs_on_disk()) or "none")
         if self.owner and st.poll():
             self._show_loop()
-        elif self._seen != (len(st.rungs), id(st.diagnosis), id(st.ladder), id(st.proposal),
-                            id(st.decision)):
+        elif self._seen != self._state():
             self._show_loop()
         busy = st.busy()
         self.progress.visible = self.progress.active = busy
@@ -243,10 +243,14 @@ class LabPage:
 
     _asked = False
 
+    def _state(self) -> tuple:
+        st = self.st
+        return (len(st.rungs), id(st.diagnosis), id(st.ladder), id(st.proposal),
+                id(st.prediction), id(st.decision))
+
     def _show_loop(self) -> None:
         st = self.st
-        self._seen = (len(st.rungs), id(st.diagnosis), id(st.ladder), id(st.proposal),
-                      id(st.decision))
+        self._seen = self._state()
         if st.rungs:
             r = st.rungs[-1]
             rm = r["rmse_over_noise"]
@@ -272,7 +276,8 @@ class LabPage:
             self.ladder.object = _img(st.ladder["figure"], 520) + "".join(st.ladder["tables"])
         if st.proposal:
             p = st.proposal
-            self.proposal.object = (_img(p["figure"]) + "<pre>" + _esc(p["text"]) + "</pre>")
+            self.proposal.object = (_img(p["figure"], 1100) + "<pre style=\"white-space:pre-wrap\">"
+                                    + _esc(p["text"]) + "</pre>")
             self.which.options = list(p["pair"])
         if st.prediction:
             pr = st.prediction

@@ -23,9 +23,20 @@ def plot_proposal(prop, ax=None):
         fig, axes = ax.figure, [ax]
         chans = chans[:1]
     else:
-        fig, axes = plt.subplots(len(chans) + 1, 1, figsize=(11.5, 2.6 * (len(chans) + 1)),
-                                 sharex=True, height_ratios=[3] * len(chans) + [1.6])
+        fig, axes = plt.subplots(len(chans) + 2, 1, figsize=(11.5, 2.6 * (len(chans) + 2)),
+                                 sharex=True, height_ratios=[3] * len(chans) + [2, 1.6])
         axes = list(np.atleast_1d(axes))
+        # where the explanations part: their difference against the noise band
+        ch, key = chans[0]
+        s = prop.sigmas[ch]
+        d = preds[0][key] - preds[1][key]
+        axes[-2].plot(t, d, color="0.2", lw=1.1,
+                      label=f"{prop.hypotheses[0].effect} - {prop.hypotheses[1].effect}")
+        axes[-2].fill_between(t, -s, s, color="tab:green", alpha=0.25, lw=0,
+                              label="+-1 noise: differences inside it cannot be seen")
+        axes[-2].set_ylabel(f"difference\n({units[1] if ch == 'speed' else units[0]})")
+        axes[-2].grid(alpha=0.3)
+        legend_outside(axes[-2], "right", fontsize=8)
     for a, (ch, key) in zip(axes, chans):
         s = prop.sigmas[ch]
         for h, p, c in zip(prop.hypotheses, preds, COLOURS):
@@ -42,7 +53,7 @@ def plot_proposal(prop, ax=None):
         axes[-1].grid(alpha=0.3)
         c = prop.chosen
         fig.suptitle(f"{prop.pair[0]} or {prop.pair[1]}? proposed: {c.candidate.label}\n"
-                     f"separation {c.naive:.0f} (naive), {c.worst:.0f} after the rival "
+                     f"predicted difference {c.naive:.0f} (best fits), {c.worst:.0f} after the rival "
                      "re-fits (noise units)", fontsize=10)
         fig.tight_layout()
     return fig

@@ -1,0 +1,235 @@
+"""The lab station in a real browser: headless Chromium (Debian's, driven by Playwright)
+against `labrig lab` served on 127.0.0.1.
+
+Every page here fails its test on any request that leaves the machine (a script, style,
+font or icon from a CDN). Screenshots are kept in tests/artefacts/ to look at.
+"""
+from __future__ import annotations
+
+import json
+import re
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from conftest import labrig
+
+ROOT = Path(__file__).resolve().parent.parent
+ARTEFACTS = Path(__file__).resolve().parent / "artefacts"
+CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
+LOCAL = ("http://127.0.0.1", "ws://127.0.0.1", "data:", "blob:", "about:")
+
+pytestmark = [pytest.mark.slow, pytest.mark.browser]
+
+#: the words of an element and its shadow root, text nodes joined by spaces (no styles)
+WORDS = r"""e => { const out = [];
+  const walk = n => { if (n.nodeType === 3) out.push(n.textContent);
+    else if (n.nodeName !== 'STYLE' && n.nodeName !== 'SCRIPT') {
+      if (n.shadowRoot) walk(n.shadowRoot); n.childNodes.forEach(walk); } };
+  walk(e); return out.join(' ').replace(/\s+/g, ' '); }"""
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+class Server:
+    """`labrig lab` in a subprocess; ended with Ctrl-C (SIGINT) by its PID."""
+
+    def __init__(self, folder: Path, *flags):
+        self.port = _free_port()
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "labrig", "lab", str(folder), "--no-browser",
+             "--http-port", str(self.port), *flags],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT)
+        line = self.proc.stdout.readline()
+        assert "http://127.0.0.1" in line, line + self.proc.stderr.read()
+        self.url = re.search(r"http://\S+/", line).group(0)
+
+    def stop(self) -> int:
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGINT)
+            try:
+                self.proc.wait(30)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait(10)
+        return self.proc.returncode
+
+
+@pytest.fixture(scope="module")
+def browser():
+    sync_api = pytest.importorskip("playwright.sync_api")
+    if not Path(CHROMIUM).exists():
+        pytest.skip("Chromium is not installed (CI installs Debian's chromium)")
+    with sync_api.sync_playwright() as p:
+        b = p.chromium.launch(executable_path=CHROMIUM, headless=True, args=[
+            "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+            "--disable-background-networking", "--disable-component-update", "--disable-sync"])
+        yield b
+        b.close()
+
+
+class Page:
+    """A browser page on the lab that records every request leaving the machine."""
+
+    def __init__(self, browser, url):
+        self.outside = []
+        self.page = browser.new_page(viewport={"width": 1400, "height": 1000})
+        self.page.route("**/*", self._route)
+        self.page.goto(url)
+        self.page.wait_for_selector(".lab-start", timeout=60000)
+
+    def _route(self, route):
+        if route.request.url.startswith(LOCAL):
+            route.continue_()
+        else:
+            self.outside.append(route.request.url)
+            route.abort()
+
+    def text(self, css: str) -> str:
+        """The text of a Panel pane (it renders inside the element's shadow root)."""
+        try:
+            return self.page.locator(css).first.evaluate(WORDS)
+        except Exception:
+            return ""
+
+    def click(self, css: str) -> None:
+        self.page.locator(f"{css} button").first.click()
+
+    def wait(self, cond, timeout: float = 300, what: str = "") -> None:
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < timeout:
+            if cond():
+                return
+            time.sleep(0.25)
+        self.shot("timeout")
+        raise AssertionError(f"waited {timeout:.0f} s for {what}")
+
+    def idle(self) -> None:
+        time.sleep(1.0)
+        self.wait(lambda: "working" not in self.text(".lab-status"), 600, "the fits to finish")
+
+    def number(self, css: str, pattern: str) -> float:
+        return float(re.search(pattern, self.text(css)).group(1))
+
+    def shot(self, name: str) -> Path:
+        ARTEFACTS.mkdir(exist_ok=True)
+        path = ARTEFACTS / f"lab_{name}.png"
+        self.page.screenshot(path=str(path), full_page=True)
+        return path
+
+    def close(self) -> None:
+        self.page.close()
+        assert self.outside == [], f"requests left the machine: {self.outside}"
+
+
+def test_a_run_streams_in_and_stop_keeps_every_finished_run(browser, tmp_path):
+    folder = tmp_path / "bench"
+    server = Server(folder)            # the simulated rig, paced to real time
+    try:
+        page = Page(browser, server.url)
+        page.page.locator(".lab-amplitudes input").fill("1.2, 1.5, 2.0")
+        page.click(".lab-start")
+        # the counters move at least 10 times a second while a run comes in
+        page.wait(lambda: "running" in page.text(".lab-counters"), 60, "the sweep to start")
+        seen, t0 = set(), time.monotonic()
+        while time.monotonic() - t0 < 1.5:
+            seen.add(re.search(r"samples (\d+)", page.text(".lab-counters")).group(1))
+            time.sleep(0.02)
+        assert len(seen) >= 12, seen
+        page.wait(lambda: "sq_1.20V" in page.text(".lab-runs"), 60, "the first run on disk")
+        page.shot("streaming")
+        page.click(".lab-stop")
+        page.wait(lambda: "stopped" in page.text(".lab-sweep-note"), 30, "the stop")
+        note = page.text(".lab-sweep-note")
+        assert "output is at 0 V" in note
+        page.close()
+    finally:
+        assert server.stop() in (0, 130)
+    written = sorted(p.name for p in folder.iterdir())
+    assert "sq_1.20V.csv" in written and "sq_2.00V.csv" not in written
+    assert not [n for n in written if n.endswith(".tmp")]
+    from labrig.io.runs import read_run
+
+    for csv in folder.glob("*.csv"):     # every run on disk is whole
+        run = read_run(csv)
+        assert len(run) == 4500 and "gap" not in run.data
+
+
+def test_the_loop_on_one_page_agrees_with_the_cli(browser, tmp_path):
+    folder = tmp_path / "runs"
+    labrig("sweep", "--sim", "-o", folder, check=0)
+    server = Server(folder, "--fast")
+    try:
+        page = Page(browser, server.url)
+        watcher = Page(browser, server.url)     # a second page watches, read-only
+        assert "read-only" in watcher.text(".bk-panel-models-markup-HTML") or \
+            watcher.page.locator(".lab-start button").first.is_disabled()
+        page.page.get_by_text("The loop", exact=True).click()
+        page.click(".lab-fit")
+        page.idle()
+        linear = page.number(".lab-rmse", r"rmse/noise ([\d.]+)")
+        page.shot("linear")
+        rec = re.search(r"recommendation: (\w+)", page.text(".lab-evidence")).group(1)
+        # the same numbers from the command line, same data and seed
+        m0 = tmp_path / "m0.json"
+        cli = json.loads(labrig("identify", folder, "--seed", "0", "-o", m0, "--json",
+                                check=0).stdout)
+        assert linear == pytest.approx(cli["rmse_over_noise"]["overall"], abs=0.006)
+        diag = json.loads(labrig("diagnose", folder, "--model", m0, "--json", check=0).stdout)
+        assert rec == diag["recommendation"] == "coulomb_friction"
+        top = diag["ranking"][0]
+        ev = page.text(".lab-evidence")
+        assert re.search(rf"{top['effect']}\s*{top['rmse_over_noise']:.2f}", ev)
+        page.click(".lab-add")                  # the recommended effect is selected
+        page.idle()
+        after = page.number(".lab-rmse", r"rmse/noise ([\d.]+)")
+        assert "coulomb_friction" in page.text(".lab-rmse")
+        assert after < 1.3 < linear
+        assert "+ coulomb_friction" in page.text(".lab-ladder")
+        page.shot("loop")
+        watcher.close()
+        page.close()
+    finally:
+        server.stop()
+
+
+def test_ask_the_rig_from_the_page(browser, tmp_path):
+    folder = tmp_path / "steps"
+    labrig("sweep", "--sim", "--plan", ROOT / "configs" / "plan_two_steps.toml", "-o", folder,
+           check=0)
+    server = Server(folder, "--fast")
+    try:
+        page = Page(browser, server.url)
+        page.page.get_by_text("The loop", exact=True).click()
+        page.click(".lab-fit")
+        page.idle()
+        page.page.get_by_text("Ask the rig", exact=True).click()
+        page.click(".lab-propose")
+        page.idle()
+        assert "proposed:" in page.text(".lab-proposal")
+        page.page.locator(".lab-proposal img").first.wait_for()
+        first = page.page.locator(".lab-which button").first
+        first.click()
+        page.page.locator(".lab-why input").fill("a dead zone lets it coast; friction brakes")
+        page.click(".lab-predict")
+        page.wait(lambda: "your prediction" in page.text(".lab-prediction"), 10, "prediction")
+        page.wait(lambda: not page.page.locator(".lab-play button").first.is_disabled(), 10,
+                  "Play to be enabled")
+        page.click(".lab-play")
+        page.wait(lambda: "the rig says" in page.text(".lab-decision"), 600, "the decision")
+        assert "explains the data better" in page.text(".lab-decision")
+        page.shot("ask_the_rig")
+        page.close()
+    finally:
+        server.stop()
+    assert list((folder / "asked").glob("proposed_1.csv"))
