@@ -19,8 +19,8 @@ from labrig.io.experiment import Experiment
 
 from conftest import labrig, make_rig, sim_dataset, square_plan
 
-HEADINGS = ("1. The sweep", "2. First-order analysis", "3. Identified models",
-            "4. Where the model fails", "5. Diagnosis: what is missing", "6. The error ladder")
+HEADINGS = ("1. The sweep", "2. Where the model fails", "3. Diagnosis: what is missing",
+            "4. The error ladder", "5. First-order analysis", "6. Identified models")
 HOSTILE = '<script>alert("x")</script> & friends'
 
 
@@ -170,6 +170,13 @@ def test_report_reads_the_work_folder(full_report):
     _check_self_contained(page)
     for h in HEADINGS:
         assert f">{h}</h2>" in page
+    # the loop first: the diagnosis and the ladder before the analysis' edge figures, and
+    # the corrected model on the data beside the linear one
+    assert page.index(">3. Diagnosis: what is missing</h2>") < \
+        page.index(">5. First-order analysis</h2>")
+    ladder = page[page.index(">4. The error ladder</h2>"):
+                  page.index(">5. First-order analysis</h2>")]
+    assert ": the linear model" in ladder and ": linear + " in ladder
     assert "Not in this report" not in page
     # JFO, PSO and CO side by side, CO best; artefacts named as the source
     assert ">JFO</th>" in page and ">PSO</th>" in page and ">CO (best)</th>" in page

@@ -49,7 +49,7 @@ def gather(data_dir, work=None, quick=False, seed=1, log=None) -> Story:
     _model0(story, live)
     ev0 = _failures(story, say)
     diag_live = _diagnosis(story, seed, say)
-    _ladder(story, diag_live, ev0, say)
+    _ladder(story, diag_live, ev0, say, seed)
     return story
 
 
@@ -205,7 +205,7 @@ def _model0(story: Story, live) -> None:
         story.notes.append(f"the identified model's effects could not be loaded ({exc})")
         return
     story.model0 = model
-    story.model0_source = f"the {story.best} fit of section 3"
+    story.model0_source = f"the {story.best} fit of section 6"
 
 
 def _failures(story: Story, say):
@@ -292,7 +292,7 @@ def _diagnosis(story: Story, seed, say):
     return story.diagnosis
 
 
-def _ladder(story: Story, diag_live, ev0, say) -> None:
+def _ladder(story: Story, diag_live, ev0, say, seed=1) -> None:
     w = story.work
     doc = _artefact(story, "ladder.json", LadderDoc)
     ladder = doc.result() if doc is not None and doc.steps else None
@@ -321,7 +321,55 @@ def _ladder(story: Story, diag_live, ev0, say) -> None:
         story.figures["ladder"] = [Figure("The error ladder", png or fig_bytes(ladder.plot()),
                                           "rmse/noise after each added effect; the dotted line "
                                           "is the noise floor.", wide=False)]
+        story.figures["ladder"] += _corrected(story, diag_live, ev0, say, seed)
 
+
+def _corrected(story: Story, diag_live, ev0, say, seed) -> list:
+    """The corrected model on the worst run, below the linear model on the same run: the
+    error falling, seen on the data (the work folder's figures when it has them)."""
+    from labrig.loop.plots import plot_run_comparison
+
+    w, rec = story.work, story.diagnosis.recommendation if story.diagnosis else None
+    name = story.worst_run or (ev0.worst_run()["name"] if ev0 is not None else None)
+    if name is None or not rec:
+        return []
+    label = f"linear + {rec}"
+    has_m1 = bool(w) and (w / "model1.json").is_file()
+    before = _work_png(story, f"compare_{name}_model0.png")
+    after = _work_png(story, f"compare_{name}.png") if has_m1 else None
+    if before is None and ev0 is not None:
+        rr = next((r for r in ev0.per_run if r["name"] == name), None)
+        before = rr and fig_bytes(plot_run_comparison(rr, title=f"{name}: linear model vs "
+                                                                "measurement"))
+    if after is None:
+        ev1 = None
+        if diag_live is not None and diag_live.candidate(rec).evaluation is not None:
+            ev1 = diag_live.candidate(rec).evaluation
+        elif has_m1 and not story.quick:
+            from labrig.loop.evaluation import evaluate
+            from labrig.model.model import Model
+
+            say("report: simulating the corrected model (model1.json)")
+            ev1 = evaluate(story.runs, Model.load(w / "model1.json"))
+        elif story.model0 is not None and not story.quick:
+            from labrig.identification.engine import identify
+            from labrig.loop.evaluation import evaluate
+            from labrig.model.effects import get_effect
+
+            say(f"report: fitting the linear model + {rec} (warm start from the linear model)")
+            m0 = story.model0
+            res1 = identify(story.runs, "co", m0.effects + [get_effect(rec)], seed=seed,
+                            start=m0.flat(), starts=1)
+            ev1 = evaluate(story.runs, res1.model())
+        rr = ev1 and next((r for r in ev1.per_run if r["name"] == name), None)
+        after = rr and fig_bytes(plot_run_comparison(rr, title=f"{name}: {label} vs "
+                                                              "measurement"))
+    if not (before and after):
+        return []
+    return [Figure(f"{name}: the linear model", before,
+                   "Before: the linear model's residual leaves the noise band."),
+            Figure(f"{name}: {label}", after,
+                   "After: with the missing effect the residual stays in the noise band.")]
 
 def _ladder_from_diagnosis(story: Story, diag_live, ev0):
     """Linear model, then + the recommended effect as fitted by the diagnosis."""

@@ -21,12 +21,15 @@ if TYPE_CHECKING:  # annotations only: gathering imports the heavy modules lazil
     from labrig.report.artefacts import IdentRecord, Regimes
 
 #: section key -> heading, in page order
+#: the loop first (where the linear model fails, what is missing, the error falling with
+#: the corrected model on the data), then the details behind it (the analysis' edges,
+#: the identifiers side by side)
 SECTIONS = (("sweep", "1. The sweep"),
-            ("analysis", "2. First-order analysis"),
-            ("models", "3. Identified models"),
-            ("failures", "4. Where the model fails"),
-            ("diagnosis", "5. Diagnosis: what is missing"),
-            ("ladder", "6. The error ladder"))
+            ("failures", "2. Where the model fails"),
+            ("diagnosis", "3. Diagnosis: what is missing"),
+            ("ladder", "4. The error ladder"),
+            ("analysis", "5. First-order analysis"),
+            ("models", "6. Identified models"))
 
 
 def fig_bytes(fig, dpi: int = 110) -> bytes:
@@ -78,9 +81,9 @@ class Story:
     model0 : Model or None
         The linear model of sections 4-6; ``model0_source`` says where it came from.
     regimes : Regimes or None
-        The linear model's error by regime and by amplitude (section 4).
+        The linear model's error by regime and by amplitude (section 2).
     worst_run : str or None
-        The run shown in section 4's comparison figure.
+        The run shown in section 2's comparison figure.
     diagnosis : Diagnosis or None
     ladder : Ladder or None
     """
