@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test firmware clean
+.PHONY: demo test test-quick firmware clean
 
 $(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV)
@@ -16,8 +16,15 @@ $(STAMP): pyproject.toml
 demo: $(STAMP)          ## the main job on the simulated rig -> demo_out/report.html
 	$(BIN)/labrig demo -o demo_out
 
-test: $(STAMP)          ## the whole test suite (firmware tests need the AVR toolchain)
-	$(BIN)/python -m pytest -q
+test: $(STAMP)          ## the whole test suite on both cores (firmware and browser tests need the AVR toolchain and Chromium)
+	$(BIN)/python -m pytest -q -n 2 --dist load
+
+# the end-to-end loop files (diagnose, propose, plants, real rigs, sheets, report) are left
+# to `make test`; what is left runs in about two minutes on 2 cores
+QUICK_SKIP := $(foreach f,diagnose propose plants real_rigs exercises report,--ignore=tests/test_$(f).py)
+
+test-quick: $(STAMP)    ## about two minutes: no slow, firmware, browser or end-to-end loop tests
+	$(BIN)/python -m pytest -q -n 2 --dist load -m "not slow and not firmware and not browser" $(QUICK_SKIP)
 
 firmware:               ## build both boards and run the C unit tests
 	$(MAKE) -C firmware all test

@@ -189,16 +189,19 @@ def diagnose(source, model=None, *, candidates=None, seed: int = SEED,
 
 
 def auto(source, model=None, *, max_rounds: int = 3, seed: int = SEED,
-         fixed: dict | None = None, through: str = "auto", log=None):
+         fixed: dict | None = None, through: str = "auto", log=None, on_step=None):
     """The loop run to the end: add, pair, swap and remove effects while the
     cross-validated error falls (``labrig diagnose --auto``). Returns an
-    :class:`~labrig.loop.auto.AutoDiagnosis` with the final model and its ladder."""
+    :class:`~labrig.loop.auto.AutoDiagnosis` with the final model and its ladder;
+    ``log(line)`` receives the rounds' summaries and ``on_step(k, model)`` every rung as
+    the search climbs the ladder."""
     from labrig.loop.auto import auto_diagnose
 
     if max_rounds < 1:
         raise UserError(f"max_rounds: {max_rounds} adds nothing; give 1 or more")
     return auto_diagnose(read_runs(source, through=through), _model(model),
-                         max_rounds=max_rounds, seed=seed, fixed=fixed, log=log)
+                         max_rounds=max_rounds, seed=seed, fixed=fixed, log=log,
+                         on_step=on_step)
 
 
 def propose(source, model, between: str | None = None, *, budget_s: float = 20.0,

@@ -62,8 +62,10 @@ def test_dask_local_cluster_of_two_workers(class_dir):
 
 def test_cli_writes_the_table_and_each_model(class_dir, tmp_path):
     out = tmp_path / "out"
+    # stdout is a pipe: the batch's idle workers must not hold it open after labrig exits
+    # (loky keeps them 5 minutes unless the batch shuts its executor down)
     p = labrig("batch", "identify", *_folders(class_dir), "-o", out, "--jobs", "2",
-               "--pop", "16", "--iters", "20", "--json", check=0)
+               "--pop", "16", "--iters", "20", "--json", check=0, timeout=240)
     doc = json.loads(p.stdout)
     assert doc["folders"] == 4 and doc["failed"] == 1
     with open(out / "results.csv") as f:

@@ -152,11 +152,16 @@ def test_a_run_streams_in_and_stop_keeps_every_finished_run(browser, tmp_path):
         page.wait(lambda: "stopped" in page.text(".lab-sweep-note"), 30, "the stop")
         note = page.text(".lab-sweep-note")
         assert "output is at 0 V" in note
+        # Ctrl-C on the server in the middle of a run: it ends, the run is not written
+        page.page.locator(".lab-amplitudes input").fill("2.5")
+        page.click(".lab-start")
+        page.wait(lambda: "running" in page.text(".lab-counters"), 60, "the second sweep")
         page.close()
     finally:
         assert server.stop() in (0, 130)
     written = sorted(p.name for p in folder.iterdir())
     assert "sq_1.20V.csv" in written and "sq_2.00V.csv" not in written
+    assert "sq_2.50V.csv" not in written and "sq_2.50V.json" not in written
     assert not [n for n in written if n.endswith(".tmp")]
     from labrig.io.runs import read_run
 

@@ -104,7 +104,11 @@ def auto(folders, max_rounds=3, log=None) -> dict:
     """``diagnose --auto``: the rungs it climbed, each fitted as a rung of the page."""
     import labrig.api as lr
 
-    res = lr.auto(_runs(folders), max_rounds=max_rounds, seed=LAB_SEED, log=log)
+    def rung(k, model):
+        if log:
+            log(f"rung {k}: {' + '.join(['linear'] + model.names)}")
+
+    res = lr.auto(_runs(folders), max_rounds=max_rounds, seed=LAB_SEED, log=log, on_step=rung)
     return {"json": res.to_json(), "model": res.model.to_json(), "effects": res.model.names,
             "figure": _png(res.plot()), "tables": _html(res.ladder.table_rows()),
             "verdict": res.verdict}

@@ -225,8 +225,11 @@ class LabPage:
             self._show_loop()
         busy = st.busy()
         self.progress.visible = self.progress.active = busy
-        self.status.object = (f"working: {st.worker.name} ({time.monotonic() - st.worker.started:.0f} s)"
-                              if busy else "") + ("  \n" + st.log[-1] if busy and st.log else "")
+        rungs = [line for line in st.log if line.startswith("rung ")]
+        self.status.object = (
+            f"working: {st.worker.name} ({time.monotonic() - st.worker.started:.0f} s)"
+            + "".join(f"  \n{line}" for line in rungs[-6:])
+            + (f"  \n{st.log[-1].splitlines()[0]}" if st.log else "")) if busy else ""
         self._paint_error()
         for w in (self.fit_btn, self.auto_btn, self.add_btn, self.rm_btn, self.rep_btn,
                   self.propose_btn, self.start):

@@ -172,6 +172,7 @@ class Station:
 
     def submit(self, name, fn, *args, **kw) -> None:
         self.error = ""
+        self.log = []
         self.worker.submit(name, fn, *args, **kw)
 
     def fit_linear(self) -> None:

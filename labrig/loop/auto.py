@@ -152,7 +152,8 @@ def _where_they_differ(a: Candidate, b: Candidate) -> dict | None:
 
 
 def auto_diagnose(runs, model: Model | None = None, *, max_rounds: int = 3, seed: int = 0,
-                  fixed: dict | None = None, weights=None, log=None) -> AutoDiagnosis:
+                  fixed: dict | None = None, weights=None, log=None,
+                  on_step=None) -> AutoDiagnosis:
     """Run the search (:func:`labrig.loop.search.search`) and name the confusable pairs of
     every round.
 
@@ -169,11 +170,13 @@ def auto_diagnose(runs, model: Model | None = None, *, max_rounds: int = 3, seed
     weights : Weights, optional
         Channel weights (default: balanced on the starting model).
     log : callable(str), optional
+    on_step : callable(k, model), optional
+        Called for every rung of the ladder as the search climbs it (k = 0: the start).
     """
     from labrig.loop.search import search
 
     res = search(runs, model, max_rounds=max_rounds, seed=seed, fixed=fixed, weights=weights,
-                 log=log)
+                 log=log, on_step=on_step)
     pairs = [p for k, diag in enumerate(res.rounds, 1) for p in confusable_pairs(diag, k)]
     return AutoDiagnosis(rounds=res.rounds, model=res.model, ladder=res.ladder,
                          confusable=pairs, moves=res.moves,

@@ -1,0 +1,132 @@
+"""The lab page as a student meets it, in headless Chromium: how soon it is interactive
+after launch, how far the live view lags a 1 kHz run, and a click's fits against the
+same command line.
+
+    python benchmarks/bench_lab.py             # one run (~3 min), writes results_lab.json
+    python benchmarks/bench_lab.py --markdown  # the README rows of results_lab.json
+
+Targets (docs: issue "The lab station in the browser"): interactive within 3 s of launch
+(warm cache), the live view at most 0.5 s behind a 1 kHz run, a click's re-fit as long as
+the CLI's. Measured, never asserted.
+"""
+from __future__ import annotations
+
+import json
+import os
+import re
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+OUT = Path(__file__).resolve().parent / "results_lab.json"
+WORDS = r"""e => { const out = [];
+  const walk = n => { if (n.nodeType === 3) out.push(n.textContent);
+    else if (n.nodeName !== 'STYLE' && n.nodeName !== 'SCRIPT') {
+      if (n.shadowRoot) walk(n.shadowRoot); n.childNodes.forEach(walk); } };
+  walk(e); return out.join(' ').replace(/\s+/g, ' '); }"""
+
+
+def _port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _text(page, css):
+    try:
+        return page.locator(css).first.evaluate(WORDS)
+    except Exception:
+        return ""
+
+
+def measure() -> dict:
+    from playwright.sync_api import sync_playwright
+
+    folder = Path(tempfile.mkdtemp(prefix="bench_lab_"))
+    subprocess.run([sys.executable, "-m", "labrig", "sweep", "--sim", "-o", str(folder)],
+                   check=True, capture_output=True)
+    port = _port()
+    t0 = time.monotonic()
+    proc = subprocess.Popen([sys.executable, "-m", "labrig", "lab", str(folder), "--no-browser",
+                             "--http-port", str(port)], stdout=subprocess.PIPE, text=True)
+    res = {}
+    try:
+        proc.stdout.readline()
+        res["server_ready_s"] = time.monotonic() - t0
+        with sync_playwright() as p:
+            b = p.chromium.launch(executable_path="/usr/bin/chromium", headless=True,
+                                  args=["--no-sandbox", "--disable-gpu",
+                                        "--disable-background-networking"])
+            page = b.new_page(viewport={"width": 1400, "height": 1000})
+            page.goto(f"http://127.0.0.1:{port}/")
+            page.locator(".lab-start button").first.wait_for(state="visible")
+            page.wait_for_function("() => true")
+            res["interactive_s"] = time.monotonic() - t0
+            # the live view against a 1 kHz run played in real time
+            page.locator(".lab-amplitudes input").fill("2.0")
+            page.locator(".lab-periods input").first.fill("2")   # 8.5 s at 1 kHz
+            page.locator(".lab-start button").first.click()
+            clicked = time.monotonic()
+            lags = []
+            while time.monotonic() - clicked < 12:
+                m = re.search(r"samples (\d+)/(\d+)", _text(page, ".lab-counters"))
+                now = time.monotonic() - clicked
+                if m and 0 < int(m.group(1)) < int(m.group(2)):
+                    shown = int(m.group(1)) / 1000.0   # the run time the view has reached
+                    lags.append(now - shown)
+                time.sleep(0.05)
+            lags.sort()
+            res["stream_lag_median_s"] = lags[len(lags) // 2] if lags else None
+            res["stream_lag_p95_s"] = lags[int(0.95 * (len(lags) - 1))] if lags else None
+            # a click's fits (linear model + diagnosis + ladder) against the same commands
+            page.get_by_text("The loop", exact=True).click()
+            t1 = time.monotonic()
+            page.locator(".lab-fit button").first.click()
+            time.sleep(1)
+            while "working" in _text(page, ".lab-status"):
+                time.sleep(0.2)
+            res["click_fit_diagnose_s"] = time.monotonic() - t1
+            b.close()
+    finally:
+        proc.send_signal(signal.SIGINT)
+        proc.wait(30)
+    m0 = folder / "m0.json"
+    t2 = time.monotonic()
+    subprocess.run([sys.executable, "-m", "labrig", "identify", str(folder), "--seed", "0",
+                    "-o", str(m0)], check=True, capture_output=True)
+    subprocess.run([sys.executable, "-m", "labrig", "diagnose", str(folder), "--model", str(m0)],
+                   check=True, capture_output=True)
+    res["cli_identify_diagnose_s"] = time.monotonic() - t2
+    res["when"] = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
+    res["load_at_start"] = os.getloadavg()[0]
+    return res
+
+
+def markdown(res: dict) -> str:
+    def f(x):
+        return "-" if x is None else f"{x:.2f}"
+    return "\n".join([
+        f"Lab page (`python benchmarks/bench_lab.py`, {res['when']}, load "
+        f"{res['load_at_start']:.1f} at the start):",
+        "",
+        "| what | measured | target |",
+        "|---|---|---|",
+        f"| page interactive after launch | {f(res['interactive_s'])} s | 3 s |",
+        f"| live view behind a 1 kHz run (median / 95 %) | {f(res['stream_lag_median_s'])} / "
+        f"{f(res['stream_lag_p95_s'])} s | 0.5 s |",
+        f"| Fit the linear model (+ diagnosis, ladder) | {f(res['click_fit_diagnose_s'])} s | "
+        f"as the CLI: identify + diagnose {f(res['cli_identify_diagnose_s'])} s |"])
+
+
+if __name__ == "__main__":
+    if "--markdown" in sys.argv:
+        print(markdown(json.loads(OUT.read_text())))
+    else:
+        r = measure()
+        OUT.write_text(json.dumps(r, indent=2) + "\n")
+        print(markdown(r))
