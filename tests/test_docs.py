@@ -146,3 +146,9 @@ def test_readme_quotes_the_recorded_startup_benchmark():
     benchmarks/bench_startup.py writes from benchmarks/results_startup.json."""
     prose = " ".join((ROOT / "README.md").read_text().split())
     assert " ".join(_markdown("bench_startup.py").split()) in prose
+
+
+def test_readme_quotes_the_recorded_lab_benchmark():
+    """The lab page's table is the one benchmarks/bench_lab.py writes from
+    benchmarks/results_lab.json."""
+    assert _markdown("bench_lab.py") in (ROOT / "README.md").read_text()

@@ -94,3 +94,5 @@ class Worker:
     def close(self) -> None:
         self._pool.terminate()
         self._pool.join()
+        self._queue.close()
+        self._queue.join_thread()
