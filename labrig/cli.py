@@ -43,7 +43,8 @@ The order of work (sweep/import -> analyse -> identify -> diagnose -> propose):
   4. diagnose         where the model fails, which effect is missing (--auto: to
                       the end)
   5. propose          the experiment that tells two explanations apart; sweep
-                      it, then diagnose the old and the new runs together"""
+                      it, then diagnose the old and the new runs together
+All five in the browser, watching each run come in: labrig lab --sim"""
 
 #: ``labrig --help``: below the list of commands
 EPILOG = """\
