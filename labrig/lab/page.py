@@ -59,7 +59,7 @@ class LabPage:
         self._set_owner(self.owner)
 
     def _acquire_tab(self):
-        self.form = PlanForm(self.st.rig)
+        self.form = PlanForm(self.st.rig, self.st.folder)
         self.start = pn.widgets.Button(name="Start", button_type="primary",
                                        css_classes=["lab-start"])
         self.stop = pn.widgets.Button(name="Stop", button_type="danger", css_classes=["lab-stop"])

@@ -17,11 +17,19 @@ KEYS = {"waveform": "waveform", "loop": "loop", "amplitudes": "amplitudes_v",
 
 
 class PlanForm:
-    """One ``[[experiment]]`` table with one run per amplitude."""
+    """A plan file to choose (the lab's, or one in the folder), or one ``[[experiment]]``
+    table with one run per amplitude, edited in the form."""
 
-    def __init__(self, rig):
+    def __init__(self, rig, folder=None):
+        from labrig.io.config import CONFIG_DIR
+
         self.rig = rig
         lim = rig.bridge.output_limit_v
+        files = sorted(CONFIG_DIR.glob("plan_*.toml")) + \
+            (sorted(Path(folder).glob("*.toml")) if folder else [])
+        self.source = pn.widgets.Select(
+            name="plan", options={"the form below": "", **{f.name: str(f) for f in files}},
+            width=340, css_classes=["lab-plan"])
         self.w = {
             "waveform": pn.widgets.Select(name="waveform", options=["square", "step"],
                                           width=340),
@@ -40,7 +48,9 @@ class PlanForm:
         }
         self.msg = {k: pn.pane.Alert("", alert_type="danger", visible=False, width=340,
                                      css_classes=[f"lab-form-error-{k}"]) for k in self.w}
-        self.view = pn.Column(*[x for k in self.w for x in (self.w[k], self.msg[k])])
+        self.source_msg = pn.pane.Alert("", alert_type="danger", visible=False, width=340)
+        self.view = pn.Column(self.source, self.source_msg,
+                              *[x for k in self.w for x in (self.w[k], self.msg[k])])
 
     def toml(self) -> str:
         w = {k: v.value for k, v in self.w.items()}
@@ -56,8 +66,17 @@ class PlanForm:
         from labrig.bridge.sweep import check_plan
         from labrig.io.config import load_plan
 
-        for m in self.msg.values():
+        for m in [*self.msg.values(), self.source_msg]:
             m.visible = False
+        if self.source.value:   # a plan file, read as `labrig sweep --plan` reads it
+            try:
+                plan = load_plan(self.source.value, self.rig)
+                check_plan(plan, self.rig)
+                return plan
+            except LabrigError as exc:
+                self.source_msg.object = str(exc).splitlines()[0]
+                self.source_msg.visible = True
+                return None
         with tempfile.TemporaryDirectory() as d:
             path = Path(d) / "plan.toml"
             path.write_text(self.toml())

@@ -166,6 +166,8 @@ def search(runs, model: Model | None = None, *, max_rounds: int = 3, seed: int =
     ladder = Ladder([LadderStep.of("linear model" if not model.names else "given model", model,
                                    diag.evaluation, cv=cv_now)])
     if on_step:
+        model.info = {**(model.info or {}),
+                      "rmse_over_noise": ladder.steps[0].rmse_over_noise, "cross_validated": cv_now}
         on_step(0, model)
     added = 0
     for k in range(1, max_rounds + 1):
@@ -249,9 +251,12 @@ def _revise(judge, model, new, cv_now, moves, ladder, k, log, on_step):
 
 def _rung(ladder, model, judge, cv, on_step):
     # the rung names its model's effects (a swap or removal drops one), not the move
-    ladder.steps.append(LadderStep.of(rung_label(model.names, ladder.steps[-1].effects), model,
-                                      judge.evaluate(model), cv=cv))
-    if on_step:
+    step = LadderStep.of(rung_label(model.names, ladder.steps[-1].effects), model,
+                         judge.evaluate(model), cv=cv)
+    ladder.steps.append(step)
+    if on_step:   # the rung's errors ride along in the model's fit record
+        model.info = {**(model.info or {}), "rmse_over_noise": step.rmse_over_noise,
+                      "cross_validated": cv}
         on_step(len(ladder.steps) - 1, model)
 
 
