@@ -131,7 +131,7 @@ def analyse(source, *, tolerance: float | None = None):
     return _analyse(list(source), tolerance=GAIN_TOLERANCE if tolerance is None else tolerance)
 
 
-def identify(source, method: str = METHOD, effects=(), *, model=None, seed: int | None = None,
+def identify(source, method: str = METHOD, effects=(), *, model=None, seed: int | None = SEED,
              fixed: dict | None = None, bounds: dict | None = None, through: str = "auto",
              **options):
     """Fit the plant and effects (``labrig identify``).
@@ -145,8 +145,9 @@ def identify(source, method: str = METHOD, effects=(), *, model=None, seed: int 
         Catalogue names (``lr.effects()`` lists them) or ``FILE.py:Class`` of trusted code.
     model : Model, model file or Identification, optional
         Start from this model (its effects are kept and ``effects`` added), as ``--model``.
-    seed : int, optional
-        Recorded in the result; the same seed reproduces the fit exactly.
+    seed : int or None
+        Default 0, as the command line: the same files give the same fit. None draws a
+        fresh seed, recorded in the result (``result.seed``) to repeat it.
     fixed, bounds : dict, optional
         ``{"R": 8.2}`` and ``{"R": (1, 20)}``, as ``--fix`` and ``--bounds``.
     **options

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from labrig.core.defaults import METHOD
+from labrig.core.defaults import METHOD, SEED
 from labrig.core.errors import UserError
 from labrig.commands.progress import Progress
 from labrig.commands.registry import command, emit_json, refuse_existing
@@ -98,6 +98,12 @@ def cmd_identify(args):
     dataset = {"paths": [str(Path(d)) for d in args.data], "runs": [r.name for r in runs]}
     if way.runs:
         dataset["closed_loop"] = way.to_json()
+    if args.seed is None:   # asked for a fresh one: draw it here, say it, so it can be repeated
+        import sys
+
+        args.seed = int(np.random.default_rng().integers(2 ** 31))
+        print(f"labrig identify: seed {args.seed} (a fresh one; --seed {args.seed} repeats "
+              "this fit)", file=sys.stderr)
     results = []
     for m in methods:
         iters = args.iters if m != "co" else 1
@@ -138,11 +144,23 @@ def cmd_identify(args):
     return 0
 
 
+def _seed(text: str):
+    """``--seed N`` or ``--seed new`` (None: a fresh seed, drawn and printed)."""
+    if text.strip().lower() == "new":
+        return None
+    try:
+        return int(text)
+    except ValueError:
+        raise UserError(f"--seed: {text!r} is not a whole number or 'new'") from None
+
+
 def _configure(p):
     common_model_options(p)
     p.add_argument("--method", default=METHOD, choices=["jfo", "pso", "co", "all"],
                    help=f"identifier (default {METHOD}; all = the paper's Table 2 side by side)")
-    p.add_argument("--seed", type=int, help="random seed (recorded; same seed, same result)")
+    p.add_argument("--seed", type=_seed, default=SEED, metavar="N|new",
+                   help=f"random seed (default {SEED}: the same files and command give the same "
+                        "answer); 'new' draws a fresh one and prints it, to repeat the fit")
     p.add_argument("--model", help="start from a saved model (its effects are kept)")
     p.add_argument("-o", "--output", help="save the model (best method) as JSON")
     p.add_argument("--force", action="store_true",

@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from labrig.core.defaults import LOOP_GAINS, METHOD
+from labrig.core.defaults import LOOP_GAINS, METHOD, SEED
 from labrig.core.errors import UserError
 from labrig.core.timing import mark
 from labrig.model.effects import Effect
@@ -264,7 +264,7 @@ class FitOptions:
     identifiability: bool = True
 
 
-def identify(runs, method: str = METHOD, effects: list[Effect] = (), *, seed: int | None = None,
+def identify(runs, method: str = METHOD, effects: list[Effect] = (), *, seed: int | None = SEED,
              bounds: dict | None = None, fixed: dict | None = None, start: dict | None = None,
              options: FitOptions | None = None, callback=None, dataset: dict | None = None,
              masks=None, reach=None, **settings) -> Identification:
@@ -275,8 +275,9 @@ def identify(runs, method: str = METHOD, effects: list[Effect] = (), *, seed: in
     runs : list of Run
     method : {"jfo", "pso", "co"}
     effects : list of Effect
-    seed : int, optional
-        Recorded in the result; the same seed reproduces the fit exactly.
+    seed : int or None
+        Recorded in the result; the same seed reproduces the fit exactly. Default
+        :data:`labrig.core.defaults.SEED`; None draws a fresh one (recorded too).
     bounds, fixed : dict
         ``{name: (lower, upper)}`` and ``{name: value}``; names are R, L, J, B, K
         and ``effect.param``.
