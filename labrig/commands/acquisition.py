@@ -26,7 +26,9 @@ def cmd_sweep(args):
 
         bridge = SimRig(rig, seed=args.seed)
         if args.realtime:
-            bridge = _Paced(bridge)
+            from labrig.bridge.live import LiveBridge
+
+            bridge = LiveBridge(bridge, realtime=True)
     else:
         from labrig.bridge.serial import SerialBridge
 
@@ -91,25 +93,6 @@ class _StopSignals:
 
 
 _KEPT = "finished runs are kept, the output is at 0 V"
-
-
-class _Paced:
-    """Wraps a bridge so that blocks arrive at the real sample rate (--realtime)."""
-
-    def __init__(self, inner):
-        self._inner = inner
-        self.source = inner.source
-
-    def __getattr__(self, name):
-        return getattr(self._inner, name)
-
-    def read(self, timeout=2.0):
-        import time
-
-        blk = self._inner.read(timeout)
-        if blk is not None:
-            time.sleep(len(blk.index) / self._inner._exp.sample_rate_hz)
-        return blk
 
 
 @command("import", "bring a scope/DAQ export, another lab's CSV or a MATLAB .mat file in as a run")

@@ -8,7 +8,6 @@ gives the first line. Nothing here computes: it only presents what the result ho
 from __future__ import annotations
 
 import base64
-import io
 
 from labrig.core.tables import Table, table_html
 
@@ -56,10 +55,15 @@ class Displayable:
 
 def figure_html(fig) -> str:
     """A matplotlib figure as an inline PNG ``<img>``; the figure is closed after."""
-    import matplotlib.pyplot as plt
+    from labrig.core.figures import png_bytes
 
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=80, bbox_inches="tight")
-    plt.close(fig)
-    data = base64.b64encode(buf.getvalue()).decode("ascii")
-    return f'<img src="data:image/png;base64,{data}" style="max-width:100%"/>'
+    return png_html(png_bytes(fig, dpi=80))
+
+
+def png_html(png: bytes | None, max_width: int | None = None) -> str:
+    """PNG bytes as an inline ``<img>`` (nothing fetched from anywhere); "" for none."""
+    if not png:
+        return ""
+    style = f"max-width:{max_width}px;width:100%" if max_width else "max-width:100%"
+    return f'<img src="data:image/png;base64,{base64.b64encode(png).decode("ascii")}" ' \
+           f'style="{style}"/>'

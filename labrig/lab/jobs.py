@@ -7,10 +7,10 @@ seed), its tables as HTML and its figures as PNG bytes, drawn by the result's ow
 """
 from __future__ import annotations
 
-import io
 from pathlib import Path
 
 from labrig.core.defaults import SEED
+from labrig.core.figures import png_bytes
 from labrig.core.tables import Table, table_html
 
 #: the seed of every fit the page makes (the CLI gives the same numbers with --seed 0)
@@ -18,12 +18,7 @@ LAB_SEED = SEED
 
 
 def _png(fig) -> bytes:
-    import matplotlib.pyplot as plt
-
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=90, bbox_inches="tight")
-    plt.close(fig)
-    return buf.getvalue()
+    return png_bytes(fig, dpi=90)
 
 
 def _html(tables) -> list[str]:

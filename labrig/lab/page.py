@@ -8,27 +8,19 @@ live samples and finished jobs onto the page, so the page never waits on the rig
 """
 from __future__ import annotations
 
-import base64
 import time
 
 import panel as pn
 from bokeh.models import ColumnDataSource
 from bokeh.plotting import figure
 
+from labrig.core.display import png_html as _img
 from labrig.core.errors import LabrigError
 from labrig.lab.plan_form import PlanForm
 from labrig.lab.station import Station, as_array
 
 #: display refresh period (ms): at least 10 updates per second
 REFRESH_MS = 100
-
-
-def _img(png: bytes | None, width=None) -> str:
-    if not png:
-        return ""
-    data = base64.b64encode(png).decode("ascii")
-    style = f"max-width:{width}px;width:100%" if width else "width:100%"
-    return f'<img src="data:image/png;base64,{data}" style="{style}"/>'
 
 
 class LabPage:

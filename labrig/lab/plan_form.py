@@ -68,6 +68,11 @@ class PlanForm:
 
         for m in [*self.msg.values(), self.source_msg]:
             m.visible = False
+        try:
+            [float(a) for a in str(self.w["amplitudes"].value).split(",") if a.strip()]
+        except ValueError:
+            return self._refuse("amplitudes", f"amplitudes: {self.w['amplitudes'].value!r} is "
+                                "not a list of numbers; write e.g. 1.2, 2.0")
         if self.source.value:   # a plan file, read as `labrig sweep --plan` reads it
             try:
                 plan = load_plan(self.source.value, self.rig)
@@ -86,7 +91,10 @@ class PlanForm:
                 return plan
             except LabrigError as exc:
                 text = str(exc).replace(str(path), "plan").splitlines()[0]
-                field = next((k for k, key in KEYS.items() if key in text), "amplitudes")
-                self.msg[field].object = text
-                self.msg[field].visible = True
-                return None
+                return self._refuse(next((k for k, key in KEYS.items() if key in text),
+                                         "amplitudes"), text)
+
+    def _refuse(self, field: str, text: str) -> None:
+        self.msg[field].object = text
+        self.msg[field].visible = True
+        return None

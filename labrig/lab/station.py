@@ -116,9 +116,6 @@ class Station:
     def _sweep(self, plan, outdir) -> None:
         from labrig.bridge.sweep import sweep
 
-        bridge = LiveBridge(self.make_bridge(), self._on_block, realtime=self.realtime,
-                            stop=self._stop)
-        self._bridge = bridge
         current = {}
 
         def on_start(exp):
@@ -128,8 +125,10 @@ class Station:
         def on_done(exp, run):
             self.written.append(exp.name)
 
-        try:
-            sweep(bridge, plan, self.rig, outdir, on_start=on_start, on_done=on_done)
+        try:   # an unplugged board fails here: one line on the page, like any rig error
+            self._bridge = LiveBridge(self.make_bridge(), self._on_block,
+                                      realtime=self.realtime, stop=self._stop)
+            sweep(self._bridge, plan, self.rig, outdir, on_start=on_start, on_done=on_done)
             self.sweep_note = f"{len(self.written)} run(s) written to {outdir}"
         except Interrupted as exc:
             self.sweep_note = f"{exc} ({len(self.written)} run(s) written to {outdir})"

@@ -1,0 +1,42 @@
+"""The lab station without a browser: bad input ends as one line, the rig untouched."""
+from __future__ import annotations
+
+import time
+
+import pytest
+
+pytest.importorskip("panel")
+
+
+def test_an_unplugged_board_is_one_line_and_the_sweep_ends(tmp_path):
+    from labrig.io.config import load_plan
+    from labrig.lab.serve import make_station
+
+    st = make_station(tmp_path, port=str(tmp_path / "ttyNONE"))
+    try:
+        st.start_sweep(load_plan(None, st.rig)[:1])
+        t0 = time.monotonic()
+        while st.sweeping and time.monotonic() - t0 < 30:
+            time.sleep(0.1)
+        assert not st.sweeping
+        assert st.sweep_note.startswith("error: cannot open") and "\n" not in st.sweep_note
+        assert not list(tmp_path.glob("*.csv"))
+    finally:
+        st.close()
+
+
+def test_the_plan_form_says_what_is_wrong_beside_its_field(tmp_path):
+    from labrig.io.config import load_rig
+    from labrig.lab.plan_form import PlanForm
+
+    form = PlanForm(load_rig())
+    for value, field, words in (("1.2, nan", "amplitudes", "finite number"),
+                                ("3.0", "amplitudes", "exceeds the output limit"),
+                                ("abc", "amplitudes", "not a list of numbers")):
+        form.w["amplitudes"].value = value
+        assert form.plan() is None
+        shown = [k for k, m in form.msg.items() if m.visible]
+        assert shown == [field] and words in form.msg[field].object
+    form.w["amplitudes"].value = "1.2"
+    form.w["frequency"].value = 5000.0
+    assert form.plan() is None and form.msg["frequency"].visible
