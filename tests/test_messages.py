@@ -165,13 +165,19 @@ def test_the_ranking_notes_state_the_numbers_diagnose_uses():
 
     assert ranking.PARSIMONY == diagnose.PARSIMONY
     assert ranking.CV_CANDIDATES == diagnose.CV_CANDIDATES
+    assert ranking.SWAP_GAIN == diagnose.SWAP_GAIN
+    assert ranking.SIMPLER_MARGIN == diagnose.SIMPLER_MARGIN
     # the order the note states is _score's: cross-validated error, raised per parameter
-    # beyond the first (stiction has two: tc_v and excess)
-    cand = ranking.Candidate("stiction", 1.0, 0.5, -100.0, {}, {},
+    # the move adds beyond the first (adding stiction adds two: tc_v and excess), lowered
+    # per parameter a removal takes away
+    n = len(diagnose.get_effect("stiction").params)
+    cand = ranking.Candidate("stiction", 1.0, 0.5, -100.0, {}, {}, extra_params=n,
                              cross_validated={"with_effect": 2.0})
-    extra = len(diagnose.get_effect("stiction").params) - 1
-    assert extra >= 1
-    assert diagnose._score(cand) == pytest.approx(2.0 * (1 + ranking.PARSIMONY * extra))
+    assert n >= 2
+    assert diagnose._score(cand) == pytest.approx(2.0 * (1 + ranking.PARSIMONY * (n - 1)))
+    gone = ranking.Candidate("stiction", 1.0, 0.5, -100.0, {}, {}, move="remove",
+                             extra_params=-n, cross_validated={"with_effect": 2.0})
+    assert diagnose._score(gone) == pytest.approx(2.0 * (1 - ranking.PARSIMONY * (n + 1)))
 
 
 def test_the_ranking_table_says_what_it_is_ordered_by_and_when_supported():
@@ -183,7 +189,9 @@ def test_the_ranking_table_says_what_it_is_ordered_by_and_when_supported():
     assert "not cross-validated come last, by dBIC" in notes
     assert "dBIC below -10" in notes and "gain of at least 5 %" in notes
     assert "cross-validated error falls by at least 5 %" in notes
-    assert "more than half of the folds improved" in notes
+    assert "more than half of the counted folds improved" in notes
+    assert "'- X' removes X" in notes and "'X -> Y' replaces X by Y" in notes
+    assert "3 standard errors" in notes
     assert "a strongly negative dBIC alone is not enough" in notes
     assert f"only the {CV_CANDIDATES} largest gains" in notes
     assert "(at bound)" in notes and "does not enter the decision" in notes
@@ -202,9 +210,11 @@ def test_the_ranking_json_keys_are_unchanged():
     d = _diagnosis().to_json()
     assert list(d) == ["baseline", "regimes", "ranking", "recommendation", "verdict",
                        "cross_validation", "noise", "weights", "criteria", "seconds"]
-    assert list(d["ranking"][0]) == ["effect", "rmse_over_noise", "improvement", "delta_bic",
-                                     "params", "fit_percent", "cross_validated", "at_bound",
-                                     "supported", "explanation"]
+    # "move" and "label" say whether the row adds, removes or replaces; "replaces" and
+    # "unresolved" appear only on the rows they describe
+    assert list(d["ranking"][0]) == ["effect", "move", "label", "rmse_over_noise",
+                                     "improvement", "delta_bic", "params", "fit_percent",
+                                     "cross_validated", "at_bound", "supported", "explanation"]
 
 
 def test_the_cli_ranking_carries_the_notes(saved):

@@ -74,7 +74,8 @@ def diagnose(folders, model_doc) -> dict:
     rows = []
     for c in diag.ranking:
         cv = c.cross_validated
-        rows.append({"effect": c.effect, "rmse_over_noise": c.rmse_over_noise,
+        rows.append({"effect": c.effect, "move": c.move, "label": c.label,
+                     "replaces": c.replaces, "rmse_over_noise": c.rmse_over_noise,
                      "delta_bic": c.delta_bic,
                      "cross_validated": cv["with_effect"] if cv else None,
                      "folds": f"{cv['folds_improved']}/{cv['folds']}" if cv else "-",

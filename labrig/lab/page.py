@@ -260,10 +260,18 @@ class LabPage:
             self.rm_pick.options = list(r["effects"])
         if st.diagnosis:
             d = st.diagnosis
-            self.add_pick.options = [row["effect"] for row in d["rows"]]
-            if d["recommendation"]:
-                self.add_pick.value = d["recommendation"]
-            self.rep_new.options = [row["effect"] for row in d["rows"]]
+            adds = [row["effect"] for row in d["rows"] if row.get("move", "add") == "add"]
+            self.add_pick.options = adds
+            self.rep_new.options = list(dict.fromkeys(
+                row["effect"] for row in d["rows"] if row.get("move", "add") != "remove"))
+            rec = next((row for row in d["rows"] if row.get("label", row["effect"])
+                        == d["recommendation"]), None)
+            if rec is not None and rec.get("move", "add") == "add":
+                self.add_pick.value = rec["effect"]
+            elif rec is not None:   # remove X, or replace X by Y: the pickers say which
+                self.rm_pick.value = rec["replaces"] or rec["effect"]
+                if rec["move"] == "replace":
+                    self.rep_new.value = rec["effect"]
             self.evidence.object = _evidence_html(d)
             pairs = [",".join(p["pair"]) for p in d["pairs"]]
             self.pair_pick.options = pairs or ["no confusable pair in this diagnosis"]
@@ -300,7 +308,7 @@ def _evidence_html(d: dict) -> str:
     for r in d["rows"]:
         cv = "-" if r["cross_validated"] is None else f"{r['cross_validated']:.2f}"
         sup = ("yes" if r["supported"] else "no") + (" (at bound)" if r["at_bound"] else "")
-        rows.append(f"<tr><td><b>{_esc(r['effect'])}</b></td><td>{r['rmse_over_noise']:.2f}</td>"
+        rows.append(f"<tr><td><b>{_esc(r.get('label', r['effect']))}</b></td><td>{r['rmse_over_noise']:.2f}</td>"
                     f"<td>{r['delta_bic']:.0f}</td><td>{cv}</td><td>{r['folds']}</td>"
                     f"<td>{sup}</td><td>{_esc(', '.join(r['confusable_with']))}</td>"
                     f"<td>{_esc(r['physics'])}</td></tr>")

@@ -1,13 +1,22 @@
 """Evidence from cross-validation, located in time.
 
 A structure (a model's list of effects) is judged by how well it predicts data its fit
-did not see. With several runs, whole runs are held out in turn (leave-one-run-out,
-or a few folds of whole runs when there are many); a single long recording (a
-staircase) is cut into contiguous blocks, each held out in turn, long compared with the
-correlation time of the residuals (blocked cross-validation for dependent data). The
-fold fits start from the full-data fit, so they cost little, but they never see the
-held-out samples. The held-out residuals are stitched back into one prediction of
-every run, so the regimes where a structure predicts better are named.
+did not see. The held-out parts are the *segments* of the input (the stretches between
+its edges: a half-period of a square wave, a step of a staircase), interleaved across
+amplitude and direction: every fold holds out some steps of each direction and
+amplitude band and trains on the others, so no fold has to predict a direction or an
+amplitude its training part never showed (whole runs held out in turn fail exactly
+there: the run just above a threshold, or the negative half of a staircase recorded
+after the positive one). A segment is long compared with the correlation time of the
+residuals (blocked cross-validation for dependent data). Data with too few segments to
+interleave (a step or two) are cut into contiguous blocks instead.
+
+The fold fits start from the full-data fit, so they cost little, but they never see the
+held-out samples. The held-out residuals are stitched back into one prediction of every
+run, so the regimes where a structure predicts better are named, and every fold's own
+evidence is kept: a fold whose training part does not pin the new effect's threshold
+(:func:`unpinned_folds`) is reported, and :mod:`labrig.loop.diagnose` does not let it
+outvote the others.
 """
 from __future__ import annotations
 
@@ -19,11 +28,13 @@ from labrig.model.model import Model
 from labrig.model.simulate import prepare
 from labrig.analysis.noise import run_speed
 from labrig.loop.refit import fit
-from labrig.loop.residuals import label_regimes
+from labrig.loop.residuals import input_edges, label_regimes
 
-#: at most this many folds of whole runs, and blocks in a single run
+#: folds, and blocks per run when the input has too few segments to interleave
 MAX_FOLDS = 4
 BLOCKS = 4
+#: a segment shorter than this (s) joins the one before it
+MIN_SEGMENT_S = 0.25
 
 
 @dataclass
@@ -43,19 +54,51 @@ class Folds:
         return f"{len(self.folds)} folds, {self.kind}"
 
 
+def segments(run) -> list[tuple[int, int, float]]:
+    """``(first, end, level)`` of each stretch of constant input, short ones merged into
+    the stretch before them."""
+    u = np.asarray(run.u, float)
+    n = len(u)
+    bounds = [0] + [int(k) for k in input_edges(u)] + [n]
+    min_len = max(int(MIN_SEGMENT_S / max(float(run.dt), 1e-9)), 1)
+    out: list[list] = []
+    for k0, k1 in zip(bounds[:-1], bounds[1:]):
+        if k1 <= k0:
+            continue
+        if out and k1 - k0 < min_len:
+            out[-1][1] = k1
+            continue
+        out.append([k0, k1])
+    if len(out) > 1 and out[0][1] - out[0][0] < min_len:   # a short first stretch
+        out[1][0] = out[0][0]
+        out.pop(0)
+    return [(k0, k1, float(np.median(u[k0 + (k1 - k0) // 2:k1]))) for k0, k1 in out]
+
+
 def make_folds(runs, max_folds: int = MAX_FOLDS, blocks: int = BLOCKS) -> Folds:
-    """Whole runs held out when there are three or more, else contiguous blocks."""
+    """Segments interleaved across amplitude and direction; contiguous blocks when the
+    input has too few segments for every fold to leave each direction in training."""
     n = [len(r.u) for r in runs]
-    if len(runs) >= 3:
-        order = sorted(range(len(runs)), key=lambda i: (runs[i].loop, runs[i].amplitude))
-        k = min(len(runs), max_folds)
-        folds = []
-        for j in range(k):
-            held = set(order[j::k])
-            test = [np.full(n[i], i in held) for i in range(len(runs))]
-            folds.append(Fold(train=[~t for t in test], test=test))
-        kind = "leave-one-run-out" if k == len(runs) else "whole runs held out in turn"
-        return Folds(kind, folds)
+    k = max_folds
+    strata: dict = {}
+    for i, r in enumerate(runs):
+        scale = max(float(np.max(np.abs(r.u))) if n[i] else 0.0, 1e-9)
+        for k0, k1, level in segments(r):
+            sign = 0 if abs(level) < 0.02 * scale else int(np.sign(level))
+            strata.setdefault((r.loop, sign), []).append((abs(level), i, k0, k1))
+    moving = [v for (loop, sign), v in strata.items() if sign != 0]
+    total = sum(len(v) for v in strata.values())
+    if moving and all(len(v) >= 2 for v in moving) and total >= 2 * k:
+        tests = [[np.zeros(m, bool) for m in n] for _ in range(k)]
+        slot = 0
+        for key in sorted(strata, key=lambda s: (s[0], s[1])):
+            # neighbouring amplitudes go to different folds
+            for _, i, k0, k1 in sorted(strata[key]):
+                tests[slot % k][i][k0:k1] = True
+                slot += 1
+        folds = [Fold(train=[~t for t in test], test=test) for test in tests]
+        return Folds(f"{total} input segments (steps, half-periods) interleaved across "
+                     "amplitude and direction, each held out once", folds)
     folds = []
     for j in range(blocks):
         test = []
@@ -64,7 +107,8 @@ def make_folds(runs, max_folds: int = MAX_FOLDS, blocks: int = BLOCKS) -> Folds:
             t[j * n[i] // blocks:(j + 1) * n[i] // blocks] = True
             test.append(t)
         folds.append(Fold(train=[~t for t in test], test=test))
-    return Folds(f"contiguous blocks of each run ({100 // blocks} % of it) held out in turn", folds)
+    return Folds(f"contiguous blocks of each run ({100 // blocks} % of it) held out in turn "
+                 "(too few input steps to interleave)", folds)
 
 
 @dataclass
@@ -77,6 +121,11 @@ class CrossValidation:
         Weighted held-out rmse/noise over every fold (the fit's objective, not seen).
     per_fold : list of float
         Held-out weighted mean square per fold.
+    fold_sq, fold_n : list
+        Per fold, the held-out weighted sum of squares and the samples it holds out
+        (``per_fold`` is their ratio; the pooled ``rmse`` is the root of their sums).
+    fold_params : list of dict
+        Per fold, the parameters its fit reached.
     channels : dict
         Held-out rmse/noise per channel (unweighted).
     residuals : list of dict
@@ -88,6 +137,15 @@ class CrossValidation:
     channels: dict
     residuals: list = field(default_factory=list, repr=False)
     labels: list = field(default_factory=list, repr=False)
+    fold_sq: list = field(default_factory=list, repr=False)
+    fold_n: list = field(default_factory=list, repr=False)
+    fold_params: list = field(default_factory=list, repr=False)
+
+    def pooled(self, skip=()) -> float:
+        """The held-out rmse/noise over every fold but those in ``skip``."""
+        keep = [j for j in range(len(self.fold_sq)) if j not in set(skip)]
+        n = sum(self.fold_n[j] for j in keep)
+        return float(np.sqrt(sum(self.fold_sq[j] for j in keep) / max(n, 1)))
 
     def to_json(self) -> dict:
         return {"rmse_over_noise": self.rmse, "per_fold_mean_square": self.per_fold,
@@ -102,7 +160,7 @@ def cross_validate(runs, model: Model, folds: Folds, *, sigmas, weights, seed: i
     sw, st = sigmas
     res = [{ch: np.zeros(len(r.u)) for ch, y in (("speed", r.w), ("position", r.theta))
             if y is not None} for r in prepared]
-    per_fold = []
+    per_fold, fold_sq, fold_n, fold_params = [], [], [], []
     start = {**model.flat(), **(fixed or {})}
     for fold in folds.folds:
         idx = [i for i, m in enumerate(fold.train) if m.any()]
@@ -125,6 +183,9 @@ def cross_validate(runs, model: Model, folds: Folds, *, sigmas, weights, seed: i
                 sq += wt * float(np.sum(e[m] ** 2))
                 cnt += int(m.sum())
         per_fold.append(sq / max(cnt, 1))
+        fold_sq.append(sq)
+        fold_n.append(cnt)
+        fold_params.append(dict(f.params))
     total_sq, total_n, channels = 0.0, 0, {}
     for ch, wt in (("speed", weights.q), ("position", weights.p)):
         parts = [rr[ch] for rr in res if ch in rr]
@@ -135,7 +196,31 @@ def cross_validate(runs, model: Model, folds: Folds, *, sigmas, weights, seed: i
             total_n += len(e)
     labels = [label_regimes(r.u, run_speed(r)) for r in prepared]
     return CrossValidation(rmse=float(np.sqrt(total_sq / max(total_n, 1))), per_fold=per_fold,
-                           channels=channels, residuals=res, labels=labels)
+                           channels=channels, residuals=res, labels=labels, fold_sq=fold_sq,
+                           fold_n=fold_n, fold_params=fold_params)
+
+
+#: a fold's fit pins a threshold when it lands within this factor of the full-data value
+PIN_FACTOR = 2.0
+
+
+def unpinned_folds(cv: CrossValidation, model: Model, effect: str) -> dict:
+    """Folds whose training part does not pin ``effect``'s threshold: its fold fit lands
+    more than :data:`PIN_FACTOR` away from the fit to all data (the held-out part held
+    what set it). ``{fold index: (parameter, fold value, all-data value)}``."""
+    from labrig.model.effects import get_effect
+
+    name = get_effect(effect).threshold
+    if not name:
+        return {}
+    key = f"{effect}.{name}"
+    full = abs(model.flat().get(key, 0.0))
+    out = {}
+    for j, p in enumerate(cv.fold_params):
+        v = abs(p.get(key, full))
+        if full > 0 and not full / PIN_FACTOR <= v <= full * PIN_FACTOR:
+            out[j] = (key, float(p.get(key, full)), float(model.flat()[key]))
+    return out
 
 
 def regime_evidence(base: CrossValidation, cand: CrossValidation, top: int = 2) -> list[dict]:
@@ -160,3 +245,29 @@ def regime_evidence(base: CrossValidation, cand: CrossValidation, top: int = 2) 
                     "share_of_time": n / total[ch], "gain": float(b - c)})
     out.sort(key=lambda d: -d["gain"])
     return [d for d in out[:top] if d["gain"] > 0]
+
+
+def fold_evidence(base: CrossValidation, cand: CrossValidation, model: Model,
+                  effect: str | None) -> dict:
+    """The held-out comparison of a candidate with the model it changes, fold by fold.
+
+    A fold whose training part does not pin the new effect's threshold
+    (:func:`unpinned_folds`) and predicts worse is reported under ``not_counted`` and
+    left out of the pooled errors and the fold count, unless such folds are half or
+    more: then the data do not pin the threshold at all and every fold counts."""
+    k = len(base.per_fold)
+    loose = unpinned_folds(cand, model, effect) if effect else {}
+    skip = [j for j in loose if cand.per_fold[j] > base.per_fold[j]]
+    if 2 * len(skip) >= k:
+        skip = []
+    counted = [j for j in range(k) if j not in skip]
+    b, c = base.pooled(skip), cand.pooled(skip)
+    return {"baseline": b, "with_effect": c, "improvement": 1.0 - c / b if b > 0 else 0.0,
+            "folds_improved": sum(cand.per_fold[j] < base.per_fold[j] for j in counted),
+            "folds": len(counted),
+            "per_fold": [{"fold": j + 1, "baseline": float(np.sqrt(base.per_fold[j])),
+                          "with_effect": float(np.sqrt(cand.per_fold[j])),
+                          "counted": j not in skip} for j in range(k)],
+            "not_counted": [{"fold": j + 1, "parameter": loose[j][0], "fold_value": loose[j][1],
+                             "value": loose[j][2]} for j in skip],
+            "evidence": regime_evidence(base, cand)}

@@ -22,7 +22,8 @@ from __future__ import annotations
 import math
 import time
 
-from labrig.loop.crossval import cross_validate, make_folds, regime_evidence
+from labrig.loop.crossval import cross_validate, fold_evidence, make_folds, unpinned_folds
+from labrig.loop.resolution import unresolved
 from labrig.loop.ranking import Candidate, Diagnosis
 from labrig.core.errors import UserError
 from labrig.loop.evaluation import Evaluation, evaluate
@@ -33,7 +34,7 @@ from labrig.model.effects import CATALOGUE, catalogue_name, get_effect
 from labrig.model.model import Model, param_keys
 from labrig.model.reach import Reach
 from labrig.analysis.noise import Weights
-from labrig.loop.refit import refit, refit_with
+from labrig.loop.refit import refit, refit_with, without
 from labrig.loop.residuals import REGIME_TEXT, worst_regime
 from labrig.io.runs import require_excitation
 
@@ -48,6 +49,10 @@ FLOOR = 1.15
 CV_CANDIDATES = 4
 #: relative penalty per extra parameter when held-out errors are compared
 PARSIMONY = 0.02
+#: a replacement by an effect with as many parameters must gain this much (held out)
+SWAP_GAIN = 0.02
+#: a simpler replacement (fewer parameters) may be this much worse on held-out data
+SIMPLER_MARGIN = 0.02
 
 
 def balanced_weights(ev: Evaluation) -> Weights:
@@ -111,7 +116,7 @@ def candidate_names(base: Model, candidates=None) -> list[str]:
 
 def diagnose(runs, model: Model | None = None, *, candidates=None, seed: int = 0,
              fixed: dict | None = None, progress=None, weights: Weights | None = None,
-             folds=None) -> Diagnosis:
+             folds=None, revise: bool = True) -> Diagnosis:
     """Locate the model's error and rank the missing effects.
 
     Parameters
@@ -129,6 +134,10 @@ def diagnose(runs, model: Model | None = None, *, candidates=None, seed: int = 0
         Channel weights (default: balanced on the starting model).
     folds : Folds, optional
         Cross-validation folds (default: :func:`labrig.loop.crossval.make_folds`).
+    revise : bool
+        With a model that has effects, also test removing each of them and replacing
+        each by its look-alikes and simpler family members (default True; the search of
+        ``--auto`` revises on its own).
 
     Returns
     -------
@@ -163,42 +172,49 @@ def diagnose(runs, model: Model | None = None, *, candidates=None, seed: int = 0
     f0 = ev0.fitness
     reach = Reach.of(runs, base)
 
+    folds = folds or make_folds(runs)
+    cv0 = cross_validate(runs, base, folds, sigmas=sig, weights=weights, seed=seed,
+                         fixed=fixed, reach=reach)
+
+    def entry(ident, effect, move="add", replaces=None, params=None) -> Candidate:
+        cand = ident.model()
+        ev = evaluate(runs, cand, sig, weights=weights)
+        k = len(param_keys(cand)) - len(fixed)
+        return Candidate(effect=effect, rmse_over_noise=ev.rmse,
+                         improvement=1.0 - ev.fitness / f0,
+                         delta_bic=bic(ev.wsse, n, n_eff, k) - bic0,
+                         params=dict(params if params is not None else cand.effect_params[effect]),
+                         fit_percent=ev.metrics["fit_percent"], model=cand, evaluation=ev,
+                         at_bound=at_bounds(ident), move=move, replaces=replaces,
+                         extra_params=k - k0)
+
     ranking: list[Candidate] = []
     for i, name in enumerate(candidate_names(base, candidates)):
         eff = get_effect(name)
         if progress:
             progress(i, name)
-        ident = refit_with(runs, base, eff, seed=seed, fixed=fixed, weights=weights, reach=reach)
-        cand = ident.model()
-        ev = evaluate(runs, cand, sig, weights=weights)
-        bic1 = bic(ev.wsse, n, n_eff, k0 + len(eff.params))
-        ranking.append(Candidate(effect=name, rmse_over_noise=ev.rmse,
-                                 improvement=1.0 - ev.fitness / f0, delta_bic=bic1 - bic0,
-                                 params=dict(cand.effect_params[name]),
-                                 fit_percent=ev.metrics["fit_percent"], model=cand,
-                                 evaluation=ev, at_bound=at_bounds(ident)))
+        ranking.append(entry(refit_with(runs, base, eff, seed=seed, fixed=fixed, weights=weights,
+                                        reach=reach), name))
+    revisions = []
+    if revise and base.names and candidates is None:
+        revisions = _revisions(runs, base, entry, seed=seed, fixed=fixed, weights=weights)
 
-    folds = folds or make_folds(runs)
-    cv0 = cross_validate(runs, base, folds, sigmas=sig, weights=weights, seed=seed,
-                         fixed=fixed, reach=reach)
     by_fit = sorted(ranking, key=lambda c: -c.improvement)
-    for c in [c for c in by_fit if c.improvement >= MIN_GAIN][:CV_CANDIDATES]:
+    to_cv = [c for c in by_fit if c.improvement >= MIN_GAIN][:CV_CANDIDATES]
+    to_cv += [c for c in revisions if c.move == "remove" or c.improvement >= SWAP_GAIN]
+    for c in to_cv:
         cv = cross_validate(runs, c.model, folds, sigmas=sig, weights=weights, seed=seed,
                             fixed=fixed, reach=Reach.of(runs, c.model))
-        better = sum(b < a for a, b in zip(cv0.per_fold, cv.per_fold))
-        c.cross_validated = {"baseline": cv0.rmse, "with_effect": cv.rmse,
-                             "improvement": 1.0 - cv.rmse / cv0.rmse,
-                             "folds_improved": better, "folds": len(folds.folds),
-                             "evidence": regime_evidence(cv0, cv)}
+        c.cross_validated = fold_evidence(cv0, cv, c.model, None if c.move == "remove" else c.effect)
+        c.unresolved = None if c.move == "remove" else unresolved(
+            get_effect(c.effect), c.params, runs, _fold_sizes(cv, c))
+    ranking += revisions
     for c in ranking:
-        cv = c.cross_validated
-        c.supported = bool(cv is not None and c.delta_bic < MIN_DBIC
-                           and c.improvement >= MIN_GAIN and cv["improvement"] >= MIN_GAIN
-                           and cv["folds_improved"] > cv["folds"] / 2)
+        c.supported = _supported(c)
     ranking.sort(key=lambda c: (c.cross_validated is None,
                                 _score(c) if c.cross_validated else 0.0, c.delta_bic))
     supported = [c for c in ranking if c.supported]
-    rec = supported[0].effect if supported else None
+    rec = supported[0].label if supported else None
     for c in ranking:
         c.explanation = explain(c, ev0, explain_context(c.model, runs))
     worst = worst_regime(ev0.regimes)
@@ -208,7 +224,7 @@ def diagnose(runs, model: Model | None = None, *, candidates=None, seed: int = 0
                "noise": ev0.metrics["noise"]}
     rmse0 = ev0.rmse
     if rec is not None:
-        verdict = f"Add {rec}: " + next(c for c in ranking if c.effect == rec).explanation
+        verdict = f"{supported[0].action}: " + supported[0].explanation
     elif rmse0 <= FLOOR:
         verdict = (f"The model is at the noise floor (rmse/noise {rmse0:.2f}) and no effect "
                    "predicts held-out data better: nothing is missing that these data can show.")
@@ -235,21 +251,64 @@ def diagnose(runs, model: Model | None = None, *, candidates=None, seed: int = 0
         cv_baseline=cv0)
 
 
+def _revisions(runs, base: Model, entry, *, seed, fixed, weights) -> list[Candidate]:
+    """``base`` without each of its effects, and with each replaced by its simpler family
+    member and its look-alikes, re-fitted."""
+    out = []
+    for old in base.names:
+        reduced = without(base, old)
+        out.append(entry(refit(runs, reduced, seed=seed, fixed=fixed, weights=weights), old,
+                         move="remove", params=base.effect_params[old]))
+        eff = get_effect(old)
+        for new in dict.fromkeys(([eff.simpler] if eff.simpler else []) + list(eff.look_alikes)):
+            if new in base.names or new not in candidate_names(reduced):
+                continue
+            out.append(entry(refit_with(runs, reduced, get_effect(new), seed=seed, fixed=fixed,
+                                        weights=weights), new, move="replace", replaces=old))
+    return out
+
+
+def _fold_sizes(cv, c: Candidate) -> list:
+    """The effect's size in the folds that pin it (for the jackknife of its interval)."""
+    size = get_effect(c.effect).size
+    skip = {d["fold"] for d in (c.cross_validated or {}).get("not_counted", [])}
+    return [p.get(f"{c.effect}.{size}", float("nan")) for j, p in enumerate(cv.fold_params)
+            if size and j + 1 not in skip]
+
+
+def _supported(c: Candidate) -> bool:
+    """The decision, in the terms the ranking table states (:meth:`Diagnosis._ranking_rules`)."""
+    cv = c.cross_validated
+    if cv is None or c.unresolved:
+        return False
+    majority = cv["folds_improved"] > cv["folds"] / 2
+    if c.move == "remove":   # the mirror of adding: it stays only when it earns MIN_GAIN
+        return cv["with_effect"] < cv["baseline"] / (1 - MIN_GAIN)
+    if c.move == "replace" and c.extra_params < 0:   # simpler and about as good
+        return cv["with_effect"] <= (1 + SIMPLER_MARGIN) * cv["baseline"]
+    gain = SWAP_GAIN if c.move == "replace" and c.extra_params == 0 else MIN_GAIN
+    return bool(c.delta_bic < MIN_DBIC and c.improvement >= gain and cv["improvement"] >= gain
+                and majority)
+
+
 def _score(c: Candidate) -> float:
-    """Cross-validated error with a mild penalty per extra parameter, so a simpler effect
-    that predicts held-out data about as well ranks first (a symmetric dead zone over an
-    asymmetric one that fits no better, Coulomb friction over stiction)."""
-    extra = len(get_effect(c.effect).params) - 1
-    return c.cross_validated["with_effect"] * (1 + PARSIMONY * extra)
+    """Cross-validated error with a mild penalty per parameter the move adds beyond one
+    (a bonus per parameter it takes away), so a simpler model that predicts held-out
+    data about as well ranks first (a symmetric dead zone over an asymmetric one that
+    fits no better, Coulomb friction over stiction, a model without a useless effect)."""
+    return c.cross_validated["with_effect"] * (1 + PARSIMONY * (c.extra_params - 1))
 
 
 def explain(entry: Candidate, ev0: Evaluation, const: dict) -> str:
     """Plain words with numbers: what, where in these runs, how much, how to confirm."""
-    eff = entry.model.effects.by_name(entry.effect)
     cv = entry.cross_validated
     if cv:
         held = (f" Cross-validated: {cv['baseline']:.2f} -> {cv['with_effect']:.2f} on held-out "
                 f"data, better in {cv['folds_improved']} of {cv['folds']} folds.")
+        for d in cv.get("not_counted", []):
+            held += (f" Fold {d['fold']} is not counted: the data it trains on do not pin "
+                     f"{d['parameter']} ({d['fold_value']:.3g} there, {d['value']:.3g} on all "
+                     f"runs), so it cannot predict what it holds out.")
         ev = cv.get("evidence") or []
         if ev:
             held += " The held-out evidence is in the " + "; ".join(
@@ -258,11 +317,21 @@ def explain(entry: Candidate, ev0: Evaluation, const: dict) -> str:
     else:
         held = " Not cross-validated (its in-sample gain is below the threshold)."
     bound = (" The fit ended at a bound: " + "; ".join(entry.at_bound) + ".") if entry.at_bound else ""
+    size = f" Its size is not resolved: {entry.unresolved}." if entry.unresolved else ""
+    r0 = ev0.rmse
+    change = (f"rmse/noise {r0:.2f} -> {entry.rmse_over_noise:.2f} on all runs, "
+              f"delta BIC {entry.delta_bic:.0f}.{held}{bound}{size}")
+    if entry.move == "remove":
+        eff = get_effect(entry.effect)
+        verdict = ("Without it the model predicts held-out data as well: it no longer earns "
+                   "its parameters." if entry.supported else
+                   "Taking it out costs more than it saves: it stays.")
+        return (f"The model without {entry.effect} ({eff.explain_params(entry.params, const)}), "
+                f"re-fitted: {change} {verdict}")
+    eff = entry.model.effects.by_name(entry.effect)
     verdict = ("It earns its parameters." if entry.supported else
                "It does not earn its parameters on these data.")
-    r0 = ev0.rmse
-    return (f"{eff.summary[0].upper()}{eff.summary[1:]}. Fitted: "
-            f"{eff.explain_params(entry.params, const)}. "
-            f"rmse/noise {r0:.2f} -> {entry.rmse_over_noise:.2f} on all runs, "
-            f"delta BIC {entry.delta_bic:.0f}.{held}{bound} {verdict} "
+    instead = f" In place of {entry.replaces}." if entry.move == "replace" else ""
+    return (f"{eff.summary[0].upper()}{eff.summary[1:]}.{instead} Fitted: "
+            f"{eff.explain_params(entry.params, const)}. {change} {verdict} "
             f"Expected signature: {eff.signature}. To confirm: {eff.experiment}.")

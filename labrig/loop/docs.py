@@ -43,11 +43,17 @@ class CrossValidated(_Doc):
     improvement: Num = None
     folds_improved: int = 0
     folds: int = 0
+    per_fold: list[dict] = []
+    not_counted: list[dict] = []
     evidence: list[dict] = []
 
 
 class CandidateDoc(_Doc):
     effect: str
+    move: Literal["add", "remove", "replace"] = "add"
+    label: str = ""
+    replaces: Optional[str] = None
+    unresolved: Optional[str] = None
     rmse_over_noise: float
     improvement: float
     delta_bic: Num = None
@@ -98,7 +104,8 @@ class DiagnosisDoc(_Doc):
                              params=dict(c.params), fit_percent=dict(c.fit_percent),
                              cross_validated=(c.cross_validated.model_dump()
                                               if c.cross_validated else None),
-                             at_bound=list(c.at_bound),
+                             at_bound=list(c.at_bound), move=c.move, replaces=c.replaces,
+                             unresolved=c.unresolved,
                              supported=c.supported, explanation=c.explanation)
                    for c in self.ranking]
         return Diagnosis(baseline=self.baseline.model_dump(), regimes=self.regimes.model_dump(),

@@ -20,6 +20,8 @@ from labrig.core.display import Displayable
 #: number of candidates cross-validated
 PARSIMONY = 0.02
 CV_CANDIDATES = 4
+SWAP_GAIN = 0.02
+SIMPLER_MARGIN = 0.02
 
 
 @dataclass
@@ -39,21 +41,50 @@ class Candidate:
     explanation: str = ""
     #: parameters whose fit ended at a bound of the search space
     at_bound: list = field(default_factory=list)
+    #: "add" (``effect`` added), "remove" (``effect`` taken out) or "replace"
+    #: (``replaces`` taken out, ``effect`` put in its place)
+    move: str = "add"
+    replaces: str | None = None
+    #: parameters the move adds to the model (negative: takes away)
+    extra_params: int = 1
+    #: why the effect's fitted size is not resolved by the data (None: it is)
+    unresolved: str | None = None
     #: live, not in the JSON: the re-fitted model and its evaluation on all runs
     model: Model | None = field(default=None, repr=False)
     evaluation: Evaluation | None = field(default=None, repr=False)
+
+    @property
+    def label(self) -> str:
+        """The move in the ranking and the recommendation: ``deadband`` (add it),
+        ``- deadband`` (remove it), ``coulomb_friction -> deadband`` (replace)."""
+        if self.move == "remove":
+            return f"- {self.effect}"
+        if self.move == "replace":
+            return f"{self.replaces} -> {self.effect}"
+        return self.effect
+
+    @property
+    def action(self) -> str:
+        """The move in words: 'Add deadband', 'Remove deadband', 'Replace X by Y'."""
+        return {"add": f"Add {self.effect}", "remove": f"Remove {self.effect}",
+                "replace": f"Replace {self.replaces} by {self.effect}"}[self.move]
 
     @property
     def regimes(self) -> dict | None:
         return self.evaluation.regimes if self.evaluation is not None else None
 
     def to_json(self) -> dict:
-        d = {"effect": self.effect, "rmse_over_noise": self.rmse_over_noise,
+        d = {"effect": self.effect, "move": self.move, "label": self.label,
+             "rmse_over_noise": self.rmse_over_noise,
              "improvement": self.improvement, "delta_bic": self.delta_bic,
              "params": self.params, "fit_percent": self.fit_percent}
         if self.cross_validated is not None:
             d["cross_validated"] = self.cross_validated
+        if self.replaces:
+            d["replaces"] = self.replaces
         d["at_bound"] = list(self.at_bound)
+        if self.unresolved:
+            d["unresolved"] = self.unresolved
         d["supported"] = self.supported
         d["explanation"] = self.explanation
         return d
@@ -92,8 +123,9 @@ class Diagnosis(Displayable):
                 f"{', '.join(self.baseline['effects']) or 'none'}; recommendation: "
                 f"{self.recommendation or 'none'}")
 
-    def candidate(self, effect: str) -> Candidate:
-        return next(c for c in self.ranking if c.effect == effect)
+    def candidate(self, label: str) -> Candidate:
+        """The candidate of a ranking label (an added effect is its own name)."""
+        return next(c for c in self.ranking if c.label == label)
 
     def recommended_model(self) -> Model | None:
         """The re-fitted model with the recommended effect, ready to save."""
@@ -101,8 +133,9 @@ class Diagnosis(Displayable):
             return None
         return self.model_with(self.recommendation)
 
-    def model_with(self, effect: str) -> Model:
-        c = self.candidate(effect)
+    def model_with(self, label: str) -> Model:
+        """The re-fitted model of a candidate (by its ranking label)."""
+        c = self.candidate(label)
         return replace(c.model, constants=dict(self.constants),
                        info={"method": "co (diagnose re-fit)",
                              "rmse_over_noise": {"overall": c.rmse_over_noise},
@@ -120,7 +153,7 @@ class Diagnosis(Displayable):
         """The ranking as a DataFrame, one row per candidate effect."""
         import pandas as pd
 
-        return pd.DataFrame([{"effect": c.effect, "rmse_over_noise": c.rmse_over_noise,
+        return pd.DataFrame([{"effect": c.effect, "move": c.label, "rmse_over_noise": c.rmse_over_noise,
                               "improvement": c.improvement, "delta_bic": c.delta_bic,
                               "cross_validated": (c.cross_validated or {}).get("with_effect"),
                               "supported": c.supported} for c in self.ranking])
@@ -137,16 +170,19 @@ class Diagnosis(Displayable):
         for ch, amps in self.regimes["by_amplitude"].items():
             regimes.notes.append(f"{ch} by run amplitude: "
                                  + ", ".join(f"{k} {v:.2f}" for k, v in amps.items()))
-        ranking = Table("candidates (re-fitted with each effect the model lacks)",
+        ranking = Table("candidates (re-fitted with each effect the model lacks; with a model "
+                        "that has effects, also without each and with each replaced)",
                         ["rank", "effect", "rmse/noise", "gain", "dBIC", "cross-validated",
                          "folds", "supported"], numeric=(0, 2, 3, 4))
         for i, c in enumerate(self.ranking, 1):
             cv = c.cross_validated
-            ranking.rows.append([str(i), c.effect, fmt(c.rmse_over_noise, ".2f"),
+            ranking.rows.append([str(i), c.label, fmt(c.rmse_over_noise, ".2f"),
                                  f"{100 * c.improvement:.0f} %", fmt(c.delta_bic, ".0f"),
                                  f"{cv['baseline']:.2f} -> {cv['with_effect']:.2f}" if cv else "-",
                                  f"{cv['folds_improved']}/{cv['folds']}" if cv else "-",
-                                 ("yes" if c.supported else "no") + (" (at bound)" if c.at_bound else "")])
+                                 ("yes" if c.supported else "no")
+                                 + (" (size not resolved)" if c.unresolved else "")
+                                 + (" (at bound)" if c.at_bound else "")])
         ranking.notes += self._ranking_rules()
         cvd = self.cross_validation
         if cvd:
@@ -169,17 +205,24 @@ class Diagnosis(Displayable):
         gain = "the minimum gain" if gain is None else f"{100 * gain:g} %"
         dbic = "the BIC threshold" if dbic is None else f"{dbic:g}"
         return [
-            "ordered by: the cross-validated rmse/noise, raised "
-            f"{100 * PARSIMONY:g} % per parameter beyond the effect's first (a simpler effect "
-            "that predicts held-out data about as well ranks first); candidates that were not "
-            "cross-validated come last, by dBIC",
-            f"supported = yes only when all four hold: dBIC below {dbic}, gain of at least "
-            f"{gain}, the cross-validated error falls by at least {gain}, and more than "
-            "half of the folds improved; so a strongly negative dBIC alone is not enough",
+            "ordered by: the cross-validated rmse/noise after the move, raised "
+            f"{100 * PARSIMONY:g} % per parameter it adds beyond one and lowered as much per "
+            "parameter it takes away (a simpler model that predicts held-out data about as "
+            "well ranks first); candidates that were not cross-validated come last, by dBIC",
+            f"supported (add) = yes only when all four hold: dBIC below {dbic}, gain of at "
+            f"least {gain}, the cross-validated error falls by at least {gain}, and more "
+            "than half of the counted folds improved; so a strongly negative dBIC alone is not "
+            "enough. And the effect's size must be resolved: above one step of the input, "
+            "a delay above a quarter sample, and more than 3 standard errors (from the folds' "
+            "fits) from zero (docs/physics.md, 'When an effect is resolved')",
+            f"'- X' removes X: supported when the model without it predicts held-out data "
+            f"within {gain} of the model with it (the mirror of adding); 'X -> Y' replaces X "
+            f"by Y: by the add rule, with a {100 * SWAP_GAIN:g} % gain for an effect with as "
+            f"many parameters, or as good within {100 * SIMPLER_MARGIN:g} % for a simpler one",
             f"cross-validated '-': not cross-validated (only the {CV_CANDIDATES} largest gains "
-            f"of at least {gain} are), hence not supported; '(at bound)': a fitted "
-            "parameter ended at a bound of its search range (a warning: it does not enter "
-            "the decision)",
+            f"of at least {gain} are), hence not supported; a fold whose training data do not "
+            "pin the new threshold is not counted; '(at bound)': a fitted parameter ended at a "
+            "bound of its search range (a warning: it does not enter the decision)",
         ]
 
     def _tables(self) -> list[Table]:
@@ -195,8 +238,11 @@ class Diagnosis(Displayable):
         out += [t.to_text() + "\n" for t in self.table_rows()]
         out += [f"recommendation: {self.recommendation or 'none'}", "", self.verdict]
         if self.recommendation:
+            c = self.candidate(self.recommendation)
             out.append(f"\nnext: labrig identify DATA --model MODEL.json --effects "
-                       f"{self.recommendation} -o next.json")
+                       f"{self.recommendation} -o next.json" if c.move == "add" else
+                       f"\nnext: labrig diagnose DATA --model MODEL.json -o next.json saves "
+                       f"the model with this change ({c.label}), re-fitted")
         return "\n".join(out)
 
     def plot(self, ax=None, kind: str = "ranking"):

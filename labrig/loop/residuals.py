@@ -26,7 +26,7 @@ REGIME_TEXT = {"start": "start from rest", "reversal": "reversal through zero sp
 Z99 = 2.58
 
 
-def _edges(u: np.ndarray) -> np.ndarray:
+def input_edges(u: np.ndarray) -> np.ndarray:
     """Sample indices where the held input changes (beyond DAC-step noise)."""
     du = np.abs(np.diff(u))
     scale = max(np.ptp(u), 1e-9)
@@ -39,7 +39,7 @@ def label_regimes(u: np.ndarray, w: np.ndarray) -> np.ndarray:
     lab = np.empty(n, dtype=object)
     wmax = max(np.max(np.abs(w)), 1e-9)
     still = 0.05 * wmax
-    bounds = np.r_[0, _edges(u), n]
+    bounds = np.r_[0, input_edges(u), n]
     for k0, k1 in zip(bounds[:-1], bounds[1:]):
         if k1 <= k0:
             continue

@@ -20,7 +20,8 @@ import textwrap
 from dataclasses import dataclass, field
 
 from labrig.loop.crossval import cross_validate
-from labrig.loop.diagnose import MIN_DBIC, MIN_GAIN, bic, candidate_names, diagnose
+from labrig.loop.diagnose import (MIN_DBIC, MIN_GAIN, SIMPLER_MARGIN, SWAP_GAIN, bic,
+                                  candidate_names, diagnose)
 from labrig.loop.evaluation import evaluate
 from labrig.loop.ladder import Ladder, LadderStep, rung_label
 from labrig.model.effects import get_effect
@@ -32,10 +33,8 @@ from labrig.loop.refit import refit, refit_with, without
 NEAR_FLOOR = 1.5
 #: candidates (by in-sample gain) whose pairs are tried
 PAIR_POOL = 3
-#: a swap must lower the cross-validated error by this much
-SWAP_GAIN = 0.02
-#: "about as well": within this share
-SIMPLER_MARGIN = 0.02
+# a swap must lower the cross-validated error by SWAP_GAIN; a simpler family member may
+# be SIMPLER_MARGIN worse (the step-by-step diagnose uses the same two, hence imported)
 #: log lines are wrapped at this width (words whole, never cut)
 LOG_WIDTH = 100
 
@@ -158,7 +157,7 @@ def search(runs, model: Model | None = None, *, max_rounds: int = 3, seed: int =
     """
     fixed = dict(fixed or {})
     rounds, moves = [], []
-    diag = diagnose(runs, model, seed=seed, fixed=fixed, weights=weights)
+    diag = diagnose(runs, model, seed=seed, fixed=fixed, weights=weights, revise=False)
     rounds.append(diag)
     judge = _Judge(runs, diag, seed, fixed)
     model = diag.base
@@ -198,7 +197,7 @@ def search(runs, model: Model | None = None, *, max_rounds: int = 3, seed: int =
         if added >= max_rounds:
             break
         diag = diagnose(runs, model, seed=seed, fixed=fixed, weights=judge.weights,
-                        folds=judge.folds)
+                        folds=judge.folds, revise=False)
         rounds.append(diag)
     return SearchResult(rounds=rounds, ladder=ladder, model=model, moves=moves)
 

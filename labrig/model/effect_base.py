@@ -64,6 +64,10 @@ class Effect(abc.ABC):
     #: the parameter that sets where the effect acts (a proposal varies it over what
     #: the data allow); empty: none
     threshold: str = ""
+    #: the parameter that says how large the effect is, zero when it is absent (a dead
+    #: zone's width, a delay, an offset): ``diagnose`` supports the effect only when the
+    #: data resolve it (:mod:`labrig.loop.resolution`); empty: not checked
+    size: str = ""
     #: a member of the family with fewer parameters, tried in its place by the search
     simpler: str = ""
     #: effects whose residuals look like this one's, in the order the search tries to

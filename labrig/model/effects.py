@@ -61,6 +61,7 @@ class Deadband(InputEffect):
 
     name = "deadband"
     threshold = "d_v"
+    size = "d_v"
     rival = "coulomb_friction"
     look_alikes = ("stiction", "coulomb_friction", "asymmetric_deadband")
     responses = {
@@ -150,6 +151,7 @@ class Backlash(OutputEffect):
 
     name = "backlash"
     threshold = "a_rad"
+    size = "a_rad"
     rival = "delay"
     look_alikes = ("delay",)
     responses = {
@@ -194,6 +196,7 @@ class Delay(DelayEffect):
 
     name = "delay"
     threshold = "td_s"
+    size = "td_s"
     rival = "backlash"
     look_alikes = ("backlash",)
     responses = {
@@ -228,6 +231,7 @@ class Offset(InputEffect):
 
     name = "offset"
     stage = "input"
+    size = "u0_v"
     params = (Param("u0_v", "V", -0.5, 0.5, "input offset voltage", log=False),)
     summary = "an offset at the amplifier input: the motor creeps at zero command"
     signature = "same-sign residual in both half-periods; drift at zero command"
@@ -252,6 +256,7 @@ class Asymmetry(InputEffect):
 
     name = "asymmetry"
     stage = "input"
+    size = "k"
     params = (Param("k", "-", -0.3, 0.3, "relative gain difference between directions",
                     log=False),)
     summary = "the amplifier or motor is stronger in one direction than the other"

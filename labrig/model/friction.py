@@ -29,6 +29,7 @@ class CoulombFriction(FrictionEffect):
 
     name = "coulomb_friction"
     threshold = "tc_v"
+    size = "tc_v"
     rival = "deadband"
     look_alikes = ("stiction", "deadband")
     responses = {
@@ -85,6 +86,7 @@ class Stiction(FrictionEffect):
 
     name = "stiction"
     threshold = "tc_v"
+    size = "tc_v"
     simpler = "coulomb_friction"
     rival = "deadband"
     look_alikes = ("coulomb_friction", "deadband")

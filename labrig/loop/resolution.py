@@ -1,0 +1,77 @@
+"""Whether an effect's fitted size is one the data resolve.
+
+A fit always returns a number. An input offset of 2 mV behind a PWM bridge whose steps
+are 47 mV, a delay of a tenth of a sample, or a dead zone whose value swings from fold
+to fold lowers the in-sample error by fitting noise, not physics; ``diagnose`` does not
+call such an effect supported. The rule, for the effect's *size* (``Effect.size``: the
+parameter that is zero when the effect is absent, a dead zone's width, a delay, an
+offset):
+
+1. **above the input's resolution**: a size in volts acting at the input, the drive or
+   as friction must be at least one step of the input (:func:`input_quantum`: the
+   smallest step between the input's distinct values, when it has enough of them to
+   show its lattice);
+2. **above a fraction of a sample**: a delay must be at least :data:`MIN_SAMPLES` of the
+   sample period;
+3. **resolved by the folds**: the size must exceed :data:`Z` standard errors from the
+   grouped jackknife over the cross-validation folds (each fold's fit, on the data it
+   saw), so an interval of ``Z`` standard errors excludes zero.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+#: a delay shorter than this fraction of a sample is not resolved
+MIN_SAMPLES = 0.25
+#: the size must exceed this many jackknife standard errors
+Z = 3.0
+#: the input shows its lattice when it takes at least this many distinct values (a PWM
+#: duty cycle or a ramp on a DAC does; a staircase of a few dozen levels does not)
+MIN_LEVELS = 64
+
+
+def input_quantum(runs) -> float:
+    """The input's step (V): the smallest gap between its distinct values, when it takes
+    at least :data:`MIN_LEVELS` of them (a PWM or DAC lattice); 0 when unknown."""
+    gaps = []
+    for r in runs:
+        v = np.unique(np.round(np.asarray(r.u, float), 9))
+        if len(v) >= MIN_LEVELS:
+            d = np.diff(v)
+            d = d[d > 1e-9]
+            if len(d):
+                gaps.append(float(np.min(d)))
+    return max(gaps) if gaps else 0.0
+
+
+def jackknife_se(values) -> float:
+    """Grouped-jackknife standard error of an estimate from its fold fits."""
+    v = np.asarray([x for x in values if np.isfinite(x)], float)
+    k = len(v)
+    if k < 2:
+        return 0.0
+    return float(np.sqrt((k - 1) / k * np.sum((v - v.mean()) ** 2)))
+
+
+def unresolved(effect, params: dict, runs, fold_values=()) -> str | None:
+    """Why the fitted size of ``effect`` is not resolved by these data, in words; None
+    when it is."""
+    name = effect.size
+    if not name or name not in params:
+        return None
+    value = float(params[name])
+    unit = next((p.unit for p in effect.params if p.name == name), "")
+    dt = float(np.median([r.dt for r in runs]))
+    if unit == "V" and effect.stage in ("input", "drive", "friction"):
+        q = input_quantum(runs)
+        if q > 0 and abs(value) < q:
+            return (f"{effect.name}.{name} = {value * 1e3:.3g} mV is below one step of the "
+                    f"input ({q * 1e3:.3g} mV)")
+    if effect.stage == "delay" and unit == "s" and abs(value) < MIN_SAMPLES * dt:
+        return (f"{effect.name}.{name} = {value * 1e3:.3g} ms is below {MIN_SAMPLES:g} of a "
+                f"sample ({dt * 1e3:.3g} ms)")
+    se = jackknife_se(fold_values)
+    if se > 0 and abs(value) < Z * se:
+        return (f"{effect.name}.{name} = {value:.3g} {unit} is within {Z:g} standard errors "
+                f"({se:.2g} {unit}, from the folds' fits) of zero")
+    return None
