@@ -73,8 +73,16 @@ def acquire(bridge: Bridge, exp: Experiment, rig, progress: Callable[[int], None
         experiment["controller"] = controller
     meta = make_meta(sample_rate_hz=exp.sample_rate_hz, experiment=experiment,
                      sensors=rig.sensors_sidecar(), rig=rig.rig_sidecar(),
-                     source=bridge.source, bridge=bridge.counters())
+                     source=bridge.source, bridge={**bridge.counters(),
+                                                   "dac_step_v": dac_step_v(rig)})
     return Run(name=exp.name, data=pd.DataFrame(cols), meta=meta)
+
+
+def dac_step_v(rig) -> float:
+    """One step of the bridge's output (V): the smallest change of the input it can make,
+    recorded with each run (``diagnose`` calls no threshold smaller than it resolved)."""
+    lo, hi = rig.bridge.dac_range_v
+    return abs(float(hi) - float(lo)) / 2 ** int(rig.bridge.dac_bits)
 
 
 def check_plan(plan: list[Experiment], rig) -> None:

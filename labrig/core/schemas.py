@@ -111,6 +111,8 @@ class SidecarExperiment(_Open):
     position_gain: Num(0, 1e6) = None
     velocity_gain: Num(0, 1e6) = None
     controller: Optional[Controller] = None
+    #: one step of the input (V), when the bridge's resolution is known (a PWM's step)
+    input_step_v: Num(0.0, 10.0) = None
 
 
 class SidecarSensors(_Open):

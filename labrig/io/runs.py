@@ -159,6 +159,17 @@ class Run:
         return float(self.sensors.get("pos_quantum") or 0.0)
 
     @property
+    def input_step(self) -> float:
+        """One step of the input (V) as the sidecar states it (``bridge.dac_step_v``, or
+        ``experiment.input_step_v`` for an imported run); 0 unknown."""
+        declared = (self.meta.get("bridge") or {}).get("dac_step_v") or \
+            self.experiment.get("input_step_v")
+        try:
+            return max(float(declared or 0.0), 0.0)
+        except (TypeError, ValueError):
+            return 0.0
+
+    @property
     def kt(self) -> float:
         return float(self.sensors["tacho_v_per_rad_s"])
 

@@ -49,6 +49,10 @@ FLOOR = 1.15
 CV_CANDIDATES = 4
 #: relative penalty per extra parameter when held-out errors are compared
 PARSIMONY = 0.02
+#: a base this much worse than a candidate with its effect switched off is refined ...
+REFINE = 0.01
+#: ... at most this many times
+MAX_REFINE = 2
 #: a replacement by an effect with as many parameters must gain this much (held out)
 SWAP_GAIN = 0.02
 #: a simpler replacement (fewer parameters) may be this much worse on held-out data
@@ -116,7 +120,7 @@ def candidate_names(base: Model, candidates=None) -> list[str]:
 
 def diagnose(runs, model: Model | None = None, *, candidates=None, seed: int = 0,
              fixed: dict | None = None, progress=None, weights: Weights | None = None,
-             folds=None, revise: bool = True) -> Diagnosis:
+             folds=None, revise: bool = True, _refined: int = 0) -> Diagnosis:
     """Locate the model's error and rank the missing effects.
 
     Parameters
@@ -180,13 +184,23 @@ def diagnose(runs, model: Model | None = None, *, candidates=None, seed: int = 0
         cand = ident.model()
         ev = evaluate(runs, cand, sig, weights=weights)
         k = len(param_keys(cand)) - len(fixed)
-        return Candidate(effect=effect, rmse_over_noise=ev.rmse,
-                         improvement=1.0 - ev.fitness / f0,
-                         delta_bic=bic(ev.wsse, n, n_eff, k) - bic0,
-                         params=dict(params if params is not None else cand.effect_params[effect]),
-                         fit_percent=ev.metrics["fit_percent"], model=cand, evaluation=ev,
-                         at_bound=at_bounds(ident), move=move, replaces=replaces,
-                         extra_params=k - k0)
+        c = Candidate(effect=effect, rmse_over_noise=ev.rmse,
+                      improvement=1.0 - ev.fitness / f0,
+                      delta_bic=bic(ev.wsse, n, n_eff, k) - bic0,
+                      params=dict(params if params is not None else cand.effect_params[effect]),
+                      fit_percent=ev.metrics["fit_percent"], model=cand, evaluation=ev,
+                      at_bound=at_bounds(ident), move=move, replaces=replaces,
+                      extra_params=k - k0)
+        if move != "remove":
+            off = switched_off(cand, effect)
+            if off is not None:
+                c.off_fitness = evaluate(runs, off, sig, weights=weights).fitness
+                c.carried = 1.0 - ev.fitness / max(c.off_fitness, 1e-300)
+                if c.carried < MIN_GAIN:
+                    c.unresolved = (f"switched off in the re-fitted model, {effect} costs "
+                                    f"{100 * c.carried:.1f} % of the error: the gain is the rest "
+                                    "of the model re-fitted, not the effect")
+        return c
 
     ranking: list[Candidate] = []
     for i, name in enumerate(candidate_names(base, candidates)):
@@ -195,6 +209,24 @@ def diagnose(runs, model: Model | None = None, *, candidates=None, seed: int = 0
             progress(i, name)
         ranking.append(entry(refit_with(runs, base, eff, seed=seed, fixed=fixed, weights=weights,
                                         reach=reach), name))
+    # a candidate whose gain comes from re-fitting the rest of the model, not from its
+    # effect, shows that the base was not converged: refine it and start again
+    stale = [c for c in ranking if c.carried is not None and c.carried < MIN_GAIN
+             and c.off_fitness < (1 - REFINE) * f0]
+    if stale and _refined < MAX_REFINE:
+        best = min(stale, key=lambda c: c.off_fitness)
+        better = Model.from_flat({k: v for k, v in best.model.flat().items()
+                                  if k in base.flat()}, base.effects, base.constants,
+                                 plant=base.plant, info=dict(base.info or {}))
+        better = refit(runs, better, seed=seed, fixed=fixed, weights=weights,
+                       reach=reach).model()
+        d = diagnose(runs, better, candidates=candidates, seed=seed, fixed=fixed,
+                     progress=progress, weights=weights, folds=folds, revise=revise,
+                     _refined=_refined + 1)
+        d.baseline["source"] = (f"{base_source}, refined: the re-fits of its candidates "
+                                "found better values of its own parameters (fitness "
+                                f"{f0:.4g} -> {d.baseline['fitness']:.4g})")
+        return d
     revisions = []
     if revise and base.names and candidates is None:
         revisions = _revisions(runs, base, entry, seed=seed, fixed=fixed, weights=weights)
@@ -206,7 +238,7 @@ def diagnose(runs, model: Model | None = None, *, candidates=None, seed: int = 0
         cv = cross_validate(runs, c.model, folds, sigmas=sig, weights=weights, seed=seed,
                             fixed=fixed, reach=Reach.of(runs, c.model))
         c.cross_validated = fold_evidence(cv0, cv, c.model, None if c.move == "remove" else c.effect)
-        c.unresolved = None if c.move == "remove" else unresolved(
+        c.unresolved = None if c.move == "remove" else c.unresolved or unresolved(
             get_effect(c.effect), c.params, runs, _fold_sizes(cv, c))
     ranking += revisions
     for c in ranking:
@@ -266,6 +298,16 @@ def _revisions(runs, base: Model, entry, *, seed, fixed, weights) -> list[Candid
             out.append(entry(refit_with(runs, reduced, get_effect(new), seed=seed, fixed=fixed,
                                         weights=weights), new, move="replace", replaces=old))
     return out
+
+
+def switched_off(model: Model, effect: str) -> Model | None:
+    """``model`` with ``effect`` made inert (:meth:`Effect.inert`), the rest unchanged;
+    None when the effect does not say how."""
+    off = get_effect(effect).inert()
+    if not off:
+        return None
+    flat = {**model.flat(), **{f"{effect}.{k}": v for k, v in off.items()}}
+    return Model.from_flat(flat, model.effects, model.constants, plant=model.plant)
 
 
 def _fold_sizes(cv, c: Candidate) -> list:

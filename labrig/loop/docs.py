@@ -54,6 +54,7 @@ class CandidateDoc(_Doc):
     label: str = ""
     replaces: Optional[str] = None
     unresolved: Optional[str] = None
+    carried: Num = None
     rmse_over_noise: float
     improvement: float
     delta_bic: Num = None
@@ -105,7 +106,7 @@ class DiagnosisDoc(_Doc):
                              cross_validated=(c.cross_validated.model_dump()
                                               if c.cross_validated else None),
                              at_bound=list(c.at_bound), move=c.move, replaces=c.replaces,
-                             unresolved=c.unresolved,
+                             unresolved=c.unresolved, carried=c.carried,
                              supported=c.supported, explanation=c.explanation)
                    for c in self.ranking]
         return Diagnosis(baseline=self.baseline.model_dump(), regimes=self.regimes.model_dump(),

@@ -49,6 +49,10 @@ class Candidate:
     extra_params: int = 1
     #: why the effect's fitted size is not resolved by the data (None: it is)
     unresolved: str | None = None
+    #: the share of the candidate's error the effect itself carries (the error with the
+    #: effect switched off, the rest unchanged, is ``off_fitness``); None: not checked
+    carried: float | None = None
+    off_fitness: float | None = field(default=None, repr=False)
     #: live, not in the JSON: the re-fitted model and its evaluation on all runs
     model: Model | None = field(default=None, repr=False)
     evaluation: Evaluation | None = field(default=None, repr=False)
@@ -83,6 +87,8 @@ class Candidate:
         if self.replaces:
             d["replaces"] = self.replaces
         d["at_bound"] = list(self.at_bound)
+        if self.carried is not None:
+            d["carried"] = self.carried
         if self.unresolved:
             d["unresolved"] = self.unresolved
         d["supported"] = self.supported

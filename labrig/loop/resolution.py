@@ -8,9 +8,9 @@ parameter that is zero when the effect is absent, a dead zone's width, a delay, 
 offset):
 
 1. **above the input's resolution**: a size in volts acting at the input, the drive or
-   as friction must be at least one step of the input (:func:`input_quantum`: the
-   smallest step between the input's distinct values, when it has enough of them to
-   show its lattice);
+   as friction (a relative input gain: times the largest input) must be at least one
+   step of the input (:func:`input_quantum`: the bridge's DAC step its runs record, or
+   an imported run's ``experiment.input_step_v``);
 2. **above a fraction of a sample**: a delay must be at least :data:`MIN_SAMPLES` of the
    sample period;
 3. **resolved by the folds**: the size must exceed :data:`Z` standard errors from the
@@ -31,8 +31,12 @@ MIN_LEVELS = 64
 
 
 def input_quantum(runs) -> float:
-    """The input's step (V): the smallest gap between its distinct values, when it takes
-    at least :data:`MIN_LEVELS` of them (a PWM or DAC lattice); 0 when unknown."""
+    """The input's step (V): as the runs' sidecars state it (the bridge's DAC step), else
+    the smallest gap between the input's distinct values when it takes at least
+    :data:`MIN_LEVELS` of them (a PWM or DAC lattice); 0 when unknown."""
+    declared = [r.input_step for r in runs if getattr(r, "input_step", 0.0)]
+    if declared:
+        return max(declared)
     gaps = []
     for r in runs:
         v = np.unique(np.round(np.asarray(r.u, float), 9))
@@ -62,11 +66,15 @@ def unresolved(effect, params: dict, runs, fold_values=()) -> str | None:
     value = float(params[name])
     unit = next((p.unit for p in effect.params if p.name == name), "")
     dt = float(np.median([r.dt for r in runs]))
+    volts = None
     if unit == "V" and effect.stage in ("input", "drive", "friction"):
-        q = input_quantum(runs)
-        if q > 0 and abs(value) < q:
-            return (f"{effect.name}.{name} = {value * 1e3:.3g} mV is below one step of the "
-                    f"input ({q * 1e3:.3g} mV)")
+        volts = abs(value)
+    elif unit == "-" and effect.stage == "input":   # a relative gain, at the largest input
+        volts = abs(value) * max(float(np.max(np.abs(r.u))) for r in runs)
+    q = input_quantum(runs) if volts is not None else 0.0
+    if q > 0 and volts < q:
+        return (f"{effect.name}.{name} = {value:.3g} {unit} moves the input by "
+                f"{volts * 1e3:.3g} mV, below one step of the input ({q * 1e3:.3g} mV)")
     if effect.stage == "delay" and unit == "s" and abs(value) < MIN_SAMPLES * dt:
         return (f"{effect.name}.{name} = {value * 1e3:.3g} ms is below {MIN_SAMPLES:g} of a "
                 f"sample ({dt * 1e3:.3g} ms)")

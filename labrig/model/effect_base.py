@@ -81,6 +81,11 @@ class Effect(abc.ABC):
     #: (:data:`labrig.loop.inputs.KINDS`), in plain words
     responses: dict = {}
 
+    def inert(self) -> dict:
+        """Parameter values that switch the effect off (``diagnose`` checks that the
+        effect itself carries a candidate's gain); empty: unknown."""
+        return {self.size: 0.0} if self.size else {}
+
     @property
     def family_name(self) -> str:
         return self.family or self.name

@@ -112,6 +112,9 @@ class Saturation(DriveEffect):
     name = "saturation"
     stage = "drive"
     params = (Param("vmax_v", "V", 0.1, 100.0, "armature voltage limit of the amplifier"),)
+
+    def inert(self):
+        return {"vmax_v": 1e9}   # a rail no drive reaches
     summary = "the amplifier's output rail: the armature voltage cannot exceed vmax"
     signature = ("steady speed the same for all large amplitudes; apparent gain falls "
                  "as 1/A; errors grow with amplitude")
@@ -291,6 +294,9 @@ class AsymmetricDeadband(InputEffect):
     responses = Deadband.responses
     stage = "input"
     family = "dead zone"
+    def inert(self):
+        return {"dpos_v": 0.0, "dneg_v": 0.0}
+
     params = (Param("dpos_v", "V", 1e-3, 2.0, "dead zone for positive inputs"),
               Param("dneg_v", "V", 1e-3, 2.0, "dead zone for negative inputs"))
     summary = "a dead zone wider in one direction: the rig starts later one way"
