@@ -60,18 +60,13 @@ def test_floor_of_an_encoder_speed_is_taken_while_moving():
 # -- folds and bounds ----------------------------------------------------------------------
 
 class _R:
-    def __init__(self, n, amp):
-        self.u, self.loop, self.amplitude = np.zeros(n), "open", amp
+    def __init__(self, n, amp, dt=0.01):
+        self.u, self.loop, self.amplitude, self.dt = np.zeros(n), "open", amp, dt
 
 
-def test_whole_runs_are_held_out_once_and_a_single_run_is_blocked():
-    runs = [_R(100, a) for a in (1.0, 2.0, 1.5, 0.5, 2.5)]
-    f = make_folds(runs)
-    assert len(f.folds) == 4 and "held out" in f.kind
-    held = sum(np.array([t.all() for t in fold.test], int) for fold in f.folds)
-    assert list(held) == [1] * 5                   # every run predicted exactly once
-    for fold in f.folds:
-        assert all((tr ^ te).all() for tr, te in zip(fold.train, fold.test))
+def test_a_run_without_steps_is_cut_in_contiguous_blocks():
+    """Interleaved segments are tested in tests/test_same_answer.py; an input without
+    steps to interleave falls back to blocks that tile each run."""
     single = make_folds([_R(1000, 2.0)])
     assert "blocks" in single.kind and len(single.folds) == 4
     cover = sum(fold.test[0].astype(int) for fold in single.folds)

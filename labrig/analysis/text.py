@@ -80,10 +80,12 @@ def _trend_detail(res) -> str:
         return "one amplitude only: no trend to judge"
     return (f"w/V changes by {rel * 100:+.1f} % from {span[0]:.3g} V to {span[1]:.3g} V "
             "(mean w/V at the largest amplitude over that at the smallest, minus 1); "
-            f"constant within {thr * 100:.1f} %"
             # a noisy trend is judged against two standard errors instead
-            + (f" (2 standard errors of the scatter; the tolerance is {res.tolerance * 100:.0f} %)"
-               if thr > res.tolerance else " (the tolerance)"))
+            + (f"the runs' w/V scatter so much that only a change beyond {thr * 100:.1f} % (2 "
+               f"standard errors of the scatter) counts as a trend, not the "
+               f"{res.tolerance * 100:.0f} % tolerance a clean sweep is judged by"
+               if thr > res.tolerance else
+               f"a constant gain may change by up to {thr * 100:.1f} % (the tolerance)"))
 
 
 def summary_text(res, width: int = 110) -> str:

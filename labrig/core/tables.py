@@ -57,7 +57,11 @@ def fmt(x, spec: str = ".4g", none: str = "-") -> str:
         return str(x)
     if not math.isfinite(xf):
         return none
-    return format(int(round(xf)), spec) if spec.endswith("d") else format(xf, spec)
+    text = format(int(round(xf)), spec) if spec.endswith("d") else format(xf, spec)
+    # a value that rounds to zero is "0", never "-0" (a -0.3 % gain is no gain)
+    if text.startswith("-") and not any(ch in "123456789" for ch in text.split("e")[0]):
+        text = text[1:]
+    return text
 
 
 def table_html(table: Table) -> str:

@@ -124,6 +124,9 @@ class Identification(Displayable):
         (computed once: the text and the JSON both show them)."""
         if getattr(self, "_step_info", None) is None:
             c = self.constants
+            if "kp" not in c:   # no loop to speak of (see dataset_constants)
+                return {"rise_time_s": None, "settling_time_s": None,
+                        "overshoot_percent": None, "loop": None}
             try:
                 self._step_info = self.servo().position_step_info(c["kp"], c["kv"])
             except Exception:  # an unstable identified loop has no step metrics
@@ -217,9 +220,15 @@ class Identification(Displayable):
 def dataset_constants(runs) -> dict:
     """Known rig constants from the runs' sidecars (the first run speaks for all)."""
     closed = [r.gains for r in runs if r.loop == "closed"]
-    # step metrics are for the data's own loop, else for the lab's standard loop
-    gains = closed[0] if closed else {"kp": LOOP_GAINS["position_gain"],
-                                      "kv": LOOP_GAINS["velocity_gain"]}
+    # step metrics are for the data's own loop, else for the lab's standard loop (the
+    # MS150's, with tacho feedback): a rig without a tacho has no such loop, and an
+    # Arduino's model gets no step metrics of a loop it never ran
+    if closed:
+        gains = closed[0]
+    elif all(r.has_tacho for r in runs):
+        gains = {"kp": LOOP_GAINS["position_gain"], "kv": LOOP_GAINS["velocity_gain"]}
+    else:
+        gains = {}
     return {**runs[0].constants, **gains}
 
 

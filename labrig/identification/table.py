@@ -63,13 +63,23 @@ def _record(r) -> dict:
     return dict(r)
 
 
+def interval_text(value: float, lo: float, hi: float) -> str:
+    """``value [lo, hi]`` with as many digits as the interval needs: its ends differ and
+    the value is printed to at least their precision (never ``89.99 [90, 90]``)."""
+    for d in range(3, 10):
+        a, b = fmt(lo, f".{d}g"), fmt(hi, f".{d}g")
+        if float(a) < float(b) or lo >= hi:
+            break
+    return f"{fmt(value, f'.{max(d, 4)}g')} [{a}, {b}]"
+
+
 def _interval(d) -> str:
     if not d or d.get("value") is None:
         return "-"
     iv = d.get("interval95")
     if d.get("identifiable") is False or not iv or any(x is None for x in iv):
-        return f"{d['value']:.4g} ? (not seen by these data)"
-    return f"{d['value']:.4g} [{iv[0]:.3g}, {iv[1]:.3g}]"
+        return f"{fmt(d['value'], '.4g')} ? (not seen by these data)"
+    return interval_text(d["value"], iv[0], iv[1])
 
 
 def _parameter(r: dict, name: str) -> str:
@@ -114,8 +124,7 @@ def comparison_table(results, best: str | None = None) -> Table:
     keys = list(dict.fromkeys((e, k) for r in recs for e, ps in (r.get("effect_params") or {}).items()
                               for k in ps))
     for e, k in keys:
-        rows.append([param_key(e, k)] + [_fmt((r.get("effect_params") or {}).get(e, {}).get(k))
-                                    for r in recs])
+        rows.append([param_key(e, k)] + [_effect_parameter(r, e, k) for r in recs])
     group("fit")
     rows.append(["fitness (eq. 26)"] + [_fmt(r.get("fitness")) for r in recs])
     chans = ["speed", "position"] + (["current"] if any(
@@ -126,10 +135,14 @@ def comparison_table(results, best: str | None = None) -> Table:
     for ch in chans:
         rows.append([f"fit % {ch}"] + [_fmt((r.get("fit_percent") or {}).get(ch), ".2f")
                                        for r in recs])
-    group("closed-loop position step of the identified model")
-    for key, label in (("rise_time_s", "rise time (s)"), ("settling_time_s", "settling time (s)"),
-                       ("overshoot_percent", "overshoot (%)")):
-        rows.append([label] + [_fmt((r.get("step_info") or {}).get(key), ".3g") for r in recs])
+    no_loop = all("loop" in (r.get("step_info") or {}) for r in recs)
+    if not no_loop:
+        group("closed-loop position step of the identified model")
+        for key, label in (("rise_time_s", "rise time (s)"),
+                           ("settling_time_s", "settling time (s)"),
+                           ("overshoot_percent", "overshoot (%)")):
+            rows.append([label] + [_fmt((r.get("step_info") or {}).get(key), ".3g")
+                                   for r in recs])
     group("cost")
     rows.append(["evaluations (nfev)"] + [_fmt(r.get("nfev"), "d") for r in recs])
     rows.append(["seconds"] + [_fmt(r.get("seconds"), ".1f") for r in recs])
@@ -138,6 +151,9 @@ def comparison_table(results, best: str | None = None) -> Table:
              for r in recs]
     table = Table("identified models (Table 2)", [""] + heads, rows)
     table.notes.append(FITNESS_NOTE)
+    if no_loop:
+        table.notes.append("closed-loop step of the identified model: none (no closed-loop "
+                           "runs, and no tacho for the lab's standard loop)")
     prefix = len(recs) > 1
     for r in recs:  # at a bound, fit below zero: the result is suspect
         for w in r.get("warnings") or []:
@@ -154,7 +170,41 @@ def comparison_table(results, best: str | None = None) -> Table:
     if any(c.endswith("?") or "? (not seen" in c for row in rows for c in row[1:]):
         table.notes.append("? = not identifiable from these data alone (see the warning); the "
                            "combinations above are.")
+    table.notes += _row_notes(plant, extra, keys)
     return table
+
+
+def _effect_parameter(r: dict, effect: str, name: str) -> str:
+    """An effect's fitted parameter with its 95 % interval, or '?' when not seen."""
+    key = param_key(effect, name)
+    v = (r.get("effect_params") or {}).get(effect, {}).get(name)
+    info = ((r.get("identifiable") or {}).get("parameters") or {}).get(key)
+    if v is None or not info:
+        return _fmt(v)
+    if info.get("fixed"):
+        return f"{_fmt(v)} (fixed)"
+    return _interval({**info, "value": v})
+
+
+#: what each derived row of the table is
+_DERIVED = {"Tc": "Coulomb friction torque, tc_v x Ka K / R", "Ts": "breakaway torque of stiction",
+            "T0": "the input offset as a torque at the motor, u0_v x Ka K / R",
+            "Fc": "Coulomb friction force, tc_v x kd", "Fs": "breakaway force of stiction",
+            "F0": "the input offset as a force, u0_v x kd"}
+
+
+def _row_notes(plant, extra: list, keys: list) -> list[str]:
+    """One line saying what the table's derived and effect rows are."""
+    out = []
+    said = [f"{n} = {_DERIVED[n]}" for n in extra if n in _DERIVED]
+    if said:
+        tail = (" (on a voltage plant they scale with K/R, so they are seen only where R and "
+                "K are)" if plant.kind == "voltage" else "")
+        out.append("rows: " + "; ".join(said) + tail)
+    if keys:
+        out.append("effect.parameter rows: the effects' fitted values in the bridge's units "
+                   "(volts at the input, s, rad) with their 95 % intervals")
+    return out
 
 
 def format_identification(results) -> str:

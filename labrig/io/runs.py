@@ -246,7 +246,8 @@ def read_run(path: Path | str) -> Run:
 
 
 def read_dataset(paths) -> list[Run]:
-    """Read every run in the given folders and/or run files, sorted by name.
+    """Read every run in the given folders and/or run files, sorted by name, numbers in
+    names by value (:func:`natural_key`).
 
     Raises ``RunFileError`` when nothing is found, naming where it looked.
     """
@@ -264,7 +265,16 @@ def read_dataset(paths) -> list[Run]:
         raise RunFileError(f"{', '.join(map(str, paths))}: no runs (*.csv with a .json "
                            "sidecar) found; run `labrig sweep` or `labrig import` first")
     runs = [read_run(f) for f in files]
-    return sorted(runs, key=lambda r: r.name)
+    return sorted(runs, key=lambda r: natural_key(r.name))
+
+
+def natural_key(name: str) -> tuple:
+    """Sort key that reads the numbers in a name as numbers: ``step_3.00V`` before
+    ``step_12.00V`` (as text, "1" sorts before "3")."""
+    import re
+
+    parts = re.split(r"(\d+(?:\.\d+)?)", name)
+    return tuple((0, float(p), "") if k % 2 else (1, 0.0, p) for k, p in enumerate(parts))
 
 
 def _read_sidecar(json_path: Path, csv_path: Path) -> dict:

@@ -183,7 +183,7 @@ class Diagnosis(Displayable):
         for i, c in enumerate(self.ranking, 1):
             cv = c.cross_validated
             ranking.rows.append([str(i), c.label, fmt(c.rmse_over_noise, ".2f"),
-                                 f"{100 * c.improvement:.0f} %", fmt(c.delta_bic, ".0f"),
+                                 f"{fmt(100 * c.improvement, '.0f')} %", fmt(c.delta_bic, ".0f"),
                                  f"{cv['baseline']:.2f} -> {cv['with_effect']:.2f}" if cv else "-",
                                  f"{cv['folds_improved']}/{cv['folds']}" if cv else "-",
                                  ("yes" if c.supported else "no")

@@ -200,7 +200,9 @@ def regime_table(per_run: list[dict]) -> dict:
         table["by_regime"][ch] = {reg: {"rmse_over_noise": float(np.sqrt(s / n)),
                                         "share_of_error": s / tot, "share_of_time": n / ntot}
                                   for reg, (s, n) in acc.items()}
-        table["by_amplitude"][ch] = {k: float(np.sqrt(s / n)) for k, (s, n) in sorted(amp.items())}
+        # by loop, then by amplitude as a number ("open 10.00 V" after "open 2.50 V")
+        order = sorted(amp, key=lambda k: (k.split()[0], float(k.split()[1])))
+        table["by_amplitude"][ch] = {k: float(np.sqrt(amp[k][0] / amp[k][1])) for k in order}
     return table
 
 
