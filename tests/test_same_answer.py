@@ -131,14 +131,18 @@ def test_the_resolution_rule():
 
 @pytest.mark.slow
 def test_a_tiny_true_offset_is_not_called_supported(tmp_path):
-    """A tacho rig whose amplifier offset is one DAC step (2.4 mV): below what these data
-    resolve, so diagnose does not recommend it."""
-    runs = read_dataset(sim_dataset(tmp_path, make_rig(effects={"offset": {"u0_v": 0.0024}}),
+    """A tacho rig whose amplifier offset is 1 mV, under one step of its 12-bit bridge
+    (2.44 mV, which the runs record): the position's drift lets a fit find it, but the
+    bridge cannot set its input that finely, so diagnose does not call it supported and
+    says why."""
+    runs = read_dataset(sim_dataset(tmp_path, make_rig(effects={"offset": {"u0_v": 0.001}}),
                                     square_plan(amps=(1.2, 2.5), periods=2)))
+    assert runs[0].input_step == pytest.approx(10 / 4096)
     d = diagnose(runs, candidates=["offset", "deadband"])
-    assert d.recommendation is None
+    assert d.recommendation is None, d.to_text()
     off = d.candidate("offset")
     assert not off.supported
+    assert off.improvement < 0.05 or "below one step of the input" in off.unresolved
 
 
 # -- remove and replace --------------------------------------------------------------------
@@ -193,9 +197,13 @@ def _step_by_step(runs, seed, rounds=6):
 
 @pytest.mark.slow
 def test_the_step_by_step_loop_ends_the_same_for_every_seed(tmp_path):
+    """Followed round by round (diagnose, then its recommended model), the loop ends with
+    offset + Coulomb friction and the plant, within 1 %, for the default seed and four
+    others; on the way it takes an asymmetric dead zone first and replaces it by the
+    offset it hides (a dead zone behind an offset), once the friction is in."""
     runs = _linear_axis(tmp_path)
     ends = {}
-    for seed in (None, 0, 1, 2, 3, 4):
+    for seed in (None, 1, 2, 3, 4):   # the default is seed 0
         model, recs = _step_by_step(runs, seed)
         ends[seed] = (sorted(model.names), model.flat(), recs)
     names, flat, _ = ends[None]

@@ -268,8 +268,9 @@ def analyse_identifiability(objective, x_search: np.ndarray, Ka: float) -> dict:
         lo, hi = min(dc, 0.0) - 1.96 * sc, max(dc, 0.0) + 1.96 * sc
         ok = bool(np.isfinite(hi - lo) and hi - lo <= np.log(SEEN_SPAN))
         # one rule for every fit: a time constant under half a sample period is not seen,
-        # whatever its interval (friction or an offset can lend it a spurious one)
-        if key.startswith("tau_") and v < 0.5 * dt:
+        # whatever its interval (friction or an offset can lend it a spurious one), unless
+        # it is given (L fixed by a locked-rotor test sets the fast pole)
+        if key.startswith("tau_") and v < 0.5 * dt and not (key == "tau_e_s" and "L" in sp.fixed):
             ok = False
         comb[key] = {"value": float(v), "unit": units[key], "identifiable": ok,
                      "interval95": [float(v * np.exp(lo)), float(v * np.exp(hi))] if ok else None}

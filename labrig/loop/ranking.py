@@ -176,8 +176,8 @@ class Diagnosis(Displayable):
         for ch, amps in self.regimes["by_amplitude"].items():
             regimes.notes.append(f"{ch} by run amplitude: "
                                  + ", ".join(f"{k} {v:.2f}" for k, v in amps.items()))
-        ranking = Table("candidates (re-fitted with each effect the model lacks; with a model "
-                        "that has effects, also without each and with each replaced)",
+        ranking = Table("candidates (re-fitted: each effect the model lacks added, each it "
+                        "has removed or replaced)",
                         ["rank", "effect", "rmse/noise", "gain", "dBIC", "cross-validated",
                          "folds", "supported"], numeric=(0, 2, 3, 4))
         for i, c in enumerate(self.ranking, 1):
@@ -220,7 +220,7 @@ class Diagnosis(Displayable):
             "than half of the counted folds improved; so a strongly negative dBIC alone is not "
             "enough. And the effect's size must be resolved: above one step of the input, "
             "a delay above a quarter sample, and more than 3 standard errors (from the folds' "
-            "fits) from zero (docs/physics.md, 'When an effect is resolved')",
+            "fits) from zero (docs/physics.md, 'Diagnosis')",
             f"'- X' removes X: supported when the model without it predicts held-out data "
             f"within {gain} of the model with it (the mirror of adding); 'X -> Y' replaces X "
             f"by Y: by the add rule, with a {100 * SWAP_GAIN:g} % gain for an effect with as "

@@ -290,7 +290,7 @@ class AsymmetricDeadband(InputEffect):
     simpler = "deadband"
     rival = "coulomb_friction"
     proposed_as = "deadband"
-    look_alikes = ("deadband",)
+    look_alikes = ("deadband", "offset")   # it is a dead zone behind an offset
     responses = Deadband.responses
     stage = "input"
     family = "dead zone"
