@@ -179,7 +179,7 @@ def _linear_axis(tmp_path):
     shortened: two open-loop amplitudes and both closed-loop steps)."""
     rig = load_rig("configs/rig_linear_axis.toml")
     plan = [Experiment(name=f"sq_{a:.2f}V", amplitude_v=a, frequency_hz=0.25, periods=2,
-                       lead_in_s=0.5, sample_rate_hz=500.0) for a in (1.2, 2.5)]
+                       lead_in_s=0.5, sample_rate_hz=200.0) for a in (1.2, 2.5)]
     plan += [e for e in load_plan(None, rig) if e.loop == "closed"]
     return read_dataset(sim_dataset(tmp_path, rig, plan))
 
@@ -311,3 +311,21 @@ def test_a_scattered_gain_trend_says_what_its_band_means():
     assert "only a change beyond 80.6 %" in text and "3 % tolerance" in text
     res.trend["threshold"] = 0.03
     assert "a constant gain may change by up to 3.0 % (the tolerance)" in _trend_detail(res)
+
+
+def test_two_explanations_within_two_percent_are_reported_as_undecided():
+    """The order of two different explanations whose held-out errors are within 2 % is
+    not evidence: the verdict says so and names the experiment that would decide; two
+    members of one family (Coulomb friction and stiction) are not two explanations."""
+    from labrig.loop.diagnose import _undecided
+    from labrig.loop.ranking import Candidate
+
+    def cand(name, cv, k=1):
+        return Candidate(name, 1.0, 0.5, -100.0, {}, {}, extra_params=k,
+                         cross_validated={"with_effect": cv})
+
+    text = _undecided([cand("deadband", 1.00), cand("coulomb_friction", 1.01)])
+    assert "Undecided against coulomb_friction" in text
+    assert "labrig propose --between deadband,coulomb_friction" in text
+    assert _undecided([cand("deadband", 1.00), cand("coulomb_friction", 1.10)]) == ""
+    assert _undecided([cand("coulomb_friction", 1.00), cand("stiction", 1.00, 2)]) == ""

@@ -49,6 +49,8 @@ FLOOR = 1.15
 CV_CANDIDATES = 4
 #: relative penalty per extra parameter when held-out errors are compared
 PARSIMONY = 0.02
+#: two supported explanations whose scores are this close are reported as undecided
+UNDECIDED = 0.02
 #: a base this much worse than a candidate with its effect switched off is refined ...
 REFINE = 0.01
 #: ... at most this many times
@@ -256,7 +258,7 @@ def diagnose(runs, model: Model | None = None, *, candidates=None, seed: int = 0
                "noise": ev0.metrics["noise"]}
     rmse0 = ev0.rmse
     if rec is not None:
-        verdict = f"{supported[0].action}: " + supported[0].explanation
+        verdict = f"{supported[0].action}: " + supported[0].explanation + _undecided(supported)
     elif rmse0 <= FLOOR:
         verdict = (f"The model is at the noise floor (rmse/noise {rmse0:.2f}) and no effect "
                    "predicts held-out data better: nothing is missing that these data can show.")
@@ -331,6 +333,23 @@ def _supported(c: Candidate) -> bool:
     gain = SWAP_GAIN if c.move == "replace" and c.extra_params == 0 else MIN_GAIN
     return bool(c.delta_bic < MIN_DBIC and c.improvement >= gain and cv["improvement"] >= gain
                 and majority)
+
+
+def _undecided(supported: list) -> str:
+    """A word when the runner-up is a different explanation that predicts held-out data
+    within :data:`UNDECIDED` of the first: the order between them is not evidence."""
+    if len(supported) < 2:
+        return ""
+    a, b = supported[0], supported[1]
+    if a.effect == b.effect or \
+            get_effect(a.effect).family_name == get_effect(b.effect).family_name:
+        return ""
+    if _score(b) > (1 + UNDECIDED) * _score(a):
+        return ""
+    return (f" Undecided against {b.label}: its held-out error ({b.cross_validated['with_effect']:.2f}) "
+            f"is within {100 * UNDECIDED:g} % of this one's, so these data do not tell the two "
+            f"apart; `labrig propose --between {a.effect},{b.effect}` designs the run that "
+            "would.")
 
 
 def _score(c: Candidate) -> float:

@@ -9,7 +9,7 @@ from labrig.loop.plots import plot_regimes
 
 def plot_ranking(diag, ax=None):
     """Each candidate's rmse/noise in-sample (bar) and cross-validated (dot), against the
-    model without it and the noise floor; supported candidates in colour, dBIC and the
+    model as it is and the noise floor (removals and replacements by their labels); supported candidates in colour, dBIC and the
     folds that improved written beside each bar.
 
     Without ``ax``: a figure with the ranking and where the model fails (the first
@@ -26,7 +26,7 @@ def plot_ranking(diag, ax=None):
     else:
         fig = ax.figure
     ranking = diag.ranking
-    names = [c.effect for c in ranking][::-1]
+    names = [c.label for c in ranking][::-1]   # "- X" removes, "X -> Y" replaces
     vals = [c.rmse_over_noise for c in ranking][::-1]
     colours = ["tab:green" if c.supported else "0.7" for c in ranking][::-1]
     y = range(len(names))
@@ -41,12 +41,18 @@ def plot_ranking(diag, ax=None):
                     textcoords="offset points",
                     va="center", fontsize=7)
     base = diag.baseline["rmse_over_noise"]["overall"]
-    ax.axvline(base, color="tab:red", ls="--", lw=1, label=f"without: {base:.2f}")
+    ax.axvline(base, color="tab:red", ls="--", lw=1, label=f"the model as it is: {base:.2f}")
     ax.axvline(1.0, color="k", ls=":", lw=1, label="noise floor (1.0)")
     ax.set_yticks(list(y))
     ax.set_yticklabels(names, fontsize=8)
     ax.set_xlabel("rmse / noise (bar: in-sample; dot: cross-validated)")
-    ax.set_xlim(0, max(vals + [base]) * 1.35 if vals else base * 1.35)
+    top = max(vals + [base]) if vals else base
+    if top > 30 * max(min(vals + [base]), 1.0):
+        # a removal that costs a hundredfold would squash every other bar: log scale
+        ax.set_xscale("log")
+        ax.set_xlim(0.8, top * 3)
+    else:
+        ax.set_xlim(0, top * 1.35)
     ax.set_title("candidates, best first (green: supported)", fontsize=9)
     ax.legend(fontsize=7, loc="lower right")
     fig.tight_layout()
