@@ -162,6 +162,7 @@ def test_a_wrong_first_choice_is_replaced_step_by_step(tmp_path):
     assert c.move == "replace" and c.replaces == "coulomb_friction"
     assert d.verdict.startswith("Replace coulomb_friction by deadband")
     assert "labrig diagnose DATA --model MODEL.json -o next.json" in d.to_text()
+    assert "per fold (held-out rmse/noise, now -> with it): 1: " in d.to_text()
     removal = d.candidate("- coulomb_friction")
     assert not removal.supported and removal.cross_validated is not None
     nxt = diagnose(runs, d.recommended_model())

@@ -242,7 +242,14 @@ class Diagnosis(Displayable):
                f"rmse/noise {r['overall']:.2f} (speed {fmt(r.get('speed'), '.2f')}, "
                f"position {fmt(r.get('position'), '.2f')}); 1.0 is the noise floor", ""]
         out += [t.to_text() + "\n" for t in self.table_rows()]
-        out += [f"recommendation: {self.recommendation or 'none'}", "", self.verdict]
+        out += [f"recommendation: {self.recommendation or 'none'}"]
+        folds = (self.candidate(self.recommendation).cross_validated or {}).get("per_fold") \
+            if self.recommendation else None
+        if folds:   # every fold's own evidence: one fold cannot hide in the pooled number
+            out.append("per fold (held-out rmse/noise, now -> with it): " + "; ".join(
+                f"{f['fold']}: {f['baseline']:.2f} -> {f['with_effect']:.2f}"
+                + ("" if f["counted"] else " (not counted)") for f in folds))
+        out += ["", self.verdict]
         if self.recommendation:
             c = self.candidate(self.recommendation)
             out.append(f"\nnext: labrig identify DATA --model MODEL.json --effects "
