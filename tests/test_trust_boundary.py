@@ -234,3 +234,40 @@ def test_ten_million_row_run_reads_in_bounded_memory(tmp_path):
     rows, maxrss_kb = map(int, p.stdout.split())
     assert rows == n
     assert maxrss_kb < 2.5e6, f"peak {maxrss_kb / 1e6:.2f} GB"
+
+
+# -- special files (issue 29): refused in one line, before anything opens them -------------
+
+def _special_runs(tmp_path, kind):
+    """A copy of a shipped run whose CSV is a FIFO, a symlink to /dev/zero or a folder."""
+    import os
+    import shutil
+
+    from conftest import ROOT
+
+    d = tmp_path / kind
+    d.mkdir()
+    shutil.copy(ROOT / "data" / "sweep_default" / "sq_1.20V.json", d / "sq_1.20V.json")
+    csv = d / "sq_1.20V.csv"
+    if kind == "fifo":
+        os.mkfifo(csv)
+    elif kind == "device":
+        os.symlink("/dev/zero", csv)
+    else:
+        csv.mkdir()
+    return d, csv
+
+
+@pytest.mark.parametrize("kind, what", [("fifo", "a FIFO"), ("device", "a character device"),
+                                        ("folder", "a folder")])
+def test_a_run_that_is_a_fifo_a_device_or_a_folder_is_refused_at_once(tmp_path, kind, what):
+    from conftest import labrig
+
+    d, csv = _special_runs(tmp_path, kind)
+    proc = labrig("analyse", d, timeout=60)           # a FIFO used to block forever
+    assert proc.returncode == 2, proc.stderr
+    assert f"sq_1.20V.csv: is {what}" in proc.stderr and "Traceback" not in proc.stderr
+    assert len(proc.stderr.strip().splitlines()) == 1
+    # the same file given to import
+    proc = labrig("import", csv, "--map", "t=t,u=u,pos=pos", "-o", tmp_path / "out", timeout=60)
+    assert proc.returncode == 2 and f"is {what}" in proc.stderr, proc.stderr

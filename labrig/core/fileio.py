@@ -1,5 +1,5 @@
 """Writing files the way every labrig output is written: atomically, with the user's
-umask, and as strict JSON (no inf/NaN)."""
+umask, and as strict JSON (no inf/NaN); and what a data file must be before it is read."""
 from __future__ import annotations
 
 import json
@@ -9,7 +9,30 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
+import stat
+
 import numpy as np
+
+
+def not_regular(path: Path | str) -> str | None:
+    """What ``path`` is when it is not a regular file a reader can finish ("a folder", "a
+    FIFO (named pipe)", "a device", ...), following symlinks; None for a regular file or
+    a path that does not exist. A FIFO would block a reader forever and /dev/zero never
+    ends: both are refused before anything opens them."""
+    try:
+        mode = os.stat(path).st_mode
+    except FileNotFoundError:
+        return None
+    except OSError as e:   # a name too long, a loop of symlinks, no permission
+        return f"unreadable ({e.strerror})"
+    if stat.S_ISREG(mode):
+        return None
+    for test, what in ((stat.S_ISDIR, "a folder"), (stat.S_ISFIFO, "a FIFO (named pipe)"),
+                       (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
+                       (stat.S_ISSOCK, "a socket")):
+        if test(mode):
+            return what
+    return "not a regular file"
 
 
 def _umask() -> int:

@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from labrig.core.fileio import not_regular
 from labrig.core.errors import RunFileError
 
 REQUIRED_COLUMNS = ("t", "u")
@@ -192,6 +193,9 @@ def read_csv_columns(path: Path | str, columns: list[str]) -> dict[str, np.ndarr
     """Named numeric columns of a foreign CSV (an export to import), with the same
     row/column errors and memory bounds as a run file."""
     path = Path(path)
+    what = not_regular(path)
+    if what:
+        raise RunFileError(f"{path}: is {what}, not a data file; give a regular file")
     if not path.is_file():
         raise RunFileError(f"{path}: file not found")
     cols = _read_header(path)

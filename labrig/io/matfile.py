@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from labrig.core.fileio import not_regular
 from labrig.core.errors import RunFileError
 
 #: a larger file is refused before reading (the same bound as csvfile.MAX_CSV_BYTES)
@@ -83,6 +84,9 @@ def _parse(path: Path, col: str) -> tuple[str, int | None]:
 
 def _load(path: Path, tops: list[str] | None, read: bool = True) -> tuple[dict, list[str]]:
     """(the variables `tops` as trees, all top-level names); `tops` None: the structs."""
+    what = not_regular(path)
+    if what:
+        raise RunFileError(f"{path}: is {what}, not a data file; give a regular file")
     if not path.is_file():
         raise RunFileError(f"{path}: file not found")
     size = path.stat().st_size

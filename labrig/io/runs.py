@@ -236,7 +236,14 @@ def _stem_paths(path: Path) -> tuple[Path, Path]:
 
 def read_run(path: Path | str) -> Run:
     """Read and validate one run (give the CSV, the JSON or the stem)."""
+    from labrig.core.fileio import not_regular
+
     csv_path, json_path = _stem_paths(Path(path))
+    for p in (csv_path, json_path):
+        what = not_regular(p)
+        if what:
+            raise RunFileError(f"{p}: is {what}, not a run file; a run is a regular .csv "
+                               "file with its .json sidecar (move it out of the folder)")
     if not csv_path.exists():
         raise RunFileError(f"{csv_path}: run file not found")
     meta = _read_sidecar(json_path, csv_path)
