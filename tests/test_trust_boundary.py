@@ -271,3 +271,27 @@ def test_a_run_that_is_a_fifo_a_device_or_a_folder_is_refused_at_once(tmp_path, 
     # the same file given to import
     proc = labrig("import", csv, "--map", "t=t,u=u,pos=pos", "-o", tmp_path / "out", timeout=60)
     assert proc.returncode == 2 and f"is {what}" in proc.stderr, proc.stderr
+
+
+@pytest.mark.parametrize("args", [
+    ["sweep", "--sim", "-o", "{file}"],
+    ["import", "{csv}", "--map", "t=ms,u=u_V,pos=count", "--time-unit", "ms",
+     "--pos-unit", "counts:1320", "-o", "{file}"],
+    ["sweep", "--sim", "-o", "{long}"],
+    ["analyse", "{data}", "-o", "{long}"],
+    ["identify", "{data}", "-o", "{long}.json"],
+])
+def test_an_output_that_is_a_file_or_too_long_is_refused_before_the_work(tmp_path, args):
+    from conftest import ROOT, labrig
+
+    (tmp_path / "afile").write_text("mine")
+    subs = {"{file}": str(tmp_path / "afile"), "{long}": str(tmp_path / ("x" * 300)),
+            "{data}": str(ROOT / "data" / "sweep_default"),
+            "{csv}": str(ROOT / "data" / "arduino_hbridge" / "step_3.00V.csv")}
+    argv = [subs.get(a, a.replace("{long}", subs["{long}"])) for a in args]
+    proc = labrig(*argv, timeout=120)
+    assert proc.returncode == 2, proc.stderr
+    assert "internal error" not in proc.stderr and len(proc.stderr.strip().splitlines()) == 1
+    assert ("exists and is not a folder" in proc.stderr
+            or "more than the 255 a file system allows" in proc.stderr), proc.stderr
+    assert (tmp_path / "afile").read_text() == "mine"

@@ -17,6 +17,9 @@ def cmd_sweep(args):
     from labrig.bridge.sweep import sweep
     from labrig.io.config import load_plan, load_rig
 
+    from labrig.commands.registry import output_folder
+
+    output_folder(args.output)
     rig = load_rig(args.rig)
     plan = load_plan(args.plan, rig)
     if args.sim == bool(args.port):
@@ -104,6 +107,9 @@ def cmd_import(args):
     --drive and --axis."""
     from labrig.io.importer import import_csv, parse_controller, parse_map
 
+    from labrig.commands.registry import output_folder
+
+    output_folder(args.output)
     mapping = parse_map(args.map)
     path = import_csv(args.src, args.output, mapping, speed_unit=args.speed_unit,
                       pos_unit=args.pos_unit, time_unit=args.time_unit,

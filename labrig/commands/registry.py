@@ -40,6 +40,33 @@ def float_opt(text: str) -> float:
         raise argparse.ArgumentTypeError(f"expected a number, got '{text}'") from None
 
 
+#: the longest file name (bytes) the usual file systems (ext4, APFS, NTFS) allow
+NAME_MAX = 255
+
+
+def too_long(path: Path | str) -> None:
+    """Refuse an output path whose name the file system cannot hold, in one line (the
+    OS says "File name too long" only when the file is written, after the work)."""
+    from labrig.core.errors import UserError
+
+    path = Path(path)
+    shown = str(path) if len(str(path)) <= 60 else str(path)[:40] + "..." + str(path)[-12:]
+    for part in path.parts:
+        n = len(part.encode("utf-8", "surrogateescape"))
+        if n > NAME_MAX:
+            raise UserError(f"{shown}: a name in it is {n} bytes long, more than the "
+                            f"{NAME_MAX} a file system allows; give a shorter -o")
+    if len(str(path).encode("utf-8", "surrogateescape")) > 4000:
+        raise UserError(f"{shown}: the path is longer than a file system allows; give a "
+                        "shorter -o")
+
+
+def output_folder(path: Path | str) -> None:
+    """An output folder (-o) must be a folder or not exist yet, with a name the file
+    system can hold; checked before any work."""
+    refuse_existing([path], force=True, what="folder")
+
+
 def refuse_existing(paths, force: bool, what: str = "file") -> None:
     """Refuse to replace existing output files unless ``--force``.
 
@@ -50,6 +77,8 @@ def refuse_existing(paths, force: bool, what: str = "file") -> None:
     from labrig.core.errors import UserError
 
     paths = [Path(p) for p in paths]
+    for p in paths:
+        too_long(p)
     if what == "folder":
         if paths[0].exists() and not paths[0].is_dir():
             raise UserError(f"{paths[0]}: exists and is not a folder; give a folder name for -o")
