@@ -214,12 +214,15 @@ def unpinned_folds(cv: CrossValidation, model: Model, effect: str) -> dict:
     if not name:
         return {}
     key = f"{effect}.{name}"
-    full = abs(model.flat().get(key, 0.0))
+    value = float(model.flat().get(key, 0.0))
+    full = abs(value)
+    if full == 0:
+        return {}
     out = {}
     for j, p in enumerate(cv.fold_params):
-        v = abs(p.get(key, full))
-        if full > 0 and not full / PIN_FACTOR <= v <= full * PIN_FACTOR:
-            out[j] = (key, float(p.get(key, full)), float(model.flat()[key]))
+        v = float(p.get(key, value))
+        if not full / PIN_FACTOR <= abs(v) <= full * PIN_FACTOR:
+            out[j] = (key, v, value)
     return out
 
 

@@ -22,7 +22,7 @@ from __future__ import annotations
 import math
 import time
 
-from labrig.loop.crossval import cross_validate, fold_evidence, make_folds, unpinned_folds
+from labrig.loop.crossval import cross_validate, fold_evidence, make_folds
 from labrig.loop.resolution import unresolved
 from labrig.loop.ranking import Candidate, Diagnosis
 from labrig.core.errors import UserError
