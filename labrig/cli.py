@@ -6,11 +6,13 @@ Exit codes (docs/design.md, 'Exit codes'): 0 success, 2 user error, 1 rig or run
 from __future__ import annotations
 
 import argparse
+import os
+import signal
 import sys
 import traceback
 
 from labrig.core.version import __version__
-from labrig.core.errors import LabrigError, UserError
+from labrig.core.errors import LabrigError, Terminated, UserError
 
 
 class _TrustCode(argparse.Action):
@@ -92,6 +94,51 @@ def _names_in_any_case(parser: argparse.ArgumentParser) -> None:
 
 
 def main(argv=None) -> int:
+    """Run one command line; return its exit code (see the module's docstring).
+
+    SIGTERM and SIGHUP are caught from the first line on, before the slow imports
+    (:func:`_stop_on_signals`); the handlers found are back when this returns.
+    """
+    old = _stop_on_signals()
+    try:
+        return _main(argv)
+    finally:
+        for sig, handler in old.items():
+            signal.signal(sig, handler)
+
+
+def _stop_on_signals() -> dict:
+    """Until a command installs its own (``labrig sweep`` stops the board first), a
+    SIGTERM or SIGHUP ends labrig at once with one line and exit 128 + signal number, as
+    a shell reports it (143, 129), instead of a silent death by the signal; from the
+    first moments, while Python still imports the scientific stack.
+
+    The handler exits where it lands (``os._exit``), like the default action it replaces:
+    an exception could be swallowed by a command's ``except Exception``. A signal that is
+    ignored (``nohup``) or already handled by the caller stays so; outside the main
+    thread nothing is installed. Returns the handlers replaced, to put back.
+    """
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        return {}
+    old = {}
+    for sig in (signal.SIGTERM, signal.SIGHUP):
+        if signal.getsignal(sig) == signal.SIG_DFL:
+            old[sig] = signal.signal(sig, _exit_on_signal)
+    return old
+
+
+def _exit_on_signal(signum, frame):
+    for sig in (signal.SIGTERM, signal.SIGHUP):  # one line, even if a second one comes
+        signal.signal(sig, signal.SIG_IGN)
+    try:
+        print(f"labrig: {Terminated(signum)}", file=sys.stderr, flush=True)
+    finally:
+        os._exit(128 + signum)
+
+
+def _main(argv=None) -> int:
     from labrig.core.errors import Interrupted
 
     argv = sys.argv[1:] if argv is None else argv

@@ -88,6 +88,12 @@ SIDECAR_CASES = {
     "kp negative": ("experiment.position_gain", -1),
     "kv text": ("experiment.velocity_gain", "0.1"),
     "bridge text": ("bridge", "serial"),
+    # misspelt or unknown keys are refused with the labrig spelling, never ignored
+    "amplitude misspelt": ("experiment.amplitud_v", 1.2),
+    "bridge misspelt": ("brige", {"dropped_samples": 0}),
+    "tacho key misspelt": ("sensors.tacho_gain", 0.026),
+    "gear key misspelt": ("rig.gear", 30.0),
+    "unknown top-level key": ("colour", "red"),
 }
 
 
@@ -333,6 +339,11 @@ MODEL_CASES = {
     "constants negative": ("constants.N", -30.0),
     "constants zero gain": ("constants.Kt", 0.0),
     "user effect in data": ("effects", ["evil.py:Evil"]),
+    "effects key misspelt": ("efects", ["deadband"]),
+    "unknown top-level key": ("colour", "red"),
+    "params unknown key": ("params.Rm", 8.0),
+    "constants unknown key": ("constants.Kb", 1.0),
+    "structure disagrees with params": ("structure", "torque"),
 }
 
 

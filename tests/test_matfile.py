@@ -254,3 +254,204 @@ def test_v73_matlab_kinds(tmp_path):
         with pytest.raises(RunFileError, match=part):
             read_mat_columns(path, [col])
     assert list_mat_variables(path) == ["c", "e", "when", "x"]
+
+
+# -- hostile v7.3 files: declared sizes, links and storage that read other files ------------
+# Each file is a plausible recording (t, u as MATLAB writes them) plus one hostile `speed`,
+# imported through the real CLI: exit 2, one line naming the file, at once, nothing written.
+
+T20 = np.arange(20) / 1000.0
+
+
+def _hostile_v73(tmp_path, build, name="h.mat"):
+    """A v7.3 file holding t and u (20 samples), then `build(f, tmp_path)` adds the rest."""
+    h5py = pytest.importorskip("h5py")
+    path = write_v73(tmp_path / name, {"t": T20, "u": np.sin(T20)})
+    with h5py.File(path, "r+") as f:
+        build(f, tmp_path)
+    assert path.read_bytes().startswith(b"MATLAB 7.3 MAT-file")
+    return path
+
+
+def _other_h5(tmp_path):
+    """Another HDF5 file on the machine holding plausible data (what a link would pull in)."""
+    import h5py
+
+    other = tmp_path / "elsewhere.h5"
+    with h5py.File(other, "w") as g:
+        g.create_dataset("speed", data=np.cos(T20)[None, :]).attrs["MATLAB_class"] = \
+            np.bytes_("double")
+        g.create_group("rec").create_dataset("speed", data=np.cos(T20)[None, :])
+    return other
+
+
+def _double(ds):
+    ds.attrs["MATLAB_class"] = np.bytes_("double")
+    return ds
+
+
+def _huge_chunked(f, tmp):       # 2e10 doubles (160 GB) declared, one fill value stored
+    _double(f.create_dataset("speed", shape=(1, 20_000_000_000), dtype="f8",
+                             chunks=(1, 65536), fillvalue=0.5))
+
+
+def _huge_gzip(f, tmp):
+    _double(f.create_dataset("speed", shape=(1, 20_000_000_000), maxshape=(1, None),
+                             dtype="f8", chunks=(1, 65536), compression="gzip"))
+
+
+def _huge_contiguous(f, tmp):    # declared, never written: no space allocated
+    _double(f.create_dataset("speed", shape=(20_000_000_000, 1), dtype="f8"))
+
+
+def _huge_in_struct(f, tmp):
+    g = f.create_group("rec")
+    g.attrs["MATLAB_class"] = np.bytes_("struct")
+    _double(g.create_dataset("speed", shape=(1, 20_000_000_000), dtype="f8",
+                             chunks=(1, 65536)))
+
+
+def _over_bytes(f, tmp):         # 20 channels of 19 million samples: 3 GB, each channel legal
+    _double(f.create_dataset("speed", shape=(20, 19_000_000), dtype="f8", chunks=(1, 65536)))
+
+
+def _external_link(f, tmp):
+    f["speed"] = __import__("h5py").ExternalLink(str(_other_h5(tmp)), "/speed")
+
+
+def _external_link_in_struct(f, tmp):
+    g = f.create_group("rec")
+    g.attrs["MATLAB_class"] = np.bytes_("struct")
+    g["speed"] = __import__("h5py").ExternalLink(str(_other_h5(tmp)), "/speed")
+
+
+def _external_link_to_struct(f, tmp):
+    f["rec"] = __import__("h5py").ExternalLink(str(_other_h5(tmp)), "/rec")
+
+
+def _dangling_soft_link(f, tmp):
+    f["speed"] = __import__("h5py").SoftLink("/nowhere/speed")
+
+
+def _soft_link_through_external(f, tmp):   # inside the file, then out of it
+    import h5py
+
+    f["ext"] = h5py.ExternalLink(str(_other_h5(tmp)), "/rec")
+    f["speed"] = h5py.SoftLink("/ext/speed")
+
+
+def _soft_link_loop(f, tmp):
+    import h5py
+
+    f["speed"] = h5py.SoftLink("/again")
+    f["again"] = h5py.SoftLink("/speed")
+
+
+def _external_storage(f, tmp):   # the dataset's bytes live in another file
+    raw = tmp / "raw.bin"
+    raw.write_bytes(np.cos(T20).tobytes())
+    _double(f.create_dataset("speed", shape=(1, 20), dtype="<f8",
+                             external=[(str(raw), 0, 20 * 8)]))
+
+
+def _virtual(f, tmp):            # a virtual dataset maps another file's dataset
+    import h5py
+
+    layout = h5py.VirtualLayout(shape=(1, 20), dtype="f8")
+    layout[...] = h5py.VirtualSource(str(_other_h5(tmp)), "speed", shape=(1, 20))
+    _double(f.create_virtual_dataset("speed", layout, fillvalue=0.0))
+
+
+HOSTILE_V73 = [
+    ("huge_chunked", _huge_chunked, "speed", ["'speed' declares 20,000,000,000 samples",
+                                              "(20,000,000)"]),
+    ("huge_gzip", _huge_gzip, "speed", ["'speed' declares 20,000,000,000 samples"]),
+    ("huge_contiguous", _huge_contiguous, "speed", ["'speed' declares 20,000,000,000 samples"]),
+    ("huge_in_struct", _huge_in_struct, "rec.speed", ["'rec.speed' declares 20,000,000,000"]),
+    ("over_bytes", _over_bytes, "speed[0]", ["'speed' declares 3.0 GB", "(2 GB)"]),
+    ("external_link", _external_link, "speed", ["'speed' is a link to another file",
+                                                "elsewhere.h5"]),
+    ("external_link_in_struct", _external_link_in_struct, "rec.speed",
+     ["'rec.speed' is a link to another file"]),
+    ("external_link_to_struct", _external_link_to_struct, "rec.speed",
+     ["'rec' is a link to another file"]),
+    ("dangling_soft_link", _dangling_soft_link, "speed", ["'speed' is a link to '/nowhere/speed'",
+                                                          "not in the file"]),
+    ("soft_link_through_external", _soft_link_through_external, "speed",
+     ["'speed' is a link to another file"]),
+    ("soft_link_loop", _soft_link_loop, "speed", ["'speed' is a chain of more than 16 links"]),
+    ("external_storage", _external_storage, "speed", ["'speed' keeps its data in another file",
+                                                      "raw.bin"]),
+    ("virtual", _virtual, "speed", ["'speed' is a virtual dataset"]),
+]
+
+
+@pytest.mark.parametrize("case,build,speed,parts", HOSTILE_V73, ids=[c[0] for c in HOSTILE_V73])
+def test_hostile_v73_import_refused(tmp_path, capsys, case, build, speed, parts):
+    """labrig import of a v7.3 file that declares more data than labrig reads, or whose
+    channel is a link or storage in another file: exit 2, one line, at once, nothing
+    written (was: a 149 GiB allocation, or another file's data silently imported)."""
+    import time
+
+    from test_malformed_inputs import _expect_user_error
+
+    path = _hostile_v73(tmp_path, build)
+    assert path.stat().st_size < 200_000                 # the declared data is not in it
+    out = tmp_path / "out"
+    start = time.perf_counter()
+    line = _expect_user_error(capsys, ["import", path, "--map", f"t=t,u=u,speed={speed}",
+                                       "-o", out], str(path), *parts)
+    assert time.perf_counter() - start < 5, line
+    assert not out.exists() or not any(out.iterdir())
+
+
+OTHER_FILES = [c[:2] for c in HOSTILE_V73 if not c[0].startswith(("huge", "over"))]
+
+
+@pytest.mark.parametrize("case,build", OTHER_FILES, ids=[c[0] for c in OTHER_FILES])
+def test_hostile_v73_listing_refused(tmp_path, case, build):
+    """Listing the variables follows no link out of the file either."""
+    path = _hostile_v73(tmp_path, build)
+    with pytest.raises(RunFileError) as e:
+        list_mat_variables(path)
+    msg = str(e.value)
+    assert msg.startswith(f"{path}: ") and "\n" not in msg
+
+
+def test_v73_declared_size_limits_follow_csv(tmp_path, monkeypatch):
+    """The per-channel limit is the CSV reader's (csvfile.MAX_ROWS); a legal file reads."""
+    from labrig.io import csvfile
+
+    path = write_v73(tmp_path / "ok.mat", {"t": T20, "u": np.sin(T20)})
+    assert read_mat_columns(path, ["t", "u"])["u"].shape == (20,)
+    monkeypatch.setattr(csvfile, "MAX_ROWS", 19)
+    with pytest.raises(RunFileError, match=r"'t' declares 20 samples, more than labrig "
+                                           r"reads in one run \(19\)"):
+        read_mat_columns(path, ["t", "u"])
+
+
+def test_v73_soft_link_inside_the_file_reads(tmp_path):
+    """A soft link to a dataset of the same file is followed as before."""
+    def build(f, tmp):
+        g = f.create_group("rec")
+        g.attrs["MATLAB_class"] = np.bytes_("struct")
+        g["speed"] = __import__("h5py").SoftLink("/u")
+    path = _hostile_v73(tmp_path, build)
+    got = read_mat_columns(path, ["t", "rec.speed"])
+    np.testing.assert_array_equal(got["rec.speed"], np.sin(T20))
+    assert list_mat_variables(path) == ["rec", "rec.speed", "t", "u"]
+
+
+def test_v73_struct_that_contains_itself(tmp_path):
+    """A group hard-linked into itself (a cycle) is refused, not walked forever."""
+    def build(f, tmp):
+        g = f.create_group("rec")
+        g.attrs["MATLAB_class"] = np.bytes_("struct")
+        g["speed"] = f["u"]
+        g["again"] = g
+    path = _hostile_v73(tmp_path, build)
+    for call in (lambda: read_mat_columns(path, ["t", "rec.speed"]),
+                 lambda: list_mat_variables(path)):
+        with pytest.raises(RunFileError, match="'rec.again'") as e:
+            call()
+        assert str(e.value).startswith(f"{path}: ") and "\n" not in str(e.value)

@@ -32,10 +32,17 @@ def test_round_trip_units(tmp_path):
     assert run.gear_ratio == 30
 
 
-def test_minimal_sidecar_accepted_and_unknown_keys_kept(tmp_path):
-    path = good_run(tmp_path, meta=dict(META, extra_key={"a": 1}))
+def test_minimal_sidecar_accepted_and_notes_kept(tmp_path):
+    path = good_run(tmp_path, meta=dict(META, notes={"a": 1}))
     run = read_run(path)
-    assert run.meta["extra_key"] == {"a": 1}
+    assert run.meta["notes"] == {"a": 1}  # the user's own notes ride along
+
+
+def test_an_unknown_sidecar_key_is_refused(tmp_path):
+    """A misspelt key would otherwise be a silently missing value."""
+    path = good_run(tmp_path, meta=dict(META, extra_key={"a": 1}))
+    with pytest.raises(RunFileError, match="unknown key 'extra_key'"):
+        read_run(path)
 
 
 def test_never_overwrites_silently(tmp_path):

@@ -209,3 +209,59 @@ def test_a_trusted_user_effect_in_a_rig_file_gets_its_parameters(tmp_path):
     lin = tacho({}, "lin")
     assert np.max(np.abs(mine - lin)) > 0.2            # 0.3 V of friction shows (tacho V)
     assert np.array_equal(mine, cat)
+
+
+def _catches(pid, sig):
+    """Whether process `pid` has a handler for `sig` (Linux: SigCgt in /proc/PID/status)."""
+    try:
+        with open(f"/proc/{pid}/status") as fh:
+            mask = next(line for line in fh if line.startswith("SigCgt:")).split()[1]
+    except (OSError, StopIteration):
+        return False
+    return bool(int(mask, 16) >> (sig - 1) & 1)
+
+
+@pytest.mark.skipif(not os.path.exists("/proc/self/status"), reason="needs Linux /proc")
+@pytest.mark.parametrize("sig, code", [(signal.SIGTERM, 143), (signal.SIGHUP, 129)],
+                         ids=["SIGTERM", "SIGHUP"])
+def test_a_signal_in_the_first_moments_of_a_sweep(tmp_path, sig, code):
+    """SIGTERM/SIGHUP by PID in the first moments of `labrig sweep` (while Python still
+    imports the scientific stack, before the sweep's own handler exists) ends it like a
+    later one: exit 128 + signal number and one line on stderr (was: killed by the signal,
+    exit -15/-1 and no word). The signal is sent as soon as the child catches it at all,
+    tens of ms after it starts; wherever it lands, the code is the same. The attempt counts
+    as early if the child had not yet loaded pandas (which the sweep imports before it
+    installs its own handler); before labrig.cli.main caught these signals, no attempt was."""
+    name = signal.Signals(sig).name
+    early = []
+    for attempt in range(3):
+        out = tmp_path / f"ds{attempt}"
+        start = time.perf_counter()
+        proc = subprocess.Popen([sys.executable, "-m", "labrig", "sweep", "--sim",
+                                 "--plan", _plan_file(tmp_path), "-o", out],
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        while proc.poll() is None and time.perf_counter() - start < 30:
+            if _catches(proc.pid, sig):
+                try:
+                    with open(f"/proc/{proc.pid}/maps") as fh:
+                        loaded = "pandas" in fh.read()
+                except OSError:
+                    loaded = True
+                sent = time.perf_counter() - start
+                os.kill(proc.pid, sig)
+                break
+            time.sleep(0.0005)
+        else:
+            proc.kill()
+            pytest.fail(f"the sweep never caught {name} (exit {proc.wait()})")
+        _, err = proc.communicate(timeout=30)
+        lines = [line for line in err.splitlines() if not line.startswith("wrote ")]
+        assert proc.returncode == code, (attempt, sent, err)
+        assert len(lines) == 1 and lines[0].startswith(f"labrig: terminated by {name}"), err
+        assert "Traceback" not in err
+        assert not out.exists() or not [p for p in out.iterdir() if p.suffix == ".tmp"]
+        if not loaded:
+            early.append(sent)
+            break
+    assert early, f"{name} was never caught before the sweep's imports were done"
+    assert early[0] < 5.0

@@ -66,7 +66,8 @@ def _crossing(s, y, target, rising):
 
 # -- one edge ----------------------------------------------------------------------------
 
-def fit_edge(t, y, i_edge, i_end, pre, *, kind="speed", sigma=0.0, min_step=0.0) -> StepFit:
+def fit_edge(t, y, i_edge, i_end, pre, *, kind="speed", sigma=0.0, min_step=0.0,
+             measured=None) -> StepFit:
     """Fit a first-order step response to one edge.
 
     Parameters
@@ -82,6 +83,8 @@ def fit_edge(t, y, i_edge, i_end, pre, *, kind="speed", sigma=0.0, min_step=0.0)
         Noise of ``y`` (robust loss scale).
     min_step : float
         Smaller speed changes are not fitted (the motor did not move).
+    measured : bool array, optional
+        False for samples the link lost (``gap`` rows): they carry no weight in the fit.
 
     Returns
     -------
@@ -91,6 +94,8 @@ def fit_edge(t, y, i_edge, i_end, pre, *, kind="speed", sigma=0.0, min_step=0.0)
     """
     a = max(i_edge - pre, 0)
     tt, yy = t[a:i_end], y[a:i_end]
+    # a lost sample is interpolated: zero weight, and no say in the fit's quality
+    wt = np.ones(len(yy)) if measured is None else np.asarray(measured[a:i_end], float)
     dt = float(t[1] - t[0])
     s = tt - t[i_edge]
     seg_dur = float(t[i_end - 1] - t[i_edge]) + dt
@@ -113,13 +118,13 @@ def fit_edge(t, y, i_edge, i_end, pre, *, kind="speed", sigma=0.0, min_step=0.0)
 
     if kind == "speed":
         def res(x):
-            return _model_speed(s - x[3], x[0], x[1], math.exp(x[2])) - yy
+            return (_model_speed(s - x[3], x[0], x[1], math.exp(x[2])) - yy) * wt
         x0 = [y0g, y1g, math.log(tau0), 0.0]
     else:
         c0 = float(np.interp(0.0, s, yy))
 
         def res(x):
-            return _model_angle(s - x[4], x[0], x[1], x[2], math.exp(x[3])) - yy
+            return (_model_angle(s - x[4], x[0], x[1], x[2], math.exp(x[3])) - yy) * wt
         x0 = [c0, y0g, y1g, math.log(tau0), 0.0]
     # log tau between dt/4 and 20 segments; dead time from -3 samples to 30 % of the segment
     lo_td, hi_td = -3 * dt, max(0.3 * seg_dur, 3 * dt)
@@ -142,6 +147,7 @@ def fit_edge(t, y, i_edge, i_end, pre, *, kind="speed", sigma=0.0, min_step=0.0)
         fit = _model_speed(s - td, y0, y1, tau)
         # residual of an angle fit in speed units: angle error over the fit window
         r = (_model_angle(s - td, c, y0, y1, tau) - yy) / max(seg_dur, dt)
+    r = r[wt > 0] if (wt > 0).any() else r
     nrmse = float(np.sqrt(np.mean(r ** 2)) / max(abs(y1 - y0), 1e-12))
     bound = ("lower" if math.log(tau) <= lo[-2] + 1e-6 else
              "upper" if math.log(tau) >= hi[-2] - 1e-6 else "")
@@ -158,7 +164,7 @@ def fit_edge(t, y, i_edge, i_end, pre, *, kind="speed", sigma=0.0, min_step=0.0)
 
 # -- every edge of a run --------------------------------------------------------------
 
-def fit_run_edges(t, y, seg, *, kind, sigma, min_step) -> list[EdgeFit]:
+def fit_run_edges(t, y, seg, *, kind, sigma, min_step, measured=None) -> list[EdgeFit]:
     """Fit every edge of a run (each segment after the first starts with one).
 
     Parameters
@@ -167,7 +173,7 @@ def fit_run_edges(t, y, seg, *, kind, sigma, min_step) -> list[EdgeFit]:
         Time (s) and motor speed (``kind="speed"``) or motor angle (``"angle"``).
     seg : Segments
         The run's input segments.
-    sigma, min_step : float
+    sigma, min_step, measured : float, float, bool array or None
         As for :func:`fit_edge`.
     """
     edges = []
@@ -176,7 +182,8 @@ def fit_run_edges(t, y, seg, *, kind, sigma, min_step) -> list[EdgeFit]:
         a, b = starts[i], ends[i]
         # anchor the initial speed on the end of the previous segment, not all of it
         pre = max(3, min((starts[i] - starts[i - 1]) // 5, (b - a) // 5))
-        f = fit_edge(t, y, a, b, pre, kind=kind, sigma=sigma, min_step=min_step)
+        f = fit_edge(t, y, a, b, pre, kind=kind, sigma=sigma, min_step=min_step,
+                     measured=measured)
         edges.append(edge_from_fit(int(a), float(t[a]), float(volts[i - 1]), float(volts[i]),
                                    edge_kind(volts[i - 1], volts[i], seg.vtol), f))
     return edges

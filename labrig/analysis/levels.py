@@ -51,14 +51,18 @@ class FlatPart:
     tacho_v: float | None = None
 
 
-def flat_speed(kind, t, y, a, b, tail=None):
+def flat_speed(kind, t, y, a, b, tail=None, keep=None):
     """Steady speed and spread over samples [a, b).
 
     ``tail`` = (t_edge, y0, y1, tau) of the fitted edge: the little transient still
     left on the flat part (exp(-4) of a reversal is 4 % of the speed) is removed
-    with it, so the steady speed is not biased towards the previous level.
+    with it, so the steady speed is not biased towards the previous level. ``keep``:
+    False for samples the link lost (left out).
     """
     tt, yy = t[a:b], y[a:b].astype(float)
+    if keep is not None and not keep[a:b].all() and keep[a:b].sum() >= 3:
+        tt, yy = tt[keep[a:b]], yy[keep[a:b]]
+        b = a + len(tt)
     if tail is not None:
         te, y0, y1, tau = tail
         e = np.exp(-np.clip(tt - te, 0, None) / tau)
@@ -101,6 +105,7 @@ def segment_flat_parts(run, seg, sig: Signal, edges, tau_run, min_step) -> list[
     # the pot gives the Kt cross-check where a tacho gives the speed
     pot = run.position * run.gear_ratio if (run.has_pos and kind == "speed") else None
     need = max(5, int(round(0.5 * (tau_run or 0) / run.dt)))
+    keep = run.measured if run.n_gaps else None  # samples the link lost are left out
     parts = []
     for i, (a, b) in enumerate(zip(seg.starts, seg.ends)):
         start, tail = _flat_start(t, i, a, edges, tau_run)
@@ -108,7 +113,7 @@ def segment_flat_parts(run, seg, sig: Signal, edges, tau_run, min_step) -> list[
         if start is not None:
             fa = int(np.searchsorted(t, start))
             if b - fa >= need:
-                sp, spr = flat_speed(kind, t, y, fa, b, tail)
+                sp, spr = flat_speed(kind, t, y, fa, b, tail, keep)
                 part = FlatPart(True, sp, spr, b - fa)
                 if pot is not None and b - fa >= 5:
                     part.pot_speed = flat_speed("angle", t, pot, fa, b, tail)[0]
@@ -118,8 +123,8 @@ def segment_flat_parts(run, seg, sig: Signal, edges, tau_run, min_step) -> list[
             # a level where the motor never moves (lead-in, inside the deadband) is
             # steady from its start: both halves at rest
             h = a + (b - a) // 2
-            sp1 = flat_speed(kind, t, y, a, h)[0]
-            sp, spr = flat_speed(kind, t, y, h, b)
+            sp1 = flat_speed(kind, t, y, a, h, keep=keep)[0]
+            sp, spr = flat_speed(kind, t, y, h, b, keep=keep)
             if abs(sp) < min_step and abs(sp1) < min_step:
                 part = FlatPart(True, sp, spr, b - h)
         parts.append(part)

@@ -122,8 +122,10 @@ def _gamma(g: np.ndarray, m: int) -> float:
     return float(np.dot(g[:len(g) - m], g[m:])) if m < len(g) else 0.0
 
 
-def _block_variances(y: np.ndarray, speed: np.ndarray, window: int):
-    """(mean square, lag-1 product mean, moving) per block of one run's detrended signal."""
+def _block_variances(y: np.ndarray, speed: np.ndarray, window: int, measured=None):
+    """(mean square, lag-1 product mean, moving) per block of one run's detrended signal;
+    a block holding a sample the link lost (interpolated, so smoother than noise) is left
+    out."""
     if len(y) < max(window + 2, 16):
         return np.empty(0), np.empty(0), np.empty(0, bool)
     # scipy's own filter, not a copy: the fits downstream are sensitive to the last bits
@@ -138,6 +140,12 @@ def _block_variances(y: np.ndarray, speed: np.ndarray, window: int):
     ms = np.mean(rb ** 2, axis=1)
     lag1 = np.mean(rb[:, 1:] * rb[:, :-1], axis=1)
     moving = np.median(np.abs(speed[:n * size]).reshape(n, size), axis=1) > MOVING * smax
+    if measured is not None:
+        # the local fit reaches half a window each way: a lost sample that near is in
+        # the block's residuals too
+        lost = np.convolve(~np.asarray(measured, bool), np.ones(window), "same") > 0
+        whole = ~lost[:n * size].reshape(n, size).any(axis=1)
+        return ms[whole], lag1[whole], moving[whole]
     return ms, lag1, moving
 
 
@@ -168,7 +176,7 @@ def _class_variance(ms: np.ndarray, lag1: np.ndarray, window: int,
 
 
 def noise_floor(signals, speeds, channel: str = "speed", unit: str = "rad/s",
-                quantum: float = 0.0) -> NoiseFloor:
+                quantum: float = 0.0, measured=None) -> NoiseFloor:
     """The noise floor of one channel over several runs.
 
     Parameters
@@ -180,12 +188,17 @@ def noise_floor(signals, speeds, channel: str = "speed", unit: str = "rad/s",
     quantum : float
         The sensor's quantum when it is known (an encoder's count); the step seen in
         the data is used when larger (an ADC's code on top).
+    measured : list of bool arrays or None, optional
+        Per run, False where the link lost the sample; blocks holding one are left out.
     """
     signals = [np.asarray(y, float) for y in signals]
-    q = max([quantisation_step(y) for y in signals] + [float(quantum)])
+    measured = measured or [None] * len(signals)
+    q = max([quantisation_step(y if m is None else y[np.asarray(m, bool)])
+             for y, m in zip(signals, measured)] + [float(quantum)])
     floor = q * q / 12.0
     window = WINDOW
-    parts = [_block_variances(y, np.asarray(s, float), window) for y, s in zip(signals, speeds)]
+    parts = [_block_variances(y, np.asarray(s, float), window, m)
+             for y, s, m in zip(signals, speeds, measured)]
     ms = np.concatenate([p[0] for p in parts]) if parts else np.empty(0)
     l1 = np.concatenate([p[1] for p in parts]) if parts else np.empty(0)
     mov = np.concatenate([p[2] for p in parts]) if parts else np.empty(0, bool)
@@ -220,11 +233,11 @@ def channel_floors(runs, units: tuple = ("rad", "rad/s")) -> dict:
     speeds = [run_speed(r) for r in runs]
     for ch, attr, unit in (("speed", "w", units[1]), ("position", "theta", units[0]),
                            ("current", "current", "A")):
-        pairs = [(getattr(r, attr, None), s) for r, s in zip(runs, speeds)
-                 if getattr(r, attr, None) is not None]
+        pairs = [(getattr(r, attr, None), s, getattr(r, "measured", None))
+                 for r, s in zip(runs, speeds) if getattr(r, attr, None) is not None]
         if pairs:
             known = max((getattr(r, "pos_q", 0.0) for r in runs), default=0.0) \
                 if ch == "position" else 0.0
             out[ch] = noise_floor([p[0] for p in pairs], [p[1] for p in pairs], ch, unit,
-                                  quantum=known)
+                                  quantum=known, measured=[p[2] for p in pairs])
     return out

@@ -35,7 +35,10 @@ def analyse_run(run) -> RunAnalysis:
     ra.kt_configured = run.kt if run.has_tacho else None
     min_step = _min_step(run.t, sig, seg)
     ra.edges = fit_run_edges(run.t, sig.y, seg, kind=sig.kind, sigma=sig.sigma,
-                             min_step=min_step)
+                             min_step=min_step, measured=run.measured if run.n_gaps else None)
+    if run.n_gaps:
+        ra.notes.append(f"{run.n_gaps} of {len(run)} samples were lost on the link (gap = 1): "
+                        "left out of the edge fits and steady levels")
     tau_run = _run_tau(ra.edges, seg, run.dt, where)
     parts = segment_flat_parts(run, seg, sig, ra.edges, tau_run, min_step)
     ra.levels = pool_levels(run.name, seg, parts, ra.edges, min_step)

@@ -35,6 +35,8 @@ def level_table(res) -> Table:
                      fmt(None if lv.tau_s is None else lv.tau_s * 1e3, ".1f"), note])
     notes = [f"{r.name}: skipped ({r.skipped})" for r in res.runs
              if not isinstance(r, dict) and r.skipped]
+    notes += [f"{r.name}: {n}" for r in res.runs if not isinstance(r, dict) and not r.skipped
+              for n in r.notes if "lost on the link" in n]
     return Table("Steady speed per input level", columns, rows, notes,
                  numeric=tuple(range(1, 8)))
 

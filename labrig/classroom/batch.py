@@ -26,6 +26,14 @@ from labrig.core.errors import LabrigError, UserError
 MAX_FOLDER_BYTES = 200 * 2 ** 20
 #: the files a task may read from a folder
 _KEPT = re.compile(r"^[\w.\- ]+\.(csv|json|mystery|toml|mat)$", re.IGNORECASE)
+#: what the batch itself writes into -o: no folder's results may take these names
+RESERVED = ("results.csv", "results.json")
+#: a Dask scheduler's address: protocol, host and a port (inproc needs none)
+_ADDRESS = re.compile(r"^(?:(?:tcp|tls|ucx)://(?:\[[0-9A-Fa-f:.]+\]|[\w.\-]+):(\d{1,5})"
+                      r"|inproc://\S+)$")
+#: the row of a folder whose worker process died under it, twice
+WORKER_DIED = ("worker died while running this folder (killed, or out of memory); "
+               "it was tried again alone and died again")
 
 
 class Task(ABC):
@@ -136,13 +144,20 @@ def _one(folder: Path, pattern: str, what: str, given: str | None) -> Path:
 
 # -- the folders, their names in the output, and their files ------------------------------
 def output_names(folders) -> list[str]:
-    """A safe, unique name per folder for its results (its own name, made safe)."""
-    names, seen = [], {}
+    """A safe, unique name per folder for its results (its own name, made safe).
+
+    Names are unique whatever the folders are called (``x/a``, ``y/a`` and ``a_2`` give
+    ``a``, ``a_2`` and ``a_2_2``; a file system may not tell case apart), and never the
+    name of the batch's own table (a folder called ``results.csv``)."""
+    names, taken = [], set(RESERVED)
     for f in folders:
         base = re.sub(r"[^\w.\-]", "_", Path(f).resolve().name).strip("._") or "folder"
-        n = seen.get(base.lower(), 0) + 1
-        seen[base.lower()] = n
-        names.append(base if n == 1 else f"{base}_{n}")
+        base, name, n = base[:200], base[:200], 1
+        while name.lower() in taken:
+            n += 1
+            name = f"{base}_{n}"
+        taken.add(name.lower())
+        names.append(name)
     return names
 
 
@@ -163,11 +178,11 @@ def read_folder(folder: Path) -> dict[str, bytes]:
     return files
 
 
-def run_one(task: str, name: str, files: dict, options: dict, threads: int = 0,
+def run_one(task: "str | Task", name: str, files: dict, options: dict, threads: int = 0,
             shown: str = "") -> dict:
-    """One folder on a worker: its files in a private temporary folder, the task, and
-    a row (never an exception: a failure is a row with its message, which names the
-    folder as the user gave it, ``shown``)."""
+    """One folder on a worker: its files in a private temporary folder, the task (a name
+    in :data:`TASKS` or a :class:`Task`), and a row (never an exception: a failure is a
+    row with its message, which names the folder as the user gave it, ``shown``)."""
     t0 = time.perf_counter()
     folder = None
     if threads:
@@ -180,7 +195,7 @@ def run_one(task: str, name: str, files: dict, options: dict, threads: int = 0,
             folder.mkdir()
             for fname, data in files.items():
                 (folder / Path(fname).name).write_bytes(data)
-            figs, keep = TASKS[task].run(folder, options)
+            figs, keep = _task(task).run(folder, options)
         return {"status": "ok", "figures": figs, "files": keep, "error": "",
                 "seconds": round(time.perf_counter() - t0, 2)}
     except Exception as exc:  # a bug met on one folder must not stop the class either
@@ -200,6 +215,8 @@ class BatchResult:
     task: str
     rows: list[dict] = field(default_factory=list)
     engine: str = ""
+    #: the task's key figures (the table's columns); a built-in task's when empty
+    figures: tuple = ()
 
     @property
     def failed(self) -> int:
@@ -208,7 +225,8 @@ class BatchResult:
     def to_pandas(self):
         import pandas as pd
 
-        cols = ["folder", "name", "status", *TASKS[self.task].figures, "seconds", "error"]
+        cols = ["folder", "name", "status", *(self.figures or TASKS[self.task].figures),
+                "seconds", "error"]
         return pd.DataFrame([{**{k: r.get(k) for k in ("folder", "name", "status", "seconds",
                                                         "error")}, **r["figures"]}
                              for r in self.rows], columns=cols)
@@ -232,7 +250,9 @@ def run_batch(task: str, folders, *, options: dict | None = None, jobs: int = 1,
 
     Parameters
     ----------
-    task : {"analyse", "identify", "diagnose", "check"}
+    task : {"analyse", "identify", "diagnose", "check"} or Task
+        A name in :data:`TASKS`, or a :class:`Task` of your own (its class must be
+        importable by the workers).
     folders : list of path
     options : dict
         The task's options (method, effects, seed, pop, iters; max_rounds; mystery,
@@ -245,8 +265,10 @@ def run_batch(task: str, folders, *, options: dict | None = None, jobs: int = 1,
     progress : callable, optional
         Called with each finished row, in the order they finish.
     """
-    if task not in TASKS:
+    if not isinstance(task, Task) and task not in TASKS:
         raise UserError(f"batch: unknown task '{task}'; choose {', '.join(TASKS)}")
+    if scheduler:
+        check_scheduler(scheduler)
     folders = [Path(f) for f in folders]
     if not folders:
         raise UserError("batch: give at least one folder")
@@ -277,7 +299,8 @@ def run_batch(task: str, folders, *, options: dict | None = None, jobs: int = 1,
         engine = f"joblib, {jobs} process{'es' if jobs > 1 else ''}"
         for k, row in _joblib(jobs, task, work, options, threads=max(1, n // jobs)):
             _finish(rows, k, folders, names, row, progress)
-    return BatchResult(task=task, rows=rows, engine=engine)
+    return BatchResult(task=_task(task).name, rows=rows, engine=engine,
+                       figures=tuple(_task(task).figures))
 
 
 def _finish(rows, k, folders, names, row, progress):
@@ -288,25 +311,68 @@ def _finish(rows, k, folders, names, row, progress):
 
 
 def _joblib(jobs, task, work, options, threads):
+    """Rows as they finish, from ``jobs`` loky processes (joblib's own pool).
+
+    A worker that dies (SIGKILL, the out-of-memory killer) breaks the pool and fails every
+    folder then in it, without saying whose worker it was. Those folders are run again on
+    a fresh pool; any that fails so a second time is run alone, where a death is its own:
+    that folder is a failed row (:data:`WORKER_DIED`), every other row is kept.
+    """
     if jobs == 1:  # in this process: no pool to start for one at a time
         for k, name, files, shown in work:
             yield k, run_one(task, name, files, options, 0, shown)
         return
-    from joblib import Parallel, delayed
     from joblib.externals.loky import get_reusable_executor
 
     try:
-        yield from Parallel(n_jobs=jobs, return_as="generator_unordered")(
-            delayed(_tagged)(k, task, name, files, options, threads, shown)
-            for k, name, files, shown in work)
+        lost = yield from _pool_round(jobs, task, work, options, threads)
+        if lost:
+            lost = yield from _pool_round(min(jobs, len(lost)), task, lost, options, threads)
+        for item in lost:
+            again = yield from _pool_round(1, task, [item], options, threads)
+            if again:
+                yield item[0], {"status": "failed", "figures": {}, "files": {},
+                                "seconds": 0.0, "error": WORKER_DIED}
     finally:
         # idle workers outlive the batch by loky's idle timeout (5 min) and hold the
         # caller's stdout open meanwhile: `labrig batch ... | cat` would not return
         get_reusable_executor().shutdown(wait=True)
 
 
+def _pool_round(jobs, task, work, options, threads):
+    """Yield the rows of ``work`` run on a pool of ``jobs``; return the items whose worker
+    died (the pool breaks for all of them at once)."""
+    from concurrent.futures import as_completed
+    from concurrent.futures.process import BrokenProcessPool
+
+    from joblib.externals.loky import get_reusable_executor
+
+    executor = get_reusable_executor(max_workers=jobs)
+    futures = {executor.submit(_tagged, item[0], task, *item[1:3], options, threads, item[3]):
+               item for item in work}
+    lost = []
+    for fut in as_completed(futures):
+        try:
+            yield fut.result()
+        except BrokenProcessPool:  # loky's TerminatedWorkerError is one
+            lost.append(futures[fut])
+    return sorted(lost, key=lambda item: item[0])
+
+
 def _tagged(k, *args):
     return k, run_one(*args)
+
+
+def check_scheduler(scheduler: str) -> None:
+    """A Dask scheduler address with a host and a port (1-65535), or one line."""
+    m = _ADDRESS.match(scheduler)
+    if m is None or (m.group(1) is not None and not 0 < int(m.group(1)) < 65536):
+        raise UserError(f"--scheduler: '{scheduler}' is not an address like "
+                        "tcp://HOST:8786 (a protocol, a host and a port from 1 to 65535)")
+
+
+def _task(task) -> Task:
+    return task if isinstance(task, Task) else TASKS[task]
 
 
 def _dask(scheduler, task, work, options):
@@ -314,8 +380,6 @@ def _dask(scheduler, task, work, options):
         from dask.distributed import Client, as_completed
     except ImportError:  # pragma: no cover - a dependency, but say what to install
         raise UserError("--scheduler needs dask.distributed: pip install 'dask[distributed]'")
-    if not re.match(r"^(tcp|tls|inproc|ucx)://\S+$", scheduler):
-        raise UserError(f"--scheduler: '{scheduler}' is not an address like tcp://HOST:8786")
     try:
         client = Client(scheduler, timeout="10s")
     except (OSError, TimeoutError) as exc:

@@ -1,6 +1,7 @@
 """``labrig batch``: one task over many run folders, in parallel, one table of results."""
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 from labrig.commands.registry import command, emit_json, float_opt
@@ -17,13 +18,18 @@ def cmd_batch(args):
     Dask distributed cluster (--scheduler tcp://HOST:PORT). Writes results.csv and
     results.json (folder, status, key figures, error message) and each folder's model or
     report under -o OUT/NAME/. A folder that fails is a row with its message; the others
-    go on."""
-    from labrig.classroom.batch import run_batch, write_batch
+    go on, even when a worker process dies under one. Exit status: 0 when every folder
+    succeeded, 1 when any failed (the table says which)."""
+    from labrig.classroom.batch import check_scheduler, output_names, run_batch, write_batch
     from labrig.core.errors import UserError
     from labrig.commands.registry import refuse_existing
 
     out = Path(args.output)
-    refuse_existing([out, out / "results.csv", out / "results.json"], args.force,
+    if args.scheduler:
+        check_scheduler(args.scheduler)
+    # every file the batch may write, the folders' own results included, before any work
+    refuse_existing([out, out / "results.csv", out / "results.json",
+                     *(out / n for n in output_names(args.folders))], args.force,
                     what="folder")
     if args.jobs == 0 or args.jobs < -1:
         raise UserError(f"--jobs: {args.jobs}; give 1 or more processes, or -1 for one per core")
@@ -52,7 +58,10 @@ def cmd_batch(args):
     else:
         print(res.to_text())
         print(f"\nwritten to {out}/: results.csv, results.json and a folder per run folder")
-    return 0
+    if res.failed:  # a grading script must be able to tell without reading the table
+        print(f"labrig: {res.failed} of {len(res.rows)} folders failed (status 'failed' in "
+              f"{out / 'results.csv'})", file=sys.stderr)
+    return 1 if res.failed else 0
 
 
 def _configure(p):

@@ -74,12 +74,6 @@ class _Closed(BaseModel):
     model_config = ConfigDict(extra="forbid", strict=True)
 
 
-class _Open(BaseModel):
-    """Declared keys typed and checked; other keys are carried along (metadata)."""
-
-    model_config = ConfigDict(extra="allow", strict=True)
-
-
 # -- run sidecar ------------------------------------------------------------------------
 
 class Controller(_Closed):
@@ -94,7 +88,7 @@ class Controller(_Closed):
     output_limit_v: Optional[Num(gt=0, le=1e4)] = None
 
 
-class SidecarExperiment(_Open):
+class SidecarExperiment(_Closed):
     loop: Literal["open", "closed"]
     waveform: Optional[str] = None
     amplitude_v: Num(-1e3, 1e3) = None
@@ -115,7 +109,7 @@ class SidecarExperiment(_Open):
     input_step_v: Num(0.0, 10.0) = None
 
 
-class SidecarSensors(_Open):
+class SidecarSensors(_Closed):
     tacho_v_per_rad_s: Gain = None
     #: the unit of a ``speed`` column (physical speed, no tacho): the axis's SI unit
     speed_unit: Optional[Literal["rad/s", "m/s"]] = None
@@ -127,7 +121,7 @@ class SidecarSensors(_Open):
     current_a_per_v: Gain = None
 
 
-class SidecarRig(_Open):
+class SidecarRig(_Closed):
     gear_ratio: Num(gt=0, le=1e5) = None
     amplifier_gain: Num(gt=0, le=1e5) = None
     #: the plant (labrig.model.plants) and the axis it moves
@@ -138,7 +132,11 @@ class SidecarRig(_Open):
     name: Optional[str] = None
 
 
-class Sidecar(_Open):
+class Sidecar(_Closed):
+    """A run's sidecar: every key declared, so a misspelt one (``brige``,
+    ``experiment.amplitud_v``) is an error that names the labrig spelling, never a
+    silently missing value."""
+
     format: str
     sample_rate_hz: Num(gt=0, le=1e6)
     experiment: SidecarExperiment
@@ -146,7 +144,12 @@ class Sidecar(_Open):
     rig: SidecarRig
     source: Optional[str] = None
     created: Optional[str] = None
+    #: the bridge's own record of the run (firmware, counters, DAC step): reported as is
     bridge: Optional[dict[str, Any]] = None
+    #: the file a run was imported from (``labrig import``)
+    imported_from: Optional[str] = None
+    #: free text for the user's own notes, never read by labrig
+    notes: Optional[Any] = None
 
 
 # -- rig TOML ---------------------------------------------------------------------------
@@ -262,7 +265,7 @@ class PlanFile(_Closed):
 
 # -- model JSON -------------------------------------------------------------------------
 
-class PlantParams(_Open):
+class PlantParams(_Closed):
     """Every plant's parameters; which are required depends on the model's structure."""
 
     R: Num(gt=0, le=1e6) = None
@@ -274,7 +277,7 @@ class PlantParams(_Open):
     Fv: Num(gt=0, le=1e7) = None
 
 
-class ModelConstants(_Open):
+class ModelConstants(_Closed):
     Ka: Num(gt=0, le=1e5) = None
     N: Num(gt=0, le=1e5) = None
     Kt: Gain = None
@@ -286,9 +289,13 @@ class ModelConstants(_Open):
 EffectName = Annotated[str, Field(min_length=1, max_length=300)]
 
 
-class ModelFile(_Open):
+class ModelFile(_Closed):
+    """A model file: every key declared (a misspelt ``efects`` is an error, not a model
+    without effects)."""
+
     format: str
     structure: Optional[str] = None
+    method: Optional[str] = None
     effects: Annotated[list[EffectName], Field(max_length=50)] = []
     params: PlantParams
     effect_params: dict[EffectName, dict[str, Num(-1e9, 1e9)]] = {}
@@ -297,6 +304,13 @@ class ModelFile(_Open):
     fitness: Optional[float] = None
     rmse_over_noise: Optional[float | dict[str, Optional[float]]] = None
     fit_percent: Optional[float | dict[str, Any]] = None
+    noise: Optional[dict[str, Any]] = None
+    seed: Optional[Any] = None
+    nfev: Optional[Any] = None
+    identifiable: Optional[Any] = None
+    dataset: Optional[Any] = None
+    #: free text for the user's own notes, never read by labrig
+    notes: Optional[Any] = None
 
     @model_validator(mode="after")
     def _params_for_named_effects(self):
@@ -378,7 +392,11 @@ def _what(cls, err, kind, key, item, section_word) -> str:
         if section_word and "." not in key and not item:
             return (f"unknown section [{key}]; expected one of "
                     f"{', '.join(f'[{a}]' for a in allowed)}")
-        hint = f"; expected one of {', '.join(allowed)}" if allowed else ""
+        import difflib
+
+        close = difflib.get_close_matches(str(err["loc"][-1]), allowed, n=1, cutoff=0.6)
+        hint = (f"; did you mean '{close[0]}'?" if close else
+                f"; expected one of {', '.join(allowed)}" if allowed else "")
         return f"unknown key '{key}'{hint}"
     if kind == "missing":
         return f"key '{key}' missing"

@@ -343,6 +343,8 @@ def identify(runs, method: str = METHOD, effects: list[Effect] = (), *, seed: in
     dataset = dict(dataset or {})
     if any(r.current is not None for r in runs) and not space.plant.current_output:
         dataset["current_unused"] = True
+    if obj.n_gaps:  # the samples the link lost, left out (reported, never fitted)
+        dataset["gap_samples"] = int(obj.n_gaps)
     return Identification(method=name, effects=effects, space=space,
                           params=space.as_dict(phys), result=res, metrics=metrics,
                           identifiable=ident, seconds=time.perf_counter() - t0,

@@ -191,6 +191,10 @@ def identification_warnings(ident: Any) -> list[str]:
     if not plant.current_output and ident.dataset.get("current_unused"):
         notes.append(f"the runs' current channel is kept but not fitted: on a "
                      f"{plant.kind}-driven plant the current is the drive's command")
+    lost = ident.dataset.get("gap_samples") or 0
+    if lost:
+        notes.append(f"{lost} samples lost on the link (gap = 1) are left out of the fit, "
+                     "the residuals and the noise floors")
     return (bound_warnings(ident.space, ident.params, units)
             + fit_warnings(ident.metrics.get("fit_percent", {}), "all runs") + notes)
 

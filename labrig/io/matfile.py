@@ -5,7 +5,10 @@ are read with h5py when it is installed. A channel is a numeric vector named by 
 variable: ``s.a.b`` is field ``b`` of field ``a`` of the (scalar) struct ``s``, and
 ``m[k]`` is column ``k`` (0-based) of the matrix ``m``. Only numeric arrays are read:
 nothing in the file can make code run (no pickle; MATLAB objects, function handles, text
-and cells are refused as "not numeric"). Every problem is one :class:`RunFileError`
+and cells are refused as "not numeric"). Nothing outside the file is read either: a v7.3
+variable that is an HDF5 external link (or a dangling soft link), stored in an external
+file or virtual is refused, and each dataset's declared size is checked against the CSV
+reader's limits before its data are read. Every problem is one :class:`RunFileError`
 line that names the file, the variable and the fix.
 """
 from __future__ import annotations
@@ -126,7 +129,9 @@ def _load(path: Path, tops: list[str] | None, read: bool = True) -> tuple[dict, 
         with h5py.File(path, "r") as f:
             names = [k for k in f if not k.startswith("#")]  # #refs#, #subsystem#
             tops = names if tops is None else tops
-            return {t: _tree_h5(f[t], read) for t in tops if t in names}, names
+            seen = {"bytes": 0, "groups": {}}  # the data declared so far, the structs walked
+            return {t: _tree_h5(path, _h5_node(path, f, t, t), t, read, seen)
+                    for t in tops if t in names}, names
     except OSError as exc:
         raise RunFileError(f"{path}: not a readable MATLAB v7.3 (HDF5) file ({exc}); "
                            "re-save it in MATLAB with save(..., '-v7')") from None
@@ -156,31 +161,111 @@ def _tree_v5(v):
     return v
 
 
-def _tree_h5(node, read: bool):
-    """An HDF5 node as a tree like :func:`_tree_v5`, transposed back to MATLAB's shape."""
+def _tree_h5(path: Path, node, where: str, read: bool, seen: dict):
+    """An HDF5 node as a tree like :func:`_tree_v5`, transposed back to MATLAB's shape.
+
+    Nothing is read from another file: links out of the file (and dangling ones) are
+    refused by :func:`_h5_node`, datasets stored in other files here; a dataset's declared
+    size is checked before its data are read (`seen` holds the bytes declared so far and
+    the structs walked, so a struct linked into itself is refused, not walked forever).
+    """
     import h5py
+    if isinstance(node, h5py.Group):
+        first = seen["groups"].setdefault(node.id, where)
+        if first != where:
+            raise RunFileError(f"{path}: variable '{where}' is '{first}' again (a link "
+                               "inside the file); save each struct once")
+    if not isinstance(node, (h5py.Group, h5py.Dataset)):
+        return "not numeric (an HDF5 named type)"
     cls = node.attrs.get("MATLAB_class", b"")
     cls = cls.decode() if isinstance(cls, bytes) else str(cls)
     if isinstance(node, h5py.Group):
         if "MATLAB_sparse" in node.attrs:
             return "a sparse matrix (save full(x) instead)"
         if cls in ("struct", ""):
-            return {k: _tree_h5(node[k], read) for k in node}
+            return {k: _tree_h5(path, _h5_node(path, node, k, f"{where}.{k}"), f"{where}.{k}",
+                                read, seen) for k in node}
         return f"a MATLAB object of class '{cls}'"
+    if node.is_virtual:
+        raise RunFileError(f"{path}: variable '{where}' is a virtual dataset (its data come "
+                           "from other files); labrig reads only the file it is given: save "
+                           "the data themselves in this file")
+    if node.external:
+        raise RunFileError(f"{path}: variable '{where}' keeps its data in another file "
+                           f"('{node.external[0][0]}'); labrig reads only the file it is "
+                           "given: save the data themselves in this file")
     kinds = {"char": "text (a char array)", "cell": "a cell array",
              "function_handle": "a function handle"}
     if cls in kinds or (cls and cls not in _NUMERIC):
         return kinds.get(cls, f"a MATLAB object of class '{cls}'")
     if not read:
         return ""
-    if node.attrs.get("MATLAB_empty", 0):  # the dataset then holds the dimensions
+    if node.attrs.get("MATLAB_empty", 0) or node.shape is None:  # MATLAB: the dimensions
         return np.zeros((0, 0))
+    _check_declared(path, node, where, seen)
     if node.dtype.names and {"real", "imag"} <= set(node.dtype.names):
         raw = node[()]
         return np.asarray(raw["real"] + 1j * raw["imag"]).T
     if node.dtype.kind not in "biuf":
         return f"not numeric (HDF5 type {node.dtype})"
     return np.asarray(node[()]).T
+
+
+def _h5_node(path: Path, group, name: str, where: str, soft: str = "", hops: int = 0):
+    """``group[name]`` with every link on the way looked at before it is followed: a
+    link to another file (``ExternalLink``) or to nothing (a dangling ``SoftLink``) is
+    refused, as is a link of another kind; a soft link inside the file is followed."""
+    import h5py
+    node = group.file if name.startswith("/") else group
+    for part in filter(None, name.split("/")):
+        if part == ".":
+            continue
+        try:
+            link = node.get(part, getlink=True) if isinstance(node, h5py.Group) else None
+        except TypeError:   # h5py: "Unknown link type" (a user-defined link)
+            raise RunFileError(f"{path}: variable '{where}' is a link of a kind labrig does "
+                               "not follow; re-save the file in MATLAB with save(..., "
+                               "'-v7')") from None
+        if isinstance(link, h5py.ExternalLink):
+            raise RunFileError(f"{path}: variable '{where}' is a link to another file "
+                               f"('{link.filename}', object '{link.path}'); labrig reads "
+                               "only the file it is given: save the data themselves in "
+                               "this file")
+        if isinstance(link, h5py.SoftLink):
+            if hops >= 16:
+                raise RunFileError(f"{path}: variable '{where}' is a chain of more than 16 "
+                                   "links; re-save the file in MATLAB with save(..., '-v7')")
+            node = _h5_node(path, node, link.path, where, link.path, hops + 1)
+        elif isinstance(link, h5py.HardLink):
+            node = node.get(part)
+        else:
+            raise RunFileError(f"{path}: variable '{where}' is a link to '{soft or name}', "
+                               "which is not in the file; re-save the file in MATLAB with "
+                               "save(..., '-v7')")
+    return node
+
+
+def _check_declared(path: Path, node, where: str, seen: dict) -> None:
+    """Refuse a dataset whose declared shape is more than labrig reads in one run (the
+    CSV reader's limits: csvfile.MAX_ROWS samples a channel, MAX_MAT_BYTES in all),
+    from the file's metadata, before any of its data is read or allocated."""
+    import math
+
+    from labrig.io import csvfile
+
+    samples = max(node.shape, default=1)
+    if samples > csvfile.MAX_ROWS:
+        raise RunFileError(f"{path}: variable '{where}' declares {samples:,} samples, more "
+                           f"than labrig reads in one run ({csvfile.MAX_ROWS:,}); split the "
+                           "recording into shorter files")
+    nbytes = math.prod(node.shape) * node.dtype.itemsize
+    seen["bytes"] += nbytes
+    if seen["bytes"] > MAX_MAT_BYTES:
+        what = f"declares {nbytes / 1e9:.1f} GB" if nbytes > MAX_MAT_BYTES else \
+            f"brings the data read to {seen['bytes'] / 1e9:.1f} GB"
+        raise RunFileError(f"{path}: variable '{where}' {what}, more than labrig reads in one "
+                           f"run ({MAX_MAT_BYTES / 1e9:.0f} GB); save fewer or shorter "
+                           "channels")
 
 
 def _names(items) -> str:

@@ -52,6 +52,19 @@ class Run:
         return self.data["ref"].to_numpy(float) if "ref" in self.data else None
 
     @property
+    def measured(self) -> np.ndarray:
+        """True for each sample the bridge delivered; False for one the link lost
+        (``gap = 1``: interpolated to keep the time base, never data to fit)."""
+        if "gap" not in self.data:
+            return np.ones(len(self.data), bool)
+        return self.data["gap"].to_numpy(float) == 0
+
+    @property
+    def n_gaps(self) -> int:
+        """How many samples the link lost (rows with ``gap = 1``)."""
+        return int(len(self.data) - np.count_nonzero(self.measured))
+
+    @property
     def fs(self) -> float:
         return float(self.meta["sample_rate_hz"])
 
@@ -249,6 +262,7 @@ def read_run(path: Path | str) -> Run:
     meta = _read_sidecar(json_path, csv_path)
     data = read_run_csv(csv_path, float(meta["sample_rate_hz"]))
     _check_against_sidecar(csv_path, json_path, data, meta)
+    _check_gaps(csv_path, data)
     return Run(name=csv_path.stem, data=data, meta=meta, path=csv_path)
 
 
@@ -358,6 +372,23 @@ def _check_against_sidecar(csv_path, json_path, data, meta):
         if sensors.get(key) is None:
             raise RunFileError(f"{json_path}: key 'sensors.{key}' missing; it must be a "
                                f"nonzero number (the run has a '{col}' column to convert)")
+
+
+#: a run of which more than this share was lost on the link is not data
+MAX_GAP_SHARE = 0.5
+
+
+def _check_gaps(csv_path, data):
+    """Lost samples are interpolated to keep the time base; a run that is mostly
+    interpolation has too little measurement left to stand for the experiment."""
+    if "gap" not in data:
+        return
+    lost = int(np.count_nonzero(data["gap"].to_numpy(float)))
+    if lost > MAX_GAP_SHARE * len(data):
+        raise RunFileError(f"{csv_path}: {lost} of {len(data)} samples "
+                           f"({100 * lost / len(data):.0f} %) were lost on the link (gap = 1); "
+                           f"more than {MAX_GAP_SHARE:.0%} is not a measurement: record the "
+                           "run again (check the cable, or lower the sample rate)")
 
 
 def _check_speed_column(csv_path, json_path, data, meta):

@@ -173,7 +173,8 @@ def cross_validate(runs, model: Model, folds: Folds, *, sigmas, weights, seed: i
         sims = fm.simulate([runs[i] for i in test_idx])
         sq, cnt = 0.0, 0
         for i, s in zip(test_idx, sims):
-            r, m = prepared[i], fold.test[i]
+            r = prepared[i]
+            m = fold.test[i] & r.keep()  # a sample the link lost is not scored
             for ch, y, yh, sig, wt in (("speed", r.w, s["w"], sw, weights.q),
                                        ("position", r.theta, s["theta"], st, weights.p)):
                 if y is None:

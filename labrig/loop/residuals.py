@@ -155,10 +155,11 @@ def run_residuals(rd, sim: dict, sigma_w: float, sigma_theta: float,
                            ("position", rd.theta, sim["theta"], sigma_theta)):
         if y is None:
             continue
-        r = (y - yh) / sig
+        keep = rd.keep() if hasattr(rd, "keep") else np.ones(len(y), bool)
+        r = np.where(keep, (y - yh) / sig, 0.0)  # a sample the link lost is no evidence
         out["channels"][ch] = {"measured": y, "simulated": yh, "residual": r, "sigma": sig,
-                               "fit_percent": fit_percent(y, yh),
-                               "rmse_over_noise": float(np.sqrt(np.mean(r ** 2))),
+                               "fit_percent": fit_percent(y[keep], yh[keep]),
+                               "rmse_over_noise": float(np.sqrt(np.mean(r[keep] ** 2))),
                                "stretches": stretches(r, labels, width),
                                "autocorr": autocorr(r), "crosscorr": crosscorr(r, rd.u),
                                "band": Z99 / np.sqrt(len(r)),

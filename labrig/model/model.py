@@ -117,6 +117,11 @@ class Model:
         if missing:
             raise UserError(f"{origin}: key 'params.{missing[0]}' missing; a {structure} plant "
                             f"has {', '.join(PLANTS[structure].names)}")
+        extra = [k for k in doc["params"] if k not in PLANTS[structure].names]
+        if extra:  # R, L, K in a torque plant: the file and its structure disagree
+            raise UserError(f"{origin}: key 'params.{extra[0]}' is not a parameter of a "
+                            f"{structure} plant (it has {', '.join(PLANTS[structure].names)}); "
+                            "remove it, or fix 'structure'")
         effects = EffectSet.parse(doc.get("effects", []), origin=f"{origin}: key 'effects'")
         # a hand-written file may spell a catalogue effect in any case ("Deadband")
         eps = {catalogue_name(k): v for k, v in (doc.get("effect_params") or {}).items()}

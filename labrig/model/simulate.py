@@ -82,17 +82,26 @@ class RunData:
     pos_q: float = 0.0
     #: rotary (rad, rad/s) or linear (m, m/s)
     axis: str = "rotary"
+    #: False where the link lost the sample (the run's ``gap`` rows); None: all measured
+    measured: np.ndarray | None = None
+
+    def keep(self) -> np.ndarray:
+        """The samples that are measurements (every one unless the link lost some)."""
+        return np.ones(len(self.u), bool) if self.measured is None else self.measured
 
     @classmethod
     def from_run(cls, run) -> "RunData":
         th = run.position
         # start the model where the pot says the shaft is (the rig starts at rest)
-        theta0 = float(np.mean(th[: max(1, min(20, len(th) // 50))])) if th is not None else 0.0
+        first = np.flatnonzero(run.measured)[: max(1, min(20, len(th) // 50))] \
+            if th is not None else None  # a lost sample says nothing of where it starts
+        theta0 = float(np.mean(th[first])) if th is not None and len(first) else 0.0
         gains = run.gains or {"kp": 0.0, "kv": 0.0}  # open loop: no feedback
         return cls(name=run.name, u=run.u.astype(float), dt=run.dt, loop=run.loop,
                    kp=gains["kp"], kv=gains["kv"], **run.constants,
                    w=run.speed, theta=th, theta0=theta0, amplitude=run.amplitude,
-                   current=run.current, pos_q=run.pos_quantum, axis=run.axis)
+                   current=run.current, pos_q=run.pos_quantum, axis=run.axis,
+                   measured=run.measured if run.n_gaps else None)
 
 
 class _PlantView:
