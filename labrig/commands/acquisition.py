@@ -120,9 +120,17 @@ def cmd_import(args):
                       position_gain=args.position_gain, velocity_gain=args.velocity_gain,
                       drive=args.drive, axis=args.axis, input_gain=args.input_gain,
                       controller=parse_controller(args.controller),
-                      current_gain=args.current_gain)
+                      current_gain=args.current_gain, skip_rows=args.skip_rows,
+                      warn=_warn_line)
     print(f"wrote {path} and {path.with_suffix('.json').name}")
     return 0
+
+
+def _warn_line(text: str) -> None:
+    """An import's warning: one line on stderr; the import goes on (exit 0)."""
+    import sys
+
+    print(f"labrig: warning: {text}", file=sys.stderr, flush=True)
 
 
 def _configure_import(p):
@@ -144,16 +152,21 @@ def _configure_import(p):
     p.add_argument("--pos-unit", help="rad (default), deg, rev; linear: m (default), mm; "
                                       "counts:N for an encoder (N counts per revolution, or "
                                       "per metre on a linear axis)")
-    p.add_argument("--time-unit", default="s", help="s (default) or ms")
+    p.add_argument("--time-unit", help="s, ms or us (default: the unit row under the "
+                                       "header if it names one, else s)")
     p.add_argument("--tacho-gain", type=float_opt, help="V per rad/s, for tacho= in volts")
     p.add_argument("--pos-gain", type=float_opt, help="V per rad, for pos= in volts")
     p.add_argument("--pos-offset", type=float_opt, default=0.0, help="pot volts at 0 rad")
     p.add_argument("--current-gain", type=float_opt, default=1.0,
                    help="A per unit of the current= column (default 1: already in A)")
-    p.add_argument("--gear-ratio", type=float_opt, default=1.0, help="motor/output (default 1)")
+    p.add_argument("--gear-ratio", type=float_opt, help="motor/output (default 1)")
     p.add_argument("--amplifier-gain", type=float_opt, default=1.0,
                    help="voltage drive: armature volts per input volt (default 1)")
-    p.add_argument("--name", help="run name (default: the source file's stem)")
+    p.add_argument("--name", help="run name (default: the source file's stem, made safe "
+                                  "and, over 100 characters, cut with a short hash)")
+    p.add_argument("--skip-rows", type=int, metavar="N",
+                   help="a CSV's header row comes after N lines (default: the first of the "
+                        "first 100 lines that names every --map column)")
     p.add_argument("--waveform", default="custom",
                    choices=["square", "step", "staircase", "custom"],
                    help="what the input was (default custom)")

@@ -11,7 +11,6 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from labrig.core.fileio import not_regular
 from labrig.core.errors import RunFileError
 
 REQUIRED_COLUMNS = ("t", "u")
@@ -39,6 +38,12 @@ SYNONYMS = {"time": "t", "time_s": "t", "input": "u", "voltage": "u", "u_v": "u"
             "position": "pos", "angle": "pos", "theta": "pos", "reference": "ref",
             "i": "current", "ia": "current"}
 CHUNK_ROWS = 500_000
+#: the largest magnitude each column can physically hold, in its own unit: bridge and
+#: sensor volts (an input of 1e300 V is a broken export, not an experiment), N m or N
+#: of an imported torque/force, rad/s or m/s of an imported speed, a position in counts
+#: (an encoder's count accumulates), seconds
+COLUMN_LIMITS = {"t": 1e7, "u": 1e5, "ref": 1e5, "drive": 1e5, "tacho": 1e4,
+                 "current": 1e4, "speed": 1e7, "pos": 1e12}
 
 
 def _near_miss(col: str, present: list[str]) -> str | None:
@@ -95,6 +100,11 @@ def _cell_problem(cell) -> str:
     return f"non-numeric value {cell!r}"
 
 
+#: the run CSV's row and cell messages, shared with an export's reader (labrig.io.exportfile)
+parse_error = _parse_error
+cell_problem = _cell_problem
+
+
 def _locate_bad_cell(path: Path, columns: list[str]) -> RunFileError:
     """Stream the file as text to name the first cell that is not a finite number."""
     row0 = 2  # the header is row 1
@@ -141,6 +151,32 @@ def _read_numeric(path: Path, cols: list[str], numeric: list[str]) -> pd.DataFra
     return raw
 
 
+def check_ranges(path: Path, df: pd.DataFrame, names: dict | None = None,
+                 first_row: int = 2) -> None:
+    """Refuse a value no rig can produce (``COLUMN_LIMITS``) and a ``gap`` flag that is
+    not 0 or 1, naming the row (the file's line) and the column. ``names`` maps labrig's
+    column to the column's name in the file (an import's ``--map``); ``first_row`` is the
+    file's line of the first sample (after a header, a scope's preamble and unit rows)."""
+    names = names or {}
+    for col, limit in COLUMN_LIMITS.items():
+        if col not in df:
+            continue
+        v = np.abs(df[col].to_numpy(float))
+        if v.max(initial=0.0) > limit:
+            i = int(np.argmax(v > limit))
+            raise RunFileError(f"{path}: row {first_row + i}, column '{names.get(col, col)}': "
+                               f"{df[col].iloc[i]:g} is outside any physical range of "
+                               f"'{col}' (|value| <= {limit:g}); is the column or its unit "
+                               "right?")
+    if "gap" in df:
+        g = df["gap"].to_numpy(float)
+        bad = (g != 0) & (g != 1)
+        if bad.any():
+            i = int(np.argmax(bad))
+            raise RunFileError(f"{path}: row {first_row + i}, column 'gap': {g[i]:g}; a gap flag is "
+                               "1 for a sample the link lost and 0 for a measured one")
+
+
 def read_run_csv(csv_path: Path, fs: float | None = None) -> pd.DataFrame:
     cols = _read_header(csv_path, "; expected a header row t,u,tacho,pos and one row per "
                                   "sample")
@@ -165,6 +201,7 @@ def read_run_csv(csv_path: Path, fs: float | None = None) -> pd.DataFrame:
     df = _read_numeric(csv_path, cols, numeric)
     if len(df) < 2:
         raise RunFileError(f"{csv_path}: only {len(df)} data row(s); a run needs samples")
+    check_ranges(csv_path, df)
     # unknown columns are carried along as text, never used
     t = df["t"].to_numpy()
     dt = np.diff(t)
@@ -187,26 +224,3 @@ def read_run_csv(csv_path: Path, fs: float | None = None) -> pd.DataFrame:
                            f"{step:g} s; t must be uniform (resample, split the run where "
                            "the rate changes, or a sample was lost)")
     return df
-
-
-def read_csv_columns(path: Path | str, columns: list[str]) -> dict[str, np.ndarray]:
-    """Named numeric columns of a foreign CSV (an export to import), with the same
-    row/column errors and memory bounds as a run file."""
-    path = Path(path)
-    what = not_regular(path)
-    if what:
-        raise RunFileError(f"{path}: is {what}, not a data file; give a regular file")
-    if not path.is_file():
-        raise RunFileError(f"{path}: file not found")
-    cols = _read_header(path)
-    _no_duplicates(path, cols)
-    for c in columns:
-        if c not in cols:
-            close = difflib.get_close_matches(c, cols, n=1, cutoff=0.6)
-            hint = f" (did you mean '{close[0]}'?)" if close else ""
-            raise RunFileError(f"{path}: column '{c}' not found{hint}; the header has "
-                               f"{', '.join(cols)}")
-    raw = _read_numeric(path, cols, list(dict.fromkeys(columns)))
-    if len(raw) < 2:
-        raise RunFileError(f"{path}: fewer than two data rows")
-    return {c: raw[c].to_numpy(float) for c in columns}

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import hashlib
 import math
 import re
 from pathlib import Path
@@ -25,7 +26,7 @@ import pandas as pd
 from labrig.core.errors import RunFileError, UserError
 from labrig.model.plants import AXES, check_axis
 from labrig.core.schemas import Controller, check_run_name
-from labrig.io.csvfile import read_csv_columns
+from labrig.io.exportfile import CsvLayout, read_export
 from labrig.io.runs import Run, make_meta, write_run
 
 #: physical units per axis -> factor to the axis's SI unit
@@ -33,7 +34,13 @@ SPEED_UNITS = {"rotary": {"rad/s": 1.0, "rpm": 2 * math.pi / 60.0, "deg/s": math
                "linear": {"m/s": 1.0, "mm/s": 1e-3}}
 POS_UNITS = {"rotary": {"rad": 1.0, "deg": math.pi / 180.0, "rev": 2 * math.pi},
              "linear": {"m": 1.0, "mm": 1e-3}}
-TIME_UNITS = {"s": 1.0, "ms": 1e-3}
+TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6}
+#: a unit row's time units (Keysight "second", PicoScope "(ms)", Rigol "Sequence": the
+#: sample's number, times the Increment of that row)
+UNIT_ROW_TIME = {"s": "s", "sec": "s", "second": "s", "seconds": "s", "ms": "ms",
+                 "us": "us", "\u00b5s": "us", "\u03bcs": "us", "sequence": "sequence"}
+#: the longest run name (labrig.core.schemas.RUN_NAME_RE)
+MAX_NAME = 100
 MAP_TARGETS = ("t", "u", "speed", "pos", "tacho", "ref", "current")
 
 
@@ -113,27 +120,79 @@ def _factor(opt, unit, table, axis):
                     + (", counts:N" if opt == "--pos-unit" else ""))
 
 
-def read_columns(src: Path, columns: list[str]) -> dict:
-    """Named channels of a CSV export or a MATLAB .mat file."""
+def read_columns(src: Path, columns: list[str],
+                 skip_rows: int | None = None) -> tuple[dict, CsvLayout | None]:
+    """Named channels of a CSV export (and where its header and data were found) or of a
+    MATLAB .mat file (no layout)."""
     if src.suffix.lower() == ".mat":
         from labrig.io.matfile import read_mat_columns
 
-        return read_mat_columns(src, columns)
-    return read_csv_columns(src, columns)
+        if skip_rows is not None:
+            raise UserError(f"--skip-rows: only for a CSV export; {src.name} is a MATLAB file")
+        return read_mat_columns(src, columns), None
+    return read_export(src, columns, skip_rows)
+
+
+def default_name(src: Path) -> str:
+    """A run name from the source file's stem: made safe (a file name may hold spaces or
+    brackets, a run name may not) and, over MAX_NAME characters, cut with a short hash of
+    the whole stem so that two long names stay apart."""
+    name = re.sub(r"[^A-Za-z0-9_.+\-]", "_", src.stem).lstrip(".") or "run"
+    if len(name) > MAX_NAME:
+        digest = hashlib.sha1(src.stem.encode("utf-8", "surrogateescape")).hexdigest()[:8]
+        name = f"{name[:MAX_NAME - 9]}-{digest}"
+    return name
+
+
+def time_factor(src: Path, column: str, layout: CsvLayout | None,
+                time_unit: str | None) -> float:
+    """Seconds per unit of the time column: --time-unit, else the unit row's (a Rigol
+    'Sequence' column counts samples: its unit row's Increment is the step), else s."""
+    cell = layout.unit(column) if layout is not None else ""
+    said = UNIT_ROW_TIME.get(cell.strip("()[] ").lower())
+    if said == "sequence":
+        inc = None
+        if "Increment" in layout.header:
+            k = layout.header.index("Increment")
+            try:
+                inc = float(layout.unit_row[k]) if k < len(layout.unit_row) else None
+            except ValueError:
+                inc = None
+        if inc is None or not math.isfinite(inc) or inc <= 0:
+            raise RunFileError(f"{src}: column '{column}' numbers the samples (its unit row "
+                               "says 'Sequence') and the file gives no Increment > 0; map a "
+                               "time column")
+        if time_unit is not None:
+            raise UserError(f"--time-unit: column '{column}' of {src.name} numbers the "
+                            f"samples and its Increment ({inc:g} s) makes them seconds; "
+                            "drop --time-unit")
+        return inc
+    if said is not None and time_unit is not None and said != time_unit:
+        raise UserError(f"--time-unit: {time_unit}, but column '{column}' of {src.name} is "
+                        f"in {said} (its unit row says {cell!r}); drop --time-unit or fix it")
+    return TIME_UNITS[time_unit or said or "s"]
+
+
+def _warn(text: str) -> None:
+    import warnings
+
+    warnings.warn(text, UserWarning, stacklevel=3)
 
 
 @dataclass(frozen=True)
 class ImportOptions:
     """How to read a foreign file: units, sensor gains, the plant and the loop (the
-    options of ``labrig import``, with its defaults)."""
+    options of ``labrig import``, with its defaults). ``time_unit`` None is the unit
+    row's, else s; ``gear_ratio`` None is 1, not said (counts then warn); ``skip_rows``
+    the lines before a CSV's header when the search for it cannot find it."""
 
     speed_unit: str | None = None
     pos_unit: str | None = None
-    time_unit: str = "s"
+    time_unit: str | None = None
     tacho_gain: float | None = None
     pos_gain: float | None = None
     pos_offset: float = 0.0
-    gear_ratio: float = 1.0
+    gear_ratio: float | None = None
     amplifier_gain: float = 1.0
     waveform: str = "custom"
     loop: str = "open"
@@ -144,23 +203,26 @@ class ImportOptions:
     input_gain: float | None = None
     controller: dict | None = None
     current_gain: float = 1.0
+    skip_rows: int | None = None
 
 
 def import_csv(src: Path | str, outdir: Path | str, mapping: dict[str, str],
                options: ImportOptions | None = None, *, name: str | None = None,
-               overwrite: bool = False, **settings) -> Path:
+               overwrite: bool = False, warn=None, **settings) -> Path:
     """Convert a foreign CSV or .mat file into a labrig run in ``outdir``; return the CSV path.
 
     ``options`` (or its fields as keywords, ``settings``) say how to read the file;
     ``drive`` and ``axis`` choose the plant (:mod:`labrig.model.plants`); a torque/force
     drive needs ``input_gain`` (N m or N per input volt). In closed loop a mapped ``ref``
     is the loop's reference and ``u`` the logged controller output (kept as ``drive``).
+    ``warn(text)`` is told what is imported but probably not meant (default: a
+    UserWarning).
     """
     o = options if options is not None else ImportOptions(**settings)
     axis, pos_unit, speed_unit = o.axis, o.pos_unit, o.speed_unit
     src = Path(src)
-    if name is None:  # a file name may hold spaces or brackets; a run name may not
-        name = re.sub(r"[^A-Za-z0-9_.+\-]", "_", src.stem).lstrip(".") or "run"
+    if name is None:  # from the file's stem, made a safe run name
+        name = default_name(src)
     check_run_name(name, "--name")
     if axis is None:  # from the drive; a unit never switches the plant behind the user
         axis = "linear" if o.drive == "force" else "rotary"
@@ -168,7 +230,7 @@ def import_csv(src: Path | str, outdir: Path | str, mapping: dict[str, str],
     pos_unit = pos_unit or next(iter(POS_UNITS[axis]))
     speed_unit = speed_unit or next(iter(SPEED_UNITS[axis]))
     counts_per_unit, pos_factor, speed_factor = _units(axis, pos_unit, speed_unit)
-    if o.time_unit not in TIME_UNITS:
+    if o.time_unit is not None and o.time_unit not in TIME_UNITS:
         raise UserError(f"--time-unit: unknown unit '{o.time_unit}'; expected one of "
                         f"{', '.join(TIME_UNITS)}")
     for opt, val, positive in (("--tacho-gain", o.tacho_gain, False), ("--pos-gain", o.pos_gain, False),
@@ -190,7 +252,7 @@ def import_csv(src: Path | str, outdir: Path | str, mapping: dict[str, str],
     if o.drive == "voltage" and o.input_gain is not None:
         raise UserError("--input-gain: only for --drive torque or force; a voltage drive's "
                         "gain is --amplifier-gain")
-    if axis == "linear" and o.gear_ratio != 1.0:
+    if axis == "linear" and o.gear_ratio not in (None, 1.0):
         raise UserError("--gear-ratio: a linear axis has none (positions are the carriage's)")
     if o.loop not in ("open", "closed"):
         raise UserError(f"--loop: expected open or closed, got '{o.loop}'")
@@ -219,8 +281,12 @@ def import_csv(src: Path | str, outdir: Path | str, mapping: dict[str, str],
         raise UserError("--pos-gain is needed with raw-volt columns (tacho=...,pos=...)")
     if "tacho" in mapping and o.tacho_gain is None:
         raise UserError("--tacho-gain (V per rad/s) is needed when mapping raw tacho volts")
-    frame = read_columns(src, list(mapping.values()))
-    t = frame[mapping["t"]] * TIME_UNITS[o.time_unit]
+    if o.skip_rows is not None and (isinstance(o.skip_rows, bool)
+                                    or not isinstance(o.skip_rows, int)):
+        raise UserError(f"--skip-rows: {o.skip_rows!r} is not a number of lines")
+    frame, layout = read_columns(src, list(mapping.values()), o.skip_rows)
+    first_row = layout.first_row if layout is not None else 2  # the file's line of sample 0
+    t = frame[mapping["t"]] * time_factor(src, mapping["t"], layout, o.time_unit)
     t = t - t[0]
     closed_ref = o.loop == "closed" and "ref" in mapping
     # in closed loop the run's u is the reference; a logged controller output is 'drive'
@@ -228,6 +294,7 @@ def import_csv(src: Path | str, outdir: Path | str, mapping: dict[str, str],
     if closed_ref and "u" in mapping:
         cols["drive"] = frame[mapping["u"]]
     sensors = {}
+    notes = []  # warnings, told once the run is written (an error stays one line)
     if "speed" in mapping:  # physical speed: kept as speed, never as made-up tacho volts
         cols["speed"] = frame[mapping["speed"]] * speed_factor
         sensors["speed_unit"] = AXES[axis][1]
@@ -236,6 +303,12 @@ def import_csv(src: Path | str, outdir: Path | str, mapping: dict[str, str],
         sensors["tacho_v_per_rad_s"] = float(o.tacho_gain)
     if "pos" in mapping:
         if counts_per_unit is not None:  # encoder counts, kept as counts
+            if axis == "rotary" and o.gear_ratio is None:
+                notes.append(f"{src.name}: --pos-unit {pos_unit} counts per turn of the "
+                             "output shaft and no --gear-ratio was given, so the motor is "
+                             "taken to be that shaft (ratio 1); for an encoder on a geared "
+                             "motor add --gear-ratio N and give counts:(counts per motor "
+                             "turn x N)")
             cols["pos"] = frame[mapping["pos"]]
             sensors.update(pos_v_per_rad=counts_per_unit, pos_offset_v=0.0, pos_kind="encoder",
                            pos_quantum=1.0 / counts_per_unit)
@@ -255,12 +328,16 @@ def import_csv(src: Path | str, outdir: Path | str, mapping: dict[str, str],
     dt = np.diff(t)
     if (dt <= 0).any():
         i = int(np.argmax(dt <= 0))
-        raise RunFileError(f"{src}: row {i + 3}, column '{mapping['t']}': time is not "
-                           "increasing; sort the export or remove repeated rows")
+        raise RunFileError(f"{src}: row {first_row + i + 1}, column '{mapping['t']}': time "
+                           "is not increasing; sort the export or remove repeated rows")
     fs = 1.0 / float(np.median(dt))
     if abs(fs - round(fs)) < 1e-3 * fs:
         fs = float(round(fs))
-    rig = {"gear_ratio": float(o.gear_ratio), "amplifier_gain": float(o.amplifier_gain),
+    from labrig.io.csvfile import check_ranges  # before anything is written
+
+    check_ranges(src, pd.DataFrame(cols), mapping, first_row)
+    rig = {"gear_ratio": float(o.gear_ratio if o.gear_ratio is not None else 1.0),
+           "amplifier_gain": float(o.amplifier_gain),
            "name": f"imported from {src.name}", "drive": o.drive, "axis": axis}
     if o.input_gain is not None:
         rig["input_gain"] = float(o.input_gain)
@@ -277,4 +354,6 @@ def import_csv(src: Path | str, outdir: Path | str, mapping: dict[str, str],
     from labrig.io.runs import read_run  # validate what we wrote, exactly as every reader will
 
     read_run(path)
+    for text in notes:
+        (warn or _warn)(text)
     return path

@@ -1,4 +1,4 @@
-"""Named channels of a MATLAB .mat file, read like ``csvfile.read_csv_columns`` reads a CSV.
+"""Named channels of a MATLAB .mat file, read like ``exportfile.read_csv_columns`` reads a CSV.
 
 MAT v4, v6 and v7 files are read with :func:`scipy.io.loadmat`; v7.3 files are HDF5 and
 are read with h5py when it is installed. A channel is a numeric vector named by its
