@@ -222,3 +222,22 @@ def test_diagnose_task_finds_the_hidden_friction(class_dir):
     assert row["status"] == "ok", row["error"]
     assert "coulomb_friction" in row["figures"]["effects"] or "deadband" in row["figures"]["effects"]
     assert np.isfinite(row["figures"]["rmse_over_noise"])
+
+
+def test_a_link_out_of_a_hand_in_is_not_followed(class_dir, tmp_path):
+    """A hand-in is read with the grader's rights: a run file that links outside its
+    folder (to another student's work, to a system file) is a failed row, never read."""
+    secret = tmp_path / "secret.csv"
+    secret.write_text("t,u,tacho\nroot:x:0:0,1,2\n")
+    hand = tmp_path / "hand"
+    hand.mkdir()
+    src = _folders(class_dir)[1]
+    for g in src.iterdir():
+        (hand / g.name).write_bytes(g.read_bytes())
+    victim = sorted(hand.glob("*.csv"))[0]
+    victim.unlink()
+    victim.symlink_to(secret)
+    res = run_batch("analyse", [hand])
+    row = res.rows[0]
+    assert row["status"] == "failed" and "outside the folder" in row["error"]
+    assert "root:x" not in row["error"]  # nothing of the linked file

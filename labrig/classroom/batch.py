@@ -166,7 +166,12 @@ def read_folder(folder: Path) -> dict[str, bytes]:
     if not folder.is_dir():
         raise UserError(f"{folder}: not a folder of runs")
     files, total = {}, 0
+    inside = folder.resolve()
     for p in sorted(folder.iterdir()):
+        if p.is_symlink() and _KEPT.match(p.name) and inside not in p.resolve().parents:
+            # a hand-in is read by the grader's account: a link must not reach its files
+            raise UserError(f"{folder}: {p.name} is a link to a file outside the folder; "
+                            "copy the file into the folder instead")
         if p.is_file() and _KEPT.match(p.name):
             total += p.stat().st_size
             if total > MAX_FOLDER_BYTES:
