@@ -304,8 +304,8 @@ def run_batch(task: str, folders, *, options: dict | None = None, jobs: int = 1,
         engine = f"joblib, {jobs} process{'es' if jobs > 1 else ''}"
         for k, row in _joblib(jobs, task, work, options, threads=max(1, n // jobs)):
             _finish(rows, k, folders, names, row, progress)
-    return BatchResult(task=_task(task).name, rows=rows, engine=engine,
-                       figures=tuple(_task(task).figures))
+    spec = _task(task)
+    return BatchResult(task=spec.name, rows=rows, engine=engine, figures=tuple(spec.figures))
 
 
 def _finish(rows, k, folders, names, row, progress):

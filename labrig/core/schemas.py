@@ -27,9 +27,11 @@ from labrig.core.errors import UserError
 MAX_JSON_BYTES = 8 * 1024 * 1024
 #: run names: letters, digits and ``_ . + -``, not starting with a dot; they become file
 #: names, so nothing that could climb out of the output folder (``/``, ``..``)
-RUN_NAME_RE = re.compile(r"[A-Za-z0-9_+\-][A-Za-z0-9_.+\-]{0,99}")
+#: the longest run name (characters)
+RUN_NAME_MAX = 100
+RUN_NAME_RE = re.compile(r"[A-Za-z0-9_+\-][A-Za-z0-9_.+\-]{0,%d}" % (RUN_NAME_MAX - 1))
 RUN_NAME_RULE = ("a run name uses letters, digits and _ . + - only, does not start with "
-                 "a dot and has at most 100 characters")
+                 f"a dot and has at most {RUN_NAME_MAX} characters")
 
 
 def check_run_name(name: Any, where: str = "run name") -> str:

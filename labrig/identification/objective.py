@@ -140,10 +140,11 @@ class Objective:
         #: the link lost); None: all
         self.masks = None if masks is None else [np.asarray(m, bool) for m in masks]
         if any(r.measured is not None for r in self.runs):
-            self.masks = [r.keep() & (True if self.masks is None else self.masks[j])
+            self.masks = [r.keep() if self.masks is None else self.masks[j] & r.keep()
                           for j, r in enumerate(self.runs)]
         #: samples lost on the link, left out of the fit
-        self.n_gaps = sum(len(r.u) - int(r.keep().sum()) for r in self.runs)
+        self.n_gaps = sum(int(np.count_nonzero(~r.measured)) for r in self.runs
+                          if r.measured is not None)
         counts = [len(r.u) if self.masks is None else int(m.sum())
                   for r, m in zip(self.runs, self.masks or [None] * len(self.runs))]
         self.n_w = sum(c for r, c in zip(self.runs, counts) if r.w is not None) if self.use_w else 0
@@ -237,7 +238,7 @@ def adequacy(runs, sims, sigma_w, sigma_theta, p=1.0, q=1.0, index=0, sigma_i=No
     per_run = {}
     for r, s in zip(runs, sims):
         entry = {}
-        keep = r.keep() if hasattr(r, "keep") else slice(None)  # lost samples: no residual
+        keep = r.keep()  # a sample the link lost has no residual
         for ch, y, yh, sig in (("speed", r.w, s["w"][index], sigma_w),
                                ("position", r.theta, s["theta"][index], sigma_theta),
                                ("current", getattr(r, "current", None) if sigma_i else None,

@@ -25,7 +25,7 @@ import pandas as pd
 
 from labrig.core.errors import RunFileError, UserError
 from labrig.model.plants import AXES, check_axis
-from labrig.core.schemas import Controller, check_run_name
+from labrig.core.schemas import RUN_NAME_MAX, Controller, check_run_name
 from labrig.io.exportfile import CsvLayout, read_export
 from labrig.io.runs import Run, make_meta, write_run
 
@@ -39,8 +39,6 @@ TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6}
 #: sample's number, times the Increment of that row)
 UNIT_ROW_TIME = {"s": "s", "sec": "s", "second": "s", "seconds": "s", "ms": "ms",
                  "us": "us", "\u00b5s": "us", "\u03bcs": "us", "sequence": "sequence"}
-#: the longest run name (labrig.core.schemas.RUN_NAME_RE)
-MAX_NAME = 100
 MAP_TARGETS = ("t", "u", "speed", "pos", "tacho", "ref", "current")
 
 
@@ -135,12 +133,12 @@ def read_columns(src: Path, columns: list[str],
 
 def default_name(src: Path) -> str:
     """A run name from the source file's stem: made safe (a file name may hold spaces or
-    brackets, a run name may not) and, over MAX_NAME characters, cut with a short hash of
+    brackets, a run name may not) and, over RUN_NAME_MAX characters, cut with a short hash of
     the whole stem so that two long names stay apart."""
     name = re.sub(r"[^A-Za-z0-9_.+\-]", "_", src.stem).lstrip(".") or "run"
-    if len(name) > MAX_NAME:
+    if len(name) > RUN_NAME_MAX:
         digest = hashlib.sha1(src.stem.encode("utf-8", "surrogateescape")).hexdigest()[:8]
-        name = f"{name[:MAX_NAME - 9]}-{digest}"
+        name = f"{name[:RUN_NAME_MAX - 9]}-{digest}"
     return name
 
 

@@ -62,7 +62,7 @@ class Run:
     @property
     def n_gaps(self) -> int:
         """How many samples the link lost (rows with ``gap = 1``)."""
-        return int(len(self.data) - np.count_nonzero(self.measured))
+        return int(np.count_nonzero(self.data["gap"].to_numpy())) if "gap" in self.data else 0
 
     @property
     def fs(self) -> float:
@@ -262,8 +262,9 @@ def read_run(path: Path | str) -> Run:
     meta = _read_sidecar(json_path, csv_path)
     data = read_run_csv(csv_path, float(meta["sample_rate_hz"]))
     _check_against_sidecar(csv_path, json_path, data, meta)
-    _check_gaps(csv_path, data)
-    return Run(name=csv_path.stem, data=data, meta=meta, path=csv_path)
+    run = Run(name=csv_path.stem, data=data, meta=meta, path=csv_path)
+    _check_gaps(run)
+    return run
 
 
 def read_dataset(paths) -> list[Run]:
@@ -378,15 +379,13 @@ def _check_against_sidecar(csv_path, json_path, data, meta):
 MAX_GAP_SHARE = 0.5
 
 
-def _check_gaps(csv_path, data):
+def _check_gaps(run: Run):
     """Lost samples are interpolated to keep the time base; a run that is mostly
     interpolation has too little measurement left to stand for the experiment."""
-    if "gap" not in data:
-        return
-    lost = int(np.count_nonzero(data["gap"].to_numpy(float)))
-    if lost > MAX_GAP_SHARE * len(data):
-        raise RunFileError(f"{csv_path}: {lost} of {len(data)} samples "
-                           f"({100 * lost / len(data):.0f} %) were lost on the link (gap = 1); "
+    lost, n = run.n_gaps, len(run)
+    if lost > MAX_GAP_SHARE * n:
+        raise RunFileError(f"{run.path}: {lost} of {n} samples "
+                           f"({100 * lost / n:.0f} %) were lost on the link (gap = 1); "
                            f"more than {MAX_GAP_SHARE:.0%} is not a measurement: record the "
                            "run again (check the cable, or lower the sample rate)")
 

@@ -155,7 +155,7 @@ def run_residuals(rd, sim: dict, sigma_w: float, sigma_theta: float,
                            ("position", rd.theta, sim["theta"], sigma_theta)):
         if y is None:
             continue
-        keep = rd.keep() if hasattr(rd, "keep") else np.ones(len(y), bool)
+        keep = rd.keep()
         r = np.where(keep, (y - yh) / sig, 0.0)  # a sample the link lost is no evidence
         out["channels"][ch] = {"measured": y, "simulated": yh, "residual": r, "sigma": sig,
                                "fit_percent": fit_percent(y[keep], yh[keep]),
