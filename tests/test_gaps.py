@@ -160,3 +160,25 @@ def test_an_import_outside_any_physical_range_writes_nothing(tmp_path, capsys):
     _expect_user_error(capsys, ["import", src, "--map", "t=Time,u=CH1,speed=CH2", "-o",
                                 tmp_path / "out"], "column 'CH1'", "outside any physical range")
     assert not list((tmp_path / "out").glob("*.json")) if (tmp_path / "out").exists() else True
+
+
+def test_compare_counts_and_draws_lost_samples_as_gaps(clean_and_lossy, tmp_path):
+    """The model-vs-measurement view: a lost stretch is a break in the lines, shaded and
+    labelled, never a residual of zero that looks like a perfect fit; the counts and the
+    regime table leave it out."""
+    import matplotlib
+
+    matplotlib.use("Agg", force=True)
+    _, lossy, lost = clean_and_lossy
+    ev = lr.compare(lossy, lr.identify(lossy))
+    total = sum(len(r.u) for r in lr.read_runs(lossy))
+    assert ev.metrics["counts"] == {"speed": total - lost, "position": total - lost}
+    assert ev.n == 2 * (total - lost)
+    fig = ev.plot(run="sq_1.20V")
+    fig.savefig(tmp_path / "lossy_compare.png", dpi=60)
+    resid = fig.axes[1]
+    line = resid.get_lines()[0].get_ydata()
+    rr = next(r for r in ev.per_run if r["name"] == "sq_1.20V")
+    assert np.isnan(line[rr["lost"]]).all() and np.isfinite(line[~rr["lost"]]).all()
+    labels = [h.get_label() for h in resid.patches]
+    assert "lost on the link (not fitted)" in labels

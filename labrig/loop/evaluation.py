@@ -161,9 +161,11 @@ def evaluate(runs, model: Model, sigmas=None, weights: Weights | None = None) ->
     quanta = {ch: f.q for ch, f in obj.floors.items()}
     per_run = [run_residuals(rd, {"w": s["w"][0], "theta": s["theta"][0]}, obj.sigma_w,
                              obj.sigma_theta, quanta) for rd, s in zip(obj.runs, sims)]
-    r = np.concatenate([c["residual"] for rr in per_run for c in rr["channels"].values()])
-    metrics["counts"] = {ch: sum(len(rr["channels"][ch]["residual"]) for rr in per_run
-                                 if ch in rr["channels"]) for ch in ("speed", "position")}
+    kept = [(rr["channels"], slice(None) if rr["lost"] is None else ~rr["lost"])
+            for rr in per_run]  # a sample the link lost is not counted
+    r = np.concatenate([c["residual"][k] for chans, k in kept for c in chans.values()])
+    metrics["counts"] = {ch: sum(len(chans[ch]["residual"][k]) for chans, k in kept
+                                 if ch in chans) for ch in ("speed", "position")}
     rho1 = float(np.mean([autocorr(c["residual"], 1)[0] for rr in per_run
                           for c in rr["channels"].values()]))
     return Evaluation(metrics=metrics, per_run=per_run, regimes=regime_table(per_run),

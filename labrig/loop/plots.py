@@ -44,10 +44,11 @@ def plot_run_comparison(rr: dict, ax=None, title: str = ""):
     gs = fig.add_gridspec(2 * len(chans) + 1, 2, height_ratios=[3, 2] * len(chans) + [2.2])
     t = rr["t"]
     units = _units(rr)
+    lost = rr.get("lost")
     for i, ch in enumerate(chans):
         c = rr["channels"][ch]
         ax = fig.add_subplot(gs[2 * i, :])
-        ax.plot(t, c["measured"], color="0.25", lw=1.0, label="measured")
+        ax.plot(t, _broken(c["measured"], lost), color="0.25", lw=1.0, label="measured")
         ax.plot(t, c["simulated"], color="tab:red", lw=1.0, ls="--",
                 label=f"model (fit {c['fit_percent']:.1f} %)")
         ax.set_ylabel(f"{ch}\n{units[ch]}")
@@ -55,7 +56,12 @@ def plot_run_comparison(rr: dict, ax=None, title: str = ""):
         ax.grid(alpha=0.3)
         ax.set_xlim(t[0], t[-1])
         ax2 = fig.add_subplot(gs[2 * i + 1, :], sharex=ax)
-        ax2.plot(t, c["residual"], color="0.3", lw=0.6)
+        ax2.plot(t, _broken(c["residual"], lost), color="0.3", lw=0.6)
+        for k, (a, b) in enumerate(_runs_of(lost)):  # what the link lost: no evidence
+            for axis in (ax, ax2):
+                axis.axvspan(t[a], t[min(b, len(t) - 1)], color="0.6", alpha=0.35, lw=0,
+                             label="lost on the link (not fitted)" if k == 0 and axis is ax2
+                             else None)
         _quantum_band(ax2, c, units[ch])
         ax2.axhspan(-1, 1, color="tab:green", alpha=0.15, label="noise band (+-1 sigma)")
         seen = set()
@@ -88,6 +94,19 @@ def plot_run_comparison(rr: dict, ax=None, title: str = ""):
     fig.suptitle(title or f"{rr['name']}: model vs measurement", fontsize=11)
     fig.tight_layout()
     return fig
+
+
+def _broken(y, lost):
+    """``y`` with the samples the link lost left out of the line (NaN breaks it)."""
+    return y if lost is None else np.where(lost, np.nan, y)
+
+
+def _runs_of(mask) -> list:
+    """(start, stop) of each stretch where ``mask`` is True."""
+    if mask is None or not mask.any():
+        return []
+    d = np.diff(np.concatenate([[0], mask.astype(np.int8), [0]]))
+    return list(zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1)))
 
 
 def _quantum_band(ax, c: dict, unit: str) -> None:

@@ -147,7 +147,10 @@ def run_residuals(rd, sim: dict, sigma_w: float, sigma_theta: float,
     quanta = quanta or {}
     w_ref = rd.w if rd.w is not None else np.gradient(rd.theta * rd.N, rd.dt)
     labels = label_regimes(rd.u, w_ref)
+    keep = rd.keep()
     out = {"name": rd.name, "labels": labels, "amplitude": rd.amplitude, "loop": rd.loop,
+           # samples the link lost: residual 0 (no evidence), drawn as gaps, not counted
+           "lost": None if keep.all() else ~keep,
            "t": np.arange(len(rd.u)) * rd.dt, "channels": {},
            "units": AXIS_UNITS[getattr(rd, "axis", "rotary")]}
     width = max(3, int(0.02 / rd.dt))  # 20 ms: long enough to beat the noise, short for edges
@@ -155,7 +158,6 @@ def run_residuals(rd, sim: dict, sigma_w: float, sigma_theta: float,
                            ("position", rd.theta, sim["theta"], sigma_theta)):
         if y is None:
             continue
-        keep = rd.keep()
         r = np.where(keep, (y - yh) / sig, 0.0)  # a sample the link lost is no evidence
         out["channels"][ch] = {"measured": y, "simulated": yh, "residual": r, "sigma": sig,
                                "fit_percent": fit_percent(y[keep], yh[keep]),
@@ -185,9 +187,11 @@ def regime_table(per_run: list[dict]) -> dict:
             c = rr["channels"].get(ch)
             if c is None:
                 continue
-            r2 = c["residual"] ** 2
+            keep = np.ones(len(c["residual"]), bool) if rr.get("lost") is None else ~rr["lost"]
+            r2 = c["residual"][keep] ** 2  # a sample the link lost is not counted
+            labels = rr["labels"][keep]
             for reg in REGIMES:
-                m = rr["labels"] == reg
+                m = labels == reg
                 if m.any():
                     a = acc.setdefault(reg, [0.0, 0])
                     a[0] += float(r2[m].sum())
