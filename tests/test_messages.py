@@ -224,31 +224,39 @@ def test_the_cli_ranking_carries_the_notes(saved):
 
 # -- 4. one "separation" -----------------------------------------------------------------
 
-def test_separation_is_the_decisions_ratio_and_a_proposal_says_predicted_difference():
+def test_separation_is_the_decisions_ratio_and_a_proposal_predicts_that_one():
+    """A proposal's "separation" is the decision's measure (worse rmse/noise over better,
+    minus one), said with its definition wherever it appears; its sum of squares is the
+    "predicted difference"."""
     from labrig.loop.decide import Decision
     from labrig.loop.inputs import Candidate as Input
-    from labrig.loop.propose import Hypothesis, Judged, Proposal
+    from labrig.loop.propose import SEPARATION, Hypothesis, Judged, Proposal
 
     model = SimpleNamespace(describe=lambda: "a model")
     inp = Input("ramp", [[0.0, 0.0], [5.0, 1.2], [10.0, -1.2]], "ramp through zero +-1.2 V")
     chosen = Judged(inp, naive=900.0, robust=400.0,
-                    refit={"deadband": 300.0, "coulomb_friction": 350.0})
+                    refit={"deadband": 1.3, "coulomb_friction": 2.1})
     prop = Proposal(pair=("deadband", "coulomb_friction"),
                     hypotheses=[Hypothesis("deadband", model, 1.0),
                                 Hypothesis("coulomb_friction", model, 1.1)],
                     judged=[chosen], chosen=chosen, sigmas={}, template=SimpleNamespace(fs=200.0),
                     budget_s=20.0, amax=2.5, plausible=[1, 1])
+    assert SEPARATION == "worse rmse/noise over better, minus one"
     text = prop.to_text()
     comments = [line for line in prop.to_toml().splitlines() if line.startswith("#")]
     notes = [n for t in prop.table_rows() for n in t.notes]
     for said in (text, "\n".join(comments), "\n".join(notes)):
-        assert "separation" not in said.lower(), said
-    assert DIFFERENCE in text
+        for line in said.splitlines():
+            if "separation" in line.lower() and not line.startswith("  input "):
+                # never without what it means (the table's column: defined above it)
+                assert f"separation ({SEPARATION})" in line.lower(), line
+    assert DIFFERENCE in text and "1.30 with deadband true" in text
     assert any(DIFFERENCE.capitalize() in line for line in comments), comments
     assert any("predicted difference (sum of squared differences of the two predictions, in "
                "noise units)" in n for n in notes)
     assert set(prop.to_json()["proposed"]["separation"]) == {"naive", "after_refit",
                                                               "worst_after_refit"}
+    assert prop.to_json()["proposed"]["separation"]["worst_after_refit"] == 1.3
 
     d = Decision(("deadband", "coulomb_friction"), {"deadband": 1.0, "coulomb_friction": 1.05},
                  {"deadband": 1.0, "coulomb_friction": 2.0}, ["proposed"])

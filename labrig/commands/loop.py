@@ -216,6 +216,11 @@ def _ask_rig(args, runs, res) -> dict:
     with Progress("ask the rig", total=None) as bar:
         prop = propose(runs, res.model, f"{first},{second}", budget_s=args.budget_s,
                        seed=args.seed, log=bar.log, rig=rig)
+        if not prop.separates:   # nothing worth playing: the rig is not asked
+            return {"pair": list(prop.pair), "proposal": prop.to_json(), "folder": None,
+                    "decision": None,
+                    "text": f"asked the rig nothing: no input within {args.budget_s:g} s is "
+                            f"predicted to separate {first} and {second}; {prop.advice}"}
         newdir.mkdir(parents=True, exist_ok=True)
         for old in (newdir / "proposed.csv", newdir / "proposed.json"):   # --force: replaced
             old.unlink(missing_ok=True)

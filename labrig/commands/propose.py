@@ -12,12 +12,12 @@ from labrig.core.defaults import SEED
 def cmd_propose(args):
     """Fit the model with each of two effects (by default the model's effect and its usual
     look-alike), search the inputs the rig can play (ramps through zero, dwells near the
-    threshold, coast-downs, reversals, staircases) for the one that best separates them
-    after the rival re-fits (T-optimal), and write it as a plan to run with `labrig sweep`.
-    The predicted difference it reports is the sum of squared differences of the two
-    predictions, in noise units (a few hundred is decisive); the separation `labrig
-    diagnose DIR DIR/new` reports afterwards is the worse rmse/noise over the better,
-    minus one."""
+    threshold, coast-downs, reversals, staircases, steps across the range) for the one that
+    best separates them after the rival re-fits, and write it as a plan to run with
+    `labrig sweep`. The separation it predicts is the one `labrig diagnose DIR DIR/new`
+    reports afterwards: the worse rmse/noise over the better, minus one (1 or more is
+    decisive). When no input within the limits reaches it, it says so and what would
+    help, writes no plan and exits with status 1."""
     from labrig.io.config import load_rig
     from labrig.model.model import Model
     from labrig.loop.propose import pair_from_diagnosis, propose
@@ -40,7 +40,16 @@ def cmd_propose(args):
         prop = propose(runs, model, between, budget_s=args.budget_s, amax=amax,
                        seed=args.seed, log=bar.log, rig=rig)
     from labrig.core.fileio import atomic_write
+    import sys
 
+    if not prop.separates:   # the analysis is printed; no plan is proposed
+        if args.json:
+            emit_json({**prop.to_json(), "plan": None, "figure": None})
+        else:
+            print(prop.to_text())
+        print(f"labrig propose: no plan written: nothing within {args.budget_s:g} s separates "
+              f"{prop.pair[0]} and {prop.pair[1]}; {prop.advice}", file=sys.stderr)
+        return 1
     atomic_write(out, prop.to_toml())
     save(prop.plot(), figure, dpi=120)
     if args.json:

@@ -120,7 +120,8 @@ def propose(folders, model_doc, between: str) -> dict:
     import labrig.api as lr
 
     prop = lr.propose(_runs(folders), _model(model_doc), between, seed=LAB_SEED)
-    return {"json": prop.to_json(), "plan": prop.to_toml(), "text": prop.to_text(),
+    return {"json": prop.to_json(), "plan": prop.to_toml() if prop.separates else None,
+            "text": prop.to_text(),
             "figure": _png(prop.plot()), "pair": list(prop.pair)}
 
 

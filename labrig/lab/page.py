@@ -228,7 +228,7 @@ class LabPage:
             w.disabled = not self.owner or busy or st.sweeping
         self.cancel_btn.disabled = not self.owner or not busy
         self.play_btn.disabled = (not self.owner or busy or st.sweeping or st.proposal is None
-                                  or st.prediction is None)
+                                  or st.proposal.get("plan") is None or st.prediction is None)
         if st.proposal and st.prediction and not st.sweeping and st.written \
                 and st.decision is None and not busy and self.owner and self._asked:
             self._asked = False

@@ -204,6 +204,9 @@ class Station:
 
         if self.proposal is None or self.prediction is None:
             raise LabrigError("record your prediction first: which explanation, and why")
+        if self.proposal.get("plan") is None:   # nothing within the budget separates them
+            raise LabrigError("no input within the budget separates the pair, so there is "
+                              "nothing to play; see the proposal's text for what would")
         asked = self.folder / "asked"
         asked.mkdir(exist_ok=True)
         name = f"proposed_{len(list(asked.glob('*.csv'))) + 1}"

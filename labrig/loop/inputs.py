@@ -21,10 +21,11 @@ MAX_POINTS = 30
 #: what each kind of input is
 KINDS = {
     "ramp": "a slow ramp through zero",
-    "dwells": "dwells from rest at levels just above the threshold",
+    "dwells": "dwells from rest at several levels, back to 0 V between them",
     "coast": "coast-downs from speed (the drive cut to 0 V)",
     "reversals": "reversals at several speeds",
     "staircase": "a staircase of levels through the threshold",
+    "steps": "steps at several amplitudes, each ending in a coast to rest at 0 V",
 }
 
 
@@ -68,13 +69,15 @@ def _pts(segments) -> list:
     return out
 
 
-def candidates(*, threshold: float, amax: float, tau: float, budget_s: float,
+def candidates(*, threshold: float | None, amax: float, tau: float, budget_s: float,
                dt: float) -> list[Candidate]:
     """The candidate inputs for effects whose threshold is ``threshold`` V (0 when they
-    have none, like a delay and backlash)."""
+    have none, like a delay and backlash; None when the data do not pin it: then every
+    level is spread across the whole range, never set around a fitted value)."""
     edge = max(10 * dt, 0.01)                  # a fast edge the drive can follow
     settle = float(np.clip(4 * tau, 0.2, budget_s / 6))
-    th = threshold if threshold > 0 else 0.3 * amax
+    pinned = threshold is not None
+    th = threshold if pinned and threshold > 0 else 0.3 * amax
     out: list[Candidate] = []
 
     def add(kind, segs, label):
@@ -87,7 +90,8 @@ def candidates(*, threshold: float, amax: float, tau: float, budget_s: float,
             out.append(Candidate(kind, [[t, -u if u else 0.0] for t, u in pts],
                                  label + ", mirrored"))
 
-    for U in sorted({min(f * th, amax) for f in (1.5, 2.5)} | {0.5 * amax, amax}):
+    near_th = {min(f * th, amax) for f in (1.5, 2.5)} if pinned else set()
+    for U in sorted(near_th | {0.5 * amax, amax}):
         for T in (budget_s / 4, budget_s / 2, budget_s):
             add("ramp", [(T / 4, -U), (T / 2, U), (T / 4, 0.0)],
                 f"ramp through zero +-{U:.2f} V over {T:.0f} s")
@@ -95,8 +99,10 @@ def candidates(*, threshold: float, amax: float, tau: float, budget_s: float,
     near = [min(f * th, amax) for f in (0.9, 1.1, 1.3, 1.6, 2.0)]
     spread = [f * amax for f in (0.15, 0.25, 0.35, 0.45, 0.6, 0.8, 1.0)]
     for levels, what in ((near, f"0.9-2.0 x {th:.2f} V"),
-                         (spread, f"{spread[0]:.2f}-{spread[-1]:.2f} V")):
-        for dwell in (settle, 2 * settle):
+                         (spread, f"{spread[0]:.2f}-{spread[-1]:.2f} V"))[0 if pinned else 1:]:
+        # and dwells that fill the budget: more of the regime where the laws differ
+        fill = 0.98 * budget_s / (1.5 * len(levels)) - 2 * edge
+        for dwell in sorted({settle, 2 * settle} | ({round(fill, 3)} if fill > settle else set())):
             segs, sign = [], 1.0
             for lv in levels:
                 segs += [(edge, sign * lv), (dwell, sign * lv), (edge, 0.0), (dwell / 2, 0.0)]
@@ -122,7 +128,27 @@ def candidates(*, threshold: float, amax: float, tau: float, budget_s: float,
             segs += [(edge, f * amax), (hold, f * amax), (edge, -f * amax), (hold, -f * amax)]
         segs.append((edge, 0.0))
         add("reversals", segs, f"reversals from 0.3-1.0 x {amax:.2f} V, {hold:.2f} s each")
-    for levels in ([min(f * th, amax) for f in (0.5, 0.8, 1.0, 1.2, 1.5, 2.0, 3.0)], spread):
+    stairs = [min(f * th, amax) for f in (0.5, 0.8, 1.0, 1.2, 1.5, 2.0, 3.0)]
+    # full reversals, as often as the board's table allows: every edge swings the drive
+    # from one rail of the input to the other, where a delay and a slow pole part most
+    for hold in (0.5 * tau, tau, 2 * tau):
+        segs = []
+        for _ in range((MAX_POINTS - 2) // 4):
+            segs += [(edge, amax), (hold, amax), (edge, -amax), (hold, -amax)]
+        segs.append((edge, 0.0))
+        add("reversals", segs, f"full reversals +-{amax:.2f} V, {hold:.2f} s each")
+    for levels in ([stairs, spread] if pinned else [spread]):
         add("staircase", [seg for lv in levels for seg in ((edge, lv), (settle, lv))]
             + [(edge, 0.0)], f"staircase {levels[0]:.2f}-{levels[-1]:.2f} V")
+    # steps across the range, each ending in a coast to rest at 0 V: every amplitude
+    # crosses any threshold the data allow, and the coasts are where the laws part (a
+    # dead zone leaves the motor braked by its back-EMF only, friction stops it sooner)
+    fill = 0.98 * budget_s / (2.5 * len(spread)) - 2 * edge
+    for hold in sorted({settle, 1.5 * settle} | ({round(fill, 3)} if fill > settle else set())):
+        segs, sign = [], 1.0
+        for lv in spread:
+            segs += [(edge, sign * lv), (hold, sign * lv), (edge, 0.0), (1.5 * hold, 0.0)]
+            sign = -sign
+        add("steps", segs, f"steps {spread[0]:.2f}-{spread[-1]:.2f} V, each coasting to "
+                           f"rest, {hold:.2f} s each")
     return out

@@ -2,21 +2,28 @@
 'Experiments that decide').
 
 Two model structures explain the data about equally well (a dead zone and Coulomb
-friction, stiction and a dead zone, backlash and a delay). Each is fitted to the data;
-then every candidate input of :mod:`labrig.loop.inputs` is simulated with both (one
-population call of the fast simulator per model), and the most promising few are judged
-by the T-optimal criterion of Atkinson and Fedorov: the rival is re-fitted to the
-other's predicted response (old data and the new run together, with the noise the rig
-has) and what it still cannot explain is the predicted difference. A naive difference of
-the two fitted models overstates it, because the rival adjusts. Both directions are tried
-(either explanation may be the true one) and the input whose worse direction differs most
-wins.
+friction, stiction and a dead zone, backlash and a delay). Each is fitted to the data,
+with the sizes of its threshold the data cannot exclude (*plausible variants*: a dead zone
+from one amplitude trades off against the gain, so 0.05 V and 1.5 V fit alike). Then:
 
-The *predicted difference* is the sum of squared differences of the two predictions, in
-noise units (:func:`_difference`). It is not the *separation* that
-:mod:`labrig.loop.decide` reports once the run is made (the worse explanation's
-rmse/noise over the better one's, minus one); the JSON keys keep their names
-(``separation``, ``naive``, ``after_refit``).
+1. **Which explanation may be the truth.** One whose size lands at its bound is the model
+   without it, which the rival contains too: no input can tell them apart that way. One
+   that already explains the data clearly worse is not designed for. The others are
+   judged true at their best fit when the data pin its size, else at each plausible size.
+2. **Candidate inputs** (:mod:`labrig.loop.inputs`): levels around the threshold only
+   when the data pin it, else spread across the whole range; steps that coast to rest at
+   0 V, ramps, dwells, reversals, staircases; within the budget, the board's table and
+   the input limit.
+3. **The leaders by the predicted difference** (the sum of squared differences of the two
+   predictions in noise units, :func:`_difference`, the worst over the plausible models)
+   are each played, in simulation, on every plausible truth with the rig's noise; the
+   rival is re-fitted to the old runs and that run together, from scanned starts, as
+   ``diagnose`` will fit it. What it then fails to explain is the **predicted separation**:
+   the decision's measure (:mod:`labrig.loop.decide`: the worse rmse/noise over the
+   better, minus one), the worst over the truths.
+4. The input with the largest predicted separation is proposed when it reaches
+   :data:`DECISIVE`; when no input within the budget does, the proposal says so and what
+   would help instead, and no plan is written.
 """
 from __future__ import annotations
 
@@ -28,7 +35,7 @@ import numpy as np
 import pandas as pd
 
 from labrig.core.errors import UserError
-from labrig.loop.inputs import Candidate, candidates, why
+from labrig.loop.inputs import MAX_POINTS, Candidate, candidates, why
 from labrig.model.effects import catalogue_name, get_effect
 from labrig.model.model import Model
 from labrig.analysis.noise import Weights, channel_floors
@@ -38,18 +45,71 @@ from labrig.core.display import Displayable
 from labrig.core.tables import Table
 
 LEAD_IN_S = 0.5
-#: what a proposal predicts, in the words every text line uses ("separation" is the
-#: decision's rmse ratio minus one, labrig.loop.decide)
+#: what the naive ranking uses, in the words every text line uses
 DIFFERENCE = "sum of squared differences of the two predictions, in noise units"
+#: what a proposal is judged by: the decision's own measure (labrig.loop.decide)
+SEPARATION = "worse rmse/noise over better, minus one"
+#: a proposal is made when the rival, re-fitted, is predicted to stay at least this far
+#: behind for every plausible truth: its rmse/noise at least twice the truth's
+DECISIVE = 1.0
+#: candidate inputs judged by the re-fit: the leaders by the worst-case predicted
+#: difference, at most :data:`PER_KIND` of a kind
+LEADERS = 5
+PER_KIND = 2
+#: variants of a hypothesis: the threshold fixed at these shares of its data bound
+VARIANT_SHARES = (0.1, 0.3, 0.6)
+#: a variant is plausible while its fit is within this factor of the best; a hypothesis
+#: this much worse than its rival is not designed for
+PLAUSIBLE = 1.10
+#: plausible sizes within this factor of each other: the data pin the size
+PINNED = 2.0
 
 
 @dataclass
 class Hypothesis:
-    """One explanation, fitted to the data."""
+    """One explanation, fitted to the data, and the sizes of it the data cannot exclude."""
 
     effect: str
     model: Model
     rmse_over_noise: float
+    key: str = ""                 # its size parameter ("d_v", "tc_v", "a_rad", "td_s")
+    unit: str = ""
+    members: list = field(default_factory=list)   # [(size, Model)], plausible, best first
+    degenerate: bool = False      # its size at a bound of the range the data allow
+    skipped: str = ""             # why it is not judged as the truth ("" when it is)
+
+    @property
+    def size(self) -> float | None:
+        return self.model.effect_params[self.effect][self.key] if self.key else None
+
+    @property
+    def pinned(self) -> bool:
+        """The plausible sizes lie within :data:`PINNED` of each other."""
+        sizes = [s for s, _ in self.members if s is not None and s > 0]
+        return len(sizes) < 2 or max(sizes) / min(sizes) <= PINNED
+
+    def truths(self) -> list:
+        """``[(label, Model)]`` it is judged true as: its best fit when the data pin its
+        size, else each plausible variant (the best fit is one point of a range the data
+        cannot narrow); none when it is skipped."""
+        if self.skipped:
+            return []
+        if self.pinned:
+            return [(self.effect, self.model)]
+        return [(f"{self.effect} {self.key} = {s:.3g} {self.unit}", m)
+                for s, m in self.members[1:]]
+
+    def describe_size(self) -> str:
+        if not self.key:
+            return ""
+        s = f"{self.key} = {self.size:.3g} {self.unit}"
+        if self.degenerate:
+            return s + " (at its bound)"
+        if not self.pinned:
+            sizes = sorted(v for v, _ in self.members)
+            return (f"{self.key} not pinned by the data: {sizes[0]:.3g}-{sizes[-1]:.3g} "
+                    f"{self.unit} fit as well")
+        return s
 
 
 @dataclass
@@ -59,7 +119,14 @@ class Judged:
     candidate: Candidate
     naive: float                      # predicted difference of the best fits (noise units)
     robust: float = 0.0               # the worst over plausible truths and rival variants
-    refit: dict = field(default_factory=dict)   # true effect -> difference after the rival re-fits
+    #: plausible truth -> predicted separation after the rival re-fits (leaders only)
+    refit: dict = field(default_factory=dict)
+    #: its re-fits stopped before every truth was tried, once a better input was found
+    #: (its worst is then at most the value shown)
+    stopped: bool = False
+    #: the hardest case judged: (truth index in the pair, truth label, truth model, the
+    #: rival as re-fitted to it) -- what the figure shows
+    hardest: tuple | None = field(default=None, repr=False)
 
     @property
     def worst(self) -> float | None:
@@ -67,13 +134,18 @@ class Judged:
 
     def to_json(self) -> dict:
         return {"kind": self.candidate.kind, "label": self.candidate.label,
-                "duration_s": self.candidate.duration, "naive": self.naive,
-                "worst_plausible": self.robust, "after_refit": dict(self.refit) or None}
+                "duration_s": self.candidate.duration, "points": len(self.candidate.points),
+                "naive": self.naive, "worst_plausible": self.robust,
+                "separation_after_refit": dict(self.refit) or None,
+                "worst_separation_after_refit": self.worst,
+                "stopped_below_a_better_input": self.stopped}
 
 
 @dataclass(repr=False)
 class Proposal(Displayable):
-    """The proposed experiment, why it separates the pair, and by how much."""
+    """The proposed experiment, why it separates the pair and by how much; or, when no
+    input within the limits separates it (``separates`` False), the best found and what
+    would help instead."""
 
     pair: tuple
     hypotheses: list
@@ -85,14 +157,27 @@ class Proposal(Displayable):
     amax: float
     seconds: float = 0.0
     plausible: list = field(default_factory=list)   # plausible models per hypothesis
+    separates: bool = True
+    advice: str = ""
 
     def headline(self) -> str:
+        if not self.separates:
+            return (f"No proposal between {self.pair[0]} and {self.pair[1]}: nothing within "
+                    f"{self.budget_s:g} s separates them")
         return (f"Proposal between {self.pair[0]} and {self.pair[1]}: "
                 f"{self.chosen.candidate.label} ({self.chosen.candidate.duration:.1f} s)")
 
     @property
     def why(self) -> str:
         return why(self.chosen.candidate.kind, self.pair)
+
+    @property
+    def limits(self) -> dict:
+        """The board's limits the proposed input respects, and what it uses of them."""
+        c = self.chosen.candidate
+        return {"budget_s": self.budget_s, "duration_s": c.duration,
+                "max_points": MAX_POINTS, "points": len(c.points),
+                "amax_v": self.amax, "peak_v": max(abs(u) for _, u in c.points)}
 
     def experiment(self, name: str = "proposed") -> dict:
         """The plan's ``[[experiment]]`` table."""
@@ -103,12 +188,21 @@ class Proposal(Displayable):
 
     def to_toml(self) -> str:
         """The plan file: an ordinary plan with one ``pwl`` experiment."""
+        if not self.separates:
+            raise UserError(f"no input within {self.budget_s:g} s separates {self.pair[0]} "
+                            f"and {self.pair[1]}; {self.advice}")
         e = self.experiment()
         a, b = self.pair
+        lim = self.limits
         lines = [f"# Proposed by `labrig propose`: the experiment that best tells {a} and {b} "
                  "apart.", f"# {self.chosen.candidate.label}: {self.why}.",
                  f"# Predicted difference ({DIFFERENCE}): {self.chosen.naive:.0f} "
-                 f"before the rival re-fits, {self.chosen.worst:.0f} after.", "",
+                 "for the best fits.",
+                 f"# Predicted separation ({SEPARATION}) after the rival re-fits: "
+                 f"{self.chosen.worst:.2f} at worst (>= {DECISIVE:g} is decisive).",
+                 f"# Limits respected: {lim['duration_s']:.2f} s of the {lim['budget_s']:g} s "
+                 f"budget, {lim['points']} of at most {lim['max_points']} breakpoints, "
+                 f"|u| <= {lim['peak_v']:.2f} V within +-{lim['amax_v']:.2f} V.", "",
                  "[[experiment]]"]
         for k in ("name", "loop", "waveform", "lead_in_s", "sample_rate_hz"):
             v = e[k]
@@ -121,56 +215,102 @@ class Proposal(Displayable):
         c = self.chosen
         return {"between": list(self.pair),
                 "hypotheses": [{"effect": h.effect, "rmse_over_noise": h.rmse_over_noise,
-                                "model": h.model.describe()} for h in self.hypotheses],
+                                "model": h.model.describe(), "size": h.describe_size(),
+                                "pinned": h.pinned, "at_bound": h.degenerate,
+                                "plausible_sizes": [s for s, _ in h.members],
+                                "judged_true": not h.skipped,
+                                "why_not_judged_true": h.skipped or None}
+                               for h in self.hypotheses],
+                "separates": self.separates, "advice": self.advice or None,
                 "proposed": {"kind": c.candidate.kind, "label": c.candidate.label,
                              "duration_s": c.candidate.duration, "why": self.why,
                              "points": c.candidate.points,
                              "separation": {"naive": c.naive, "after_refit": dict(c.refit),
                                             "worst_after_refit": c.worst}},
+                "limits": self.limits,
                 "candidates": [j.to_json() for j in self.judged],
                 "noise": self.sigmas, "budget_s": self.budget_s, "amax_v": self.amax,
                 "seconds": round(self.seconds, 2)}
+
+    def _leaders(self) -> list:
+        lead = sorted((j for j in self.judged if j.refit), key=lambda j: -j.worst)
+        rest = sorted((j for j in self.judged if not j.refit), key=lambda j: -j.robust)
+        return lead + rest[:max(0, 8 - len(lead))]
 
     def to_text(self) -> str:
         c = self.chosen
         a, b = self.pair
         fits = "; ".join(f"with {h.effect}: rmse/noise {h.rmse_over_noise:.2f}"
-                         for h in self.hypotheses)
-        best = sorted(self.judged, key=lambda j: -j.robust)[:8]
-        w = max([45] + [len(j.candidate.label) for j in best])   # labels whole, aligned
-        rows = "\n".join(f"  {j.candidate.label:<{w}} {j.naive:12.0f} {j.robust:14.0f}"
-                         for j in best)
-        return (f"between {a} and {b} ({fits})\n\n"
-                f"candidate inputs (at most {self.budget_s:g} s, within +-{self.amax:.2f} V) "
-                f"and their predicted difference ({DIFFERENCE}): of the best fits, and the "
-                "worst case over the models the data cannot exclude "
-                f"({' and '.join(map(str, self.plausible))}):\n"
-                f"  {'input':<{w}} {'best fits':>12} {'worst case':>14}\n{rows}\n\n"
-                f"proposed: {c.candidate.label} ({c.candidate.duration:.1f} s)\n"
-                f"why: {self.why}.\n"
-                f"predicted difference ({DIFFERENCE}): {c.naive:.0f} before the rival re-fits, "
-                + ", ".join(f"{v:.0f} after it with {k} the true one" for k, v in c.refit.items())
-                + " (a few hundred is decisive)")
+                         + (f", {h.describe_size()}" if h.key else "") for h in self.hypotheses)
+        judged = []
+        for h in self.hypotheses:
+            if h.skipped:
+                judged.append(f"{h.effect} is not judged as the truth: {h.skipped}")
+            else:
+                judged.append(f"judged true as {', '.join(lab for lab, _ in h.truths())}")
+        rows = self._leaders()
+        w = max([45] + [len(j.candidate.label) for j in rows])   # labels whole, aligned
+        body = "\n".join(
+            f"  {j.candidate.label:<{w}} {j.naive:12.0f} {j.robust:12.0f} "
+            + (f"{('<= ' if j.stopped else '') + format(j.worst, '.2f'):>12}" if j.refit
+               else f"{'-':>12}") for j in rows)
+        text = (f"between {a} and {b} ({fits})\n" + "\n".join(judged) + "\n\n"
+                f"candidate inputs (at most {self.budget_s:g} s, within +-{self.amax:.2f} V, at "
+                f"most {MAX_POINTS} breakpoints): the predicted difference ({DIFFERENCE}) of the "
+                "best fits and the worst over the models the data cannot exclude "
+                f"({' and '.join(map(str, self.plausible))}); for the leaders, the predicted "
+                f"separation ({SEPARATION}) after the rival re-fits, the worst over the "
+                "plausible truths:\n"
+                f"  {'input':<{w}} {'best fits':>12} {'worst case':>12} {'separation':>12}\n"
+                f"{body}\n\n")
+        after = ", ".join(f"{v:.2f} with {k} true" for k, v in c.refit.items())
+        if not self.separates:
+            return text + (f"nothing within {self.budget_s:g} s and +-{self.amax:.2f} V is "
+                           f"predicted to separate them: the best, {c.candidate.label}, reaches "
+                           f"a separation of {(c.worst or 0.0):.2f} after the rival re-fits "
+                           f"({after or 'no truth to judge'}; {DECISIVE:g} needed). No plan "
+                           f"is written.\nwhat would: {self.advice}")
+        return text + (f"proposed: {c.candidate.label} ({c.candidate.duration:.1f} s, "
+                       f"{len(c.candidate.points)} breakpoints)\n"
+                       f"why: {self.why}.\n"
+                       f"predicted separation ({SEPARATION}) after the rival re-fits: {after} "
+                       f"({DECISIVE:g} or more is decisive: the wrong one's rmse/noise at "
+                       "least twice the right one's)")
 
     def table_rows(self) -> list[Table]:
-        """The explanations' fits, and the candidate inputs by worst-case difference."""
-        fits = Table(f"between {self.pair[0]} and {self.pair[1]}", ["explanation", "rmse/noise"],
-                     numeric=(1,))
-        fits.rows = [[h.effect, f"{h.rmse_over_noise:.2f}"] for h in self.hypotheses]
+        """The explanations' fits, and the candidate inputs by predicted separation."""
+        fits = Table(f"between {self.pair[0]} and {self.pair[1]}",
+                     ["explanation", "rmse/noise", "size", "judged true"], numeric=(1,))
+        fits.rows = [[h.effect, f"{h.rmse_over_noise:.2f}", h.describe_size() or "-",
+                      "yes" if not h.skipped else f"no: {h.skipped}"] for h in self.hypotheses]
         inputs = Table(f"candidate inputs (at most {self.budget_s:g} s, within "
-                       f"+-{self.amax:.2f} V)", ["input", "best fits", "worst case"],
-                       numeric=(1, 2))
-        inputs.rows = [[j.candidate.label, f"{j.naive:.0f}", f"{j.robust:.0f}"]
-                       for j in sorted(self.judged, key=lambda j: -j.robust)[:8]]
-        inputs.notes.append(f"predicted difference ({DIFFERENCE}); "
-                            f"proposed: {self.chosen.candidate.label}")
+                       f"+-{self.amax:.2f} V)", ["input", "best fits", "worst case",
+                                                 "separation"], numeric=(1, 2, 3))
+        inputs.rows = [[j.candidate.label, f"{j.naive:.0f}", f"{j.robust:.0f}",
+                        (("<= " if j.stopped else "") + f"{j.worst:.2f}") if j.refit else "-"]
+                       for j in self._leaders()]
+        inputs.notes.append(f"predicted difference ({DIFFERENCE}); predicted separation "
+                            f"({SEPARATION}) after the rival re-fits; "
+                            + (f"proposed: {self.chosen.candidate.label}" if self.separates
+                               else "nothing separates them: no plan"))
         return [fits, inputs]
 
     def predicted(self):
-        """The proposed run as the template's rig would record it, and each explanation's
-        prediction of it (``w``, ``theta``)."""
+        """The proposed run as the template's rig would record it, and the two predictions
+        of it (``w``, ``theta``) in the pair's order, with their labels: the hardest
+        plausible truth judged and the rival as re-fitted to it (what the predicted
+        separation measures), else the two best fits."""
         run = synthetic_run(self.template, self.chosen.candidate, "proposed")
-        return run, [h.model.simulate([run])[0] for h in self.hypotheses]
+        hard = self.chosen.hardest
+        if hard is None:
+            return run, [h.model.simulate([run])[0] for h in self.hypotheses], \
+                [f"with {h.effect} (best fit)" for h in self.hypotheses]
+        ti, label, truth, rival = hard
+        pair = [None, None]
+        pair[ti] = (truth.simulate([run])[0], f"{label}, as the truth")
+        pair[1 - ti] = (rival.simulate([run])[0],
+                        f"{self.pair[1 - ti]}, re-fitted to it")
+        return run, [p for p, _ in pair], [lab for _, lab in pair]
 
     def plot(self, ax=None):
         """Both explanations' predicted responses to the proposed input, with the noise band."""
@@ -264,26 +404,25 @@ def synthetic_run(template: Run, cand: Candidate, name: str, sim: dict | None = 
     return Run(name=name, data=pd.DataFrame(cols), meta=meta)
 
 
-#: variants of a hypothesis: the threshold fixed at these shares of its data bound
-VARIANT_SHARES = (0.1, 0.3, 0.6)
-#: a variant is plausible while its fit is within this factor of the best
-PLAUSIBLE = 1.10
-
-
-def variants(runs, hyp: Hypothesis, reach, *, seed: int, weights: Weights):
-    """The hypothesis and its plausible neighbours: the threshold parameter fixed across
-    the range the data allow and the rest re-fitted; those the data cannot exclude (fit
-    within :data:`PLAUSIBLE` of the best) stay. A threshold one run cannot pin down (a
-    dead zone from a single step: d and the gain trade off) then spans its range."""
-    out = [hyp.model]
+def variants(runs, hyp: Hypothesis, reach, *, seed: int, weights: Weights) -> None:
+    """Fill ``hyp.members`` (the sizes the data cannot exclude, best fit first) and
+    ``hyp.degenerate``: its threshold fixed across the range the data allow and the rest
+    re-fitted; those within :data:`PLAUSIBLE` of the best fit stay. A threshold one run
+    cannot pin down (a dead zone from a single amplitude: d and the gain trade off) then
+    spans its range."""
     eff = get_effect(hyp.effect)
-    key = eff.threshold or None
-    if key is None:
-        return out
-    _, hi = eff.data_bounds(reach).get(key, (None, None))
-    if hi is None:
-        return out
-    best = hyp.model.effect_params[hyp.effect][key]
+    key = eff.threshold or ""
+    lo, hi = eff.data_bounds(reach).get(key, (None, None)) if key else (None, None)
+    if not key or hi is None:
+        hyp.members = [(None, hyp.model)]
+        return
+    hyp.key = key
+    hyp.unit = next(p.unit for p in eff.params if p.name == key)
+    best = hyp.size
+    # at a bound of the range the data allow: as the truth it is the model without it
+    # (the lower end) or a size the data cannot hold (the upper end)
+    hyp.degenerate = best <= 1.5 * lo or best >= 0.95 * hi
+    hyp.members = [(best, hyp.model)]
     for share in VARIANT_SHARES:
         v = share * hi
         if abs(v / best - 1.0) < 0.3:
@@ -291,8 +430,7 @@ def variants(runs, hyp: Hypothesis, reach, *, seed: int, weights: Weights):
         res = fit(runs, hyp.model.effects, hyp.model.flat(), {f"{hyp.effect}.{key}": v},
                   seed=seed, weights=weights, reach=reach, max_nfev=40)
         if res.metrics["rmse_over_noise"]["overall"] <= PLAUSIBLE * hyp.rmse_over_noise:
-            out.append(res.model())
-    return out
+            hyp.members.append((v, res.model()))
 
 
 def _travel(runs) -> tuple[float, float]:
@@ -323,6 +461,91 @@ def _difference(pa: dict, pb: dict, template: Run, sig: dict) -> float:
     return d
 
 
+def _judge_truths(hyps) -> None:
+    """Set ``skipped`` on the explanations no input can show true against the rival, or
+    that the data already rank clearly worse."""
+    for h, other in ((hyps[0], hyps[1]), (hyps[1], hyps[0])):
+        if h.degenerate:
+            h.skipped = (f"fitted at its bound ({h.key} = {h.size:.3g} {h.unit}): as the "
+                         f"truth it is the model without it, which {other.effect} "
+                         "explains as well")
+        elif h.rmse_over_noise > PLAUSIBLE * other.rmse_over_noise:
+            h.skipped = (f"it already explains the data worse (rmse/noise "
+                         f"{h.rmse_over_noise:.2f} against {other.rmse_over_noise:.2f})")
+
+
+def _levels_threshold(hyps, amax: float) -> float | None:
+    """The threshold (V) to set levels around, or None: spread them across the whole
+    range (a size the data do not pin, or only degenerate ones)."""
+    sized = [h for h in hyps if not h.degenerate]
+    if not sized or any(not h.pinned for h in sized):
+        return None
+    return float(np.mean([threshold_of(h.model) for h in sized]))
+
+
+def separation_after_refit(runs, base: Model, rival: str, truth: Model, cand: Candidate,
+                           template: Run, sig: dict, *, seed, weights, rng) -> float:
+    """The decision's separation predicted for ``cand`` when ``truth`` is the truth: the
+    run it would record (with the rig's noise) added to ``runs``, the rival re-fitted to
+    them all from scanned starts (as ``diagnose`` fits it), its rmse/noise over the
+    truth's, minus one; and the re-fitted rival."""
+    from labrig.loop.evaluation import evaluate
+
+    clean = truth.simulate([synthetic_run(template, cand, "p")])[0]
+    new = synthetic_run(template, cand, "proposed", clean, sig, rng)
+    data = runs + [new]
+    res = refit_with(data, base, get_effect(rival), seed=seed, weights=weights)
+    r_rival = float(res.metrics["rmse_over_noise"]["overall"])
+    r_truth = float(evaluate(data, truth, weights=weights).metrics["rmse_over_noise"]["overall"])
+    return max(0.0, r_rival / r_truth - 1.0), res.model()
+
+
+def _truth_order(hyps) -> list:
+    """``[(index in the pair, label, Model)]`` of every truth to judge, the smallest size
+    of each explanation first (the hardest to tell from the rival), alternating between
+    the two, so that an input that cannot win is found out after few re-fits."""
+    lists = [[(hi, lab, m) for lab, m in h.truths()] for hi, h in enumerate(hyps)]
+    out = []
+    for k in range(max(map(len, lists))):
+        out += [lst[k] for lst in lists if k < len(lst)]
+    return out
+
+
+def _leaders(judged: list) -> list:
+    """The candidates the re-fit judges: the best by worst-case predicted difference,
+    at most :data:`PER_KIND` of a kind (a candidate and its mirror image count as two)."""
+    out, kinds = [], {}
+    for j in sorted(judged, key=lambda j: (-j.robust, j.candidate.duration)):
+        k = j.candidate.kind
+        if kinds.get(k, 0) < PER_KIND:
+            out.append(j)
+            kinds[k] = kinds.get(k, 0) + 1
+        if len(out) == LEADERS:
+            break
+    return out
+
+
+def _advice(prop_budget: float, amax: float, rig, pair, best: Judged) -> str:
+    """What would help when nothing within the limits separates the pair."""
+    tips = []
+    if best.candidate.duration >= 0.5 * prop_budget:
+        tips.append(f"a longer budget (--budget-s {2 * prop_budget:g}): more of the "
+                    "regime where they differ")
+    if rig is None:
+        tips.append(f"larger inputs than the data's +-{amax:.2f} V (--rig RIG.toml lets "
+                    "the proposal use the rig's output limit)")
+    else:
+        tips.append(f"another amplitude: a run at an input level the data lack (the rig "
+                    f"allows +-{amax:.2f} V)")
+    if {"backlash", "delay"} & set(pair):
+        tips.append("a position loop (a closed-loop step, where a gap makes the loop "
+                    "hunt and a delay does not)")
+    else:
+        tips.append("a position loop (closed-loop steps settle against the friction or "
+                    "the dead zone differently)")
+    return "; ".join(tips)
+
+
 def propose(runs: list[Run], model: Model, between: str | None = None, *,
             budget_s: float = 20.0, amax: float | None = None, seed: int = 0,
             weights: Weights = Weights(), log=None, rig=None) -> Proposal:
@@ -340,6 +563,12 @@ def propose(runs: list[Run], model: Model, between: str | None = None, *,
     rig : RigConfig, optional
         The rig: its position sensor's range bounds the travel (default: the travel the
         data show, either way).
+
+    Returns
+    -------
+    Proposal
+        ``separates`` False when no input within the limits is predicted to separate the
+        pair by :data:`DECISIVE`; ``advice`` then says what would.
     """
     from labrig.model.reach import Reach
     from labrig.model.simulate import prepare
@@ -361,22 +590,23 @@ def propose(runs: list[Run], model: Model, between: str | None = None, *,
         if e.name in pair or e.family_name in families:
             base = without(base, e.name)
     reach = Reach.of(runs, base)
-    hyps, family = [], []
+    hyps = []
     for name in pair:
-        say(f"fitting the model with {name}")
+        say(f"fitting the model with {name}, and the sizes the data cannot exclude")
         ident = refit_with(runs, base, get_effect(name), seed=seed, weights=weights, reach=reach)
         h = Hypothesis(name, ident.model(), float(ident.metrics["rmse_over_noise"]["overall"]))
+        variants(runs, h, reach, seed=seed, weights=weights)
         hyps.append(h)
-        family.append(variants(runs, h, reach, seed=seed, weights=weights))
+    _judge_truths(hyps)
+    family = [[m for _, m in h.members] for h in hyps]
     floors = channel_floors(prepare(runs))
     sig = {ch: floors[ch].sigma for ch in ("speed", "position") if ch in floors}
     template = opened[0]
     data_amax = max(float(np.max(np.abs(r.u))) for r in opened)
     amax = data_amax if amax is None else float(amax)
     tau = float(np.median([h.model.servo().tau_m for h in hyps]))
-    threshold = float(np.mean([threshold_of(h.model) for h in hyps]))
-    cands = candidates(threshold=threshold, amax=amax, tau=tau, budget_s=budget_s,
-                       dt=template.dt)
+    cands = candidates(threshold=_levels_threshold(hyps, amax), amax=amax, tau=tau,
+                       budget_s=budget_s, dt=template.dt)
     if not cands:
         raise UserError(f"--budget-s: no candidate input fits in {budget_s:g} s; allow more")
     say(f"simulating {len(cands)} candidate inputs with {sum(map(len, family))} plausible "
@@ -404,22 +634,45 @@ def propose(runs: list[Run], model: Model, between: str | None = None, *,
                         f"(+{up:.3g} / -{down:.3g} {template.units[0]} from the start) in "
                         f"{budget_s:g} s; record a run with more travel, or give a shorter "
                         "--budget-s")
-    chosen = max(judged, key=lambda j: (j.robust, -j.candidate.duration))
-    say(f"re-fitting each explanation to the other's prediction: {chosen.candidate.label}")
-    rng = np.random.default_rng(seed)
-    for ti, truth in enumerate(hyps):
-        rival = hyps[1 - ti]
-        clean = truth.model.simulate([synthetic_run(template, chosen.candidate, "p")])[0]
-        new = synthetic_run(template, chosen.candidate, "proposed", clean, sig, rng)
-        res = fit(runs + [new], rival.model.effects, rival.model.flat(), {}, seed=seed,
-                  weights=weights, reach=None, max_nfev=40)
-        measured = {"w": new.speed, "theta": new.position}
-        chosen.refit[truth.effect] = max(
-            0.0, _difference(res.model().simulate([new])[0], measured, template, sig)
-            - _difference(clean, measured, template, sig))
-    return Proposal(pair=pair, hypotheses=hyps, judged=judged, chosen=chosen, sigmas=sig,
+    leaders = _leaders(judged)
+    truths = _truth_order(hyps)
+    say(f"re-fitting the rival to each of {len(leaders)} leading inputs played on "
+        f"{len(truths)} plausible truth(s)")
+    # branch and bound: the next re-fit always goes to the input whose worst so far is
+    # the highest; once that input has been judged on every truth, no other can beat it
+    # (their worst so far bounds their worst), and they stop there. The noise of each
+    # (input, truth) is seeded by both: the same answer whatever the order. (One fit at
+    # a time: the simulator's kernels already use both cores; fits in two processes,
+    # each held to one core, were slower.)
+    done = {k: 0 for k in range(len(leaders))}
+    while truths:
+        k = max(done, key=lambda k: (leaders[k].worst if done[k] else np.inf, -k))
+        if done[k] == len(truths):
+            break
+        j, t = leaders[k], done[k]
+        hi, label, m = truths[t]
+        j.refit[label], rival = separation_after_refit(
+            runs, base, pair[1 - hi], m, j.candidate, template, sig, seed=seed,
+            weights=weights, rng=np.random.default_rng([seed, k, t]))
+        if j.refit[label] == j.worst:
+            j.hardest = (hi, label, m, rival)
+        done[k] += 1
+    for k, j in enumerate(leaders):
+        j.stopped = 0 < done[k] < len(truths)
+    if truths:
+        chosen = max(leaders, key=lambda j: (j.worst, -j.candidate.duration))
+        separates = chosen.worst >= DECISIVE
+    else:   # neither may be the truth: nothing to design for
+        chosen, separates = leaders[0], False
+    prop = Proposal(pair=pair, hypotheses=hyps, judged=judged, chosen=chosen, sigmas=sig,
                     template=template, budget_s=budget_s, amax=amax,
-                    seconds=time.perf_counter() - t0, plausible=[len(f) for f in family])
+                    seconds=time.perf_counter() - t0, plausible=[len(f) for f in family],
+                    separates=separates)
+    if not separates:
+        prop.advice = (_advice(budget_s, amax, rig, pair, chosen) if truths else
+                       "neither explanation can be the truth on these data: "
+                       + "; ".join(h.skipped for h in hyps))
+    return prop
 
 
 # -- deciding ---------------------------------------------------------------------------

@@ -11,10 +11,11 @@ COLOURS = ("tab:blue", "tab:red")
 
 
 def plot_proposal(prop, ax=None):
-    """Predicted speed and position of both fitted explanations for the proposed input,
-    each with a +-1 noise band, and the input below. With ``ax``, the speed (or, without a
+    """Predicted speed and position for the proposed input, each with a +-1 noise band, and
+    the input below: the hardest plausible truth judged and the rival as re-fitted to it
+    (what the predicted separation measures). With ``ax``, the speed (or, without a
     speed channel, the position) only."""
-    run, preds = prop.predicted()
+    run, preds, labels = prop.predicted()
     t = run.t
     chans = [(ch, key) for ch, key in (("speed", "w"), ("position", "theta"))
              if ch in prop.sigmas and (run.has_speed if ch == "speed" else run.has_pos)]
@@ -31,7 +32,7 @@ def plot_proposal(prop, ax=None):
         s = prop.sigmas[ch]
         d = preds[0][key] - preds[1][key]
         axes[-2].plot(t, d, color="0.2", lw=1.1,
-                      label=f"{prop.hypotheses[0].effect} - {prop.hypotheses[1].effect}")
+                      label=f"{prop.pair[0]} - {prop.pair[1]}")
         axes[-2].fill_between(t, -s, s, color="tab:green", alpha=0.25, lw=0,
                               label="+-1 noise: differences inside it cannot be seen")
         axes[-2].set_ylabel(f"difference\n({units[1] if ch == 'speed' else units[0]})")
@@ -39,8 +40,8 @@ def plot_proposal(prop, ax=None):
         legend_outside(axes[-2], "right", fontsize=8)
     for a, (ch, key) in zip(axes, chans):
         s = prop.sigmas[ch]
-        for h, p, c in zip(prop.hypotheses, preds, COLOURS):
-            a.plot(t, p[key], color=c, lw=1.1, label=f"with {h.effect}")
+        for lab, p, c in zip(labels, preds, COLOURS):
+            a.plot(t, p[key], color=c, lw=1.1, label=lab)
             a.fill_between(t, p[key] - s, p[key] + s, color=c, alpha=0.18, lw=0)
         unit = units[1] if ch == "speed" else units[0]
         a.set_ylabel(f"{ch} ({unit})")
@@ -52,8 +53,9 @@ def plot_proposal(prop, ax=None):
         axes[-1].set_xlabel("time (s)")
         axes[-1].grid(alpha=0.3)
         c = prop.chosen
-        fig.suptitle(f"{prop.pair[0]} or {prop.pair[1]}? proposed: {c.candidate.label}\n"
-                     f"predicted difference {c.naive:.0f} (best fits), {c.worst:.0f} after the rival "
-                     "re-fits (noise units)", fontsize=10)
+        what = "proposed" if prop.separates else "best found (does not separate them)"
+        fig.suptitle(f"{prop.pair[0]} or {prop.pair[1]}? {what}: {c.candidate.label}\n"
+                     f"predicted separation after the rival re-fits {c.worst or 0.0:.2f} "
+                     "(worse rmse/noise over better, minus one)", fontsize=10)
         fig.tight_layout()
     return fig

@@ -1,0 +1,167 @@
+"""A second simulated MS150, written apart from labrig: it shares no code with labrig's
+model, simulators or file readers, so a proposal that separates two explanations on it
+separates them on physics, not on labrig's own arithmetic.
+
+What differs from labrig's simulators (docs/physics.md, 'The simulators'):
+
+- **integrator**: classic fourth-order Runge-Kutta with a fixed step (4 per sample), not
+  semi-implicit sub-steps or an exact zero-order hold;
+- **friction law**: a smoothed Stribeck curve, ``(Tc + (Ts - Tc) exp(-(w/ws)^2))
+  tanh(w/eps)``, not Karnopp's stick-slip rule: a stuck rotor creeps a little, breakaway
+  is gradual;
+- **backlash**: the pot's shaft pushed across the gear's gap on the integrator's own
+  steps;
+- **delay**: the held input shifted by the delay on the integrator's own time grid;
+- **sensors**: the bridge's 12-bit DAC on the input, Gaussian noise then a 10-bit ADC
+  over +-10 V on the tacho and the pot, as the board reads them.
+
+It writes runs and reads plans as the files a user would (CSV + ``labrig-run/1`` JSON
+sidecar; a plan's ``[[experiment]]`` table), with the standard library and numpy only.
+"""
+from __future__ import annotations
+
+import json
+import math
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+
+@dataclass
+class Twin:
+    """An MS150-type rig (the default rig's plant and sensors) with hidden effects.
+
+    Frictions are in volts at the amplifier input that balance them at stall (the
+    convention a student meets in labrig's effect texts), converted here to torque.
+    """
+
+    R: float = 8.0
+    L: float = 0.0085
+    J: float = 5.2245e-5
+    B: float = 1.0e-5
+    K: float = 0.05
+    Ka: float = 5.0
+    rail: float = 13.0
+    N: float = 30.0
+    kt: float = 0.026
+    kpot: float = 0.5
+    pot0: float = -4.0
+    fs: float = 1000.0
+    deadzone_v: float = 0.0       # at the amplifier input, symmetric
+    coulomb_v: float = 0.0        # kinetic friction
+    breakaway_v: float = 0.0      # static friction (Stribeck peak); 0: as kinetic
+    stribeck_rad_s: float = 3.0   # motor speed over which the peak decays
+    smooth_rad_s: float = 0.05    # tanh smoothing of the sign of the speed
+    gap_rad: float = 0.0          # half the gear's backlash, at the output shaft
+    delay_s: float = 0.0
+    tacho_noise_v: float = 0.010
+    pot_noise_v: float = 0.004
+    seed: int = 11
+    _rng: np.random.Generator = field(init=False, repr=False)
+
+    def __post_init__(self):
+        self._rng = np.random.default_rng(self.seed)
+
+    # -- physics ---------------------------------------------------------------------
+    def _torque_per_volt(self) -> float:
+        return self.Ka * self.K / self.R   # stall torque of 1 V at the amplifier input
+
+    def _friction(self, w: float) -> float:
+        tc = self.coulomb_v * self._torque_per_volt()
+        ts = max(self.breakaway_v, self.coulomb_v) * self._torque_per_volt()
+        if tc == 0.0 and ts == 0.0:
+            return 0.0
+        level = tc + (ts - tc) * math.exp(-(w / self.stribeck_rad_s) ** 2)
+        return level * math.tanh(w / self.smooth_rad_s)
+
+    def _armature(self, u: float) -> float:
+        d = self.deadzone_v
+        v = math.copysign(max(abs(u) - d, 0.0), u) if d > 0.0 else u
+        return min(max(self.Ka * v, -self.rail), self.rail)
+
+    def _deriv(self, x, va):
+        i, w, _ = x
+        di = (va - self.R * i - self.K * w) / self.L
+        dw = (self.K * i - self.B * w - self._friction(w)) / self.J
+        return (di, dw, w)
+
+    def play(self, u: np.ndarray) -> dict:
+        """The input per sample (V, held between samples) -> sensor volts per sample."""
+        dac = 10.0 / 4096
+        u = np.round(np.clip(u, -5.0, 5.0) / dac) * dac
+        n, dt, sub = len(u), 1.0 / self.fs, 4
+        h = dt / sub
+        x = (0.0, 0.0, 0.0)   # current, motor speed, motor angle
+        load = 0.0            # the output shaft the pot reads
+        lag = self.delay_s
+        w_out, th_out = np.empty(n), np.empty(n)
+        for k in range(n):
+            w_out[k] = x[1]
+            th_out[k] = load if self.gap_rad > 0.0 else x[2] / self.N
+            for j in range(sub):
+                t = k * dt + j * h - lag   # the input the armature sees now
+                kk = int(math.floor(t * self.fs + 1e-9))
+                va = self._armature(u[kk] if kk >= 0 else 0.0)
+                k1 = self._deriv(x, va)
+                k2 = self._deriv(tuple(a + 0.5 * h * b for a, b in zip(x, k1)), va)
+                k3 = self._deriv(tuple(a + 0.5 * h * b for a, b in zip(x, k2)), va)
+                k4 = self._deriv(tuple(a + h * b for a, b in zip(x, k3)), va)
+                x = tuple(a + h / 6.0 * (b + 2 * c + 2 * d + e)
+                          for a, b, c, d, e in zip(x, k1, k2, k3, k4))
+                if self.gap_rad > 0.0:   # the pot's shaft, held by its own friction in
+                    gear = x[2] / self.N  # the gap, is pushed only at the gap's ends
+                    load = min(max(load, gear - self.gap_rad), gear + self.gap_rad)
+        rng = self._rng
+        adc = 20.0 / 1024
+        tacho = w_out * self.kt + rng.normal(0.0, self.tacho_noise_v, n)
+        pot = th_out * self.kpot + self.pot0 + rng.normal(0.0, self.pot_noise_v, n)
+        q = lambda v: np.round(np.clip(v, -10.0, 10.0) / adc) * adc   # noqa: E731
+        return {"u": u, "tacho": q(tacho), "pos": q(pot)}
+
+    # -- files -------------------------------------------------------------------------
+    def record(self, folder, name: str, u: np.ndarray, experiment: dict) -> Path:
+        """Play ``u`` and write the run as ``folder/name.csv`` + ``.json``."""
+        folder = Path(folder)
+        folder.mkdir(parents=True, exist_ok=True)
+        y = self.play(u)
+        t = np.arange(len(u)) / self.fs
+        rows = ["t,u,tacho,pos"] + [f"{a:.6f},{b:.6f},{c:.6f},{d:.6f}" for a, b, c, d in
+                                    zip(t, y["u"], y["tacho"], y["pos"])]
+        (folder / f"{name}.csv").write_text("\n".join(rows) + "\n")
+        side = {"format": "labrig-run/1", "sample_rate_hz": self.fs, "source": "twin",
+                "experiment": {"loop": "open", "sample_rate_hz": self.fs, **experiment},
+                "sensors": {"tacho_v_per_rad_s": self.kt, "pos_v_per_rad": self.kpot,
+                            "pos_offset_v": self.pot0},
+                "rig": {"gear_ratio": self.N, "amplifier_gain": self.Ka,
+                        "name": "second simulator (tests/twin.py)"}}
+        (folder / f"{name}.json").write_text(json.dumps(side, indent=1))
+        return folder / f"{name}.csv"
+
+    def square(self, folder, amplitude: float = 2.5, freq: float = 0.25, periods: int = 2,
+               lead: float = 0.5) -> Path:
+        """One square wave, as the exercise sheets' first run."""
+        n0, n = int(lead * self.fs), int((lead + periods / freq) * self.fs)
+        t = (np.arange(n) - n0) / self.fs
+        u = np.where(t < 0, 0.0, np.where((t * freq) % 1.0 < 0.5, amplitude, -amplitude))
+        return self.record(folder, f"sq_{amplitude:.2f}V", u,
+                           {"waveform": "square", "amplitude_v": amplitude,
+                            "frequency_hz": freq, "periods": periods, "lead_in_s": lead})
+
+    def play_plan(self, plan, folder) -> list[Path]:
+        """Every ``pwl`` experiment of a plan file, as the board plays it."""
+        doc = tomllib.loads(Path(plan).read_text())
+        out = []
+        for e in doc["experiment"]:
+            pts = np.array(e["points"], float)
+            lead = float(e.get("lead_in_s", 0.5))
+            n0 = int(round(lead * self.fs))
+            n = n0 + int(round(pts[-1, 0] * self.fs)) + 1
+            t = (np.arange(n) - n0) / self.fs
+            u = np.where(t < 0, 0.0, np.interp(t, pts[:, 0], pts[:, 1]))
+            exp = {"waveform": "pwl", "lead_in_s": lead, "points": e["points"]}
+            if "between" in e:
+                exp["between"] = e["between"]
+            out.append(self.record(folder, e["name"], u, exp))
+        return out
