@@ -17,7 +17,7 @@ demo: $(STAMP)          ## the main job on the simulated rig -> demo_out/report.
 	$(BIN)/labrig demo -o demo_out
 
 test: $(STAMP)          ## the whole test suite on both cores (firmware and browser tests need the AVR toolchain and Chromium)
-	$(BIN)/python -m pytest -q -n 2 --dist load
+	$(BIN)/python -m pytest -q -n 2 --dist load --durations=40
 
 # the end-to-end loop files (diagnose, propose, plants, real rigs, sheets, report) are left
 # to `make test`; what is left runs in about two minutes on 2 cores

@@ -24,7 +24,7 @@ _PUBLIC = {
     "AnalysisResult": "labrig.analysis.result", "Identification": "labrig.identification.engine",
     "Diagnosis": "labrig.loop.ranking", "AutoDiagnosis": "labrig.loop.auto",
     "Evaluation": "labrig.loop.evaluation", "Ladder": "labrig.loop.ladder",
-    "Proposal": "labrig.loop.propose", "Catalogue": "labrig.model.catalogue",
+    "Proposal": "labrig.loop.proposal", "Catalogue": "labrig.model.catalogue",
     "LabrigError": "labrig.core.errors", "UserError": "labrig.core.errors",
 }
 

@@ -211,7 +211,7 @@ def propose(source, model, between: str | None = None, *, budget_s: float = 20.0
 
     ``between`` is ``"a,b"`` (default: the model's effect and its usual look-alike);
     ``rig`` a rig file or :class:`~labrig.io.config.RigConfig` whose limits bound the
-    input. Returns a :class:`~labrig.loop.propose.Proposal`; ``to_toml()`` is the plan.
+    input. Returns a :class:`~labrig.loop.proposal.Proposal`; ``to_toml()`` is the plan.
     """
     from labrig.io.config import RigConfig, load_rig
     from labrig.loop.propose import propose as _propose

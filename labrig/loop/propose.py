@@ -27,31 +27,20 @@ from one amplitude trades off against the gain, so 0.05 V and 1.5 V fit alike). 
 """
 from __future__ import annotations
 
-import copy
 import time
-from dataclasses import dataclass, field
 
 import numpy as np
-import pandas as pd
 
 from labrig.core.errors import UserError
-from labrig.loop.inputs import MAX_POINTS, Candidate, candidates, why
+from labrig.loop.inputs import Candidate, candidates
+from labrig.loop.proposal import (DECISIVE, DIFFERENCE, LEAD_IN_S, SEPARATION,  # noqa: F401
+                                  Hypothesis, Judged, Proposal, synthetic_run)
 from labrig.model.effects import catalogue_name, get_effect
 from labrig.model.model import Model
 from labrig.analysis.noise import Weights, channel_floors
 from labrig.loop.refit import fit, refit_with, without
 from labrig.io.runs import Run
-from labrig.core.display import Displayable
-from labrig.core.tables import Table
 
-LEAD_IN_S = 0.5
-#: what the naive ranking uses, in the words every text line uses
-DIFFERENCE = "sum of squared differences of the two predictions, in noise units"
-#: what a proposal is judged by: the decision's own measure (labrig.loop.decide)
-SEPARATION = "worse rmse/noise over better, minus one"
-#: a proposal is made when the rival, re-fitted, is predicted to stay at least this far
-#: behind for every plausible truth: its rmse/noise at least twice the truth's
-DECISIVE = 1.0
 #: candidate inputs judged by the re-fit: the leaders by the worst-case predicted
 #: difference, at most :data:`PER_KIND` of a kind
 LEADERS = 5
@@ -61,262 +50,6 @@ VARIANT_SHARES = (0.1, 0.3, 0.6)
 #: a variant is plausible while its fit is within this factor of the best; a hypothesis
 #: this much worse than its rival is not designed for
 PLAUSIBLE = 1.10
-#: plausible sizes within this factor of each other: the data pin the size
-PINNED = 2.0
-
-
-@dataclass
-class Hypothesis:
-    """One explanation, fitted to the data, and the sizes of it the data cannot exclude."""
-
-    effect: str
-    model: Model
-    rmse_over_noise: float
-    key: str = ""                 # its size parameter ("d_v", "tc_v", "a_rad", "td_s")
-    unit: str = ""
-    members: list = field(default_factory=list)   # [(size, Model)], plausible, best first
-    degenerate: bool = False      # its size at a bound of the range the data allow
-    skipped: str = ""             # why it is not judged as the truth ("" when it is)
-
-    @property
-    def size(self) -> float | None:
-        return self.model.effect_params[self.effect][self.key] if self.key else None
-
-    @property
-    def pinned(self) -> bool:
-        """The plausible sizes lie within :data:`PINNED` of each other."""
-        sizes = [s for s, _ in self.members if s is not None and s > 0]
-        return len(sizes) < 2 or max(sizes) / min(sizes) <= PINNED
-
-    def truths(self) -> list:
-        """``[(label, Model)]`` it is judged true as: its best fit when the data pin its
-        size, else each plausible variant (the best fit is one point of a range the data
-        cannot narrow); none when it is skipped."""
-        if self.skipped:
-            return []
-        if self.pinned:
-            return [(self.effect, self.model)]
-        return [(f"{self.effect} {self.key} = {s:.3g} {self.unit}", m)
-                for s, m in self.members[1:]]
-
-    def describe_size(self) -> str:
-        if not self.key:
-            return ""
-        s = f"{self.key} = {self.size:.3g} {self.unit}"
-        if self.degenerate:
-            return s + " (at its bound)"
-        if not self.pinned:
-            sizes = sorted(v for v, _ in self.members)
-            return (f"{self.key} not pinned by the data: {sizes[0]:.3g}-{sizes[-1]:.3g} "
-                    f"{self.unit} fit as well")
-        return s
-
-
-@dataclass
-class Judged:
-    """One candidate input and how well it separates the pair."""
-
-    candidate: Candidate
-    naive: float                      # predicted difference of the best fits (noise units)
-    robust: float = 0.0               # the worst over plausible truths and rival variants
-    #: plausible truth -> predicted separation after the rival re-fits (leaders only)
-    refit: dict = field(default_factory=dict)
-    #: its re-fits stopped before every truth was tried, once a better input was found
-    #: (its worst is then at most the value shown)
-    stopped: bool = False
-    #: the hardest case judged: (truth index in the pair, truth label, truth model, the
-    #: rival as re-fitted to it) -- what the figure shows
-    hardest: tuple | None = field(default=None, repr=False)
-
-    @property
-    def worst(self) -> float | None:
-        return min(self.refit.values()) if self.refit else None
-
-    def to_json(self) -> dict:
-        return {"kind": self.candidate.kind, "label": self.candidate.label,
-                "duration_s": self.candidate.duration, "points": len(self.candidate.points),
-                "naive": self.naive, "worst_plausible": self.robust,
-                "separation_after_refit": dict(self.refit) or None,
-                "worst_separation_after_refit": self.worst,
-                "stopped_below_a_better_input": self.stopped}
-
-
-@dataclass(repr=False)
-class Proposal(Displayable):
-    """The proposed experiment, why it separates the pair and by how much; or, when no
-    input within the limits separates it (``separates`` False), the best found and what
-    would help instead."""
-
-    pair: tuple
-    hypotheses: list
-    judged: list
-    chosen: Judged
-    sigmas: dict
-    template: Run
-    budget_s: float
-    amax: float
-    seconds: float = 0.0
-    plausible: list = field(default_factory=list)   # plausible models per hypothesis
-    separates: bool = True
-    advice: str = ""
-
-    def headline(self) -> str:
-        if not self.separates:
-            return (f"No proposal between {self.pair[0]} and {self.pair[1]}: nothing within "
-                    f"{self.budget_s:g} s separates them")
-        return (f"Proposal between {self.pair[0]} and {self.pair[1]}: "
-                f"{self.chosen.candidate.label} ({self.chosen.candidate.duration:.1f} s)")
-
-    @property
-    def why(self) -> str:
-        return why(self.chosen.candidate.kind, self.pair)
-
-    @property
-    def limits(self) -> dict:
-        """The board's limits the proposed input respects, and what it uses of them."""
-        c = self.chosen.candidate
-        return {"budget_s": self.budget_s, "duration_s": c.duration,
-                "max_points": MAX_POINTS, "points": len(c.points),
-                "amax_v": self.amax, "peak_v": max(abs(u) for _, u in c.points)}
-
-    def experiment(self, name: str = "proposed") -> dict:
-        """The plan's ``[[experiment]]`` table."""
-        return {"name": name, "loop": "open", "waveform": "pwl", "lead_in_s": LEAD_IN_S,
-                "sample_rate_hz": float(self.template.fs),
-                "points": [[float(t), float(u)] for t, u in self.chosen.candidate.points],
-                "between": list(self.pair)}
-
-    def to_toml(self) -> str:
-        """The plan file: an ordinary plan with one ``pwl`` experiment."""
-        if not self.separates:
-            raise UserError(f"no input within {self.budget_s:g} s separates {self.pair[0]} "
-                            f"and {self.pair[1]}; {self.advice}")
-        e = self.experiment()
-        a, b = self.pair
-        lim = self.limits
-        lines = [f"# Proposed by `labrig propose`: the experiment that best tells {a} and {b} "
-                 "apart.", f"# {self.chosen.candidate.label}: {self.why}.",
-                 f"# Predicted difference ({DIFFERENCE}): {self.chosen.naive:.0f} "
-                 "for the best fits.",
-                 f"# Predicted separation ({SEPARATION}) after the rival re-fits: "
-                 f"{self.chosen.worst:.2f} at worst (>= {DECISIVE:g} is decisive).",
-                 f"# Limits respected: {lim['duration_s']:.2f} s of the {lim['budget_s']:g} s "
-                 f"budget, {lim['points']} of at most {lim['max_points']} breakpoints, "
-                 f"|u| <= {lim['peak_v']:.2f} V within +-{lim['amax_v']:.2f} V.", "",
-                 "[[experiment]]"]
-        for k in ("name", "loop", "waveform", "lead_in_s", "sample_rate_hz"):
-            v = e[k]
-            lines.append(f"{k} = {v!r}".replace("'", '"') if isinstance(v, str) else f"{k} = {v}")
-        lines.append("between = [" + ", ".join(f'"{x}"' for x in e["between"]) + "]")
-        lines.append("points = [" + ", ".join(f"[{t:g}, {u:g}]" for t, u in e["points"]) + "]")
-        return "\n".join(lines) + "\n"
-
-    def to_json(self) -> dict:
-        c = self.chosen
-        return {"between": list(self.pair),
-                "hypotheses": [{"effect": h.effect, "rmse_over_noise": h.rmse_over_noise,
-                                "model": h.model.describe(), "size": h.describe_size(),
-                                "pinned": h.pinned, "at_bound": h.degenerate,
-                                "plausible_sizes": [s for s, _ in h.members],
-                                "judged_true": not h.skipped,
-                                "why_not_judged_true": h.skipped or None}
-                               for h in self.hypotheses],
-                "separates": self.separates, "advice": self.advice or None,
-                "proposed": {"kind": c.candidate.kind, "label": c.candidate.label,
-                             "duration_s": c.candidate.duration, "why": self.why,
-                             "points": c.candidate.points,
-                             "separation": {"naive": c.naive, "after_refit": dict(c.refit),
-                                            "worst_after_refit": c.worst}},
-                "limits": self.limits,
-                "candidates": [j.to_json() for j in self.judged],
-                "noise": self.sigmas, "budget_s": self.budget_s, "amax_v": self.amax,
-                "seconds": round(self.seconds, 2)}
-
-    def _leaders(self) -> list:
-        lead = sorted((j for j in self.judged if j.refit), key=lambda j: -j.worst)
-        rest = sorted((j for j in self.judged if not j.refit), key=lambda j: -j.robust)
-        return lead + rest[:max(0, 8 - len(lead))]
-
-    def to_text(self) -> str:
-        c = self.chosen
-        a, b = self.pair
-        fits = "; ".join(f"with {h.effect}: rmse/noise {h.rmse_over_noise:.2f}"
-                         + (f", {h.describe_size()}" if h.key else "") for h in self.hypotheses)
-        judged = []
-        for h in self.hypotheses:
-            if h.skipped:
-                judged.append(f"{h.effect} is not judged as the truth: {h.skipped}")
-            else:
-                judged.append(f"judged true as {', '.join(lab for lab, _ in h.truths())}")
-        rows = self._leaders()
-        w = max([45] + [len(j.candidate.label) for j in rows])   # labels whole, aligned
-        body = "\n".join(
-            f"  {j.candidate.label:<{w}} {j.naive:12.0f} {j.robust:12.0f} "
-            + (f"{('<= ' if j.stopped else '') + format(j.worst, '.2f'):>12}" if j.refit
-               else f"{'-':>12}") for j in rows)
-        text = (f"between {a} and {b} ({fits})\n" + "\n".join(judged) + "\n\n"
-                f"candidate inputs (at most {self.budget_s:g} s, within +-{self.amax:.2f} V, at "
-                f"most {MAX_POINTS} breakpoints): the predicted difference ({DIFFERENCE}) of the "
-                "best fits and the worst over the models the data cannot exclude "
-                f"({' and '.join(map(str, self.plausible))}); for the leaders, the predicted "
-                f"separation ({SEPARATION}) after the rival re-fits, the worst over the "
-                "plausible truths:\n"
-                f"  {'input':<{w}} {'best fits':>12} {'worst case':>12} {'separation':>12}\n"
-                f"{body}\n\n")
-        after = ", ".join(f"{v:.2f} with {k} true" for k, v in c.refit.items())
-        if not self.separates:
-            return text + (f"nothing within {self.budget_s:g} s and +-{self.amax:.2f} V is "
-                           f"predicted to separate them: the best, {c.candidate.label}, reaches "
-                           f"a separation of {(c.worst or 0.0):.2f} after the rival re-fits "
-                           f"({after or 'no truth to judge'}; {DECISIVE:g} needed). No plan "
-                           f"is written.\nwhat would: {self.advice}")
-        return text + (f"proposed: {c.candidate.label} ({c.candidate.duration:.1f} s, "
-                       f"{len(c.candidate.points)} breakpoints)\n"
-                       f"why: {self.why}.\n"
-                       f"predicted separation ({SEPARATION}) after the rival re-fits: {after} "
-                       f"({DECISIVE:g} or more is decisive: the wrong one's rmse/noise at "
-                       "least twice the right one's)")
-
-    def table_rows(self) -> list[Table]:
-        """The explanations' fits, and the candidate inputs by predicted separation."""
-        fits = Table(f"between {self.pair[0]} and {self.pair[1]}",
-                     ["explanation", "rmse/noise", "size", "judged true"], numeric=(1,))
-        fits.rows = [[h.effect, f"{h.rmse_over_noise:.2f}", h.describe_size() or "-",
-                      "yes" if not h.skipped else f"no: {h.skipped}"] for h in self.hypotheses]
-        inputs = Table(f"candidate inputs (at most {self.budget_s:g} s, within "
-                       f"+-{self.amax:.2f} V)", ["input", "best fits", "worst case",
-                                                 "separation"], numeric=(1, 2, 3))
-        inputs.rows = [[j.candidate.label, f"{j.naive:.0f}", f"{j.robust:.0f}",
-                        (("<= " if j.stopped else "") + f"{j.worst:.2f}") if j.refit else "-"]
-                       for j in self._leaders()]
-        inputs.notes.append(f"predicted difference ({DIFFERENCE}); predicted separation "
-                            f"({SEPARATION}) after the rival re-fits; "
-                            + (f"proposed: {self.chosen.candidate.label}" if self.separates
-                               else "nothing separates them: no plan"))
-        return [fits, inputs]
-
-    def predicted(self):
-        """The proposed run as the template's rig would record it, and the two predictions
-        of it (``w``, ``theta``) in the pair's order, with their labels: the hardest
-        plausible truth judged and the rival as re-fitted to it (what the predicted
-        separation measures), else the two best fits."""
-        run = synthetic_run(self.template, self.chosen.candidate, "proposed")
-        hard = self.chosen.hardest
-        if hard is None:
-            return run, [h.model.simulate([run])[0] for h in self.hypotheses], \
-                [f"with {h.effect} (best fit)" for h in self.hypotheses]
-        ti, label, truth, rival = hard
-        pair = [None, None]
-        pair[ti] = (truth.simulate([run])[0], f"{label}, as the truth")
-        pair[1 - ti] = (rival.simulate([run])[0],
-                        f"{self.pair[1 - ti]}, re-fitted to it")
-        return run, [p for p, _ in pair], [lab for _, lab in pair]
-
-    def plot(self, ax=None):
-        """Both explanations' predicted responses to the proposed input, with the noise band."""
-        from labrig.loop.propose_plots import plot_proposal
-
-        return plot_proposal(self, ax=ax)
 
 
 def default_pair(model: Model, between: str | None) -> tuple:
@@ -377,31 +110,6 @@ def threshold_of(model: Model) -> float:
         elif "tc_v" in ps:
             out.append(ps["tc_v"] * (1.0 + ps.get("excess", 0.0)))
     return float(max(out)) if out else 0.0
-
-
-def synthetic_run(template: Run, cand: Candidate, name: str, sim: dict | None = None,
-                  noise: dict | None = None, rng=None) -> Run:
-    """A run of ``cand`` as ``template``'s rig would record it: volts through the same
-    sensors, the model's prediction ``sim`` (``w``, ``theta``) plus seeded noise."""
-    fs = template.fs
-    u = cand.values(fs, LEAD_IN_S)
-    n = len(u)
-    cols = {"t": np.arange(n) / fs, "u": u}
-    w = np.zeros(n) if sim is None else sim["w"]
-    th = np.zeros(n) if sim is None else sim["theta"]
-    if noise is not None:
-        w = w + rng.normal(0.0, noise.get("speed", 0.0), n)
-        th = th + rng.normal(0.0, noise.get("position", 0.0), n)
-    if template.has_tacho:
-        cols["tacho"] = w * template.kt
-    elif template.has_speed:  # imported speed: stored as speed, as the template's is
-        cols["speed"] = w
-    if template.has_pos:
-        cols["pos"] = th * template.kpot + template.pos_offset
-    meta = copy.deepcopy(template.meta)
-    meta["experiment"] = {"loop": "open", "waveform": "pwl", "lead_in_s": LEAD_IN_S,
-                          "points": cand.points}
-    return Run(name=name, data=pd.DataFrame(cols), meta=meta)
 
 
 def variants(runs, hyp: Hypothesis, reach, *, seed: int, weights: Weights) -> None:
