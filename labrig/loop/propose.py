@@ -182,7 +182,7 @@ def _judge_truths(hyps) -> None:
                          f"{h.rmse_over_noise:.2f} against {other.rmse_over_noise:.2f})")
 
 
-def _levels_threshold(hyps, amax: float) -> float | None:
+def _levels_threshold(hyps) -> float | None:
     """The threshold (V) to set levels around, or None: spread them across the whole
     range (a size the data do not pin, or only degenerate ones)."""
     sized = [h for h in hyps if not h.degenerate]
@@ -192,7 +192,7 @@ def _levels_threshold(hyps, amax: float) -> float | None:
 
 
 def separation_after_refit(runs, base: Model, rival: str, truth: Model, cand: Candidate,
-                           template: Run, sig: dict, *, seed, weights, rng) -> float:
+                           template: Run, sig: dict, *, seed, weights, rng) -> tuple:
     """The decision's separation predicted for ``cand`` when ``truth`` is the truth: the
     run it would record (with the rig's noise) added to ``runs``, the rival re-fitted to
     them all from scanned starts (as ``diagnose`` fits it), its rmse/noise over the
@@ -233,11 +233,11 @@ def _leaders(judged: list) -> list:
     return out
 
 
-def _advice(prop_budget: float, amax: float, rig, pair, best: Judged) -> str:
+def _advice(budget_s: float, amax: float, rig, pair, best: Judged) -> str:
     """What would help when nothing within the limits separates the pair."""
     tips = []
-    if best.candidate.duration >= 0.5 * prop_budget:
-        tips.append(f"a longer budget (--budget-s {2 * prop_budget:g}): more of the "
+    if best.candidate.duration >= 0.5 * budget_s:
+        tips.append(f"a longer budget (--budget-s {2 * budget_s:g}): more of the "
                     "regime where they differ")
     if rig is None:
         tips.append(f"larger inputs than the data's +-{amax:.2f} V (--rig RIG.toml lets "
@@ -313,7 +313,7 @@ def propose(runs: list[Run], model: Model, between: str | None = None, *,
     data_amax = max(float(np.max(np.abs(r.u))) for r in opened)
     amax = data_amax if amax is None else float(amax)
     tau = float(np.median([h.model.servo().tau_m for h in hyps]))
-    cands = candidates(threshold=_levels_threshold(hyps, amax), amax=amax, tau=tau,
+    cands = candidates(threshold=_levels_threshold(hyps), amax=amax, tau=tau,
                        budget_s=budget_s, dt=template.dt)
     if not cands:
         raise UserError(f"--budget-s: no candidate input fits in {budget_s:g} s; allow more")
