@@ -74,6 +74,8 @@ class Deadband(InputEffect):
         "reversals": ("with a dead zone the motor coasts through every reversal while the "
                       "input crosses the zone"),
         "staircase": "with a dead zone every step's speed rises from the threshold on",
+        "steps": ("with a dead zone each step's speed rises only from the threshold on, "
+                  "and at 0 V the motor coasts down exponentially with tau_m"),
     }
     stage = "input"
     params = (Param("d_v", "V", 1e-3, 2.0, "dead-zone half width at the bridge input"),)
@@ -161,6 +163,8 @@ class Backlash(OutputEffect):
         "ramp": ("backlash keeps the output still at the reversal while the motor crosses "
                  "the gap"),
         "coast": "backlash lets the output stop before the motor does",
+        "steps": ("backlash leaves the output behind the motor by the gap, one way after "
+                  "a step up and the other after a step down, whatever the speed"),
         "reversals": ("backlash keeps the output still while the motor crosses the gap, "
                       "for a time that grows as the speed falls"),
     }
@@ -205,6 +209,7 @@ class Delay(DelayEffect):
     responses = {
         "ramp": "a delay shifts the whole response by the same time",
         "coast": "a delay starts every coast-down late by the same time",
+        "steps": "a delay shifts every step and every coast by the same time",
         "reversals": "a delay shifts every response by the same time, whatever the speed",
     }
     stage = "delay"

@@ -43,6 +43,8 @@ class CoulombFriction(FrictionEffect):
                       "waits there until the drive overcomes the friction"),
         "staircase": ("with friction the steps below the friction level stay at rest and "
                       "the others start braked"),
+        "steps": ("with Coulomb friction every coast to 0 V is braked by the friction too "
+                  "and stops in a finite time"),
     }
     stage = "friction"
     family = "friction law"
@@ -99,6 +101,8 @@ class Stiction(FrictionEffect):
         "reversals": "with stiction it sticks at every reversal until the breakaway level",
         "staircase": ("with stiction the motor stays at rest until a step passes the "
                       "breakaway level, then jumps"),
+        "steps": ("with stiction a step below the breakaway level leaves the motor at "
+                  "rest, and every coast to 0 V ends held by the friction"),
     }
     stage = "friction"
     family = "friction law"
