@@ -40,3 +40,20 @@ def test_the_plan_form_says_what_is_wrong_beside_its_field(tmp_path):
     form.w["amplitudes"].value = "1.2"
     form.w["frequency"].value = 5000.0
     assert form.plan() is None and form.msg["frequency"].visible
+
+
+def test_a_proposal_that_separates_nothing_is_not_played(tmp_path):
+    """When no input within the budget separates the pair, the proposal has no plan: the
+    station refuses to play it, in one line, and no run is started."""
+    from labrig.core.errors import LabrigError
+    from labrig.lab.serve import make_station
+
+    st = make_station(tmp_path, port=str(tmp_path / "ttyNONE"))
+    try:
+        st.proposal = {"plan": None, "text": "nothing within 20 s ... separates them"}
+        st.predict("deadband", "it coasts")
+        with pytest.raises(LabrigError, match="nothing to play"):
+            st.play_proposal()
+        assert not st.sweeping and not (tmp_path / "asked").exists()
+    finally:
+        st.close()
