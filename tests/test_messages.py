@@ -230,7 +230,7 @@ def test_separation_is_the_decisions_ratio_and_a_proposal_predicts_that_one():
     "predicted difference"."""
     from labrig.loop.decide import Decision
     from labrig.loop.inputs import Candidate as Input
-    from labrig.loop.propose import SEPARATION, Hypothesis, Judged, Proposal
+    from labrig.loop.proposal import SEPARATION, Hypothesis, Judged, Proposal
 
     model = SimpleNamespace(describe=lambda: "a model")
     inp = Input("ramp", [[0.0, 0.0], [5.0, 1.2], [10.0, -1.2]], "ramp through zero +-1.2 V")

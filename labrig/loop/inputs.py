@@ -69,6 +69,21 @@ def _pts(segments) -> list:
     return out
 
 
+def _from_rest(levels, hold: float, rest: float, edge: float) -> list:
+    """Pieces that take each level in turn, alternating in sign, for ``hold`` s from rest
+    and back to 0 V for ``rest`` s."""
+    segs, sign = [], 1.0
+    for lv in levels:
+        segs += [(edge, sign * lv), (hold, sign * lv), (edge, 0.0), (rest, 0.0)]
+        sign = -sign
+    return segs
+
+
+def _holds(usual, fill: float) -> list:
+    """The usual hold times and, when longer, the one that fills the budget."""
+    return sorted(set(usual) | ({round(fill, 3)} if fill > usual[0] else set()))
+
+
 def candidates(*, threshold: float | None, amax: float, tau: float, budget_s: float,
                dt: float) -> list[Candidate]:
     """The candidate inputs for effects whose threshold is ``threshold`` V (0 when they
@@ -102,12 +117,9 @@ def candidates(*, threshold: float | None, amax: float, tau: float, budget_s: fl
                          (spread, f"{spread[0]:.2f}-{spread[-1]:.2f} V"))[0 if pinned else 1:]:
         # and dwells that fill the budget: more of the regime where the laws differ
         fill = 0.98 * budget_s / (1.5 * len(levels)) - 2 * edge
-        for dwell in sorted({settle, 2 * settle} | ({round(fill, 3)} if fill > settle else set())):
-            segs, sign = [], 1.0
-            for lv in levels:
-                segs += [(edge, sign * lv), (dwell, sign * lv), (edge, 0.0), (dwell / 2, 0.0)]
-                sign = -sign
-            add("dwells", segs, f"dwells at {what}, {dwell:.2f} s each")
+        for dwell in _holds((settle, 2 * settle), fill):
+            add("dwells", _from_rest(levels, dwell, dwell / 2, edge),
+                f"dwells at {what}, {dwell:.2f} s each")
     for U in sorted({0.5 * amax, amax}):
         segs = []
         for sign in (1.0, -1.0, 1.0, -1.0):
@@ -144,11 +156,7 @@ def candidates(*, threshold: float | None, amax: float, tau: float, budget_s: fl
     # crosses any threshold the data allow, and the coasts are where the laws part (a
     # dead zone leaves the motor braked by its back-EMF only, friction stops it sooner)
     fill = 0.98 * budget_s / (2.5 * len(spread)) - 2 * edge
-    for hold in sorted({settle, 1.5 * settle} | ({round(fill, 3)} if fill > settle else set())):
-        segs, sign = [], 1.0
-        for lv in spread:
-            segs += [(edge, sign * lv), (hold, sign * lv), (edge, 0.0), (1.5 * hold, 0.0)]
-            sign = -sign
-        add("steps", segs, f"steps {spread[0]:.2f}-{spread[-1]:.2f} V, each coasting to "
+    for hold in _holds((settle, 1.5 * settle), fill):
+        add("steps", _from_rest(spread, hold, 1.5 * hold, edge), f"steps {spread[0]:.2f}-{spread[-1]:.2f} V, each coasting to "
                            f"rest, {hold:.2f} s each")
     return out

@@ -33,8 +33,7 @@ import numpy as np
 
 from labrig.core.errors import UserError
 from labrig.loop.inputs import Candidate, candidates
-from labrig.loop.proposal import (DECISIVE, DIFFERENCE, LEAD_IN_S, SEPARATION,  # noqa: F401
-                                  Hypothesis, Judged, Proposal, synthetic_run)
+from labrig.loop.proposal import DECISIVE, Hypothesis, Judged, Proposal, synthetic_run
 from labrig.model.effects import catalogue_name, get_effect
 from labrig.model.model import Model
 from labrig.analysis.noise import Weights, channel_floors
@@ -352,21 +351,20 @@ def propose(runs: list[Run], model: Model, between: str | None = None, *,
     # (input, truth) is seeded by both: the same answer whatever the order. (One fit at
     # a time: the simulator's kernels already use both cores; fits in two processes,
     # each held to one core, were slower.)
-    done = {k: 0 for k in range(len(leaders))}
     while truths:
-        k = max(done, key=lambda k: (leaders[k].worst if done[k] else np.inf, -k))
-        if done[k] == len(truths):
+        k = max(range(len(leaders)), key=lambda k: (leaders[k].worst if leaders[k].refit
+                                                    else np.inf, -k))
+        j, t = leaders[k], len(leaders[k].refit)   # the truths are judged in order
+        if t == len(truths):
             break
-        j, t = leaders[k], done[k]
         hi, label, m = truths[t]
         j.refit[label], rival = separation_after_refit(
             runs, base, pair[1 - hi], m, j.candidate, template, sig, seed=seed,
             weights=weights, rng=np.random.default_rng([seed, k, t]))
         if j.refit[label] == j.worst:
             j.hardest = (hi, label, m, rival)
-        done[k] += 1
-    for k, j in enumerate(leaders):
-        j.stopped = 0 < done[k] < len(truths)
+    for j in leaders:
+        j.stopped = 0 < len(j.refit) < len(truths)
     if truths:
         chosen = max(leaders, key=lambda j: (j.worst, -j.candidate.duration))
         separates = chosen.worst >= DECISIVE
