@@ -108,6 +108,23 @@ def test_residuals_and_floor_ignore_lost_samples(clean_and_lossy):
     assert ol.n_gaps == lost and oc.n_gaps == 0
 
 
+@pytest.mark.parametrize("stride", [2, 3, 7])
+def test_a_subsample_of_the_residuals_is_the_same_samples(clean_and_lossy, stride):
+    """The loop's re-fits see every k-th residual: computed alone, they are exactly those
+    of all residuals, also with samples lost on the link and a fold's mask."""
+    from labrig.identification.objective import Objective, build_space
+    from labrig.io.runs import read_dataset
+
+    runs = read_dataset([clean_and_lossy[1]])
+    masks = [np.arange(len(r.u)) % 5 != 2 for r in runs]
+    for m in (None, masks):
+        obj = Objective(runs, [], build_space([]), p=0.6, q=1.4, masks=m)
+        lo, hi = obj.space.search_bounds()
+        X = lo + np.random.default_rng(1).random((3, lo.size)) * (hi - lo)
+        every = obj.residuals_jac_batch(X)
+        assert np.array_equal(obj.residuals_jac_batch(X, stride), every[:, ::stride])
+
+
 @pytest.mark.parametrize("share,ok", [(0.45, True), (0.55, False), (1.0, False)])
 def test_a_run_that_is_mostly_gaps_is_refused(tmp_path, capsys, share, ok):
     d = _copy(tmp_path / "runs", names=("sq_2.00V",))

@@ -9,7 +9,7 @@ import pytest
 from scipy.optimize import curve_fit
 
 from labrig.identification.jellyfish import JellyfishSolver, jellyfish, logistic_init, wrap_bounds
-from labrig.identification.local import batch_jacobian, covariance, local, polish
+from labrig.identification.local import batch_jacobian, covariance, local, polish, reduced
 from labrig.identification.pso import PSOSolver, apply_boundary, constriction, pso
 from labrig.identification.result import IdentResult
 
@@ -498,3 +498,32 @@ def test_result_to_dict():
     d = r.to_dict()
     assert d["x"] == [1.0, None] and d["fun"] is None and d["extra"]["a"] == [0, 1]
     json.dumps(d)
+
+
+@pytest.mark.parametrize("rank", [3, 2])
+def test_reduced_problem_carries_the_gauss_newton_model(rank):
+    """The n + 1 rows the trust region sees: the same J^T J, J^T f and |f| as the m rows,
+    also when a parameter has no effect at all (a column of zeros)."""
+    rng = np.random.default_rng(3)
+    J = rng.normal(size=(5000, 3)) * [1e3, 1.0, 1e-3]
+    if rank == 2:
+        J[:, 2] = 0.0
+    f = rng.normal(size=5000)
+    K = reduced(J, f)
+    e = np.zeros(4)
+    e[-1] = np.linalg.norm(f)
+    assert K.shape == (4, 3)
+    np.testing.assert_allclose(K.T @ K, J.T @ J, rtol=1e-9, atol=1e-9 * np.abs(J.T @ J).max())
+    np.testing.assert_allclose(K.T @ e, J.T @ f, rtol=1e-9, atol=1e-9 * np.abs(J.T @ f).max())
+
+
+def test_reduced_fit_matches_the_full_one():
+    """local() with a batch Jacobian (the reduced problem) lands where scipy lands on all
+    residuals, to the optimiser's tolerance, and reports the full residuals and Jacobian."""
+    from scipy.optimize import least_squares
+
+    a = local(residuals, LO, HI, x0=np.array([1.0, 1.0, 0.0]), starts=1, seed=0,
+              jac_batch=residuals_batch)
+    b = least_squares(residuals, [1.0, 1.0, 0.0], bounds=(LO, HI), method="trf")
+    np.testing.assert_allclose(a.x, b.x, rtol=1e-6)
+    assert a.jac.shape == (T.size, 3) and a.cost == pytest.approx(b.cost, rel=1e-9)

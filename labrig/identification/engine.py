@@ -51,8 +51,8 @@ def _run_co(obj, lo, hi, x0, o):
         # the loop's many warm re-fits: every k-th residual (at 1 kHz neighbours are
         # strongly correlated, so the optimum barely moves; the SVD costs k times less)
         k = max(1, obj.m // o["subsample"])
-        res = local(lambda x: obj.residuals(x)[::k], lo, hi, x0=x0, starts=1, seed=o["seed"],
-                    jac_batch=lambda X: obj.residuals_jac_batch(X)[:, ::k],
+        res = local(lambda x: obj.residuals(x, k), lo, hi, x0=x0, starts=1, seed=o["seed"],
+                    jac_batch=lambda X: obj.residuals_jac_batch(X, k),
                     max_nfev=o.get("max_nfev"), callback=root_cb)
         res.fun = float(np.sqrt(res.fun))
         res.history = [float(np.sqrt(h)) for h in res.history]
@@ -60,8 +60,8 @@ def _run_co(obj, lo, hi, x0, o):
     full = lambda x: local(obj.residuals, lo, hi, x0=x, starts=1, seed=o["seed"],  # noqa: E731
                            jac_batch=obj.residuals_jac_batch, max_nfev=o.get("max_nfev"))
     if o["starts"] > 1 and stride > 1:
-        screen = local(lambda x: obj.residuals(x)[::stride], lo, hi, x0=x0, starts=o["starts"],
-                       seed=o["seed"], jac_batch=lambda X: obj.residuals_jac_batch(X)[:, ::stride],
+        screen = local(lambda x: obj.residuals(x, stride), lo, hi, x0=x0, starts=o["starts"],
+                       seed=o["seed"], jac_batch=lambda X: obj.residuals_jac_batch(X, stride),
                        max_nfev=o.get("max_nfev"), callback=root_cb)
         res = full(screen.x)
         res.nfev += screen.nfev

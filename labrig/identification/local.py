@@ -18,6 +18,9 @@ Conventions
   ``extra["rank"]`` and ``extra["singular_values"]``.
 * ``nfev`` counts residual vectors evaluated: one per ``residuals`` call and
   P per ``jac_batch`` call of P rows.
+* With ``jac_batch`` the trust region works on :func:`reduced` rows (n + 1 of them,
+  the same Gauss-Newton model as the m residuals): its SVD no longer grows with m.
+  ``fun``, ``jac`` and ``cost`` of the result are the full ones.
 """
 
 from __future__ import annotations
@@ -29,7 +32,7 @@ import numpy as np
 from labrig.identification.lhs import latin_hypercube
 from labrig.identification.result import IdentResult, check_bounds, check_callable, check_int, check_seed
 
-__all__ = ["local", "polish", "covariance", "batch_jacobian"]
+__all__ = ["local", "polish", "covariance", "batch_jacobian", "reduced"]
 
 _EPS = np.finfo(float).eps
 
@@ -119,15 +122,45 @@ def batch_jacobian(batch: Callable[[np.ndarray], np.ndarray], x: np.ndarray,
     return (R[1:] - R[0]).T / h
 
 
-def covariance(jac: np.ndarray, cost: float) -> dict[str, Any]:
+def reduced(J: np.ndarray, f: np.ndarray) -> np.ndarray:
+    """An (n+1, n) matrix K with ``K^T K = J^T J`` and ``K^T (|f| e) = J^T f``
+    (e the last unit vector): the least-squares problem at this point in n + 1 rows.
+
+    scipy's trust region takes an SVD of the m x n Jacobian and a product with it at
+    every step; with m in the tens of thousands that, not the simulation, was most of a
+    fit. The Gauss-Newton model it builds, ``|f|^2 + 2 g^T p + p^T J^T J p``, depends on
+    J and f only through ``J^T J``, ``g = J^T f`` and ``|f|``, which K and ``|f| e``
+    carry exactly; so is the scaling by column norms. The Gram matrix of ``[J f]`` is
+    equilibrated, factored by a symmetric eigendecomposition (rank-deficient J is
+    fine) and turned by one Householder reflection so its last column is ``|f| e``.
+    """
+    A = np.empty((J.shape[1] + 1, J.shape[1] + 1))
+    A[:-1, :-1] = J.T @ J
+    A[:-1, -1] = A[-1, :-1] = J.T @ f
+    A[-1, -1] = f @ f
+    d = np.sqrt(np.diag(A))
+    d[~(d > 0)] = 1.0
+    lam, V = np.linalg.eigh(A / np.outer(d, d))
+    M = np.sqrt(np.clip(lam, 0.0, None))[:, None] * V.T * d[None, :]
+    c = M[:, -1].copy()
+    c[-1] -= np.linalg.norm(c)
+    if c @ c > 0:
+        M -= np.outer(c, (2.0 / (c @ c)) * (c @ M))
+    return M[:, :-1]
+
+
+def covariance(jac: np.ndarray, cost: float, m: int | None = None) -> dict[str, Any]:
     """Parameter covariance ``s^2 (J^T J)^+`` and related diagnostics.
 
     Parameters
     ----------
     jac : ndarray, shape (m, n)
-        Residual Jacobian at the optimum.
+        Residual Jacobian at the optimum (or any matrix with the same ``J^T J``, such
+        as :func:`reduced`'s, with ``m`` given).
     cost : float
         ``0.5 * sum(r**2)`` at the optimum.
+    m : int, optional
+        The number of residuals (default: the rows of ``jac``).
 
     Returns
     -------
@@ -136,9 +169,9 @@ def covariance(jac: np.ndarray, cost: float) -> dict[str, Any]:
         ``singular_values``.  Values are NaN when ``m <= n``.
     """
     J = np.asarray(jac, dtype=float)
-    m, n = J.shape
+    m, n = (J.shape[0] if m is None else m), J.shape[1]
     _, sv, VT = np.linalg.svd(J, full_matrices=False)
-    cut = _EPS * max(J.shape) * (sv[0] if sv.size else 0.0)
+    cut = _EPS * max(m, n) * (sv[0] if sv.size else 0.0)
     keep = sv > cut
     pinv_jtj = (VT[keep].T / sv[keep] ** 2) @ VT[keep]
     s2 = 2.0 * cost / (m - n) if m > n else np.nan
@@ -226,10 +259,25 @@ def local(residuals: Callable[[np.ndarray], np.ndarray], lower: Any, upper: Any,
     points.extend(latin_hypercube(starts - len(points), lo, hi, rng))
 
     wrapped = _Residuals(residuals, jac_batch)
+    fun: Callable = wrapped
     jac: Any = "2-point"
+    full_jac: dict[bytes, np.ndarray] = {}   # the last Jacobian, for the result
     if jac_batch is not None:
         def jac(x: np.ndarray) -> np.ndarray:
-            return batch_jacobian(wrapped.batch, x, lo, hi)
+            J = batch_jacobian(wrapped.batch, x, lo, hi)
+            full_jac.clear()
+            full_jac[x.tobytes()] = J
+            return J
+
+        def fun(x: np.ndarray) -> np.ndarray:   # the reduced problem: only |r| matters
+            r = wrapped(x)
+            out = np.zeros(D + 1)
+            out[-1] = np.sqrt(r @ r) if np.all(np.isfinite(r)) else np.inf
+            return out
+
+        def jac_reduced(x: np.ndarray) -> np.ndarray:
+            J = jac(x)
+            return reduced(J, wrapped(x))
 
     best = None
     history: list[float] = []
@@ -241,8 +289,17 @@ def local(residuals: Callable[[np.ndarray], np.ndarray], lower: Any, upper: Any,
             summary.append({"x0": start, "x": start, "fun": np.inf, "nfev": wrapped.nfev - n_before,
                             "status": None, "message": "residuals not finite at start"})
         else:
-            res = _least_squares()(wrapped, start, jac=jac, bounds=(lo, hi), method="trf",
-                                max_nfev=max_nfev, **options)
+            if jac_batch is not None:
+                res = _least_squares()(fun, start, jac=jac_reduced, bounds=(lo, hi),
+                                       method="trf", max_nfev=max_nfev, **options)
+                # the full residuals and Jacobian at the optimum, as without the reduction
+                res.fun = wrapped(res.x)
+                res.jac = full_jac.get(res.x.tobytes())
+                if res.jac is None:
+                    res.jac = jac(res.x)
+            else:
+                res = _least_squares()(wrapped, start, jac=jac, bounds=(lo, hi), method="trf",
+                                       max_nfev=max_nfev, **options)
             fun_ms = 2.0 * res.cost / res.fun.size
             summary.append({"x0": start, "x": res.x, "fun": fun_ms,
                             "nfev": wrapped.nfev - n_before,

@@ -170,10 +170,13 @@ class Objective:
         return self.sim.simulate(plant, ep)
 
     # -- residuals ----------------------------------------------------------------------
-    def _stack(self, sims) -> np.ndarray:
+    def _stack(self, sims, stride: int = 1) -> np.ndarray:
+        """(P, m) residuals, or every ``stride``-th of them (the same ones as
+        ``[:, ::stride]`` of all, without computing the rest)."""
         P = sims[0]["w"].shape[0]
-        R = np.empty((P, self.m))
-        k = 0
+        R = np.empty((P, -(-self.m // stride)))
+        k = 0   # where the next channel starts among all residuals
+        o = 0   # ... and among those kept
         for j, (r, s) in enumerate(zip(self.runs, sims)):
             for use, meas, sim, scale in ((self.use_theta, r.theta, s["theta"], np.sqrt(self.p) / self.sigma_theta),
                                           (self.use_w, r.w, s["w"], np.sqrt(self.q) / self.sigma_w),
@@ -181,27 +184,32 @@ class Objective:
                 if use and meas is not None:
                     if self.masks is not None:
                         meas, sim = meas[self.masks[j]], sim[:, self.masks[j]]
-                    out = R[:, k:k + len(meas)]
+                    n = len(meas)
+                    first = -k % stride
+                    meas, sim = meas[first::stride], sim[:, first::stride]
+                    out = R[:, o:o + len(meas)]
                     np.subtract(meas[None, :], sim, out=out)
                     out *= scale
-                    k += len(meas)
+                    k += n
+                    o += len(meas)
         # a wild candidate (unstable, overflowing) must not poison the optimiser's sums
         np.clip(R, -1e6, 1e6, out=R)
         R[np.isnan(R)] = 1e6
         return R
 
-    def residuals_batch(self, X: np.ndarray) -> np.ndarray:
-        """(P, D_free) search points -> (P, m) normalised residuals."""
+    def residuals_batch(self, X: np.ndarray, stride: int = 1) -> np.ndarray:
+        """(P, D_free) search points -> (P, m) normalised residuals (every
+        ``stride``-th: the loop's re-fits see a subsample)."""
         X = np.atleast_2d(X)
         self.nfev += X.shape[0]
         with np.errstate(all="ignore"):
-            return self._stack(self.simulate_physical(self.space.to_physical(X)))
+            return self._stack(self.simulate_physical(self.space.to_physical(X)), stride)
 
-    def residuals(self, x: np.ndarray) -> np.ndarray:
-        return self.residuals_batch(x[None, :])[0] / np.sqrt(self.m)
+    def residuals(self, x: np.ndarray, stride: int = 1) -> np.ndarray:
+        return self.residuals_batch(x[None, :], stride)[0] / np.sqrt(self.m)
 
-    def residuals_jac_batch(self, X: np.ndarray) -> np.ndarray:
-        return self.residuals_batch(X) / np.sqrt(self.m)
+    def residuals_jac_batch(self, X: np.ndarray, stride: int = 1) -> np.ndarray:
+        return self.residuals_batch(X, stride) / np.sqrt(self.m)
 
     def fitness_batch(self, X: np.ndarray) -> np.ndarray:
         """(P, D_free) -> (P,) fitness; the fused kernel never stores trajectories."""
