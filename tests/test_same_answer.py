@@ -330,3 +330,25 @@ def test_two_explanations_within_two_percent_are_reported_as_undecided():
     assert "labrig propose --between deadband,coulomb_friction" in text
     assert _undecided([cand("deadband", 1.00), cand("coulomb_friction", 1.10)]) == ""
     assert _undecided([cand("coulomb_friction", 1.00), cand("stiction", 1.00, 2)]) == ""
+
+
+def test_the_same_fit_whatever_the_blas_threads():
+    """CO on the default sweep ends at the same parameters with one BLAS thread or two:
+    its sums do not depend on how a threaded BLAS splits them (along a flat valley a
+    last-digit difference ends the fit elsewhere)."""
+    import json
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    data = Path(__file__).resolve().parent.parent / "data" / "sweep_default"
+    out = []
+    for threads in ("1", "2"):
+        env = dict(os.environ, OPENBLAS_NUM_THREADS=threads, OMP_NUM_THREADS=threads,
+                   MKL_NUM_THREADS=threads)
+        p = subprocess.run([sys.executable, "-m", "labrig", "identify", str(data), "--method",
+                            "co", "--starts", "2", "--seed", "1", "--json"],
+                           capture_output=True, text=True, env=env, check=True)
+        out.append(json.loads(p.stdout)["params"])
+    assert out[0] == out[1]

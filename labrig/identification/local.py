@@ -134,10 +134,11 @@ def reduced(J: np.ndarray, f: np.ndarray) -> np.ndarray:
     equilibrated, factored by a symmetric eigendecomposition (rank-deficient J is
     fine) and turned by one Householder reflection so its last column is ``|f| e``.
     """
-    A = np.empty((J.shape[1] + 1, J.shape[1] + 1))
-    A[:-1, :-1] = J.T @ J
-    A[:-1, -1] = A[-1, :-1] = J.T @ f
-    A[-1, -1] = f @ f
+    rows = np.empty((J.shape[1] + 1, J.shape[0]))
+    rows[:-1], rows[-1] = J.T, f
+    # einsum, not BLAS: a threaded BLAS sums in an order that depends on its thread
+    # count, and a fit along a flat valley would end elsewhere on another machine
+    A = np.einsum("im,jm->ij", rows, rows)
     d = np.sqrt(np.diag(A))
     d[~(d > 0)] = 1.0
     lam, V = np.linalg.eigh(A / np.outer(d, d))
@@ -272,7 +273,7 @@ def local(residuals: Callable[[np.ndarray], np.ndarray], lower: Any, upper: Any,
         def fun(x: np.ndarray) -> np.ndarray:   # the reduced problem: only |r| matters
             r = wrapped(x)
             out = np.zeros(D + 1)
-            out[-1] = np.sqrt(r @ r) if np.all(np.isfinite(r)) else np.inf
+            out[-1] = np.sqrt(np.einsum("i,i", r, r)) if np.all(np.isfinite(r)) else np.inf
             return out
 
         def jac_reduced(x: np.ndarray) -> np.ndarray:

@@ -22,6 +22,7 @@ from __future__ import annotations
 import math
 import time
 
+from labrig.core.parallel import each
 from labrig.loop.crossval import cross_validate, fold_evidence, make_folds
 from labrig.loop.resolution import unresolved
 from labrig.loop.ranking import Candidate, Diagnosis
@@ -204,13 +205,15 @@ def diagnose(runs, model: Model | None = None, *, candidates=None, seed: int = 0
                                     "of the model re-fitted, not the effect")
         return c
 
-    ranking: list[Candidate] = []
-    for i, name in enumerate(candidate_names(base, candidates)):
-        eff = get_effect(name)
+    def candidate(job):
+        i, name = job
         if progress:
             progress(i, name)
-        ranking.append(entry(refit_with(runs, base, eff, seed=seed, fixed=fixed, weights=weights,
-                                        reach=reach), name))
+        return entry(refit_with(runs, base, get_effect(name), seed=seed, fixed=fixed,
+                                weights=weights, reach=reach), name)
+
+    # the candidates side by side (labrig.core.parallel), in the catalogue's order
+    ranking: list[Candidate] = each(candidate, enumerate(candidate_names(base, candidates)))
     # a candidate whose gain comes from re-fitting the rest of the model, not from its
     # effect, shows that the base was not converged: refine it and start again
     stale = [c for c in ranking if c.carried is not None and c.carried < MIN_GAIN
@@ -236,9 +239,10 @@ def diagnose(runs, model: Model | None = None, *, candidates=None, seed: int = 0
     by_fit = sorted(ranking, key=lambda c: -c.improvement)
     to_cv = [c for c in by_fit if c.improvement >= MIN_GAIN][:CV_CANDIDATES]
     to_cv += [c for c in revisions if c.move == "remove" or c.improvement >= SWAP_GAIN]
-    for c in to_cv:
-        cv = cross_validate(runs, c.model, folds, sigmas=sig, weights=weights, seed=seed,
-                            fixed=fixed, reach=Reach.of(runs, c.model))
+    cvs = each(lambda c: cross_validate(runs, c.model, folds, sigmas=sig, weights=weights,
+                                        seed=seed, fixed=fixed, reach=Reach.of(runs, c.model)),
+               to_cv)
+    for c, cv in zip(to_cv, cvs):
         c.cross_validated = fold_evidence(cv0, cv, c.model, None if c.move == "remove" else c.effect)
         c.unresolved = None if c.move == "remove" else c.unresolved or unresolved(
             get_effect(c.effect), c.params, runs, _fold_sizes(cv, c))

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from labrig.core.parallel import each
 from labrig.identification.engine import dataset_constants, identify, initial_point
 from labrig.model.plants import plant_of_runs
 from labrig.identification.objective import Objective, build_space
@@ -110,9 +111,8 @@ def refit_with(runs, base: Model, effect, *, seed: int = 0, fixed: dict | None =
     fixed = dict(fixed or {})
     params = {**base.flat(), **fixed}
     starts = starts_for(runs, params, effects, effect, reach, fixed, weights)
-    fits = [fit(runs, effects, s, fixed, seed=seed, weights=weights, reach=reach)
-            for s in starts]
-    return best_fit(fits)
+    return best_fit(each(lambda s: fit(runs, effects, s, fixed, seed=seed, weights=weights,
+                                       reach=reach), starts))
 
 
 def best_fit(fits):
@@ -134,9 +134,8 @@ def refit(runs, model: Model, *, seed: int = 0, fixed: dict | None = None,
     fixed = dict(fixed or {})
     params = {**model.flat(), **fixed}
     starts = starts_for(runs, params, model.effects, None, reach, fixed, weights)
-    fits = [fit(runs, model.effects, s, fixed, seed=seed, weights=weights, reach=reach)
-            for s in starts]
-    return best_fit(fits)
+    return best_fit(each(lambda s: fit(runs, model.effects, s, fixed, seed=seed,
+                                       weights=weights, reach=reach), starts))
 
 
 def without(model: Model, name: str) -> Model:

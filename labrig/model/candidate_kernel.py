@@ -47,7 +47,7 @@ def _expm_one(A0):
     return E
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def expm_ser(M):
     out = np.empty_like(M)
     for p in range(M.shape[0]):
@@ -55,7 +55,7 @@ def expm_ser(M):
     return out
 
 
-@numba.njit(parallel=True, cache=True)
+@numba.njit(parallel=True, cache=True, nogil=True)
 def expm_par(M):
     out = np.empty_like(M)
     for p in numba.prange(M.shape[0]):
@@ -221,7 +221,7 @@ def _candidate(p, s, m, frac, Ad, g_old, g_new, gf, prm, nonlinear, closed, S, c
 # Two drivers with distinct code (numba's cache would otherwise hand the parallel
 # dispatcher the serial build of a shared function). Threads pay off from about 16
 # candidates; for the few rows of a finite-difference Jacobian the wake-up costs more.
-@numba.njit(parallel=True, cache=True)
+@numba.njit(parallel=True, cache=True, nogil=True)
 def each_par(idx, s, m, frac, Ad, g_old, g_new, gf, prm, nonlinear, closed, S, c, out_w,
                     out_th, out_i, store, wm, iw, tm, it, im, ii, sse):
     for j in numba.prange(idx.shape[0]):
@@ -229,7 +229,7 @@ def each_par(idx, s, m, frac, Ad, g_old, g_new, gf, prm, nonlinear, closed, S, c
                    out_w, out_th, out_i, store, wm, iw, tm, it, im, ii, sse)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def each_ser(idx, s, m, frac, Ad, g_old, g_new, gf, prm, nonlinear, closed, S, c, out_w,
                     out_th, out_i, store, wm, iw, tm, it, im, ii, sse):
     for j in range(idx.shape[0]):

@@ -277,7 +277,7 @@ def _block(p0, p1, s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed, S, c, wm
             sse[p0 + j] = X[R_ACC * B + j]
 
 
-@numba.njit(parallel=True, cache=True)
+@numba.njit(parallel=True, cache=True, nogil=True)
 def population_par(threads, s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed, S, c, wm, iw,
                    tm, it, im, ii, sse, imap):
     """The fitness (sum of squared residuals) of every candidate the exact update serves,

@@ -1,0 +1,58 @@
+"""Independent fits on both cores.
+
+A round of the loop fits several structures, or one structure on several folds, or from
+two starts; each fit is a chain of small simulations (a Jacobian is a handful of
+candidates, too few for the kernels' own threads). Those fits run side by side in
+threads: the serial kernels release the GIL, so two fits keep both cores busy without a
+second interpreter to start or data to copy. The results come back in the order given,
+and each fit is the same computation it is alone: the answer does not depend on the
+number of threads.
+
+Threads are used only where numba's threading layer is threadsafe (OpenMP or TBB, both
+present in the usual wheels); with its fallback layer the fits run one after another.
+``LABRIG_THREADS=1`` does the same on purpose.
+"""
+from __future__ import annotations
+
+import os
+import threading
+
+_local = threading.local()
+
+
+def _threadsafe() -> bool:
+    try:
+        from numba.np.ufunc import omppool  # noqa: F401
+        return True
+    except ImportError:
+        pass
+    try:
+        from numba.np.ufunc import tbbpool  # noqa: F401
+        return True
+    except ImportError:
+        return False
+
+
+def jobs() -> int:
+    """How many fits run at once: the cores, unless ``LABRIG_THREADS`` says fewer."""
+    want = os.environ.get("LABRIG_THREADS", "")
+    n = int(want) if want.isdigit() and int(want) > 0 else (os.cpu_count() or 1)
+    return min(n, 2 * (os.cpu_count() or 1)) if _threadsafe() else 1
+
+
+def each(fn, items) -> list:
+    """``[fn(x) for x in items]``, on both cores; nested calls run in the caller's thread."""
+    items = list(items)
+    n = min(jobs(), len(items))
+    if n <= 1 or getattr(_local, "inside", False):
+        return [fn(x) for x in items]
+    from joblib import Parallel, delayed
+
+    def run(x):
+        _local.inside = True
+        try:
+            return fn(x)
+        finally:
+            _local.inside = False
+
+    return Parallel(n_jobs=n, backend="threading")(delayed(run)(x) for x in items)
