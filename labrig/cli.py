@@ -144,10 +144,12 @@ def _main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     debug = "--debug" in argv
     # figures go to files: the command line picks the file backend, the library never
-    # does (a notebook keeps its inline backend)
-    import matplotlib
-
-    matplotlib.use("Agg")
+    # does (a notebook keeps its inline backend); through the environment, so a command
+    # that draws nothing never pays matplotlib's import
+    if "matplotlib" in sys.modules:
+        sys.modules["matplotlib"].use("Agg")
+    else:
+        os.environ["MPLBACKEND"] = "Agg"
     if not debug:  # wild candidates overflow on purpose during a search; not news for users
         import warnings
 
