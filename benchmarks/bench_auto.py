@@ -8,7 +8,7 @@ configs/plan_five.toml` (a 0.3 V dead zone in front of a 4 V armature rail; open
 square waves of 0.6, 0.9, 1.2, 1.8 and 2.5 V, 0.25 Hz, two periods, 1 kHz: 5 x 8500
 samples). The whole process is timed (`labrig diagnose ... --auto` as a
 subprocess: interpreter start, imports, numba cache load, every round, the files
-written), after one warm-up run so the numba cache exists. Target: < 60 s on this
+written), after one warm-up run so the numba cache exists. Target: <= 15 s on this
 2-core machine. Load average before the timed run, CPU count and versions are recorded.
 """
 from __future__ import annotations
@@ -24,7 +24,7 @@ from whole_process import labrig, machine, main
 
 HERE = Path(__file__).resolve().parent
 RESULTS = HERE / "results_auto.json"
-TARGET_S = 60.0
+TARGET_S = 15.0
 RIG = HERE.parent / "configs" / "rig_deadzone_rail.toml"
 PLAN = HERE.parent / "configs" / "plan_five.toml"
 
@@ -40,7 +40,7 @@ def measure() -> dict:
         seconds = time.perf_counter() - t0
         doc = json.loads(p.stdout)
     return {"command": "labrig diagnose RUNS --auto -o OUT --json (subprocess, whole process)",
-            "seconds": round(seconds, 1), "target_s": TARGET_S, "pass": seconds < TARGET_S,
+            "seconds": round(seconds, 1), "target_s": TARGET_S, "pass": seconds <= TARGET_S,
             "effects_found": doc["effects"],
             "final_rmse_over_noise": doc["ladder"][-1]["rmse_over_noise"],
             **machine(load)}
@@ -49,7 +49,7 @@ def measure() -> dict:
 def markdown(res: dict) -> str:
     return (f"| `labrig diagnose --auto`, five-run sweep, dead zone + rail hidden (subprocess, "
             f"whole process) | **{res['seconds']:.1f} s**, found "
-            f"{' + '.join(res['effects_found'])} | < {res['target_s']:.0f} s | "
+            f"{' + '.join(res['effects_found'])} | <= {res['target_s']:.0f} s | "
             f"{'PASS' if res['pass'] else 'MISS'} |")
 
 

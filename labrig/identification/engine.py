@@ -42,14 +42,16 @@ def _run_pso(obj, lo, hi, x0, o):
 
 def _run_co(obj, lo, hi, x0, o):
     """Multi-start least squares. The starts are screened on every k-th residual (about
-    8000 of them: the trust-region SVD, not the simulation, is what costs), and the best
-    start is then polished on all residuals, which also gives the covariance."""
+    8000 of them; the simulation runs on every sample, only the residuals are thinned),
+    and the best start is then polished on all residuals, which also gives the
+    covariance. (The trust region itself works on n + 1 reduced rows whatever the
+    number of residuals: :func:`labrig.identification.local.reduced`.)"""
     cb = o.get("callback")
     root_cb = (lambda k, f: cb(k, float(np.sqrt(f)))) if cb else None
     stride = max(1, obj.m // 8000)
     if o.get("subsample") and o["starts"] == 1:
         # the loop's many warm re-fits: every k-th residual (at 1 kHz neighbours are
-        # strongly correlated, so the optimum barely moves; the SVD costs k times less)
+        # strongly correlated, so the optimum barely moves; the residuals cost k times less)
         k = max(1, obj.m // o["subsample"])
         res = local(lambda x: obj.residuals(x, k), lo, hi, x0=x0, starts=1, seed=o["seed"],
                     jac_batch=lambda X: obj.residuals_jac_batch(X, k),
@@ -62,7 +64,7 @@ def _run_co(obj, lo, hi, x0, o):
     if o["starts"] > 1 and stride > 1:
         screen = local(lambda x: obj.residuals(x, stride), lo, hi, x0=x0, starts=o["starts"],
                        seed=o["seed"], jac_batch=lambda X: obj.residuals_jac_batch(X, stride),
-                       max_nfev=o.get("max_nfev"), callback=root_cb)
+                       max_nfev=o.get("max_nfev"), callback=root_cb, threads=True)
         res = full(screen.x)
         res.nfev += screen.nfev
         res.nit = screen.nit
@@ -71,7 +73,8 @@ def _run_co(obj, lo, hi, x0, o):
                        f"then polished on all: {res.message}")
     else:
         res = local(obj.residuals, lo, hi, x0=x0, starts=o["starts"], seed=o["seed"],
-                    jac_batch=obj.residuals_jac_batch, max_nfev=o.get("max_nfev"), callback=root_cb)
+                    jac_batch=obj.residuals_jac_batch, max_nfev=o.get("max_nfev"), callback=root_cb,
+                    threads=True)
     # local reports mean squares; the fitness (and its history) is the root
     res.fun = float(np.sqrt(res.fun))
     res.history = [float(np.sqrt(h)) for h in res.history]

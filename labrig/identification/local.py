@@ -186,7 +186,8 @@ def local(residuals: Callable[[np.ndarray], np.ndarray], lower: Any, upper: Any,
           max_nfev: int | None = None,
           jac_batch: Callable[[np.ndarray], np.ndarray] | None = None,
           options: dict[str, Any] | None = None,
-          callback: Callable[[int, float], Any] | None = None) -> IdentResult:
+          callback: Callable[[int, float], Any] | None = None,
+          threads: bool = False) -> IdentResult:
     """Bounded multi-start nonlinear least squares (trust-region reflective).
 
     Parameters
@@ -217,6 +218,10 @@ def local(residuals: Callable[[np.ndarray], np.ndarray], lower: Any, upper: Any,
         here.
     callback : callable, optional
         ``callback(start, best_fun)`` after each start (1-based).
+    threads : bool
+        Run the starts side by side on the machine's cores
+        (:mod:`labrig.core.parallel`); ``residuals`` and ``jac_batch`` must then be
+        safe to call from several threads. The result is the same as one by one.
 
     Returns
     -------
@@ -259,11 +264,11 @@ def local(residuals: Callable[[np.ndarray], np.ndarray], lower: Any, upper: Any,
         points.append(x0)
     points.extend(latin_hypercube(starts - len(points), lo, hi, rng))
 
-    wrapped = _Residuals(residuals, jac_batch)
-    fun: Callable = wrapped
-    jac: Any = "2-point"
-    full_jac: dict[bytes, np.ndarray] = {}   # the last Jacobian, for the result
-    if jac_batch is not None:
+    def one(start: np.ndarray):
+        """One start, with its own counters: (result or None, summary, evaluations)."""
+        wrapped = _Residuals(residuals, jac_batch)
+        full_jac: dict[bytes, np.ndarray] = {}   # the last Jacobian, for the result
+
         def jac(x: np.ndarray) -> np.ndarray:
             J = batch_jacobian(wrapped.batch, x, lo, hi)
             full_jac.clear()
@@ -277,43 +282,50 @@ def local(residuals: Callable[[np.ndarray], np.ndarray], lower: Any, upper: Any,
             return out
 
         def jac_reduced(x: np.ndarray) -> np.ndarray:
-            J = jac(x)
-            return reduced(J, wrapped(x))
+            return reduced(jac(x), wrapped(x))
 
+        r0 = wrapped(start)
+        if not np.all(np.isfinite(r0)):
+            return None, {"x0": start, "x": start, "fun": np.inf, "nfev": wrapped.nfev,
+                          "status": None, "message": "residuals not finite at start"}, \
+                wrapped.nfev
+        if jac_batch is not None:
+            res = _least_squares()(fun, start, jac=jac_reduced, bounds=(lo, hi),
+                                   method="trf", max_nfev=max_nfev, **options)
+            # the full residuals and Jacobian at the optimum, as without the reduction
+            res.fun = wrapped(res.x)
+            res.jac = full_jac.get(res.x.tobytes())
+            if res.jac is None:
+                res.jac = jac(res.x)
+        else:
+            res = _least_squares()(wrapped, start, jac="2-point", bounds=(lo, hi),
+                                   method="trf", max_nfev=max_nfev, **options)
+        return res, {"x0": start, "x": res.x, "fun": 2.0 * res.cost / res.fun.size,
+                     "nfev": wrapped.nfev, "status": int(res.status),
+                     "message": res.message}, wrapped.nfev
+
+    if threads:
+        from labrig.core.parallel import each
+
+        outcomes = each(one, points)
+    else:
+        outcomes = [one(p) for p in points]
     best = None
     history: list[float] = []
     summary: list[dict[str, Any]] = []
-    for k, start in enumerate(points, 1):
-        n_before = wrapped.nfev
-        r0 = wrapped(start)
-        if not np.all(np.isfinite(r0)):
-            summary.append({"x0": start, "x": start, "fun": np.inf, "nfev": wrapped.nfev - n_before,
-                            "status": None, "message": "residuals not finite at start"})
-        else:
-            if jac_batch is not None:
-                res = _least_squares()(fun, start, jac=jac_reduced, bounds=(lo, hi),
-                                       method="trf", max_nfev=max_nfev, **options)
-                # the full residuals and Jacobian at the optimum, as without the reduction
-                res.fun = wrapped(res.x)
-                res.jac = full_jac.get(res.x.tobytes())
-                if res.jac is None:
-                    res.jac = jac(res.x)
-            else:
-                res = _least_squares()(wrapped, start, jac=jac, bounds=(lo, hi), method="trf",
-                                       max_nfev=max_nfev, **options)
-            fun_ms = 2.0 * res.cost / res.fun.size
-            summary.append({"x0": start, "x": res.x, "fun": fun_ms,
-                            "nfev": wrapped.nfev - n_before,
-                            "status": int(res.status), "message": res.message})
-            if best is None or res.cost < best.cost:
-                best = res
+    nfev = 0
+    for k, (res, summ, n) in enumerate(outcomes, 1):   # in the starts' order, as one by one
+        summary.append(summ)
+        nfev += n
+        if res is not None and (best is None or res.cost < best.cost):
+            best = res
         history.append(float(2.0 * best.cost / best.fun.size) if best is not None else np.inf)
         if callback is not None:
             callback(k, history[-1])
 
     if best is None:
         return IdentResult(x=np.asarray(points[0], dtype=float).copy(), fun=np.inf,
-                           nfev=wrapped.nfev, nit=len(points), history=history, seed=seed,
+                           nfev=nfev, nit=len(points), history=history, seed=seed,
                            message="residuals not finite at any start point",
                            method="co", success=False, extra={"starts": summary})
 
@@ -323,7 +335,7 @@ def local(residuals: Callable[[np.ndarray], np.ndarray], lower: Any, upper: Any,
              "active_mask": best.active_mask, "optimality": float(best.optimality),
              "starts": summary}
     return IdentResult(
-        x=best.x.copy(), fun=float(2.0 * best.cost / m), nfev=wrapped.nfev,
+        x=best.x.copy(), fun=float(2.0 * best.cost / m), nfev=nfev,
         nit=len(points), history=history, seed=seed,
         message=f"best of {len(points)} starts: {best.message}", method="co",
         success=bool(best.success and np.isfinite(best.cost)), jac=best.jac,

@@ -170,28 +170,41 @@ class Objective:
         return self.sim.simulate(plant, ep)
 
     # -- residuals ----------------------------------------------------------------------
+    def _layout(self, stride: int) -> list:
+        """Per run and channel: (run, simulated key, measured samples kept, their index
+        in the run, scale), in the residual vector's order; every ``stride``-th residual
+        of the whole vector (computed once per stride: the measured side never changes)."""
+        cache = self.__dict__.setdefault("_layouts", {})
+        if stride in cache:
+            return cache[stride]
+        out, k = [], 0   # k: where the next channel starts among all residuals
+        for j, r in enumerate(self.runs):
+            for use, meas, key, scale in (
+                    (self.use_theta, r.theta, "theta", np.sqrt(self.p) / self.sigma_theta),
+                    (self.use_w, r.w, "w", np.sqrt(self.q) / self.sigma_w),
+                    (self.use_i, r.current, "i", np.sqrt(self.c) / self.sigma_i)):
+                if use and meas is not None:
+                    if self.masks is not None:
+                        idx = np.flatnonzero(self.masks[j])
+                        idx = idx[-k % stride::stride]
+                    else:
+                        idx = slice(-k % stride, None, stride)
+                    k += len(meas) if self.masks is None else int(self.masks[j].sum())
+                    out.append((j, key, np.ascontiguousarray(meas[idx]), idx, scale))
+        cache[stride] = out
+        return out
+
     def _stack(self, sims, stride: int = 1) -> np.ndarray:
         """(P, m) residuals, or every ``stride``-th of them (the same ones as
         ``[:, ::stride]`` of all, without computing the rest)."""
         P = sims[0]["w"].shape[0]
         R = np.empty((P, -(-self.m // stride)))
-        k = 0   # where the next channel starts among all residuals
-        o = 0   # ... and among those kept
-        for j, (r, s) in enumerate(zip(self.runs, sims)):
-            for use, meas, sim, scale in ((self.use_theta, r.theta, s["theta"], np.sqrt(self.p) / self.sigma_theta),
-                                          (self.use_w, r.w, s["w"], np.sqrt(self.q) / self.sigma_w),
-                                          (self.use_i, r.current, s["i"], np.sqrt(self.c) / self.sigma_i)):
-                if use and meas is not None:
-                    if self.masks is not None:
-                        meas, sim = meas[self.masks[j]], sim[:, self.masks[j]]
-                    n = len(meas)
-                    first = -k % stride
-                    meas, sim = meas[first::stride], sim[:, first::stride]
-                    out = R[:, o:o + len(meas)]
-                    np.subtract(meas[None, :], sim, out=out)
-                    out *= scale
-                    k += n
-                    o += len(meas)
+        o = 0
+        for j, key, meas, idx, scale in self._layout(stride):
+            out = R[:, o:o + len(meas)]
+            np.subtract(meas[None, :], sims[j][key][:, idx], out=out)
+            out *= scale
+            o += len(meas)
         # a wild candidate (unstable, overflowing) must not poison the optimiser's sums
         np.clip(R, -1e6, 1e6, out=R)
         R[np.isnan(R)] = 1e6

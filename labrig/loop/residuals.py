@@ -82,27 +82,19 @@ def stretches(r_norm: np.ndarray, labels: np.ndarray, width: int, level: float =
     a stretch; each is named by its dominant regime.
     """
     m = moving_rms(r_norm, width) > level
-    out = []
-    k = 0
-    n = len(m)
-    while k < n:
-        if not m[k]:
-            k += 1
-            continue
-        j = k
-        while j < n and m[j]:
-            j += 1
-        # one piece per regime, so a long excursion shows where it starts and turns
-        a = k
-        while a < j:
-            b = a
-            while b < j and labels[b] == labels[a]:
-                b += 1
-            out.append({"start": a, "stop": b, "regime": str(labels[a]),
-                        "rms": float(np.sqrt(np.mean(r_norm[a:b] ** 2)))})
-            a = b
-        k = j
-    return out
+    idx = np.flatnonzero(m)
+    if not idx.size:
+        return []
+    labels = np.asarray(labels)
+    # one piece per regime, so a long excursion shows where it starts and turns: a piece
+    # starts where the band is left again or the regime changes
+    new = np.ones(idx.size, bool)
+    new[1:] = (np.diff(idx) != 1) | (labels[idx[1:]] != labels[idx[:-1]])
+    first = np.flatnonzero(new)
+    starts = idx[first]
+    stops = np.append(idx[first[1:] - 1] + 1, idx[-1] + 1)
+    return [{"start": int(a), "stop": int(b), "regime": str(labels[a]),
+             "rms": float(np.sqrt(np.mean(r_norm[a:b] ** 2)))} for a, b in zip(starts, stops)]
 
 
 def autocorr(r: np.ndarray, lags: int = 25) -> np.ndarray:
