@@ -152,3 +152,12 @@ def test_readme_quotes_the_recorded_lab_benchmark():
     """The lab page's table is the one benchmarks/bench_lab.py writes from
     benchmarks/results_lab.json."""
     assert _markdown("bench_lab.py") in (ROOT / "README.md").read_text()
+
+
+def test_readme_quotes_the_recorded_sheet_and_peer_benchmarks():
+    """The slowest commands of the sheets and the README's loop, the named targets, and
+    the diagnose round against scipy are what benchmarks/bench_sheets.py and
+    benchmarks/bench_peer.py write from their recorded runs."""
+    readme = (ROOT / "README.md").read_text()
+    assert _markdown("bench_sheets.py") in readme
+    assert _markdown("bench_peer.py") in readme
