@@ -23,6 +23,7 @@ taken at rest is several times too small. Hence, per channel:
 from __future__ import annotations
 
 import hashlib
+import threading
 from dataclasses import dataclass
 
 import numpy as np
@@ -229,6 +230,7 @@ def run_speed(rd) -> np.ndarray:
 #: floors already measured, by the content of the runs (the loop builds an objective on
 #: the same runs for every candidate and fold: the floors are the data's, not the fit's)
 _FLOORS: dict = {}
+_FLOORS_LOCK = threading.Lock()   # fits in threads (labrig.core.parallel) share it
 
 
 def _digest(runs, units) -> bytes:
@@ -245,11 +247,15 @@ def channel_floors(runs, units: tuple = ("rad", "rad/s")) -> dict:
     channels present in prepared runs (:class:`labrig.model.simulate.RunData`); an
     encoder's known count is the position's quantum."""
     key = _digest(runs, units)
-    if key not in _FLOORS:
-        if len(_FLOORS) >= 64:
-            _FLOORS.pop(next(iter(_FLOORS)))
-        _FLOORS[key] = _channel_floors(runs, units)
-    return dict(_FLOORS[key])
+    with _FLOORS_LOCK:
+        known = _FLOORS.get(key)
+    if known is None:
+        known = _channel_floors(runs, units)
+        with _FLOORS_LOCK:
+            if len(_FLOORS) >= 64:
+                _FLOORS.pop(next(iter(_FLOORS)))
+            _FLOORS[key] = known
+    return dict(known)
 
 
 def _channel_floors(runs, units) -> dict:

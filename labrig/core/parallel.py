@@ -14,12 +14,14 @@ present in the usual wheels); with its fallback layer the fits run one after ano
 """
 from __future__ import annotations
 
+import functools
 import os
 import threading
 
 _local = threading.local()
 
 
+@functools.cache
 def _threadsafe() -> bool:
     try:
         from numba.np.ufunc import omppool  # noqa: F401

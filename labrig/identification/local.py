@@ -150,18 +150,15 @@ def reduced(J: np.ndarray, f: np.ndarray) -> np.ndarray:
     return M[:, :-1]
 
 
-def covariance(jac: np.ndarray, cost: float, m: int | None = None) -> dict[str, Any]:
+def covariance(jac: np.ndarray, cost: float) -> dict[str, Any]:
     """Parameter covariance ``s^2 (J^T J)^+`` and related diagnostics.
 
     Parameters
     ----------
     jac : ndarray, shape (m, n)
-        Residual Jacobian at the optimum (or any matrix with the same ``J^T J``, such
-        as :func:`reduced`'s, with ``m`` given).
+        Residual Jacobian at the optimum.
     cost : float
         ``0.5 * sum(r**2)`` at the optimum.
-    m : int, optional
-        The number of residuals (default: the rows of ``jac``).
 
     Returns
     -------
@@ -170,9 +167,9 @@ def covariance(jac: np.ndarray, cost: float, m: int | None = None) -> dict[str, 
         ``singular_values``.  Values are NaN when ``m <= n``.
     """
     J = np.asarray(jac, dtype=float)
-    m, n = (J.shape[0] if m is None else m), J.shape[1]
+    m, n = J.shape
     _, sv, VT = np.linalg.svd(J, full_matrices=False)
-    cut = _EPS * max(m, n) * (sv[0] if sv.size else 0.0)
+    cut = _EPS * max(J.shape) * (sv[0] if sv.size else 0.0)
     keep = sv > cut
     pinv_jtj = (VT[keep].T / sv[keep] ** 2) @ VT[keep]
     s2 = 2.0 * cost / (m - n) if m > n else np.nan

@@ -154,6 +154,7 @@ class Objective:
                        if r.current is not None) if self.use_i else 0
         self.m = self.n_w + self.n_theta + self.n_i
         self.nfev = 0
+        self._layouts: dict = {}   # stride -> the residual vector's layout (_layout)
         self._weights = [(r.w, np.sqrt(self.q) / self.sigma_w if self.use_w and r.w is not None else 0.0,
                           r.theta, np.sqrt(self.p) / self.sigma_theta
                           if self.use_theta and r.theta is not None else 0.0,
@@ -174,9 +175,8 @@ class Objective:
         """Per run and channel: (run, simulated key, measured samples kept, their index
         in the run, scale), in the residual vector's order; every ``stride``-th residual
         of the whole vector (computed once per stride: the measured side never changes)."""
-        cache = self.__dict__.setdefault("_layouts", {})
-        if stride in cache:
-            return cache[stride]
+        if stride in self._layouts:
+            return self._layouts[stride]
         out, k = [], 0   # k: where the next channel starts among all residuals
         for j, r in enumerate(self.runs):
             for use, meas, key, scale in (
@@ -184,14 +184,14 @@ class Objective:
                     (self.use_w, r.w, "w", np.sqrt(self.q) / self.sigma_w),
                     (self.use_i, r.current, "i", np.sqrt(self.c) / self.sigma_i)):
                 if use and meas is not None:
-                    if self.masks is not None:
-                        idx = np.flatnonzero(self.masks[j])
-                        idx = idx[-k % stride::stride]
+                    first = -k % stride
+                    if self.masks is None:   # a strided view, no copy
+                        idx, k = slice(first, None, stride), k + len(meas)
                     else:
-                        idx = slice(-k % stride, None, stride)
-                    k += len(meas) if self.masks is None else int(self.masks[j].sum())
+                        kept = np.flatnonzero(self.masks[j])
+                        idx, k = kept[first::stride], k + len(kept)
                     out.append((j, key, np.ascontiguousarray(meas[idx]), idx, scale))
-        cache[stride] = out
+        self._layouts[stride] = out
         return out
 
     def _stack(self, sims, stride: int = 1) -> np.ndarray:

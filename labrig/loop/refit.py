@@ -110,7 +110,13 @@ def refit_with(runs, base: Model, effect, *, seed: int = 0, fixed: dict | None =
     effects = base.effects + [effect]
     fixed = dict(fixed or {})
     params = {**base.flat(), **fixed}
-    starts = starts_for(runs, params, effects, effect, reach, fixed, weights)
+    return _best_of_starts(runs, effects, effect, params, reach=reach, fixed=fixed, seed=seed,
+                           weights=weights)
+
+
+def _best_of_starts(runs, effects, new, params, *, reach, fixed, seed, weights):
+    """Fit ``effects`` from each scanned start (side by side) and keep the best."""
+    starts = starts_for(runs, params, effects, new, reach, fixed, weights)
     return best_fit(each(lambda s: fit(runs, effects, s, fixed, seed=seed, weights=weights,
                                        reach=reach), starts))
 
@@ -133,9 +139,8 @@ def refit(runs, model: Model, *, seed: int = 0, fixed: dict | None = None,
     reach = reach or Reach.of(runs, model)
     fixed = dict(fixed or {})
     params = {**model.flat(), **fixed}
-    starts = starts_for(runs, params, model.effects, None, reach, fixed, weights)
-    return best_fit(each(lambda s: fit(runs, model.effects, s, fixed, seed=seed,
-                                       weights=weights, reach=reach), starts))
+    return _best_of_starts(runs, model.effects, None, params, reach=reach, fixed=fixed,
+                           seed=seed, weights=weights)
 
 
 def without(model: Model, name: str) -> Model:
