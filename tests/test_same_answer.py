@@ -365,3 +365,19 @@ def test_the_same_fit_whatever_the_blas_threads():
                            capture_output=True, text=True, env=env, check=True)
         out.append(json.loads(p.stdout)["params"])
     assert out[0] == out[1]
+
+
+@pytest.mark.parametrize("value", ["abc", "0", "-3", "1.5"])
+def test_a_bad_thread_setting_is_one_line(value, tmp_path):
+    """LABRIG_THREADS that is not a whole number >= 1: one line naming it, exit 2."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    data = Path(__file__).resolve().parent.parent / "data" / "sweep_default"
+    p = subprocess.run([sys.executable, "-m", "labrig", "identify", str(data), "--method", "co",
+                        "--json"], capture_output=True, text=True,
+                       env=dict(os.environ, LABRIG_THREADS=value))
+    assert p.returncode == 2 and "Traceback" not in p.stderr
+    assert p.stderr.strip().count("\n") == 0 and "LABRIG_THREADS" in p.stderr, p.stderr

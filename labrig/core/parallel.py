@@ -36,9 +36,15 @@ def _threadsafe() -> bool:
 
 
 def jobs() -> int:
-    """How many fits run at once: the cores, unless ``LABRIG_THREADS`` says fewer."""
-    want = os.environ.get("LABRIG_THREADS", "")
-    n = int(want) if want.isdigit() and int(want) > 0 else (os.cpu_count() or 1)
+    """How many fits run at once: the cores, unless ``LABRIG_THREADS`` says otherwise
+    (at most twice the cores)."""
+    from labrig.core.errors import UserError
+
+    want = os.environ.get("LABRIG_THREADS", "").strip()
+    if want and not (want.isdigit() and int(want) > 0):
+        raise UserError(f"LABRIG_THREADS={want!r}: give a whole number of threads >= 1 "
+                        "(1 runs the fits one after another), or unset it")
+    n = int(want) if want else (os.cpu_count() or 1)
     return min(n, 2 * (os.cpu_count() or 1)) if _threadsafe() else 1
 
 
