@@ -2,100 +2,33 @@
 
 The reference the population kernel (:mod:`labrig.model.kernels`) reproduces bit for bit,
 and the kernel of the cases it leaves: trajectories (each candidate writes its own
-contiguous rows), a Jacobian's few rows, and closed loops with an input nonlinearity or
-backlash inside the loop (semi-implicit sub-steps throughout, Karnopp friction, as the
-truth integrator). Also the batched matrix exponential of the exact zero-order hold.
+contiguous rows) and a Jacobian's few rows. A closed loop with an input nonlinearity or
+backlash inside is exact in each affine piece of its drive (:func:`loop_step`); only the
+samples where the drive crosses a threshold, a gap opens or closes, or the speed reaches
+zero under friction are sub-stepped (semi-implicit, Karnopp friction, as the truth
+integrator). Also the batched matrix exponential of the exact zero-order hold.
 """
 from __future__ import annotations
 
 import math
 
 import numba
-import numpy as np
 
-# kernel parameter columns: R, L, J, B, K, then the effects', then the back-EMF constant
-# (labrig.model.simulate writes them)
-C_D, C_U0, C_ASYM, C_VMAX, C_TC, C_TS, C_A, C_TD, C_KE = range(5, 14)
-
-
-def expm_batch(M):
-    """Batched expm; threads only pay off for large populations."""
-    return expm_par(M) if M.shape[0] >= 32 else expm_ser(M)
-
+from labrig.model.layout import C_A, C_TC, C_TS
+from labrig.model.loop_kernel import loop_drive, loop_step, play_operator
 
 @numba.njit(cache=True)
-def _expm_one(A0):
-    n = A0.shape[0]
-    nrm = 0.0
-    for r in range(n):
-        row = 0.0
-        for q in range(n):
-            row += abs(A0[r, q])
-        nrm = max(nrm, row)
-    sq = 0
-    while nrm > 0.5:
-        nrm *= 0.5
-        sq += 1
-    A = A0 / (2.0 ** sq)
-    E = np.eye(n)
-    term = np.eye(n)
-    for k in range(1, 19):
-        term = term @ A / k
-        E = E + term
-    for _ in range(sq):
-        E = E @ E
-    return E
-
-
-@numba.njit(cache=True, nogil=True)
-def expm_ser(M):
-    out = np.empty_like(M)
-    for p in range(M.shape[0]):
-        out[p] = _expm_one(M[p])
-    return out
-
-
-@numba.njit(parallel=True, cache=True, nogil=True)
-def expm_par(M):
-    out = np.empty_like(M)
-    for p in numba.prange(M.shape[0]):
-        out[p] = _expm_one(M[p])
-    return out
-
-
-@numba.njit(cache=True, inline="always")
-def _play(play, x, a):
-    """The play operator (backlash of half gap a): the output follows x only at the gap's ends."""
-    if play < x - a:
-        return x - a
-    if play > x + a:
-        return x + a
-    return play
-
-
-@numba.njit(cache=True)
-def _substeps(i, w, th, play, s_old, s_new, frac, prm, closed, S, c):
+def substeps(i, w, th, play, s_old, s_new, frac, prm, closed, S, c):
     """Semi-implicit sub-steps through one sample, Karnopp friction (as the truth)."""
-    dt, Ka, N, Kt, Kpot, kp, kv = c[0], c[1], c[2], c[3], c[4], c[5], c[6]
+    dt, N = c[0], c[2]
     R, L, J, B, K, Ke = prm[0], prm[1], prm[2], prm[3], prm[4], prm[13]
-    d, u0, ak, vmax, tc, ts, a = prm[5], prm[6], prm[7], prm[8], prm[9], prm[10], prm[11]
+    tc, ts, a = prm[9], prm[10], prm[11]
     h = dt / S
     quasi = L / R < h / 10.0
     for j in range(S):
         s = s_old if j < frac * S - 1e-9 else s_new
         if closed:
-            seen = play if a > 0.0 else th / N
-            e = kp * (s - Kpot * seen) - kv * Kt * w
-            e = e + u0
-            if ak != 0.0:
-                e = e * (1.0 + ak) if e >= 0.0 else e * (1.0 - ak)
-            if d > 0.0:
-                e = math.copysign(max(abs(e) - d, 0.0), e)
-            v = Ka * e
-            if v > vmax:
-                v = vmax
-            elif v < -vmax:
-                v = -vmax
+            v = loop_drive(s, play if a > 0.0 else th / N, w, prm, c)
         else:
             v = s
         if quasi:
@@ -118,18 +51,23 @@ def _substeps(i, w, th, play, s_old, s_new, frac, prm, closed, S, c):
             w = w + h / J * tnf
         th = th + h * w
         if a > 0.0:
-            play = _play(play, th / N, a)
+            play = play_operator(play, th / N, a)
     return i, w, th, play
 
 
 @numba.njit(cache=True)
 def friction_step(i, w, th, play, s_old, s_new, fr, pr, closed, S, c):
     """One sample of a candidate under friction that the exact update cannot take: a stuck
-    rotor (only the current moves, exactly, while friction holds), else sub-steps."""
+    rotor (only the current moves, exactly, while friction holds), else sub-steps.
+    ``closed``: 0 open loop, 1 a linear closed loop, 2 one with its input map."""
     N = c[2]
     if w == 0.0:
         R, L, K, ts = pr[0], pr[1], pr[4], pr[C_TS]
-        if closed:
+        if closed == 2:
+            seen = play if pr[C_A] > 0.0 else th / N
+            v1 = loop_drive(s_old, seen, 0.0, pr, c)
+            v2 = loop_drive(s_new, seen, 0.0, pr, c)
+        elif closed:
             v1 = c[1] * c[5] * (s_old - c[4] * th / N)
             v2 = c[1] * c[5] * (s_new - c[4] * th / N)
         else:
@@ -139,16 +77,17 @@ def friction_step(i, w, th, play, s_old, s_new, fr, pr, closed, S, c):
         i2 = v2 / R + (i1 - v2 / R) * math.exp(-R * (1.0 - fr) * c[0] / L)
         if abs(K * i1) <= ts and abs(K * i2) <= ts:
             return i2, w, th, play
-    return _substeps(i, w, th, play, s_old, s_new, fr, pr, closed, S, c)
+    return substeps(i, w, th, play, s_old, s_new, fr, pr, closed, S, c)
 
 
 @numba.njit(cache=True)
 def _candidate(p, s, m, frac, Ad, g_old, g_new, gf, prm, nonlinear, closed, S, c, out_w, out_th,
-               out_i, store, wm, iw, tm, it, im, ii, sse):
+               out_i, store, wm, iw, tm, it, im, ii, sse, T):
     """Candidate ``p`` through one run, one sample after the other: the reference the
-    population kernel reproduces bit for bit, and the kernel of candidates sub-stepped
-    throughout (a nonlinear closed loop) and of small populations (a Jacobian's rows),
-    for which a block's per-sample overhead would cost more than its lanes save."""
+    population kernel reproduces bit for bit, and the kernel of trajectories and of small
+    populations (a Jacobian's rows), for which a block's per-sample overhead would cost
+    more than its lanes save. ``nonlinear[p]``: a closed loop with its input map inside
+    (piecewise exact, :func:`loop_step`, with the loop table ``T``)."""
     n = s.shape[0]
     col = 0 if s.shape[1] == 1 else p  # one input column for all, or one per candidate
     N = c[2]
@@ -182,39 +121,47 @@ def _candidate(p, s, m, frac, Ad, g_old, g_new, gf, prm, nonlinear, closed, S, c
         kn = k - mp
         s_old = s[ko, col] if ko >= 0 else 0.0
         s_new = s[kn, col] if kn >= 0 else 0.0
-        exact = not nonlinear[p] and (w != 0.0 or not friction)
-        if not nonlinear[p] and friction and w == 0.0:  # stuck rotor
-            i, w, th, play = friction_step(i, w, th, play, s_old, s_new, frac[p], pr, closed,
-                                            S, c)
-            continue
-        if exact:
-            # the generic update, with the terms that are zero for this candidate skipped
-            # (the hot path of every identifier: no friction, no delay, open loop)
-            ni = a00 * i + a01 * w + gn0 * s_new
-            nw = a10 * i + a11 * w + gn1 * s_new
-            nt = a20 * i + a21 * w + th + gn2 * s_new
-            if closed:
-                ni += a02 * th
-                nw += a12 * th
-                nt += (a22 - 1.0) * th
-            if delayed:
-                ni += go0 * s_old
-                nw += go1 * s_old
-                nt += go2 * s_old
-            if friction and w != 0.0:
-                tf = math.copysign(tc, w)
-                ni += gf0 * tf
-                nw += gf1 * tf
-                nt += gf2 * tf
-            if friction and nw * w <= 0.0:
-                # the speed reaches zero inside this sample: resolve it finely
-                i, w, th, play = _substeps(i, w, th, play, s_old, s_new, frac[p], pr, closed, S, c)
+        if nonlinear[p]:  # a closed loop with its input map: exact in each affine piece
+            if friction and w == 0.0:
+                i, w, th, play = friction_step(i, w, th, play, s_old, s_new, frac[p], pr, 2,
+                                               S, c)
                 continue
-            i, w, th = ni, nw, nt
-            if a > 0.0:
-                play = _play(play, th / N, a)
-        else:
-            i, w, th, play = _substeps(i, w, th, play, s_old, s_new, frac[p], pr, closed, S, c)
+            ni, nw, nt, npl, ok = loop_step(i, w, th, play, s_old, s_new, frac[p] > 0.0, pr,
+                                            c, T, p)
+            if ok:
+                i, w, th, play = ni, nw, nt, npl
+            else:  # the drive crosses a threshold inside the sample: sub-steps
+                i, w, th, play = substeps(i, w, th, play, s_old, s_new, frac[p], pr, 2, S, c)
+            continue
+        if friction and w == 0.0:  # stuck rotor
+            i, w, th, play = friction_step(i, w, th, play, s_old, s_new, frac[p], pr, closed,
+                                           S, c)
+            continue
+        # the generic update, with the terms that are zero for this candidate skipped
+        # (the hot path of every identifier: no friction, no delay, open loop)
+        ni = a00 * i + a01 * w + gn0 * s_new
+        nw = a10 * i + a11 * w + gn1 * s_new
+        nt = a20 * i + a21 * w + th + gn2 * s_new
+        if closed:
+            ni += a02 * th
+            nw += a12 * th
+            nt += (a22 - 1.0) * th
+        if delayed:
+            ni += go0 * s_old
+            nw += go1 * s_old
+            nt += go2 * s_old
+        if friction and w != 0.0:
+            tf = math.copysign(tc, w)
+            ni += gf0 * tf
+            nw += gf1 * tf
+            nt += gf2 * tf
+        if friction and nw * w <= 0.0:
+            # the speed reaches zero inside this sample: resolve it finely
+            i, w, th, play = substeps(i, w, th, play, s_old, s_new, frac[p], pr, closed, S, c)
+            continue
+        i, w, th = ni, nw, nt
+        if a > 0.0:
+            play = play_operator(play, th / N, a)
     sse[p] = acc
 
 
@@ -223,15 +170,15 @@ def _candidate(p, s, m, frac, Ad, g_old, g_new, gf, prm, nonlinear, closed, S, c
 # candidates; for the few rows of a finite-difference Jacobian the wake-up costs more.
 @numba.njit(parallel=True, cache=True, nogil=True)
 def each_par(idx, s, m, frac, Ad, g_old, g_new, gf, prm, nonlinear, closed, S, c, out_w,
-                    out_th, out_i, store, wm, iw, tm, it, im, ii, sse):
+                    out_th, out_i, store, wm, iw, tm, it, im, ii, sse, T):
     for j in numba.prange(idx.shape[0]):
         _candidate(idx[j], s, m, frac, Ad, g_old, g_new, gf, prm, nonlinear, closed, S, c,
-                   out_w, out_th, out_i, store, wm, iw, tm, it, im, ii, sse)
+                   out_w, out_th, out_i, store, wm, iw, tm, it, im, ii, sse, T)
 
 
 @numba.njit(cache=True, nogil=True)
 def each_ser(idx, s, m, frac, Ad, g_old, g_new, gf, prm, nonlinear, closed, S, c, out_w,
-                    out_th, out_i, store, wm, iw, tm, it, im, ii, sse):
+                    out_th, out_i, store, wm, iw, tm, it, im, ii, sse, T):
     for j in range(idx.shape[0]):
         _candidate(idx[j], s, m, frac, Ad, g_old, g_new, gf, prm, nonlinear, closed, S, c,
-                   out_w, out_th, out_i, store, wm, iw, tm, it, im, ii, sse)
+                   out_w, out_th, out_i, store, wm, iw, tm, it, im, ii, sse, T)

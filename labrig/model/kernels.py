@@ -9,9 +9,12 @@ bit-for-bit those of either alone):
   instructions (8 candidates per instruction with AVX-512). Samples where one candidate
   needs more than the exact update (the speed reaches zero or the rotor is stuck under
   friction) are flagged in the vector loop and redone for that candidate alone;
-- the **per-candidate kernel** (:mod:`labrig.model.candidate_kernel`) takes trajectories,
-  a Jacobian's few rows and candidates whose every sample is sub-stepped (an input
-  nonlinearity or backlash inside a closed loop).
+- the **per-candidate kernel** (:mod:`labrig.model.candidate_kernel`) takes trajectories
+  and a Jacobian's few rows.
+
+A closed loop with an input nonlinearity or backlash inside goes through the same blocks
+with its own lane sweep (:mod:`labrig.model.loop_kernel`): exact in each affine piece of
+its drive, the samples where the drive changes piece redone alone.
 
 Inputs are laid out (samples, columns): one column shared by every candidate, or one per
 candidate (an input map applied per candidate), so a sample's inputs are contiguous.
@@ -23,29 +26,15 @@ import math
 import numba
 import numpy as np
 
-from labrig.model.candidate_kernel import C_A, C_TC, C_TS, each_par, each_ser, friction_step
-
-#: the open-loop input map the population kernel applies itself, in this order (every
-#: simulator's order): offset, asymmetry, dead zone, asymmetric dead zone, the gain Ka,
-#: the armature rail; each as the effect's own formula (labrig.model.effects), so the
-#: result is the number numpy gives
-MAP_COLUMNS = ("u0_v", "k", "d_v", "dpos_v", "dneg_v", "vmax_v")
-M_U0, M_K, M_D, M_DP, M_DN, M_VMAX = range(6)
-#: smaller populations go one candidate at a time (:func:`_candidate`): for a few lanes
-#: the block's per-sample overhead costs more than the vector loop saves
-SMALL = 8
-#: candidates per block of the population kernel: a multiple of the SIMD width whose
-#: state (a few arrays of BLOCK doubles) stays in the first-level cache
-BLOCK = 64
-
-
-# Rows of a block's working array: coefficients, state and flags of each candidate, one
-# row of BLOCK lanes each. One array with rows a constant BLOCK apart lets the compiler
-# prove that the lanes' loads and stores never overlap, so it vectorises without checks.
-(R_A00, R_A01, R_A02, R_A10, R_A11, R_A12, R_A20, R_A21, R_A22M1, R_GN0, R_GN1, R_GN2, R_GO0,
- R_GO1, R_GO2, R_GF0, R_GF1, R_GF2, R_TC, R_GAP, R_FRIC, R_I, R_W, R_TH, R_PL, R_ACC, R_FLAG,
- R_I0, R_W0, R_TH0, R_PL0, R_SNEW, R_SOLD, R_RR, R_KK, R_TS, R_E1, R_E2, R_MAP) = range(39)
-N_ROWS = R_MAP + 6  # then the input map's six parameters
+from labrig.model.candidate_kernel import each_par, each_ser, friction_step, substeps
+from labrig.model.layout import (BLOCK, C_A, C_ASYM, C_D, C_TC, C_TS, C_U0, C_VMAX, DELAY,
+                                 FEEDBACK, FRICTION, M_D, M_DN, M_DP, M_K, M_U0, M_VMAX, N_ROWS,
+                                 N_ROWS_LOOP, N_SLOTS, PLAY, R_A00, R_A01, R_A02, R_A10, R_A11,
+                                 R_A12, R_A20, R_A21, R_A22M1, R_ACC, R_DLY, R_E1, R_E2, R_FLAG,
+                                 R_FRIC, R_GAP, R_GF0, R_GF1, R_GF2, R_GN0, R_GN1, R_GN2, R_GO0,
+                                 R_GO1, R_GO2, R_I, R_I0, R_KK, R_LT, R_MAP, R_PL, R_PL0, R_RR,
+                                 R_SNEW, R_SOLD, R_TC, R_TH, R_TH0, R_TS, R_W, R_W0, SLOT_W, SMALL)
+from labrig.model.loop_kernel import loop_sample
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -59,14 +48,6 @@ def _input_map(v, u0, k, d, dp, dn, Ka, vmax):
     v = max(v - dp, 0.0) if v >= 0 else min(v + dn, 0.0)
     v = v * Ka
     return min(max(v, -vmax), vmax)  # np.clip
-
-
-#: the terms a block's update needs (bits of ``_sweep``'s mode; one build per mode used)
-FEEDBACK, DELAY, FRICTION, PLAY = 1, 2, 4, 8
-#: the modes built: the short update, Coulomb friction alone, a linear closed loop, and
-#: every term in open and in closed loop (the feedback bit also says how a stuck rotor's
-#: drive is formed: through the loop, or the input itself)
-MODES = (0, FRICTION, FEEDBACK, DELAY | FRICTION | PLAY, FEEDBACK | DELAY | FRICTION | PLAY)
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -164,26 +145,33 @@ def _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, mode):
 
 @numba.njit(cache=True, error_model="numpy")
 def _block(p0, p1, s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed, S, c, wm, iw, tm, it,
-           im, ii, sse, imap):
+           im, ii, sse, imap, table):
     """Candidates p0..p1-1 (at most BLOCK) through one run, the candidates in the inner
     (SIMD) loop.
 
     The update is the exact ZOH ``x+ = Ad x + g_new s_new + g_old s_old + gf Tf`` written
     term by term in the order of the per-candidate code; a term that is zero for one
     candidate of the block (no delay, no friction) adds an exact zero. ``skip`` marks the
-    candidates another kernel takes (their lanes compute and are discarded).
+    candidates another kernel takes (their lanes compute and are discarded). A closed loop
+    with its input map inside (``table``, the loop tables, has rows) goes through
+    :func:`_sweep_loop` instead.
     """
     n = s.shape[0]
     q = p1 - p0
     B = BLOCK
     shared = s.shape[1] == 1
     N = c[2]
-    X = np.zeros(N_ROWS * B)
+    loop = closed != 0 and table.shape[0] > 0
+    # the loop's lanes rounded up to whole vectors (the spare lanes hold zeros and are
+    # never read): a remainder lane would run scalar and cost as much as a vector of eight
+    qv = min(B, (q + 7) // 8 * 8)
+    X = np.zeros((N_ROWS_LOOP if loop else N_ROWS) * B)
     mp = np.zeros(B, np.int64)
     delay = False
     mapped = imap.shape[0] > 0
     friction = False
     play = False
+    asym = False
     for j in range(q):
         p = p0 + j
         if mapped:
@@ -203,10 +191,19 @@ def _block(p0, p1, s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed, S, c, wm
                      (R_E1, math.exp(-prm[p, 0] * frac[p] * c[0] / prm[p, 1])),
                      (R_E2, math.exp(-prm[p, 0] * (1.0 - frac[p]) * c[0] / prm[p, 1]))):
             X[r * B + j] = v
+        if loop:  # the map's parameters where the open loop keeps its input map's
+            X[(R_MAP + M_U0) * B + j] = prm[p, C_U0]
+            X[(R_MAP + M_K) * B + j] = prm[p, C_ASYM]
+            X[(R_MAP + M_D) * B + j] = prm[p, C_D]
+            X[(R_MAP + M_VMAX) * B + j] = prm[p, C_VMAX]
+            X[R_DLY * B + j] = 1.0 if frac[p] > 0.0 else 0.0
+            for r in range(N_SLOTS * SLOT_W):
+                X[(R_LT + r) * B + j] = table[p, r // SLOT_W, r % SLOT_W]
         f = (prm[p, C_TC] > 0.0 or prm[p, C_TS] > 0.0) and not skip[p]
         X[R_FRIC * B + j] = 1.0 if f else 0.0
         friction |= f
         play |= prm[p, C_A] > 0.0
+        asym |= prm[p, C_ASYM] != 0.0
         mp[j] = m[p]
         delay |= m[p] != 0 or g_old[p, 0] != 0.0 or g_old[p, 1] != 0.0 or g_old[p, 2] != 0.0
     # the terms any lane needs, rounded up to a mode that is built
@@ -226,7 +223,7 @@ def _block(p0, p1, s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed, S, c, wm
                 X[R_SNEW * B + j] = s[kn, cj] if kn >= 0 else 0.0
                 X[R_SOLD * B + j] = s[kn - 1, cj] if kn >= 1 else 0.0
         else:
-            if mode & FRICTION:  # the held input of the sample before: a stuck rotor's s_old
+            if mode & FRICTION or loop:  # the held input before: a stuck rotor's s_old
                 for j in range(q):
                     X[R_SOLD * B + j] = X[R_SNEW * B + j]
             if shared:
@@ -251,6 +248,26 @@ def _block(p0, p1, s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed, S, c, wm
                         X[(R_MAP + M_DP) * B + j], X[(R_MAP + M_DN) * B + j], Ka,
                         X[(R_MAP + M_VMAX) * B + j])
         kakp, kpot = c[1] * c[5], c[4]
+        if loop:
+            nflag = loop_sample(X, qv, N, iw, it, ii, wmk, tmk, imk, c, delay, friction, play,
+                                 asym)
+            if nflag > 0:  # the samples where the drive changes piece, one lane at a time
+                for j in range(q):
+                    if X[R_FLAG * B + j] != 0.0:
+                        i0, w0, t0, l0 = (X[R_I0 * B + j], X[R_W0 * B + j], X[R_TH0 * B + j],
+                                          X[R_PL0 * B + j])
+                        so, sn = X[R_SOLD * B + j], X[R_SNEW * B + j]
+                        if X[R_FRIC * B + j] != 0.0:
+                            ni, nw, nt, npl = friction_step(i0, w0, t0, l0, so, sn, frac[p0 + j],
+                                                            prm[p0 + j], 2, S, c)
+                        else:
+                            ni, nw, nt, npl = substeps(i0, w0, t0, l0, so, sn, frac[p0 + j],
+                                                        prm[p0 + j], 2, S, c)
+                        X[R_I * B + j] = ni
+                        X[R_W * B + j] = nw
+                        X[R_TH * B + j] = nt
+                        X[R_PL * B + j] = npl
+            continue
         if mode == 0:  # each call site a constant mode: its own vectorised build
             nflag = _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, 0)
         elif mode == FRICTION:
@@ -279,7 +296,7 @@ def _block(p0, p1, s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed, S, c, wm
 
 @numba.njit(parallel=True, cache=True, nogil=True)
 def population_par(threads, s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed, S, c, wm, iw,
-                   tm, it, im, ii, sse, imap):
+                   tm, it, im, ii, sse, imap, table):
     """The fitness (sum of squared residuals) of every candidate the exact update serves,
     blocks of candidates across threads; trajectories go one candidate at a time."""
     P = prm.shape[0]
@@ -292,11 +309,11 @@ def population_par(threads, s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed,
         p1 = min(P, p0 + size)
         if p0 < p1:
             _block(p0, p1, s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed, S, c, wm, iw,
-                   tm, it, im, ii, sse, imap)
+                   tm, it, im, ii, sse, imap, table)
 
 
 def run_kernels(s, m, frac, Ad, g_old, g_new, gf, prm, nonlinear, closed, S, c, out_w, out_th,
-                out_i, store, wm, iw, tm, it, im, ii, sse, imap):
+                out_i, store, wm, iw, tm, it, im, ii, sse, imap, table):
     """Every candidate through one run: the population kernel for those the exact update
     serves, the per-candidate kernel for those sub-stepped throughout.
 
@@ -311,13 +328,9 @@ def run_kernels(s, m, frac, Ad, g_old, g_new, gf, prm, nonlinear, closed, S, c, 
         # overhead. One candidate at a time, threads across candidates.
         (each_par if P >= 16 else each_ser)(  # threads wake slower than 16 candidates run
             np.arange(P), s, m, frac, Ad, g_old, g_new, gf, prm, nonlinear, closed, S, c,
-            out_w, out_th, out_i, store, wm, iw, tm, it, im, ii, sse)
+            out_w, out_th, out_i, store, wm, iw, tm, it, im, ii, sse, table)
         return
-    idx = np.flatnonzero(nonlinear)
-    if idx.size < P:
-        population_par(numba.get_num_threads(), s, m, frac, Ad, g_old, g_new, gf, prm,
-                       nonlinear, closed, S, c, wm, iw, tm, it, im, ii, sse, imap)
-    if idx.size:
-        (each_par if idx.size >= 16 else each_ser)(
-            idx, s, m, frac, Ad, g_old, g_new, gf, prm, nonlinear, closed, S, c, out_w, out_th,
-            out_i, store, wm, iw, tm, it, im, ii, sse)
+    # (a closed loop with its input map: every candidate in the loop's lanes, none skipped)
+    population_par(numba.get_num_threads(), s, m, frac, Ad, g_old, g_new, gf, prm,
+                   np.zeros(P, np.bool_), closed, S, c, wm, iw, tm, it, im, ii, sse, imap,
+                   table if nonlinear.any() else table[:0])

@@ -13,8 +13,10 @@ How it stays both fast and faithful to the truth integrator:
 - Coulomb friction is a piecewise-constant torque input while the speed keeps its
   sign; only the samples where the speed reaches zero, or the rotor is stuck, are
   resolved with semi-implicit sub-steps and the Karnopp rule (as in the truth);
-- closed loops with an input nonlinearity or backlash inside the loop are
-  sub-stepped throughout (they are short runs).
+- a closed loop with an input nonlinearity or backlash inside is affine in each piece of
+  its drive map (dead zone, linear for either sign of the error, rail; a backlash gap
+  open or closed), so each piece has its own exact ZOH (the loop table); only the samples
+  where the drive crosses into another piece are sub-stepped.
 
 The kernels (:mod:`labrig.model.kernels`) are compiled with numba; they advance a block
 of candidates per thread, the candidates in the inner loop so the update vectorises.
@@ -27,8 +29,11 @@ import numpy as np
 
 from labrig.core.errors import UserError
 from labrig.model.effects import AsymmetricDeadband, Asymmetry, Deadband, Effect, Offset, Saturation, ordered
-from labrig.model.candidate_kernel import C_A, C_ASYM, C_D, C_KE, C_TC, C_TD, C_TS, C_U0, C_VMAX, expm_batch
-from labrig.model.kernels import MAP_COLUMNS, SMALL, run_kernels
+from labrig.model.expm import expm_batch, expm_small
+from labrig.model.layout import (C_A, C_ASYM, C_D, C_KE, C_TC, C_TD, C_TS, C_U0, C_VMAX,
+                                 MAP_COLUMNS, N_SLOTS, S_FLAT, S_NEG, S_NEG_GAP, S_POS,
+                                 S_POS_GAP, SLOT_W, SMALL, T_A, T_GF, T_GN, T_GO)
+from labrig.model.kernels import run_kernels
 
 # kernel parameter columns: R, L, J, B, K (labrig.model.plants: every plant's kernel
 # form), then the effects' (C_D..C_TD), then the back-EMF constant Ke (0 for a
@@ -38,6 +43,7 @@ N_COLS = 14
 #: labrig.model.kernels._input_map); a subclass or a user's effect takes the numpy path
 _MAPPED = (Offset, Asymmetry, Deadband, AsymmetricDeadband, Saturation)
 _NO_MAP = np.zeros((0, len(MAP_COLUMNS)))
+_NO_TABLE = np.zeros((0, N_SLOTS, SLOT_W))
 #: the kernel's effect columns by name: an effect's ``to_kernel`` writes into these
 #: (dead zone, input offset, asymmetry, armature rail, kinetic and breakaway friction
 #: torque, backlash half gap, delay)
@@ -140,6 +146,9 @@ class Simulator:
         self.runs = prepare(runs)
         self.effects = ordered(list(effects))
         self.substeps = int(substeps)
+        # an effect that acts inside a closed loop's drive or on the pot's shaft
+        self._in_loop = any(e.stage in ("input", "drive") or "a_rad" in e.kernel_columns
+                            for e in self.effects)
         for e in self.effects:
             if e.stage in ("input", "drive") and not e.kernel_columns \
                     and type(e).to_kernel is Effect.to_kernel \
@@ -245,10 +254,18 @@ class Simulator:
             disc[key] = _discretise(prm, run, frac)
         Ad, g_old, g_new, gf = disc[key]
         imap = _NO_MAP
+        table = _NO_TABLE
+        # a closed loop with an input or drive effect or backlash inside: every candidate
+        # through the loop's affine pieces (decided by the model, not by a candidate's
+        # values, so a candidate's result never depends on the population it is in)
+        mapped = closed and self._in_loop
         if closed:
             s = run.u[:, None]
-            nonlinear = ((prm[:, C_D] != 0) | (prm[:, C_U0] != 0) | (prm[:, C_ASYM] != 0)
-                         | np.isfinite(prm[:, C_VMAX]) | (prm[:, C_A] != 0))
+            if mapped:
+                if ("table",) + key not in disc:
+                    disc[("table",) + key] = _loop_table(prm, run, frac)
+                table = disc[("table",) + key]
+            nonlinear = np.full(P, mapped)
         else:
             s, imap = self._open_loop_input(run, ep, P, weights is not None and P >= SMALL)
             nonlinear = np.zeros(P, dtype=bool)
@@ -261,14 +278,14 @@ class Simulator:
             run_kernels(s, mi, frac, Ad, g_old, g_new, gf, prm, nonlinear, 1 if closed else 0,
                         self.substeps, consts, dummy, dummy, dummy, False,
                         _channel(wm, n), float(iw), _channel(tm, n), float(it),
-                        _channel(im, n), float(ii), out, imap)
+                        _channel(im, n), float(ii), out, imap, table)
             return out
         w = np.empty((P, n))
         th = np.empty((P, n))
         cur = np.empty((P, n))
         run_kernels(s, mi, frac, Ad, g_old, g_new, gf, prm, nonlinear, 1 if closed else 0,
                     self.substeps, consts, w, th, cur, True, np.zeros(1), 0.0, np.zeros(1), 0.0,
-                    np.zeros(1), 0.0, np.zeros(P), imap)
+                    np.zeros(1), 0.0, np.zeros(P), imap, table)
         for eff in user_output:  # a user's output map: per sample, vectorised over candidates
             p = {k: v for k, v in ep[eff.name].items()}
             state = th[:, 0].copy()
@@ -277,12 +294,9 @@ class Simulator:
         return {"w": w, "theta": th, "i": cur}
 
 
-def _discretise(prm, run: RunData, frac):
-    """Exact ZOH of the linear part per candidate, with the delay's split sample.
-
-    Inputs of the continuous model: s (armature volts in open loop, reference volts
-    in closed loop) and the friction torque Tf.
-    """
+def _plant_matrices(prm):
+    """The open-loop state matrix of every candidate, the voltage's and the friction
+    torque's input columns (states i, w, theta)."""
     P = prm.shape[0]
     R, L, J, B, K = (prm[:, i] for i in range(5))
     A = np.zeros((P, 3, 3))
@@ -291,21 +305,22 @@ def _discretise(prm, run: RunData, frac):
     A[:, 2, 1] = 1.0
     bs = np.zeros((P, 3))
     bs[:, 0] = 1.0 / L
-    if run.loop == "closed":
-        # e = kp r - kv Kt w - kp Kpot theta_m / N ; v = Ka e
-        A[:, 0, 1] -= run.Ka * run.kv * run.Kt / L
-        A[:, 0, 2] -= run.Ka * run.kp * run.Kpot / run.N / L
-        bs = bs * run.Ka * run.kp
     bf = np.zeros((P, 3))
     bf[:, 1] = -1.0 / J
+    return A, bs, bf
+
+
+def _zoh(A, bs, bf, frac, h, expm=expm_batch):
+    """Exact ZOH of x' = A x + bs s + bf Tf over one sample whose input switches from
+    s_old to s_new at ``frac`` of it (a fractional delay): Ad, g_old, g_new, g_f."""
+    P = A.shape[0]
     M = np.zeros((P, 5, 5))
     M[:, :3, :3] = A
     M[:, :3, 3] = bs
     M[:, :3, 4] = bf
-    h = run.dt
-    E2 = expm_batch(M * ((1.0 - frac) * h)[:, None, None])
+    E2 = expm(M * ((1.0 - frac) * h)[:, None, None])
     if np.any(frac > 0):
-        E1 = expm_batch(M * (frac * h)[:, None, None])
+        E1 = expm(M * (frac * h)[:, None, None])
     else:  # no fractional delay: the first part of the sample is empty
         E1 = np.broadcast_to(np.eye(5), M.shape)
     A1, A2 = E1[:, :3, :3], E2[:, :3, :3]
@@ -313,8 +328,64 @@ def _discretise(prm, run: RunData, frac):
     g_old = np.einsum("pij,pj->pi", A2, E1[:, :3, 3])
     g_new = E2[:, :3, 3]
     gf = np.einsum("pij,pj->pi", A2, E1[:, :3, 4]) + E2[:, :3, 4]
-    return (np.ascontiguousarray(Ad), np.ascontiguousarray(g_old),
-            np.ascontiguousarray(g_new), np.ascontiguousarray(gf))
+    return Ad, g_old, g_new, gf
+
+
+def _discretise(prm, run: RunData, frac):
+    """Exact ZOH of the linear part per candidate, with the delay's split sample.
+
+    Inputs of the continuous model: s (armature volts in open loop, reference volts
+    in closed loop) and the friction torque Tf.
+    """
+    A, bs, bf = _plant_matrices(prm)
+    L = prm[:, 1]
+    if run.loop == "closed":
+        # e = kp r - kv Kt w - kp Kpot theta_m / N ; v = Ka e
+        A[:, 0, 1] -= run.Ka * run.kv * run.Kt / L
+        A[:, 0, 2] -= run.Ka * run.kp * run.Kpot / run.N / L
+        bs = bs * run.Ka * run.kp
+    return tuple(np.ascontiguousarray(x) for x in _zoh(A, bs, bf, frac, run.dt))
+
+
+def _loop_table(prm, run: RunData, frac):
+    """The loop table of a closed loop with its input map inside (P, N_SLOTS, SLOT_W): in
+    each affine piece of the drive ``v = Ka g (kp (r - Kpot theta/N) - kv Kt w) + c`` (g
+    the asymmetry's gain for the error's sign, no position term inside a backlash gap, the
+    loop open where the drive is flat) the exact ZOH of its own closed loop, the constant
+    part ``c`` entering as a voltage. Pieces no candidate can reach are left empty, and
+    the - error's slots copy the + ones when no candidate has an asymmetry."""
+    P = prm.shape[0]
+    A0, bs, bf = _plant_matrices(prm)
+    L = prm[:, 1]
+    T = np.zeros((P, N_SLOTS, SLOT_W))
+
+    def fill(slot, gain, pot):
+        A = A0.copy()
+        if gain is not None:
+            A[:, 0, 1] -= run.Ka * gain * run.kv * run.Kt / L
+            if pot:
+                A[:, 0, 2] -= run.Ka * gain * run.kp * run.Kpot / run.N / L
+        Ad, g_old, g_new, gf = _zoh(A, bs, bf, frac, run.dt, expm_small)
+        row = Ad.reshape(P, 9).copy()
+        row[:, 8] -= 1.0  # a22 - 1, as the update adds theta itself
+        T[:, slot, T_A:T_A + 9] = row
+        T[:, slot, T_GO:T_GO + 3] = g_old
+        T[:, slot, T_GN:T_GN + 3] = g_new
+        T[:, slot, T_GF:T_GF + 3] = gf
+
+    ak = prm[:, C_ASYM]
+    asym = bool(np.any(ak != 0))
+    gap = bool(np.any(prm[:, C_A] > 0))
+    if np.any(prm[:, C_D] > 0) or np.any(np.isfinite(prm[:, C_VMAX])):
+        fill(S_FLAT, None, False)
+    for pot, (pos, neg) in ((True, (S_POS, S_NEG)), (False, (S_POS_GAP, S_NEG_GAP))):
+        if pot or gap:
+            fill(pos, 1.0 + ak, pot)
+            if asym:
+                fill(neg, 1.0 - ak, pot)
+            else:
+                T[:, neg] = T[:, pos]
+    return T
 
 
 def _channel(y, n):

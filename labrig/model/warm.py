@@ -21,10 +21,10 @@ _done = False
 
 
 def _dispatchers():
-    from labrig.model import candidate_kernel, kernels
+    from labrig.model import candidate_kernel, expm, kernels
 
     return [kernels.population_par, candidate_kernel.each_par, candidate_kernel.each_ser,
-            candidate_kernel.expm_par, candidate_kernel.expm_ser]
+            expm.expm_par, expm.expm_ser, expm.expm_small]
 
 
 def cache_is_warm() -> bool:
@@ -44,8 +44,10 @@ def _workload() -> None:
     """Every driver and mode on a tiny problem, with the argument types the simulator
     passes: open and closed loop, friction, delay and play, an input map, trajectories and
     fitness, one candidate at a time and the population kernel (threads from 16)."""
-    from labrig.model.candidate_kernel import C_A, C_D, C_TC, C_TS, C_VMAX, expm_batch
-    from labrig.model.kernels import MAP_COLUMNS, run_kernels
+    from labrig.model.expm import expm_batch, expm_small
+    from labrig.model.kernels import run_kernels
+    from labrig.model.layout import (C_A, C_ASYM, C_D, C_TC, C_TS, C_VMAX, MAP_COLUMNS, N_SLOTS,
+                                     SLOT_W)
 
     n = 60
     u = np.where(np.arange(n) % 30 < 15, 1.5, -1.5)
@@ -54,16 +56,21 @@ def _workload() -> None:
         M = np.zeros((P, 5, 5))
         M[:, 0, 0], M[:, 1, 1] = -900.0, -0.2
         E = expm_batch(M * 1e-3)  # the serial and (from 32) the threaded expm
+        expm_small(M * 1e-3)  # the loop tables' expm
         Ad = np.ascontiguousarray(E[:, :3, :3])
         g = np.ascontiguousarray(E[:, :3, 3])
-        for closed, nonlinear, mapped, extra in ((0, False, False, None), (0, False, True, C_TC),
-                                                  (1, False, False, C_A), (1, True, False, C_D)):
+        # (a closed loop with its map: each build of the loop's lanes, kernels._loop_sample)
+        for closed, nonlinear, mapped, extra in (
+                (0, False, False, ()), (0, False, True, (C_TC,)), (1, False, False, (C_A,)),
+                (1, True, False, (C_D,)), (1, True, False, (C_ASYM,)),
+                (1, True, False, (C_D, C_TC)), (1, True, False, (C_A,)),
+                (1, True, False, (C_A, C_TC))):
             prm = np.zeros((P, 14))
             prm[:, :5] = [8.0, 0.0085, 5.2e-5, 1.0e-5, 0.05]
             prm[:, C_VMAX] = np.inf
-            if extra is not None:
-                prm[:, extra] = 0.01
-                prm[:, C_TS] = prm[:, C_TC]
+            for col in extra:
+                prm[:, col] = 0.01
+            prm[:, C_TS] = prm[:, C_TC]
             m = np.zeros(P, np.int64)
             m[0] = 1  # a delayed lane
             imap = np.zeros((P if mapped else 0, len(MAP_COLUMNS)))
@@ -72,7 +79,8 @@ def _workload() -> None:
                 out = (np.empty((P, n)),) * 3 if store else (np.empty((1, 1)),) * 3
                 run_kernels(s, m, np.zeros(P), Ad, g, g, g, prm,
                             np.full(P, nonlinear, dtype=bool), closed, 4, consts, *out, store,
-                            u * 0.0, 1.0, u * 0.0, 1.0, u * 0.0, 0.0, np.zeros(P), imap)
+                            u * 0.0, 1.0, u * 0.0, 1.0, u * 0.0, 0.0, np.zeros(P), imap,
+                            np.zeros((P if nonlinear else 0, N_SLOTS, SLOT_W)))
 
 
 def warm() -> float:

@@ -1,0 +1,57 @@
+"""Where the simulator's kernels keep things: the columns of the candidates' parameter
+table, the rows of a block's working array (the population kernel's lanes), the builds'
+mode bits, and the closed loop's table of affine pieces. Constants only, so every kernel
+module can import them without a cycle."""
+
+#: kernel parameter columns: R, L, J, B, K, then the effects', then the back-EMF constant
+#: (labrig.model.simulate writes them)
+C_D, C_U0, C_ASYM, C_VMAX, C_TC, C_TS, C_A, C_TD, C_KE = range(5, 14)
+
+#: the open-loop input map the population kernel applies itself, in this order (every
+#: simulator's order): offset, asymmetry, dead zone, asymmetric dead zone, the gain Ka,
+#: the armature rail; each as the effect's own formula (labrig.model.effects), so the
+#: result is the number numpy gives
+MAP_COLUMNS = ("u0_v", "k", "d_v", "dpos_v", "dneg_v", "vmax_v")
+M_U0, M_K, M_D, M_DP, M_DN, M_VMAX = range(6)
+#: smaller populations go one candidate at a time (:func:`_candidate`): for a few lanes
+#: the block's per-sample overhead costs more than the vector loop saves
+SMALL = 8
+#: candidates per block of the population kernel: a multiple of the SIMD width whose
+#: state (a few arrays of BLOCK doubles) stays in the first-level cache
+BLOCK = 64
+
+
+#: where a loop's drive is, for the error e it amplifies: in the dead zone, in the linear
+#: part for a positive or negative error, or on the rail (+ or -)
+G_DEAD, G_POS, G_NEG, G_RAILP, G_RAILN = range(5)
+#: the loop table's slots, one exact zero-order hold per affine piece of the drive: flat
+#: (dead zone or rail: the loop is open and the drive constant), linear for + and -
+#: errors (an asymmetry gives them different gains), and the same inside a backlash gap
+#: (the pot does not move: no position feedback)
+S_FLAT, S_POS, S_NEG, S_POS_GAP, S_NEG_GAP = range(5)
+N_SLOTS = 5
+#: a slot's row: Ad (a22 - 1 in place of a22), g_old, g_new, g_f
+T_A, T_GO, T_GN, T_GF = 0, 9, 12, 15
+SLOT_W = 18
+
+
+# Rows of a block's working array: coefficients, state and flags of each candidate, one
+# row of BLOCK lanes each. One array with rows a constant BLOCK apart lets the compiler
+# prove that the lanes' loads and stores never overlap, so it vectorises without checks.
+(R_A00, R_A01, R_A02, R_A10, R_A11, R_A12, R_A20, R_A21, R_A22M1, R_GN0, R_GN1, R_GN2, R_GO0,
+ R_GO1, R_GO2, R_GF0, R_GF1, R_GF2, R_TC, R_GAP, R_FRIC, R_I, R_W, R_TH, R_PL, R_ACC, R_FLAG,
+ R_I0, R_W0, R_TH0, R_PL0, R_SNEW, R_SOLD, R_RR, R_KK, R_TS, R_E1, R_E2, R_MAP) = range(39)
+N_ROWS = R_MAP + 6  # then the input map's six parameters
+#: a closed loop with its input map (:func:`_sweep_loop`) adds a row saying the lane's
+#: input switches inside the sample (a fractional delay) and the lanes' loop tables
+R_DLY = N_ROWS
+R_LT = N_ROWS + 1
+N_ROWS_LOOP = R_LT + N_SLOTS * SLOT_W
+
+#: the terms a block's update needs (bits of ``_sweep``'s mode; one build per mode used);
+#: ASYM: a loop's drive has different gains for + and - errors (:func:`_sweep_loop`)
+FEEDBACK, DELAY, FRICTION, PLAY, ASYM = 1, 2, 4, 8, 16
+#: the modes built: the short update, Coulomb friction alone, a linear closed loop, and
+#: every term in open and in closed loop (the feedback bit also says how a stuck rotor's
+#: drive is formed: through the loop, or the input itself)
+MODES = (0, FRICTION, FEEDBACK, DELAY | FRICTION | PLAY, FEEDBACK | DELAY | FRICTION | PLAY)

@@ -1,0 +1,269 @@
+"""A closed loop with an input nonlinearity or backlash inside, exactly in each affine piece.
+
+The drive of such a loop, ``v = rail(Ka * deadzone(asym(kp (r - Kpot seen) - kv Kt w + u0)))``
+with ``seen`` the pot (after any backlash), is affine in the state inside each piece of
+the map: the dead zone and the rail (flat: the loop is open), the linear part for a
+positive and for a negative error (an asymmetry gives them different gains), with the
+pot following the shaft or, inside a backlash gap, standing still. Each piece is a linear
+closed (or open) loop with its own exact zero-order hold (a slot of the loop table,
+:mod:`labrig.model.simulate` builds it); a sample is taken exactly when the drive stays
+in its piece, and sub-stepped (as the truth integrator) where it crosses into another,
+a gap opens or closes, or the speed reaches zero under friction.
+
+:func:`loop_step` is one candidate's sample (the per-candidate kernel's);
+:func:`loop_sample` the same for every lane of a block at once (the population kernel's),
+with the same arithmetic in the same order.
+"""
+from __future__ import annotations
+
+import math
+
+import numba
+
+from labrig.model.layout import (ASYM, BLOCK, C_A, C_ASYM, C_D, C_TC, C_TS, C_U0, C_VMAX, DELAY,
+                                 FRICTION, G_DEAD, G_NEG, G_POS, G_RAILN, G_RAILP, M_D, M_K,
+                                 M_U0, M_VMAX, N_SLOTS, PLAY, R_ACC, R_DLY, R_FLAG, R_FRIC,
+                                 R_GAP, R_I, R_I0, R_LT, R_MAP, R_PL, R_PL0, R_SNEW, R_SOLD,
+                                 R_TC, R_TH, R_TH0, R_W, R_W0, S_FLAT, SLOT_W, T_GF, T_GN, T_GO)
+
+
+@numba.njit(cache=True, inline="always")
+def play_operator(play, x, a):
+    """The play operator (backlash of half gap a): the output follows x only at the gap's ends."""
+    if play < x - a:
+        return x - a
+    if play > x + a:
+        return x + a
+    return play
+
+
+@numba.njit(cache=True, inline="always")
+def loop_drive(s, seen, w, prm, c):
+    """The armature voltage a closed loop with its input map applies (as the truth)."""
+    Ka, Kt, Kpot, kp, kv = c[1], c[3], c[4], c[5], c[6]
+    d, u0, ak, vmax = prm[5], prm[6], prm[7], prm[8]
+    e = kp * (s - Kpot * seen) - kv * Kt * w
+    e = e + u0
+    if ak != 0.0:
+        e = e * (1.0 + ak) if e >= 0.0 else e * (1.0 - ak)
+    if d > 0.0:
+        e = math.copysign(max(abs(e) - d, 0.0), e)
+    v = Ka * e
+    if v > vmax:
+        v = vmax
+    elif v < -vmax:
+        v = -vmax
+    return v
+
+
+@numba.njit(cache=True, inline="always")
+def drive_piece(e, d, ak, Ka, vmax):
+    """The piece of the drive map ``_loop_drive`` is in for the error ``e`` (G_*)."""
+    pos = e >= 0.0
+    eg = e * ((1.0 + ak) if pos else (1.0 - ak))
+    dz = max(abs(eg) - d, 0.0)
+    rail = Ka * dz > vmax
+    lin = G_POS if pos else G_NEG
+    railed = G_RAILP if pos else G_RAILN
+    return G_DEAD if (d > 0.0) & (dz == 0.0) else (railed if rail else lin)
+
+
+@numba.njit(cache=True, inline="always")
+def piece_level(g, s, sc, kp, Kpot, u0, ak, d, Ka, vmax):
+    """The constant part of the drive in piece ``g`` (the state's part is in the slot's
+    matrix): ``sc`` is the pot's offset from theta/N (-a, +a or 0), or the pot inside a gap."""
+    pos = g == G_POS
+    lin = Ka * (((1.0 + ak) if pos else (1.0 - ak)) * (kp * (s - Kpot * sc) + u0)
+                + (-d if pos else d))
+    flat = vmax if g == G_RAILP else (-vmax if g == G_RAILN else 0.0)
+    return lin if (g == G_POS) | (g == G_NEG) else flat
+
+
+@numba.njit(cache=True, inline="always")
+def loop_step(i, w, th, pl, s_old, s_new, delayed, pr, c, T, p):
+    """One sample of candidate ``p`` in a closed loop with its input map, exactly: the piece
+    of the map the drive is in at the start is an affine closed (or, flat, open) loop with
+    its own exact ZOH (``T[p, slot]``; ``T`` the loop table, (P, N_SLOTS, SLOT_W)).
+    Returns the new state and ``ok``: False when the drive leaves the piece, a backlash gap
+    opens or closes, or the speed reaches zero under friction within the sample (the
+    caller then sub-steps it)."""
+    N, Ka, Kpot, kp = c[2], c[1], c[4], c[5]
+    kvkt = c[6] * c[3]
+    d, u0, ak, vmax, a, tc = pr[C_D], pr[C_U0], pr[C_ASYM], pr[C_VMAX], pr[C_A], pr[C_TC]
+    x = th / N
+    seen = pl if a > 0.0 else x
+    ep = (a > 0.0) & (x - a >= pl) & (w >= 0.0)  # pressed against the gap's ends
+    en = (a > 0.0) & (x + a <= pl) & (w <= 0.0)
+    gp = (a > 0.0) & (not ep) & (not en)
+    sc = pl if gp else (-a if ep else (a if en else 0.0))
+    g0 = drive_piece(kp * (s_new - Kpot * seen) - kvkt * w + u0, d, ak, Ka, vmax)
+    ok = True
+    if delayed:
+        ok = drive_piece(kp * (s_old - Kpot * seen) - kvkt * w + u0, d, ak, Ka, vmax) == g0
+    slot = S_FLAT if (g0 == G_DEAD) | (g0 >= G_RAILP) else (g0 + 2 if gp else g0)
+    cn = piece_level(g0, s_new, sc, kp, Kpot, u0, ak, d, Ka, vmax)
+    co = piece_level(g0, s_old, sc, kp, Kpot, u0, ak, d, Ka, vmax)
+    tf = tc if w > 0.0 else (-tc if w < 0.0 else 0.0)
+    ni = T[p, slot, 0] * i + T[p, slot, 1] * w + T[p, slot, T_GN] * cn
+    nw = T[p, slot, 3] * i + T[p, slot, 4] * w + T[p, slot, T_GN + 1] * cn
+    nt = T[p, slot, 6] * i + T[p, slot, 7] * w + th + T[p, slot, T_GN + 2] * cn
+    ni += T[p, slot, 2] * th
+    nw += T[p, slot, 5] * th
+    nt += T[p, slot, 8] * th
+    ni += T[p, slot, T_GO] * co
+    nw += T[p, slot, T_GO + 1] * co
+    nt += T[p, slot, T_GO + 2] * co
+    ni += T[p, slot, T_GF] * tf
+    nw += T[p, slot, T_GF + 1] * tf
+    nt += T[p, slot, T_GF + 2] * tf
+    npl = play_operator(pl, nt / N, a) if a > 0.0 else pl
+    seen1 = npl if a > 0.0 else nt / N
+    ok = ok & (drive_piece(kp * (s_new - Kpot * seen1) - kvkt * nw + u0, d, ak, Ka, vmax) == g0)
+    ok = ok & (not (ep & (nw < 0.0))) & (not (en & (nw > 0.0))) & (not (gp & (npl != pl)))
+    if tc > 0.0 or pr[C_TS] > 0.0:
+        ok = ok & (nw * w > 0.0)
+    return ni, nw, nt, npl, ok
+
+
+@numba.njit(cache=True, inline="always")
+def _pick(X, r, j, slot, ns):
+    """Row ``r`` of the slot ``slot`` of lane ``j``'s loop table: every slot loaded, one
+    selected (a blend, so the lanes stay in one vector loop)."""
+    B = BLOCK
+    v0 = X[r * B + j]
+    v1 = X[(r + SLOT_W) * B + j]
+    v = v0 if slot == 0 else v1
+    if ns > 2:  # an asymmetry: the - error's own slot
+        v2 = X[(r + 2 * SLOT_W) * B + j]
+        v = v2 if slot == 2 else v
+    if ns > 3:
+        v3 = X[(r + 3 * SLOT_W) * B + j]
+        v4 = X[(r + 4 * SLOT_W) * B + j]
+        v = v3 if slot == 3 else (v4 if slot == 4 else v)
+    return v
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _sweep_loop(X, q, N, iw, it, ii, wmk, tmk, imk, Ka, Kpot, kp, kvkt, mode):
+    """Every lane of a block through one sample of a closed loop with its input map inside:
+    :func:`loop_step` for all lanes at once, the same
+    arithmetic in the same order. Returns 1 if some lane's sample must be redone alone
+    (``R_FLAG``: the drive left its piece, a gap opened or closed, friction). ``mode``:
+    the DELAY, FRICTION and PLAY terms the block needs (one build per mode)."""
+    numba.literally(mode)
+    B = BLOCK
+    dl = mode & DELAY
+    fr = mode & FRICTION
+    pa = mode & PLAY
+    # the slots the block can reach: the gap's only with backlash, the - error's only with
+    # an asymmetry (else they are the + error's)
+    ns = N_SLOTS if pa else (3 if mode & ASYM else 2)
+    nflag = 0
+    for j in range(q):
+        i = X[R_I * B + j]
+        w = X[R_W * B + j]
+        th = X[R_TH * B + j]
+        s_new = X[R_SNEW * B + j]
+        s_old = X[R_SOLD * B + j]
+        x = th / N
+        if pa:
+            pl = X[R_PL * B + j]
+            a = X[R_GAP * B + j]
+            seen = pl if a > 0.0 else x
+        else:
+            pl = 0.0
+            a = 0.0
+            seen = x
+        dw = iw * (wmk - w)
+        dth = it * (tmk - seen)
+        r = X[R_ACC * B + j] + (dw * dw + dth * dth)
+        if ii != 0.0:
+            di = ii * (imk - i)
+            r += di * di
+        X[R_ACC * B + j] = r
+        u0 = X[(R_MAP + M_U0) * B + j]
+        ak = X[(R_MAP + M_K) * B + j]
+        d = X[(R_MAP + M_D) * B + j]
+        vmax = X[(R_MAP + M_VMAX) * B + j]
+        if pa:
+            ep = (a > 0.0) & (x - a >= pl) & (w >= 0.0)
+            en = (a > 0.0) & (x + a <= pl) & (w <= 0.0)
+            gp = (a > 0.0) & (not ep) & (not en)
+            sc = pl if gp else (-a if ep else (a if en else 0.0))
+        else:
+            ep = False
+            en = False
+            gp = False
+            sc = 0.0
+        g0 = drive_piece(kp * (s_new - Kpot * seen) - kvkt * w + u0, d, ak, Ka, vmax)
+        bad = False
+        if dl:
+            go = drive_piece(kp * (s_old - Kpot * seen) - kvkt * w + u0, d, ak, Ka, vmax)
+            bad = (X[R_DLY * B + j] != 0.0) & (go != g0)
+        slot = S_FLAT if (g0 == G_DEAD) | (g0 >= G_RAILP) else (g0 + 2 if gp else g0)
+        cn = piece_level(g0, s_new, sc, kp, Kpot, u0, ak, d, Ka, vmax)
+        ni = _pick(X, R_LT, j, slot, ns) * i + _pick(X, R_LT + 1, j, slot, ns) * w \
+            + _pick(X, R_LT + T_GN, j, slot, ns) * cn
+        nw = _pick(X, R_LT + 3, j, slot, ns) * i + _pick(X, R_LT + 4, j, slot, ns) * w \
+            + _pick(X, R_LT + T_GN + 1, j, slot, ns) * cn
+        nt = _pick(X, R_LT + 6, j, slot, ns) * i + _pick(X, R_LT + 7, j, slot, ns) * w + th \
+            + _pick(X, R_LT + T_GN + 2, j, slot, ns) * cn
+        ni += _pick(X, R_LT + 2, j, slot, ns) * th
+        nw += _pick(X, R_LT + 5, j, slot, ns) * th
+        nt += _pick(X, R_LT + 8, j, slot, ns) * th
+        if dl:
+            co = piece_level(g0, s_old, sc, kp, Kpot, u0, ak, d, Ka, vmax)
+            ni += _pick(X, R_LT + T_GO, j, slot, ns) * co
+            nw += _pick(X, R_LT + T_GO + 1, j, slot, ns) * co
+            nt += _pick(X, R_LT + T_GO + 2, j, slot, ns) * co
+        if fr:
+            tc = X[R_TC * B + j]
+            tf = tc if w > 0.0 else (-tc if w < 0.0 else 0.0)
+            ni += _pick(X, R_LT + T_GF, j, slot, ns) * tf
+            nw += _pick(X, R_LT + T_GF + 1, j, slot, ns) * tf
+            nt += _pick(X, R_LT + T_GF + 2, j, slot, ns) * tf
+        if pa:
+            xn = nt / N
+            lo = xn - a
+            hi = xn + a
+            npl = (lo if pl < lo else (hi if pl > hi else pl)) if a > 0.0 else pl
+            seen1 = npl if a > 0.0 else xn
+        else:
+            npl = pl
+            seen1 = nt / N
+        g1 = drive_piece(kp * (s_new - Kpot * seen1) - kvkt * nw + u0, d, ak, Ka, vmax)
+        bad = bad | (g1 != g0)
+        if pa:
+            bad = bad | (ep & (nw < 0.0)) | (en & (nw > 0.0)) | (gp & (npl != pl))
+            X[R_PL0 * B + j] = pl
+            X[R_PL * B + j] = npl
+        if fr:
+            bad = bad | ((X[R_FRIC * B + j] != 0.0) & ((w == 0.0) | (nw * w <= 0.0)))
+        f = 1 if bad else 0
+        nflag |= f
+        X[R_FLAG * B + j] = f
+        X[R_I0 * B + j] = i
+        X[R_W0 * B + j] = w
+        X[R_TH0 * B + j] = th
+        X[R_I * B + j] = ni
+        X[R_W * B + j] = nw
+        X[R_TH * B + j] = nt
+    return nflag
+
+
+
+@numba.njit(cache=True, inline="always")
+def loop_sample(X, q, N, iw, it, ii, wmk, tmk, imk, c, delay, friction, play, asym):
+    """:func:`_sweep_loop` with the build for the terms the block needs. Five builds: the
+    compiler did not vectorise the others (measured: a build with the asymmetry's slot or
+    friction but without the delay's terms came out scalar, 5x slower)."""
+    Ka, Kpot, kp, kvkt = c[1], c[4], c[5], c[6] * c[3]
+    if play:
+        if delay or friction:
+            return _sweep_loop(X, q, N, iw, it, ii, wmk, tmk, imk, Ka, Kpot, kp, kvkt, 14)
+        return _sweep_loop(X, q, N, iw, it, ii, wmk, tmk, imk, Ka, Kpot, kp, kvkt, 8)
+    if friction:
+        return _sweep_loop(X, q, N, iw, it, ii, wmk, tmk, imk, Ka, Kpot, kp, kvkt, 22)
+    if delay or asym:
+        return _sweep_loop(X, q, N, iw, it, ii, wmk, tmk, imk, Ka, Kpot, kp, kvkt, 18)
+    return _sweep_loop(X, q, N, iw, it, ii, wmk, tmk, imk, Ka, Kpot, kp, kvkt, 0)
