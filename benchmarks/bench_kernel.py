@@ -54,11 +54,12 @@ FLOPS = {"linear": LINEAR,
          "asymmetry": LINEAR + 3,                 # 1 + k, v (1 + k), Ka v
          "saturation": LINEAR + 1,                # Ka v (the clip is two comparisons)
          "asymmetric_deadband": LINEAR + 2}       # v - dpos or v + dneg, Ka v
-#: a closed loop with its input map inside (labrig/model/kernels.py, _sweep_loop; counted
-#: in benchmarks/README.md): the residuals (9), the error (6), its piece before and after
-#: the step (6 + 6, and theta/N after it), the constant drive of the piece, both signs (12),
-#: the update with feedback (22); backlash adds the gap's ends (4)
-LOOP = 9 + 6 + 6 + 12 + 22 + 1 + 6 + 6
+#: a closed loop with its input map inside (labrig/model/loop_kernel.py, _sweep_loop; the
+#: table is in benchmarks/README.md): the residuals with theta/N (9), the loop's error
+#: (6), its piece (5), the piece's constant drive (9), the update with feedback (22),
+#: theta/N, the error and its piece after the step (1 + 6 + 5); backlash adds the gap's
+#: ends (4)
+LOOP = 9 + 6 + 5 + 9 + 22 + 1 + 6 + 5
 LOOP_FLOPS = {"deadband": LOOP, "offset": LOOP, "asymmetry": LOOP, "saturation": LOOP,
               "asymmetric_deadband": LOOP, "backlash": LOOP + 4}
 #: a linear closed loop adds the feedback a02 theta, a12 theta, (a22 - 1) theta

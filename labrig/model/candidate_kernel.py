@@ -14,7 +14,7 @@ import math
 
 import numba
 
-from labrig.model.layout import C_A, C_TC, C_TS
+from labrig.model.layout import C_A, C_TC, C_TS, T_OK
 from labrig.model.loop_kernel import loop_drive, loop_step, play_operator
 
 @numba.njit(cache=True)
@@ -122,6 +122,9 @@ def _candidate(p, s, m, frac, Ad, g_old, g_new, gf, prm, nonlinear, closed, S, c
         s_old = s[ko, col] if ko >= 0 else 0.0
         s_new = s[kn, col] if kn >= 0 else 0.0
         if nonlinear[p]:  # a closed loop with its input map: exact in each affine piece
+            if T[p, 0, T_OK] == 0.0:  # (a quasi-static armature: sub-steps throughout)
+                i, w, th, play = substeps(i, w, th, play, s_old, s_new, frac[p], pr, 2, S, c)
+                continue
             if friction and w == 0.0:
                 i, w, th, play = friction_step(i, w, th, play, s_old, s_new, frac[p], pr, 2,
                                                S, c)

@@ -33,7 +33,8 @@ from labrig.model.layout import (BLOCK, C_A, C_ASYM, C_D, C_TC, C_TS, C_U0, C_VM
                                  R_A12, R_A20, R_A21, R_A22M1, R_ACC, R_DLY, R_E1, R_E2, R_FLAG,
                                  R_FRIC, R_GAP, R_GF0, R_GF1, R_GF2, R_GN0, R_GN1, R_GN2, R_GO0,
                                  R_GO1, R_GO2, R_I, R_I0, R_KK, R_LT, R_MAP, R_PL, R_PL0, R_RR,
-                                 R_SNEW, R_SOLD, R_TC, R_TH, R_TH0, R_TS, R_W, R_W0, SLOT_W, SMALL)
+                                 R_SNEW, R_SOLD, R_TC, R_TH, R_TH0, R_TS, R_W, R_W0, SLOT_W, SMALL,
+                                 T_OK)
 from labrig.model.loop_kernel import loop_sample
 
 
@@ -257,7 +258,7 @@ def _block(p0, p1, s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed, S, c, wm
                         i0, w0, t0, l0 = (X[R_I0 * B + j], X[R_W0 * B + j], X[R_TH0 * B + j],
                                           X[R_PL0 * B + j])
                         so, sn = X[R_SOLD * B + j], X[R_SNEW * B + j]
-                        if X[R_FRIC * B + j] != 0.0:
+                        if X[R_FRIC * B + j] != 0.0 and X[(R_LT + T_OK) * B + j] != 0.0:
                             ni, nw, nt, npl = friction_step(i0, w0, t0, l0, so, sn, frac[p0 + j],
                                                             prm[p0 + j], 2, S, c)
                         else:

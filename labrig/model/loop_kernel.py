@@ -24,7 +24,8 @@ from labrig.model.layout import (ASYM, BLOCK, C_A, C_ASYM, C_D, C_TC, C_TS, C_U0
                                  FRICTION, G_DEAD, G_NEG, G_POS, G_RAILN, G_RAILP, M_D, M_K,
                                  M_U0, M_VMAX, N_SLOTS, PLAY, R_ACC, R_DLY, R_FLAG, R_FRIC,
                                  R_GAP, R_I, R_I0, R_LT, R_MAP, R_PL, R_PL0, R_SNEW, R_SOLD,
-                                 R_TC, R_TH, R_TH0, R_W, R_W0, S_FLAT, SLOT_W, T_GF, T_GN, T_GO)
+                                 R_TC, R_TH, R_TH0, R_W, R_W0, S_FLAT, SLOT_W, T_GF, T_GN, T_GO,
+                                 T_OK)
 
 
 @numba.njit(cache=True, inline="always")
@@ -63,7 +64,9 @@ def drive_piece(e, d, ak, Ka, vmax):
     eg = e * ((1.0 + ak) if pos else (1.0 - ak))
     dz = max(abs(eg) - d, 0.0)
     rail = Ka * dz > vmax
-    lin = G_POS if pos else G_NEG
+    # the error's sign is a piece's edge only where the map has a kink or a step there
+    # (an asymmetry, a dead zone); a map linear through zero (an offset alone) is one piece
+    lin = G_NEG if (not pos) & ((ak != 0.0) | (d > 0.0)) else G_POS
     railed = G_RAILP if pos else G_RAILN
     return G_DEAD if (d > 0.0) & (dz == 0.0) else (railed if rail else lin)
 
@@ -196,10 +199,10 @@ def _sweep_loop(X, q, N, iw, it, ii, wmk, tmk, imk, Ka, Kpot, kp, kvkt, mode):
             gp = False
             sc = 0.0
         g0 = drive_piece(kp * (s_new - Kpot * seen) - kvkt * w + u0, d, ak, Ka, vmax)
-        bad = False
+        bad = X[(R_LT + T_OK) * B + j] == 0.0  # every sample sub-stepped
         if dl:
             go = drive_piece(kp * (s_old - Kpot * seen) - kvkt * w + u0, d, ak, Ka, vmax)
-            bad = (X[R_DLY * B + j] != 0.0) & (go != g0)
+            bad = bad | ((X[R_DLY * B + j] != 0.0) & (go != g0))
         slot = S_FLAT if (g0 == G_DEAD) | (g0 >= G_RAILP) else (g0 + 2 if gp else g0)
         cn = piece_level(g0, s_new, sc, kp, Kpot, u0, ak, d, Ka, vmax)
         ni = _pick(X, R_LT, j, slot, ns) * i + _pick(X, R_LT + 1, j, slot, ns) * w \

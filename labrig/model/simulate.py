@@ -32,7 +32,7 @@ from labrig.model.effects import AsymmetricDeadband, Asymmetry, Deadband, Effect
 from labrig.model.expm import expm_batch, expm_small
 from labrig.model.layout import (C_A, C_ASYM, C_D, C_KE, C_TC, C_TD, C_TS, C_U0, C_VMAX,
                                  MAP_COLUMNS, N_SLOTS, S_FLAT, S_NEG, S_NEG_GAP, S_POS,
-                                 S_POS_GAP, SLOT_W, SMALL, T_A, T_GF, T_GN, T_GO)
+                                 S_POS_GAP, SLOT_W, SMALL, T_A, T_GF, T_GN, T_GO, T_OK)
 from labrig.model.kernels import run_kernels
 
 # kernel parameter columns: R, L, J, B, K (labrig.model.plants: every plant's kernel
@@ -263,7 +263,7 @@ class Simulator:
             s = run.u[:, None]
             if mapped:
                 if ("table",) + key not in disc:
-                    disc[("table",) + key] = _loop_table(prm, run, frac)
+                    disc[("table",) + key] = _loop_table(prm, run, frac, self.substeps)
                 table = disc[("table",) + key]
             nonlinear = np.full(P, mapped)
         else:
@@ -347,31 +347,46 @@ def _discretise(prm, run: RunData, frac):
     return tuple(np.ascontiguousarray(x) for x in _zoh(A, bs, bf, frac, run.dt))
 
 
-def _loop_table(prm, run: RunData, frac):
+def _loop_table(prm, run: RunData, frac, substeps: int):
     """The loop table of a closed loop with its input map inside (P, N_SLOTS, SLOT_W): in
-    each affine piece of the drive ``v = Ka g (kp (r - Kpot theta/N) - kv Kt w) + c`` (g
-    the asymmetry's gain for the error's sign, no position term inside a backlash gap, the
-    loop open where the drive is flat) the exact ZOH of its own closed loop, the constant
+    each affine piece of the drive ``v = c - Ka g (kp Kpot theta/N + kv Kt w)`` (g the
+    asymmetry's gain for the error's sign, no position term inside a backlash gap, the
+    loop open where the drive is flat) the exact ZOH of its own linear loop, the constant
     part ``c`` entering as a voltage. Pieces no candidate can reach are left empty, and
-    the - error's slots copy the + ones when no candidate has an asymmetry."""
+    the - error's slots copy the + ones when no candidate has an asymmetry.
+
+    A candidate whose armature is quasi-static at the sub-step (L/R below a tenth of it: a
+    current-mode drive) is marked (``T_OK`` 0) and sub-stepped throughout, as before the
+    pieces: the exponential of such a stiff lag needs some 15 squarings, whose rounding
+    (1e-9 of the coefficients) made a fit's objective rough, and on such stiff loops the
+    truth integrator's own error at 20 sub-steps is above an encoder count, so an exact
+    model read effects into it (measured on the linear axis: stiction instead of Coulomb
+    friction)."""
     P = prm.shape[0]
     A0, bs, bf = _plant_matrices(prm)
-    L = prm[:, 1]
+    R, L = prm[:, 0], prm[:, 1]
+    full = ~(L / R < run.dt / substeps / 10.0)
     T = np.zeros((P, N_SLOTS, SLOT_W))
+    T[full, S_FLAT, T_OK] = 1.0
+    if not full.any():
+        return T
 
     def fill(slot, gain, pot):
-        A = A0.copy()
+        A = A0[full].copy()
+        Lf = L[full]
         if gain is not None:
-            A[:, 0, 1] -= run.Ka * gain * run.kv * run.Kt / L
+            gf_ = gain[full] if np.ndim(gain) else gain
+            A[:, 0, 1] -= run.Ka * gf_ * run.kv * run.Kt / Lf
             if pot:
-                A[:, 0, 2] -= run.Ka * gain * run.kp * run.Kpot / run.N / L
-        Ad, g_old, g_new, gf = _zoh(A, bs, bf, frac, run.dt, expm_small)
-        row = Ad.reshape(P, 9).copy()
-        row[:, 8] -= 1.0  # a22 - 1, as the update adds theta itself
-        T[:, slot, T_A:T_A + 9] = row
-        T[:, slot, T_GO:T_GO + 3] = g_old
-        T[:, slot, T_GN:T_GN + 3] = g_new
-        T[:, slot, T_GF:T_GF + 3] = gf
+                A[:, 0, 2] -= run.Ka * gf_ * run.kp * run.Kpot / run.N / Lf
+        Ad, g_old, g_new, gf = _zoh(A, bs[full], bf[full], frac[full], run.dt, expm_small)
+        row = T[full, slot]
+        row[:, T_A:T_A + 9] = Ad.reshape(-1, 9)
+        row[:, T_A + 8] -= 1.0  # a22 - 1, as the update adds theta itself
+        row[:, T_GO:T_GO + 3] = g_old
+        row[:, T_GN:T_GN + 3] = g_new
+        row[:, T_GF:T_GF + 3] = gf
+        T[full, slot] = row
 
     ak = prm[:, C_ASYM]
     asym = bool(np.any(ak != 0))
@@ -384,7 +399,7 @@ def _loop_table(prm, run: RunData, frac):
             if asym:
                 fill(neg, 1.0 - ak, pot)
             else:
-                T[:, neg] = T[:, pos]
+                T[:, neg, :T_OK] = T[:, pos, :T_OK]
     return T
 
 
