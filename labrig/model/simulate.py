@@ -250,15 +250,17 @@ class Simulator:
         m = np.floor(td / run.dt + 1e-9)
         frac = td / run.dt - m
         key = (run.dt, run.loop, run.Ka, run.kp, run.kv, run.Kt, run.Kpot, run.N)
+        # a closed loop with an input or drive effect or backlash inside: every candidate
+        # through the loop's affine pieces (decided by the model, not by a candidate's
+        # values, so a candidate's result never depends on the population it is in); the
+        # linear loop's discretisation is then not used
+        mapped = closed and self._in_loop
         if key not in disc:  # runs with the same rate and loop share one discretisation
-            disc[key] = _discretise(prm, run, frac)
+            disc[key] = _discretise(prm, run, frac) if not mapped else (
+                np.zeros((P, 3, 3)), np.zeros((P, 3)), np.zeros((P, 3)), np.zeros((P, 3)))
         Ad, g_old, g_new, gf = disc[key]
         imap = _NO_MAP
         table = _NO_TABLE
-        # a closed loop with an input or drive effect or backlash inside: every candidate
-        # through the loop's affine pieces (decided by the model, not by a candidate's
-        # values, so a candidate's result never depends on the population it is in)
-        mapped = closed and self._in_loop
         if closed:
             s = run.u[:, None]
             if mapped:
