@@ -10,7 +10,7 @@ $(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
 	$(BIN)/python -m pip install -q -e '.[test]'
-	$(BIN)/python -m labrig.model.warm   # compile the simulator now, not in the first command
+	$(BIN)/labrig-warm   # compile the simulator now, not in the first command
 	touch $(STAMP)
 
 demo: $(STAMP)          ## the main job on the simulated rig -> demo_out/report.html

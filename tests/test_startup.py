@@ -65,11 +65,13 @@ def test_cold_cache_is_announced_once_before_compiling(monkeypatch, capsys):
 
 
 def test_installed_cache_is_warm():
-    """The install step (python -m labrig.model.warm, run by make) filled numba's cache,
-    so no command in this suite compiles."""
+    """The install step (labrig-warm, run by make) filled numba's cache, so no command in
+    this suite compiles."""
+    from pathlib import Path
+
     from labrig.model import warm
 
-    out = subprocess.run([sys.executable, "-m", "labrig.model.warm"], capture_output=True,
-                         text=True, check=True)
+    out = subprocess.run([str(Path(sys.executable).with_name("labrig-warm"))],
+                         capture_output=True, text=True, check=True)
     assert "loaded from the cache" in out.stdout or "compiled" in out.stdout
     assert warm.cache_is_warm()
