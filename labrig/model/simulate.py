@@ -376,11 +376,10 @@ def _loop_table(prm, run: RunData, frac, substeps: int):
     def fill(slot, gain, pot):
         A = A0[full].copy()
         Lf = L[full]
-        if gain is not None:
-            gf_ = gain[full] if np.ndim(gain) else gain
-            A[:, 0, 1] -= run.Ka * gf_ * run.kv * run.Kt / Lf
+        if gain is not None:  # (P,) the asymmetry's gain per candidate
+            A[:, 0, 1] -= run.Ka * gain[full] * run.kv * run.Kt / Lf
             if pot:
-                A[:, 0, 2] -= run.Ka * gf_ * run.kp * run.Kpot / run.N / Lf
+                A[:, 0, 2] -= run.Ka * gain[full] * run.kp * run.Kpot / run.N / Lf
         Ad, g_old, g_new, gf = _zoh(A, bs[full], bf[full], frac[full], run.dt, expm_small)
         row = T[full, slot]
         row[:, T_A:T_A + 9] = Ad.reshape(-1, 9)

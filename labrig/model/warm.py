@@ -34,30 +34,36 @@ def _sources() -> list[str]:
     return [m.__file__ for m in (candidate_kernel, expm, kernels, layout, loop_kernel)]
 
 
-def _indexes() -> list[str]:
-    return [d._cache._cache_file._index_path for d in _dispatchers()]
+def _indexes() -> tuple[list[str], list[str]]:
+    """The drivers' cache indexes: (present and current, missing or stale). numba checks
+    only a driver's own file; a driver inlines code from the other kernel modules too, so
+    an index older than ANY of them is stale here. Raises when numba's private layout
+    differs (callers treat that as a cold cache)."""
+    newest = max(os.path.getmtime(f) for f in _sources())
+    current, stale = [], []
+    for d in _dispatchers():
+        p = d._cache._cache_file._index_path
+        (current if os.path.exists(p) and os.path.getmtime(p) >= newest else stale).append(p)
+    return current, stale
 
 
 def cache_is_warm() -> bool:
     """True when numba's cache holds every driver kernel, compiled from the kernels' source
-    as it is now. numba checks only the driver's own file; a driver inlines code from the
-    other kernel modules too, so an index older than ANY of them is stale here."""
+    as it is now."""
     try:
-        newest = max(os.path.getmtime(f) for f in _sources())
-        return all(os.path.exists(p) and os.path.getmtime(p) >= newest for p in _indexes())
+        return not _indexes()[1]
     except (AttributeError, KeyError, OSError):  # another numba's private layout: cold
         return False
 
 
 def _forget_stale() -> None:
-    """Remove the drivers' indexes older than a kernel source, so numba compiles them
-    again instead of loading code built from an older inlined function."""
+    """Remove the drivers' stale indexes, so numba compiles them again instead of loading
+    code built from an older inlined function."""
     try:
-        newest = max(os.path.getmtime(f) for f in _sources())
-        for p in _indexes():
-            if os.path.exists(p) and os.path.getmtime(p) < newest:
+        for p in _indexes()[1]:
+            if os.path.exists(p):
                 os.remove(p)
-    except (AttributeError, OSError):
+    except (AttributeError, KeyError, OSError):
         pass
 
 
