@@ -75,3 +75,13 @@ def test_installed_cache_is_warm():
                          capture_output=True, text=True, check=True)
     assert "loaded from the cache" in out.stdout or "compiled" in out.stdout
     assert warm.cache_is_warm()
+
+
+def test_the_install_step_refuses_what_it_does_not_take():
+    """labrig-warm takes no arguments: one usage line and exit 2, no traceback."""
+    from pathlib import Path
+
+    proc = subprocess.run([str(Path(sys.executable).with_name("labrig-warm")), "--bogus"],
+                          capture_output=True, text=True)
+    assert proc.returncode == 2 and "unrecognized arguments: --bogus" in proc.stderr
+    assert "Traceback" not in proc.stderr

@@ -133,8 +133,13 @@ def ready() -> None:
         warm()
 
 
-def main() -> int:
-    """``python -m labrig.model.warm``: the install step that fills the cache."""
+def main(argv=None) -> int:
+    """``labrig-warm``: the install step that fills the cache (takes no arguments)."""
+    import argparse
+
+    argparse.ArgumentParser(
+        prog="labrig-warm", description="Compile labrig's simulator kernels into numba's "
+        "cache (make runs this at install; later commands load them)").parse_args(argv)
     # run as a script this file is ``__main__``; the simulators ask the imported module
     from labrig.model import warm as module
 
