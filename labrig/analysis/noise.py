@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import hashlib
 import threading
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -39,13 +39,21 @@ MOVING = 0.05
 
 @dataclass(frozen=True)
 class Weights:
-    """Channel weights of the fit (position p, speed q), each already in noise units."""
+    """Channel weights of the fit (position p, speed q), each already in noise units.
+
+    ``why`` says, when one channel was weighted down for what it is (a position that
+    drifts against the speed), which channel decides and why; it is not part of the
+    weights' identity."""
 
     p: float = 1.0
     q: float = 1.0
+    why: str = field(default="", compare=False)
 
     def to_json(self) -> dict:
-        return {"position": self.p, "speed": self.q}
+        out = {"position": self.p, "speed": self.q}
+        if self.why:
+            out["why"] = self.why
+        return out
 
 
 @dataclass(frozen=True)

@@ -105,6 +105,8 @@ class AutoDiagnosis(Displayable):
             first = self.rounds[0]
             for v in first.noise.values():
                 out.append(f"noise floor, {v['method']}")
+            if first.weights.get("why"):
+                out.append(f"channel weights: {first.weights['why']}")
             if first.cross_validation:
                 out.append(f"cross-validation: {first.cross_validation['folds']} folds, "
                            f"{first.cross_validation['kind']}")

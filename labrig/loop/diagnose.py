@@ -62,19 +62,41 @@ SWAP_GAIN = 0.02
 SIMPLER_MARGIN = 0.02
 
 
-def balanced_weights(ev: Evaluation) -> Weights:
+def balanced_weights(ev: Evaluation, runs=None) -> Weights:
     """Channel weights that give each channel the same say at the starting model: each
     channel's squared error divided by its own mean square, normalised so the weights
     average to one over the samples (equal to p = q = 1 when both channels miss by the
-    same factor, as on an analogue rig)."""
+    same factor, as on an analogue rig).
+
+    With ``runs``, a position that drifts against the integral of the measured speed
+    (:mod:`labrig.analysis.agreement`) is weighted by its drift as well as its noise:
+    never more, in noise units, than the speed over ``1 + (drift/noise)^2``, so its
+    wander cannot outweigh what the speed says; the weights then say so (``why``)."""
     r = ev.metrics["rmse_over_noise"]
     if "speed" not in r or "position" not in r:
         return Weights()
     q, p = 1.0 / max(r["speed"], 1.0) ** 2, 1.0 / max(r["position"], 1.0) ** 2
+    why = ""
+    agree = drift_of(runs, ev) if runs is not None else None
+    if agree is not None and agree.drifts and p > q / agree.position_factor ** 2:
+        p = q / agree.position_factor ** 2
+        why = (f"the speed decides: {agree.describe()}, so the position is weighted by its "
+               "drift as well as its noise")
     n = ev.metrics.get("counts", {})
     nw, nt = n.get("speed", 1), n.get("position", 1)
     scale = (nw + nt) / (q * nw + p * nt)
-    return Weights(p=p * scale, q=q * scale)
+    return Weights(p=p * scale, q=q * scale, why=why)
+
+
+def drift_of(runs, ev: Evaluation):
+    """The position's agreement with the integral of the speed on ``runs``
+    (:class:`labrig.analysis.agreement.ChannelAgreement`), with the noise floors of
+    ``ev``; None without both channels."""
+    from labrig.analysis.agreement import channel_agreement
+    from labrig.model.simulate import prepare
+
+    unit = ev.floors["position"].unit if "position" in ev.floors else "rad"
+    return channel_agreement(prepare(runs), ev.sigmas[0], ev.sigmas[1], unit)
 
 
 def bic(sse, n, n_eff, k):
@@ -162,13 +184,13 @@ def diagnose(runs, model: Model | None = None, *, candidates=None, seed: int = 0
         base = linear_model(runs, seed=seed, fixed=fixed)
         base_source = "identified without effects (co)"
         if weights is None:
-            weights = balanced_weights(evaluate(runs, base))
+            weights = balanced_weights(evaluate(runs, base), runs)
             if weights != Weights():  # the linear fit again, on the balanced objective
                 base = linear_model(runs, seed=seed, fixed=fixed, weights=weights, start=base)
     else:
         base = model
         base_source = "the given model"
-    weights = weights or balanced_weights(evaluate(runs, base))
+    weights = weights or balanced_weights(evaluate(runs, base), runs)
     ev0 = evaluate(runs, base, weights=weights)
     sig = ev0.sigmas
     n = ev0.n
@@ -266,6 +288,14 @@ def diagnose(runs, model: Model | None = None, *, candidates=None, seed: int = 0
     elif rmse0 <= FLOOR:
         verdict = (f"The model is at the noise floor (rmse/noise {rmse0:.2f}) and no effect "
                    "predicts held-out data better: nothing is missing that these data can show.")
+    elif weights.why and ev0.metrics["rmse_over_noise"]["speed"] <= FLOOR:
+        per = ev0.metrics["rmse_over_noise"]
+        verdict = (f"The speed is at its noise floor (rmse/noise {per['speed']:.2f}) and no "
+                   "effect predicts held-out data better. The position misses (rmse/noise "
+                   f"{per['position']:.2f}) by its drift against the speed, which no model of "
+                   "the plant can follow (its position is the integral of its speed): a sensor "
+                   "matter. Zero or recalibrate the position channel, or fit the speed alone "
+                   "(--weights p=0,q=1).")
     else:
         verdict = (f"The model misses (rmse/noise {rmse0:.2f}) but no catalogue effect earns its "
                    "parameters on BIC and on held-out data; the cause may be outside the catalogue "

@@ -199,7 +199,8 @@ class Diagnosis(Displayable):
         if self.weights:
             ranking.notes.append(f"channel weights: speed {self.weights['speed']:.3g}, position "
                                  f"{self.weights['position']:.3g} (each channel's squared error "
-                                 "over its own at the starting model; --weights overrides)")
+                                 "over its own at the starting model; --weights overrides)"
+                                 + (f"; {self.weights['why']}" if self.weights.get("why") else ""))
         return [regimes, ranking]
 
     def _ranking_rules(self) -> list[str]:

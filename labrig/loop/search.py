@@ -5,7 +5,11 @@ starts, the best cross-validated) and then:
 
 - **adds** the recommended effect, or, when no single effect brings the error near the
   noise floor, the best **pair** of the leading candidates (two effects that only
-  explain the data together: a dead zone in front of a rail);
+  explain the data together: a dead zone in front of a rail); when no single effect
+  earns its parameters at all and the model still misses, the pairs of the effects
+  that set how much drive it takes to move (offset, friction, dead zone) are fitted
+  together in place of the model's own such effects (an offset with Coulomb friction
+  looks like a lopsided dead zone to a search that adds one effect at a time);
 - **swaps** an earlier choice for a look-alike when the new model makes the look-alike
   predict better (stiction for a dead zone, stiction for Coulomb friction);
 - **removes** an earlier effect that no longer earns its place once a later one is in
@@ -18,12 +22,14 @@ from __future__ import annotations
 
 import textwrap
 from dataclasses import dataclass, field
+from itertools import combinations
 
 from labrig.loop.crossval import cross_validate
 from labrig.loop.diagnose import (MIN_DBIC, MIN_GAIN, SIMPLER_MARGIN, SWAP_GAIN, bic,
                                   candidate_names, diagnose)
 from labrig.loop.evaluation import evaluate
 from labrig.loop.ladder import Ladder, LadderStep, rung_label
+from labrig.core.parallel import each
 from labrig.model.effects import get_effect
 from labrig.model.model import Model, param_keys
 from labrig.model.reach import Reach
@@ -33,6 +39,10 @@ from labrig.loop.refit import refit, refit_with, without
 NEAR_FLOOR = 1.5
 #: candidates (by in-sample gain) whose pairs are tried
 PAIR_POOL = 3
+#: the effects that set how much drive it takes to move: their pairs are tried whenever
+#: no single effect earns its parameters and the model still misses
+THRESHOLD_FAMILY = ("offset", "coulomb_friction", "stiction", "deadband",
+                    "asymmetric_deadband")
 # a swap must lower the cross-validated error by SWAP_GAIN; a simpler family member may
 # be SIMPLER_MARGIN worse (the step-by-step diagnose uses the same two, hence imported)
 #: log lines are wrapped at this width (words whole, never cut)
@@ -65,18 +75,24 @@ class Move:
     cv_before: float
     cv_after: float
     round: int
+    replaces: list = field(default_factory=list)   # a pair fitted in place of these
 
     @property
     def label(self) -> str:
         e = self.effects
         if self.kind == "swap":
             return f"{e[0]} -> {e[1]}"
+        if self.replaces:
+            return f"{', '.join(self.replaces)} -> {' + '.join(e)}"
         return ("- " if self.kind == "remove" else "+ ") + ", ".join(e)
 
     def to_json(self) -> dict:
-        return {"kind": self.kind, "effects": list(self.effects), "label": self.label,
-                "cross_validated_before": self.cv_before, "cross_validated_after": self.cv_after,
-                "round": self.round}
+        out = {"kind": self.kind, "effects": list(self.effects), "label": self.label,
+               "cross_validated_before": self.cv_before, "cross_validated_after": self.cv_after,
+               "round": self.round}
+        if self.replaces:
+            out["replaces"] = list(self.replaces)
+        return out
 
 
 @dataclass
@@ -148,6 +164,44 @@ def _pair(judge: _Judge, diag, log):
     return best[0], best[1], judge.cv(best[0]), best[2]
 
 
+def _compatible(a: str, b: str) -> bool:
+    """Two effects one model can hold: not one family, not two friction laws."""
+    ea, eb = get_effect(a), get_effect(b)
+    return ea.family_name != eb.family_name and not (ea.stage == eb.stage == "friction")
+
+
+def _threshold_pair(judge: _Judge, model, cv_now: float, log):
+    """The best pair of :data:`THRESHOLD_FAMILY`, fitted together in place of the model's
+    own members of that family: ``(model, evaluation, cv, names, replaced)`` when it
+    predicts held-out data clearly better (and BIC agrees), else None."""
+    replaced = [n for n in model.names if n in THRESHOLD_FAMILY]
+    reduced = model
+    for n in replaced:
+        reduced = without(reduced, n)
+    pairs = [(a, b) for a, b in combinations(THRESHOLD_FAMILY, 2)
+             if _compatible(a, b) and {a, b} != set(replaced)
+             and not any(get_effect(n).stage == get_effect(x).stage == "friction"
+                         for n in reduced.names for x in (a, b))]
+    if not pairs:
+        return None
+    firsts = sorted({a for a, _ in pairs}, key=THRESHOLD_FAMILY.index)
+    one = dict(zip(firsts, each(lambda a: judge.add(reduced, a), firsts)))
+    fits = each(lambda ab: judge.add(one[ab[0]], ab[1]), pairs)
+    evs = each(judge.evaluate, fits)
+    k = min(range(len(fits)), key=lambda i: evs[i].fitness)
+    m, ev, names = fits[k], evs[k], list(pairs[k])
+    if judge.bic(m, ev) - judge.bic(model, judge.evaluate(model)) >= MIN_DBIC:
+        return None
+    cv = judge.cv(m)
+    _say(log, f"  trying the pair {' + '.join(names)}"
+              + (f" in place of {', '.join(replaced)}" if replaced else "")
+              + f" (no single effect earns its parameters): cross-validated {cv_now:.2f} -> "
+                f"{cv:.2f}")
+    if cv >= (1 - MIN_GAIN) * cv_now:
+        return None
+    return m, ev, cv, names, replaced
+
+
 def search(runs, model: Model | None = None, *, max_rounds: int = 3, seed: int = 0,
            fixed: dict | None = None, weights=None, log=None, on_step=None) -> SearchResult:
     """Add, pair, swap and remove effects until the cross-validated error stops falling.
@@ -183,12 +237,18 @@ def search(runs, model: Model | None = None, *, max_rounds: int = 3, seed: int =
                                                 step[3] if step else diag.evaluation)
             if cv < (1 - MIN_GAIN) * single_cv and dbic < MIN_DBIC:
                 step = ("pair", names, m, ev, cv)
+        replaced = []
+        if step is None and diag.evaluation.fitness > NEAR_FLOOR:
+            found = _threshold_pair(judge, model, cv_now, log)
+            if found is not None and added + 2 - len(found[4]) <= max_rounds:
+                m, ev, cv, names, replaced = found
+                step = ("pair", names, m, ev, cv)
         if step is None:
             break
         kind, names, model, ev, cv = step
-        moves.append(Move(kind, names, cv_now, cv, k))
+        moves.append(Move(kind, names, cv_now, cv, k, replaces=replaced))
         cv_now = cv
-        added += len(names)
+        added += len(names) - len(replaced)
         ladder.steps.append(LadderStep.of(rung_label(model.names, ladder.steps[-1].effects),
                                           model, ev, cv=cv))
         if on_step:
