@@ -165,3 +165,53 @@ class Twin:
                 exp["between"] = e["between"]
             out.append(self.record(folder, e["name"], u, exp))
         return out
+
+
+# -- a torque-driven servo, recorded as a scope export ---------------------------------
+
+def torque_drive_from_rest(folder, *, J=2e-4, B=2e-3, coulomb=0.02, offset=0.006,
+                           torques=(0.05, -0.05, 0.08, -0.08), fs=500.0, position=True,
+                           drift=0.02, seed=5) -> list[Path]:
+    """A current-mode drive stepped from rest in both directions: ``J w' = u + offset -
+    B w - Tc sign(w)`` (the rotor sticks while ``|u + offset| <= Tc``), Euler with 20
+    steps per sample. Each run is a foreign CSV ``t,torque,speed,pos`` as a scope would
+    export it: the logged torque with its noise, the speed, and, with ``position``, a
+    position that is not zeroed between runs and wanders (a random walk of ``drift``
+    rad per sample) like an integrated channel of a real drive."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng(seed)
+    dt, sub = 1.0 / fs, 20
+    h = dt / sub
+    out, pos0 = [], 0.0
+    for i, a in enumerate(torques):
+        n = int(3.0 * fs)
+        u = np.zeros(n)
+        u[int(0.2 * fs):int(2.2 * fs)] = a
+        w = th = 0.0
+        ws, ths = np.empty(n), np.empty(n)
+        for k in range(n):
+            ws[k], ths[k] = w, th
+            drive = u[k] + offset
+            for _ in range(sub):
+                if w == 0.0 and abs(drive) <= coulomb:
+                    continue                                   # stuck
+                s = math.copysign(1.0, w if w != 0.0 else drive)
+                w_new = w + h * (drive - B * w - coulomb * s) / J
+                if w != 0.0 and w_new * w < 0.0:
+                    w_new = 0.0                                # stops rather than reverses
+                th += 0.5 * h * (w + w_new)
+                w = w_new
+        t = np.arange(n) * dt
+        cols = [t, u + rng.normal(0.0, 2e-4, n), ws + rng.normal(0.0, 0.05, n)]
+        head = "t,torque,speed"
+        if position:
+            pos0 += rng.normal(0.0, 50.0)
+            cols.append(pos0 + ths + np.cumsum(rng.normal(0.0, drift, n))
+                        + rng.normal(0.0, 0.002, n))
+            head += ",pos"
+        path = folder / f"run{i}.csv"
+        rows = [head] + [",".join(f"{v:.7g}" for v in row) for row in zip(*cols)]
+        path.write_text("\n".join(rows) + "\n")
+        out.append(path)
+    return out
