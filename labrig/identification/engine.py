@@ -276,6 +276,22 @@ class FitOptions:
     identifiability: bool = True
 
 
+def _position_drift(obj, p: float, q: float) -> dict | None:
+    """The position's drift against the integral of the speed
+    (:mod:`labrig.analysis.agreement`) when, at these weights, it outweighs the speed:
+    weighted at its noise floor, a wandering position pulls the fit towards its wander."""
+    from labrig.analysis.agreement import channel_agreement
+
+    if q <= 0 or p <= 0 or "position" not in obj.floors or "speed" not in obj.floors:
+        return None
+    agree = channel_agreement(obj.runs, obj.sigma_w, obj.sigma_theta,
+                              obj.floors["position"].unit)
+    if agree is None or not agree.drifts or p <= q / agree.position_factor ** 2:
+        return None
+    return {**agree.to_json(), "description": agree.describe(),
+            "suggested_p": round(q / agree.position_factor ** 2, 6)}
+
+
 def identify(runs, method: str = METHOD, effects: list[Effect] = (), *, seed: int | None = SEED,
              bounds: dict | None = None, fixed: dict | None = None, start: dict | None = None,
              options: FitOptions | None = None, callback=None, dataset: dict | None = None,
@@ -348,6 +364,9 @@ def identify(runs, method: str = METHOD, effects: list[Effect] = (), *, seed: in
         dataset["current_unused"] = True
     if obj.n_gaps:  # the samples the link lost, left out (reported, never fitted)
         dataset["gap_samples"] = int(obj.n_gaps)
+    drift = _position_drift(obj, o.p, o.q)
+    if drift:
+        dataset["position_drift"] = drift
     return Identification(method=name, effects=effects, space=space,
                           params=space.as_dict(phys), result=res, metrics=metrics,
                           identifiable=ident, seconds=time.perf_counter() - t0,

@@ -195,6 +195,12 @@ def identification_warnings(ident: Any) -> list[str]:
     if lost:
         notes.append(f"{lost} samples lost on the link (gap = 1) are left out of the fit, "
                      "the residuals and the noise floors")
+    drift = ident.dataset.get("position_drift")
+    if drift:
+        notes.append(f"{drift['description']}: weighted at its noise floor it outweighs the "
+                     "speed and pulls the fit towards its wander; --weights "
+                     f"p={drift['suggested_p']:.3g},q=1 weights it by its drift as well "
+                     "(labrig diagnose does so itself)")
     return (bound_warnings(ident.space, ident.params, units)
             + fit_warnings(ident.metrics.get("fit_percent", {}), "all runs") + notes)
 
