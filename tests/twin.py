@@ -13,7 +13,8 @@ What differs from labrig's simulators (docs/physics.md, 'The simulators'):
   steps;
 - **delay**: the held input shifted by the delay on the integrator's own time grid;
 - **sensors**: the bridge's 12-bit DAC on the input, Gaussian noise then a 10-bit ADC
-  over +-10 V on the tacho and the pot, as the board reads them.
+  over +-10 V on the tacho and the pot, as the board reads them; optionally a tacho
+  whose gain ripples with the motor's angle (a commutator's ripple).
 
 It writes runs and reads plans as the files a user would (CSV + ``labrig-run/1`` JSON
 sidecar; a plan's ``[[experiment]]`` table), with the standard library and numpy only.
@@ -58,6 +59,8 @@ class Twin:
     delay_s: float = 0.0
     tacho_noise_v: float = 0.010
     pot_noise_v: float = 0.004
+    tacho_ripple: float = 0.0     # relative ripple of the tacho's gain ...
+    ripple_cycles: int = 0        # ... at this many cycles per motor turn
     seed: int = 11
     _rng: np.random.Generator = field(init=False, repr=False)
 
@@ -96,9 +99,10 @@ class Twin:
         x = (0.0, 0.0, 0.0)   # current, motor speed, motor angle
         load = 0.0            # the output shaft the pot reads
         lag = self.delay_s
-        w_out, th_out = np.empty(n), np.empty(n)
+        w_out, th_out, angle = np.empty(n), np.empty(n), np.empty(n)
         for k in range(n):
             w_out[k] = x[1]
+            angle[k] = x[2]
             th_out[k] = load if self.gap_rad > 0.0 else x[2] / self.N
             for j in range(sub):
                 t = k * dt + j * h - lag   # the input the armature sees now
@@ -115,7 +119,8 @@ class Twin:
                     load = min(max(load, gear - self.gap_rad), gear + self.gap_rad)
         rng = self._rng
         adc = 20.0 / 1024
-        tacho = w_out * self.kt + rng.normal(0.0, self.tacho_noise_v, n)
+        gain = self.kt * (1.0 + self.tacho_ripple * np.sin(self.ripple_cycles * angle))
+        tacho = w_out * gain + rng.normal(0.0, self.tacho_noise_v, n)
         pot = th_out * self.kpot + self.pot0 + rng.normal(0.0, self.pot_noise_v, n)
         q = lambda v: np.round(np.clip(v, -10.0, 10.0) / adc) * adc   # noqa: E731
         return {"u": u, "tacho": q(tacho), "pos": q(pot)}
@@ -215,3 +220,66 @@ def torque_drive_from_rest(folder, *, J=2e-4, B=2e-3, coulomb=0.02, offset=0.006
         path.write_text("\n".join(rows) + "\n")
         out.append(path)
     return out
+
+
+# -- an Arduino + H-bridge gear motor, logged by its sketch -----------------------------
+
+def hbridge_staircase(folder, *, window_s=0.05, dpos=1.2, dneg=1.8, fs=100.0,
+                      levels=(2.0, 3.0, 4.0, 6.0, 8.0, 0.0, -2.0, -3.0, -4.0, -6.0, -8.0, 0.0),
+                      step_s=1.0, R=2.5, K=0.02, J=2e-5, B=1e-6, N=30.0, cpr=48,
+                      pwm_bits=8, supply=12.0, ripple=0.0, ripple_cycles=0,
+                      seed=7) -> Path:
+    """A 12 V gear motor behind an H-bridge, one staircase up then down through zero at
+    ``fs``, as a sketch logs it: ``ms,u_V,count,speed_rpm``. The bridge passes nothing
+    below ``dpos`` volts forward and ``dneg`` in reverse (a threshold that depends on
+    the direction); the input is the PWM's duty in ``2^pwm_bits`` steps of the supply.
+    The armature's L/R (0.2 ms) is far below a sample, so the current follows the
+    voltage: ``J w' = K (v - K w) / R - B w`` (RK4, 10 steps per sample). The count is
+    the quadrature encoder's on the motor (``cpr`` per motor turn); the speed is the
+    sketch's moving window: the counts gained over the last ``window_s`` over
+    ``window_s`` (0: the last sample's), in rpm of the motor. ``ripple`` adds a ripple
+    of that fraction at ``ripple_cycles`` per motor turn to the logged speed."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng(seed)
+    dt = 1.0 / fs
+    n0 = int(0.5 * fs)
+    per = int(round(step_s * fs))
+    cmd = np.concatenate([np.zeros(n0)] + [np.full(per, v) for v in levels])
+    q = supply / (2 ** pwm_bits - 1)
+    u = np.round(cmd / q) * q
+    n = len(u)
+
+    def bridge(v):
+        return v - dpos if v > dpos else v + dneg if v < -dneg else 0.0
+
+    def f(w, v):
+        return (K * (v - K * w) / R - B * w) / J
+
+    w, ang = 0.0, rng.uniform(0.0, 2 * math.pi)
+    angle = np.empty(n)
+    sub = 10
+    h = dt / sub
+    for k in range(n):
+        angle[k] = ang
+        v = bridge(u[k])
+        for _ in range(sub):
+            k1 = f(w, v)
+            k2 = f(w + 0.5 * h * k1, v)
+            k3 = f(w + 0.5 * h * k2, v)
+            k4 = f(w + h * k3, v)
+            dw = h / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
+            ang += h * (w + 0.5 * dw)
+            w += dw
+    count = np.floor(angle * cpr / (2 * math.pi)).astype(int)
+    count -= count[0]
+    win = max(int(round(window_s * fs)), 1)
+    before = np.concatenate([np.full(win, count[0]), count[:-win]])
+    rpm = (count - before) / cpr / (win * dt) * 60.0
+    if ripple:
+        rpm = rpm * (1.0 + ripple * np.sin(ripple_cycles * angle))
+    path = folder / "stair.csv"
+    rows = ["ms,u_V,count,speed_rpm"] + [f"{int(round(1e3 * k * dt))},{a:.4f},{c},{s:.3f}"
+                                         for k, (a, c, s) in enumerate(zip(u, count, rpm))]
+    path.write_text("\n".join(rows) + "\n")
+    return path

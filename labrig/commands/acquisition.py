@@ -121,6 +121,7 @@ def cmd_import(args):
                       drive=args.drive, axis=args.axis, input_gain=args.input_gain,
                       controller=parse_controller(args.controller),
                       current_gain=args.current_gain, skip_rows=args.skip_rows,
+                      speed_window=args.speed_window, input_step=args.input_step,
                       warn=_warn_line)
     print(f"wrote {path} and {path.with_suffix('.json').name}")
     return 0
@@ -159,6 +160,13 @@ def _configure_import(p):
     p.add_argument("--pos-offset", type=float_opt, default=0.0, help="pot volts at 0 rad")
     p.add_argument("--current-gain", type=float_opt, default=1.0,
                    help="A per unit of the current= column (default 1: already in A)")
+    p.add_argument("--speed-window", type=float_opt, metavar="S",
+                   help="the speed column is the travel over the last S seconds over S (a "
+                        "sketch's moving window of encoder counts): the window is modelled, "
+                        "not fitted as physics")
+    p.add_argument("--input-step", type=float_opt, metavar="V",
+                   help="one step of the input in volts (a PWM's duty step, e.g. 12/255 for "
+                        "8 bits at 12 V): an effect smaller than a step is not resolved")
     p.add_argument("--gear-ratio", type=float_opt, help="motor/output (default 1)")
     p.add_argument("--amplifier-gain", type=float_opt, default=1.0,
                    help="voltage drive: armature volts per input volt (default 1)")

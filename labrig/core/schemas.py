@@ -121,6 +121,9 @@ class SidecarSensors(_Closed):
     pos_quantum: Num(gt=0, le=1e3) = None
     pos_kind: Optional[Literal["pot", "encoder"]] = None
     current_a_per_v: Gain = None
+    #: the speed is the travel over this window divided by it (a moving window of
+    #: encoder counts, as a sketch computes it): a sensor filter, modelled, not fitted
+    speed_window_s: Num(gt=0, le=10.0) = None
 
 
 class SidecarRig(_Closed):

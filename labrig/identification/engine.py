@@ -276,20 +276,31 @@ class FitOptions:
     identifiability: bool = True
 
 
-def _position_drift(obj, p: float, q: float) -> dict | None:
-    """The position's drift against the integral of the speed
-    (:mod:`labrig.analysis.agreement`) when, at these weights, it outweighs the speed:
-    weighted at its noise floor, a wandering position pulls the fit towards its wander."""
-    from labrig.analysis.agreement import channel_agreement
+def _channel_notes(obj, p: float, q: float, params: dict, constants: dict) -> dict | None:
+    """What the channels say of each other (:mod:`labrig.analysis.agreement`): a position
+    that drifts against the integral of the speed and, at these weights, outweighs it; a
+    fitted lag (electrical pole, delay) that is the speed sensor's own."""
+    from labrig.analysis.agreement import channel_agreement, lag_explained
+    from labrig.identification.identifiability import time_constants
 
-    if q <= 0 or p <= 0 or "position" not in obj.floors or "speed" not in obj.floors:
-        return None
-    agree = channel_agreement(obj.runs, obj.sigma_w, obj.sigma_theta,
-                              obj.floors["position"].unit)
-    if agree is None or not agree.drifts or p <= q / agree.position_factor ** 2:
-        return None
-    return {**agree.to_json(), "description": agree.describe(),
-            "suggested_p": round(q / agree.position_factor ** 2, 6)}
+    agree = None
+    if "position" in obj.floors and "speed" in obj.floors:
+        agree = channel_agreement(obj.runs, obj.sigma_w, obj.sigma_theta,
+                                  obj.floors["position"].unit, obj.floors["speed"].unit)
+    out = {}
+    if agree is not None and agree.drifts and p > 0 and q > 0 \
+            and p > q / agree.position_factor ** 2:
+        out["position_drift"] = {**agree.to_json(), "description": agree.describe(),
+                                 "suggested_p": round(q / agree.position_factor ** 2, 6)}
+    if "speed" not in obj.floors:
+        return out or None
+    tc = time_constants(obj.plant, params, constants)
+    declared = max(0.5 * r.speed_window * r.dt if r.speed_window > 1 else 0.0 for r in obj.runs)
+    lag = lag_explained(agree, tc.get("tau_e_s"), params.get("delay.td_s"), tc.get("tau_m_s"),
+                        declared)
+    if lag:
+        out["sensor_lag"] = lag
+    return out or None
 
 
 def identify(runs, method: str = METHOD, effects: list[Effect] = (), *, seed: int | None = SEED,
@@ -364,9 +375,9 @@ def identify(runs, method: str = METHOD, effects: list[Effect] = (), *, seed: in
         dataset["current_unused"] = True
     if obj.n_gaps:  # the samples the link lost, left out (reported, never fitted)
         dataset["gap_samples"] = int(obj.n_gaps)
-    drift = _position_drift(obj, o.p, o.q)
-    if drift:
-        dataset["position_drift"] = drift
+    notes = _channel_notes(obj, o.p, o.q, space.as_dict(phys), constants)
+    if notes:
+        dataset.update(notes)
     return Identification(method=name, effects=effects, space=space,
                           params=space.as_dict(phys), result=res, metrics=metrics,
                           identifiable=ident, seconds=time.perf_counter() - t0,

@@ -32,6 +32,14 @@ def _combos(plant, values: dict, constants: dict) -> np.ndarray:
     return np.array([every[k] for k in plant.combinations])
 
 
+def time_constants(plant, values: dict, constants: dict) -> dict:
+    """``{"tau_m_s", "tau_e_s"}`` of a voltage plant's parameters; {} for a plant whose
+    drive imposes the torque (its "electrical" pole is the drive's, not the data's)."""
+    if plant.kind != VoltagePlant.kind:
+        return {}
+    return _time_constants(plant.servo(values, constants))
+
+
 def _time_constants(sp) -> dict:
     """tau_m (slow) and tau_e (fast) of J L s^2 + (J R + B L) s + (B R + K ke), the poles
     of :attr:`ServoParams.poles`, by the quadratic formula in the form that keeps both

@@ -201,6 +201,8 @@ def identification_warnings(ident: Any) -> list[str]:
                      "speed and pulls the fit towards its wander; --weights "
                      f"p={drift['suggested_p']:.3g},q=1 weights it by its drift as well "
                      "(labrig diagnose does so itself)")
+    if ident.dataset.get("sensor_lag"):
+        notes.append(ident.dataset["sensor_lag"])
     return (bound_warnings(ident.space, ident.params, units)
             + fit_warnings(ident.metrics.get("fit_percent", {}), "all runs") + notes)
 

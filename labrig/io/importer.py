@@ -202,6 +202,11 @@ class ImportOptions:
     controller: dict | None = None
     current_gain: float = 1.0
     skip_rows: int | None = None
+    #: the speed column is the travel over this window (s) over its length (a sketch's
+    #: moving window of encoder counts): declared, the window is modelled
+    speed_window: float | None = None
+    #: one step of the input (V): a PWM's duty step, a DAC's code
+    input_step: float | None = None
 
 
 def import_csv(src: Path | str, outdir: Path | str, mapping: dict[str, str],
@@ -236,7 +241,9 @@ def import_csv(src: Path | str, outdir: Path | str, mapping: dict[str, str],
                                ("--gear-ratio", o.gear_ratio, True),
                                ("--amplifier-gain", o.amplifier_gain, True),
                                ("--input-gain", o.input_gain, True),
-                               ("--current-gain", o.current_gain, False)):
+                               ("--current-gain", o.current_gain, False),
+                               ("--speed-window", o.speed_window, True),
+                               ("--input-step", o.input_step, True)):
         if val is None:
             continue
         if not math.isfinite(val) or (positive and val <= 0) or (positive is False and val == 0):
@@ -255,6 +262,8 @@ def import_csv(src: Path | str, outdir: Path | str, mapping: dict[str, str],
     if o.loop not in ("open", "closed"):
         raise UserError(f"--loop: expected open or closed, got '{o.loop}'")
     experiment = {"loop": o.loop, "waveform": o.waveform}
+    if o.input_step is not None:  # what the input can resolve: an effect below it is not
+        experiment["input_step_v"] = float(o.input_step)
     if o.loop == "closed":
         # fitted through the loop, the controller is part of the model: without its
         # gains the fit would be of a different system
@@ -296,6 +305,11 @@ def import_csv(src: Path | str, outdir: Path | str, mapping: dict[str, str],
     if "speed" in mapping:  # physical speed: kept as speed, never as made-up tacho volts
         cols["speed"] = frame[mapping["speed"]] * speed_factor
         sensors["speed_unit"] = AXES[axis][1]
+    if o.speed_window is not None:
+        if not ({"speed", "tacho"} & set(mapping)):
+            raise UserError("--speed-window: the file has no speed channel (map speed= or "
+                            "tacho=), or leave the option out")
+        sensors["speed_window_s"] = float(o.speed_window)
     if "tacho" in mapping:
         cols["tacho"] = frame[mapping["tacho"]]
         sensors["tacho_v_per_rad_s"] = float(o.tacho_gain)

@@ -167,6 +167,12 @@ class Run:
             self.sensors.get("current_a_per_v") or 1.0)
 
     @property
+    def speed_window_s(self) -> float:
+        """The window a speed channel is computed over (``sensors.speed_window_s``: the
+        travel in the last window over its length), 0 when the speed is not so filtered."""
+        return float(self.sensors.get("speed_window_s") or 0.0)
+
+    @property
     def pos_quantum(self) -> float:
         """The position sensor's quantum in axis units (an encoder's count); 0 unknown."""
         return float(self.sensors.get("pos_quantum") or 0.0)

@@ -50,6 +50,8 @@ class AutoDiagnosis(Displayable):
     confusable: list[ConfusablePair] = field(default_factory=list)
     moves: list = field(default_factory=list)
     thresholds: str = ""
+    #: a fitted lag that is the speed sensor's, in words ('' when none)
+    sensor_lag: str = ""
 
     def headline(self) -> str:
         return (f"AutoDiagnosis: final effects {', '.join(self.model.names) or 'none'} after "
@@ -67,7 +69,8 @@ class AutoDiagnosis(Displayable):
         last = self.rounds[-1]
         head = (f"Final model: {', '.join(self.model.names) or 'no effects'}. "
                 + (self.thresholds + " " if self.thresholds else ""))
-        return head + last.verdict if not last.recommendation else head
+        tail = f" {self.sensor_lag}" if self.sensor_lag else ""
+        return (head + last.verdict if not last.recommendation else head.rstrip()) + tail
 
     def to_json(self) -> dict:
         first = self.rounds[0] if self.rounds else None
@@ -75,7 +78,7 @@ class AutoDiagnosis(Displayable):
                 "moves": [m.to_json() for m in self.moves],
                 "final_model": self.model.to_json(), "ladder": self.ladder.to_json()["steps"],
                 "confusable": [p.to_json() for p in self.confusable],
-                "thresholds": self.thresholds,
+                "thresholds": self.thresholds, "sensor_lag": self.sensor_lag,
                 "noise": first.noise if first else {}, "weights": first.weights if first else {},
                 "cross_validation": first.cross_validation if first else None,
                 "rounds": [d.to_json() for d in self.rounds],
@@ -182,4 +185,22 @@ def auto_diagnose(runs, model: Model | None = None, *, max_rounds: int = 3, seed
     pairs = [p for k, diag in enumerate(res.rounds, 1) for p in confusable_pairs(diag, k)]
     return AutoDiagnosis(rounds=res.rounds, model=res.model, ladder=res.ladder,
                          confusable=pairs, moves=res.moves,
-                         thresholds=thresholds(res.model, runs))
+                         thresholds=thresholds(res.model, runs),
+                         sensor_lag=sensor_lag(res.model, runs, res.rounds[0].evaluation))
+
+
+def sensor_lag(model: Model, runs, ev) -> str:
+    """A sentence when the model's fitted lag (electrical pole, delay) is the speed
+    sensor's (:func:`labrig.analysis.agreement.lag_explained`); '' otherwise."""
+    from labrig.analysis.agreement import lag_explained
+    from labrig.identification.identifiability import time_constants
+    from labrig.loop.diagnose import drift_of
+
+    if "speed" not in ev.floors:
+        return ""
+    agree = drift_of(runs, ev) if "position" in ev.floors else None
+    tc = time_constants(model.plant_class, model.params, model.constants)
+    declared = max((r.speed_window_s for r in runs), default=0.0)
+    return lag_explained(agree, tc.get("tau_e_s"),
+                         model.effect_params.get("delay", {}).get("td_s"), tc.get("tau_m_s"),
+                         declared)

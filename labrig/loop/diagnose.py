@@ -82,6 +82,12 @@ def balanced_weights(ev: Evaluation, runs=None) -> Weights:
         p = q / agree.position_factor ** 2
         why = (f"the speed decides: {agree.describe()}, so the position is weighted by its "
                "drift as well as its noise")
+    elif agree is not None and agree.lags and q > p / agree.speed_factor ** 2:
+        q = p / agree.speed_factor ** 2
+        why = (f"the position decides: {agree.describe_lag()}; the speed is weighted by "
+               "its lag as well as its noise. Declare the window (sensors.speed_window_s "
+               "in the run's sidecar, or labrig import --speed-window S) and it is "
+               "modelled")
     n = ev.metrics.get("counts", {})
     nw, nt = n.get("speed", 1), n.get("position", 1)
     scale = (nw + nt) / (q * nw + p * nt)
@@ -96,7 +102,8 @@ def drift_of(runs, ev: Evaluation):
     from labrig.model.simulate import prepare
 
     unit = ev.floors["position"].unit if "position" in ev.floors else "rad"
-    return channel_agreement(prepare(runs), ev.sigmas[0], ev.sigmas[1], unit)
+    speed_unit = ev.floors["speed"].unit if "speed" in ev.floors else "rad/s"
+    return channel_agreement(prepare(runs), ev.sigmas[0], ev.sigmas[1], unit, speed_unit)
 
 
 def bic(sse, n, n_eff, k):
@@ -283,19 +290,20 @@ def diagnose(runs, model: Model | None = None, *, candidates=None, seed: int = 0
                                                      "rmse_over_noise": worst[2]},
                "noise": ev0.metrics["noise"]}
     rmse0 = ev0.rmse
+    ripple = _ripple(ev0, runs) if rec is None and rmse0 > FLOOR else None
     if rec is not None:
         verdict = f"{supported[0].action}: " + supported[0].explanation + _undecided(supported)
     elif rmse0 <= FLOOR:
         verdict = (f"The model is at the noise floor (rmse/noise {rmse0:.2f}) and no effect "
                    "predicts held-out data better: nothing is missing that these data can show.")
-    elif weights.why and ev0.metrics["rmse_over_noise"]["speed"] <= FLOOR:
-        per = ev0.metrics["rmse_over_noise"]
-        verdict = (f"The speed is at its noise floor (rmse/noise {per['speed']:.2f}) and no "
-                   "effect predicts held-out data better. The position misses (rmse/noise "
-                   f"{per['position']:.2f}) by its drift against the speed, which no model of "
-                   "the plant can follow (its position is the integral of its speed): a sensor "
-                   "matter. Zero or recalibrate the position channel, or fit the speed alone "
-                   "(--weights p=0,q=1).")
+    elif weights.why:
+        verdict = _sensor_verdict(weights.why, ev0.metrics["rmse_over_noise"])
+    elif ripple is not None:
+        verdict = (f"The model misses (rmse/noise {rmse0:.2f}) and no catalogue effect earns "
+                   f"its parameters: {ripple.describe()}. A plant effect cannot follow it. "
+                   "Average the speed over a turn, filter the line out (a notch at "
+                   f"{ripple.order:.2g} x the rotation frequency), or write it as an effect "
+                   "of your own (docs/physics.md, 'Writing your own effect').")
     else:
         verdict = (f"The model misses (rmse/noise {rmse0:.2f}) but no catalogue effect earns its "
                    "parameters on BIC and on held-out data; the cause may be outside the catalogue "
@@ -317,6 +325,33 @@ def diagnose(runs, model: Model | None = None, *, candidates=None, seed: int = 0
         seconds=round(time.perf_counter() - t0, 2), base=base, evaluation=ev0,
         constants=dataset_constants(runs), dataset=[r.name for r in runs], folds=folds,
         cv_baseline=cv0)
+
+
+def _ripple(ev: Evaluation, runs):
+    """A line locked to the shaft in the speed residual (:mod:`labrig.analysis.ripple`)."""
+    from labrig.analysis.ripple import ripple_line
+    from labrig.model.simulate import prepare
+
+    return ripple_line(ev.per_run, prepare(runs))
+
+
+def _sensor_verdict(why: str, per: dict) -> str:
+    """The verdict when nothing earns its parameters and one channel was weighted down
+    because the sensors disagree (``Weights.why``): which channel decides, how near its
+    floor it is, and that the rest of the other channel's error is the sensor's."""
+    decides = "speed" if why.startswith("the speed decides") else "position"
+    other = "position" if decides == "speed" else "speed"
+    what = "drift against the speed" if decides == "speed" else "lag against the position"
+    advice = ("Zero or recalibrate the position channel, or fit the speed alone "
+              "(--weights p=0,q=1)." if decides == "speed" else
+              "Declare the speed's window (sensors.speed_window_s, or labrig import "
+              "--speed-window S) and it is modelled, or log the raw counts.")
+    r = per[decides]
+    where = "at" if r <= FLOOR else "near" if r <= 1.5 else "above"
+    return (f"No catalogue effect earns its parameters. The sensors disagree: {why}. The "
+            f"{decides}, which decides, is {where} its noise floor (rmse/noise {r:.2f}); the "
+            f"{other} misses (rmse/noise {per[other]:.2f}) by its {what}: a sensor matter, "
+            f"not the plant. {advice}")
 
 
 def _revisions(runs, base: Model, entry, *, seed, fixed, weights) -> list[Candidate]:

@@ -57,11 +57,29 @@ def jackknife_se(values) -> float:
     return float(np.sqrt((k - 1) / k * np.sum((v - v.mean()) ** 2)))
 
 
+def _all_below_step(effect, params: dict, runs) -> str | None:
+    """An effect without one size whose every input-volt parameter is below one step of
+    the input (an asymmetric dead zone of a millivolt each way behind a PWM)."""
+    if effect.stage not in ("input", "drive", "friction"):
+        return None
+    volts = {p.name: abs(float(params[p.name])) for p in effect.params
+             if p.unit == "V" and p.name in params}
+    if not volts:
+        return None
+    q = input_quantum(runs)
+    if q > 0 and max(volts.values()) < q:
+        said = ", ".join(f"{effect.name}.{k} = {v * 1e3:.3g} mV" for k, v in volts.items())
+        return f"{said}: all below one step of the input ({q * 1e3:.3g} mV)"
+    return None
+
+
 def unresolved(effect, params: dict, runs, fold_values=()) -> str | None:
     """Why the fitted size of ``effect`` is not resolved by these data, in words; None
     when it is."""
     name = effect.size
-    if not name or name not in params:
+    if not name:   # several sizes (a dead zone each way): none resolved, none is there
+        return _all_below_step(effect, params, runs)
+    if name not in params:
         return None
     value = float(params[name])
     unit = next((p.unit for p in effect.params if p.name == name), "")

@@ -34,6 +34,7 @@ from labrig.model.effects import get_effect
 from labrig.model.model import Model, param_keys
 from labrig.model.reach import Reach
 from labrig.loop.refit import refit, refit_with, without
+from labrig.loop.resolution import unresolved
 
 #: no single effect is "near the floor" above this rmse/noise: try pairs
 NEAR_FLOOR = 1.5
@@ -127,6 +128,15 @@ class _Judge:
         k = len(param_keys(model)) - len(self.fixed)
         return bic(ev.wsse, self.n, self.n_eff, k)
 
+    def unresolved(self, model, names) -> str | None:
+        """Why one of ``names`` in ``model`` is below what the data resolve (one step of
+        the input, a fraction of a sample); None when every one is resolved."""
+        for n in names:
+            why = unresolved(get_effect(n), model.effect_params[n], self.runs)
+            if why:
+                return why
+        return None
+
     def add(self, model, name):
         return refit_with(self.runs, model, get_effect(name), seed=self.seed, fixed=self.fixed,
                           weights=self.weights).model()
@@ -155,6 +165,8 @@ def _pair(judge: _Judge, diag, log):
             if b.effect not in candidate_names(a.model):
                 continue  # two friction laws, two dead zones: not a pair
             m = judge.add(a.model, b.effect)
+            if judge.unresolved(m, [a.effect, b.effect]):
+                continue
             ev = judge.evaluate(m)
             if best is None or ev.fitness < best[1].fitness:
                 best = (m, ev, [a.effect, b.effect])
@@ -188,7 +200,10 @@ def _threshold_pair(judge: _Judge, model, cv_now: float, log):
     one = dict(zip(firsts, each(lambda a: judge.add(reduced, a), firsts)))
     fits = each(lambda ab: judge.add(one[ab[0]], ab[1]), pairs)
     evs = each(judge.evaluate, fits)
-    k = min(range(len(fits)), key=lambda i: evs[i].fitness)
+    ok = [i for i, ab in enumerate(pairs) if not judge.unresolved(fits[i], list(ab))]
+    if not ok:
+        return None
+    k = min(ok, key=lambda i: evs[i].fitness)
     m, ev, names = fits[k], evs[k], list(pairs[k])
     if judge.bic(m, ev) - judge.bic(model, judge.evaluate(model)) >= MIN_DBIC:
         return None

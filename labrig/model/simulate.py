@@ -90,6 +90,8 @@ class RunData:
     axis: str = "rotary"
     #: False where the link lost the sample (the run's ``gap`` rows); None: all measured
     measured: np.ndarray | None = None
+    #: the speed channel is a moving window of this many samples (0: not filtered)
+    speed_window: int = 0
 
     def keep(self) -> np.ndarray:
         """The samples that are measurements (every one unless the link lost some)."""
@@ -107,7 +109,8 @@ class RunData:
                    kp=gains["kp"], kv=gains["kv"], **run.constants,
                    w=run.speed, theta=th, theta0=theta0, amplitude=run.amplitude,
                    current=run.current, pos_q=run.pos_quantum, axis=run.axis,
-                   measured=run.measured if run.n_gaps else None)
+                   measured=run.measured if run.n_gaps else None,
+                   speed_window=int(round(run.speed_window_s / run.dt)) if run.has_speed else 0)
 
 
 class _PlantView:
@@ -115,6 +118,18 @@ class _PlantView:
 
     def __init__(self, R, K, Ka):
         self.R, self.K, self.Ka = R, K, Ka
+
+
+def windowed_speed(w: np.ndarray, window: int, dt: float) -> np.ndarray:
+    """The speed a moving window of ``window`` samples reads: the travel over the last
+    ``window`` sample periods (the trapezoid integral of ``w``) over ``window * dt``, the
+    shaft at rest before the run. It reads half a window late, and smooth."""
+    w = np.asarray(w, float)
+    travel = np.zeros(w.shape)
+    travel[..., 1:] = np.cumsum(0.5 * (w[..., 1:] + w[..., :-1]), axis=-1) * dt
+    before = np.zeros(w.shape)
+    before[..., window:] = travel[..., :-window]
+    return (travel - before) / (window * dt)
 
 
 def prepare(runs) -> list[RunData]:
@@ -194,7 +209,11 @@ class Simulator:
         """
         prm, ep, user_output = self._params(plant, effect_params)
         disc = {}
-        return [self._simulate_run(run, prm, ep, user_output, disc) for run in self.runs]
+        sims = [self._simulate_run(run, prm, ep, user_output, disc) for run in self.runs]
+        for run, sim in zip(self.runs, sims):
+            if run.speed_window > 1:   # the speed as the sensor reads it
+                sim["w"] = windowed_speed(sim["w"], run.speed_window, run.dt)
+        return sims
 
     def sse(self, plant, effect_params, weights) -> np.ndarray:
         """Weighted sum of squared residuals per candidate, without storing trajectories.
@@ -204,7 +223,8 @@ class Simulator:
         the identifiers' hot path: the kernel accumulates the residuals as it goes.
         """
         prm, ep, user_output = self._params(plant, effect_params)
-        if user_output:  # a user's output map needs the trajectories
+        if user_output or any(r.speed_window > 1 for r in self.runs):
+            # a user's output map, a sensor's window: the trajectories are needed
             total = np.zeros(prm.shape[0])
             sims = self.simulate(plant, effect_params)
             for run, sim, (wm, iw, tm, it, im, ii) in zip(self.runs, sims, weights):
