@@ -220,3 +220,130 @@ def test_torque_drive_position_that_drifts_does_not_pull_the_inertia(tmp_path):
     why = res.rounds[0].weights.get("why", "")
     assert why.startswith("the speed decides") and "integral of the speed" in why
     assert "drift against the speed" in res.verdict
+
+
+def _stair_runs(tmp_path, name="runs", *, window=None, position=True, **kw):
+    """The Arduino + H-bridge class: a 100 Hz staircase up then down through zero, the
+    speed a 50 ms moving window of encoder counts (tests/twin.py), imported as a user
+    would; ``window`` declares the speed's window, the PWM's step is declared."""
+    from labrig.io.importer import import_csv
+    from twin import hbridge_staircase
+
+    src = hbridge_staircase(tmp_path / f"{name}_log", **kw)
+    cols = {"t": "ms", "u": "u_V", "speed": "speed_rpm"}
+    opts = {}
+    if position:
+        cols["pos"] = "count"
+        opts["pos_unit"] = "counts:1440"
+    out = tmp_path / name
+    import_csv(src, out, cols, time_unit="ms", speed_unit="rpm", gear_ratio=30.0,
+               waveform="staircase", speed_window=window, input_step=12.0 / 255, **opts)
+    return read_dataset(out)
+
+
+def _tau_e(model):
+    from labrig.identification.identifiability import time_constants
+
+    return time_constants(model.plant_class, model.params, model.constants)["tau_e_s"]
+
+
+@pytest.mark.slow
+def test_staircase_with_a_declared_speed_window_is_modelled(tmp_path):
+    """Declared (import --speed-window 0.05), the window is simulated on the model's
+    speed: the direction-dependent threshold is found to 3 %, both channels reach their
+    floors, and no electrical pole or delay carries the window's 25 ms."""
+    runs = _stair_runs(tmp_path, window=0.05)
+    assert runs[0].speed_window_s == 0.05
+    res = auto_diagnose(runs, seed=0)
+    assert res.model.names == ["asymmetric_deadband"], [m.label for m in res.moves]
+    p = res.model.effect_params["asymmetric_deadband"]
+    assert p["dpos_v"] == pytest.approx(1.2, rel=0.03)
+    assert p["dneg_v"] == pytest.approx(1.8, rel=0.03)
+    for ch, v in res.ladder.steps[-1].rmse_over_noise.items():
+        assert v <= 1.2, (ch, v)
+    assert _tau_e(res.model) < 0.005      # L/R of the truth: 0.2 ms; the window: 25 ms
+
+
+@pytest.mark.slow
+def test_staircase_with_an_undeclared_speed_window_is_named_not_fitted(tmp_path):
+    """Undeclared, the speed reads 25 ms late against the counts: before, the electrical
+    pole took it (tau_e 23 ms, the verdict silent); now the lag is measured, named as a
+    filtered speed of about a 50 ms window, the position decides, and the threshold is
+    found without a delay or a slow pole."""
+    from labrig.analysis.agreement import channel_agreement
+    from labrig.model.simulate import prepare
+
+    runs = _stair_runs(tmp_path)
+    rd = prepare(runs)
+    agree = channel_agreement(rd, 1.0, 1e-3)
+    assert agree.lag_s == pytest.approx(0.025, abs=0.003)
+    res = auto_diagnose(runs, seed=0)
+    assert res.model.names == ["asymmetric_deadband"], [m.label for m in res.moves]
+    p = res.model.effect_params["asymmetric_deadband"]
+    assert p["dpos_v"] == pytest.approx(1.2, rel=0.03)
+    assert p["dneg_v"] == pytest.approx(1.8, rel=0.03)
+    assert _tau_e(res.model) < 0.005
+    why = res.rounds[0].weights["why"]
+    assert why.startswith("the position decides") and "moving window of about" in why
+
+
+@pytest.mark.slow
+def test_a_windowed_speed_with_nothing_hidden_adds_no_physics(tmp_path):
+    """Nothing physical hidden, the speed a 50 ms window, the counts logged: no effect is
+    added (before: a dead zone of a millivolt, below the PWM's 47 mV step) and the
+    verdict names the filtered speed."""
+    runs = _stair_runs(tmp_path, dpos=0.0, dneg=0.0)
+    res = auto_diagnose(runs, seed=0)
+    assert res.model.names == [], [m.label for m in res.moves]
+    assert "filtered speed" in res.verdict and "position, which decides" in res.verdict
+
+
+@pytest.mark.slow
+def test_a_windowed_speed_alone_is_pointed_at(tmp_path):
+    """Speed only, nothing hidden: the window's lag cannot be told from a plant's by
+    these data (a delay or a slow pole takes it); the verdict says what it looks like
+    and how to decide (declare the window, or log the position)."""
+    runs = _stair_runs(tmp_path, position=False, dpos=0.0, dneg=0.0)
+    res = auto_diagnose(runs, seed=0)
+    assert "A filtered speed reads like this" in res.verdict
+    assert "log the position too" in res.verdict
+
+
+@pytest.mark.slow
+def test_a_rippled_tacho_is_named_and_nothing_invented(tmp_path):
+    """The MS150 twin with a tacho whose gain ripples 3 % twice per motor turn and
+    nothing hidden: no effect is added, and the verdict names a line locked to the
+    shaft at 2 cycles per turn (before: 'outside the catalogue')."""
+    from twin import Twin
+
+    twin = Twin(tacho_ripple=0.03, ripple_cycles=2)
+    for a in (0.6, 1.2, 1.8, 2.5):
+        twin.square(tmp_path / "runs", amplitude=a, periods=1)
+    res = auto_diagnose(read_dataset(tmp_path / "runs"), seed=0)
+    assert res.model.names == [], [m.label for m in res.moves]
+    assert "locked to the shaft's angle: 2.0" in res.verdict
+    assert "ripple of the speed sensor" in res.verdict
+
+
+@pytest.mark.slow
+def test_force_axis_in_a_loop_offset_and_coulomb_friction(tmp_path):
+    """A force-driven carriage in a digital PD loop, position only, logged with its
+    drive: a 16 N offset and 22 N of Coulomb friction (38 N one way, 6 N the other).
+    Before: the offset was held at +-0.5 V of a bench amplifier's input (10 N here) and
+    a dead zone took the friction's place (M 40 % off); now the offset's range follows the
+    drive's inputs and the physics is reached."""
+    from labrig.api import read_runs
+    from labrig.io.importer import import_csv
+    from twin import force_axis_closed_loop
+
+    for src in force_axis_closed_loop(tmp_path / "log", offset=16.0, coulomb=22.0):
+        import_csv(src, tmp_path / "runs", {"t": "t", "ref": "ref", "u": "drive", "pos": "pos"},
+                   drive="force", input_gain=20.0, loop="closed", waveform="step",
+                   controller={"kind": "pd", "kp": 400.0, "kd": 8.0})
+    # as every command reads them: from the logged drive (--through auto)
+    res = auto_diagnose(read_runs(tmp_path / "runs"), seed=0)
+    assert sorted(res.model.names) == ["coulomb_friction", "offset"], [m.label for m in res.moves]
+    assert res.model.params["M"] == pytest.approx(2.5, rel=0.02)
+    assert res.model.params["Fv"] == pytest.approx(40.0, rel=0.03)
+    assert 20.0 * res.model.effect_params["offset"]["u0_v"] == pytest.approx(16.0, rel=0.03)
+    assert 20.0 * res.model.effect_params["coulomb_friction"]["tc_v"] == pytest.approx(22.0, rel=0.03)

@@ -283,3 +283,54 @@ def hbridge_staircase(folder, *, window_s=0.05, dpos=1.2, dneg=1.8, fs=100.0,
                                          for k, (a, c, s) in enumerate(zip(u, count, rpm))]
     path.write_text("\n".join(rows) + "\n")
     return path
+
+
+# -- a force-driven linear axis in a digital position loop, logged with its drive -------
+
+def force_axis_closed_loop(folder, *, M=2.5, Fv=40.0, coulomb=22.0, offset=3.0, kd=20.0,
+                           kp=400.0, kv=8.0, fs=500.0, counts_per_m=2e5,
+                           steps=((0.03, -0.03, 0.06, 0.0), (-0.05, 0.02, -0.02, 0.0),
+                                  (0.08, -0.04, 0.01, 0.0)), step_s=1.0,
+                           seed=9) -> list[Path]:
+    """A carriage on a ball screw driven by a force-mode drive (``kd`` N per volt, an
+    ``offset`` N of bias), in a digital PD loop: at each sample the controller reads the
+    encoder and holds ``u = kp (ref - x) - kv x'`` volts (``x'`` the last sample's
+    difference) until the next. ``M v' = kd u + offset - Fv v - Fc sign(v)``; the
+    carriage sticks while the force is within the Coulomb level. Euler, 50 steps per
+    sample. Each run is a CSV ``t,ref,drive,pos`` (position in m, quantised by the
+    encoder's count)."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    dt, sub = 1.0 / fs, 50
+    h = dt / sub
+    q = 1.0 / counts_per_m
+    out = []
+    for j, levels in enumerate(steps):
+        n0, per = int(0.2 * fs), int(step_s * fs)
+        ref = np.concatenate([np.zeros(n0)] + [np.full(per, r) for r in levels])
+        n = len(ref)
+        x = v = 0.0
+        meas_prev = 0.0
+        pos, drive = np.empty(n), np.empty(n)
+        for k in range(n):
+            meas = math.floor(x / q + 0.5) * q
+            u = kp * (ref[k] - meas) - kv * (meas - meas_prev) / dt
+            meas_prev = meas
+            pos[k], drive[k] = meas, u
+            force = kd * u + offset
+            for _ in range(sub):
+                if v == 0.0 and abs(force) <= coulomb:
+                    continue
+                s = math.copysign(1.0, v if v != 0.0 else force)
+                v_new = v + h * (force - Fv * v - coulomb * s) / M
+                if v != 0.0 and v_new * v < 0.0:
+                    v_new = 0.0
+                x += 0.5 * h * (v + v_new)
+                v = v_new
+        t = np.arange(n) * dt
+        path = folder / f"loop{j}.csv"
+        rows = ["t,ref,drive,pos"] + [f"{a:.4f},{b:.5f},{c:.6f},{d:.6f}"
+                                      for a, b, c, d in zip(t, ref, drive, pos)]
+        path.write_text("\n".join(rows) + "\n")
+        out.append(path)
+    return out

@@ -252,6 +252,12 @@ class Offset(InputEffect):
     def explain_params(self, params, context):
         return f"u0 = {params['u0_v'] * 1e3:.3g} mV at the bridge input"
 
+    def data_bounds(self, reach):
+        # a force or torque drive's command spans tens of volts: an offset of a fifth of
+        # the largest input is still an offset (the catalogue's 0.5 V is a bench amplifier's)
+        half = max(0.5, 0.2 * reach.amax)
+        return {"u0_v": (-half, half)}
+
     def scan_grid(self, reach):
         return {"u0_v": np.linspace(-0.2, 0.2, 9) * min(reach.amax, 2.5)}
 
