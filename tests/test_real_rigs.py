@@ -347,3 +347,49 @@ def test_force_axis_in_a_loop_offset_and_coulomb_friction(tmp_path):
     assert res.model.params["Fv"] == pytest.approx(40.0, rel=0.03)
     assert 20.0 * res.model.effect_params["offset"]["u0_v"] == pytest.approx(16.0, rel=0.03)
     assert 20.0 * res.model.effect_params["coulomb_friction"]["tc_v"] == pytest.approx(22.0, rel=0.03)
+
+
+def test_effect_parameters_are_in_the_drive_units(tmp_path):
+    """On a force drive (kd = 20 N/V) an offset and a friction are forces: named u0_n and
+    tc_n and valued in N in the identification's JSON and table, the model file (read
+    back to the same model) and the effects' words; a voltage drive keeps its volts."""
+    from labrig.api import read_runs
+    from labrig.identification.engine import identify
+    from labrig.identification.table import format_identification
+    from labrig.io.importer import import_csv
+    from labrig.loop.explain import context, thresholds
+    from labrig.model.model import Model
+    from twin import force_axis_closed_loop
+
+    for src in force_axis_closed_loop(tmp_path / "log", offset=16.0, coulomb=22.0,
+                                      steps=((0.03, -0.03, 0.06, 0.0),)):
+        import_csv(src, tmp_path / "runs", {"t": "t", "ref": "ref", "u": "drive", "pos": "pos"},
+                   drive="force", input_gain=20.0, loop="closed", waveform="step",
+                   controller={"kind": "pd", "kp": 400.0, "kd": 8.0})
+    runs = read_runs(tmp_path / "runs")
+    fit = identify(runs, "co", [get_effect("offset"), get_effect("coulomb_friction")])
+    doc = fit.to_dict()
+    assert set(doc["effect_params"]) == {"offset", "coulomb_friction"}
+    assert doc["effect_params"]["offset"]["u0_n"] == pytest.approx(16.0, rel=0.02)
+    assert doc["effect_params"]["coulomb_friction"]["tc_n"] == pytest.approx(22.0, rel=0.02)
+    lo, hi = doc["identifiable"]["parameters"]["coulomb_friction.tc_n"]["interval95"]
+    assert lo <= doc["effect_params"]["coulomb_friction"]["tc_n"] <= hi
+    text = format_identification([fit])
+    assert "coulomb_friction.tc_n" in text and "tc_v" not in text.split("rows:")[0]
+    model = fit.model()
+    path = model.save(tmp_path / "m.json")
+    import json
+    assert json.loads(path.read_text())["effect_params"]["offset"] == {"u0_n": pytest.approx(
+        20.0 * model.effect_params["offset"]["u0_v"])}
+    back = Model.load(path)
+    assert back.effect_params["offset"]["u0_v"] == pytest.approx(model.effect_params["offset"]["u0_v"])
+    assert "tc_n = 22" in back.describe()
+    words = back.effects.by_name("coulomb_friction").explain_params(
+        back.effect_params["coulomb_friction"], context(back, runs))
+    assert words.startswith("Tc = 22 N") and " V" not in words
+    assert thresholds(back, runs).startswith("At the drive: an offset of 16 N")
+    # a voltage drive is as it was
+    volt = Model.load(path).__class__.from_flat(
+        {"R": 8.0, "L": 0.0085, "J": 5e-5, "B": 1e-5, "K": 0.05, "offset.u0_v": 0.01},
+        [get_effect("offset")], {"Ka": 5.0}, plant="voltage")
+    assert volt.to_json()["effect_params"] == {"offset": {"u0_v": 0.01}}

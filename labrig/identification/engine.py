@@ -14,6 +14,7 @@ import numpy as np
 from labrig.core.defaults import LOOP_GAINS, METHOD, SEED
 from labrig.core.errors import UserError
 from labrig.core.timing import mark
+from labrig.model import drive_units
 from labrig.model.effects import Effect
 from labrig.model.effectset import EffectSet
 from labrig.model.model import Model
@@ -158,19 +159,29 @@ class Identification(Displayable):
                          "interval95": None if iv is None else sorted([iv[0] * scale, iv[1] * scale])}
         return out
 
+    def _shown_identifiable(self):
+        """The intervals, the effects' in the drive's units (labrig.model.drive_units)."""
+        ident = self.identifiable
+        if not ident or "parameters" not in ident:
+            return ident
+        return {**ident, "parameters": drive_units.intervals(
+            self.effects, ident["parameters"], self.space.plant.kind, self.constants)}
+
     def to_dict(self) -> dict:
         """The JSON of ``identify --json`` (docs/design.md, 'Commands')."""
         plant = self.space.plant
         return {"method": self.method, "effects": [e.name for e in self.effects],
                 "plant": plant.kind, "axis": plant.axis,
                 "units": {"position": plant.position_unit(), "speed": plant.speed_unit()},
-                "params": self.plant, "effect_params": self.effect_params,
+                "params": self.plant,
+                "effect_params": drive_units.to_drive(self.effects, self.effect_params,
+                                                      plant.kind, self.constants),
                 "physical": self.physical(),
                 "fixed": sorted(self.space.fixed),
                 "fitness": self.metrics["fitness"],
                 "rmse_over_noise": self.metrics["rmse_over_noise"],
                 "fit_percent": self.metrics["fit_percent"],
-                "identifiable": self.identifiable, "nfev": int(self.result.nfev),
+                "identifiable": self._shown_identifiable(), "nfev": int(self.result.nfev),
                 "nit": int(self.result.nit), "seconds": round(self.seconds, 3),
                 "seed": self.result.seed, "message": self.result.message,
                 "history": [float(h) for h in self.result.history],

@@ -6,6 +6,7 @@ from __future__ import annotations
 import math
 
 from labrig.model.effectset import param_key
+from labrig.model.drive_units import unit as drive_unit
 from labrig.model.plants import plant_class
 from labrig.core.tables import Table, fmt
 from labrig.identification.result import identification_warnings
@@ -193,17 +194,29 @@ _DERIVED = {"Tc": "Coulomb friction torque, tc_v x Ka K / R", "Ts": "breakaway t
             "F0": "the input offset as a force, u0_v x kd"}
 
 
+#: the same on a torque or force drive, whose effect rows are already in N m or N
+_DRIVE_DERIVED = {"Tc": "Coulomb friction torque (tc_nm)", "Ts": "breakaway torque of stiction",
+                  "T0": "the drive's offset as a torque (u0_nm)",
+                  "Fc": "Coulomb friction force (tc_n)", "Fs": "breakaway force of stiction",
+                  "F0": "the drive's offset as a force (u0_n)"}
+
+
 def _row_notes(plant, extra: list, keys: list) -> list[str]:
     """One line saying what the table's derived and effect rows are."""
     out = []
-    said = [f"{n} = {_DERIVED[n]}" for n in extra if n in _DERIVED]
+    derived = _DERIVED if plant.kind == "voltage" else _DRIVE_DERIVED
+    said = [f"{n} = {derived[n]}" for n in extra if n in derived]
     if said:
         tail = (" (on a voltage plant they scale with K/R, so they are seen only where R and "
                 "K are)" if plant.kind == "voltage" else "")
         out.append("rows: " + "; ".join(said) + tail)
-    if keys:
+    if keys and plant.kind == "voltage":
         out.append("effect.parameter rows: the effects' fitted values in the bridge's units "
                    "(volts at the input, s, rad) with their 95 % intervals")
+    elif keys:
+        out.append(f"effect.parameter rows: the effects' fitted values in the drive's units "
+                   f"({drive_unit(plant.kind)} at the drive, s, {plant.position_unit()}) with "
+                   "their 95 % intervals")
     return out
 
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from labrig.model.drive_units import level, unit as drive_unit
 from labrig.model.model import Model
 
 
@@ -58,32 +59,41 @@ def context(model: Model, runs) -> dict:
 def thresholds(model: Model, runs) -> str:
     """One sentence: where the amplifier starts to get a drive, where friction stops the
     motor and where the rail is reached, each way, at the bridge input, through every
-    effect in front; and which way the rig is stronger ('' when the model has none)."""
+    effect in front; and which way the rig is stronger ('' when the model has none). On a
+    torque or force drive the levels are said at the drive, in N m or N."""
     amax = _largest_input(runs)
     Ka = float(runs[0].constants["Ka"])
+    volts = model.plant == "voltage"
+    ctx = {"plant": model.plant, "Ka": Ka}
+
+    def at(v):   # an input level as this drive's user reads it
+        return f"{v:.3g} V" if volts else level(v, ctx)
+
     parts, start = [], None
     _, front = input_chain(model)
     zones = [e.name for e in model.effects if e.family_name == "dead zone"]
     if zones:
         start = input_for(model, 1e-9, amax)
-        parts.append(f"the amplifier gets nothing between {start[1]:.3g} V and {start[0]:.3g} V "
-                     f"({', '.join(front)})")
+        parts.append(f"the {'amplifier' if volts else 'drive'} gets nothing between "
+                     f"{at(start[1])} and {at(start[0])} ({', '.join(front)})")
     elif "offset" in model.names:
         u0 = model.effect_params["offset"]["u0_v"]
-        parts.append(f"an offset of {1e3 * u0:.3g} mV drives the motor at zero input")
+        parts.append(f"an offset of {1e3 * u0:.3g} mV drives the motor at zero input" if volts
+                     else f"an offset of {at(u0)} drives the axis at zero command")
     for e in model.effects:
         p = model.effect_params[e.name]
         if e.stage == "friction" and "tc_v" in p:
             start = input_for(model, p["tc_v"], amax)
-            parts.append(f"friction stops the motor for inputs between {start[1]:.3g} V and "
-                         f"{start[0]:.3g} V")
+            parts.append(f"friction stops the {'motor for inputs' if volts else 'axis for commands'}"
+                         f" between {at(start[1])} and {at(start[0])}")
         if e.stage == "drive" and "vmax_v" in p:
             up, down = input_for(model, p["vmax_v"] / Ka, amax)
-            parts.append(f"the rail ({p['vmax_v']:.3g} V at the armature) is reached above "
-                         f"{up:.3g} V and below {down:.3g} V")
+            rail = (f"{p['vmax_v']:.3g} V at the armature" if volts else
+                    f"{p['vmax_v']:.3g} {drive_unit(model.plant)}")
+            parts.append(f"the rail ({rail}) is reached above {at(up)} and below {at(down)}")
     if not parts:
         return ""
-    text = "At the bridge input: " + "; ".join(parts) + "."
+    text = ("At the bridge input: " if volts else "At the drive: ") + "; ".join(parts) + "."
     if start is not None and np.isfinite(start).all():
         up, down = start[0], -start[1]
         if abs(up - down) > 0.02 * max(up, down, 1e-9):

@@ -77,11 +77,28 @@ class Candidate:
     def regimes(self) -> dict | None:
         return self.evaluation.regimes if self.evaluation is not None else None
 
+    def shown_params(self) -> dict:
+        """The effect's parameters in the drive's units (:mod:`labrig.model.drive_units`)."""
+        m = self.model
+        if m is None or m.plant == "voltage":
+            return dict(self.params)
+        eff = m.effects.by_name(self.effect) if self.effect in m.names else None
+        if eff is None:
+            from labrig.model.effects import CATALOGUE, get_effect
+
+            eff = get_effect(self.effect) if self.effect in CATALOGUE else None
+        if eff is None:
+            return dict(self.params)
+        from labrig.model import drive_units
+
+        return drive_units.to_drive([eff], {self.effect: self.params}, m.plant,
+                                    m.constants)[self.effect]
+
     def to_json(self) -> dict:
         d = {"effect": self.effect, "move": self.move, "label": self.label,
              "rmse_over_noise": self.rmse_over_noise,
              "improvement": self.improvement, "delta_bic": self.delta_bic,
-             "params": self.params, "fit_percent": self.fit_percent}
+             "params": self.shown_params(), "fit_percent": self.fit_percent}
         if self.cross_validated is not None:
             d["cross_validated"] = self.cross_validated
         if self.replaces:

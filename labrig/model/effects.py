@@ -45,6 +45,7 @@ import numpy as np
 from labrig.core.errors import UserError
 from labrig.model.effect_base import (STAGE_BASES, STAGES, DelayEffect, DriveEffect,  # noqa: F401
                                       Effect, FrictionEffect, InputEffect, OutputEffect, Param)
+from labrig.model.drive_units import level, unit as drive_unit
 from labrig.model.friction import CoulombFriction, Stiction, run_amplitudes as _run_amplitudes
 
 
@@ -87,6 +88,8 @@ class Deadband(InputEffect):
     family = "dead zone"
 
     def explain_params(self, params, context):
+        if context.get("plant", "voltage") != "voltage":
+            return f"d = {level(params['d_v'], context)} at the drive"
         return (f"d = {params['d_v']:.3g} V at the bridge input "
                 f"({params['d_v'] * context['Ka']:.3g} V at the armature)")
 
@@ -125,6 +128,12 @@ class Saturation(DriveEffect):
 
     def explain_params(self, params, context):
         to_input = context.get("to_input")
+        if context.get("plant", "voltage") != "voltage":   # the rail is at the drive
+            up, down = (to_input(params["vmax_v"] / context["Ka"]) if to_input is not None
+                        else (params["vmax_v"] / context["Ka"],) * 2)
+            u = drive_unit(context["plant"])
+            return (f"vmax = {params['vmax_v']:.3g} {u} at the drive, reached by commands "
+                    f"above {level(up, context)} and below {level(-abs(down), context)}")
         if to_input is not None:  # through the effects in front (a dead zone, an offset)
             up, down = to_input(params["vmax_v"] / context["Ka"])
             return (f"vmax = {params['vmax_v']:.3g} V at the armature, reached by inputs "
@@ -250,6 +259,8 @@ class Offset(InputEffect):
         return v + u0_v
 
     def explain_params(self, params, context):
+        if context.get("plant", "voltage") != "voltage":
+            return f"u0 = {level(params['u0_v'], context)} at the drive"
         return f"u0 = {params['u0_v'] * 1e3:.3g} mV at the bridge input"
 
     def data_bounds(self, reach):
@@ -316,6 +327,9 @@ class AsymmetricDeadband(InputEffect):
     experiment = "slow ramps from 0 V up and from 0 V down: the speed leaves 0 at different |u|"
 
     def explain_params(self, params, context):
+        if context.get("plant", "voltage") != "voltage":
+            return (f"d+ = {level(params['dpos_v'], context)} forward, d- = "
+                    f"{level(params['dneg_v'], context)} in reverse, at the drive")
         return (f"d+ = {params['dpos_v']:.3g} V forward, d- = {params['dneg_v']:.3g} V in "
                 f"reverse (a symmetric {0.5 * (params['dpos_v'] + params['dneg_v']):.3g} V "
                 f"dead zone behind a {0.5e3 * (params['dneg_v'] - params['dpos_v']):.3g} mV offset)")

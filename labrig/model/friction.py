@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from labrig.model.drive_units import level
 from labrig.model.effect_base import FrictionEffect, Param
 
 
@@ -56,6 +57,17 @@ class CoulombFriction(FrictionEffect):
     experiment = ("a coast-down from speed with the amplifier off (the speed falls "
                   "linearly and stops in finite time) or a slow ramp in both directions")
     def explain_params(self, params, context):
+        if context.get("plant", "voltage") != "voltage":   # a torque or force drive
+            text = (f"Tc = {level(params['tc_v'], context)}: friction cancels the first "
+                    f"{level(params['tc_v'], context)} of drive "
+                    f"({100 * params['tc_v'] / context['amin']:.0f} % of the smallest command, "
+                    f"{level(context['amin'], context)})")
+            to_input = context.get("to_input")
+            if to_input is not None:
+                up, down = to_input(params["tc_v"])
+                text += (f"; the axis keeps moving for commands above {level(up, context)} "
+                         f"or below {level(down, context)}")
+            return text
         # Tc in N m slides along the model's symmetry with R and J; in the model it is
         text = (f"tc_v = {params['tc_v']:.3g} V: friction cancels the first "
                 f"{params['tc_v']:.3g} V of drive ({100 * params['tc_v'] / context['amin']:.0f} % "

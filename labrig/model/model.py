@@ -15,6 +15,7 @@ import numpy as np
 from labrig.core.errors import UserError
 from labrig.core.fileio import write_json
 from labrig.core.schemas import ModelFile, read_json, validate
+from labrig.model import drive_units
 from labrig.model.effects import Effect, catalogue_name
 from labrig.model.effectset import EffectSet, param_key
 from labrig.model.plants import PLANTS, VoltagePlant, plant_class
@@ -100,7 +101,7 @@ class Model:
         """The model file's content (``labrig-model/1``)."""
         doc = {"format": FORMAT, "structure": self.plant, "method": self.info.get("method"),
                "effects": self.effects.specs, "params": dict(self.params),
-               "effect_params": {e: dict(ps) for e, ps in self.effect_params.items()},
+               "effect_params": self.shown_effect_params(),
                "constants": dict(self.constants)}
         doc.update({k: self.info[k] for k in INFO_KEYS if k in self.info and k != "method"})
         if doc["method"] is None:
@@ -125,6 +126,8 @@ class Model:
         effects = EffectSet.parse(doc.get("effects", []), origin=f"{origin}: key 'effects'")
         # a hand-written file may spell a catalogue effect in any case ("Deadband")
         eps = {catalogue_name(k): v for k, v in (doc.get("effect_params") or {}).items()}
+        # a torque or force drive's file names its levels in N m or N (drive_units)
+        eps = drive_units.from_drive(effects, eps, structure, dict(doc.get("constants") or {}))
         for e in effects:
             for p in e.params:
                 if not isinstance((eps.get(e.name) or {}).get(p.name), (int, float)):
@@ -166,15 +169,21 @@ class Model:
         t = Table(f"{' + '.join(['linear'] + self.names)} ({self.plant} plant)",
                   ["parameter", "value"], numeric=(1,))
         t.rows = [[k, fmt(v, ".4g")] for k, v in self.params.items()]
-        t.rows += [[f"{e}.{k}", fmt(v, ".4g")] for e, ps in self.effect_params.items()
+        t.rows += [[f"{e}.{k}", fmt(v, ".4g")] for e, ps in self.shown_effect_params().items()
                    for k, v in ps.items()]
         return table_html(t)
+
+    def shown_effect_params(self) -> dict:
+        """The effects' parameters as a user reads them: in the drive's units on a torque
+        or force drive (``tc_nm``, ``tc_n``; :mod:`labrig.model.drive_units`), as they
+        are on a voltage drive."""
+        return drive_units.to_drive(self.effects, self.effect_params, self.plant, self.constants)
 
     def describe(self) -> str:
         """One line: the structure and its parameters."""
         ps = ", ".join(f"{k} = {v:.4g}" for k, v in self.params.items())
         eff = "; ".join(f"{e}: " + ", ".join(f"{k} = {v:.3g}" for k, v in p.items())
-                        for e, p in self.effect_params.items())
+                        for e, p in self.shown_effect_params().items())
         return f"{' + '.join(['linear'] + self.names)} ({ps}{'; ' + eff if eff else ''})"
 
 
