@@ -283,6 +283,13 @@ def _model_effects(model: dict) -> dict:
         cands = [k for k in eps if k not in out and k not in
                  {catalogue_name(str(e)) for e in model.get("effects") or []}]
         out[name] = eps[cands[0]] if cands else {}
+    # a torque or force drive's file names its levels in N m or N: back to input volts
+    from labrig.model import drive_units
+    from labrig.model.effects import CATALOGUE, get_effect
+
+    effects = [get_effect(n) for n in out if n in CATALOGUE]
+    out = drive_units.from_drive(effects, out, model.get("structure") or "voltage",
+                                 model.get("constants") or {})
     return {k: {p: v for p, v in (ps or {}).items() if isinstance(v, (int, float))}
             for k, ps in out.items()}
 

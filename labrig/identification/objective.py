@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from labrig.core.errors import UserError
+from labrig.model import drive_units
 from labrig.model.effects import Effect
 from labrig.model.effectset import EffectSet
 from labrig.model.plants import VoltagePlant
@@ -74,6 +75,23 @@ class Space:
         return {n: float(v) for n, v in zip(self.names, row)}
 
 
+def _drive_names(effects, plant, reach) -> dict:
+    """``{"coulomb_friction.tc_nm": ("coulomb_friction.tc_v", kd)}``: the names and
+    factors of the effects' levels in a torque or force drive's units
+    (:mod:`labrig.model.drive_units`); empty on a voltage drive."""
+    if plant.kind == "voltage":
+        return {}
+    consts = {"Ka": reach.Ka if reach is not None else 1.0}
+    out = {}
+    for e in effects:
+        for p in e.params:
+            f = drive_units.scale(e, p.name, plant.kind, consts)
+            if f:
+                out[f"{e.name}.{drive_units.name(p.name, plant.kind)}".lower()] = \
+                    (f"{e.name}.{p.name}", f)
+    return out
+
+
 def build_space(effects: list[Effect], bounds: dict | None = None, fixed: dict | None = None,
                 reach=None, plant=VoltagePlant) -> Space:
     """The search space of ``plant`` (a class of :mod:`labrig.model.plants`) and
@@ -86,6 +104,13 @@ def build_space(effects: list[Effect], bounds: dict | None = None, fixed: dict |
     known = {key.lower(): key for key, *_ in effects.bounds()}
     user = {known.get(k.lower(), k): v for k, v in (bounds or {}).items()}
     fixed = {known.get(k.lower(), k): v for k, v in (fixed or {}).items()}
+    # a torque or force drive's levels may be given as the output names them (tc_nm, N m)
+    shown = _drive_names(effects, plant, reach)
+    user = {shown[k.lower()][0] if k.lower() in shown else k:
+            tuple(x / shown[k.lower()][1] for x in v) if k.lower() in shown else v
+            for k, v in user.items()}
+    fixed = {shown[k.lower()][0] if k.lower() in shown else k:
+             v / shown[k.lower()][1] if k.lower() in shown else v for k, v in fixed.items()}
     bounds = {**data, **user}
     names, lo, hi, log = [], [], [], []
     for n in plant.names:

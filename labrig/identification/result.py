@@ -145,17 +145,22 @@ def at_bounds(space: Any, params: dict) -> list[tuple[str, float, str, float]]:
     return out
 
 
-def bound_warnings(space: Any, params: dict, units: dict | None = None) -> list[str]:
+def bound_warnings(space: Any, params: dict, units: dict | None = None,
+                   shown: dict | None = None) -> list[str]:
     """One sentence per free parameter that ended at a bound of ``space``.
 
     ``space`` has ``names``, ``lower``, ``upper``, ``log`` and ``fixed`` (an
     ``objective.Space``); ``params`` maps names to physical values; ``units``
-    maps names to unit strings ("-" or "" for none).
+    maps names to unit strings ("-" or "" for none); ``shown`` maps a name to the
+    ``(name, factor, unit)`` a user reads it as (a torque drive's ``tc_nm``).
     """
     units = units or {}
     out = []
     for n, v, side, bound in at_bounds(space, params):
         beyond = "below" if side == "lower" else "above"
+        if shown and n in shown:
+            n, f, units = shown[n][0], shown[n][1], {**units, shown[n][0]: shown[n][2]}
+            v, bound = v * f, bound * f
         u = units.get(n, "")
         u = f" {u}" if u and u != "-" else ""
         out.append(f"{n} = {v:.4g}{u} is at the {side} bound {bound:.4g}{u}: the data may want "
@@ -203,7 +208,10 @@ def identification_warnings(ident: Any) -> list[str]:
                      "(labrig diagnose does so itself)")
     if ident.dataset.get("sensor_lag"):
         notes.append(ident.dataset["sensor_lag"])
-    return (bound_warnings(ident.space, ident.params, units)
+    from labrig.model import drive_units
+
+    shown = drive_units.shown_keys(ident.effects, plant.kind, ident.constants)
+    return (bound_warnings(ident.space, ident.params, units, shown)
             + fit_warnings(ident.metrics.get("fit_percent", {}), "all runs") + notes)
 
 

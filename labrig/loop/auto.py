@@ -108,8 +108,12 @@ class AutoDiagnosis(Displayable):
             first = self.rounds[0]
             for v in first.noise.values():
                 out.append(f"noise floor, {v['method']}")
-            if first.weights.get("why"):
-                out.append(f"channel weights: {first.weights['why']}")
+            w = first.weights
+            if w:
+                out.append(f"channel weights: speed {w['speed']:.3g}, position "
+                           f"{w['position']:.3g} in noise units; "
+                           + (w["why"] if w.get("why") else "each channel has the same say at "
+                              "the starting model"))
             if first.cross_validation:
                 out.append(f"cross-validation: {first.cross_validation['folds']} folds, "
                            f"{first.cross_validation['kind']}")

@@ -31,6 +31,7 @@ from labrig.loop.evaluation import Evaluation, evaluate
 from labrig.loop.explain import context as explain_context
 from labrig.identification.engine import dataset_constants, identify
 from labrig.identification.result import at_bounds as bound_sides
+from labrig.model import drive_units
 from labrig.model.effects import CATALOGUE, catalogue_name, get_effect
 from labrig.model.model import Model, param_keys
 from labrig.model.reach import Reach
@@ -116,9 +117,15 @@ def at_bounds(ident) -> list[str]:
 
     The words name the side and the direction only: what a bound means differs by
     effect (a dead zone at its lower bound is absent, a rail at its upper one is)."""
-    return [f"{n} = {v:.3g} at the {side} bound {b:.3g} of its search range (the data may "
-            f"want a value {'below' if side == 'lower' else 'above'} it)"
-            for n, v, side, b in bound_sides(ident.space, ident.params) if "." in n]
+    shown = drive_units.shown_keys(ident.effects, ident.space.plant.kind, ident.constants)
+    out = []
+    for n, v, side, b in bound_sides(ident.space, ident.params):
+        if "." not in n:
+            continue
+        n, f, _ = shown.get(n, (n, 1.0, ""))   # a torque drive's levels in N m
+        out.append(f"{n} = {v * f:.3g} at the {side} bound {b * f:.3g} of its search range "
+                   f"(the data may want a value {'below' if side == 'lower' else 'above'} it)")
+    return out
 
 
 def linear_model(runs, *, seed=0, fixed=None, weights=Weights(), start: Model | None = None) -> Model:

@@ -192,8 +192,8 @@ def _threshold_pair(judge: _Judge, model, cv_now: float, log):
         reduced = without(reduced, n)
     pairs = [(a, b) for a, b in combinations(THRESHOLD_FAMILY, 2)
              if _compatible(a, b) and {a, b} != set(replaced)
-             and not any(get_effect(n).stage == get_effect(x).stage == "friction"
-                         for n in reduced.names for x in (a, b))]
+             and not any(e.stage == get_effect(x).stage == "friction"
+                         for e in reduced.effects for x in (a, b))]
     if not pairs:
         return None
     firsts = sorted({a for a, _ in pairs}, key=THRESHOLD_FAMILY.index)

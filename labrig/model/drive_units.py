@@ -107,3 +107,11 @@ def level(volts: float, context: dict) -> str:
     if plant == "voltage" or plant not in DRIVE:
         return f"{volts:.3g} V"
     return f"{volts * float(context.get('Ka', 1.0)):.3g} {unit(plant)}"
+
+
+def shown_keys(effects, plant: str, constants: dict) -> dict:
+    """``{"coulomb_friction.tc_v": ("coulomb_friction.tc_nm", kd, "N m")}`` for every
+    input-volt parameter of ``effects`` on this drive; empty on a voltage drive."""
+    return {f"{e.name}.{p.name}": (f"{e.name}.{name(p.name, plant)}", f, unit(plant))
+            for e in effects for p in e.params
+            if (f := scale(e, p.name, plant, constants))}
