@@ -117,7 +117,9 @@ def at_bounds(ident) -> list[str]:
 
     The words name the side and the direction only: what a bound means differs by
     effect (a dead zone at its lower bound is absent, a rail at its upper one is)."""
-    shown = drive_units.shown_keys(ident.effects, ident.space.plant.kind, ident.constants)
+    effects = getattr(ident, "effects", ())
+    shown = drive_units.shown_keys(effects, ident.space.plant.kind,
+                                   getattr(ident, "constants", {})) if effects else {}
     out = []
     for n, v, side, b in bound_sides(ident.space, ident.params):
         if "." not in n:

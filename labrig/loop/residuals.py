@@ -159,7 +159,9 @@ def run_residuals(rd, sim: dict, sigma_w: float, sigma_theta: float,
                                "band": Z99 / np.sqrt(len(r)),
                                "quantum": float(quanta.get(ch) or 0.0),
                                "quantum_kind": "encoder count" if ch == "position" and
-                               getattr(rd, "pos_q", 0.0) > 0 else "ADC step"}
+                               getattr(rd, "pos_q", 0.0) > 0 else
+                               "count over the speed's window" if ch == "speed" and
+                               getattr(rd, "speed_window", 0) > 1 else "ADC step"}
     return out
 
 
