@@ -42,17 +42,19 @@ class Weights:
     """Channel weights of the fit (position p, speed q), each already in noise units.
 
     ``why`` says, when one channel was weighted down for what it is (a position that
-    drifts against the speed), which channel decides and why; it is not part of the
-    weights' identity."""
+    drifts against the speed), which channel decides (``decides``: "speed" or
+    "position") and why; neither is part of the weights' identity."""
 
     p: float = 1.0
     q: float = 1.0
     why: str = field(default="", compare=False)
+    decides: str = field(default="", compare=False)
 
     def to_json(self) -> dict:
         out = {"position": self.p, "speed": self.q}
         if self.why:
             out["why"] = self.why
+            out["decides"] = self.decides
         return out
 
 

@@ -77,14 +77,14 @@ def balanced_weights(ev: Evaluation, runs=None) -> Weights:
     if "speed" not in r or "position" not in r:
         return Weights()
     q, p = 1.0 / max(r["speed"], 1.0) ** 2, 1.0 / max(r["position"], 1.0) ** 2
-    why = ""
+    why, decides = "", ""
     agree = drift_of(runs, ev) if runs is not None else None
     if agree is not None and agree.drifts and p > q / agree.position_factor ** 2:
-        p = q / agree.position_factor ** 2
+        p, decides = q / agree.position_factor ** 2, "speed"
         why = (f"the speed decides: {agree.describe()}, so the position is weighted by its "
                "drift as well as its noise")
     elif agree is not None and agree.lags and q > p / agree.speed_factor ** 2:
-        q = p / agree.speed_factor ** 2
+        q, decides = p / agree.speed_factor ** 2, "position"
         why = (f"the position decides: {agree.describe_lag()}; the speed is weighted by "
                "its lag as well as its noise. Declare the window (sensors.speed_window_s "
                "in the run's sidecar, or labrig import --speed-window S) and it is "
@@ -92,7 +92,7 @@ def balanced_weights(ev: Evaluation, runs=None) -> Weights:
     n = ev.metrics.get("counts", {})
     nw, nt = n.get("speed", 1), n.get("position", 1)
     scale = (nw + nt) / (q * nw + p * nt)
-    return Weights(p=p * scale, q=q * scale, why=why)
+    return Weights(p=p * scale, q=q * scale, why=why, decides=decides)
 
 
 def drift_of(runs, ev: Evaluation):
@@ -305,8 +305,8 @@ def diagnose(runs, model: Model | None = None, *, candidates=None, seed: int = 0
     elif rmse0 <= FLOOR:
         verdict = (f"The model is at the noise floor (rmse/noise {rmse0:.2f}) and no effect "
                    "predicts held-out data better: nothing is missing that these data can show.")
-    elif weights.why:
-        verdict = _sensor_verdict(weights.why, ev0.metrics["rmse_over_noise"])
+    elif weights.decides:
+        verdict = _sensor_verdict(weights, ev0.metrics["rmse_over_noise"])
     elif ripple is not None:
         verdict = (f"The model misses (rmse/noise {rmse0:.2f}) and no catalogue effect earns "
                    f"its parameters: {ripple.describe()}. A plant effect cannot follow it. "
@@ -344,23 +344,23 @@ def _ripple(ev: Evaluation, runs):
     return ripple_line(ev.per_run, prepare(runs))
 
 
-def _sensor_verdict(why: str, per: dict) -> str:
+def _sensor_verdict(weights: Weights, per: dict) -> str:
     """The verdict when nothing earns its parameters and one channel was weighted down
-    because the sensors disagree (``Weights.why``): which channel decides, how near its
-    floor it is, and that the rest of the other channel's error is the sensor's."""
-    decides = "speed" if why.startswith("the speed decides") else "position"
+    because the sensors disagree (``Weights.decides``, ``Weights.why``): which channel
+    decides, how near its floor it is, and that the rest of the other channel's error is
+    the sensor's."""
+    decides = weights.decides
     other = "position" if decides == "speed" else "speed"
     what = "drift against the speed" if decides == "speed" else "lag against the position"
-    advice = ("Zero or recalibrate the position channel, or fit the speed alone "
-              "(--weights p=0,q=1)." if decides == "speed" else
-              "Declare the speed's window (sensors.speed_window_s, or labrig import "
-              "--speed-window S) and it is modelled, or log the raw counts.")
+    # a late speed's remedy is in its why (declare the window); a drifting position's:
+    advice = (" Zero or recalibrate the position channel, or fit the speed alone "
+              "(--weights p=0,q=1)." if decides == "speed" else " Or log the raw counts.")
     r = per[decides]
     where = "at" if r <= FLOOR else "near" if r <= 1.5 else "above"
-    return (f"No catalogue effect earns its parameters. The sensors disagree: {why}. The "
-            f"{decides}, which decides, is {where} its noise floor (rmse/noise {r:.2f}); the "
-            f"{other} misses (rmse/noise {per[other]:.2f}) by its {what}: a sensor matter, "
-            f"not the plant. {advice}")
+    return (f"No catalogue effect earns its parameters. The sensors disagree: {weights.why}. "
+            f"The {decides}, which decides, is {where} its noise floor (rmse/noise {r:.2f}); "
+            f"the {other} misses (rmse/noise {per[other]:.2f}) by its {what}: a sensor "
+            f"matter, not the plant.{advice}")
 
 
 def _revisions(runs, base: Model, entry, *, seed, fixed, weights) -> list[Candidate]:
