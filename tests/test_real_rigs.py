@@ -393,3 +393,19 @@ def test_effect_parameters_are_in_the_drive_units(tmp_path):
         {"R": 8.0, "L": 0.0085, "J": 5e-5, "B": 1e-5, "K": 0.05, "offset.u0_v": 0.01},
         [get_effect("offset")], {"Ka": 5.0}, plant="voltage")
     assert volt.to_json()["effect_params"] == {"offset": {"u0_v": 0.01}}
+
+
+@pytest.mark.slow
+def test_a_fitted_pole_that_is_the_speed_filter_is_said_so(tmp_path):
+    """identify on the undeclared staircase with the speed weighted up (the weights a
+    user gave): the electrical pole takes the window's lag, and the warning says it is
+    the speed's own lag against the position (25 ms), not the armature's L/R."""
+    from labrig.identification.engine import identify
+    from labrig.identification.result import identification_warnings
+
+    runs = _stair_runs(tmp_path)
+    fit = identify(runs, "co", [get_effect("asymmetric_deadband")], p=0.001, q=1.0)
+    tau_e = _tau_e(fit.model())
+    assert 0.0125 < tau_e < 0.05                   # the pole carries the window, as before
+    said = [w for w in identification_warnings(fit) if "own lag against the position" in w]
+    assert said and "not the armature's L/R" in said[0] and "25 ms" in said[0], said
