@@ -27,6 +27,8 @@ import numpy as np
 
 #: drift beyond this many noise floors of the position weighs the position down
 DRIFT = 2.0
+#: where a speed's window is declared (then it is modelled)
+WINDOW_DECLARED_IN = "(sensors.speed_window_s in the run's sidecar, or labrig import --speed-window S)"
 
 
 @dataclass(frozen=True)
@@ -186,9 +188,8 @@ def lag_explained(agree: ChannelAgreement | None, tau_e: float | None = None,
         if said:
             return (f"{' and '.join(said)} {'is' if len(said) == 1 else 'are'} about the "
                     f"speed's own lag against the position ({1e3 * lag:.3g} ms): a sensor "
-                    "filter, not the armature's L/R or a transport delay. Declare the "
-                    "speed's window (sensors.speed_window_s, or labrig import "
-                    "--speed-window S) and it is modelled.")
+                    "filter, not the armature's L/R or a transport delay. Declare the speed's "
+                    f"window {WINDOW_DECLARED_IN} and it is modelled.")
         return ""
     if agree is not None or declared_s:
         return ""
@@ -204,6 +205,6 @@ def lag_explained(agree: ChannelAgreement | None, tau_e: float | None = None,
         return ""
     return ("The fitted " + "; ".join(said) + ". A filtered speed reads "
             f"like this (a moving window of about {2e3 * lag:.3g} ms): if the speed is "
-            "computed over a window, declare it (sensors.speed_window_s, or labrig import "
-            "--speed-window S) and it is modelled; log the position too and labrig measures "
-            "the speed's lag itself.")
+            f"computed over a window, declare it {WINDOW_DECLARED_IN} and it is modelled; "
+            "log the position too and labrig "
+            "measures the speed's lag itself.")

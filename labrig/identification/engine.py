@@ -386,7 +386,9 @@ def identify(runs, method: str = METHOD, effects: list[Effect] = (), *, seed: in
         dataset["current_unused"] = True
     if obj.n_gaps:  # the samples the link lost, left out (reported, never fitted)
         dataset["gap_samples"] = int(obj.n_gaps)
-    notes = _channel_notes(obj, o.p, o.q, space.as_dict(phys), constants)
+    # with the identifiability report only: the loop's re-fits never show them
+    notes = _channel_notes(obj, o.p, o.q, space.as_dict(phys), constants) \
+        if o.identifiability else None
     if notes:
         dataset.update(notes)
     return Identification(method=name, effects=effects, space=space,

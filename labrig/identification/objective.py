@@ -76,20 +76,12 @@ class Space:
 
 
 def _drive_names(effects, plant, reach) -> dict:
-    """``{"coulomb_friction.tc_nm": ("coulomb_friction.tc_v", kd)}``: the names and
-    factors of the effects' levels in a torque or force drive's units
-    (:mod:`labrig.model.drive_units`); empty on a voltage drive."""
-    if plant.kind == "voltage":
-        return {}
+    """``{"coulomb_friction.tc_nm": ("coulomb_friction.tc_v", kd)}``: the effects' levels
+    as a torque or force drive's output names them (:func:`drive_units.shown_keys`),
+    lower case, to their own names and factors; empty on a voltage drive."""
     consts = {"Ka": reach.Ka if reach is not None else 1.0}
-    out = {}
-    for e in effects:
-        for p in e.params:
-            f = drive_units.scale(e, p.name, plant.kind, consts)
-            if f:
-                out[f"{e.name}.{drive_units.name(p.name, plant.kind)}".lower()] = \
-                    (f"{e.name}.{p.name}", f)
-    return out
+    return {shown.lower(): (key, f) for key, (shown, f, _) in
+            drive_units.shown_keys(effects, plant.kind, consts).items()}
 
 
 def build_space(effects: list[Effect], bounds: dict | None = None, fixed: dict | None = None,

@@ -198,11 +198,11 @@ def sensor_lag(model: Model, runs, ev) -> str:
     sensor's (:func:`labrig.analysis.agreement.lag_explained`); '' otherwise."""
     from labrig.analysis.agreement import lag_explained
     from labrig.identification.identifiability import time_constants
-    from labrig.loop.diagnose import drift_of
+    from labrig.loop.diagnose import agreement_of
 
     if "speed" not in ev.floors:
         return ""
-    agree = drift_of(runs, ev) if "position" in ev.floors else None
+    agree = agreement_of(runs, ev) if "position" in ev.floors else None
     tc = time_constants(model.plant_class, model.params, model.constants)
     declared = max((r.speed_window_s for r in runs), default=0.0)
     return lag_explained(agree, tc.get("tau_e_s"),

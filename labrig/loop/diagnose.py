@@ -35,6 +35,7 @@ from labrig.model import drive_units
 from labrig.model.effects import CATALOGUE, catalogue_name, get_effect
 from labrig.model.model import Model, param_keys
 from labrig.model.reach import Reach
+from labrig.analysis.agreement import WINDOW_DECLARED_IN
 from labrig.analysis.noise import Weights
 from labrig.loop.refit import refit, refit_with, without
 from labrig.loop.residuals import REGIME_TEXT, worst_regime
@@ -78,7 +79,7 @@ def balanced_weights(ev: Evaluation, runs=None) -> Weights:
         return Weights()
     q, p = 1.0 / max(r["speed"], 1.0) ** 2, 1.0 / max(r["position"], 1.0) ** 2
     why, decides = "", ""
-    agree = drift_of(runs, ev) if runs is not None else None
+    agree = agreement_of(runs, ev) if runs is not None else None
     if agree is not None and agree.drifts and p > q / agree.position_factor ** 2:
         p, decides = q / agree.position_factor ** 2, "speed"
         why = (f"the speed decides: {agree.describe()}, so the position is weighted by its "
@@ -86,16 +87,15 @@ def balanced_weights(ev: Evaluation, runs=None) -> Weights:
     elif agree is not None and agree.lags and q > p / agree.speed_factor ** 2:
         q, decides = p / agree.speed_factor ** 2, "position"
         why = (f"the position decides: {agree.describe_lag()}; the speed is weighted by "
-               "its lag as well as its noise. Declare the window (sensors.speed_window_s "
-               "in the run's sidecar, or labrig import --speed-window S) and it is "
-               "modelled")
+               f"its lag as well as its noise. Declare the window {WINDOW_DECLARED_IN} and it "
+               "is modelled")
     n = ev.metrics.get("counts", {})
     nw, nt = n.get("speed", 1), n.get("position", 1)
     scale = (nw + nt) / (q * nw + p * nt)
     return Weights(p=p * scale, q=q * scale, why=why, decides=decides)
 
 
-def drift_of(runs, ev: Evaluation):
+def agreement_of(runs, ev: Evaluation):
     """The position's agreement with the integral of the speed on ``runs``
     (:class:`labrig.analysis.agreement.ChannelAgreement`), with the noise floors of
     ``ev``; None without both channels."""

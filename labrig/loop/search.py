@@ -176,12 +176,6 @@ def _pair(judge: _Judge, diag, log):
     return best[0], best[1], judge.cv(best[0]), best[2]
 
 
-def _compatible(a: str, b: str) -> bool:
-    """Two effects one model can hold: not one family, not two friction laws."""
-    ea, eb = get_effect(a), get_effect(b)
-    return ea.family_name != eb.family_name and not (ea.stage == eb.stage == "friction")
-
-
 def _threshold_pair(judge: _Judge, model, cv_now: float, log):
     """The best pair of :data:`THRESHOLD_FAMILY`, fitted together in place of the model's
     own members of that family: ``(model, evaluation, cv, names, replaced)`` when it
@@ -190,13 +184,14 @@ def _threshold_pair(judge: _Judge, model, cv_now: float, log):
     reduced = model
     for n in replaced:
         reduced = without(reduced, n)
-    pairs = [(a, b) for a, b in combinations(THRESHOLD_FAMILY, 2)
-             if _compatible(a, b) and {a, b} != set(replaced)
-             and not any(e.stage == get_effect(x).stage == "friction"
-                         for e in reduced.effects for x in (a, b))]
+    # what a model can hold is candidate_names' rule (not one family, not two friction
+    # laws); it reads only the effects, so the first member is added unfitted to ask it
+    free = candidate_names(reduced, THRESHOLD_FAMILY)
+    pairs = [(a, b) for a, b in combinations(free, 2) if {a, b} != set(replaced)
+             and b in candidate_names(reduced.with_effect(get_effect(a), {}), [b])]
     if not pairs:
         return None
-    firsts = sorted({a for a, _ in pairs}, key=THRESHOLD_FAMILY.index)
+    firsts = sorted({a for a, _ in pairs}, key=free.index)
     one = dict(zip(firsts, each(lambda a: judge.add(reduced, a), firsts)))
     fits = each(lambda ab: judge.add(one[ab[0]], ab[1]), pairs)
     evs = each(judge.evaluate, fits)

@@ -71,12 +71,6 @@ def from_drive(effects, effect_params: dict, plant: str, constants: dict) -> dic
     return out
 
 
-def key(effect, pname: str, plant: str) -> str:
-    """``effect.param`` as a user reads it (``coulomb_friction.tc_nm``)."""
-    s = scale(effect, pname, plant, {"Ka": 1.0})
-    return f"{effect.name}.{name(pname, plant) if s is not None else pname}"
-
-
 def intervals(effects, parameters: dict, plant: str, constants: dict) -> dict:
     """An identification's ``{key: {value, interval95, ...}}`` with the effects' input-volt
     parameters renamed and scaled to the drive's unit (the plant's keys unchanged)."""

@@ -159,6 +159,8 @@ class Simulator:
 
         self.plant = plant or VoltagePlant
         self.runs = prepare(runs)
+        #: a run whose speed is a sensor's window needs the trajectories (sse)
+        self._windowed = any(r.speed_window > 1 for r in self.runs)
         self.effects = ordered(list(effects))
         self.substeps = int(substeps)
         # an effect that acts inside a closed loop's drive or on the pot's shaft
@@ -223,7 +225,7 @@ class Simulator:
         the identifiers' hot path: the kernel accumulates the residuals as it goes.
         """
         prm, ep, user_output = self._params(plant, effect_params)
-        if user_output or any(r.speed_window > 1 for r in self.runs):
+        if user_output or self._windowed:
             # a user's output map, a sensor's window: the trajectories are needed
             total = np.zeros(prm.shape[0])
             sims = self.simulate(plant, effect_params)
