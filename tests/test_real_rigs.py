@@ -409,3 +409,29 @@ def test_a_fitted_pole_that_is_the_speed_filter_is_said_so(tmp_path):
     assert 0.0125 < tau_e < 0.05                   # the pole carries the window, as before
     said = [w for w in identification_warnings(fit) if "own lag against the position" in w]
     assert said and "not the armature's L/R" in said[0] and "25 ms" in said[0], said
+
+
+def test_a_force_drive_names_its_levels_in_newtons_when_refusing_one(tmp_path):
+    """A wrong name in --fix, or a level missing from a model file, is told with the
+    names a force drive's output uses (u0_n), not the volts inside."""
+    import json
+
+    from labrig.core.errors import UserError
+    from labrig.identification.objective import build_space
+    from labrig.model.model import Model
+    from labrig.model.plants import ForcePlant
+    from labrig.model.reach import Reach
+
+    reach = Reach(amin=1.0, amax=10.0, Ka=20.0, drive_max=200.0, speed_max=1.0,
+                  theta_span=0.1, dt=0.002, duration=4.0)
+    with pytest.raises(UserError, match=r"'offset.u0_nm'; the model has M, Fv, offset.u0_n$"):
+        build_space([get_effect("offset")], fixed={"offset.u0_nm": 1.0}, reach=reach,
+                    plant=ForcePlant)
+    space = build_space([get_effect("offset")], fixed={"offset.u0_n": 16.0}, reach=reach,
+                        plant=ForcePlant)
+    assert space.fixed == {"offset.u0_v": pytest.approx(0.8)}
+    doc = {"format": "labrig-model/1", "structure": "force", "params": {"M": 2.5, "Fv": 40.0},
+           "effects": ["offset"], "effect_params": {"offset": {}}, "constants": {"Ka": 20.0}}
+    (tmp_path / "m.json").write_text(json.dumps(doc))
+    with pytest.raises(UserError, match=r"key 'effect_params.offset.u0_n' missing"):
+        Model.load(tmp_path / "m.json")

@@ -112,12 +112,14 @@ def build_space(effects: list[Effect], bounds: dict | None = None, fixed: dict |
     for key, a0, b0, lg in effects.bounds():
         a, b = bounds.pop(key, (a0, b0))
         names.append(key), lo.append(a), hi.append(b), log.append(bool(lg and a > 0))
+    back = {key: name for name, (key, _) in shown.items()}   # as the output names them
+    listed = ", ".join(back.get(n, n) for n in names)
     if bounds:
         raise UserError(f"--bounds: unknown parameter '{sorted(bounds)[0]}'; the model has "
-                        f"{', '.join(names)}")
+                        f"{listed}")
     for n, v in fixed.items():
         if n not in names:
-            raise UserError(f"--fix: unknown parameter '{n}'; the model has {', '.join(names)}")
+            raise UserError(f"--fix: unknown parameter '{n}'; the model has {listed}")
     for n, a, b in zip(names, lo, hi):
         if not a < b:
             raise UserError(f"--bounds: {n} has lower {a:g} >= upper {b:g}")

@@ -128,11 +128,13 @@ class Model:
         eps = {catalogue_name(k): v for k, v in (doc.get("effect_params") or {}).items()}
         # a torque or force drive's file names its levels in N m or N (drive_units)
         eps = drive_units.from_drive(effects, eps, structure, dict(doc.get("constants") or {}))
+        shown = drive_units.shown_keys(effects, structure, dict(doc.get("constants") or {}))
         for e in effects:
             for p in e.params:
                 if not isinstance((eps.get(e.name) or {}).get(p.name), (int, float)):
-                    raise UserError(f"{origin}: key 'effect_params.{e.name}.{p.name}' missing "
-                                    "or not a number")
+                    key = shown.get(f"{e.name}.{p.name}", (f"{e.name}.{p.name}",))[0]
+                    raise UserError(f"{origin}: key 'effect_params.{key}' missing or not a "
+                                    "number")
         info = {k: doc[k] for k in INFO_KEYS if k in doc}
         return cls(params={k: float(doc["params"][k]) for k in PLANTS[structure].names},
                    effects=effects,
