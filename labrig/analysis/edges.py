@@ -11,6 +11,7 @@ import math
 import numpy as np
 
 from labrig.analysis.result import EdgeFit
+from labrig.analysis.savgol import savgol_filter
 from labrig.analysis.stepfit import StepFit
 from labrig.analysis.segments import edge_kind
 
@@ -30,15 +31,13 @@ def _model_angle(s, c, y0, y1, tau):
 
 def _smooth_derivative(y, dt, window):
     """Speed from an angle: local quadratic (Savitzky-Golay) derivative."""
-    from scipy.signal import savgol_filter
-
     window = int(window) | 1
     window = max(window, 5)
     if window >= len(y):
         window = (len(y) - 1) | 1
         if window < 5:
             return np.gradient(y, dt)
-    return savgol_filter(y, window, 2, deriv=1, delta=dt, mode="interp")
+    return savgol_filter(y, window, 2, deriv=1, delta=dt)
 
 
 def _smooth(y, window):

@@ -28,6 +28,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .savgol import savgol_coeffs, savgol_filter
+
 #: samples per block, and of the local quadratic fit
 BLOCK = 64
 WINDOW = 7
@@ -123,8 +125,6 @@ def quantisation_step(y: np.ndarray) -> float:
 
 def _residual_filter(window: int) -> np.ndarray:
     """g = delta - h: what the local quadratic fit leaves of a sample's neighbourhood."""
-    from scipy.signal import savgol_coeffs  # a heavy import: only where floors are measured
-
     g = -savgol_coeffs(window, 2)
     g[window // 2] += 1.0
     return g
@@ -140,11 +140,9 @@ def _block_variances(y: np.ndarray, speed: np.ndarray, window: int, measured=Non
     out."""
     if len(y) < max(window + 2, 16):
         return np.empty(0), np.empty(0), np.empty(0, bool)
-    # scipy's own filter, not a copy: the fits downstream are sensitive to the last bits
-    # of the floors (a closed-form copy, equal to 1e-14, flipped a proposal's outcome)
-    from scipy.signal import savgol_filter
-
-    r = y - savgol_filter(y, window, 2, mode="interp")
+    # scipy's filter to the last bit (labrig.analysis.savgol): the fits downstream are
+    # sensitive to the last bits of the floors
+    r = y - savgol_filter(y, window, 2)
     n = len(y) // BLOCK if len(y) >= 2 * BLOCK else 1
     size = len(y) // n
     smax = max(float(np.max(np.abs(speed))), 1e-300)

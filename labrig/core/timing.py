@@ -20,3 +20,13 @@ def mark(phase: str) -> None:
             print(f"labrig-timing {phase} {time.time() - float(t0):.4f}", file=sys.stderr)
         except ValueError:  # not a number: no timing, never a failure
             pass
+
+
+_ONCE: set[str] = set()
+
+
+def mark_once(phase: str) -> None:
+    """:func:`mark`, the first time ``phase`` is reached in this process only."""
+    if phase not in _ONCE:
+        _ONCE.add(phase)
+        mark(phase)

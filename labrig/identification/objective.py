@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from labrig.core.errors import UserError
+from labrig.core.timing import mark_once
 from labrig.model import drive_units
 from labrig.model.effects import Effect
 from labrig.model.effectset import EffectSet
@@ -23,6 +24,9 @@ from labrig.analysis.noise import channel_floors
 
 #: generic plant bounds of the voltage-driven servo (SI units)
 DEFAULT_BOUNDS = VoltagePlant.bounds
+#: the phase mark of the first candidates simulated in a process: the kernels are loaded
+#: from numba's cache and have run once (benchmarks/bench_startup.py)
+FIRST_POPULATION = "first-population"
 
 
 @dataclass
@@ -235,7 +239,9 @@ class Objective:
         X = np.atleast_2d(X)
         self.nfev += X.shape[0]
         with np.errstate(all="ignore"):
-            return self._stack(self.simulate_physical(self.space.to_physical(X)), stride)
+            R = self._stack(self.simulate_physical(self.space.to_physical(X)), stride)
+        mark_once(FIRST_POPULATION)
+        return R
 
     def residuals(self, x: np.ndarray, stride: int = 1) -> np.ndarray:
         return self.residuals_batch(x[None, :], stride)[0] / np.sqrt(self.m)
@@ -254,6 +260,7 @@ class Objective:
         plant, ep = self.split(self.space.to_physical(X))
         with np.errstate(all="ignore"):
             f = np.sqrt(self.sim.sse(plant, ep, self._weights) / self.m)
+        mark_once(FIRST_POPULATION)
         return np.where(np.isfinite(f), f, np.inf)
 
     # -- adequacy measures (docs/physics.md, 'The objective') -------------------------
