@@ -80,6 +80,24 @@ def friction_step(i, w, th, play, s_old, s_new, fr, pr, closed, S, c):
     return substeps(i, w, th, play, s_old, s_new, fr, pr, closed, S, c)
 
 
+@numba.njit(cache=True, inline="always")
+def loop_sample_alone(i, w, th, play, s_old, s_new, fr, pr, friction, S, c, T, p):
+    """One sample of candidate ``p`` in a closed loop with its input map (loop table ``T``):
+    exact in its piece (:func:`loop_step`), sub-stepped where the drive crosses a
+    threshold inside it, a stuck rotor as :func:`friction_step` takes it, every sample
+    sub-stepped for a quasi-static armature. The population kernel's lanes redo their
+    flagged samples with it."""
+    if T[p, 0, T_OK] == 0.0:  # (a quasi-static armature: sub-steps throughout)
+        return substeps(i, w, th, play, s_old, s_new, fr, pr, 2, S, c)
+    if friction and w == 0.0:
+        return friction_step(i, w, th, play, s_old, s_new, fr, pr, 2, S, c)
+    ni, nw, nt, npl, ok = loop_step(i, w, th, play, s_old, s_new, fr > 0.0, pr, c, T, p)
+    if ok:
+        return ni, nw, nt, npl
+    # the drive crosses a threshold inside the sample: sub-steps
+    return substeps(i, w, th, play, s_old, s_new, fr, pr, 2, S, c)
+
+
 @numba.njit(cache=True)
 def _candidate(p, s, m, frac, Ad, g_old, g_new, gf, prm, nonlinear, closed, S, c, out_w, out_th,
                out_i, store, wm, iw, tm, it, im, ii, sse, T):
@@ -122,19 +140,8 @@ def _candidate(p, s, m, frac, Ad, g_old, g_new, gf, prm, nonlinear, closed, S, c
         s_old = s[ko, col] if ko >= 0 else 0.0
         s_new = s[kn, col] if kn >= 0 else 0.0
         if nonlinear[p]:  # a closed loop with its input map: exact in each affine piece
-            if T[p, 0, T_OK] == 0.0:  # (a quasi-static armature: sub-steps throughout)
-                i, w, th, play = substeps(i, w, th, play, s_old, s_new, frac[p], pr, 2, S, c)
-                continue
-            if friction and w == 0.0:
-                i, w, th, play = friction_step(i, w, th, play, s_old, s_new, frac[p], pr, 2,
-                                               S, c)
-                continue
-            ni, nw, nt, npl, ok = loop_step(i, w, th, play, s_old, s_new, frac[p] > 0.0, pr,
-                                            c, T, p)
-            if ok:
-                i, w, th, play = ni, nw, nt, npl
-            else:  # the drive crosses a threshold inside the sample: sub-steps
-                i, w, th, play = substeps(i, w, th, play, s_old, s_new, frac[p], pr, 2, S, c)
+            i, w, th, play = loop_sample_alone(i, w, th, play, s_old, s_new, frac[p], pr,
+                                               friction, S, c, T, p)
             continue
         if friction and w == 0.0:  # stuck rotor
             i, w, th, play = friction_step(i, w, th, play, s_old, s_new, frac[p], pr, closed,

@@ -26,16 +26,16 @@ import math
 import numba
 import numpy as np
 
-from labrig.model.candidate_kernel import each_par, each_ser, friction_step, substeps
+from labrig.model.candidate_kernel import each_par, each_ser, friction_step, loop_sample_alone
 from labrig.model.layout import (BLOCK, C_A, C_ASYM, C_D, C_TC, C_TS, C_U0, C_VMAX, DELAY,
                                  FEEDBACK, FRICTION, M_D, M_DN, M_DP, M_K, M_U0, M_VMAX, N_ROWS,
-                                 N_ROWS_LOOP, N_SLOTS, PLAY, R_A00, R_A01, R_A02, R_A10, R_A11,
-                                 R_A12, R_A20, R_A21, R_A22M1, R_ACC, R_DLY, R_E1, R_E2, R_FLAG,
+                                 N_ROWS_LOOP, PLAY, R_A00, R_A01, R_A02, R_A10, R_A11, R_A12,
+                                 R_A20, R_A21, R_A22M1, R_ACC, R_CUR, R_DLY, R_E1, R_E2, R_FLAG,
                                  R_FRIC, R_GAP, R_GF0, R_GF1, R_GF2, R_GN0, R_GN1, R_GN2, R_GO0,
-                                 R_GO1, R_GO2, R_I, R_I0, R_KK, R_LT, R_MAP, R_PL, R_PL0, R_RR,
-                                 R_SNEW, R_SOLD, R_TC, R_TH, R_TH0, R_TS, R_W, R_W0, SLOT_W, SMALL,
-                                 T_OK)
-from labrig.model.loop_kernel import loop_sample
+                                 R_GO1, R_GO2, R_I, R_I0, R_KK, R_MAP, R_OK, R_PL, R_PL0, R_RR,
+                                 R_SLOT, R_SNEW, R_SOLD, R_TC, R_TH, R_TH0, R_TS, R_W, R_W0, S_POS,
+                                 SMALL, T_OK)
+from labrig.model.loop_kernel import loop_sample, loop_slot
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -198,8 +198,8 @@ def _block(p0, p1, s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed, S, c, wm
             X[(R_MAP + M_D) * B + j] = prm[p, C_D]
             X[(R_MAP + M_VMAX) * B + j] = prm[p, C_VMAX]
             X[R_DLY * B + j] = 1.0 if frac[p] > 0.0 else 0.0
-            for r in range(N_SLOTS * SLOT_W):
-                X[(R_LT + r) * B + j] = table[p, r // SLOT_W, r % SLOT_W]
+            X[R_OK * B + j] = table[p, 0, T_OK]
+            X[R_SLOT * B + j] = -1.0  # no slot yet: the first sample is taken alone
         f = (prm[p, C_TC] > 0.0 or prm[p, C_TS] > 0.0) and not skip[p]
         X[R_FRIC * B + j] = 1.0 if f else 0.0
         friction |= f
@@ -212,6 +212,10 @@ def _block(p0, p1, s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed, S, c, wm
         | (FRICTION if friction else 0) | (PLAY if play else 0)
     if mode not in (0, FRICTION, FEEDBACK):  # every term; feedback only in a closed loop
         mode = (FEEDBACK if closed else 0) | DELAY | FRICTION | PLAY
+    if loop:  # the spare lanes: zeros, exact, in the + slot (never flagged)
+        for j in range(q, qv):
+            X[R_OK * B + j] = 1.0
+            X[R_SLOT * B + j] = S_POS
     for k in range(n):
         wmk = wm[k]
         tmk = tm[k]
@@ -252,22 +256,24 @@ def _block(p0, p1, s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed, S, c, wm
         if loop:
             nflag = loop_sample(X, qv, N, iw, it, ii, wmk, tmk, imk, c, delay, friction, play,
                                  asym)
-            if nflag > 0:  # the samples where the drive changes piece, one lane at a time
-                for j in range(q):
+            if nflag > 0:  # the samples where the drive is in another piece, one lane at a
+                for j in range(q):  # time, as the per-candidate kernel takes them
                     if X[R_FLAG * B + j] != 0.0:
-                        i0, w0, t0, l0 = (X[R_I0 * B + j], X[R_W0 * B + j], X[R_TH0 * B + j],
-                                          X[R_PL0 * B + j])
+                        p = p0 + j
                         so, sn = X[R_SOLD * B + j], X[R_SNEW * B + j]
-                        if X[R_FRIC * B + j] != 0.0 and X[(R_LT + T_OK) * B + j] != 0.0:
-                            ni, nw, nt, npl = friction_step(i0, w0, t0, l0, so, sn, frac[p0 + j],
-                                                            prm[p0 + j], 2, S, c)
-                        else:
-                            ni, nw, nt, npl = substeps(i0, w0, t0, l0, so, sn, frac[p0 + j],
-                                                        prm[p0 + j], 2, S, c)
+                        ni, nw, nt, npl = loop_sample_alone(
+                            X[R_I0 * B + j], X[R_W0 * B + j], X[R_TH0 * B + j],
+                            X[R_PL0 * B + j], so, sn, frac[p], prm[p], X[R_FRIC * B + j] != 0.0,
+                            S, c, table, p)
                         X[R_I * B + j] = ni
                         X[R_W * B + j] = nw
                         X[R_TH * B + j] = nt
                         X[R_PL * B + j] = npl
+                        # the next sample's guess: the piece this one ends in
+                        slot = loop_slot(nw, nt, npl, sn, prm[p], c)
+                        X[R_SLOT * B + j] = slot
+                        for r in range(T_OK):
+                            X[(R_CUR + r) * B + j] = table[p, slot, r]
             continue
         if mode == 0:  # each call site a constant mode: its own vectorised build
             nflag = _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, 0)

@@ -20,12 +20,11 @@ import math
 
 import numba
 
-from labrig.model.layout import (ASYM, BLOCK, C_A, C_ASYM, C_D, C_TC, C_TS, C_U0, C_VMAX, DELAY,
+from labrig.model.layout import (BLOCK, C_A, C_ASYM, C_D, C_TC, C_TS, C_U0, C_VMAX, DELAY,
                                  FRICTION, G_DEAD, G_NEG, G_POS, G_RAILN, G_RAILP, M_D, M_K,
-                                 M_U0, M_VMAX, N_SLOTS, PLAY, R_ACC, R_DLY, R_FLAG, R_FRIC,
-                                 R_GAP, R_I, R_I0, R_LT, R_MAP, R_PL, R_PL0, R_SNEW, R_SOLD,
-                                 R_TC, R_TH, R_TH0, R_W, R_W0, S_FLAT, SLOT_W, T_GF, T_GN, T_GO,
-                                 T_OK)
+                                 M_U0, M_VMAX, PLAY, R_ACC, R_CUR, R_DLY, R_FLAG, R_FRIC, R_GAP,
+                                 R_I, R_I0, R_MAP, R_OK, R_PL, R_PL0, R_SLOT, R_SNEW, R_SOLD,
+                                 R_TC, R_TH, R_TH0, R_W, R_W0, S_FLAT, T_GF, T_GN, T_GO)
 
 
 @numba.njit(cache=True, inline="always")
@@ -129,38 +128,37 @@ def loop_step(i, w, th, pl, s_old, s_new, delayed, pr, c, T, p):
 
 
 @numba.njit(cache=True, inline="always")
-def _pick(X, r, j, slot, ns):
-    """Row ``r`` of the slot ``slot`` of lane ``j``'s loop table: every slot loaded, one
-    selected (a blend, so the lanes stay in one vector loop)."""
-    B = BLOCK
-    v0 = X[r * B + j]
-    v1 = X[(r + SLOT_W) * B + j]
-    v = v0 if slot == 0 else v1
-    if ns > 2:  # an asymmetry: the - error's own slot
-        v2 = X[(r + 2 * SLOT_W) * B + j]
-        v = v2 if slot == 2 else v
-    if ns > 3:
-        v3 = X[(r + 3 * SLOT_W) * B + j]
-        v4 = X[(r + 4 * SLOT_W) * B + j]
-        v = v3 if slot == 3 else (v4 if slot == 4 else v)
-    return v
+def loop_slot(w, th, pl, s, pr, c):
+    """The slot of the loop table a sample starting in this state with input ``s`` takes
+    (as :func:`loop_step` finds it): the lanes' guess for their next sample."""
+    N, Ka, Kpot, kp = c[2], c[1], c[4], c[5]
+    kvkt = c[6] * c[3]
+    d, u0, ak, vmax, a = pr[C_D], pr[C_U0], pr[C_ASYM], pr[C_VMAX], pr[C_A]
+    x = th / N
+    seen = pl if a > 0.0 else x
+    ep = (a > 0.0) & (x - a >= pl) & (w >= 0.0)
+    en = (a > 0.0) & (x + a <= pl) & (w <= 0.0)
+    gp = (a > 0.0) & (not ep) & (not en)
+    g0 = drive_piece(kp * (s - Kpot * seen) - kvkt * w + u0, d, ak, Ka, vmax)
+    return S_FLAT if (g0 == G_DEAD) | (g0 >= G_RAILP) else (g0 + 2 if gp else g0)
 
 
 @numba.njit(cache=True, error_model="numpy")
 def _sweep_loop(X, q, N, iw, it, ii, wmk, tmk, imk, Ka, Kpot, kp, kvkt, mode):
     """Every lane of a block through one sample of a closed loop with its input map inside:
-    :func:`loop_step` for all lanes at once, the same
-    arithmetic in the same order. Returns 1 if some lane's sample must be redone alone
-    (``R_FLAG``: the drive left its piece, a gap opened or closed, friction). ``mode``:
-    the DELAY, FRICTION and PLAY terms the block needs (one build per mode)."""
+    :func:`loop_step` for all lanes at once, the same arithmetic in the same order, with
+    the coefficients of the slot the lane's drive was last in (``R_CUR``). Returns 1 if
+    some lane's sample must be redone alone (``R_FLAG``: the drive is in another piece
+    than that slot's, left its piece, a gap opened or closed, friction). ``mode``: the
+    DELAY, FRICTION and PLAY terms the block needs (one build per mode).
+
+    Loading the slot's row once per piece, not every slot's every sample to pick one, is
+    what keeps the lanes short: a drive changes piece in a few samples of a thousand."""
     numba.literally(mode)
     B = BLOCK
     dl = mode & DELAY
     fr = mode & FRICTION
     pa = mode & PLAY
-    # the slots the block can reach: the gap's only with backlash, the - error's only with
-    # an asymmetry (else they are the + error's)
-    ns = N_SLOTS if pa else (3 if mode & ASYM else 2)
     nflag = 0
     for j in range(q):
         i = X[R_I * B + j]
@@ -199,32 +197,32 @@ def _sweep_loop(X, q, N, iw, it, ii, wmk, tmk, imk, Ka, Kpot, kp, kvkt, mode):
             gp = False
             sc = 0.0
         g0 = drive_piece(kp * (s_new - Kpot * seen) - kvkt * w + u0, d, ak, Ka, vmax)
-        bad = X[(R_LT + T_OK) * B + j] == 0.0  # every sample sub-stepped
+        bad = X[R_OK * B + j] == 0.0  # every sample sub-stepped
         if dl:
             go = drive_piece(kp * (s_old - Kpot * seen) - kvkt * w + u0, d, ak, Ka, vmax)
             bad = bad | ((X[R_DLY * B + j] != 0.0) & (go != g0))
         slot = S_FLAT if (g0 == G_DEAD) | (g0 >= G_RAILP) else (g0 + 2 if gp else g0)
+        bad = bad | (slot != X[R_SLOT * B + j])  # another piece: redone with its own slot
         cn = piece_level(g0, s_new, sc, kp, Kpot, u0, ak, d, Ka, vmax)
-        ni = _pick(X, R_LT, j, slot, ns) * i + _pick(X, R_LT + 1, j, slot, ns) * w \
-            + _pick(X, R_LT + T_GN, j, slot, ns) * cn
-        nw = _pick(X, R_LT + 3, j, slot, ns) * i + _pick(X, R_LT + 4, j, slot, ns) * w \
-            + _pick(X, R_LT + T_GN + 1, j, slot, ns) * cn
-        nt = _pick(X, R_LT + 6, j, slot, ns) * i + _pick(X, R_LT + 7, j, slot, ns) * w + th \
-            + _pick(X, R_LT + T_GN + 2, j, slot, ns) * cn
-        ni += _pick(X, R_LT + 2, j, slot, ns) * th
-        nw += _pick(X, R_LT + 5, j, slot, ns) * th
-        nt += _pick(X, R_LT + 8, j, slot, ns) * th
+        ni = X[R_CUR * B + j] * i + X[(R_CUR + 1) * B + j] * w + X[(R_CUR + T_GN) * B + j] * cn
+        nw = X[(R_CUR + 3) * B + j] * i + X[(R_CUR + 4) * B + j] * w \
+            + X[(R_CUR + T_GN + 1) * B + j] * cn
+        nt = X[(R_CUR + 6) * B + j] * i + X[(R_CUR + 7) * B + j] * w + th \
+            + X[(R_CUR + T_GN + 2) * B + j] * cn
+        ni += X[(R_CUR + 2) * B + j] * th
+        nw += X[(R_CUR + 5) * B + j] * th
+        nt += X[(R_CUR + 8) * B + j] * th
         if dl:
             co = piece_level(g0, s_old, sc, kp, Kpot, u0, ak, d, Ka, vmax)
-            ni += _pick(X, R_LT + T_GO, j, slot, ns) * co
-            nw += _pick(X, R_LT + T_GO + 1, j, slot, ns) * co
-            nt += _pick(X, R_LT + T_GO + 2, j, slot, ns) * co
+            ni += X[(R_CUR + T_GO) * B + j] * co
+            nw += X[(R_CUR + T_GO + 1) * B + j] * co
+            nt += X[(R_CUR + T_GO + 2) * B + j] * co
         if fr:
             tc = X[R_TC * B + j]
             tf = tc if w > 0.0 else (-tc if w < 0.0 else 0.0)
-            ni += _pick(X, R_LT + T_GF, j, slot, ns) * tf
-            nw += _pick(X, R_LT + T_GF + 1, j, slot, ns) * tf
-            nt += _pick(X, R_LT + T_GF + 2, j, slot, ns) * tf
+            ni += X[(R_CUR + T_GF) * B + j] * tf
+            nw += X[(R_CUR + T_GF + 1) * B + j] * tf
+            nt += X[(R_CUR + T_GF + 2) * B + j] * tf
         if pa:
             xn = nt / N
             lo = xn - a
