@@ -32,7 +32,7 @@ from labrig.model.layout import (BLOCK, C_A, C_ASYM, C_D, C_TC, C_TS, C_U0, C_VM
                                  N_ROWS_LOOP, PLAY, R_A00, R_A01, R_A02, R_A10, R_A11, R_A12,
                                  R_A20, R_A21, R_A22M1, R_ACC, R_CUR, R_DLY, R_E1, R_E2, R_FLAG,
                                  R_FRIC, R_GAP, R_GF0, R_GF1, R_GF2, R_GN0, R_GN1, R_GN2, R_GO0,
-                                 R_GO1, R_GO2, R_I, R_I0, R_KK, R_MAP, R_OK, R_PL, R_PL0, R_RR,
+                                 R_GO1, R_GO2, R_I, R_I0, R_KK, R_MAP, R_PL, R_PL0, R_RR,
                                  R_SLOT, R_SNEW, R_SOLD, R_TC, R_TH, R_TH0, R_TS, R_W, R_W0, S_POS,
                                  SMALL, T_OK)
 from labrig.model.loop_kernel import loop_sample, loop_slot
@@ -198,8 +198,9 @@ def _block(p0, p1, s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed, S, c, wm
             X[(R_MAP + M_D) * B + j] = prm[p, C_D]
             X[(R_MAP + M_VMAX) * B + j] = prm[p, C_VMAX]
             X[R_DLY * B + j] = 1.0 if frac[p] > 0.0 else 0.0
-            X[R_OK * B + j] = table[p, 0, T_OK]
-            X[R_SLOT * B + j] = -1.0  # no slot yet: the first sample is taken alone
+            # no slot yet: the first sample is taken alone (and every sample of a lane whose
+            # pieces are not exact, its slot staying -1)
+            X[R_SLOT * B + j] = -1.0
         f = (prm[p, C_TC] > 0.0 or prm[p, C_TS] > 0.0) and not skip[p]
         X[R_FRIC * B + j] = 1.0 if f else 0.0
         friction |= f
@@ -212,9 +213,8 @@ def _block(p0, p1, s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed, S, c, wm
         | (FRICTION if friction else 0) | (PLAY if play else 0)
     if mode not in (0, FRICTION, FEEDBACK):  # every term; feedback only in a closed loop
         mode = (FEEDBACK if closed else 0) | DELAY | FRICTION | PLAY
-    if loop:  # the spare lanes: zeros, exact, in the + slot (never flagged)
+    if loop:  # the spare lanes: zeros, in the + slot (never flagged)
         for j in range(q, qv):
-            X[R_OK * B + j] = 1.0
             X[R_SLOT * B + j] = S_POS
     for k in range(n):
         wmk = wm[k]
@@ -269,11 +269,11 @@ def _block(p0, p1, s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed, S, c, wm
                         X[R_W * B + j] = nw
                         X[R_TH * B + j] = nt
                         X[R_PL * B + j] = npl
-                        # the next sample's guess: the piece this one ends in
-                        slot = loop_slot(nw, nt, npl, sn, prm[p], c)
-                        X[R_SLOT * B + j] = slot
-                        for r in range(T_OK):
-                            X[(R_CUR + r) * B + j] = table[p, slot, r]
+                        if table[p, 0, T_OK] != 0.0:  # the next sample's guess: the piece
+                            slot = loop_slot(nw, nt, npl, sn, prm[p], c)  # this one ends in
+                            X[R_SLOT * B + j] = slot
+                            for r in range(T_OK):
+                                X[(R_CUR + r) * B + j] = table[p, slot, r]
             continue
         if mode == 0:  # each call site a constant mode: its own vectorised build
             nflag = _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, 0)

@@ -45,13 +45,12 @@ SLOT_W = 19
  R_I0, R_W0, R_TH0, R_PL0, R_SNEW, R_SOLD, R_RR, R_KK, R_TS, R_E1, R_E2, R_MAP) = range(39)
 N_ROWS = R_MAP + 6  # then the input map's six parameters
 #: a closed loop with its input map (:func:`_sweep_loop`) adds rows saying the lane's
-#: input switches inside the sample (a fractional delay), its pieces are exact (its
-#: table's T_OK), the slot its drive was last in and that slot's row of the loop table
+#: input switches inside the sample (a fractional delay), the slot its drive was last in
+#: (-1: none yet, or a lane sub-stepped throughout) and that slot's row of the loop table
 #: (Ad, g_old, g_new, g_f): the update's coefficients, changed only where the piece does
 R_DLY = N_ROWS
-R_OK = N_ROWS + 1
-R_SLOT = N_ROWS + 2
-R_CUR = N_ROWS + 3
+R_SLOT = N_ROWS + 1
+R_CUR = N_ROWS + 2
 N_ROWS_LOOP = R_CUR + T_OK
 
 #: the terms a block's update needs (bits of ``_sweep``'s mode; one build per mode used);

@@ -23,7 +23,7 @@ import numba
 from labrig.model.layout import (BLOCK, C_A, C_ASYM, C_D, C_TC, C_TS, C_U0, C_VMAX, DELAY,
                                  FRICTION, G_DEAD, G_NEG, G_POS, G_RAILN, G_RAILP, M_D, M_K,
                                  M_U0, M_VMAX, PLAY, R_ACC, R_CUR, R_DLY, R_FLAG, R_FRIC, R_GAP,
-                                 R_I, R_I0, R_MAP, R_OK, R_PL, R_PL0, R_SLOT, R_SNEW, R_SOLD,
+                                 R_I, R_I0, R_MAP, R_PL, R_PL0, R_SLOT, R_SNEW, R_SOLD,
                                  R_TC, R_TH, R_TH0, R_W, R_W0, S_FLAT, T_GF, T_GN, T_GO)
 
 
@@ -197,12 +197,13 @@ def _sweep_loop(X, q, N, iw, it, ii, wmk, tmk, imk, Ka, Kpot, kp, kvkt, mode):
             gp = False
             sc = 0.0
         g0 = drive_piece(kp * (s_new - Kpot * seen) - kvkt * w + u0, d, ak, Ka, vmax)
-        bad = X[R_OK * B + j] == 0.0  # every sample sub-stepped
+        bad = False
         if dl:
             go = drive_piece(kp * (s_old - Kpot * seen) - kvkt * w + u0, d, ak, Ka, vmax)
             bad = bad | ((X[R_DLY * B + j] != 0.0) & (go != g0))
         slot = S_FLAT if (g0 == G_DEAD) | (g0 >= G_RAILP) else (g0 + 2 if gp else g0)
-        bad = bad | (slot != X[R_SLOT * B + j])  # another piece: redone with its own slot
+        # another piece (or none: a lane sub-stepped throughout) is redone alone
+        bad = bad | (slot != X[R_SLOT * B + j])
         cn = piece_level(g0, s_new, sc, kp, Kpot, u0, ak, d, Ka, vmax)
         ni = X[R_CUR * B + j] * i + X[(R_CUR + 1) * B + j] * w + X[(R_CUR + T_GN) * B + j] * cn
         nw = X[(R_CUR + 3) * B + j] * i + X[(R_CUR + 4) * B + j] * w \
@@ -240,9 +241,8 @@ def _sweep_loop(X, q, N, iw, it, ii, wmk, tmk, imk, Ka, Kpot, kp, kvkt, mode):
             X[R_PL * B + j] = npl
         if fr:
             bad = bad | ((X[R_FRIC * B + j] != 0.0) & ((w == 0.0) | (nw * w <= 0.0)))
-        f = 1 if bad else 0
-        nflag |= f
-        X[R_FLAG * B + j] = f
+        nflag |= 1 if bad else 0
+        X[R_FLAG * B + j] = 1.0 if bad else 0.0
         X[R_I0 * B + j] = i
         X[R_W0 * B + j] = w
         X[R_TH0 * B + j] = th
