@@ -172,7 +172,6 @@ def _block(p0, p1, s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed, S, c, wm
     mapped = imap.shape[0] > 0
     friction = False
     play = False
-    asym = False
     for j in range(q):
         p = p0 + j
         if mapped:
@@ -205,7 +204,6 @@ def _block(p0, p1, s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed, S, c, wm
         X[R_FRIC * B + j] = 1.0 if f else 0.0
         friction |= f
         play |= prm[p, C_A] > 0.0
-        asym |= prm[p, C_ASYM] != 0.0
         mp[j] = m[p]
         delay |= m[p] != 0 or g_old[p, 0] != 0.0 or g_old[p, 1] != 0.0 or g_old[p, 2] != 0.0
     # the terms any lane needs, rounded up to a mode that is built
@@ -254,8 +252,7 @@ def _block(p0, p1, s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed, S, c, wm
                         X[(R_MAP + M_VMAX) * B + j])
         kakp, kpot = c[1] * c[5], c[4]
         if loop:
-            nflag = loop_sample(X, qv, N, iw, it, ii, wmk, tmk, imk, c, delay, friction, play,
-                                 asym)
+            nflag = loop_sample(X, qv, N, iw, it, ii, wmk, tmk, imk, c, delay, friction, play)
             if nflag > 0:  # the samples where the drive is in another piece, one lane at a
                 for j in range(q):  # time, as the per-candidate kernel takes them
                     if X[R_FLAG * B + j] != 0.0:

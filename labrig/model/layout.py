@@ -53,9 +53,8 @@ R_SLOT = N_ROWS + 1
 R_CUR = N_ROWS + 2
 N_ROWS_LOOP = R_CUR + T_OK
 
-#: the terms a block's update needs (bits of ``_sweep``'s mode; one build per mode used);
-#: ASYM: a loop's drive has different gains for + and - errors (:func:`_sweep_loop`)
-FEEDBACK, DELAY, FRICTION, PLAY, ASYM = 1, 2, 4, 8, 16
+#: the terms a block's update needs (bits of ``_sweep``'s mode; one build per mode used)
+FEEDBACK, DELAY, FRICTION, PLAY = 1, 2, 4, 8
 #: the modes built: the short update, Coulomb friction alone, a linear closed loop, and
 #: every term in open and in closed loop (the feedback bit also says how a stuck rotor's
 #: drive is formed: through the loop, or the input itself)

@@ -254,17 +254,18 @@ def _sweep_loop(X, q, N, iw, it, ii, wmk, tmk, imk, Ka, Kpot, kp, kvkt, mode):
 
 
 @numba.njit(cache=True, inline="always")
-def loop_sample(X, q, N, iw, it, ii, wmk, tmk, imk, c, delay, friction, play, asym):
+def loop_sample(X, q, N, iw, it, ii, wmk, tmk, imk, c, delay, friction, play):
     """:func:`_sweep_loop` with the build for the terms the block needs. Five builds: the
-    compiler did not vectorise the others (measured: a build with the asymmetry's slot or
-    friction but without the delay's terms came out scalar, 5x slower)."""
+    compiler did not vectorise the others (measured: a build with friction but without
+    the delay's terms came out scalar, 5x slower). An asymmetry needs no build of its own
+    (its slot's coefficients are the lane's, as every slot's)."""
     Ka, Kpot, kp, kvkt = c[1], c[4], c[5], c[6] * c[3]
     if play:
         if delay or friction:
             return _sweep_loop(X, q, N, iw, it, ii, wmk, tmk, imk, Ka, Kpot, kp, kvkt, 14)
         return _sweep_loop(X, q, N, iw, it, ii, wmk, tmk, imk, Ka, Kpot, kp, kvkt, 8)
     if friction:
-        return _sweep_loop(X, q, N, iw, it, ii, wmk, tmk, imk, Ka, Kpot, kp, kvkt, 22)
-    if delay or asym:
-        return _sweep_loop(X, q, N, iw, it, ii, wmk, tmk, imk, Ka, Kpot, kp, kvkt, 18)
+        return _sweep_loop(X, q, N, iw, it, ii, wmk, tmk, imk, Ka, Kpot, kp, kvkt, 6)
+    if delay:
+        return _sweep_loop(X, q, N, iw, it, ii, wmk, tmk, imk, Ka, Kpot, kp, kvkt, 2)
     return _sweep_loop(X, q, N, iw, it, ii, wmk, tmk, imk, Ka, Kpot, kp, kvkt, 0)
