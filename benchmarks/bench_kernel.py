@@ -150,7 +150,27 @@ def markdown(res: dict) -> str:
                 "all": "all 6 runs (2 closed-loop)"}[subset]
         rows.append(f"| {name}, {what} | {r['cand_samples_per_s'] / 1e6:.0f} M | {r['flops']} "
                     f"| **{100 * r['share']:.0f} %** |")
-    return "\n".join(rows)
+    return "\n".join(rows) + "\n\n" + closed_summary(res)
+
+
+#: the effects a closed loop's drive map holds (labrig/model/loop_kernel.py) besides backlash
+MAPPED = ("deadband", "offset", "asymmetry", "saturation", "asymmetric_deadband")
+
+
+def closed_summary(res: dict) -> str:
+    """The closed-loop rows against their own target, in a sentence."""
+    share = {k: 100 * v["share"] for k, v in res["paths"].items()}
+    mapped = [share[f"{n}/closed"] for n in MAPPED]
+    rows = mapped + [share["backlash/closed"], share["coulomb_friction/closed"],
+                     share["delay/closed"]]
+    target = 100 * res["target_closed_share"]
+    verdict = "met" if min(rows) >= target else "**missed**"
+    return (f"Closed loops with an effect in them (the rows \"the 2 closed-loop runs\"): a dead "
+            f"zone, offset, asymmetry, rail or asymmetric dead zone in the loop "
+            f"**{min(mapped):.0f}-{max(mapped):.0f} %** of the limit, backlash "
+            f"**{share['backlash/closed']:.0f} %**, the linear loop's Coulomb friction "
+            f"{share['coulomb_friction/closed']:.0f} % and delay {share['delay/closed']:.0f} %; "
+            f"the target for these rows, {target:.0f} %, is {verdict}.")
 
 
 if __name__ == "__main__":

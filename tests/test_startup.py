@@ -111,3 +111,21 @@ def test_the_floors_filter_is_scipys_to_the_last_bit():
         # the convolution as ndimage sums it, for a filter with no symmetry too
         f = rng.normal(size=w)
         assert np.array_equal(savgol.convolve(y, f), convolve1d(y, f, mode="constant"))
+
+
+def test_the_starts_hypercube_is_scipys_to_the_last_bit():
+    """labrig.identification.lhs draws scipy.stats.qmc's Latin hypercube (spawned from the
+    caller's generator, scaled to the box) without importing scipy.stats: equal with ==,
+    and the caller's generator left as scipy leaves it (a second draw equal too)."""
+    import numpy as np
+    from scipy.stats import qmc
+
+    from labrig.identification.lhs import latin_hypercube
+
+    for seed, n, d in [(0, 4, 5), (1, 8, 7), (12345, 1, 3), (7, 50, 12)]:
+        lo, hi = -np.arange(1.0, d + 1), np.linspace(0.5, 40.0, d)
+        ours, theirs = np.random.default_rng(seed), np.random.default_rng(seed)
+        for _ in range(2):
+            want = qmc.scale(qmc.LatinHypercube(d=d, rng=theirs).random(n), lo, hi)
+            assert np.array_equal(latin_hypercube(n, lo, hi, ours), want)
+        assert np.array_equal(ours.random(3), theirs.random(3))
