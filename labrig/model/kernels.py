@@ -166,7 +166,12 @@ def _block(p0, p1, s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed, S, c, wm
     # the loop's lanes rounded up to whole vectors (the spare lanes hold zeros and are
     # never read): a remainder lane would run scalar and cost as much as a vector of eight
     qv = min(B, (q + 7) // 8 * 8)
-    X = np.zeros((N_ROWS_LOOP if loop else N_ROWS) * B)
+    # the rows start on a cache line (64 bytes: eight doubles), so a vector of eight lanes
+    # is one line, never two (numba's allocator aligns less)
+    size = (N_ROWS_LOOP if loop else N_ROWS) * B
+    Xr = np.zeros(size + 8)
+    off = (-(Xr.ctypes.data // 8)) % 8
+    X = Xr[off:off + size]
     mp = np.zeros(B, np.int64)
     delay = False
     mapped = imap.shape[0] > 0
