@@ -53,8 +53,8 @@ def _polyfit(x: np.ndarray, y: np.ndarray, deg: int) -> np.ndarray:
 
 
 def _fit_edge(x, start, stop, istart, istop, polyorder, deriv, delta, y) -> None:
-    p = _polyfit(np.arange(0, stop - start, dtype=x.dtype), np.reshape(x[start:stop], (stop - start, -1)),
-                 polyorder)
+    edge = np.reshape(x[start:stop], (stop - start, -1))
+    p = _polyfit(np.arange(0, stop - start, dtype=x.dtype), edge, polyorder)
     if deriv > 0:  # scipy.signal._savitzky_golay._polyder
         n = p.shape[0]
         if n <= deriv:

@@ -32,7 +32,8 @@ S_FLAT, S_POS, S_NEG, S_POS_GAP, S_NEG_GAP = range(5)
 N_SLOTS = 5
 #: a slot's row: Ad (a22 - 1 in place of a22), g_old, g_new, g_f
 #: (slot 0's T_OK: 1 when the candidate's pieces are exact, 0 when every sample is
-#: sub-stepped: a quasi-static armature, see labrig.model.simulate._loop_table)
+#: sub-stepped: a current-mode drive's quasi-static armature, see
+#: labrig.model.simulate._loop_table)
 T_A, T_GO, T_GN, T_GF, T_OK = 0, 9, 12, 15, 18
 SLOT_W = 19
 

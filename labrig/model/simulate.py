@@ -379,18 +379,17 @@ def _loop_table(prm, run: RunData, frac, substeps: int):
     part ``c`` entering as a voltage. Pieces no candidate can reach are left empty, and
     the - error's slots copy the + ones when no candidate has an asymmetry.
 
-    A candidate whose armature is quasi-static at the sub-step (L/R below a tenth of it: a
-    current-mode drive) is marked (``T_OK`` 0) and sub-stepped throughout, as before the
+    A current-mode drive (Ke = 0) whose armature is quasi-static at the sub-step (L/R below
+    a tenth of it) is marked (``T_OK`` 0) and sub-stepped throughout, as before the
     pieces: the exponential of such a stiff lag needs some 15 squarings, whose rounding
     (1e-9 of the coefficients) made a fit's objective rough, and on such stiff loops the
     truth integrator's own error at 20 sub-steps is above an encoder count, so an exact
     model read effects into it (measured on the linear axis: stiction instead of Coulomb
-    friction)."""
+    friction). A voltage drive's fitted armature as fast (an electrical pole the data do
+    not resolve) takes the pieces: its rig is not stiff (docs/physics.md)."""
     P = prm.shape[0]
     A0, bs, bf = _plant_matrices(prm)
     R, L = prm[:, 0], prm[:, 1]
-    # (a voltage drive's unresolved armature, L/R far below the sample, is exact here:
-    # the stiff cases that are not are the current-mode drives', Ke = 0)
     full = ~((L / R < run.dt / substeps / 10.0) & (prm[:, C_KE] == 0.0))
     T = np.zeros((P, N_SLOTS, SLOT_W))
     T[full, S_FLAT, T_OK] = 1.0
