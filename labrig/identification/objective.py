@@ -21,6 +21,7 @@ from labrig.model.effectset import EffectSet
 from labrig.model.plants import VoltagePlant
 from labrig.model.simulate import Simulator, prepare
 from labrig.analysis.noise import channel_floors
+from labrig.model.residual_rows import residual_rows
 
 #: generic plant bounds of the voltage-driven servo (SI units)
 DEFAULT_BOUNDS = VoltagePlant.bounds
@@ -208,12 +209,12 @@ class Objective:
                     (self.use_i, r.current, "i", np.sqrt(self.c) / self.sigma_i)):
                 if use and meas is not None:
                     first = -k % stride
-                    if self.masks is None:   # a strided view, no copy
-                        idx, k = slice(first, None, stride), k + len(meas)
+                    if self.masks is None:
+                        idx, k = np.arange(first, len(meas), stride), k + len(meas)
                     else:
                         kept = np.flatnonzero(self.masks[j])
-                        idx, k = kept[first::stride], k + len(kept)
-                    out.append((j, key, np.ascontiguousarray(meas[idx]), idx, scale))
+                        idx, k = np.ascontiguousarray(kept[first::stride]), k + len(kept)
+                    out.append((j, key, np.ascontiguousarray(meas[idx], dtype=float), idx, scale))
         self._layouts[stride] = out
         return out
 
@@ -224,13 +225,9 @@ class Objective:
         R = np.empty((P, -(-self.m // stride)))
         o = 0
         for j, key, meas, idx, scale in self._layout(stride):
-            out = R[:, o:o + len(meas)]
-            np.subtract(meas[None, :], sims[j][key][:, idx], out=out)
-            out *= scale
+            # clipped: a wild candidate (unstable, overflowing) must not poison the sums
+            residual_rows(R, o, meas, np.ascontiguousarray(sims[j][key]), idx, float(scale))
             o += len(meas)
-        # a wild candidate (unstable, overflowing) must not poison the optimiser's sums
-        np.clip(R, -1e6, 1e6, out=R)
-        R[np.isnan(R)] = 1e6
         return R
 
     def residuals_batch(self, X: np.ndarray, stride: int = 1) -> np.ndarray:

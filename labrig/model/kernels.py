@@ -51,6 +51,21 @@ def _input_map(v, u0, k, d, dp, dn, Ka, vmax):
     return min(max(v, -vmax), vmax)  # np.clip
 
 
+@numba.njit(cache=True, nogil=True)
+def mapped_inputs(u, Ka, imap):
+    """(samples, candidates): every candidate's armature voltage from the shared input
+    ``u`` through its own input map (``imap``, :data:`MAP_COLUMNS`): the per-candidate
+    kernel's input, the same bits as the effects' own ``apply`` in their order, without the
+    numpy temporaries (and without the GIL: fits on two threads overlap here)."""
+    n, P = u.shape[0], imap.shape[0]
+    out = np.empty((n, P))
+    for k in range(n):
+        for p in range(P):
+            out[k, p] = _input_map(u[k], imap[p, M_U0], imap[p, M_K], imap[p, M_D],
+                                   imap[p, M_DP], imap[p, M_DN], Ka, imap[p, M_VMAX])
+    return out
+
+
 @numba.njit(cache=True, error_model="numpy")
 def _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, mode):
     """The exact update of every lane of a block through one sample; returns 1 if

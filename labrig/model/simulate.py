@@ -33,7 +33,7 @@ from labrig.model.expm import expm_batch, expm_small
 from labrig.model.layout import (C_A, C_ASYM, C_D, C_KE, C_TC, C_TD, C_TS, C_U0, C_VMAX,
                                  MAP_COLUMNS, N_SLOTS, S_FLAT, S_NEG, S_NEG_GAP, S_POS,
                                  S_POS_GAP, SLOT_W, SMALL, T_A, T_GF, T_GN, T_GO, T_OK)
-from labrig.model.kernels import run_kernels
+from labrig.model.kernels import mapped_inputs, run_kernels
 
 # kernel parameter columns: R, L, J, B, K (labrig.model.plants: every plant's kernel
 # form), then the effects' (C_D..C_TD), then the back-EMF constant Ke (0 for a
@@ -248,13 +248,16 @@ class Simulator:
         staged = [e for e in self.effects if e.stage in ("input", "drive")]
         if not staged:
             return np.ascontiguousarray(run.u[:, None] * run.Ka), _NO_MAP
-        if vector and all(type(e) in _MAPPED for e in staged):
+        if all(type(e) in _MAPPED for e in staged):
             imap = np.zeros((P, len(MAP_COLUMNS)))
             imap[:, MAP_COLUMNS.index("vmax_v")] = np.inf
             for e in staged:
                 for k, v in ep[e.name].items():
                     imap[:, MAP_COLUMNS.index(k)] = v
-            return np.ascontiguousarray(run.u[:, None], dtype=float), imap
+            if vector:
+                return np.ascontiguousarray(run.u[:, None], dtype=float), imap
+            return mapped_inputs(np.ascontiguousarray(run.u, dtype=float), float(run.Ka),
+                                 imap), _NO_MAP
         e = run.u[:, None]  # a sample's inputs contiguous
         for eff in self.effects:
             if eff.stage == "input":
