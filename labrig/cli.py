@@ -99,7 +99,10 @@ def main(argv=None) -> int:
     SIGTERM and SIGHUP are caught from the first line on, before the slow imports
     (:func:`_stop_on_signals`); the handlers found are back when this returns.
     """
+    from labrig.core.memory import keep_freed_memory
+
     old = _stop_on_signals()
+    keep_freed_memory()
     try:
         return _main(argv)
     finally:

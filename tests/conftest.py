@@ -13,6 +13,10 @@ from labrig.io.experiment import Experiment
 from labrig.bridge.sim import SimRig
 from labrig.bridge.sweep import sweep
 from labrig.io.config import load_rig
+from labrig.core.memory import keep_freed_memory
+
+# as the command line does: the fits' arrays stay in the heap between calls
+keep_freed_memory()
 
 ROOT = Path(__file__).resolve().parent.parent
 

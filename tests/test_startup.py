@@ -129,3 +129,20 @@ def test_the_starts_hypercube_is_scipys_to_the_last_bit():
             want = qmc.scale(qmc.LatinHypercube(d=d, rng=theirs).random(n), lo, hi)
             assert np.array_equal(latin_hypercube(n, lo, hi, ours), want)
         assert np.array_equal(ours.random(3), theirs.random(3))
+
+
+def test_the_command_line_keeps_freed_memory_in_the_heap():
+    """glibc takes the heap padding once per process (labrig/core/memory.py); a second
+    call does nothing; elsewhere the call is a no-op."""
+    import subprocess
+    import sys
+
+    out = subprocess.run([sys.executable, "-c", "from labrig.core.memory import keep_freed_memory "
+                          "as k; print(k(), k())"], capture_output=True, text=True, check=True)
+    if sys.platform.startswith("linux"):
+        import platform
+
+        first = "True" if platform.libc_ver()[0] == "glibc" else "False"
+        assert out.stdout.split() == [first, "False"]
+    else:
+        assert out.stdout.split() == ["False", "False"]
