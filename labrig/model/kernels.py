@@ -27,7 +27,7 @@ import numba
 import numpy as np
 
 from labrig.model.candidate_kernel import each_par, each_ser, friction_step, loop_sample_alone
-from labrig.model.layout import (BLOCK, C_A, C_ASYM, C_D, C_TC, C_TS, C_U0, C_VMAX, DELAY,
+from labrig.model.layout import (BLOCK, MODES, MOVING, C_A, C_ASYM, C_D, C_TC, C_TS, C_U0, C_VMAX, DELAY,
                                  FEEDBACK, FRICTION, M_D, M_DN, M_DP, M_K, M_U0, M_VMAX, N_ROWS,
                                  N_ROWS_LOOP, PLAY, R_A00, R_A01, R_A02, R_A10, R_A11, R_A12,
                                  R_A20, R_A21, R_A22M1, R_ACC, R_CUR, R_DLY, R_E1, R_E2, R_FLAG,
@@ -82,6 +82,7 @@ def _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, mode):
     dl = mode & DELAY
     fr = mode & FRICTION
     pa = mode & PLAY
+    mv = mode & MOVING
     nflag = 0
     for j in range(q):
         i = X[R_I * B + j]
@@ -123,19 +124,22 @@ def _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, mode):
             # a stuck rotor that friction still holds: only the current moves, exactly
             # (the first branch of friction_step, here for every lane at once)
             fric = X[R_FRIC * B + j] != 0.0
-            s_prev = X[R_SOLD * B + j]
-            if fb:
-                v1 = kakp * (s_prev - kpot * th / N)
-                v2 = kakp * (s_new - kpot * th / N)
+            if mv:  # no lane at rest: nothing held (hold needs w == 0)
+                i2 = i
             else:
-                v1 = s_prev
-                v2 = s_new
-            rr = X[R_RR * B + j]
-            kk = X[R_KK * B + j]
-            ts = X[R_TS * B + j]
-            i1 = v1 / rr + (i - v1 / rr) * X[R_E1 * B + j]
-            i2 = v2 / rr + (i1 - v2 / rr) * X[R_E2 * B + j]
-            hold = fric & (w == 0.0) & (abs(kk * i1) <= ts) & (abs(kk * i2) <= ts)
+                s_prev = X[R_SOLD * B + j]
+                if fb:
+                    v1 = kakp * (s_prev - kpot * th / N)
+                    v2 = kakp * (s_new - kpot * th / N)
+                else:
+                    v1 = s_prev
+                    v2 = s_new
+                rr = X[R_RR * B + j]
+                kk = X[R_KK * B + j]
+                ts = X[R_TS * B + j]
+                i1 = v1 / rr + (i - v1 / rr) * X[R_E1 * B + j]
+                i2 = v2 / rr + (i1 - v2 / rr) * X[R_E2 * B + j]
+                hold = fric & (w == 0.0) & (abs(kk * i1) <= ts) & (abs(kk * i2) <= ts)
             # breaking away, or the speed reaches zero inside the sample: redone alone
             f = 1 if fric & (not hold) & ((w == 0.0) | (nw * w <= 0.0)) else 0
             nflag |= f  # an "or" reduction vectorises; a count or a float sum does not
@@ -229,22 +233,37 @@ def _block(p0, p1, s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed, S, c, wm
     # the terms any lane needs, rounded up to a mode that is built
     mode = (FEEDBACK if closed else 0) | (DELAY if delay else 0) \
         | (FRICTION if friction else 0) | (PLAY if play else 0)
-    if mode not in (0, FRICTION, FEEDBACK):  # every term; feedback only in a closed loop
+    if mode not in MODES:  # every term (feedback only in a closed loop)
         mode = (FEEDBACK if closed else 0) | DELAY | FRICTION | PLAY
     if loop:  # the spare lanes: zeros, in the + slot (never flagged)
         for j in range(q, qv):
             X[R_SLOT * B + j] = S_POS
+    # a shared input delayed per lane: read from a copy with zeros in front, so a lane's
+    # held inputs are two loads without a test (a delay beyond the run reads zeros only)
+    pad = 0
+    if delay and shared:
+        for j in range(q):
+            mp[j] = min(mp[j], n + 1)
+            pad = max(pad, mp[j] + 1)
+    sp = np.zeros(n + pad)
+    if delay and shared:
+        for k in range(n):
+            sp[k + pad] = s[k, 0]
     for k in range(n):
         wmk = wm[k]
         tmk = tm[k]
         imk = im[k] if ii != 0.0 else 0.0
         # this sample's inputs per lane (shared, per candidate, or delayed per candidate)
-        if delay:
+        if delay and shared:
+            for j in range(q):
+                kn = k + pad - mp[j]   # >= 1
+                X[R_SNEW * B + j] = sp[kn]
+                X[R_SOLD * B + j] = sp[kn - 1]
+        elif delay:
             for j in range(q):
                 kn = k - mp[j]
-                cj = 0 if shared else p0 + j
-                X[R_SNEW * B + j] = s[kn, cj] if kn >= 0 else 0.0
-                X[R_SOLD * B + j] = s[kn - 1, cj] if kn >= 1 else 0.0
+                X[R_SNEW * B + j] = s[kn, p0 + j] if kn >= 0 else 0.0
+                X[R_SOLD * B + j] = s[kn - 1, p0 + j] if kn >= 1 else 0.0
         else:
             if mode & FRICTION or loop:  # the held input before: a stuck rotor's s_old
                 for j in range(q):
@@ -292,14 +311,34 @@ def _block(p0, p1, s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed, S, c, wm
                             for r in range(T_OK):
                                 X[(R_CUR + r) * B + j] = table[p, slot, r]
             continue
+        moving = False
+        if mode & FRICTION:  # no lane at rest under friction: the build without the stuck rotor
+            rest = False
+            for j in range(q):
+                rest |= (X[R_FRIC * B + j] != 0.0) & (X[R_W * B + j] == 0.0)
+            moving = not rest
         if mode == 0:  # each call site a constant mode: its own vectorised build
             nflag = _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, 0)
+        elif mode == FRICTION and moving:
+            nflag = _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, 20)
         elif mode == FRICTION:
             nflag = _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, 4)
         elif mode == FEEDBACK:
             nflag = _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, 1)
+        elif mode == DELAY:
+            nflag = _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, 2)
+        elif mode == FEEDBACK | DELAY:
+            nflag = _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, 3)
+        elif mode == FEEDBACK | FRICTION and moving:
+            nflag = _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, 21)
+        elif mode == FEEDBACK | FRICTION:
+            nflag = _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, 5)
+        elif mode == DELAY | FRICTION | PLAY and moving:
+            nflag = _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, 30)
         elif mode == DELAY | FRICTION | PLAY:
             nflag = _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, 14)
+        elif moving:
+            nflag = _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, 31)
         else:
             nflag = _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, 15)
         if nflag > 0:  # the few samples the exact update cannot take, one at a time

@@ -54,9 +54,13 @@ R_SLOT = N_ROWS + 1
 R_CUR = N_ROWS + 2
 N_ROWS_LOOP = R_CUR + T_OK
 
-#: the terms a block's update needs (bits of ``_sweep``'s mode; one build per mode used)
-FEEDBACK, DELAY, FRICTION, PLAY = 1, 2, 4, 8
-#: the modes built: the short update, Coulomb friction alone, a linear closed loop, and
-#: every term in open and in closed loop (the feedback bit also says how a stuck rotor's
-#: drive is formed: through the loop, or the input itself)
-MODES = (0, FRICTION, FEEDBACK, DELAY | FRICTION | PLAY, FEEDBACK | DELAY | FRICTION | PLAY)
+#: the terms a block's update needs (bits of ``_sweep``'s mode; one build per mode used);
+#: MOVING: friction, but no lane of the block is at rest this sample: the build without
+#: the stuck rotor's current decay and its divisions (nothing can be held)
+FEEDBACK, DELAY, FRICTION, PLAY, MOVING = 1, 2, 4, 8, 16
+#: the modes built: the short update, a delay, Coulomb friction, each alone or in a linear
+#: closed loop, and every term in open and in closed loop (the feedback bit also says how
+#: a stuck rotor's drive is formed: through the loop, or the input itself); each with
+#: friction also as MOVING. Others take every term (the compiler did not vectorise some)
+MODES = (0, FRICTION, FEEDBACK, DELAY, FEEDBACK | DELAY, FEEDBACK | FRICTION,
+         DELAY | FRICTION | PLAY, FEEDBACK | DELAY | FRICTION | PLAY)
