@@ -33,7 +33,7 @@ from labrig.model.layout import (BLOCK, MODES, MOVING, C_A, C_ASYM, C_D, C_TC, C
                                  R_A20, R_A21, R_A22M1, R_ACC, R_CUR, R_DLY, R_E1, R_E2, R_FLAG,
                                  R_FRIC, R_GAP, R_GF0, R_GF1, R_GF2, R_GN0, R_GN1, R_GN2, R_GO0,
                                  R_GO1, R_GO2, R_I, R_I0, R_KK, R_MAP, R_PL, R_PL0, R_RR,
-                                 R_SLOT, R_SNEW, R_SOLD, R_TC, R_TH, R_TH0, R_TS, R_W, R_W0, S_POS,
+                                 R_SLOT, R_SNEW, R_SOLD, R_TC, R_TH, R_TH0, R_TS, R_W, R_W0, R_XN, S_POS,
                                  SMALL, T_OK)
 from labrig.model.loop_kernel import loop_sample, loop_slot
 
@@ -224,6 +224,7 @@ def _block(p0, p1, s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed, S, c, wm
             # no slot yet: the first sample is taken alone (and every sample of a lane whose
             # pieces are not exact, its slot staying -1)
             X[R_SLOT * B + j] = -1.0
+            X[R_XN * B + j] = X[R_TH * B + j] / N
         f = (prm[p, C_TC] > 0.0 or prm[p, C_TS] > 0.0) and not skip[p]
         X[R_FRIC * B + j] = 1.0 if f else 0.0
         friction |= f
@@ -304,6 +305,7 @@ def _block(p0, p1, s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed, S, c, wm
                         X[R_I * B + j] = ni
                         X[R_W * B + j] = nw
                         X[R_TH * B + j] = nt
+                        X[R_XN * B + j] = nt / N
                         X[R_PL * B + j] = npl
                         if table[p, 0, T_OK] != 0.0:  # the next sample's guess: the piece
                             slot = loop_slot(nw, nt, npl, sn, prm[p], c)  # this one ends in

@@ -48,11 +48,14 @@ N_ROWS = R_MAP + 6  # then the input map's six parameters
 #: a closed loop with its input map (:func:`_sweep_loop`) adds rows saying the lane's
 #: input switches inside the sample (a fractional delay), the slot its drive was last in
 #: (-1: none yet, or a lane sub-stepped throughout) and that slot's row of the loop table
-#: (Ad, g_old, g_new, g_f): the update's coefficients, changed only where the piece does
+#: (Ad, g_old, g_new, g_f): the update's coefficients, changed only where the piece does;
+#: and theta / N of the lane's state, which the sample before computed (one division a
+#: sample, not two: the lanes' divisions are what their vectors wait for)
 R_DLY = N_ROWS
 R_SLOT = N_ROWS + 1
 R_CUR = N_ROWS + 2
-N_ROWS_LOOP = R_CUR + T_OK
+R_XN = R_CUR + T_OK
+N_ROWS_LOOP = R_XN + 1
 
 #: the terms a block's update needs (bits of ``_sweep``'s mode; one build per mode used);
 #: MOVING: friction, but no lane of the block is at rest this sample: the build without

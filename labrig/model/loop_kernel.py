@@ -24,7 +24,7 @@ from labrig.model.layout import (BLOCK, C_A, C_ASYM, C_D, C_TC, C_TS, C_U0, C_VM
                                  FRICTION, G_DEAD, G_NEG, G_POS, G_RAILN, G_RAILP, M_D, M_K,
                                  M_U0, M_VMAX, PLAY, R_ACC, R_CUR, R_DLY, R_FLAG, R_FRIC, R_GAP,
                                  R_I, R_I0, R_MAP, R_PL, R_PL0, R_SLOT, R_SNEW, R_SOLD,
-                                 R_TC, R_TH, R_TH0, R_W, R_W0, S_FLAT, T_GF, T_GN, T_GO)
+                                 R_TC, R_TH, R_TH0, R_W, R_W0, R_XN, S_FLAT, T_GF, T_GN, T_GO)
 
 
 @numba.njit(cache=True, inline="always")
@@ -166,7 +166,7 @@ def _sweep_loop(X, q, N, iw, it, ii, wmk, tmk, imk, Ka, Kpot, kp, kvkt, mode):
         th = X[R_TH * B + j]
         s_new = X[R_SNEW * B + j]
         s_old = X[R_SOLD * B + j]
-        x = th / N
+        x = X[R_XN * B + j]  # th / N, as the sample before left it
         if pa:
             pl = X[R_PL * B + j]
             a = X[R_GAP * B + j]
@@ -224,15 +224,15 @@ def _sweep_loop(X, q, N, iw, it, ii, wmk, tmk, imk, Ka, Kpot, kp, kvkt, mode):
             ni += X[(R_CUR + T_GF) * B + j] * tf
             nw += X[(R_CUR + T_GF + 1) * B + j] * tf
             nt += X[(R_CUR + T_GF + 2) * B + j] * tf
+        xn = nt / N
         if pa:
-            xn = nt / N
             lo = xn - a
             hi = xn + a
             npl = (lo if pl < lo else (hi if pl > hi else pl)) if a > 0.0 else pl
             seen1 = npl if a > 0.0 else xn
         else:
             npl = pl
-            seen1 = nt / N
+            seen1 = xn
         g1 = drive_piece(kp * (s_new - Kpot * seen1) - kvkt * nw + u0, d, ak, Ka, vmax)
         bad = bad | (g1 != g0)
         if pa:
@@ -249,6 +249,7 @@ def _sweep_loop(X, q, N, iw, it, ii, wmk, tmk, imk, Ka, Kpot, kp, kvkt, mode):
         X[R_I * B + j] = ni
         X[R_W * B + j] = nw
         X[R_TH * B + j] = nt
+        X[R_XN * B + j] = xn
     return nflag
 
 
