@@ -346,10 +346,11 @@ def _zoh(A, bs, bf, frac, h, expm=expm_batch):
     M[:, :3, 3] = bs
     M[:, :3, 4] = bf
     E2 = expm(M * ((1.0 - frac) * h)[:, None, None])
-    if np.any(frac > 0):
-        E1 = expm(M * (frac * h)[:, None, None])
-    else:  # no fractional delay: the first part of the sample is empty
-        E1 = np.broadcast_to(np.eye(5), M.shape)
+    if not np.any(frac > 0):
+        # no fractional delay: the first part of the sample is empty (E1 = I), so the
+        # products with it are E2's own columns (and zeros); taken as they are
+        return (E2[:, :3, :3], np.zeros((P, 3)), E2[:, :3, 3], E2[:, :3, 4] + 0.0)
+    E1 = expm(M * (frac * h)[:, None, None])
     A1, A2 = E1[:, :3, :3], E2[:, :3, :3]
     Ad = A2 @ A1
     g_old = np.einsum("pij,pj->pi", A2, E1[:, :3, 3])
@@ -399,21 +400,23 @@ def _loop_table(prm, run: RunData, frac, substeps: int):
     if not full.any():
         return T
 
+    rows = slice(None) if full.all() else full   # (a slice: views, not copies)
+
     def fill(slot, gain, pot):
-        A = A0[full].copy()
-        Lf = L[full]
+        A = A0[rows].copy()
+        Lf = L[rows]
         if gain is not None:  # (P,) the asymmetry's gain per candidate
-            A[:, 0, 1] -= run.Ka * gain[full] * run.kv * run.Kt / Lf
+            A[:, 0, 1] -= run.Ka * gain[rows] * run.kv * run.Kt / Lf
             if pot:
-                A[:, 0, 2] -= run.Ka * gain[full] * run.kp * run.Kpot / run.N / Lf
-        Ad, g_old, g_new, gf = _zoh(A, bs[full], bf[full], frac[full], run.dt, expm_small)
-        row = T[full, slot]
+                A[:, 0, 2] -= run.Ka * gain[rows] * run.kp * run.Kpot / run.N / Lf
+        Ad, g_old, g_new, gf = _zoh(A, bs[rows], bf[rows], frac[rows], run.dt, expm_small)
+        row = T[rows, slot]
         row[:, T_A:T_A + 9] = Ad.reshape(-1, 9)
         row[:, T_A + 8] -= 1.0  # a22 - 1, as the update adds theta itself
         row[:, T_GO:T_GO + 3] = g_old
         row[:, T_GN:T_GN + 3] = g_new
         row[:, T_GF:T_GF + 3] = gf
-        T[full, slot] = row
+        T[rows, slot] = row
 
     ak = prm[:, C_ASYM]
     asym = bool(np.any(ak != 0))
