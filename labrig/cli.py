@@ -100,7 +100,9 @@ def main(argv=None) -> int:
     (:func:`_stop_on_signals`); the handlers found are back when this returns.
     """
     from labrig.core.memory import keep_freed_memory
+    from labrig.core.parallel import one_blas_thread
 
+    one_blas_thread()   # before numpy is imported
     old = _stop_on_signals()
     keep_freed_memory()
     try:

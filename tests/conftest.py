@@ -1,7 +1,11 @@
 """Shared fixtures: simulated rigs and datasets with known truth."""
 from __future__ import annotations
 
-import copy
+from labrig.core.parallel import one_blas_thread
+
+one_blas_thread()  # as the command line does, before numpy is imported
+
+import copy  # noqa: E402
 import subprocess
 import sys
 from pathlib import Path

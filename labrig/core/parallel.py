@@ -35,6 +35,17 @@ def _threadsafe() -> bool:
         return False
 
 
+def one_blas_thread() -> None:
+    """Hold numpy's BLAS to one thread, unless the user has set it. labrig's matrices are
+    small (a fit's few-by-few SVDs and Gram matrices, norms of one run), so BLAS threads
+    never pay; OpenBLAS's idle threads spin for a while after every call, on the core a
+    second fit needs, and a threaded norm sums in an order that depends on the machine's
+    core count (the last digits of a fit percentage moved with it). Takes effect only
+    before numpy loads its BLAS: the command line calls it first."""
+    for var in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ.setdefault(var, "1")
+
+
 def jobs() -> int:
     """How many fits run at once: the cores, unless ``LABRIG_THREADS`` says otherwise
     (at most twice the cores)."""
