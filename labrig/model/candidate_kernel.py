@@ -14,8 +14,21 @@ import math
 
 import numba
 
-from labrig.model.layout import C_A, C_TC, C_TS, T_OK
+from labrig.model.layout import C_A, C_TC, C_TS, M_D, M_DN, M_DP, M_K, M_U0, M_VMAX, T_OK
 from labrig.model.loop_kernel import loop_drive, loop_step, play_operator
+
+
+@numba.njit(cache=True, error_model="numpy")
+def input_map(v, u0, k, d, dp, dn, Ka, vmax):
+    """The built-in input and drive effects of one candidate on one held input (V -> V at
+    the armature); an absent effect's parameters (0, or inf for the rail) leave v as is."""
+    v = v + u0
+    v = v * (1.0 + k) if v >= 0 else v * (1.0 - k)
+    sg = 1.0 if v > 0.0 else (-1.0 if v < 0.0 else 0.0)  # np.sign
+    v = sg * max(abs(v) - d, 0.0)
+    v = max(v - dp, 0.0) if v >= 0 else min(v + dn, 0.0)
+    v = v * Ka
+    return min(max(v, -vmax), vmax)  # np.clip
 
 @numba.njit(cache=True)
 def substeps(i, w, th, play, s_old, s_new, frac, prm, closed, S, c):
@@ -100,14 +113,24 @@ def loop_sample_alone(i, w, th, play, s_old, s_new, fr, pr, friction, S, c, T, p
 
 @numba.njit(cache=True)
 def _candidate(p, s, m, frac, Ad, g_old, g_new, gf, prm, nonlinear, closed, S, c, out_w, out_th,
-               out_i, store, wm, iw, tm, it, im, ii, sse, T):
+               out_i, store, wm, iw, tm, it, im, ii, sse, T, imap):
     """Candidate ``p`` through one run, one sample after the other: the reference the
     population kernel reproduces bit for bit, and the kernel of trajectories and of small
     populations (a Jacobian's rows), for which a block's per-sample overhead would cost
     more than its lanes save. ``nonlinear[p]``: a closed loop with its input map inside
-    (piecewise exact, :func:`loop_step`, with the loop table ``T``)."""
+    (piecewise exact, :func:`loop_step`, with the loop table ``T``). ``imap`` (rows:
+    candidates): the open-loop input map applied here to the shared input, as the lanes
+    apply it (0 rows: ``s`` is the drive already)."""
     n = s.shape[0]
     col = 0 if s.shape[1] == 1 else p  # one input column for all, or one per candidate
+    mapped = imap.shape[0] > 0
+    if mapped:
+        u0, mk, md, mdp, mdn, mvmax = (imap[p, M_U0], imap[p, M_K], imap[p, M_D],
+                                       imap[p, M_DP], imap[p, M_DN], imap[p, M_VMAX])
+    else:
+        u0 = mk = md = mdp = mdn = mvmax = 0.0
+    Ka = c[1]
+    mapped_new = 0.0  # the mapped input of the sample before (its s_new is this one's s_old)
     N = c[2]
     acc = 0.0
     i = 0.0
@@ -137,8 +160,13 @@ def _candidate(p, s, m, frac, Ad, g_old, g_new, gf, prm, nonlinear, closed, S, c
                 acc += (ii * (im[k] - i)) ** 2
         ko = k - mp - 1
         kn = k - mp
-        s_old = s[ko, col] if ko >= 0 else 0.0
-        s_new = s[kn, col] if kn >= 0 else 0.0
+        if mapped:  # each input mapped once: this sample's s_old is the last one's s_new
+            s_old = mapped_new
+            s_new = input_map(s[kn, 0], u0, mk, md, mdp, mdn, Ka, mvmax) if kn >= 0 else 0.0
+            mapped_new = s_new
+        else:
+            s_old = s[ko, col] if ko >= 0 else 0.0
+            s_new = s[kn, col] if kn >= 0 else 0.0
         if nonlinear[p]:  # a closed loop with its input map: exact in each affine piece
             i, w, th, play = loop_sample_alone(i, w, th, play, s_old, s_new, frac[p], pr,
                                                friction, S, c, T, p)
@@ -180,15 +208,15 @@ def _candidate(p, s, m, frac, Ad, g_old, g_new, gf, prm, nonlinear, closed, S, c
 # candidates; for the few rows of a finite-difference Jacobian the wake-up costs more.
 @numba.njit(parallel=True, cache=True, nogil=True)
 def each_par(idx, s, m, frac, Ad, g_old, g_new, gf, prm, nonlinear, closed, S, c, out_w,
-                    out_th, out_i, store, wm, iw, tm, it, im, ii, sse, T):
+                    out_th, out_i, store, wm, iw, tm, it, im, ii, sse, T, imap):
     for j in numba.prange(idx.shape[0]):
         _candidate(idx[j], s, m, frac, Ad, g_old, g_new, gf, prm, nonlinear, closed, S, c,
-                   out_w, out_th, out_i, store, wm, iw, tm, it, im, ii, sse, T)
+                   out_w, out_th, out_i, store, wm, iw, tm, it, im, ii, sse, T, imap)
 
 
 @numba.njit(cache=True, nogil=True)
 def each_ser(idx, s, m, frac, Ad, g_old, g_new, gf, prm, nonlinear, closed, S, c, out_w,
-                    out_th, out_i, store, wm, iw, tm, it, im, ii, sse, T):
+                    out_th, out_i, store, wm, iw, tm, it, im, ii, sse, T, imap):
     for j in range(idx.shape[0]):
         _candidate(idx[j], s, m, frac, Ad, g_old, g_new, gf, prm, nonlinear, closed, S, c,
-                   out_w, out_th, out_i, store, wm, iw, tm, it, im, ii, sse, T)
+                   out_w, out_th, out_i, store, wm, iw, tm, it, im, ii, sse, T, imap)

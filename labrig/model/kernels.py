@@ -26,7 +26,8 @@ import math
 import numba
 import numpy as np
 
-from labrig.model.candidate_kernel import each_par, each_ser, friction_step, loop_sample_alone
+from labrig.model.candidate_kernel import (each_par, each_ser, friction_step, input_map,
+                                          loop_sample_alone)
 from labrig.model.layout import (BLOCK, MODES, MOVING, C_A, C_ASYM, C_D, C_TC, C_TS, C_U0, C_VMAX, DELAY,
                                  FEEDBACK, FRICTION, M_D, M_DN, M_DP, M_K, M_U0, M_VMAX, N_ROWS,
                                  N_ROWS_LOOP, PLAY, R_A00, R_A01, R_A02, R_A10, R_A11, R_A12,
@@ -36,34 +37,6 @@ from labrig.model.layout import (BLOCK, MODES, MOVING, C_A, C_ASYM, C_D, C_TC, C
                                  R_SLOT, R_SNEW, R_SOLD, R_TC, R_TH, R_TH0, R_TS, R_W, R_W0, R_XN, S_POS,
                                  SMALL, T_OK)
 from labrig.model.loop_kernel import loop_sample, loop_slot
-
-
-@numba.njit(cache=True, error_model="numpy")
-def _input_map(v, u0, k, d, dp, dn, Ka, vmax):
-    """The built-in input and drive effects of one candidate on one held input (V -> V at
-    the armature); an absent effect's parameters (0, or inf for the rail) leave v as is."""
-    v = v + u0
-    v = v * (1.0 + k) if v >= 0 else v * (1.0 - k)
-    sg = 1.0 if v > 0.0 else (-1.0 if v < 0.0 else 0.0)  # np.sign
-    v = sg * max(abs(v) - d, 0.0)
-    v = max(v - dp, 0.0) if v >= 0 else min(v + dn, 0.0)
-    v = v * Ka
-    return min(max(v, -vmax), vmax)  # np.clip
-
-
-@numba.njit(cache=True, nogil=True)
-def mapped_inputs(u, Ka, imap):
-    """(samples, candidates): every candidate's armature voltage from the shared input
-    ``u`` through its own input map (``imap``, :data:`MAP_COLUMNS`): the per-candidate
-    kernel's input, the same bits as the effects' own ``apply`` in their order, without the
-    numpy temporaries (and without the GIL: fits on two threads overlap here)."""
-    n, P = u.shape[0], imap.shape[0]
-    out = np.empty((n, P))
-    for k in range(n):
-        for p in range(P):
-            out[k, p] = _input_map(u[k], imap[p, M_U0], imap[p, M_K], imap[p, M_D],
-                                   imap[p, M_DP], imap[p, M_DN], Ka, imap[p, M_VMAX])
-    return out
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -279,13 +252,13 @@ def _block(p0, p1, s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed, S, c, wm
         if mapped:  # the candidates' own input maps, applied here (no (n, P) input array)
             Ka = c[1]
             for j in range(q):  # (without delay, s_old is the sample before: mapped already)
-                X[R_SNEW * B + j] = _input_map(
+                X[R_SNEW * B + j] = input_map(
                     X[R_SNEW * B + j], X[(R_MAP + M_U0) * B + j], X[(R_MAP + M_K) * B + j],
                     X[(R_MAP + M_D) * B + j], X[(R_MAP + M_DP) * B + j],
                     X[(R_MAP + M_DN) * B + j], Ka, X[(R_MAP + M_VMAX) * B + j])
             if delay:
                 for j in range(q):
-                    X[R_SOLD * B + j] = _input_map(
+                    X[R_SOLD * B + j] = input_map(
                         X[R_SOLD * B + j], X[(R_MAP + M_U0) * B + j],
                         X[(R_MAP + M_K) * B + j], X[(R_MAP + M_D) * B + j],
                         X[(R_MAP + M_DP) * B + j], X[(R_MAP + M_DN) * B + j], Ka,
@@ -382,10 +355,10 @@ def run_kernels(s, m, frac, Ad, g_old, g_new, gf, prm, nonlinear, closed, S, c, 
     """Every candidate through one run: the population kernel for those the exact update
     serves, the per-candidate kernel for those sub-stepped throughout.
 
-    ``imap`` (P, 6): the open-loop input map per candidate, applied in the kernel to the
-    shared input ``s`` (see :data:`MAP_COLUMNS`); an array of 0 rows when ``s`` is the
-    armature voltage already (always for trajectories and for fewer than :data:`SMALL`
-    candidates: those go one candidate at a time)."""
+    ``imap`` (P, 6): the open-loop input map per candidate, applied in either kernel to
+    the shared input ``s`` (see :data:`MAP_COLUMNS`); an array of 0 rows when ``s`` is the
+    armature voltage already (or a user's input map was applied per candidate: ``s`` is
+    then (samples, candidates))."""
     P = prm.shape[0]
     if store or P < SMALL:
         # trajectories: each candidate writes its own contiguous rows (the lanes of a block
@@ -393,7 +366,7 @@ def run_kernels(s, m, frac, Ad, g_old, g_new, gf, prm, nonlinear, closed, S, c, 
         # overhead. One candidate at a time, threads across candidates.
         (each_par if P >= 16 else each_ser)(  # threads wake slower than 16 candidates run
             np.arange(P), s, m, frac, Ad, g_old, g_new, gf, prm, nonlinear, closed, S, c,
-            out_w, out_th, out_i, store, wm, iw, tm, it, im, ii, sse, table)
+            out_w, out_th, out_i, store, wm, iw, tm, it, im, ii, sse, table, imap)
         return
     # (a closed loop with its input map: every candidate in the loop's lanes, none skipped)
     population_par(numba.get_num_threads(), s, m, frac, Ad, g_old, g_new, gf, prm,

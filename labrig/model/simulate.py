@@ -32,15 +32,15 @@ from labrig.model.effects import AsymmetricDeadband, Asymmetry, Deadband, Effect
 from labrig.model.expm import expm_batch, expm_small
 from labrig.model.layout import (C_A, C_ASYM, C_D, C_KE, C_TC, C_TD, C_TS, C_U0, C_VMAX,
                                  MAP_COLUMNS, N_SLOTS, S_FLAT, S_NEG, S_NEG_GAP, S_POS,
-                                 S_POS_GAP, SLOT_W, SMALL, T_A, T_GF, T_GN, T_GO, T_OK)
-from labrig.model.kernels import mapped_inputs, run_kernels
+                                 S_POS_GAP, SLOT_W, T_A, T_GF, T_GN, T_GO, T_OK)
+from labrig.model.kernels import run_kernels
 
 # kernel parameter columns: R, L, J, B, K (labrig.model.plants: every plant's kernel
 # form), then the effects' (C_D..C_TD), then the back-EMF constant Ke (0 for a
 # current-mode drive)
 N_COLS = 14
 #: open-loop input and drive effects the kernel applies itself (their formulas are in
-#: labrig.model.kernels._input_map); a subclass or a user's effect takes the numpy path
+#: labrig.model.candidate_kernel.input_map); a subclass or a user's effect takes the numpy path
 _MAPPED = (Offset, Asymmetry, Deadband, AsymmetricDeadband, Saturation)
 _NO_MAP = np.zeros((0, len(MAP_COLUMNS)))
 _NO_TABLE = np.zeros((0, N_SLOTS, SLOT_W))
@@ -241,10 +241,10 @@ class Simulator:
         return total
 
     # ------------------------------------------------------------------------------
-    def _open_loop_input(self, run: RunData, ep, P, vector: bool):
+    def _open_loop_input(self, run: RunData, ep, P):
         """The open-loop drive: the shared input and the candidates' input maps for the
-        population kernel to apply (``vector``: built-in effects), or the mapped inputs laid
-        out (samples, candidates) for the per-candidate kernel or a user's effect."""
+        kernels to apply (built-in effects), or the mapped inputs laid out (samples,
+        candidates) for a user's effect."""
         staged = [e for e in self.effects if e.stage in ("input", "drive")]
         if not staged:
             return np.ascontiguousarray(run.u[:, None] * run.Ka), _NO_MAP
@@ -254,10 +254,7 @@ class Simulator:
             for e in staged:
                 for k, v in ep[e.name].items():
                     imap[:, MAP_COLUMNS.index(k)] = v
-            if vector:
-                return np.ascontiguousarray(run.u[:, None], dtype=float), imap
-            return mapped_inputs(np.ascontiguousarray(run.u, dtype=float), float(run.Ka),
-                                 imap), _NO_MAP
+            return np.ascontiguousarray(run.u[:, None], dtype=float), imap
         e = run.u[:, None]  # a sample's inputs contiguous
         for eff in self.effects:
             if eff.stage == "input":
@@ -294,7 +291,7 @@ class Simulator:
                 table = disc[("table",) + key]
             nonlinear = np.full(P, mapped)
         else:
-            s, imap = self._open_loop_input(run, ep, P, weights is not None and P >= SMALL)
+            s, imap = self._open_loop_input(run, ep, P)
             nonlinear = np.zeros(P, dtype=bool)
         consts = np.array([run.dt, run.Ka, run.N, run.Kt, run.Kpot, run.kp, run.kv, run.theta0])
         mi = m.astype(np.int64)

@@ -24,8 +24,7 @@ def _dispatchers():
     from labrig.model import candidate_kernel, expm, kernels, residual_rows
 
     return [kernels.population_par, candidate_kernel.each_par, candidate_kernel.each_ser,
-            expm.expm_par, expm.expm_ser, expm.expm_small, kernels.mapped_inputs,
-            residual_rows.residual_rows]
+            expm.expm_par, expm.expm_ser, expm.expm_small, residual_rows.residual_rows]
 
 
 def _sources() -> list[str]:
@@ -74,7 +73,7 @@ def _workload() -> None:
     passes: open and closed loop, friction, delay and play, an input map, trajectories and
     fitness, one candidate at a time and the population kernel (threads from 16)."""
     from labrig.model.expm import expm_batch, expm_small
-    from labrig.model.kernels import mapped_inputs, run_kernels
+    from labrig.model.kernels import run_kernels
     from labrig.model.residual_rows import residual_rows
     from labrig.model.layout import (C_A, C_ASYM, C_D, C_TC, C_TS, C_VMAX, MAP_COLUMNS, N_SLOTS,
                                      SLOT_W)
@@ -82,9 +81,8 @@ def _workload() -> None:
     n = 60
     u = np.where(np.arange(n) % 30 < 15, 1.5, -1.5)
     consts = np.array([1e-3, 4.0, 30.0, 0.0095, 1.0, 1.0, 0.3, 0.0])
-    # a Jacobian's mapped inputs and its residual rows
-    sim = mapped_inputs(u, 4.0, np.zeros((3, len(MAP_COLUMNS)))).T.copy()
-    residual_rows(np.empty((3, n)), 0, u, sim, np.arange(n), 1.0)
+    # a Jacobian's residual rows
+    residual_rows(np.empty((3, n)), 0, u, np.zeros((3, n)), np.arange(n), 1.0)
     for P in (3, 20, 40):
         M = np.zeros((P, 5, 5))
         M[:, 0, 0], M[:, 1, 1] = -900.0, -0.2
