@@ -30,6 +30,7 @@ def input_map(v, u0, k, d, dp, dn, Ka, vmax):
     v = v * Ka
     return min(max(v, -vmax), vmax)  # np.clip
 
+
 @numba.njit(cache=True)
 def substeps(i, w, th, play, s_old, s_new, frac, prm, closed, S, c):
     """Semi-implicit sub-steps through one sample, Karnopp friction (as the truth)."""

@@ -28,14 +28,14 @@ import numpy as np
 
 from labrig.model.candidate_kernel import (each_par, each_ser, friction_step, input_map,
                                           loop_sample_alone)
-from labrig.model.layout import (BLOCK, MODES, MOVING, C_A, C_ASYM, C_D, C_TC, C_TS, C_U0, C_VMAX, DELAY,
-                                 FEEDBACK, FRICTION, M_D, M_DN, M_DP, M_K, M_U0, M_VMAX, N_ROWS,
-                                 N_ROWS_LOOP, PLAY, R_A00, R_A01, R_A02, R_A10, R_A11, R_A12,
-                                 R_A20, R_A21, R_A22M1, R_ACC, R_CUR, R_DLY, R_E1, R_E2, R_FLAG,
-                                 R_FRIC, R_GAP, R_GF0, R_GF1, R_GF2, R_GN0, R_GN1, R_GN2, R_GO0,
-                                 R_GO1, R_GO2, R_I, R_I0, R_KK, R_MAP, R_PL, R_PL0, R_RR,
-                                 R_SLOT, R_SNEW, R_SOLD, R_TC, R_TH, R_TH0, R_TS, R_W, R_W0, R_XN, S_POS,
-                                 SMALL, T_OK)
+from labrig.model.layout import (BLOCK, C_A, C_ASYM, C_D, C_TC, C_TS, C_U0, C_VMAX, DELAY,
+                                 FEEDBACK, FRICTION, MODES, MOVING, M_D, M_DN, M_DP, M_K, M_U0,
+                                 M_VMAX, N_ROWS, N_ROWS_LOOP, PLAY, R_A00, R_A01, R_A02, R_A10,
+                                 R_A11, R_A12, R_A20, R_A21, R_A22M1, R_ACC, R_CUR, R_DLY,
+                                 R_E1, R_E2, R_FLAG, R_FRIC, R_GAP, R_GF0, R_GF1, R_GF2, R_GN0,
+                                 R_GN1, R_GN2, R_GO0, R_GO1, R_GO2, R_I, R_I0, R_KK, R_MAP,
+                                 R_PL, R_PL0, R_RR, R_SLOT, R_SNEW, R_SOLD, R_TC, R_TH, R_TH0,
+                                 R_TS, R_W, R_W0, R_XN, SMALL, S_POS, T_OK)
 from labrig.model.loop_kernel import loop_sample, loop_slot
 
 
