@@ -214,7 +214,8 @@ class Objective:
                     else:
                         kept = np.flatnonzero(self.masks[j])
                         idx, k = np.ascontiguousarray(kept[first::stride]), k + len(kept)
-                    out.append((j, key, np.ascontiguousarray(meas[idx], dtype=float), idx, scale))
+                    out.append((j, key, np.ascontiguousarray(meas[idx], dtype=float), idx,
+                                float(scale)))
         self._layouts[stride] = out
         return out
 
@@ -226,7 +227,7 @@ class Objective:
         o = 0
         for j, key, meas, idx, scale in self._layout(stride):
             # clipped: a wild candidate (unstable, overflowing) must not poison the sums
-            residual_rows(R, o, meas, np.ascontiguousarray(sims[j][key]), idx, float(scale))
+            residual_rows(R, o, meas, np.ascontiguousarray(sims[j][key]), idx, scale)
             o += len(meas)
         return R
 

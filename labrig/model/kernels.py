@@ -215,12 +215,12 @@ def _block(p0, p1, s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed, S, c, wm
     # a shared input delayed per lane: read from a copy with zeros in front, so a lane's
     # held inputs are two loads without a test (a delay beyond the run reads zeros only)
     pad = 0
+    sp = np.zeros(0)
     if delay and shared:
         for j in range(q):
             mp[j] = min(mp[j], n + 1)
             pad = max(pad, mp[j] + 1)
-    sp = np.zeros(n + pad)
-    if delay and shared:
+        sp = np.zeros(n + pad)
         for k in range(n):
             sp[k + pad] = s[k, 0]
     for k in range(n):
