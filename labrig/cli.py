@@ -197,8 +197,11 @@ def run() -> None:
     import os
 
     from labrig.core.timing import mark
+    from labrig.model import step_helper
 
+    step_helper.allow()   # a fresh process, no thread yet: commands may fork their helper
     code = main()
+    step_helper.stop()
     mark("exit")
     sys.stdout.flush()
     sys.stderr.flush()

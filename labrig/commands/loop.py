@@ -76,6 +76,9 @@ def cmd_diagnose(args):
     floor), then rank every catalogue effect the model lacks: re-fitted from scanned
     starts, compared on BIC and by cross-validation, each with its evidence and the
     experiment that would confirm it."""
+    from labrig.model import step_helper
+
+    step_helper.start()   # python-control for the step metrics, on the other core
     from labrig.loop.diagnose import diagnose
     from labrig.commands.identification import parse_assignments
     from labrig.commands.registry import refuse_existing
@@ -284,6 +287,9 @@ def cmd_ladder(args):
     """Evaluate a chain of models (`--models m0.json,m1.json,...`, as saved by
     `labrig identify --model PREV --effects NEW -o NEXT`), or, without --models, run the
     loop automatically: identify, diagnose, add the recommended effect, repeat."""
+    from labrig.model import step_helper
+
+    step_helper.start()   # python-control for the step metrics, on the other core
     from labrig.loop.ladder import evaluate_ladder
     from labrig.loop.search import auto_ladder
     from labrig.core.figures import save
