@@ -138,6 +138,9 @@ def _exit_on_signal(signum, frame):
     for sig in (signal.SIGTERM, signal.SIGHUP):  # one line, even if a second one comes
         signal.signal(sig, signal.SIG_IGN)
     try:
+        helper = sys.modules.get("labrig.model.step_helper")
+        if helper is not None:
+            helper.kill_now()
         print(f"labrig: {Terminated(signum)}", file=sys.stderr, flush=True)
     finally:
         os._exit(128 + signum)

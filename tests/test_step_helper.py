@@ -88,3 +88,49 @@ def _running(pid: int) -> bool:
             return f.read().rpartition(")")[2].split()[0] != "Z"
     except FileNotFoundError:
         return False
+
+
+def _children(pid: int) -> list[int]:
+    try:
+        with open(f"/proc/{pid}/task/{pid}/children") as f:
+            return [int(c) for c in f.read().split()]
+    except FileNotFoundError:
+        return []
+
+
+@pytest.mark.parametrize("sig, code", [("SIGTERM", 143), ("SIGINT", 130)])
+def test_the_command_line_ends_its_helper_on_a_signal(tmp_path, rig, sig, code):
+    """``labrig identify`` forks its helper at once; a SIGTERM to labrig alone, or a
+    Ctrl-C to the terminal's process group, ends both: labrig's one line and exit code,
+    no helper left."""
+    import signal
+
+    from conftest import sim_dataset, square_plan
+
+    folder = sim_dataset(tmp_path, rig, square_plan(amps=(1.5,), periods=1), seed=1)
+    p = subprocess.Popen([sys.executable, "-m", "labrig", "identify", str(folder),
+                          "-o", str(tmp_path / "m.json")], stdout=subprocess.PIPE,
+                         stderr=subprocess.PIPE, text=True, start_new_session=True)
+    try:
+        deadline = time.monotonic() + 30
+        while not _children(p.pid) and time.monotonic() < deadline and p.poll() is None:
+            time.sleep(0.02)
+        helpers = _children(p.pid)
+        assert helpers, "no helper forked"
+        if sig == "SIGTERM":
+            os.kill(p.pid, signal.SIGTERM)
+        else:
+            os.killpg(p.pid, signal.SIGINT)
+        _, err = p.communicate(timeout=60)
+    finally:
+        if p.poll() is None:
+            p.kill()
+            p.wait()
+    assert p.returncode == code, err
+    assert "Traceback" not in err
+    assert len(err.strip().splitlines()) == 1, err
+    deadline = time.monotonic() + 5
+    while any(map(_running, helpers)) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert not any(map(_running, helpers))
+    assert not (tmp_path / "m.json").exists()

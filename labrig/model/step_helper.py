@@ -63,10 +63,18 @@ def start() -> None:
     ours, theirs = ctx.Pipe()
     proc = ctx.Process(target=_serve, args=(theirs, ours), name="labrig-step-metrics",
                        daemon=True)
+    import signal
+
+    # a Ctrl-C in the moment between the fork and the helper's own SIG_IGN would raise
+    # in the helper (a traceback on the terminal): held back around the fork, then
+    # delivered to the parent as usual
+    held = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
     try:
         proc.start()
     except OSError:
         return
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, held)
     theirs.close()
     _helper = (proc, ours)
 
@@ -82,6 +90,20 @@ def stop() -> None:
             if proc.is_alive():
                 proc.kill()   # ours, by its PID; it holds nothing worth a clean end
                 proc.join(1.0)
+
+
+def kill_now() -> None:
+    """End the helper from a signal handler: no lock (the interrupted code may hold it),
+    no wait; the process is about to exit."""
+    helper = _helper
+    if helper is not None:
+        import os
+        import signal
+
+        try:
+            os.kill(helper[0].pid, signal.SIGKILL)
+        except OSError:
+            pass
 
 
 def position_step_info(servo: "ServoParams", kp: float, kv: float) -> dict:
@@ -108,16 +130,12 @@ def position_step_info(servo: "ServoParams", kp: float, kv: float) -> dict:
 
 def _serve(conn, parent_end) -> None:
     """The helper: import python-control, then answer until the parent's end closes."""
-    import os
     import signal
 
     from labrig.core.timing import mark
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    try:    # the free core only: the parent's fit threads come first
-        os.nice(19)
-    except OSError:
-        pass
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
     parent_end.close()   # the fork's copy; else the pipe would never see the parent end
     mark("helper-start")
     try:
