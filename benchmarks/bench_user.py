@@ -9,7 +9,9 @@ In ONE run, on this machine:
   8500 samples and 2 closed-loop runs of 4500 at 1 kHz) from a linear rig (its hidden
   Coulomb friction removed) and from the default rig (0.13 V of Coulomb friction);
 * the reference a typical user writes with python-control, per candidate (one parameter
-  set on all 6 runs), timed on a few candidates:
+  set on all 6 runs), timed on 3 candidates near the default rig, one before each of
+  labrig's timed runs (round robin: the reference and the run it is divided by see the
+  host in the same state; its speed drifts by tens of per cent within minutes here):
   - linear: build the model (`ServoParams(...).open_loop()` / `.closed_loop(kp, kv)`)
     and call `control.forced_response` per run;
   - Coulomb friction: a discrete-time `control.nlsys` (one forward-Euler step per sample,
@@ -21,7 +23,8 @@ In ONE run, on this machine:
   imports, numba cache load, the fit, identifiability, step metrics, the file written),
   median of 3 after one warm-up; the phase marks (`LABRIG_LAUNCHED_AT`) say when fitting
   started and ended. The ratio is (candidates the fit simulated, `nfev`, times the
-  reference's seconds per candidate) / labrig's whole-process seconds;
+  median of the reference's seconds per candidate taken beside that case's runs) /
+  labrig's whole-process seconds;
 * `labrig diagnose --auto` on a five-run sweep with two hidden effects and `labrig
   propose` on one confusable step (as benchmarks/bench_auto.py and bench_propose.py);
 * the first run after installation: `python -m labrig.model.warm` with an empty numba
@@ -29,28 +32,20 @@ In ONE run, on this machine:
 """
 from __future__ import annotations
 
+import json
 import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
 
-# the reference runs in this process: it gets BLAS's best setting for its many small
-# products, one thread (labrig's command line sets the same for itself). With
-# OpenBLAS's default threads the python-control reference took 0.30 s per candidate
-# here, against 0.19 s with one: a ratio against that would flatter labrig.
-os.environ["OPENBLAS_NUM_THREADS"] = "1"   # before numpy loads its BLAS
-os.environ["MKL_NUM_THREADS"] = "1"
+import numpy as np
 
-import json  # noqa: E402
-import statistics  # noqa: E402
-import subprocess  # noqa: E402
-import sys  # noqa: E402
-import tempfile  # noqa: E402
-import time  # noqa: E402
-from pathlib import Path  # noqa: E402
-
-import numpy as np  # noqa: E402
-
-import bench_auto  # noqa: E402
-import bench_propose  # noqa: E402
-from whole_process import machine, main  # noqa: E402
+import bench_auto
+import bench_propose
+from whole_process import machine, main
 
 HERE = Path(__file__).resolve().parent
 RESULTS = HERE / "results_user.json"
@@ -126,40 +121,56 @@ def reference_loop(rd, cand, tc_v=TC_V) -> None:
                 x = upd(0.0, x, (r.u[k],))
 
 
-def per_candidate(fn, rd, cands) -> float:
-    fn(rd, cands[0])  # imports and caches
-    ts = []
-    for c in cands:
-        t0 = time.perf_counter()
-        fn(rd, c)
-        ts.append(time.perf_counter() - t0)
-    return statistics.median(ts)
+def timed(fn, rd, cand) -> float:
+    t0 = time.perf_counter()
+    fn(rd, cand)
+    return time.perf_counter() - t0
+
+
+REFERENCES = {"linear": reference_linear, "coulomb": reference_coulomb, "loop": reference_loop}
 
 
 # -- measure ----------------------------------------------------------------------------
-def identify_rows(lin: Path, coul: Path, tmp: Path, refs: dict) -> dict:
+def identify_rows(lin: Path, coul: Path, tmp: Path, rd, cands) -> tuple[dict, dict]:
+    """labrig's four identify cases, each run 3 times after a warm-up; before each timed
+    run, the case's references on one candidate (round robin over ``cands``), so a
+    reference and the labrig run it is divided by see the host in the same state (it
+    drifts by tens of per cent within minutes here). Returns the rows and every
+    reference's timings."""
     cases = {"jfo_linear": (lin, "jfo", []), "jfo_coulomb": (coul, "jfo", ["coulomb_friction"]),
              "co_linear": (lin, "co", []), "co_coulomb": (coul, "co", ["coulomb_friction"])}
+    for fn in REFERENCES.values():
+        fn(rd, cands[0])  # imports and caches
+    ref_times: dict = {k: [] for k in REFERENCES}
     out = {}
     for key, (data, method, effects) in cases.items():
         args = ["identify", data, "--method", method, "--seed", "1", "-o", tmp / f"{key}.json",
                 "--force", "--json"] + (["--effects", ",".join(effects)] if effects else [])
+        kinds = ["coulomb", "loop"] if effects else ["linear"]
         run(*args)  # warm-up: the numba cache loaded once from disk before timing
-        rows = [run(*args) for _ in range(3)]
+        rows, refs = [], {k: [] for k in kinds}
+        for j in range(3):
+            for k in kinds:
+                refs[k].append(timed(REFERENCES[k], rd, cands[j % len(cands)]))
+            rows.append(run(*args))
+        for k in kinds:
+            ref_times[k] += refs[k]
         walls = [w for w, _, _ in rows]
         wall, p, marks = sorted(rows, key=lambda r: r[0])[1]
         doc = json.loads(p.stdout)
-        ref = refs["coulomb" if effects else "linear"]
+        ref = statistics.median(refs[kinds[0]])
         nfev = int(doc["nfev"])
         out[key] = {"seconds": round(statistics.median(walls), 2),
                     "all_seconds": [round(w, 2) for w in walls], "marks": marks,
                     "fit_seconds_reported": round(doc["seconds"], 2), "nfev": nfev,
+                    "reference_per_candidate_s": [round(t, 4) for t in refs[kinds[0]]],
                     "reference_s": round(nfev * ref, 1),
                     "ratio": round(nfev * ref / statistics.median(walls)),
                     "fitness": round(doc["fitness"], 4)}
         if effects:
-            out[key]["ratio_vs_bare_loop"] = round(nfev * refs["loop"] / statistics.median(walls))
-    return out
+            out[key]["ratio_vs_bare_loop"] = round(
+                nfev * statistics.median(refs["loop"]) / statistics.median(walls))
+    return out, ref_times
 
 
 def first_run() -> dict:
@@ -192,12 +203,12 @@ def measure() -> dict:
         rng = np.random.default_rng(1)
         truth = np.array([8.0, 0.0085, 5.2245e-5, 1.0e-5, 0.05])
         cands = [truth * 10.0 ** rng.uniform(-0.2, 0.2, 5) for _ in range(REF_CANDIDATES)]
-        refs = {"linear": per_candidate(reference_linear, rd, cands),
-                "coulomb": per_candidate(reference_coulomb, rd, cands),
-                "loop": per_candidate(reference_loop, rd, cands)}
-        res["reference_per_candidate_s"] = {k: round(v, 4) for k, v in refs.items()}
+        res["identify"], times = identify_rows(tmp / "lin", tmp / "coul", tmp, rd, cands)
+        res["reference_per_candidate_s"] = {k: round(statistics.median(v), 4)
+                                            for k, v in times.items()}
+        res["reference_range_s"] = {k: [round(min(v), 4), round(max(v), 4)]
+                                    for k, v in times.items()}
         res["samples"] = int(sum(len(r.u) for r in rd))
-        res["identify"] = identify_rows(tmp / "lin", tmp / "coul", tmp, refs)
     res["diagnose_auto"] = bench_auto.measure()
     res["propose"] = bench_propose.measure()
     res["first_run"] = first_run()

@@ -122,7 +122,11 @@ def test_readme_quotes_the_recorded_whole_process_benchmark():
     assert (f"fitting starts {marks['fit-start']:.2f} s after launch, the fit ends at "
             f"{marks['fit-end']:.2f} s, identifiability at {marks['identifiability-end']:.2f} s, "
             f"and the process ends at {marks['exit']:.2f} s") in prose
-    assert f"under {jfo['nfev'] * ref['linear'] / 1000:.1f} s" in prose
+    assert (f"from {marks['helper-start']:.2f} s to {marks['helper-ready']:.2f} s after launch"
+            in prose)
+    assert f"under {jfo['reference_s'] / 1000:.2f} s at this case's reference" in prose
+    rng = rec["reference_range_s"]["linear"]
+    assert f"the linear reference took {rng[0]:.2f}-{rng[1]:.2f} s per" in prose
     from labrig.model.warm import COMPILE_S
 
     assert f"compiling the simulator once (about {COMPILE_S} s on a 2-core machine" in prose

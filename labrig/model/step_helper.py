@@ -3,20 +3,23 @@ while the fit runs.
 
 An identified model's rise time, settling time and overshoot are python-control's
 ``step_info`` (:meth:`ServoParams.position_step_info`). Importing python-control brings
-scipy.signal, scipy.stats and matplotlib.pyplot with it: about 0.9 s here, on one core,
-after the fit, in every ``identify`` and ``diagnose`` a student waits for. The fit itself
-needs none of it, and until the first population is simulated the process runs on one
-core. So the command line forks one helper process at the start of those commands
-(:func:`start`); it imports python-control on the other core while the parent loads its
-kernels and fits, then answers each ``(servo, kp, kv)`` with the same function on the same
-libraries: the same numbers as in the process (a test compares them).
+scipy.signal, scipy.stats and matplotlib.pyplot with it: 0.9-1.6 s on one core here
+(the host's speed drifts), after the fit, in every ``identify`` and ``diagnose`` a
+student waits for. The fit needs none of it, and until its first population the process
+runs on one core. So the command line forks one helper process at the start of those
+commands (:func:`start`); it imports python-control on the other core while the parent
+imports and loads its kernels, then answers each ``(servo, kp, kv)`` with the same
+function on the same libraries: the same numbers as in the process (a test compares
+them). It runs at the parent's priority: made to yield (SCHED_IDLE, nice 19) it ended the
+README's JFO case 0.1 s sooner on an idle machine (medians of 8), but behind any other
+load it would starve and keep the parent waiting.
 
 Only a fresh command-line process starts a helper (:func:`allow`, from ``labrig.cli.run``):
 forking is safe there because no thread has started yet; a notebook, the lab page and the
 tests compute in their own process. The helper ignores Ctrl-C (the parent handles it),
 ends when the parent's end of its pipe closes, whatever way the parent ends, and every
-failure (no fork on this system, the helper gone, an answer slower than
-``TIMEOUT_S``) falls back to computing in the process.
+failure (no fork on this system, the helper gone, an answer slower than ``TIMEOUT_S``)
+falls back to computing in the process.
 """
 from __future__ import annotations
 
@@ -156,3 +159,4 @@ def _serve(conn, parent_end) -> None:
             conn.send(answer)
         except (OSError, ValueError):
             return
+
