@@ -58,27 +58,24 @@ def start() -> None:
     if threading.active_count() != 1:
         return
     import multiprocessing
+    import signal
 
-    try:
-        ctx = multiprocessing.get_context("fork")
-    except ValueError:   # no fork on this system: compute in the process
-        return
+    ctx = multiprocessing.get_context("fork")
     ours, theirs = ctx.Pipe()
     proc = ctx.Process(target=_serve, args=(theirs, ours), name="labrig-step-metrics",
                        daemon=True)
-    import signal
-
     # a Ctrl-C in the moment between the fork and the helper's own SIG_IGN would raise
     # in the helper (a traceback on the terminal): held back around the fork, then
     # delivered to the parent as usual
     held = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
     try:
         proc.start()
-    except OSError:
+    except OSError:   # no process to spare: compute in the process
+        ours.close()
         return
     finally:
         signal.pthread_sigmask(signal.SIG_SETMASK, held)
-    theirs.close()
+        theirs.close()
     _helper = (proc, ours)
 
 
