@@ -87,9 +87,16 @@ def measure() -> dict:
             page.get_by_text("The loop", exact=True).click()
             t1 = time.monotonic()
             page.locator(".lab-fit button").first.click()
-            time.sleep(1)
+            # what the student reads first: the model on the worst run, the diagnosis and
+            # the ladder; then the page is idle once the model is drawn on every other run
+            while not ("recommendation" in _text(page, ".lab-evidence")
+                       and page.locator(".lab-ladder img").count()
+                       and page.locator(".lab-overlay img").count()):
+                time.sleep(0.1)
+            res["click_results_shown_s"] = time.monotonic() - t1
+            time.sleep(0.5)
             while "working" in _text(page, ".lab-status"):
-                time.sleep(0.2)
+                time.sleep(0.1)
             res["click_fit_diagnose_s"] = time.monotonic() - t1
             b.close()
     finally:
@@ -119,8 +126,11 @@ def markdown(res: dict) -> str:
         f"| page interactive after launch | {f(res['interactive_s'])} s | 3 s |",
         f"| live view behind a 1 kHz run (median / 95 %) | {f(res['stream_lag_median_s'])} / "
         f"{f(res['stream_lag_p95_s'])} s | 0.5 s |",
-        f"| Fit the linear model (+ diagnosis, ladder) | {f(res['click_fit_diagnose_s'])} s | "
-        f"as the CLI: identify + diagnose {f(res['cli_identify_diagnose_s'])} s |"])
+        f"| Fit the linear model: the model on the worst run, the diagnosis and the ladder "
+        f"shown | {f(res.get('click_results_shown_s'))} s | as the CLI: identify + diagnose "
+        f"{f(res['cli_identify_diagnose_s'])} s |",
+        f"| ... and the model drawn on every other run (the page idle again) | "
+        f"{f(res['click_fit_diagnose_s'])} s | - |"])
 
 
 if __name__ == "__main__":

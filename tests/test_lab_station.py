@@ -57,3 +57,36 @@ def test_a_proposal_that_separates_nothing_is_not_played(tmp_path):
         assert not st.sweeping and not (tmp_path / "asked").exists()
     finally:
         st.close()
+
+
+@pytest.mark.slow
+def test_a_fit_shows_the_worst_run_first_and_draws_the_rest_after_the_diagnosis(tmp_path, rig):
+    """Fit the linear model: the rung comes back with the model on its worst run only (each
+    overlay costs about half a second to draw); the diagnosis and the ladder come next,
+    then the model on every other run, without another click."""
+    from conftest import sim_dataset, square_plan
+    from labrig.lab.serve import make_station
+
+    folder = sim_dataset(tmp_path, rig, square_plan(amps=(1.2, 1.6, 2.0), periods=1), seed=1)
+    st = make_station(folder, port=str(tmp_path / "ttyNONE"))
+    try:
+        st.fit_linear()
+        first = None
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < 300:
+            if st.poll() and first is None:
+                r = st.rungs[-1]
+                first = (list(r["overlays"]), r["worst"], st.diagnosis, st.worker.name)
+            r = st.rungs[-1] if st.rungs else None
+            if not st.busy() and r and st.ladder is not None and \
+                    len(r["overlays"]) == len(r["runs"]):
+                break
+            time.sleep(0.05)
+        drawn, worst, diagnosis, next_job = first
+        assert drawn == [worst] and diagnosis is None and next_job == "diagnose"
+        r = st.rungs[-1]
+        assert st.diagnosis is not None and st.ladder is not None
+        assert sorted(r["overlays"]) == sorted(r["runs"]) and len(r["runs"]) == 3
+        assert all(png[:8] == b"\x89PNG\r\n\x1a\n" for png in r["overlays"].values())
+    finally:
+        st.close()

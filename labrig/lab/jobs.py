@@ -40,8 +40,9 @@ def _runs(folders):
 
 def fit(folders, model_doc=None, add=(), remove=(), label="") -> dict:
     """A rung: the model (``model_doc``, or the linear model) with ``add`` effects added and
-    ``remove`` taken out, fitted on the runs (CO, the lab's seed), with its overlay on
-    every run."""
+    ``remove`` taken out, fitted on the runs (CO, the lab's seed), with its overlay on the
+    worst run (``runs`` names them all; :func:`overlays` draws the others: each figure
+    costs about half a second, and the diagnosis should not wait for them)."""
     import labrig.api as lr
     from labrig.loop.refit import without
 
@@ -54,12 +55,21 @@ def fit(folders, model_doc=None, add=(), remove=(), label="") -> dict:
     ident = lr.identify(runs, effects=list(add), model=base, seed=LAB_SEED)
     model = ident.model()
     ev = lr.compare(runs, model)
+    worst = ev.worst_run()["name"]
     return {"label": label or "linear model", "model": model.to_json(),
             "effects": model.names, "fit": ident.to_json(),
             "rmse_over_noise": ev.metrics["rmse_over_noise"],
             "fit_percent": ev.metrics["fit_percent"],
-            "overlays": {rr["name"]: _png(ev.plot(run=rr["name"])) for rr in ev.per_run},
-            "worst": ev.worst_run()["name"], "tables": _html(ev.table_rows())}
+            "runs": [rr["name"] for rr in ev.per_run], "worst": worst,
+            "overlays": {worst: _png(ev.plot(run=worst))}, "tables": _html(ev.table_rows())}
+
+
+def overlays(folders, model_doc, names) -> dict:
+    """The model on the runs ``names``: ``{name: PNG}`` (the figures :func:`fit` left)."""
+    import labrig.api as lr
+
+    ev = lr.compare(_runs(folders), _model(model_doc))
+    return {name: _png(ev.plot(run=name)) for name in names}
 
 
 def diagnose(folders, model_doc) -> dict:

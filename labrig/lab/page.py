@@ -86,7 +86,8 @@ class LabPage:
         self.status = pn.pane.Markdown("", css_classes=["lab-status"])
         self.progress = pn.indicators.Progress(active=False, visible=False, width=200)
         self.now = pn.pane.Markdown("", css_classes=["lab-rmse"])
-        self.run_pick = pn.widgets.Select(name="run", options=[], width=200)
+        self.run_pick = pn.widgets.Select(name="run", options=[], width=200,
+                                          css_classes=["lab-run-pick"])
         self.run_pick.param.watch(lambda e: self._show_overlay(), "value")
         self.overlay = pn.pane.HTML("", sizing_mode="stretch_width", css_classes=["lab-overlay"])
         self.ladder = pn.pane.HTML("", sizing_mode="stretch_width", css_classes=["lab-ladder"])
@@ -240,8 +241,9 @@ class LabPage:
 
     def _state(self) -> tuple:
         st = self.st
-        return (len(st.rungs), id(st.diagnosis), id(st.ladder), id(st.proposal),
-                id(st.prediction), id(st.decision))
+        return (len(st.rungs), len(st.rungs[-1]["overlays"]) if st.rungs else 0,
+                id(st.diagnosis), id(st.ladder), id(st.proposal), id(st.prediction),
+                id(st.decision))
 
     def _show_loop(self) -> None:
         st = self.st
@@ -252,7 +254,7 @@ class LabPage:
             self.now.object = (f"### rmse/noise {rm['overall']:.2f}\n"
                                f"model: {' + '.join(['linear'] + r['effects'])} "
                                "(1.00 is the noise floor)")
-            runs = list(r["overlays"])
+            runs = list(r["runs"])
             if self.run_pick.options != runs:
                 self.run_pick.options = runs
                 self.run_pick.value = r["worst"]
@@ -290,8 +292,15 @@ class LabPage:
                                     + "".join(st.decision.get("tables", [])))
 
     def _show_overlay(self) -> None:
-        if self.st.rungs and self.run_pick.value in self.st.rungs[-1]["overlays"]:
-            self.overlay.object = _img(self.st.rungs[-1]["overlays"][self.run_pick.value])
+        if not self.st.rungs:
+            return
+        pngs = self.st.rungs[-1]["overlays"]
+        if self.run_pick.value in pngs:
+            self.overlay.object = _img(pngs[self.run_pick.value])
+            return
+        self.overlay.object = f"<p>drawing the model on {_esc(self.run_pick.value)}…</p>"
+        if self.owner and not self.st.busy():   # a Cancel stopped the drawing: again
+            self.st.draw_overlays()
 
 
 def _esc(text: str) -> str:

@@ -241,10 +241,14 @@ class Station:
             self.diagnosis = value
             if self._from_auto:   # the search's own ladder stays
                 self._from_auto = False
+                self.draw_overlays()
             else:
                 self.submit("ladder", jobs.ladder, [self.folder], [r["model"] for r in self.rungs])
         elif name == "ladder":
             self.ladder = value
+            self.draw_overlays()
+        elif name == "overlays":
+            self.rungs[-1]["overlays"].update(value)
         elif name == "auto":
             self.ladder = {"json": {"steps": value["json"]["ladder"]}, "figure": value["figure"],
                            "tables": value["tables"]}
@@ -255,6 +259,14 @@ class Station:
         elif name == "decide":
             self.decision = value
         return True
+
+    def draw_overlays(self) -> None:
+        """Last in a fit's chain (and again after a Cancel, when a run is picked): the model
+        on the runs the fit did not draw."""
+        r = self.rungs[-1] if self.rungs else None
+        rest = [n for n in r["runs"] if n not in r["overlays"]] if r else []
+        if rest:
+            self.submit("overlays", jobs.overlays, [self.folder], r["model"], rest)
 
     def close(self) -> None:
         self.stop()

@@ -32,7 +32,12 @@ def _call(fn, args, kw):
 
 
 def _warm() -> bool:
-    import labrig.loop.search  # noqa: F401  (the loop's modules, and numba's cache)
+    """While the page opens: the loop's modules, numba's cache, and python-control (the
+    step metrics of every fit; its import is the slowest), so a first click waits for
+    none of them."""
+    import control  # noqa: F401
+
+    import labrig.loop.search  # noqa: F401
     from labrig.model.warm import ready
 
     ready()
