@@ -222,7 +222,8 @@ class LabPage:
         self.status.object = (
             f"working: {st.worker.name} ({time.monotonic() - st.worker.started:.0f} s)"
             + "".join(f"  \n{line}" for line in rungs[-6:])
-            + (f"  \n{st.log[-1].splitlines()[0]}" if st.log else "")) if busy else ""
+            + (f"  \n{st.log[-1].splitlines()[0]}" if st.log else "")) if busy else (
+            "drawing the model on the other runs" if st.drawing() else "")
         self._paint_error()
         for w in (self.fit_btn, self.auto_btn, self.add_btn, self.rm_btn, self.rep_btn,
                   self.propose_btn, self.start):
@@ -299,7 +300,7 @@ class LabPage:
             self.overlay.object = _img(pngs[self.run_pick.value])
             return
         self.overlay.object = f"<p>drawing the model on {_esc(self.run_pick.value)}…</p>"
-        if self.owner and not self.st.busy():   # a Cancel stopped the drawing: again
+        if self.owner and self.st.idle():   # a Cancel stopped the drawing: again
             self.st.draw_overlays()
 
 

@@ -76,6 +76,7 @@ class Station:
         self.log: list[str] = []
         self._bridge = None
         self._from_auto = False
+        self._queued = None                # a click that came while overlays were drawn
         self.on_close: list = []
         s = rig.sensors_sidecar()
         self._kt = s.get("tacho_v_per_rad_s")
@@ -167,11 +168,24 @@ class Station:
         return out
 
     def busy(self) -> bool:
-        return self.worker.busy
+        """A click must wait: a job runs, other than the background drawing of overlays
+        (a click overtakes that after its current figure), or a click is already queued."""
+        return self._queued is not None or (self.worker.busy and not self.drawing())
+
+    def drawing(self) -> bool:
+        """The worker draws the model on the runs the fit left, one run per job."""
+        return self.worker.busy and self.worker.name == "overlays"
+
+    def idle(self) -> bool:
+        """Nothing running, no result waiting for :meth:`poll`, nothing queued."""
+        return not self.worker.pending and self._queued is None
 
     def submit(self, name, fn, *args, **kw) -> None:
         self.error = ""
         self.log = []
+        if self.drawing():   # after this figure (about half a second), not after them all
+            self._queued = (name, fn, args, kw)
+            return
         self.worker.submit(name, fn, *args, **kw)
 
     def fit_linear(self) -> None:
@@ -218,6 +232,7 @@ class Station:
         self.submit("decide", jobs.decide, self.folders(), self.model())
 
     def cancel(self) -> None:
+        self._queued = None
         self.worker.cancel()
         self.error = "cancelled"
 
@@ -232,7 +247,14 @@ class Station:
             return False
         name, value, error = done
         if error is not None:
+            self._queued = None
             self.error = str(error).splitlines()[0] if str(error) else type(error).__name__
+            return True
+        if self._queued is not None:   # a click came while a figure was drawn: its turn
+            if name == "overlays" and self.rungs:   # (a new linear fit has cleared them)
+                self.rungs[-1]["overlays"].update(value)
+            queued, self._queued = self._queued, None
+            self.submit(queued[0], queued[1], *queued[2], **queued[3])
             return True
         if name == "fit":
             self.rungs.append(value)
@@ -249,6 +271,7 @@ class Station:
             self.draw_overlays()
         elif name == "overlays":
             self.rungs[-1]["overlays"].update(value)
+            self.draw_overlays()
         elif name == "auto":
             self.ladder = {"json": {"steps": value["json"]["ladder"]}, "figure": value["figure"],
                            "tables": value["tables"]}
@@ -261,12 +284,12 @@ class Station:
         return True
 
     def draw_overlays(self) -> None:
-        """Last in a fit's chain (and again after a Cancel, when a run is picked): the model
-        on the runs the fit did not draw."""
+        """Last in a fit's chain, in the background (and again after a Cancel, when a run
+        is picked): the model on the runs the fit did not draw."""
         r = self.rungs[-1] if self.rungs else None
         rest = [n for n in r["runs"] if n not in r["overlays"]] if r else []
-        if rest:
-            self.submit("overlays", jobs.overlays, [self.folder], r["model"], rest)
+        if rest:   # one run per job: a click waits for one figure at most
+            self.submit("overlays", jobs.overlays, [self.folder], r["model"], rest[:1])
 
     def close(self) -> None:
         self.stop()

@@ -64,6 +64,11 @@ class Worker:
     def busy(self) -> bool:
         return self._job is not None and not self._job.ready()
 
+    @property
+    def pending(self) -> bool:
+        """A job running, or finished and not yet taken by :meth:`poll`."""
+        return self._job is not None
+
     def submit(self, name: str, fn, *args, **kw) -> None:
         if self.busy:
             raise RuntimeError(f"busy with {self.name}")
