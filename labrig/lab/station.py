@@ -247,8 +247,11 @@ class Station:
             return False
         name, value, error = done
         if error is not None:
-            self._queued = None
-            self.error = str(error).splitlines()[0] if str(error) else type(error).__name__
+            message = str(error).splitlines()[0] if str(error) else type(error).__name__
+            queued, self._queued = self._queued, None
+            if queued is not None:   # a figure failed; the click that waited on it still runs
+                self.submit(queued[0], queued[1], *queued[2], **queued[3])
+            self.error = message
             return True
         if self._queued is not None:   # a click came while a figure was drawn: its turn
             if name == "overlays" and self.rungs:   # (a new linear fit has cleared them)
