@@ -210,6 +210,8 @@ def test_the_loop_on_one_page_agrees_with_the_cli(browser, tmp_path):
         assert "coulomb_friction" in page.text(".lab-rmse")
         assert after < 1.3 < linear
         assert "+ coulomb_friction" in page.text(".lab-ladder")
+        # the run on screen is drawn first once the new rung's diagnosis is in
+        page.wait(lambda: page.page.locator(".lab-overlay img").count() == 1, 30, "the overlay")
         page.shot("loop")
         watcher.close()
         page.close()

@@ -293,6 +293,8 @@ class LabPage:
                                     + "".join(st.decision.get("tables", [])))
 
     def _show_overlay(self) -> None:
+        if self.owner:
+            self.st.wanted = self.run_pick.value
         if not self.st.rungs:
             return
         pngs = self.st.rungs[-1]["overlays"]

@@ -77,6 +77,7 @@ class Station:
         self._bridge = None
         self._from_auto = False
         self._queued = None                # a click that came while overlays were drawn
+        self.wanted: str | None = None     # the run the page shows: drawn first
         self.on_close: list = []
         s = rig.sensors_sidecar()
         self._kt = s.get("tacho_v_per_rad_s")
@@ -291,6 +292,7 @@ class Station:
         is picked): the model on the runs the fit did not draw."""
         r = self.rungs[-1] if self.rungs else None
         rest = [n for n in r["runs"] if n not in r["overlays"]] if r else []
+        rest.sort(key=lambda n: n != self.wanted)   # the run on screen first
         if rest:   # one run per job: a click waits for one figure at most
             self.submit("overlays", jobs.overlays, [self.folder], r["model"], rest[:1])
 
