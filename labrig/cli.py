@@ -168,6 +168,10 @@ def _main(argv=None) -> int:
         if not getattr(args, "func", None):
             parser.print_help(sys.stderr)
             return 2
+        if getattr(args.func, "fits", False):
+            from labrig.model import step_helper   # python-control, on the other core
+
+            step_helper.start()
         return int(args.func(args) or 0)
     except KeyboardInterrupt:
         print("labrig: interrupted; finished runs are kept, the output is at 0 V", file=sys.stderr)

@@ -24,14 +24,11 @@ def _dump(obj, path):
     atomic_write(Path(path), json.dumps(obj, indent=2, default=json_default) + "\n")
 
 
-@command("demo", "the whole lab on the simulated rig: sweep to report, in a few minutes")
+@command("demo", "the whole lab on the simulated rig: sweep to report, in a few minutes", fits=True)
 def cmd_demo(args):
     """Run the main job on the simulated rig: sweep, analyse, identify with JFO, PSO and
     CO, diagnose what the model misses, add the recommended effect, compare, error
     ladder, report. Everything lands in the output folder."""
-    from labrig.model import step_helper
-
-    step_helper.start()   # python-control for the step metrics, on the other core
     from labrig.bridge.sweep import sweep
     from labrig.analysis import analyse
     from labrig.bridge.sim import SimRig

@@ -61,15 +61,14 @@ def read_for_fit(args):
     return choose_way(read_dataset(args.data), getattr(args, "through", "auto"))
 
 
-@command("identify", "fit the plant (R, L, J, B, K; J, B; or M, Fv) + effects with JFO, PSO or CO")
+@command("identify",
+         "fit the plant (R, L, J, B, K; J, B; or M, Fv) + effects with JFO, PSO or CO",
+         fits=True)
 def cmd_identify(args):
     """Identify the plant model on a data set (the plant the runs were recorded on:
     voltage, torque or force driven). Reports the identifiable combinations (Km, tau_m,
     tau_e) first, then the plant's parameters with identifiability warnings, and the
     physical parameters in the axis's units."""
-    from labrig.model import step_helper
-
-    step_helper.start()   # python-control for the step metrics, on the other core
     from labrig.identification.config_file import load_identify_config
     from labrig.identification.engine import identify
     from labrig.identification.table import all_warnings, format_identification, identification_dict

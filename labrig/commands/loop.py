@@ -70,15 +70,12 @@ def _configure_compare(p):
 cmd_compare.configure = _configure_compare
 
 
-@command("diagnose", "where the model fails and which physical effect is missing")
+@command("diagnose", "where the model fails and which physical effect is missing", fits=True)
 def cmd_diagnose(args):
     """Locate the model's error (by regime and amplitude, against each channel's noise
     floor), then rank every catalogue effect the model lacks: re-fitted from scanned
     starts, compared on BIC and by cross-validation, each with its evidence and the
     experiment that would confirm it."""
-    from labrig.model import step_helper
-
-    step_helper.start()   # python-control for the step metrics, on the other core
     from labrig.loop.diagnose import diagnose
     from labrig.commands.identification import parse_assignments
     from labrig.commands.registry import refuse_existing
@@ -282,14 +279,11 @@ def _configure_diagnose(p):
 cmd_diagnose.configure = _configure_diagnose
 
 
-@command("ladder", "the error falling step by step as effects are added")
+@command("ladder", "the error falling step by step as effects are added", fits=True)
 def cmd_ladder(args):
     """Evaluate a chain of models (`--models m0.json,m1.json,...`, as saved by
     `labrig identify --model PREV --effects NEW -o NEXT`), or, without --models, run the
     loop automatically: identify, diagnose, add the recommended effect, repeat."""
-    from labrig.model import step_helper
-
-    step_helper.start()   # python-control for the step metrics, on the other core
     from labrig.loop.ladder import evaluate_ladder
     from labrig.loop.search import auto_ladder
     from labrig.core.figures import save

@@ -13,9 +13,12 @@ from pathlib import Path
 COMMANDS: dict = {}
 
 
-def command(name, help):
-    """Register ``func(args)`` as a subcommand; ``func.configure(parser)`` adds options."""
+def command(name, help, fits=False):
+    """Register ``func(args)`` as a subcommand; ``func.configure(parser)`` adds options.
+    ``fits``: the command fits models and reports their step metrics (the command line
+    starts its step-metrics helper for it, ``labrig.model.step_helper``)."""
     def deco(func):
+        func.fits = fits
         COMMANDS[name] = (func, help)
         return func
     return deco

@@ -249,16 +249,13 @@ class Station:
         name, value, error = done
         if error is not None:
             message = str(error).splitlines()[0] if str(error) else type(error).__name__
-            queued, self._queued = self._queued, None
-            if queued is not None:   # a figure failed; the click that waited on it still runs
-                self.submit(queued[0], queued[1], *queued[2], **queued[3])
+            self._submit_queued()   # a figure failed; the click that waited on it still runs
             self.error = message
             return True
         if self._queued is not None:   # a click came while a figure was drawn: its turn
             if name == "overlays" and self.rungs:   # (a new linear fit has cleared them)
                 self.rungs[-1]["overlays"].update(value)
-            queued, self._queued = self._queued, None
-            self.submit(queued[0], queued[1], *queued[2], **queued[3])
+            self._submit_queued()
             return True
         if name == "fit":
             self.rungs.append(value)
@@ -286,6 +283,11 @@ class Station:
         elif name == "decide":
             self.decision = value
         return True
+
+    def _submit_queued(self) -> None:
+        if self._queued is not None:
+            (name, fn, args, kw), self._queued = self._queued, None
+            self.submit(name, fn, *args, **kw)
 
     def draw_overlays(self) -> None:
         """Last in a fit's chain, in the background (and again after a Cancel, when a run
