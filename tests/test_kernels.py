@@ -102,3 +102,35 @@ def test_closed_loop_pieces_are_as_accurate_as_the_substeps_they_replace(tmp_pat
     ow, ot = (np.sqrt(np.mean((o - fine[k]) ** 2)) for o, k in ((old_w, "w"), (old_th, "theta")))
     assert ew < 0.2 * qw and et < 0.2 * qt, (ew / qw, et / qt)
     assert ew <= 1.05 * ow and et <= 1.05 * ot, (ew, ow, et, ot)
+
+
+def test_zero_order_hold_is_the_matrix_exponential():
+    """The simulator's exact ZOH (plain loops over the three non-zero rows) against
+    scipy's expm of the augmented matrix, with and without a fractional delay."""
+    from scipy.linalg import expm
+
+    from labrig.model.expm import zoh_batch
+    from labrig.model.simulate import _plant_matrices
+
+    rng = np.random.default_rng(3)
+    P, h = 12, 1e-3
+    prm = np.zeros((P, 14))
+    prm[:, :5] = np.array([8.0, 0.0085, 5.2245e-5, 1.0e-5, 0.05]) * 10.0 ** rng.uniform(
+        -0.5, 0.5, (P, 5))
+    prm[:, 13] = prm[:, 4]
+    A, bs, bf = _plant_matrices(prm)
+    A[:, 0, 2] -= 4.0 / 30.0 / prm[:, 1]  # a closed loop's position feedback
+    frac = np.where(np.arange(P) % 2 == 0, 0.0, rng.uniform(0.05, 0.95, P))
+    Ad, g_old, g_new, gf = zoh_batch(A, bs, bf, frac, h)
+    for p in range(P):
+        M = np.zeros((5, 5))
+        M[:3, :3], M[:3, 3], M[:3, 4] = A[p], bs[p], bf[p]
+        E1, E2 = expm(M * frac[p] * h), expm(M * (1.0 - frac[p]) * h)
+        # x+ = E2 (E1 x + switch-part) : the old input over frac, the new over the rest
+        np.testing.assert_allclose(Ad[p], E2[:3, :3] @ E1[:3, :3], rtol=1e-12, atol=1e-15)
+        np.testing.assert_allclose(g_old[p], E2[:3, :3] @ E1[:3, 3], rtol=1e-12, atol=1e-18)
+        np.testing.assert_allclose(g_new[p], E2[:3, 3], rtol=1e-12, atol=1e-18)
+        np.testing.assert_allclose(gf[p], E2[:3, :3] @ E1[:3, 4] + E2[:3, 4], rtol=1e-12,
+                                   atol=1e-18)
+        if frac[p] == 0.0:
+            assert not g_old[p].any()

@@ -35,14 +35,15 @@ from labrig.model.layout import (BLOCK, C_A, C_ASYM, C_D, C_TC, C_TS, C_U0, C_VM
                                  R_E1, R_E2, R_FLAG, R_FRIC, R_GAP, R_GF0, R_GF1, R_GF2, R_GN0,
                                  R_GN1, R_GN2, R_GO0, R_GO1, R_GO2, R_I, R_I0, R_KK, R_MAP,
                                  R_PL, R_PL0, R_RR, R_SLOT, R_SNEW, R_SOLD, R_TC, R_TH, R_TH0,
-                                 R_TS, R_W, R_W0, R_XN, SMALL, S_POS, T_OK)
+                                 R_TS, R_W, R_W0, R_XN, SMALL, STEADY, S_POS, T_OK)
 from labrig.model.loop_kernel import loop_sample, loop_slot
 
 
 @numba.njit(cache=True, error_model="numpy")
 def _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, mode):
     """The exact update of every lane of a block through one sample; returns 1 if
-    friction needs some lane's sample redone (their ``R_FLAG`` is 1).
+    friction needs some lane's sample redone (their ``R_FLAG`` is 1), + 2 if some lane
+    with friction ends the sample at rest (the next sample needs the stuck rotor's build).
 
     Branch-free so that it vectorises: every term is computed for every lane in the order
     of the per-candidate code, and a term that is zero for a lane (no friction in this
@@ -56,7 +57,9 @@ def _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, mode):
     fr = mode & FRICTION
     pa = mode & PLAY
     mv = mode & MOVING
+    st = mode & STEADY
     nflag = 0
+    nrest = 0
     for j in range(q):
         i = X[R_I * B + j]
         w = X[R_W * B + j]
@@ -100,18 +103,18 @@ def _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, mode):
             if mv:  # no lane at rest: nothing held (hold needs w == 0)
                 i2 = i
             else:
-                s_prev = X[R_SOLD * B + j]
-                if fb:
-                    v1 = kakp * (s_prev - kpot * th / N)
-                    v2 = kakp * (s_new - kpot * th / N)
-                else:
-                    v1 = s_prev
-                    v2 = s_new
                 rr = X[R_RR * B + j]
                 kk = X[R_KK * B + j]
                 ts = X[R_TS * B + j]
-                i1 = v1 / rr + (i - v1 / rr) * X[R_E1 * B + j]
-                i2 = v2 / rr + (i1 - v2 / rr) * X[R_E2 * B + j]
+                v2 = kakp * (s_new - kpot * th / N) if fb else s_new
+                v2r = v2 / rr
+                if st:  # the same input at both ends: the same drive, bit for bit
+                    v1r = v2r
+                else:
+                    s_prev = X[R_SOLD * B + j]
+                    v1r = (kakp * (s_prev - kpot * th / N) if fb else s_prev) / rr
+                i1 = v1r + (i - v1r) * X[R_E1 * B + j]
+                i2 = v2r + (i1 - v2r) * X[R_E2 * B + j]
                 hold = fric & (w == 0.0) & (abs(kk * i1) <= ts) & (abs(kk * i2) <= ts)
             # breaking away, or the speed reaches zero inside the sample: redone alone
             f = 1 if fric & (not hold) & ((w == 0.0) | (nw * w <= 0.0)) else 0
@@ -123,6 +126,7 @@ def _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, mode):
             ni = i2 if hold else ni
             nw = w if hold else nw
             nt = th if hold else nt
+            nrest |= 1 if fric & (nw == 0.0) else 0
         if pa:
             X[R_PL0 * B + j] = pl
             x = nt / N  # the play operator, as _play
@@ -133,7 +137,7 @@ def _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, mode):
         X[R_I * B + j] = ni
         X[R_W * B + j] = nw
         X[R_TH * B + j] = nt
-    return nflag
+    return nflag | (nrest << 1)
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -223,6 +227,7 @@ def _block(p0, p1, s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed, S, c, wm
         sp = np.zeros(n + pad)
         for k in range(n):
             sp[k + pad] = s[k, 0]
+    rest = True  # every lane starts at rest (w = 0)
     for k in range(n):
         wmk = wm[k]
         tmk = tm[k]
@@ -286,36 +291,40 @@ def _block(p0, p1, s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed, S, c, wm
                             for r in range(T_OK):
                                 X[(R_CUR + r) * B + j] = table[p, slot, r]
             continue
-        moving = False
-        if mode & FRICTION:  # no lane at rest under friction: the build without the stuck rotor
-            rest = False
-            for j in range(q):
-                rest |= (X[R_FRIC * B + j] != 0.0) & (X[R_W * B + j] == 0.0)
-            moving = not rest
+        # friction: the build without the stuck rotor when no lane is at rest, and with
+        # one division for it when the shared input did not change
+        moving = (mode & FRICTION) != 0 and not rest
+        steady = shared and not delay and k > 0 and s[k, 0] == s[k - 1, 0]
         if mode == 0:  # each call site a constant mode: its own vectorised build
-            nflag = _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, 0)
+            r = _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, 0)
         elif mode == FRICTION and moving:
-            nflag = _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, 20)
+            r = _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, 20)
+        elif mode == FRICTION and steady:
+            r = _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, 36)
         elif mode == FRICTION:
-            nflag = _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, 4)
+            r = _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, 4)
         elif mode == FEEDBACK:
-            nflag = _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, 1)
+            r = _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, 1)
         elif mode == DELAY:
-            nflag = _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, 2)
+            r = _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, 2)
         elif mode == FEEDBACK | DELAY:
-            nflag = _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, 3)
+            r = _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, 3)
         elif mode == FEEDBACK | FRICTION and moving:
-            nflag = _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, 21)
+            r = _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, 21)
+        elif mode == FEEDBACK | FRICTION and steady:
+            r = _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, 37)
         elif mode == FEEDBACK | FRICTION:
-            nflag = _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, 5)
+            r = _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, 5)
         elif mode == DELAY | FRICTION | PLAY and moving:
-            nflag = _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, 30)
+            r = _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, 30)
         elif mode == DELAY | FRICTION | PLAY:
-            nflag = _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, 14)
+            r = _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, 14)
         elif moving:
-            nflag = _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, 31)
+            r = _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, 31)
         else:
-            nflag = _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, 15)
+            r = _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, 15)
+        nflag = r & 1
+        rest = (r & 2) != 0
         if nflag > 0:  # the few samples the exact update cannot take, one at a time
             for j in range(q):
                 if X[R_FLAG * B + j] != 0.0:
@@ -327,6 +336,7 @@ def _block(p0, p1, s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed, S, c, wm
                     X[R_W * B + j] = nw
                     X[R_TH * B + j] = nt
                     X[R_PL * B + j] = npl
+                    rest |= (X[R_FRIC * B + j] != 0.0) & (nw == 0.0)
     for j in range(q):
         if not skip[p0 + j]:
             sse[p0 + j] = X[R_ACC * B + j]

@@ -29,7 +29,7 @@ import numpy as np
 
 from labrig.core.errors import UserError
 from labrig.model.effects import AsymmetricDeadband, Asymmetry, Deadband, Effect, Offset, Saturation, ordered
-from labrig.model.expm import expm_batch, expm_small
+from labrig.model.expm import zoh_batch
 from labrig.model.layout import (C_A, C_ASYM, C_D, C_KE, C_TC, C_TD, C_TS, C_U0, C_VMAX,
                                  MAP_COLUMNS, N_SLOTS, S_FLAT, S_NEG, S_NEG_GAP, S_POS,
                                  S_POS_GAP, SLOT_W, T_A, T_GF, T_GN, T_GO, T_OK)
@@ -334,26 +334,11 @@ def _plant_matrices(prm):
     return A, bs, bf
 
 
-def _zoh(A, bs, bf, frac, h, expm=expm_batch):
+def _zoh(A, bs, bf, frac, h):
     """Exact ZOH of x' = A x + bs s + bf Tf over one sample whose input switches from
     s_old to s_new at ``frac`` of it (a fractional delay): Ad, g_old, g_new, g_f."""
-    P = A.shape[0]
-    M = np.zeros((P, 5, 5))
-    M[:, :3, :3] = A
-    M[:, :3, 3] = bs
-    M[:, :3, 4] = bf
-    E2 = expm(M * ((1.0 - frac) * h)[:, None, None])
-    if not np.any(frac > 0):
-        # no fractional delay: the first part of the sample is empty (E1 = I), so the
-        # products with it are E2's own columns (and zeros); taken as they are
-        return (E2[:, :3, :3], np.zeros((P, 3)), E2[:, :3, 3], E2[:, :3, 4] + 0.0)
-    E1 = expm(M * (frac * h)[:, None, None])
-    A1, A2 = E1[:, :3, :3], E2[:, :3, :3]
-    Ad = A2 @ A1
-    g_old = np.einsum("pij,pj->pi", A2, E1[:, :3, 3])
-    g_new = E2[:, :3, 3]
-    gf = np.einsum("pij,pj->pi", A2, E1[:, :3, 4]) + E2[:, :3, 4]
-    return Ad, g_old, g_new, gf
+    return zoh_batch(np.ascontiguousarray(A), np.ascontiguousarray(bs),
+                     np.ascontiguousarray(bf), np.ascontiguousarray(frac, dtype=float), float(h))
 
 
 def _discretise(prm, run: RunData, frac):
@@ -369,7 +354,7 @@ def _discretise(prm, run: RunData, frac):
         A[:, 0, 1] -= run.Ka * run.kv * run.Kt / L
         A[:, 0, 2] -= run.Ka * run.kp * run.Kpot / run.N / L
         bs = bs * run.Ka * run.kp
-    return tuple(np.ascontiguousarray(x) for x in _zoh(A, bs, bf, frac, run.dt))
+    return _zoh(A, bs, bf, frac, run.dt)
 
 
 def _loop_table(prm, run: RunData, frac, substeps: int):
@@ -406,7 +391,7 @@ def _loop_table(prm, run: RunData, frac, substeps: int):
             A[:, 0, 1] -= run.Ka * gain[rows] * run.kv * run.Kt / Lf
             if pot:
                 A[:, 0, 2] -= run.Ka * gain[rows] * run.kp * run.Kpot / run.N / Lf
-        Ad, g_old, g_new, gf = _zoh(A, bs[rows], bf[rows], frac[rows], run.dt, expm_small)
+        Ad, g_old, g_new, gf = _zoh(A, bs[rows], bf[rows], frac[rows], run.dt)
         row = T[rows, slot]
         row[:, T_A:T_A + 9] = Ad.reshape(-1, 9)
         row[:, T_A + 8] -= 1.0  # a22 - 1, as the update adds theta itself

@@ -24,7 +24,7 @@ def _dispatchers():
     from labrig.model import candidate_kernel, expm, kernels, residual_rows
 
     return [kernels.population_par, candidate_kernel.each_par, candidate_kernel.each_ser,
-            expm.expm_par, expm.expm_ser, expm.expm_small, residual_rows.residual_rows]
+            expm.zoh_batch, residual_rows.residual_rows]
 
 
 def _sources() -> list[str]:
@@ -72,7 +72,7 @@ def _workload() -> None:
     """Every driver and mode on a tiny problem, with the argument types the simulator
     passes: open and closed loop, friction, delay and play, an input map, trajectories and
     fitness, one candidate at a time and the population kernel (threads from 16)."""
-    from labrig.model.expm import expm_batch, expm_small
+    from labrig.model.expm import zoh_batch
     from labrig.model.kernels import run_kernels
     from labrig.model.residual_rows import residual_rows
     from labrig.model.layout import (C_A, C_ASYM, C_D, C_TC, C_TS, C_VMAX, MAP_COLUMNS, N_SLOTS,
@@ -84,12 +84,9 @@ def _workload() -> None:
     # a Jacobian's residual rows
     residual_rows(np.empty((3, n)), 0, u, np.zeros((3, n)), np.arange(n), 1.0)
     for P in (3, 20, 40):
-        M = np.zeros((P, 5, 5))
-        M[:, 0, 0], M[:, 1, 1] = -900.0, -0.2
-        E = expm_batch(M * 1e-3)  # the serial and (from 32) the threaded expm
-        expm_small(M * 1e-3)  # the loop tables' expm
-        Ad = np.ascontiguousarray(E[:, :3, :3])
-        g = np.ascontiguousarray(E[:, :3, 3])
+        A = np.zeros((P, 3, 3))
+        A[:, 0, 0], A[:, 1, 1] = -900.0, -0.2
+        Ad, _, g, _ = zoh_batch(A, np.zeros((P, 3)), np.zeros((P, 3)), np.zeros(P), 1e-3)
         # (a closed loop with its map: each build of the loop's lanes, kernels._loop_sample)
         for closed, nonlinear, mapped, extra in (
                 (0, False, False, ()), (0, False, True, (C_TC,)), (1, False, False, (C_A,)),
