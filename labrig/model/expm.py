@@ -14,6 +14,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from labrig.model.layout import T_A, T_GF, T_GN, T_GO
+
 #: Taylor terms after the scaling (the norm at most 0.5: the last term below 1e-21)
 TERMS = 18
 
@@ -119,3 +121,32 @@ def zoh_batch(A, bs, bf, frac, h):
                 g_new[p, r] = G2[r, 0]
                 gf[p, r] = G2[r, 1]
     return Ad, g_old, g_new, gf
+
+
+
+@numba.njit(cache=True, nogil=True)
+def loop_slot_fill(T, slot, A0, bs, bf, frac, h, L, gain, Ka, kv, Kt, kp, Kpot, N, loop, pot,
+                   full):
+    """One slot of a closed loop's table ``T`` (P, N_SLOTS, SLOT_W), in place: the exact
+    ZOH of the plant ``A0`` (P, 3, 3) in one piece of the drive, written as the lanes read
+    it (Ad with a22 - 1, then g_old, g_new, g_f) for the candidates in ``full``.
+    ``loop``: the loop is closed through the drive's gain ``gain`` (P,) in this piece (the
+    speed's feedback, and with ``pot`` the position's); otherwise it is open (the flat
+    piece). The feedback terms as numpy forms them, left to right."""
+    P = A0.shape[0]
+    A = A0.copy()
+    if loop:
+        for p in range(P):
+            A[p, 0, 1] -= Ka * gain[p] * kv * Kt / L[p]
+            if pot:
+                A[p, 0, 2] -= Ka * gain[p] * kp * Kpot / N / L[p]
+    Ad, g_old, g_new, gf = zoh_batch(A, bs, bf, frac, h)
+    for p in range(P):
+        if full[p]:
+            for r in range(3):
+                for q in range(3):
+                    T[p, slot, T_A + 3 * r + q] = Ad[p, r, q]
+                T[p, slot, T_GO + r] = g_old[p, r]
+                T[p, slot, T_GN + r] = g_new[p, r]
+                T[p, slot, T_GF + r] = gf[p, r]
+            T[p, slot, T_A + 8] -= 1.0  # a22 - 1, as the update adds theta itself

@@ -29,10 +29,10 @@ import numpy as np
 
 from labrig.core.errors import UserError
 from labrig.model.effects import AsymmetricDeadband, Asymmetry, Deadband, Effect, Offset, Saturation, ordered
-from labrig.model.expm import zoh_batch
+from labrig.model.expm import loop_slot_fill, zoh_batch
 from labrig.model.layout import (C_A, C_ASYM, C_D, C_KE, C_TC, C_TD, C_TS, C_U0, C_VMAX,
                                  MAP_COLUMNS, N_SLOTS, S_FLAT, S_NEG, S_NEG_GAP, S_POS,
-                                 S_POS_GAP, SLOT_W, T_A, T_GF, T_GN, T_GO, T_OK)
+                                 S_POS_GAP, SLOT_W, T_OK)
 from labrig.model.kernels import run_kernels
 
 # kernel parameter columns: R, L, J, B, K (labrig.model.plants: every plant's kernel
@@ -382,23 +382,13 @@ def _loop_table(prm, run: RunData, frac, substeps: int):
     if not full.any():
         return T
 
-    rows = slice(None) if full.all() else full   # (a slice: views, not copies)
-
     def fill(slot, gain, pot):
-        A = A0[rows].copy()
-        Lf = L[rows]
-        if gain is not None:  # (P,) the asymmetry's gain per candidate
-            A[:, 0, 1] -= run.Ka * gain[rows] * run.kv * run.Kt / Lf
-            if pot:
-                A[:, 0, 2] -= run.Ka * gain[rows] * run.kp * run.Kpot / run.N / Lf
-        Ad, g_old, g_new, gf = _zoh(A, bs[rows], bf[rows], frac[rows], run.dt)
-        row = T[rows, slot]
-        row[:, T_A:T_A + 9] = Ad.reshape(-1, 9)
-        row[:, T_A + 8] -= 1.0  # a22 - 1, as the update adds theta itself
-        row[:, T_GO:T_GO + 3] = g_old
-        row[:, T_GN:T_GN + 3] = g_new
-        row[:, T_GF:T_GF + 3] = gf
-        T[rows, slot] = row
+        loop = gain is not None
+        loop_slot_fill(T, slot, A0, bs, bf, np.ascontiguousarray(frac, dtype=float),
+                       float(run.dt), np.ascontiguousarray(L),
+                       np.ascontiguousarray(gain) if loop else np.empty(0), float(run.Ka),
+                       float(run.kv), float(run.Kt), float(run.kp), float(run.Kpot),
+                       float(run.N), loop, pot, full)
 
     ak = prm[:, C_ASYM]
     asym = bool(np.any(ak != 0))

@@ -24,7 +24,7 @@ def _dispatchers():
     from labrig.model import candidate_kernel, expm, kernels, residual_rows
 
     return [kernels.population_par, candidate_kernel.each_par, candidate_kernel.each_ser,
-            expm.zoh_batch, residual_rows.residual_rows]
+            expm.zoh_batch, expm.loop_slot_fill, residual_rows.residual_rows]
 
 
 def _sources() -> list[str]:
@@ -72,7 +72,7 @@ def _workload() -> None:
     """Every driver and mode on a tiny problem, with the argument types the simulator
     passes: open and closed loop, friction, delay and play, an input map, trajectories and
     fitness, one candidate at a time and the population kernel (threads from 16)."""
-    from labrig.model.expm import zoh_batch
+    from labrig.model.expm import loop_slot_fill, zoh_batch
     from labrig.model.kernels import run_kernels
     from labrig.model.residual_rows import residual_rows
     from labrig.model.layout import (C_A, C_ASYM, C_D, C_TC, C_TS, C_VMAX, MAP_COLUMNS, N_SLOTS,
@@ -87,6 +87,9 @@ def _workload() -> None:
         A = np.zeros((P, 3, 3))
         A[:, 0, 0], A[:, 1, 1] = -900.0, -0.2
         Ad, _, g, _ = zoh_batch(A, np.zeros((P, 3)), np.zeros((P, 3)), np.zeros(P), 1e-3)
+        loop_slot_fill(np.zeros((P, N_SLOTS, SLOT_W)), 1, A, np.ones((P, 3)), np.ones((P, 3)),
+                       np.zeros(P), 1e-3, np.ones(P), np.ones(P), 1.0, 1.0, 1.0, 1.0, 1.0,
+                       1.0, True, True, np.ones(P, np.bool_))
         # (a closed loop with its map: each build of the loop's lanes, kernels._loop_sample)
         for closed, nonlinear, mapped, extra in (
                 (0, False, False, ()), (0, False, True, (C_TC,)), (1, False, False, (C_A,)),
