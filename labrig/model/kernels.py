@@ -228,12 +228,22 @@ def _block(p0, p1, s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed, S, c, wm
         for k in range(n):
             sp[k + pad] = s[k, 0]
     rest = True  # every lane starts at rest (w = 0)
+    held = False  # s_old's row holds s_new (a shared input steady since the last copy)
     for k in range(n):
         wmk = wm[k]
         tmk = tm[k]
         imk = im[k] if ii != 0.0 else 0.0
+        # a shared input that did not change (a square wave's every sample but its edges):
+        # the lanes' inputs, mapped or not, are those of the sample before, and the held
+        # input before (s_old) is s_new, copied once after each change
+        steady = shared and not delay and k > 0 and s[k, 0] == s[k - 1, 0]
         # this sample's inputs per lane (shared, per candidate, or delayed per candidate)
-        if delay and shared:
+        if steady:
+            if (mode & FRICTION or loop) and not held:
+                for j in range(q):
+                    X[R_SOLD * B + j] = X[R_SNEW * B + j]
+                held = True
+        elif delay and shared:
             for j in range(q):
                 kn = k + pad - mp[j]   # >= 1
                 X[R_SNEW * B + j] = sp[kn]
@@ -247,6 +257,7 @@ def _block(p0, p1, s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed, S, c, wm
             if mode & FRICTION or loop:  # the held input before: a stuck rotor's s_old
                 for j in range(q):
                     X[R_SOLD * B + j] = X[R_SNEW * B + j]
+            held = False
             if shared:
                 su = s[k, 0]
                 for j in range(q):
@@ -254,7 +265,7 @@ def _block(p0, p1, s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed, S, c, wm
             else:
                 for j in range(q):
                     X[R_SNEW * B + j] = s[k, p0 + j]
-        if mapped:  # the candidates' own input maps, applied here (no (n, P) input array)
+        if mapped and not steady:  # the candidates' own input maps (no (n, P) input array)
             Ka = c[1]
             for j in range(q):  # (without delay, s_old is the sample before: mapped already)
                 X[R_SNEW * B + j] = input_map(
@@ -294,7 +305,6 @@ def _block(p0, p1, s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed, S, c, wm
         # friction: the build without the stuck rotor when no lane is at rest, and with
         # one division for it when the shared input did not change
         moving = (mode & FRICTION) != 0 and not rest
-        steady = shared and not delay and k > 0 and s[k, 0] == s[k - 1, 0]
         if mode == 0:  # each call site a constant mode: its own vectorised build
             r = _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, 0)
         elif mode == FRICTION and moving:
