@@ -21,58 +21,68 @@ TERMS = 18
 
 
 @numba.njit(cache=True, inline="always")
-def _hold(A, bs, bf, p, t, Phi, G, term, tmp, E, nxt):
-    """``exp([[A, bs, bf], [0, 0, 0]] t)`` of candidate ``p``: Phi (3 x 3) and Gamma
-    (3 x 2, the columns of s and Tf), in place (``term``, ``tmp``, ``E``, ``nxt``: 3 x 5
-    scratch)."""
+def _holds(A, bs, bf, t, W, sq):
+    """``exp([[A, bs, bf], [0, 0, 0]] t[p])`` of every candidate ``p``, into ``W[2]`` (15, P):
+    row ``5 r + q`` holds entry (r, q) of ``[Phi, Gamma]``, candidates along the row, so
+    that each step of the algorithm is one loop over the candidates (SIMD lanes); the
+    sums in each candidate's lane are the scalar algorithm's, in its order. ``W``
+    (4, 15, P) and ``sq`` (P,): scratch."""
+    P = t.shape[0]
+    tmp, term, E, nxt = W[0], W[1], W[2], W[3]
     # M t, and the norm the scaling needs (the largest row sum; the zero rows are 0)
+    for p in range(P):
+        for r in range(3):
+            for q in range(3):
+                tmp[5 * r + q, p] = A[p, r, q] * t[p]
+            tmp[5 * r + 3, p] = bs[p, r] * t[p]
+            tmp[5 * r + 4, p] = bf[p, r] * t[p]
+        nrm = 0.0
+        for r in range(3):
+            row = 0.0
+            for q in range(5):
+                row += abs(tmp[5 * r + q, p])
+            nrm = max(nrm, row)
+        n = 0
+        while nrm > 0.5:
+            nrm *= 0.5
+            n += 1
+        sq[p] = n
+        scale = 2.0 ** n
+        for i in range(15):
+            tmp[i, p] = tmp[i, p] / scale  # the scaled matrix's rows
     for r in range(3):
-        for q in range(3):
-            tmp[r, q] = A[p, r, q] * t
-        tmp[r, 3] = bs[p, r] * t
-        tmp[r, 4] = bf[p, r] * t
-    nrm = 0.0
-    for r in range(3):
-        row = 0.0
         for q in range(5):
-            row += abs(tmp[r, q])
-        nrm = max(nrm, row)
-    sq = 0
-    while nrm > 0.5:
-        nrm *= 0.5
-        sq += 1
-    scale = 2.0 ** sq
-    for r in range(3):
-        for q in range(5):
-            tmp[r, q] = tmp[r, q] / scale          # the scaled matrix's rows
-            term[r, q] = 1.0 if r == q else 0.0    # the identity's
-            E[r, q] = term[r, q]                   # E = I + the sum of the terms
+            one = 1.0 if r == q else 0.0
+            for p in range(P):
+                term[5 * r + q, p] = one   # the identity's
+                E[5 * r + q, p] = one      # E = I + the sum of the terms
     for k in range(1, TERMS + 1):
         for r in range(3):
             for q in range(5):
-                acc = 0.0
-                for s in range(3):
-                    acc += term[r, s] * tmp[s, q]
-                nxt[r, q] = acc / k
+                a, b, c, o = term[5 * r], term[5 * r + 1], term[5 * r + 2], nxt[5 * r + q]
+                m0, m1, m2 = tmp[q], tmp[5 + q], tmp[10 + q]
+                for p in range(P):
+                    o[p] = (((0.0 + a[p] * m0[p]) + b[p] * m1[p]) + c[p] * m2[p]) / k
+        for i in range(15):
+            ti, ei, ni = term[i], E[i], nxt[i]
+            for p in range(P):
+                ti[p] = ni[p]
+                ei[p] += ni[p]
+    most = 0
+    for p in range(P):
+        most = max(most, sq[p])
+    for it in range(most):  # [[Phi, G], [0, I]]^2 = [[Phi Phi, Phi G + G], [0, I]]
         for r in range(3):
             for q in range(5):
-                term[r, q] = nxt[r, q]
-                E[r, q] += nxt[r, q]
-    for _ in range(sq):  # [[Phi, G], [0, I]]^2 = [[Phi Phi, Phi G + G], [0, I]]
-        for r in range(3):
-            for q in range(5):
-                acc = 0.0
-                for s in range(3):
-                    acc += E[r, s] * E[s, q]
-                nxt[r, q] = acc + E[r, q] if q >= 3 else acc
-        for r in range(3):
-            for q in range(5):
-                E[r, q] = nxt[r, q]
-    for r in range(3):
-        for q in range(3):
-            Phi[r, q] = E[r, q]
-        G[r, 0] = E[r, 3]
-        G[r, 1] = E[r, 4]
+                a, b, c, o = E[5 * r], E[5 * r + 1], E[5 * r + 2], nxt[5 * r + q]
+                m0, m1, m2, e = E[q], E[5 + q], E[10 + q], E[5 * r + q]
+                for p in range(P):
+                    acc = ((0.0 + a[p] * m0[p]) + b[p] * m1[p]) + c[p] * m2[p]
+                    o[p] = acc + e[p] if q >= 3 else acc
+        for i in range(15):  # each candidate squares as often as its own scaling needs
+            ei, ni = E[i], nxt[i]
+            for p in range(P):
+                ei[p] = ni[p] if it < sq[p] else ei[p]
 
 
 @numba.njit(cache=True, nogil=True)
@@ -88,40 +98,43 @@ def zoh_batch(A, bs, bf, frac, h):
     g_old = np.zeros((P, 3))
     g_new = np.empty((P, 3))
     gf = np.empty((P, 3))
-    Phi1 = np.empty((3, 3))
-    G1 = np.empty((3, 2))
-    Phi2 = np.empty((3, 3))
-    G2 = np.empty((3, 2))
-    term = np.empty((3, 5))
-    tmp = np.empty((3, 5))
-    E = np.empty((3, 5))
-    nxt = np.empty((3, 5))
+    W = np.empty((4, 15, P))
+    sq = np.empty(P, np.int64)
+    t = np.empty(P)
+    delayed = False
     for p in range(P):
-        _hold(A, bs, bf, p, (1.0 - frac[p]) * h, Phi2, G2, term, tmp, E, nxt)
-        if frac[p] > 0.0:  # the part before the switch, then the part after
-            _hold(A, bs, bf, p, frac[p] * h, Phi1, G1, term, tmp, E, nxt)
+        t[p] = (1.0 - frac[p]) * h
+        delayed |= frac[p] > 0.0
+    _holds(A, bs, bf, t, W, sq)
+    E2 = W[2].copy()  # the part after the switch (all of the sample without a delay)
+    for p in range(P):
+        for r in range(3):
+            for q in range(3):
+                Ad[p, r, q] = E2[5 * r + q, p]
+            g_new[p, r] = E2[5 * r + 3, p]
+            gf[p, r] = E2[5 * r + 4, p]
+    if not delayed:
+        return Ad, g_old, g_new, gf
+    for p in range(P):
+        t[p] = frac[p] * h
+    _holds(A, bs, bf, t, W, sq)
+    E1 = W[2]  # the part before the switch
+    for p in range(P):
+        if frac[p] > 0.0:
             for r in range(3):
                 for q in range(3):
                     acc = 0.0
                     for s in range(3):
-                        acc += Phi2[r, s] * Phi1[s, q]
+                        acc += E2[5 * r + s, p] * E1[5 * s + q, p]
                     Ad[p, r, q] = acc
                 go = 0.0
                 gt = 0.0
                 for s in range(3):
-                    go += Phi2[r, s] * G1[s, 0]
-                    gt += Phi2[r, s] * G1[s, 1]
+                    go += E2[5 * r + s, p] * E1[5 * s + 3, p]
+                    gt += E2[5 * r + s, p] * E1[5 * s + 4, p]
                 g_old[p, r] = go
-                g_new[p, r] = G2[r, 0]
-                gf[p, r] = gt + G2[r, 1]
-        else:  # no delay: the first part is empty, its hold the identity
-            for r in range(3):
-                for q in range(3):
-                    Ad[p, r, q] = Phi2[r, q]
-                g_new[p, r] = G2[r, 0]
-                gf[p, r] = G2[r, 1]
+                gf[p, r] = gt + E2[5 * r + 4, p]
     return Ad, g_old, g_new, gf
-
 
 
 @numba.njit(cache=True, nogil=True)
