@@ -276,7 +276,10 @@ def diagnose(runs, model: Model | None = None, *, candidates=None, seed: int = 0
 
     by_fit = sorted(ranking, key=lambda c: -c.improvement)
     to_cv = [c for c in by_fit if c.improvement >= MIN_GAIN][:CV_CANDIDATES]
-    to_cv += [c for c in revisions if c.move == "remove" or c.improvement >= SWAP_GAIN]
+    # (a simpler replacement is judged "about as good": cross-validated when its in-sample
+    # fit is within that margin too)
+    to_cv += [c for c in revisions if c.move == "remove" or c.improvement >= SWAP_GAIN
+              or (c.extra_params < 0 and c.improvement >= -SIMPLER_MARGIN)]
     cvs = each(lambda c: cross_validate(runs, c.model, folds, sigmas=sig, weights=weights,
                                         seed=seed, fixed=fixed, reach=Reach.of(runs, c.model)),
                to_cv)
@@ -376,7 +379,8 @@ def _revisions(runs, base: Model, entry, *, seed, fixed, weights) -> list[Candid
             if new in base.names or new not in candidate_names(reduced):
                 continue
             out.append(entry(refit_with(runs, reduced, get_effect(new), seed=seed, fixed=fixed,
-                                        weights=weights), new, move="replace", replaces=old))
+                                        weights=weights, carried=base.effect_params[old]),
+                             new, move="replace", replaces=old))
     return out
 
 

@@ -101,22 +101,29 @@ def starts_for(runs, base_params: dict, effects, new, reach, fixed: dict,
 
 
 def refit_with(runs, base: Model, effect, *, seed: int = 0, fixed: dict | None = None,
-               weights: Weights = Weights(), reach=None):
+               weights: Weights = Weights(), reach=None, carried: dict | None = None):
     """``base`` plus ``effect``, re-fitted from scanned starts in two basins; returns the
-    best :class:`labrig.identification.engine.Identification`."""
+    best :class:`labrig.identification.engine.Identification`. ``carried``: the values of
+    the effect's parameters where the model it replaces left them (a replacement also
+    starts there, when they are all of its parameters: a simpler family member)."""
     from labrig.model.reach import Reach
 
     reach = reach or Reach.of(runs, base)
     effects = base.effects + [effect]
     fixed = dict(fixed or {})
     params = {**base.flat(), **fixed}
+    extra = []
+    if carried and set(effect.param_names()) <= set(carried):
+        extra = [{**params, **{f"{effect.name}.{k}": float(carried[k])
+                               for k in effect.param_names()}}]
     return _best_of_starts(runs, effects, effect, params, reach=reach, fixed=fixed, seed=seed,
-                           weights=weights)
+                           weights=weights, extra=extra)
 
 
-def _best_of_starts(runs, effects, new, params, *, reach, fixed, seed, weights):
-    """Fit ``effects`` from each scanned start (side by side) and keep the best."""
-    starts = starts_for(runs, params, effects, new, reach, fixed, weights)
+def _best_of_starts(runs, effects, new, params, *, reach, fixed, seed, weights, extra=()):
+    """Fit ``effects`` from each scanned start (and each of ``extra``), side by side, and
+    keep the best."""
+    starts = starts_for(runs, params, effects, new, reach, fixed, weights) + list(extra)
     return best_fit(each(lambda s: fit(runs, effects, s, fixed, seed=seed, weights=weights,
                                        reach=reach), starts))
 
