@@ -194,6 +194,7 @@ def test_the_ranking_table_says_what_it_is_ordered_by_and_when_supported():
     assert "3 standard errors" in notes
     assert "a strongly negative dBIC alone is not enough" in notes
     assert f"only the {CV_CANDIDATES} largest gains" in notes
+    assert "simpler, fits within 2 %" in notes
     assert "(at bound)" in notes and "does not enter the decision" in notes
 
 

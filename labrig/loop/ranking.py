@@ -243,8 +243,11 @@ class Diagnosis(Displayable):
             f"within {gain} of the model with it (the mirror of adding); 'X -> Y' replaces X "
             f"by Y: by the add rule, with a {100 * SWAP_GAIN:g} % gain for an effect with as "
             f"many parameters, or as good within {100 * SIMPLER_MARGIN:g} % for a simpler one",
-            f"cross-validated '-': not cross-validated (only the {CV_CANDIDATES} largest gains "
-            f"of at least {gain} are), hence not supported; a fold whose training data do not "
+            f"cross-validated '-': not cross-validated (of the effects added, only the "
+            f"{CV_CANDIDATES} largest gains of at least {gain} are; of the revisions, every "
+            f"removal and each replacement that gains {100 * SWAP_GAIN:g} % or, simpler, fits "
+            f"within {100 * SIMPLER_MARGIN:g} %), hence not supported; a fold whose training "
+            "data do not "
             "pin the new threshold is not counted; '(at bound)': a fitted parameter ended at a "
             "bound of its search range (a warning: it does not enter the decision)",
         ]
