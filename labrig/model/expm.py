@@ -3,11 +3,12 @@
 The hold of ``x' = A x + bs s + bf Tf`` over a time ``t`` is the exponential of the
 augmented matrix ``M t``, ``M = [[A, bs, bf], [0, 0, 0]]`` (5 x 5): ``[[Phi, Gamma],
 [0, I]]``. :func:`zoh_batch` computes it by scaling and squaring with 18 Taylor terms, in
-plain loops over the three rows that are not zero: every product the 5 x 5 algorithm
-forms on the last two rows is a multiplication by zero, so they are left out (a Taylor
-term is 3 x 3 times 3 x 5, a squaring ``Phi Phi`` and ``Phi Gamma + Gamma``), with the
-same sums in the same order; no BLAS call, so the coefficients are the same on every
-machine whatever kernel its BLAS picks.
+plain loops over the three rows that are not zero (every product the 5 x 5 algorithm
+forms on the last two rows is a multiplication by zero: a Taylor term is 3 x 3 times
+3 x 5, a squaring ``Phi Phi`` and ``Phi Gamma + Gamma``), the candidates along the
+innermost loop (SIMD lanes), each candidate's sums in the scalar algorithm's order; no
+BLAS call, so the coefficients are the same on every machine whatever kernel its BLAS
+picks.
 """
 from __future__ import annotations
 

@@ -35,7 +35,7 @@ from labrig.model.layout import (BLOCK, C_A, C_ASYM, C_D, C_TC, C_TS, C_U0, C_VM
                                  R_E1, R_E2, R_FLAG, R_FRIC, R_GAP, R_GF0, R_GF1, R_GF2, R_GN0,
                                  R_GN1, R_GN2, R_GO0, R_GO1, R_GO2, R_I, R_I0, R_KK, R_MAP,
                                  R_PL, R_PL0, R_RR, R_SLOT, R_SNEW, R_SOLD, R_TC, R_TH, R_TH0,
-                                 R_TS, R_W, R_W0, R_XN, SMALL, STEADY, S_POS, T_OK)
+                                 R_TS, R_W, R_W0, R_XN, SMALL, S_POS, T_OK)
 from labrig.model.loop_kernel import loop_sample, loop_slot
 
 
@@ -57,7 +57,6 @@ def _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, mode):
     fr = mode & FRICTION
     pa = mode & PLAY
     mv = mode & MOVING
-    st = mode & STEADY
     nflag = 0
     nrest = 0
     for j in range(q):
@@ -106,15 +105,15 @@ def _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, mode):
                 rr = X[R_RR * B + j]
                 kk = X[R_KK * B + j]
                 ts = X[R_TS * B + j]
-                v2 = kakp * (s_new - kpot * th / N) if fb else s_new
-                v2r = v2 / rr
-                if st:  # the same input at both ends: the same drive, bit for bit
-                    v1r = v2r
+                s_prev = X[R_SOLD * B + j]
+                if fb:
+                    v1 = kakp * (s_prev - kpot * th / N)
+                    v2 = kakp * (s_new - kpot * th / N)
                 else:
-                    s_prev = X[R_SOLD * B + j]
-                    v1r = (kakp * (s_prev - kpot * th / N) if fb else s_prev) / rr
-                i1 = v1r + (i - v1r) * X[R_E1 * B + j]
-                i2 = v2r + (i1 - v2r) * X[R_E2 * B + j]
+                    v1 = s_prev
+                    v2 = s_new
+                i1 = v1 / rr + (i - v1 / rr) * X[R_E1 * B + j]
+                i2 = v2 / rr + (i1 - v2 / rr) * X[R_E2 * B + j]
                 hold = fric & (w == 0.0) & (abs(kk * i1) <= ts) & (abs(kk * i2) <= ts)
             # breaking away, or the speed reaches zero inside the sample: redone alone
             f = 1 if fric & (not hold) & ((w == 0.0) | (nw * w <= 0.0)) else 0
@@ -302,15 +301,12 @@ def _block(p0, p1, s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed, S, c, wm
                             for r in range(T_OK):
                                 X[(R_CUR + r) * B + j] = table[p, slot, r]
             continue
-        # friction: the build without the stuck rotor when no lane is at rest, and with
-        # one division for it when the shared input did not change
+        # friction: the build without the stuck rotor when no lane is at rest
         moving = (mode & FRICTION) != 0 and not rest
         if mode == 0:  # each call site a constant mode: its own vectorised build
             r = _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, 0)
         elif mode == FRICTION and moving:
             r = _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, 20)
-        elif mode == FRICTION and steady:
-            r = _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, 36)
         elif mode == FRICTION:
             r = _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, 4)
         elif mode == FEEDBACK:
@@ -321,8 +317,6 @@ def _block(p0, p1, s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed, S, c, wm
             r = _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, 3)
         elif mode == FEEDBACK | FRICTION and moving:
             r = _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, 21)
-        elif mode == FEEDBACK | FRICTION and steady:
-            r = _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, 37)
         elif mode == FEEDBACK | FRICTION:
             r = _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, 5)
         elif mode == DELAY | FRICTION | PLAY and moving:

@@ -58,11 +58,9 @@ R_XN = R_CUR + T_OK
 N_ROWS_LOOP = R_XN + 1
 
 #: the terms a block's update needs (bits of ``_sweep``'s mode; one build per mode used);
-#: STEADY: friction with a lane at rest, and the shared input the same as the sample
-#: before: a stuck rotor's drive is the same at both ends of the sample (one division);
 #: MOVING: friction, but no lane of the block is at rest this sample: the build without
 #: the stuck rotor's current decay and its divisions (nothing can be held)
-FEEDBACK, DELAY, FRICTION, PLAY, MOVING, STEADY = 1, 2, 4, 8, 16, 32
+FEEDBACK, DELAY, FRICTION, PLAY, MOVING = 1, 2, 4, 8, 16
 #: the modes built: the short update, a delay, Coulomb friction, each alone or in a linear
 #: closed loop, and every term in open and in closed loop (the feedback bit also says how
 #: a stuck rotor's drive is formed: through the loop, or the input itself); each with

@@ -382,13 +382,14 @@ def _loop_table(prm, run: RunData, frac, substeps: int):
     if not full.any():
         return T
 
+    fr, Lc = np.ascontiguousarray(frac, dtype=float), np.ascontiguousarray(L)
+    gains = tuple(float(x) for x in (run.Ka, run.kv, run.Kt, run.kp, run.Kpot, run.N))
+
     def fill(slot, gain, pot):
         loop = gain is not None
-        loop_slot_fill(T, slot, A0, bs, bf, np.ascontiguousarray(frac, dtype=float),
-                       float(run.dt), np.ascontiguousarray(L),
-                       np.ascontiguousarray(gain) if loop else np.empty(0), float(run.Ka),
-                       float(run.kv), float(run.Kt), float(run.kp), float(run.Kpot),
-                       float(run.N), loop, pot, full)
+        loop_slot_fill(T, slot, A0, bs, bf, fr, float(run.dt), Lc,
+                       np.ascontiguousarray(gain) if loop else np.empty(0), *gains, loop, pot,
+                       full)
 
     ak = prm[:, C_ASYM]
     asym = bool(np.any(ak != 0))
