@@ -208,6 +208,12 @@ def _block(p0, p1, s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed, S, c, wm
         mp[j] = m[p]
         delay |= m[p] != 0 or g_old[p, 0] != 0.0 or g_old[p, 1] != 0.0 or g_old[p, 2] != 0.0
     # the terms any lane needs, rounded up to a mode that is built
+    # the loop's map without a dead zone or an asymmetry, and a gap, in every lane (the
+    # builds of backlash alone, or with an offset or a rail)
+    no_kink = True
+    for j in range(q):
+        no_kink &= prm[p0 + j, C_D] == 0.0 and prm[p0 + j, C_ASYM] == 0.0 \
+            and prm[p0 + j, C_A] > 0.0
     mode = (FEEDBACK if closed else 0) | (DELAY if delay else 0) \
         | (FRICTION if friction else 0) | (PLAY if play else 0)
     if mode not in MODES:  # every term (feedback only in a closed loop)
@@ -227,6 +233,7 @@ def _block(p0, p1, s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed, S, c, wm
         for k in range(n):
             sp[k + pad] = s[k, 0]
     rest = True  # every lane starts at rest (w = 0)
+    last = 1  # the loop's lanes redone alone in the sample before (the first: every lane)
     held = False  # s_old's row holds s_new (a shared input steady since the last copy)
     for k in range(n):
         wmk = wm[k]
@@ -280,7 +287,13 @@ def _block(p0, p1, s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed, S, c, wm
                         X[(R_MAP + M_VMAX) * B + j])
         kakp, kpot = c[1] * c[5], c[4]
         if loop:
-            nflag = loop_sample(X, qv, N, iw, it, ii, wmk, tmk, imk, c, delay, friction, play)
+            nflag = loop_sample(X, qv, N, iw, it, wmk, tmk, c, delay, friction, play,
+                                steady and last == 0, no_kink and play)
+            last = nflag
+            if ii != 0.0:  # the measured current's residual, in the lanes' order of sums
+                for j in range(qv):
+                    di = ii * (imk - X[R_I0 * B + j])
+                    X[R_ACC * B + j] = X[R_ACC * B + j] + di * di
             if nflag > 0:  # the samples where the drive is in another piece, one lane at a
                 for j in range(q):  # time, as the per-candidate kernel takes them
                     if X[R_FLAG * B + j] != 0.0:

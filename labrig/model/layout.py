@@ -55,12 +55,25 @@ R_DLY = N_ROWS
 R_SLOT = N_ROWS + 1
 R_CUR = N_ROWS + 2
 R_XN = R_CUR + T_OK
-N_ROWS_LOOP = R_XN + 1
+#: and the piece (G_*) the lane's drive is in, that piece's constant drive (the loop's
+#: mapped s_new) and the side of a backlash gap the pot is on (1 pressed at its lower end,
+#: -1 at its upper, 2 inside, 0 no gap), as the last sample the lanes computed in full
+#: found them: a steady input's next sample starts where the last one ended, in the same
+#: piece (:data:`STEADY`)
+R_G = R_XN + 1
+R_CN = R_XN + 2
+R_SIDE = R_XN + 3
+N_ROWS_LOOP = R_SIDE + 1
 
 #: the terms a block's update needs (bits of ``_sweep``'s mode; one build per mode used);
 #: MOVING: friction, but no lane of the block is at rest this sample: the build without
 #: the stuck rotor's current decay and its divisions (nothing can be held)
 FEEDBACK, DELAY, FRICTION, PLAY, MOVING = 1, 2, 4, 8, 16
+#: a closed loop with its map (the loop's own builds, labrig.model.loop_kernel):
+#: STEADY: the input did not change and no lane was redone alone in the sample before,
+#: so every lane's drive starts in the piece it ended in (no need to find it again);
+#: NO_KINK: no lane has a dead zone or an asymmetry (the map is the gain and the rail)
+STEADY, NO_KINK = 32, 64
 #: the modes built: the short update, a delay, Coulomb friction, each alone or in a linear
 #: closed loop, and every term in open and in closed loop (the feedback bit also says how
 #: a stuck rotor's drive is formed: through the loop, or the input itself); each with

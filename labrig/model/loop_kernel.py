@@ -22,9 +22,10 @@ import numba
 
 from labrig.model.layout import (BLOCK, C_A, C_ASYM, C_D, C_TC, C_TS, C_U0, C_VMAX, DELAY,
                                  FRICTION, G_DEAD, G_NEG, G_POS, G_RAILN, G_RAILP, M_D, M_K,
-                                 M_U0, M_VMAX, PLAY, R_ACC, R_CUR, R_DLY, R_FLAG, R_FRIC, R_GAP,
-                                 R_I, R_I0, R_MAP, R_PL, R_PL0, R_SLOT, R_SNEW, R_SOLD,
-                                 R_TC, R_TH, R_TH0, R_W, R_W0, R_XN, S_FLAT, T_GF, T_GN, T_GO)
+                                 M_U0, M_VMAX, NO_KINK, PLAY, R_ACC, R_CN, R_CUR, R_DLY, R_FLAG,
+                                 R_FRIC, R_G, R_GAP, R_SIDE, R_I, R_I0, R_MAP, R_PL, R_PL0, R_SLOT,
+                                 R_SNEW, R_SOLD, R_TC, R_TH, R_TH0, R_W, R_W0, R_XN, S_FLAT,
+                                 STEADY, T_GF, T_GN, T_GO)
 
 
 @numba.njit(cache=True, inline="always")
@@ -71,6 +72,13 @@ def drive_piece(e, d, ak, Ka, vmax):
 
 
 @numba.njit(cache=True, inline="always")
+def drive_piece_no_kink(e, Ka, vmax):
+    """:func:`drive_piece` of a map without a dead zone or an asymmetry (d = ak = 0): the
+    same piece, without the arithmetic that is exact there (e (1 + 0), |e| - 0)."""
+    return (G_RAILP if e >= 0.0 else G_RAILN) if Ka * abs(e) > vmax else G_POS
+
+
+@numba.njit(cache=True, inline="always")
 def piece_level(g, s, sc, kp, Kpot, u0, ak, d, Ka, vmax):
     """The constant part of the drive in piece ``g`` (the state's part is in the slot's
     matrix): ``sc`` is the pot's offset from theta/N (-a, +a or 0), or the pot inside a gap."""
@@ -79,6 +87,13 @@ def piece_level(g, s, sc, kp, Kpot, u0, ak, d, Ka, vmax):
                 + (-d if pos else d))
     flat = vmax if g == G_RAILP else (-vmax if g == G_RAILN else 0.0)
     return lin if (g == G_POS) | (g == G_NEG) else flat
+
+
+@numba.njit(cache=True, inline="always")
+def piece_level_no_kink(g, s, sc, kp, Kpot, u0, Ka, vmax):
+    """:func:`piece_level` without a dead zone or an asymmetry: (1 + 0) y + (-0) is y."""
+    flat = vmax if g == G_RAILP else (-vmax if g == G_RAILN else 0.0)
+    return Ka * (kp * (s - Kpot * sc) + u0) if g == G_POS else flat
 
 
 @numba.njit(cache=True, inline="always")
@@ -144,7 +159,7 @@ def loop_slot(w, th, pl, s, pr, c):
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _sweep_loop(X, q, N, iw, it, ii, wmk, tmk, imk, Ka, Kpot, kp, kvkt, mode):
+def _sweep_loop(X, q, N, iw, it, wmk, tmk, Ka, Kpot, kp, kvkt, mode):
     """Every lane of a block through one sample of a closed loop with its input map inside:
     :func:`loop_step` for all lanes at once, the same arithmetic in the same order, with
     the coefficients of the slot the lane's drive was last in (``R_CUR``). Returns 1 if
@@ -159,6 +174,8 @@ def _sweep_loop(X, q, N, iw, it, ii, wmk, tmk, imk, Ka, Kpot, kp, kvkt, mode):
     dl = mode & DELAY
     fr = mode & FRICTION
     pa = mode & PLAY
+    st = mode & STEADY
+    nk = mode & NO_KINK
     nflag = 0
     for j in range(q):
         i = X[R_I * B + j]
@@ -170,41 +187,73 @@ def _sweep_loop(X, q, N, iw, it, ii, wmk, tmk, imk, Ka, Kpot, kp, kvkt, mode):
         if pa:
             pl = X[R_PL * B + j]
             a = X[R_GAP * B + j]
-            seen = pl if a > 0.0 else x
+            seen = pl if (nk or a > 0.0) else x
         else:
             pl = 0.0
             a = 0.0
             seen = x
         dw = iw * (wmk - w)
         dth = it * (tmk - seen)
-        r = X[R_ACC * B + j] + (dw * dw + dth * dth)
-        if ii != 0.0:
-            di = ii * (imk - i)
-            r += di * di
-        X[R_ACC * B + j] = r
+        # (a measured current's residual is added after the lanes, by the caller: a test
+        # inside them made the compiler compute it in every build, needed or not)
+        X[R_ACC * B + j] = X[R_ACC * B + j] + (dw * dw + dth * dth)
         u0 = X[(R_MAP + M_U0) * B + j]
-        ak = X[(R_MAP + M_K) * B + j]
-        d = X[(R_MAP + M_D) * B + j]
         vmax = X[(R_MAP + M_VMAX) * B + j]
-        if pa:
+        if nk:
+            ak = 0.0
+            d = 0.0
+        else:
+            ak = X[(R_MAP + M_K) * B + j]
+            d = X[(R_MAP + M_D) * B + j]
+        if pa and nk:  # (every lane has a gap)
+            ep = (x - a >= pl) & (w >= 0.0)
+            en = (x + a <= pl) & (w <= 0.0)
+            gp = (not ep) & (not en)
+            sc = pl if gp else (-a if ep else a)
+            side = 1.0 if ep else (-1.0 if en else 2.0)
+        elif pa:
             ep = (a > 0.0) & (x - a >= pl) & (w >= 0.0)
             en = (a > 0.0) & (x + a <= pl) & (w <= 0.0)
             gp = (a > 0.0) & (not ep) & (not en)
             sc = pl if gp else (-a if ep else (a if en else 0.0))
+            side = 1.0 if ep else (-1.0 if en else (2.0 if gp else 0.0))
         else:
             ep = False
             en = False
             gp = False
             sc = 0.0
-        g0 = drive_piece(kp * (s_new - Kpot * seen) - kvkt * w + u0, d, ak, Ka, vmax)
+            side = 0.0
         bad = False
-        if dl:
-            go = drive_piece(kp * (s_old - Kpot * seen) - kvkt * w + u0, d, ak, Ka, vmax)
-            bad = bad | ((X[R_DLY * B + j] != 0.0) & (go != g0))
-        slot = S_FLAT if (g0 == G_DEAD) | (g0 >= G_RAILP) else (g0 + 2 if gp else g0)
-        # another piece (or none: a lane sub-stepped throughout) is redone alone
-        bad = bad | (slot != X[R_SLOT * B + j])
-        cn = piece_level(g0, s_new, sc, kp, Kpot, u0, ak, d, Ka, vmax)
+        if st:
+            # the input as before and no lane redone: the drive starts where the sample
+            # before ended it (the same formula with the same numbers), in the piece it
+            # started in (or that sample would have been redone); with the pot on the same
+            # side of the gap (and, inside it, where it was) the slot and the piece's level
+            # are those of the sample before. Another side: redone alone (exactly as here,
+            # or sub-stepped where it must be)
+            g0 = X[R_G * B + j]
+            cn = X[R_CN * B + j]
+            if pa:
+                bad = bad | (side != X[R_SIDE * B + j])
+        else:
+            if nk:
+                g0 = drive_piece_no_kink(kp * (s_new - Kpot * seen) - kvkt * w + u0, Ka, vmax)
+            else:
+                g0 = drive_piece(kp * (s_new - Kpot * seen) - kvkt * w + u0, d, ak, Ka, vmax)
+            if dl:
+                go = drive_piece(kp * (s_old - Kpot * seen) - kvkt * w + u0, d, ak, Ka, vmax)
+                bad = bad | ((X[R_DLY * B + j] != 0.0) & (go != g0))
+            slot = S_FLAT if (g0 == G_DEAD) | (g0 >= G_RAILP) else (g0 + 2 if gp else g0)
+            # another piece (or none: a lane sub-stepped throughout) is redone alone
+            bad = bad | (slot != X[R_SLOT * B + j])
+            if nk:
+                cn = piece_level_no_kink(g0, s_new, sc, kp, Kpot, u0, Ka, vmax)
+            else:
+                cn = piece_level(g0, s_new, sc, kp, Kpot, u0, ak, d, Ka, vmax)
+            X[R_G * B + j] = g0
+            X[R_CN * B + j] = cn
+            if pa:
+                X[R_SIDE * B + j] = side
         ni = X[R_CUR * B + j] * i + X[(R_CUR + 1) * B + j] * w + X[(R_CUR + T_GN) * B + j] * cn
         nw = X[(R_CUR + 3) * B + j] * i + X[(R_CUR + 4) * B + j] * w \
             + X[(R_CUR + T_GN + 1) * B + j] * cn
@@ -214,7 +263,8 @@ def _sweep_loop(X, q, N, iw, it, ii, wmk, tmk, imk, Ka, Kpot, kp, kvkt, mode):
         nw += X[(R_CUR + 5) * B + j] * th
         nt += X[(R_CUR + 8) * B + j] * th
         if dl:
-            co = piece_level(g0, s_old, sc, kp, Kpot, u0, ak, d, Ka, vmax)
+            # (steady: s_old is s_new, so its level is cn)
+            co = cn if st else piece_level(g0, s_old, sc, kp, Kpot, u0, ak, d, Ka, vmax)
             ni += X[(R_CUR + T_GO) * B + j] * co
             nw += X[(R_CUR + T_GO + 1) * B + j] * co
             nt += X[(R_CUR + T_GO + 2) * B + j] * co
@@ -228,12 +278,17 @@ def _sweep_loop(X, q, N, iw, it, ii, wmk, tmk, imk, Ka, Kpot, kp, kvkt, mode):
         if pa:
             lo = xn - a
             hi = xn + a
-            npl = (lo if pl < lo else (hi if pl > hi else pl)) if a > 0.0 else pl
-            seen1 = npl if a > 0.0 else xn
+            npl = lo if pl < lo else (hi if pl > hi else pl)
+            if not nk:
+                npl = npl if a > 0.0 else pl
+            seen1 = npl if (nk or a > 0.0) else xn
         else:
             npl = pl
             seen1 = xn
-        g1 = drive_piece(kp * (s_new - Kpot * seen1) - kvkt * nw + u0, d, ak, Ka, vmax)
+        if nk:
+            g1 = drive_piece_no_kink(kp * (s_new - Kpot * seen1) - kvkt * nw + u0, Ka, vmax)
+        else:
+            g1 = drive_piece(kp * (s_new - Kpot * seen1) - kvkt * nw + u0, d, ak, Ka, vmax)
         bad = bad | (g1 != g0)
         if pa:
             bad = bad | (ep & (nw < 0.0)) | (en & (nw > 0.0)) | (gp & (npl != pl))
@@ -255,18 +310,31 @@ def _sweep_loop(X, q, N, iw, it, ii, wmk, tmk, imk, Ka, Kpot, kp, kvkt, mode):
 
 
 @numba.njit(cache=True, inline="always")
-def loop_sample(X, q, N, iw, it, ii, wmk, tmk, imk, c, delay, friction, play):
-    """:func:`_sweep_loop` with the build for the terms the block needs. Five builds: the
-    compiler did not vectorise the others (measured: a build with friction but without
-    the delay's terms came out scalar, 5x slower). An asymmetry needs no build of its own
-    (its slot's coefficients are the lane's, as every slot's)."""
+def loop_sample(X, q, N, iw, it, wmk, tmk, c, delay, friction, play, steady, no_kink):
+    """:func:`_sweep_loop` with the build for the terms the block needs. Five builds for the
+    terms: the compiler did not vectorise the others (measured: a build with friction but
+    without the delay's terms came out scalar, 5x slower). An asymmetry needs no build of
+    its own (its slot's coefficients are the lane's, as every slot's). ``steady``: the
+    input did not change and no lane was redone in the sample before (builds without the
+    piece's search, STEADY); ``no_kink``: no lane of the block has a dead zone or an
+    asymmetry, and every lane a gap (backlash's builds without those tests, NO_KINK)."""
     Ka, Kpot, kp, kvkt = c[1], c[4], c[5], c[6] * c[3]
     if play:
         if delay or friction:
-            return _sweep_loop(X, q, N, iw, it, ii, wmk, tmk, imk, Ka, Kpot, kp, kvkt, 14)
-        return _sweep_loop(X, q, N, iw, it, ii, wmk, tmk, imk, Ka, Kpot, kp, kvkt, 8)
+            return _sweep_loop(X, q, N, iw, it, wmk, tmk, Ka, Kpot, kp, kvkt, 14)
+        if no_kink and steady:
+            return _sweep_loop(X, q, N, iw, it, wmk, tmk, Ka, Kpot, kp, kvkt, 104)
+        if no_kink:
+            return _sweep_loop(X, q, N, iw, it, wmk, tmk, Ka, Kpot, kp, kvkt, 72)
+        if steady:
+            return _sweep_loop(X, q, N, iw, it, wmk, tmk, Ka, Kpot, kp, kvkt, 40)
+        return _sweep_loop(X, q, N, iw, it, wmk, tmk, Ka, Kpot, kp, kvkt, 8)
+    if friction and steady:
+        return _sweep_loop(X, q, N, iw, it, wmk, tmk, Ka, Kpot, kp, kvkt, 38)
     if friction:
-        return _sweep_loop(X, q, N, iw, it, ii, wmk, tmk, imk, Ka, Kpot, kp, kvkt, 6)
+        return _sweep_loop(X, q, N, iw, it, wmk, tmk, Ka, Kpot, kp, kvkt, 6)
     if delay:
-        return _sweep_loop(X, q, N, iw, it, ii, wmk, tmk, imk, Ka, Kpot, kp, kvkt, 2)
-    return _sweep_loop(X, q, N, iw, it, ii, wmk, tmk, imk, Ka, Kpot, kp, kvkt, 0)
+        return _sweep_loop(X, q, N, iw, it, wmk, tmk, Ka, Kpot, kp, kvkt, 2)
+    if steady:
+        return _sweep_loop(X, q, N, iw, it, wmk, tmk, Ka, Kpot, kp, kvkt, 32)
+    return _sweep_loop(X, q, N, iw, it, wmk, tmk, Ka, Kpot, kp, kvkt, 0)

@@ -57,12 +57,34 @@ def cache_is_warm() -> bool:
         return False
 
 
+def _cached_kernels() -> list:
+    """Every cached compiled function of the kernel modules, the drivers' callees too: a
+    callee's cached code holds what it called and inlined when it was built (``_block``
+    the loop's lanes), and numba checks only the callee's own file."""
+    import sys as _sys
+
+    import numba.core.registry
+
+    _sources()  # (imports every kernel module)
+    out = []
+    for name in ("candidate_kernel", "expm", "kernels", "loop_kernel", "residual_rows"):
+        module = _sys.modules[f"labrig.model.{name}"]
+        for obj in vars(module).values():
+            if isinstance(obj, numba.core.registry.CPUDispatcher) and \
+                    obj.__module__ == module.__name__ and obj._cache is not None \
+                    and hasattr(obj._cache, "_cache_file"):
+                out.append(obj)
+    return out
+
+
 def _forget_stale() -> None:
-    """Remove the drivers' stale indexes, so numba compiles them again instead of loading
-    code built from an older inlined function."""
+    """Remove every kernel's stale index (the drivers' and their callees'), so numba
+    compiles them again instead of loading code built from an older inlined function."""
     try:
-        for p in _indexes()[1]:
-            if os.path.exists(p):
+        newest = max(os.path.getmtime(f) for f in _sources())
+        for d in _cached_kernels():
+            p = d._cache._cache_file._index_path
+            if os.path.exists(p) and os.path.getmtime(p) < newest:
                 os.remove(p)
     except (AttributeError, KeyError, OSError):
         pass
