@@ -31,16 +31,16 @@ from labrig.model.candidate_kernel import (each_par, each_ser, friction_step, in
 from labrig.model.layout import (BLOCK, C_A, C_ASYM, C_D, C_TC, C_TS, C_U0, C_VMAX, DELAY,
                                  FEEDBACK, FRICTION, MODES, MOVING, M_D, M_DN, M_DP, M_K, M_U0,
                                  M_VMAX, N_ROWS, N_ROWS_LOOP, PLAY, R_A00, R_A01, R_A02, R_A10,
-                                 R_A11, R_A12, R_A20, R_A21, R_A22M1, R_ACC, R_CUR, R_DLY,
+                                 R_A11, R_A12, R_A20, R_A21, R_A22M1, R_ACC, R_CUR, R_DLY, R_DI,
                                  R_E1, R_E2, R_FLAG, R_FRIC, R_GAP, R_GF0, R_GF1, R_GF2, R_GN0,
-                                 R_GN1, R_GN2, R_GO0, R_GO1, R_GO2, R_I, R_I0, R_KK, R_MAP,
-                                 R_PL, R_PL0, R_RR, R_SLOT, R_SNEW, R_SOLD, R_TC, R_TH, R_TH0,
-                                 R_TS, R_W, R_W0, R_XN, SMALL, S_POS, T_OK)
+                                 R_GN1, R_GN2, R_GO0, R_GO1, R_GO2, R_I, R_I0, R_KK, R_MAP, R_PL,
+                                 R_PL0, R_RR, R_SLOT, R_SNEW, R_SOLD, R_TC, R_TH, R_TH0, R_TS, R_W,
+                                 R_W0, R_XN, SMALL, S_POS, T_OK)
 from labrig.model.loop_kernel import loop_sample, loop_slot
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, mode):
+def _sweep(X, q, N, iw, it, wmk, tmk, kakp, kpot, mode):
     """The exact update of every lane of a block through one sample; returns 1 if
     friction needs some lane's sample redone (their ``R_FLAG`` is 1), + 2 if some lane
     with friction ends the sample at rest (the next sample needs the stuck rotor's build).
@@ -57,8 +57,8 @@ def _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, mode):
     fr = mode & FRICTION
     pa = mode & PLAY
     mv = mode & MOVING
-    nflag = 0
-    nrest = 0
+    nflag = False
+    nrest = False
     for j in range(q):
         i = X[R_I * B + j]
         w = X[R_W * B + j]
@@ -72,11 +72,8 @@ def _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, mode):
             yth = th / N
         dw = iw * (wmk - w)  # d * d, not d ** 2: numba's power loop stops vectorising
         dth = it * (tmk - yth)
-        r = X[R_ACC * B + j] + (dw * dw + dth * dth)
-        if ii != 0.0:
-            di = ii * (imk - i)
-            r += di * di
-        X[R_ACC * B + j] = r
+        # (a measured current's residual: added by the caller, after the lanes)
+        X[R_ACC * B + j] = X[R_ACC * B + j] + (dw * dw + dth * dth)
         ni = X[R_A00 * B + j] * i + X[R_A01 * B + j] * w + X[R_GN0 * B + j] * s_new
         nw = X[R_A10 * B + j] * i + X[R_A11 * B + j] * w + X[R_GN1 * B + j] * s_new
         nt = X[R_A20 * B + j] * i + X[R_A21 * B + j] * w + th + X[R_GN2 * B + j] * s_new
@@ -116,16 +113,18 @@ def _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, mode):
                 i2 = v2 / rr + (i1 - v2 / rr) * X[R_E2 * B + j]
                 hold = fric & (w == 0.0) & (abs(kk * i1) <= ts) & (abs(kk * i2) <= ts)
             # breaking away, or the speed reaches zero inside the sample: redone alone
-            f = 1 if fric & (not hold) & ((w == 0.0) | (nw * w <= 0.0)) else 0
-            nflag |= f  # an "or" reduction vectorises; a count or a float sum does not
-            X[R_FLAG * B + j] = f
+            f = fric & (not hold) & ((w == 0.0) | (nw * w <= 0.0))
+            # a mask's "or" vectorises (one instruction per eight lanes); a count or a
+            # float sum does not
+            nflag = nflag | f
+            X[R_FLAG * B + j] = 1.0 if f else 0.0
             X[R_I0 * B + j] = i
             X[R_W0 * B + j] = w
             X[R_TH0 * B + j] = th
             ni = i2 if hold else ni
             nw = w if hold else nw
             nt = th if hold else nt
-            nrest |= 1 if fric & (nw == 0.0) else 0
+            nrest = nrest | (fric & (nw == 0.0))
         if pa:
             X[R_PL0 * B + j] = pl
             x = nt / N  # the play operator, as _play
@@ -136,7 +135,7 @@ def _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, mode):
         X[R_I * B + j] = ni
         X[R_W * B + j] = nw
         X[R_TH * B + j] = nt
-    return nflag | (nrest << 1)
+    return (1 if nflag else 0) | (2 if nrest else 0)
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -316,30 +315,37 @@ def _block(p0, p1, s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed, S, c, wm
             continue
         # friction: the build without the stuck rotor when no lane is at rest
         moving = (mode & FRICTION) != 0 and not rest
+        if ii != 0.0:  # a measured current's residual, from the state the sample starts in
+            for j in range(q):
+                di = ii * (imk - X[R_I * B + j])
+                X[R_DI * B + j] = di * di
         if mode == 0:  # each call site a constant mode: its own vectorised build
-            r = _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, 0)
+            r = _sweep(X, q, N, iw, it, wmk, tmk, kakp, kpot, 0)
         elif mode == FRICTION and moving:
-            r = _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, 20)
+            r = _sweep(X, q, N, iw, it, wmk, tmk, kakp, kpot, 20)
         elif mode == FRICTION:
-            r = _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, 4)
+            r = _sweep(X, q, N, iw, it, wmk, tmk, kakp, kpot, 4)
         elif mode == FEEDBACK:
-            r = _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, 1)
+            r = _sweep(X, q, N, iw, it, wmk, tmk, kakp, kpot, 1)
         elif mode == DELAY:
-            r = _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, 2)
+            r = _sweep(X, q, N, iw, it, wmk, tmk, kakp, kpot, 2)
         elif mode == FEEDBACK | DELAY:
-            r = _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, 3)
+            r = _sweep(X, q, N, iw, it, wmk, tmk, kakp, kpot, 3)
         elif mode == FEEDBACK | FRICTION and moving:
-            r = _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, 21)
+            r = _sweep(X, q, N, iw, it, wmk, tmk, kakp, kpot, 21)
         elif mode == FEEDBACK | FRICTION:
-            r = _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, 5)
+            r = _sweep(X, q, N, iw, it, wmk, tmk, kakp, kpot, 5)
         elif mode == DELAY | FRICTION | PLAY and moving:
-            r = _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, 30)
+            r = _sweep(X, q, N, iw, it, wmk, tmk, kakp, kpot, 30)
         elif mode == DELAY | FRICTION | PLAY:
-            r = _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, 14)
+            r = _sweep(X, q, N, iw, it, wmk, tmk, kakp, kpot, 14)
         elif moving:
-            r = _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, 31)
+            r = _sweep(X, q, N, iw, it, wmk, tmk, kakp, kpot, 31)
         else:
-            r = _sweep(X, q, N, iw, it, ii, wmk, tmk, imk, kakp, kpot, 15)
+            r = _sweep(X, q, N, iw, it, wmk, tmk, kakp, kpot, 15)
+        if ii != 0.0:  # ... added after the lanes' own, in the per-candidate code's order
+            for j in range(q):
+                X[R_ACC * B + j] = X[R_ACC * B + j] + X[R_DI * B + j]
         nflag = r & 1
         rest = (r & 2) != 0
         if nflag > 0:  # the few samples the exact update cannot take, one at a time

@@ -44,7 +44,10 @@ SLOT_W = 19
 (R_A00, R_A01, R_A02, R_A10, R_A11, R_A12, R_A20, R_A21, R_A22M1, R_GN0, R_GN1, R_GN2, R_GO0,
  R_GO1, R_GO2, R_GF0, R_GF1, R_GF2, R_TC, R_GAP, R_FRIC, R_I, R_W, R_TH, R_PL, R_ACC, R_FLAG,
  R_I0, R_W0, R_TH0, R_PL0, R_SNEW, R_SOLD, R_RR, R_KK, R_TS, R_E1, R_E2, R_MAP) = range(39)
-N_ROWS = R_MAP + 6  # then the input map's six parameters
+#: then the input map's six parameters, and a measured current's squared residual (added
+#: to the sum after the lanes: a test inside them made the compiler form it in every build)
+R_DI = R_MAP + 6
+N_ROWS = R_DI + 1
 #: a closed loop with its input map (:func:`_sweep_loop`) adds rows saying the lane's
 #: input switches inside the sample (a fractional delay), the slot its drive was last in
 #: (-1: none yet, or a lane sub-stepped throughout) and that slot's row of the loop table

@@ -176,7 +176,7 @@ def _sweep_loop(X, q, N, iw, it, wmk, tmk, Ka, Kpot, kp, kvkt, mode):
     pa = mode & PLAY
     st = mode & STEADY
     nk = mode & NO_KINK
-    nflag = 0
+    nflag = False
     for j in range(q):
         i = X[R_I * B + j]
         w = X[R_W * B + j]
@@ -296,7 +296,7 @@ def _sweep_loop(X, q, N, iw, it, wmk, tmk, Ka, Kpot, kp, kvkt, mode):
             X[R_PL * B + j] = npl
         if fr:
             bad = bad | ((X[R_FRIC * B + j] != 0.0) & ((w == 0.0) | (nw * w <= 0.0)))
-        nflag |= 1 if bad else 0
+        nflag = nflag | bad  # (a mask's "or": one instruction per eight lanes)
         X[R_FLAG * B + j] = 1.0 if bad else 0.0
         X[R_I0 * B + j] = i
         X[R_W0 * B + j] = w
@@ -305,8 +305,7 @@ def _sweep_loop(X, q, N, iw, it, wmk, tmk, Ka, Kpot, kp, kvkt, mode):
         X[R_W * B + j] = nw
         X[R_TH * B + j] = nt
         X[R_XN * B + j] = xn
-    return nflag
-
+    return 1 if nflag else 0
 
 
 @numba.njit(cache=True, inline="always")
