@@ -58,14 +58,24 @@ FLOPS = {"linear": LINEAR,
          "asymmetry": LINEAR + 3,                 # 1 + k, v (1 + k), Ka v
          "saturation": LINEAR + 1,                # Ka v (the clip is two comparisons)
          "asymmetric_deadband": LINEAR + 2}       # v - dpos or v + dneg, Ka v
+#: the open loop's input maps run only where the shared input changes (kernels._block: a
+#: steady input leaves the lanes' mapped inputs as they were): their flops on those samples
+MAP_FLOPS = {"deadband": 3, "offset": 2, "asymmetry": 3, "saturation": 1,
+             "asymmetric_deadband": 2}
 #: a closed loop with its input map inside (labrig/model/loop_kernel.py, _sweep_loop; the
-#: table is in benchmarks/README.md): the residuals with theta/N (9), the loop's error
-#: (6), its piece (5), the piece's constant drive (9), the update with feedback (22),
-#: theta/N, the error and its piece after the step (1 + 6 + 5); backlash adds the gap's
-#: ends (4)
-LOOP = 9 + 6 + 5 + 9 + 22 + 1 + 6 + 5
-LOOP_FLOPS = {"deadband": LOOP, "offset": LOOP, "asymmetry": LOOP, "saturation": LOOP,
-              "asymmetric_deadband": LOOP, "backlash": LOOP + 4}
+#: table is in benchmarks/README.md), as (a sample in full, a steady input's sample),
+#: counted in the source and the same in the machine code of the build each case runs
+#: (vector multiplications, additions, subtractions and the division per eight lanes,
+#: numba's inspect_asm, 2026-11-26). In full (where the input changed, and after a lane was
+#: redone alone): the residuals (8), the loop's error (6), its piece (5), the piece's
+#: constant drive (9), the update with feedback (22), theta/N, the error and its piece
+#: after the step (1 + 6 + 5): 62. A steady input's sample starts in the piece the last one
+#: ended in: the residuals, the update and the check after the step (the piece's 1 +- k
+#: formed once): 41. Backlash alone (no dead zone or asymmetry, a gap in every lane: the
+#: builds without them): 54 in full (the gap's ends x -+ a before and after, the piece
+#: only Ka |e|, its drive Ka (kp (s - Kpot sc) + u0)) and 42 steady.
+LOOP_FLOPS = {"deadband": (62, 41), "offset": (62, 41), "asymmetry": (62, 41),
+              "saturation": (62, 41), "asymmetric_deadband": (62, 41), "backlash": (54, 42)}
 #: a linear closed loop adds the feedback a02 theta, a12 theta, (a22 - 1) theta
 FEEDBACK = 6
 VALUES = {"coulomb_friction": {"tc_v": (0.05, 0.3)},
@@ -102,7 +112,12 @@ def kernel_rates(folder: Path, rounds: int = ROUNDS) -> tuple[float, dict]:
     closed = [r for r in runs if r.loop == "closed"]
     rng = np.random.default_rng(1)
     plant = TRUTH * 10.0 ** rng.uniform(-0.3, 0.3, (POP, 5))
-    cases = []
+    cases, changed = [], {}
+    for subset, rr in (("open", openl), ("closed", closed), ("all", runs)):
+        # the samples where the input changed (and the first): the only ones an open
+        # loop's input map and a closed loop's piece search run on
+        changed[subset] = sum(1 + int(np.count_nonzero(np.diff(r.u))) for r in rr) \
+            / sum(len(r.u) for r in rr)
     for name in FLOPS:
         effects = [] if name == "linear" else [CATALOGUE[name]()]
         ep = {name: {k: rng.uniform(lo, hi, POP) for k, (lo, hi) in VALUES[name].items()}} \
@@ -120,23 +135,37 @@ def kernel_rates(folder: Path, rounds: int = ROUNDS) -> tuple[float, dict]:
             best[key] = min(best.get(key, t), t)
     out = {key: {"ms": round(best[key] * 1e3, 3), "samples": n,
                  "cand_samples_per_s": POP * n / best[key]} for key, _, _, _, n in cases}
-    return peak, out
+    return peak, out, changed
+
+
+def path_flops(name: str, subset: str, changed: dict) -> float:
+    """Flops per sample per candidate the path performs on these runs: the full count where
+    the input changed, the steady one elsewhere (the samples after a lane was redone alone,
+    0.02-0.1 % of them, also run in full: left out, at most 0.02 flops a sample)."""
+    if subset == "closed" and name in LOOP_FLOPS:
+        full, steady = LOOP_FLOPS[name]
+        return steady + changed["closed"] * (full - steady)
+    if subset == "closed":
+        return FLOPS[name] + FEEDBACK
+    if name in MAP_FLOPS:
+        return FLOPS[name] - MAP_FLOPS[name] * (1.0 - changed[subset])
+    return FLOPS[name]
 
 
 def measure() -> dict:
     load = os.getloadavg()[0]
     with tempfile.TemporaryDirectory() as tmp:
         labrig("sweep", "--sim", "-o", Path(tmp) / "sweep")
-        peak, rates = kernel_rates(Path(tmp) / "sweep")
+        peak, rates, changed = kernel_rates(Path(tmp) / "sweep")
     paths = {}
     for key, r in rates.items():
         name, subset = key.split("/")
-        flops = FLOPS[name] if subset != "closed" else LOOP_FLOPS.get(name,
-                                                                      FLOPS[name] + FEEDBACK)
+        flops = round(path_flops(name, subset, changed), 2)
         limit = peak * 1e9 / flops
         paths[key] = {**r, "flops": flops, "limit_cand_samples_per_s": limit,
                       "share": round(r["cand_samples_per_s"] / limit, 3)}
     return {"peak_gflops_one_core": round(peak, 1), "paths": paths,
+            "input_changes": {k: round(v, 5) for k, v in changed.items()},
             "target_share": TARGET_SHARE, "target_closed_share": TARGET_CLOSED_SHARE,
             "threads": 1, **machine(load)}
 
@@ -148,7 +177,7 @@ def markdown(res: dict) -> str:
         name, subset = key.split("/")
         what = {"open": "open-loop runs", "closed": "the 2 closed-loop runs",
                 "all": "all 6 runs (2 closed-loop)"}[subset]
-        rows.append(f"| {name}, {what} | {r['cand_samples_per_s'] / 1e6:.0f} M | {r['flops']} "
+        rows.append(f"| {name}, {what} | {r['cand_samples_per_s'] / 1e6:.0f} M | {r['flops']:.3g} "
                     f"| **{100 * r['share']:.0f} %** |")
     return "\n".join(rows) + "\n\n" + closed_summary(res)
 

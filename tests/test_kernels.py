@@ -20,7 +20,8 @@ COMBOS = [[], ["coulomb_friction"], ["stiction"], ["deadband"], ["delay"], ["bac
           ["offset", "asymmetry", "saturation"], ["asymmetric_deadband"],
           ["coulomb_friction", "backlash"], ["coulomb_friction", "delay"],
           ["stiction", "backlash", "delay"], ["deadband", "coulomb_friction", "backlash"],
-          ["saturation", "coulomb_friction", "delay"]]
+          ["saturation", "coulomb_friction", "delay"], ["backlash", "deadband"],
+          ["backlash", "offset", "saturation"]]
 
 
 @pytest.fixture(scope="module")
@@ -54,6 +55,30 @@ def test_population_kernel_is_the_per_candidate_kernel(runs, names):
         ref += iw ** 2 * np.sum((wm - tr["w"]) ** 2, axis=1)
         ref += it ** 2 * np.sum((tm - tr["theta"]) ** 2, axis=1)
     assert np.all(np.isfinite(fast))
+    np.testing.assert_allclose(fast, ref, rtol=1e-9)
+
+
+@pytest.mark.parametrize("names", [[], ["coulomb_friction"], ["deadband"], ["backlash"],
+                                   ["stiction", "backlash", "delay"]],
+                         ids=lambda n: "+".join(n) or "linear")
+def test_population_kernel_with_a_measured_current(runs, names):
+    """A measured current's residual (added after the lanes' own) as the per-candidate
+    kernel's trajectories give it."""
+    rng = np.random.default_rng(7 + len(names))
+    P = 24
+    plant = np.array([8.0, 0.0085, 5.2245e-5, 1.0e-5, 0.05]) * 10.0 ** rng.uniform(-0.3, 0.3,
+                                                                                  (P, 5))
+    ep = {n: {k: rng.uniform(lo, hi, P) for k, (lo, hi) in VALUES[n].items()} for n in names}
+    sim = Simulator(runs, [CATALOGUE[n]() for n in names])
+    weights = [(r.speed, 1.3, r.position, 20.0, 0.02 * r.speed, 40.0) for r in runs]
+    fast = sim.sse(plant, ep, weights)
+    ref = np.zeros(P)
+    for r, tr, (wm, iw, tm, it, im, ii) in zip(runs, sim.simulate(plant, ep), weights):
+        ref += iw ** 2 * np.sum((wm - tr["w"]) ** 2, axis=1)
+        ref += it ** 2 * np.sum((tm - tr["theta"]) ** 2, axis=1)
+        ref += ii ** 2 * np.sum((im - tr["i"]) ** 2, axis=1)
+    without = sim.sse(plant, ep, [w[:4] + (None, 0.0) for w in weights])
+    assert np.all(fast > without)  # the current's residual is in the sum
     np.testing.assert_allclose(fast, ref, rtol=1e-9)
 
 

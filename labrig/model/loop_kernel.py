@@ -168,7 +168,12 @@ def _sweep_loop(X, q, N, iw, it, wmk, tmk, Ka, Kpot, kp, kvkt, mode):
     DELAY, FRICTION and PLAY terms the block needs (one build per mode).
 
     Loading the slot's row once per piece, not every slot's every sample to pick one, is
-    what keeps the lanes short: a drive changes piece in a few samples of a thousand."""
+    what keeps the lanes short: a drive changes piece in a few samples of a thousand.
+    STEADY (the input as in the sample before, and no lane redone there): every drive
+    starts where the sample before ended it, in the piece it started in, so the piece,
+    its level and the gap's side are read back (``R_G``, ``R_CN``, ``R_SIDE``) instead of
+    found; a pot on another side of its gap is redone alone. NO_KINK: the map is the gain
+    and the rail, and every lane has a gap."""
     numba.literally(mode)
     B = BLOCK
     dl = mode & DELAY
