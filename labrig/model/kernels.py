@@ -206,13 +206,13 @@ def _block(p0, p1, s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed, S, c, wm
         play |= prm[p, C_A] > 0.0
         mp[j] = m[p]
         delay |= m[p] != 0 or g_old[p, 0] != 0.0 or g_old[p, 1] != 0.0 or g_old[p, 2] != 0.0
-    # the terms any lane needs, rounded up to a mode that is built
     # the loop's map without a dead zone or an asymmetry, and a gap, in every lane (the
     # builds of backlash alone, or with an offset or a rail)
     no_kink = True
     for j in range(q):
         no_kink &= prm[p0 + j, C_D] == 0.0 and prm[p0 + j, C_ASYM] == 0.0 \
             and prm[p0 + j, C_A] > 0.0
+    # the terms any lane needs, rounded up to a mode that is built
     mode = (FEEDBACK if closed else 0) | (DELAY if delay else 0) \
         | (FRICTION if friction else 0) | (PLAY if play else 0)
     if mode not in MODES:  # every term (feedback only in a closed loop)

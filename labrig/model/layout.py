@@ -75,7 +75,8 @@ FEEDBACK, DELAY, FRICTION, PLAY, MOVING = 1, 2, 4, 8, 16
 #: a closed loop with its map (the loop's own builds, labrig.model.loop_kernel):
 #: STEADY: the input did not change and no lane was redone alone in the sample before,
 #: so every lane's drive starts in the piece it ended in (no need to find it again);
-#: NO_KINK: no lane has a dead zone or an asymmetry (the map is the gain and the rail)
+#: NO_KINK: no lane has a dead zone or an asymmetry (the map is the gain and the rail),
+#: and every lane a backlash gap (the builds of backlash alone)
 STEADY, NO_KINK = 32, 64
 #: the modes built: the short update, a delay, Coulomb friction, each alone or in a linear
 #: closed loop, and every term in open and in closed loop (the feedback bit also says how
