@@ -177,8 +177,8 @@ def markdown(res: dict) -> str:
         name, subset = key.split("/")
         what = {"open": "open-loop runs", "closed": "the 2 closed-loop runs",
                 "all": "all 6 runs (2 closed-loop)"}[subset]
-        rows.append(f"| {name}, {what} | {r['cand_samples_per_s'] / 1e6:.0f} M | {r['flops']:.3g} "
-                    f"| **{100 * r['share']:.0f} %** |")
+        rows.append(f"| {name}, {what} | {r['cand_samples_per_s'] / 1e6:.0f} M "
+                    f"| {r['flops']:.3g} | **{100 * r['share']:.0f} %** |")
     return "\n".join(rows) + "\n\n" + closed_summary(res)
 
 

@@ -61,14 +61,12 @@ def _cached_kernels() -> list:
     """Every cached compiled function of the kernel modules, the drivers' callees too: a
     callee's cached code holds what it called and inlined when it was built (``_block``
     the loop's lanes), and numba checks only the callee's own file."""
-    import sys as _sys
-
     import numba.core.registry
 
     _sources()  # (imports every kernel module)
     out = []
     for name in ("candidate_kernel", "expm", "kernels", "loop_kernel", "residual_rows"):
-        module = _sys.modules[f"labrig.model.{name}"]
+        module = sys.modules[f"labrig.model.{name}"]
         for obj in vars(module).values():
             if isinstance(obj, numba.core.registry.CPUDispatcher) and \
                     obj.__module__ == module.__name__ and obj._cache is not None \
