@@ -138,6 +138,16 @@ def _sweep(X, q, N, iw, it, wmk, tmk, kakp, kpot, mode):
     return (1 if nflag else 0) | (2 if nrest else 0)
 
 
+@numba.njit(cache=True, inline="always")
+def _add_current(X, q, ii):
+    """A measured current's squared residual (``R_DI``) added to each lane's sum after the
+    lanes' own, in the per-candidate code's order of sums (a test for it inside the lanes
+    made the compiler form it in every build)."""
+    if ii != 0.0:
+        for j in range(q):
+            X[R_ACC * BLOCK + j] = X[R_ACC * BLOCK + j] + X[R_DI * BLOCK + j]
+
+
 @numba.njit(cache=True, error_model="numpy")
 def _block(p0, p1, s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed, S, c, wm, iw, tm, it,
            im, ii, sse, imap, table):
@@ -285,14 +295,15 @@ def _block(p0, p1, s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed, S, c, wm
                         X[(R_MAP + M_DP) * B + j], X[(R_MAP + M_DN) * B + j], Ka,
                         X[(R_MAP + M_VMAX) * B + j])
         kakp, kpot = c[1] * c[5], c[4]
+        if ii != 0.0:  # a measured current's residual, from the state the sample starts in,
+            for j in range(q):  # added to the sum after the lanes' own (_add_current)
+                di = ii * (imk - X[R_I * B + j])
+                X[R_DI * B + j] = di * di
         if loop:
             nflag = loop_sample(X, qv, N, iw, it, wmk, tmk, c, delay, friction, play,
                                 steady and last == 0, no_kink and play)
             last = nflag
-            if ii != 0.0:  # the measured current's residual, in the lanes' order of sums
-                for j in range(qv):
-                    di = ii * (imk - X[R_I0 * B + j])
-                    X[R_ACC * B + j] = X[R_ACC * B + j] + di * di
+            _add_current(X, q, ii)
             if nflag > 0:  # the samples where the drive is in another piece, one lane at a
                 for j in range(q):  # time, as the per-candidate kernel takes them
                     if X[R_FLAG * B + j] != 0.0:
@@ -315,10 +326,6 @@ def _block(p0, p1, s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed, S, c, wm
             continue
         # friction: the build without the stuck rotor when no lane is at rest
         moving = (mode & FRICTION) != 0 and not rest
-        if ii != 0.0:  # a measured current's residual, from the state the sample starts in
-            for j in range(q):
-                di = ii * (imk - X[R_I * B + j])
-                X[R_DI * B + j] = di * di
         if mode == 0:  # each call site a constant mode: its own vectorised build
             r = _sweep(X, q, N, iw, it, wmk, tmk, kakp, kpot, 0)
         elif mode == FRICTION and moving:
@@ -343,9 +350,7 @@ def _block(p0, p1, s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed, S, c, wm
             r = _sweep(X, q, N, iw, it, wmk, tmk, kakp, kpot, 31)
         else:
             r = _sweep(X, q, N, iw, it, wmk, tmk, kakp, kpot, 15)
-        if ii != 0.0:  # ... added after the lanes' own, in the per-candidate code's order
-            for j in range(q):
-                X[R_ACC * B + j] = X[R_ACC * B + j] + X[R_DI * B + j]
+        _add_current(X, q, ii)
         nflag = r & 1
         rest = (r & 2) != 0
         if nflag > 0:  # the few samples the exact update cannot take, one at a time

@@ -192,10 +192,12 @@ def _sweep_loop(X, q, N, iw, it, wmk, tmk, Ka, Kpot, kp, kvkt, mode):
         if pa:
             pl = X[R_PL * B + j]
             a = X[R_GAP * B + j]
-            seen = pl if (nk or a > 0.0) else x
+            gap = True if nk else a > 0.0  # (NO_KINK: every lane has one)
+            seen = pl if gap else x
         else:
             pl = 0.0
             a = 0.0
+            gap = False
             seen = x
         dw = iw * (wmk - w)
         dth = it * (tmk - seen)
@@ -210,16 +212,16 @@ def _sweep_loop(X, q, N, iw, it, wmk, tmk, Ka, Kpot, kp, kvkt, mode):
         else:
             ak = X[(R_MAP + M_K) * B + j]
             d = X[(R_MAP + M_D) * B + j]
-        if pa and nk:  # (every lane has a gap)
-            ep = (x - a >= pl) & (w >= 0.0)
-            en = (x + a <= pl) & (w <= 0.0)
+        if pa and nk:  # (a gap in every lane: pressed at one end, the other, or inside;
+            ep = (x - a >= pl) & (w >= 0.0)  # written out, the selects are 3 instructions
+            en = (x + a <= pl) & (w <= 0.0)  # shorter than with gap's constant True)
             gp = (not ep) & (not en)
             sc = pl if gp else (-a if ep else a)
             side = 1.0 if ep else (-1.0 if en else 2.0)
         elif pa:
-            ep = (a > 0.0) & (x - a >= pl) & (w >= 0.0)
-            en = (a > 0.0) & (x + a <= pl) & (w <= 0.0)
-            gp = (a > 0.0) & (not ep) & (not en)
+            ep = gap & (x - a >= pl) & (w >= 0.0)  # pressed against the gap's ends
+            en = gap & (x + a <= pl) & (w <= 0.0)
+            gp = gap & (not ep) & (not en)
             sc = pl if gp else (-a if ep else (a if en else 0.0))
             side = 1.0 if ep else (-1.0 if en else (2.0 if gp else 0.0))
         else:
@@ -285,8 +287,8 @@ def _sweep_loop(X, q, N, iw, it, wmk, tmk, Ka, Kpot, kp, kvkt, mode):
             hi = xn + a
             npl = lo if pl < lo else (hi if pl > hi else pl)
             if not nk:
-                npl = npl if a > 0.0 else pl
-            seen1 = npl if (nk or a > 0.0) else xn
+                npl = npl if gap else pl
+            seen1 = npl if gap else xn
         else:
             npl = pl
             seen1 = xn
@@ -313,6 +315,13 @@ def _sweep_loop(X, q, N, iw, it, wmk, tmk, Ka, Kpot, kp, kvkt, mode):
     return 1 if nflag else 0
 
 
+#: the loop's builds, one call site each (a constant: numba compiles one build per mode);
+#: friction runs in the build with the delay's terms (the only one the compiler vectorised)
+_GAP_ALL = DELAY | FRICTION | PLAY
+_GAP_ST, _GAP_NK, _GAP_NK_ST = PLAY | STEADY, PLAY | NO_KINK, PLAY | NO_KINK | STEADY
+_FRICTION, _FRICTION_ST = DELAY | FRICTION, DELAY | FRICTION | STEADY
+
+
 @numba.njit(cache=True, inline="always")
 def loop_sample(X, q, N, iw, it, wmk, tmk, c, delay, friction, play, steady, no_kink):
     """:func:`_sweep_loop` with the build for the terms the block needs. Five builds for the
@@ -325,20 +334,20 @@ def loop_sample(X, q, N, iw, it, wmk, tmk, c, delay, friction, play, steady, no_
     Ka, Kpot, kp, kvkt = c[1], c[4], c[5], c[6] * c[3]
     if play:
         if delay or friction:
-            return _sweep_loop(X, q, N, iw, it, wmk, tmk, Ka, Kpot, kp, kvkt, 14)
+            return _sweep_loop(X, q, N, iw, it, wmk, tmk, Ka, Kpot, kp, kvkt, _GAP_ALL)
         if no_kink and steady:
-            return _sweep_loop(X, q, N, iw, it, wmk, tmk, Ka, Kpot, kp, kvkt, 104)
+            return _sweep_loop(X, q, N, iw, it, wmk, tmk, Ka, Kpot, kp, kvkt, _GAP_NK_ST)
         if no_kink:
-            return _sweep_loop(X, q, N, iw, it, wmk, tmk, Ka, Kpot, kp, kvkt, 72)
+            return _sweep_loop(X, q, N, iw, it, wmk, tmk, Ka, Kpot, kp, kvkt, _GAP_NK)
         if steady:
-            return _sweep_loop(X, q, N, iw, it, wmk, tmk, Ka, Kpot, kp, kvkt, 40)
-        return _sweep_loop(X, q, N, iw, it, wmk, tmk, Ka, Kpot, kp, kvkt, 8)
+            return _sweep_loop(X, q, N, iw, it, wmk, tmk, Ka, Kpot, kp, kvkt, _GAP_ST)
+        return _sweep_loop(X, q, N, iw, it, wmk, tmk, Ka, Kpot, kp, kvkt, PLAY)
     if friction and steady:
-        return _sweep_loop(X, q, N, iw, it, wmk, tmk, Ka, Kpot, kp, kvkt, 38)
+        return _sweep_loop(X, q, N, iw, it, wmk, tmk, Ka, Kpot, kp, kvkt, _FRICTION_ST)
     if friction:
-        return _sweep_loop(X, q, N, iw, it, wmk, tmk, Ka, Kpot, kp, kvkt, 6)
+        return _sweep_loop(X, q, N, iw, it, wmk, tmk, Ka, Kpot, kp, kvkt, _FRICTION)
     if delay:
-        return _sweep_loop(X, q, N, iw, it, wmk, tmk, Ka, Kpot, kp, kvkt, 2)
+        return _sweep_loop(X, q, N, iw, it, wmk, tmk, Ka, Kpot, kp, kvkt, DELAY)
     if steady:
-        return _sweep_loop(X, q, N, iw, it, wmk, tmk, Ka, Kpot, kp, kvkt, 32)
+        return _sweep_loop(X, q, N, iw, it, wmk, tmk, Ka, Kpot, kp, kvkt, STEADY)
     return _sweep_loop(X, q, N, iw, it, wmk, tmk, Ka, Kpot, kp, kvkt, 0)

@@ -35,14 +35,14 @@ def _sources() -> list[str]:
                                  residual_rows)]
 
 
-def _indexes() -> tuple[list[str], list[str]]:
-    """The drivers' cache indexes: (present and current, missing or stale). numba checks
-    only a driver's own file; a driver inlines code from the other kernel modules too, so
-    an index older than ANY of them is stale here. Raises when numba's private layout
-    differs (callers treat that as a cold cache)."""
+def _indexes(dispatchers=None) -> tuple[list[str], list[str]]:
+    """The cache indexes of ``dispatchers`` (the drivers if None): (present and current,
+    missing or stale). numba checks only a function's own file; a driver inlines code
+    from the other kernel modules too, so an index older than ANY of them is stale here.
+    Raises when numba's private layout differs (callers treat that as a cold cache)."""
     newest = max(os.path.getmtime(f) for f in _sources())
     current, stale = [], []
-    for d in _dispatchers():
+    for d in _dispatchers() if dispatchers is None else dispatchers:
         p = d._cache._cache_file._index_path
         (current if os.path.exists(p) and os.path.getmtime(p) >= newest else stale).append(p)
     return current, stale
@@ -69,7 +69,7 @@ def _cached_kernels() -> list:
         module = sys.modules[f"labrig.model.{name}"]
         for obj in vars(module).values():
             if isinstance(obj, numba.core.registry.CPUDispatcher) and \
-                    obj.__module__ == module.__name__ and obj._cache is not None \
+                    obj.__module__ == module.__name__ \
                     and hasattr(obj._cache, "_cache_file"):
                 out.append(obj)
     return out
@@ -79,10 +79,8 @@ def _forget_stale() -> None:
     """Remove every kernel's stale index (the drivers' and their callees'), so numba
     compiles them again instead of loading code built from an older inlined function."""
     try:
-        newest = max(os.path.getmtime(f) for f in _sources())
-        for d in _cached_kernels():
-            p = d._cache._cache_file._index_path
-            if os.path.exists(p) and os.path.getmtime(p) < newest:
+        for p in _indexes(_cached_kernels())[1]:
+            if os.path.exists(p):
                 os.remove(p)
     except (AttributeError, KeyError, OSError):
         pass
