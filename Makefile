@@ -21,7 +21,7 @@ test: $(STAMP)          ## the whole test suite on both cores (firmware and brow
 
 # the end-to-end loop files (diagnose, propose, plants, real rigs, sheets, report) are left
 # to `make test`; what is left runs in about two minutes on 2 cores
-QUICK_SKIP := $(foreach f,diagnose propose plants real_rigs exercises report,--ignore=tests/test_$(f).py)
+QUICK_SKIP := $(foreach f,diagnose propose plants real_rigs recordings exercises report,--ignore=tests/test_$(f).py)
 
 test-quick: $(STAMP)    ## about two minutes: no slow, firmware, browser or end-to-end loop tests
 	$(BIN)/python -m pytest -q -n 2 --dist load -m "not slow and not firmware and not browser" $(QUICK_SKIP)

@@ -334,3 +334,60 @@ def force_axis_closed_loop(folder, *, M=2.5, Fv=40.0, coulomb=22.0, offset=3.0, 
         path.write_text("\n".join(rows) + "\n")
         out.append(path)
     return out
+
+
+# -- a long force-driven axis record, in the shape of the EMPS benchmark ----------------
+
+def emps_like_axis(folder, *, M=95.1, Fv=203.5, coulomb=20.4, offset=-3.16, kd=35.15065,
+                   fs=1000.0, duration_s=24.8, counts_per_m=2e6, seed=13) -> Path:
+    """A prismatic axis in the shape of the EMPS benchmark record (Janot et al. 2019): a
+    carriage of ``M`` kg with viscous ``Fv`` and Coulomb friction and a force ``offset``,
+    driven through a force-mode drive of ``kd`` N per volt by a digital PD position loop
+    following point-to-point moves over 0.2 m for ``duration_s``; logged at ``fs`` as
+    ``t,qg,vir,qm`` (reference m, the drive's input V, the encoder's position m). Euler,
+    20 steps per sample; the carriage sticks while the force is within the Coulomb
+    level."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng(seed)
+    dt, sub = 1.0 / fs, 20
+    h = dt / sub
+    n = int(round(duration_s * fs))
+    t = np.arange(n) * dt
+    # point-to-point moves: a smooth (cosine) ramp to each target, then a dwell
+    targets = [0.0, 0.2, 0.05, 0.15, 0.0, 0.1, 0.2, 0.0, 0.12, 0.02, 0.18, 0.0]
+    ref = np.zeros(n)
+    seg = n // (len(targets) - 1)
+    for j in range(len(targets) - 1):
+        a, b = targets[j], targets[j + 1]
+        k0, k1 = j * seg, min(n, (j + 1) * seg)
+        ramp = np.clip(np.arange(k1 - k0) / (0.6 * seg), 0.0, 1.0)
+        ref[k0:k1] = a + (b - a) * 0.5 * (1.0 - np.cos(np.pi * ramp))
+    ref[(len(targets) - 1) * seg:] = targets[-1]
+    wn, zeta = 30.0, 0.7
+    kp = M * wn ** 2 / kd
+    kv = (2 * zeta * wn * M - Fv) / kd
+    q = 1.0 / counts_per_m
+    x = v = 0.0
+    meas_prev = 0.0
+    qm, vir = np.empty(n), np.empty(n)
+    for k in range(n):
+        meas = math.floor(x / q + 0.5) * q
+        u = kp * (ref[k] - meas) - kv * (meas - meas_prev) / dt + rng.normal(0.0, 2e-3)
+        meas_prev = meas
+        qm[k], vir[k] = meas, u
+        force = kd * u + offset
+        for _ in range(sub):
+            if v == 0.0 and abs(force) <= coulomb:
+                continue
+            s = math.copysign(1.0, v if v != 0.0 else force)
+            v_new = v + h * (force - Fv * v - coulomb * s) / M
+            if v != 0.0 and v_new * v < 0.0:
+                v_new = 0.0
+            x += 0.5 * h * (v + v_new)
+            v = v_new
+    path = folder / "emps.csv"
+    rows = ["t,qg,vir,qm"] + [f"{a:.4f},{b:.6f},{c:.6f},{d:.7f}"
+                              for a, b, c, d in zip(t, ref, vir, qm)]
+    path.write_text("\n".join(rows) + "\n")
+    return path

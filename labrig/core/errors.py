@@ -56,3 +56,10 @@ class Terminated(Interrupted):
         self.exit_code = 128 + self.signum
         text = f"terminated by {signal.Signals(self.signum).name}"
         super().__init__(f"{text}; {detail}" if detail else text)
+
+
+class FitDiverged(LabrigError):
+    """Every start of a fit diverged: its simulation overflowed or went non-finite (exit 1).
+    The message says which fit and what to try."""
+
+    exit_code = 1

@@ -103,6 +103,13 @@ class Identification(Displayable):
     dataset: dict = field(default_factory=dict)
     #: live, not in the JSON: the runs it was fitted to (for the overlay figure)
     runs: list | None = field(default=None, compare=False)
+    #: starts of the same fit that diverged (their simulation overflowed) and were dropped
+    failed_starts: int = 0
+
+    @property
+    def diverged(self) -> bool:
+        """The fit's simulation overflowed or went non-finite: no model to use."""
+        return not np.isfinite(self.metrics.get("fitness", np.nan))
 
     def headline(self) -> str:
         m = self.metrics

@@ -277,7 +277,14 @@ def fit_percent(y: np.ndarray, yhat: np.ndarray) -> float:
 def adequacy(runs, sims, sigma_w, sigma_theta, p=1.0, q=1.0, index=0, sigma_i=None,
              c=1.0, units="rad") -> dict:
     """fitness, rmse_over_noise (overall/per channel/per run) and fit_percent; the
-    current is a channel when ``sigma_i`` is given (a voltage plant with current measured)."""
+    current is a channel when ``sigma_i`` is given (a voltage plant with current measured).
+    A simulation that overflowed gives a non-finite fitness (a failed start, said by the
+    caller), without a warning."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        return _adequacy(runs, sims, sigma_w, sigma_theta, p, q, index, sigma_i, c, units)
+
+
+def _adequacy(runs, sims, sigma_w, sigma_theta, p, q, index, sigma_i, c, units) -> dict:
     sq = {"speed": [], "position": [], "current": []}
     meas = {"speed": [], "position": [], "current": []}
     per_run = {}

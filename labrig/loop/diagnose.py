@@ -26,7 +26,7 @@ from labrig.core.parallel import each
 from labrig.loop.crossval import cross_validate, fold_evidence, make_folds
 from labrig.loop.resolution import unresolved
 from labrig.loop.ranking import Candidate, Diagnosis
-from labrig.core.errors import UserError
+from labrig.core.errors import FitDiverged, UserError
 from labrig.loop.evaluation import Evaluation, evaluate
 from labrig.loop.explain import context as explain_context
 from labrig.identification.engine import dataset_constants, identify
@@ -226,6 +226,7 @@ def diagnose(runs, model: Model | None = None, *, candidates=None, seed: int = 0
         ev = evaluate(runs, cand, sig, weights=weights)
         k = len(param_keys(cand)) - len(fixed)
         c = Candidate(effect=effect, rmse_over_noise=ev.rmse,
+                      failed_starts=ident.failed_starts,
                       improvement=1.0 - ev.fitness / f0,
                       delta_bic=bic(ev.wsse, n, n_eff, k) - bic0,
                       params=dict(params if params is not None else cand.effect_params[effect]),
@@ -247,11 +248,23 @@ def diagnose(runs, model: Model | None = None, *, candidates=None, seed: int = 0
         i, name = job
         if progress:
             progress(i, name)
-        return entry(refit_with(runs, base, get_effect(name), seed=seed, fixed=fixed,
-                                weights=weights, reach=reach), name)
+        try:
+            ident = refit_with(runs, base, get_effect(name), seed=seed, fixed=fixed,
+                               weights=weights, reach=reach)
+        except FitDiverged:
+            return name   # every start diverged: said in the verdict, not ranked
+        return entry(ident, name)
 
     # the candidates side by side (labrig.core.parallel), in the catalogue's order
-    ranking: list[Candidate] = each(candidate, enumerate(candidate_names(base, candidates)))
+    tried = each(candidate, enumerate(candidate_names(base, candidates)))
+    diverged = [c for c in tried if isinstance(c, str)]
+    ranking: list[Candidate] = [c for c in tried if not isinstance(c, str)]
+    if diverged and not ranking:
+        raise FitDiverged(
+            f"every candidate's re-fit diverged ({', '.join(diverged)}: the simulation "
+            "overflowed from every start); start from a model nearer the data (labrig "
+            "identify DATA -o m0.json, then --model m0.json) or narrow the plant's range "
+            "with --bounds")
     # a candidate whose gain comes from re-fitting the rest of the model, not from its
     # effect, shows that the base was not converged: refine it and start again
     stale = [c for c in ranking if c.carried is not None and c.carried < MIN_GAIN
@@ -322,7 +335,11 @@ def diagnose(runs, model: Model | None = None, *, candidates=None, seed: int = 0
                    "(write your own effect: docs/physics.md, 'Writing your own effect'), in the "
                    "sensors' calibration, or in effects that only act together (diagnose --auto "
                    "tries pairs).")
+    if diverged:
+        verdict += (f" Not ranked: {', '.join(diverged)} (every start of the re-fit diverged: "
+                    "the simulation overflowed).")
     return Diagnosis(
+        diverged=diverged,
         baseline={"source": base_source, "effects": base.names,
                   "fitness": ev0.metrics["fitness"],
                   "rmse_over_noise": ev0.metrics["rmse_over_noise"],

@@ -62,6 +62,7 @@ class CandidateDoc(_Doc):
     fit_percent: dict[str, Num] = {}
     cross_validated: Optional[CrossValidated] = None
     at_bound: list[str] = []
+    failed_starts: int = 0
     supported: bool = False
     explanation: str = ""
 
@@ -97,6 +98,7 @@ class DiagnosisDoc(_Doc):
     weights: dict = {}
     criteria: Criteria = Criteria()
     seconds: Num = None
+    diverged: list[str] = []
 
     def result(self) -> Diagnosis:
         """The :class:`Diagnosis` (without its live models: the JSON has none)."""
@@ -107,13 +109,15 @@ class DiagnosisDoc(_Doc):
                                               if c.cross_validated else None),
                              at_bound=list(c.at_bound), move=c.move, replaces=c.replaces,
                              unresolved=c.unresolved, carried=c.carried,
-                             supported=c.supported, explanation=c.explanation)
+                             supported=c.supported, explanation=c.explanation,
+                             failed_starts=c.failed_starts)
                    for c in self.ranking]
         return Diagnosis(baseline=self.baseline.model_dump(), regimes=self.regimes.model_dump(),
                          ranking=ranking, recommendation=self.recommendation,
                          verdict=self.verdict, cross_validation=self.cross_validation,
                          noise=dict(self.noise), weights=dict(self.weights),
-                         criteria=self.criteria.model_dump(), seconds=self.seconds)
+                         criteria=self.criteria.model_dump(), seconds=self.seconds,
+                         diverged=list(self.diverged))
 
 
 # -- ladder.json ----------------------------------------------------------------------

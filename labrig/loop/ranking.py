@@ -53,6 +53,8 @@ class Candidate:
     #: effect switched off, the rest unchanged, is ``off_fitness``); None: not checked
     carried: float | None = None
     off_fitness: float | None = field(default=None, repr=False)
+    #: starts of its re-fit that diverged (their simulation overflowed) and were dropped
+    failed_starts: int = 0
     #: live, not in the JSON: the re-fitted model and its evaluation on all runs
     model: Model | None = field(default=None, repr=False)
     evaluation: Evaluation | None = field(default=None, repr=False)
@@ -108,6 +110,8 @@ class Candidate:
             d["carried"] = self.carried
         if self.unresolved:
             d["unresolved"] = self.unresolved
+        if self.failed_starts:
+            d["failed_starts"] = self.failed_starts
         d["supported"] = self.supported
         d["explanation"] = self.explanation
         return d
@@ -132,6 +136,8 @@ class Diagnosis(Displayable):
     #: each channel's noise floor and how it was measured; the channel weights
     noise: dict = field(default_factory=dict)
     weights: dict = field(default_factory=dict)
+    #: candidates not ranked because every start of their re-fit diverged
+    diverged: list = field(default_factory=list)
     #: live: the diagnosed model, its evaluation, the rig constants and run names
     base: Model | None = field(default=None, repr=False)
     evaluation: Evaluation | None = field(default=None, repr=False)
@@ -170,7 +176,8 @@ class Diagnosis(Displayable):
                 "recommendation": self.recommendation, "verdict": self.verdict,
                 "cross_validation": self.cross_validation, "noise": self.noise,
                 "weights": self.weights, "criteria": self.criteria,
-                "seconds": self.seconds}
+                "seconds": self.seconds,
+                **({"diverged": list(self.diverged)} if self.diverged else {})}
 
     def to_pandas(self):
         """The ranking as a DataFrame, one row per candidate effect."""

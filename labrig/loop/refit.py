@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from labrig.core.errors import FitDiverged
 from labrig.core.parallel import each
 from labrig.identification.engine import dataset_constants, identify, initial_point
 from labrig.model.plants import plant_of_runs
@@ -124,18 +125,33 @@ def _best_of_starts(runs, effects, new, params, *, reach, fixed, seed, weights, 
     """Fit ``effects`` from each scanned start (and each of ``extra``), side by side, and
     keep the best."""
     starts = starts_for(runs, params, effects, new, reach, fixed, weights) + list(extra)
+    what = f"the re-fit with {new.name}" if new is not None else "the re-fit"
     return best_fit(each(lambda s: fit(runs, effects, s, fixed, seed=seed, weights=weights,
-                                       reach=reach), starts))
+                                       reach=reach), starts), what)
 
 
-def best_fit(fits):
+def best_fit(fits, what: str = "the re-fit"):
     """The lowest fitness; within 1 % of it, a plant whose electrical pole is the faster
-    (the physical reading of an almost symmetric pair of poles)."""
-    low = min(f.fitness for f in fits)
-    near = [f for f in fits if f.fitness <= 1.01 * low]
+    (the physical reading of an almost symmetric pair of poles).
+
+    A start whose simulation overflowed or went non-finite (a stiff mechanical pole
+    under explicit friction sub-steps, say) is a failed start: it is dropped and counted
+    (``failed_starts`` of the result). When every start failed there is nothing to
+    choose from: :class:`~labrig.core.errors.FitDiverged` says so and what to try."""
+    fits = list(fits)
+    good = [f for f in fits if not f.diverged]
+    if not good:
+        raise FitDiverged(
+            f"{what}: every start ({len(fits)}) diverged (the simulation overflowed); "
+            "start from a model nearer the data (labrig identify DATA -o m0.json, then "
+            "--model m0.json) or narrow the plant's range with --bounds")
+    low = min(f.fitness for f in good)
+    near = [f for f in good if f.fitness <= 1.01 * low]
     right = [f for f in near if "L" not in f.params or f.params["L"] / f.params["R"]
              <= f.params["J"] * f.params["R"] / (f.params["B"] * f.params["R"] + f.params["K"] ** 2)]
-    return min(right or near, key=lambda f: f.fitness)
+    best = min(right or near, key=lambda f: f.fitness)
+    best.failed_starts = len(fits) - len(good) + sum(f.failed_starts for f in good)
+    return best
 
 
 def refit(runs, model: Model, *, seed: int = 0, fixed: dict | None = None,
