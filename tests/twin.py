@@ -123,7 +123,7 @@ class Twin:
         tacho = w_out * gain + rng.normal(0.0, self.tacho_noise_v, n)
         pot = th_out * self.kpot + self.pot0 + rng.normal(0.0, self.pot_noise_v, n)
         q = lambda v: np.round(np.clip(v, -10.0, 10.0) / adc) * adc   # noqa: E731
-        return {"u": u, "tacho": q(tacho), "pos": q(pot)}
+        return {"u": u, "tacho": q(tacho), "pos": q(pot), "theta": th_out}
 
     # -- files -------------------------------------------------------------------------
     def record(self, folder, name: str, u: np.ndarray, experiment: dict) -> Path:
@@ -391,3 +391,95 @@ def emps_like_axis(folder, *, M=95.1, Fv=203.5, coulomb=20.4, offset=-3.16, kd=3
                               for a, b, c, d in zip(t, ref, vir, qm)]
     path.write_text("\n".join(rows) + "\n")
     return path
+
+
+# -- a teaching kit's recordings: PRBS around an operating point, a step from a speed ---
+
+def _kit_motor(u, w0, *, R, K, J, B, dz, fs, sub=20):
+    """The kit's motor, ``J w' = K (v - K w) / R - B w`` with ``v`` the bridge's dead zone
+    of the held input, from ``w0``; RK4 with ``sub`` steps per sample. Returns the speed
+    at each sample and the travel over each sample's interval."""
+    h = 1.0 / fs / sub
+
+    def f(w, v):
+        return (K * (v - K * w) / R - B * w) / J
+
+    w = w0
+    ws, travel = np.empty(len(u)), np.empty(len(u))
+    for k, uk in enumerate(u):
+        v = math.copysign(max(abs(uk) - dz, 0.0), uk)
+        ws[k] = w
+        d = 0.0
+        for _ in range(sub):
+            k1 = f(w, v)
+            k2 = f(w + 0.5 * h * k1, v)
+            k3 = f(w + 0.5 * h * k2, v)
+            k4 = f(w + h * k3, v)
+            dw = h / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
+            d += h * (w + 0.5 * dw)
+            w += dw
+        travel[k] = d
+    return ws, travel
+
+
+def kit_recordings(folder, *, R=4.0, K=0.5, J=0.02, B=0.002, dz=1.0, fs=50.0, cpr=2000,
+                   levels=(2.5, 3.5, 4.5), prbs_v=0.6, prbs_s=10.0, step=(2.5, 4.5),
+                   step_s=6.0, seed=21) -> list[Path]:
+    """A teaching kit's recordings as its logger writes them (``t,u,speed``, 50 Hz): three
+    PRBS runs around the operating points ``levels`` (the input switches between level
+    +- ``prbs_v`` at random sample edges) and a step from a running speed (``step``: the
+    input held at the first level, stepped to the second after 1 s). Every run starts in
+    motion: the logger starts after the motor has run at the run's first input for 3 s. The
+    bridge passes nothing below ``dz`` volts. The speed is the encoder's counts (``cpr`` a
+    turn) over the 20 ms before each sample, in rad/s; the input is logged exactly."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng(seed)
+    dt = 1.0 / fs
+    inputs = []
+    for lv in levels:
+        n = int(prbs_s * fs)
+        bits = rng.integers(0, 2, n // 3 + 1).repeat(3)[:n]   # a bit lasts three samples
+        inputs.append((f"prbs_{lv:.1f}V", lv + prbs_v * (2 * bits - 1)))
+    n = int(step_s * fs)
+    inputs.append(("step", np.where(np.arange(n) < int(1.0 * fs), step[0], step[1])))
+    out = []
+    for name, u in inputs:
+        n0 = int(3.0 * fs)                                    # the pre-roll, not logged
+        full = np.concatenate([np.full(n0, u[0]), u])
+        _, travel = _kit_motor(full, 0.0, R=R, K=K, J=J, B=B, dz=dz, fs=fs)
+        angle = np.concatenate([[0.0], np.cumsum(travel)]) + rng.uniform(0, 2 * math.pi / cpr)
+        counts = np.floor(angle * cpr / (2 * math.pi))       # at each sample's start
+        # logged sample k (time k dt): the counts gained over the 20 ms before it
+        speed = (counts[n0:n0 + len(u)] - counts[n0 - 1:n0 - 1 + len(u)]) * 2 * math.pi / cpr / dt
+        t = np.arange(len(u)) * dt
+        path = folder / f"{name}.csv"
+        rows = ["t,u,speed"] + [f"{a:.3f},{b:.4f},{c:.5f}" for a, b, c in zip(t, u, speed)]
+        path.write_text("\n".join(rows) + "\n")
+        out.append(path)
+    return out
+
+
+def encoder_squares(twin: "Twin", folder, *, cpr=4000, amps=(1.2, 1.5, 2.0, 2.5), freq=0.25,
+                    periods=2, lead=0.5, seed=17) -> list[Path]:
+    """Square waves on ``twin``, logged as a position-only encoder rig logs them: the
+    output shaft's count (``cpr`` a turn) from wherever within its first count the shaft
+    happened to stand, ``t,u,count``; the input as the DAC played it."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng(seed)
+    q = 2 * math.pi / cpr
+    out = []
+    for a in amps:
+        n0, n = int(lead * twin.fs), int((lead + periods / freq) * twin.fs)
+        t = (np.arange(n) - n0) / twin.fs
+        u = np.where(t < 0, 0.0, np.where((t * freq) % 1.0 < 0.5, a, -a))
+        y = twin.play(u)
+        u = y["u"]                                        # as the DAC played it
+        th = y["theta"] + rng.uniform(0.0, q)             # the start within a count
+        count = np.floor(th / q).astype(int)
+        path = folder / f"sq_{a:.2f}V.csv"
+        rows = ["t,u,count"] + [f"{x:.4f},{y:.4f},{c}" for x, y, c in zip(t + lead, u, count)]
+        path.write_text("\n".join(rows) + "\n")
+        out.append(path)
+    return out

@@ -304,6 +304,11 @@ class ModelFile(_Closed):
     effects: Annotated[list[EffectName], Field(max_length=50)] = []
     params: PlantParams
     effect_params: dict[EffectName, dict[str, Num(-1e9, 1e9)]] = {}
+    #: each run's fitted start (labrig.model.start): its motor speed at the first sample
+    #: and its output shaft's offset
+    starts: Annotated[dict[RunName,
+                           dict[Literal["w0", "dtheta"], Num(-1e9, 1e9)]],
+                      Field(max_length=10000)] = {}
     constants: Optional[ModelConstants] = None
     # what the fit reported: shown, never computed with; NaN is allowed (a failed fit)
     fitness: Optional[float] = None

@@ -20,6 +20,7 @@ from labrig.model.effects import Effect
 from labrig.model.effectset import EffectSet
 from labrig.model.plants import VoltagePlant
 from labrig.model.simulate import Simulator, prepare
+from labrig.model.start import WHAT, is_start_key, run_starts, start_key
 from labrig.analysis.noise import channel_floors
 from labrig.model.residual_rows import residual_rows
 
@@ -44,6 +45,26 @@ class Space:
     log: np.ndarray                # bool per parameter
     fixed: dict = field(default_factory=dict)  # name -> physical value
     plant: type = VoltagePlant     # the plant class (labrig.model.plants)
+    #: the runs' starts (labrig.model.start.RunStart); their fitted parameters follow the
+    #: effects' in ``names``, and a start point without them takes the data's estimate
+    starts: list = field(default_factory=list)
+    estimates: dict = field(default_factory=dict)
+
+    def add_starts(self, starts) -> None:
+        """Append the fitted start parameters of ``starts`` (once)."""
+        if self.starts:
+            return
+        self.starts = list(starts)
+        keys, lo, hi = [], [], []
+        for st in self.starts:
+            for key, est, a, b in st.params():
+                keys.append(key), lo.append(a), hi.append(b)
+                self.estimates[key] = est
+        if keys:
+            self.names = list(self.names) + keys
+            self.lower = np.concatenate([self.lower, lo])
+            self.upper = np.concatenate([self.upper, hi])
+            self.log = np.concatenate([self.log, np.zeros(len(keys), bool)])
 
     @property
     def free(self) -> list[str]:
@@ -62,7 +83,9 @@ class Space:
 
     def to_search(self, physical: dict) -> np.ndarray:
         i = self.free_idx
-        v = np.array([physical[self.names[k]] for k in i], float)
+        v = np.array([physical.get(self.names[k], self.estimates.get(self.names[k]))
+                      if self.names[k] in self.estimates else physical[self.names[k]]
+                      for k in i], float)
         lo, hi = self.lower[i], self.upper[i]
         return self._fwd(np.clip(v, lo, hi), i)
 
@@ -73,8 +96,15 @@ class Space:
         i = self.free_idx
         out[:, i] = np.where(self.log[i], 10.0 ** X, X)
         for n, v in self.fixed.items():
-            out[:, self.names.index(n)] = v
+            if n in self.names:   # (a fixed start of a run this space does not hold: none)
+                out[:, self.names.index(n)] = v
         return out
+
+    def physical_row(self, physical: dict) -> np.ndarray:
+        """Every parameter's physical value from a model's flat dict, in ``names``' order;
+        a run's start the model does not record takes the data's estimate."""
+        return np.array([physical[n] if n in physical or n not in self.estimates
+                         else self.estimates[n] for n in self.names], float)
 
     def as_dict(self, row: np.ndarray) -> dict:
         return {n: float(v) for n, v in zip(self.names, row)}
@@ -123,12 +153,12 @@ def build_space(effects: list[Effect], bounds: dict | None = None, fixed: dict |
         raise UserError(f"--bounds: unknown parameter '{sorted(bounds)[0]}'; the model has "
                         f"{listed}")
     for n, v in fixed.items():
-        if n not in names:
+        if n not in names and not is_start_key(n):  # (a run's start joins with the runs)
             raise UserError(f"--fix: unknown parameter '{n}'; the model has {listed}")
     for n, a, b in zip(names, lo, hi):
         if not a < b:
             raise UserError(f"--bounds: {n} has lower {a:g} >= upper {b:g}")
-    if len(fixed) >= len(names):
+    if len([n for n in fixed if not is_start_key(n)]) >= len(names):
         raise UserError("--fix: every parameter is fixed; nothing left to identify")
     return Space(names, np.array(lo, float), np.array(hi, float), np.array(log), fixed, plant)
 
@@ -137,7 +167,8 @@ class Objective:
     """Population-vectorised residuals and fitness of a model on a data set."""
 
     def __init__(self, runs, effects: list[Effect], space: Space, p: float = 1.0,
-                 q: float = 1.0, substeps: int = 16, masks=None, c: float = 1.0):
+                 q: float = 1.0, substeps: int = 16, masks=None, c: float = 1.0,
+                 start: str = "auto"):
         if not runs:
             raise UserError("the data set is empty: give a folder with at least one run")
         self.runs = prepare(runs)
@@ -160,6 +191,14 @@ class Objective:
         self.use_w = "speed" in self.floors and self.q > 0
         self.use_theta = "position" in self.floors and self.p > 0
         self.use_i = "current" in self.floors and self.c > 0
+        # each run's start: from rest, or its initial state fitted (labrig.model.start); a
+        # space shared by several objectives keeps the starts it was given first
+        space.add_starts(run_starts(self.runs, self.sigma_w if "speed" in self.floors else None,
+                                    self.sigma_theta if "position" in self.floors else None,
+                                    start))
+        self._start_cols = [{what: space.names.index(start_key(r.name, what)) for what in WHAT
+                             if start_key(r.name, what) in space.names} for r in self.runs]
+        self._started = any(self._start_cols)
         #: per run, the samples the fit sees (cross-validation folds, and never a sample
         #: the link lost); None: all
         self.masks = None if masks is None else [np.asarray(m, bool) for m in masks]
@@ -190,9 +229,17 @@ class Objective:
         """(P, D_all) physical -> plant (P, n_plant), {effect: {param: (P,)}}."""
         return phys[:, :self.n_plant], self.effects.split(phys, offset=self.n_plant)
 
+    def run_starts(self, phys: np.ndarray) -> list | None:
+        """(P, D_all) physical -> per run None or ``{"w0": (P,), "dtheta": (P,)}``."""
+        if not self._started:
+            return None
+        return [{what: phys[:, c] for what, c in cols.items()} or None
+                for cols in self._start_cols]
+
     def simulate_physical(self, phys: np.ndarray) -> list[dict]:
-        plant, ep = self.split(np.atleast_2d(phys))
-        return self.sim.simulate(plant, ep)
+        phys = np.atleast_2d(phys)
+        plant, ep = self.split(phys)
+        return self.sim.simulate(plant, ep, self.run_starts(phys))
 
     # -- residuals ----------------------------------------------------------------------
     def _layout(self, stride: int) -> list:
@@ -255,9 +302,10 @@ class Objective:
             f = np.sqrt(np.sum(R ** 2, axis=1) / self.m)
             return np.where(np.isfinite(f), f, np.inf)
         self.nfev += X.shape[0]
-        plant, ep = self.split(self.space.to_physical(X))
+        phys = self.space.to_physical(X)
+        plant, ep = self.split(phys)
         with np.errstate(all="ignore"):
-            f = np.sqrt(self.sim.sse(plant, ep, self._weights) / self.m)
+            f = np.sqrt(self.sim.sse(plant, ep, self._weights, self.run_starts(phys)) / self.m)
         mark_once(FIRST_POPULATION)
         return np.where(np.isfinite(f), f, np.inf)
 

@@ -26,6 +26,7 @@ import numpy as np
 
 from labrig.core.parallel import each
 from labrig.model.model import Model
+from labrig.model.start import is_start_key
 from labrig.model.simulate import prepare
 from labrig.analysis.noise import run_speed
 from labrig.loop.refit import fit
@@ -163,16 +164,21 @@ def cross_validate(runs, model: Model, folds: Folds, *, sigmas, weights, seed: i
             if y is not None} for r in prepared]
     per_fold, fold_sq, fold_n, fold_params = [], [], [], []
     start = {**model.flat(), **(fixed or {})}
+    # a run's start (labrig.model.start) is held where the model has it: a held-out stretch
+    # is given its own starting state and nothing more, and a fold whose training part
+    # lacks a run's first samples could not pin it
+    starts = {k: v for k, v in start.items() if is_start_key(k)}
 
     def train(fold):
         idx = [i for i, m in enumerate(fold.train) if m.any()]
         sub = [runs[i] for i in idx]
         masks = None if all(fold.train[i].all() for i in idx) else [fold.train[i] for i in idx]
-        return fit(sub, model.effects, start, dict(fixed or {}), seed=seed, weights=weights,
-                   reach=reach, max_nfev=max_nfev, masks=masks)
+        return fit(sub, model.effects, start, {**(fixed or {}), **starts}, seed=seed,
+                   weights=weights, reach=reach, max_nfev=max_nfev, masks=masks)
 
     for fold, f in zip(folds.folds, each(train, folds.folds)):   # the folds side by side
-        fm = Model.from_flat(f.params, model.effects, model.constants, plant=model.plant)
+        fm = Model.from_flat({**starts, **f.params}, model.effects, model.constants,
+                             plant=model.plant)
         test_idx = [i for i, m in enumerate(fold.test) if m.any()]
         sims = fm.simulate([runs[i] for i in test_idx])
         sq, cnt = 0.0, 0

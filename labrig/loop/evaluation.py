@@ -154,8 +154,7 @@ def evaluate(runs, model: Model, sigmas=None, weights: Weights | None = None) ->
     obj = Objective(runs, model.effects, space, p=weights.p, q=weights.q)
     if sigmas is not None:
         obj.sigma_w, obj.sigma_theta = sigmas
-    flat = model.flat()
-    phys = np.array([flat[n] for n in param_keys(model)])
+    phys = space.physical_row(model.flat())
     sims = obj.simulate_physical(phys[None, :])
     metrics = adequacy(obj.runs, sims, obj.sigma_w, obj.sigma_theta, weights.p, weights.q)
     quanta = {ch: f.q for ch, f in obj.floors.items()}

@@ -14,7 +14,7 @@ import math
 
 import numba
 
-from labrig.model.layout import C_A, C_TC, C_TS, M_D, M_DN, M_DP, M_K, M_U0, M_VMAX, T_OK
+from labrig.model.layout import C_A, C_I0, C_TC, C_TH0, C_TS, C_W0, M_D, M_DN, M_DP, M_K, M_U0, M_VMAX, T_OK
 from labrig.model.loop_kernel import loop_drive, loop_step, play_operator
 
 
@@ -134,11 +134,11 @@ def _candidate(p, s, m, frac, Ad, g_old, g_new, gf, prm, nonlinear, closed, S, c
     mapped_new = 0.0  # the mapped input of the sample before (its s_new is this one's s_old)
     N = c[2]
     acc = 0.0
-    i = 0.0
-    w = 0.0
-    th = c[7] * N
-    play = c[7]
     pr = prm[p]
+    i = pr[C_I0]
+    w = pr[C_W0]
+    th = (c[7] + pr[C_TH0]) * N
+    play = c[7] + pr[C_TH0]
     tc, ts, a = pr[C_TC], pr[C_TS], pr[C_A]
     friction = tc > 0.0 or ts > 0.0
     mp = m[p]

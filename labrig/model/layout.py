@@ -6,6 +6,10 @@ module can import them without a cycle."""
 #: kernel parameter columns: R, L, J, B, K, then the effects', then the back-EMF constant
 #: (labrig.model.simulate writes them)
 C_D, C_U0, C_ASYM, C_VMAX, C_TC, C_TS, C_A, C_TD, C_KE = range(5, 14)
+#: then the run's initial state per candidate (labrig.model.start): the current, the motor
+#: speed and the output shaft's offset from the position the first samples read (all 0:
+#: the run starts at rest where its first samples say)
+C_I0, C_W0, C_TH0 = range(14, 17)
 
 #: the open-loop input map the population kernel applies itself, in this order (every
 #: simulator's order): offset, asymmetry, dead zone, asymmetric dead zone, the gain Ka,

@@ -20,6 +20,7 @@ from labrig.model.effects import Effect, catalogue_name
 from labrig.model.effectset import EffectSet, param_key
 from labrig.model.plants import PLANTS, VoltagePlant, plant_class
 from labrig.model.servo import ServoParams
+from labrig.model.start import parse_key, start_key
 
 FORMAT = "labrig-model/1"
 
@@ -57,6 +58,10 @@ class Model:
     constants: dict = field(default_factory=dict)
     plant: str = VoltagePlant.kind
     info: dict = field(default_factory=dict)
+    #: the fitted start of each run that does not start at rest (labrig.model.start):
+    #: ``{run name: {"w0": motor speed at the first sample, "dtheta": the output shaft's
+    #: offset from where its first samples read}}``; a run not named starts at rest
+    starts: dict = field(default_factory=dict)
 
     def __post_init__(self):
         self.effects = EffectSet.parse(self.effects) if not isinstance(self.effects, EffectSet) \
@@ -72,6 +77,8 @@ class Model:
         """Every parameter in one dict: plant names, then ``effect.param``."""
         out = {k: float(self.params[k]) for k in self.plant_class.names}
         out.update(EffectSet.flatten(self.effect_params))
+        out.update({start_key(run, what): float(v) for run, st in self.starts.items()
+                    for what, v in st.items()})
         return out
 
     @classmethod
@@ -79,10 +86,16 @@ class Model:
                   plant: str = VoltagePlant.kind, info: dict | None = None) -> "Model":
         effects = EffectSet.parse(effects)
         names = PLANTS[plant].names
+        starts: dict = {}
+        for key, v in flat.items():
+            run_what = parse_key(key)
+            if run_what:
+                starts.setdefault(run_what[0], {})[run_what[1]] = float(v)
         return cls(params={k: float(flat[k]) for k in names}, effects=effects,
                    effect_params={e: {k: float(v) for k, v in ps.items()}
                                   for e, ps in effects.nest(flat).items()},
-                   constants=dict(constants or {}), plant=plant, info=dict(info or {}))
+                   constants=dict(constants or {}), plant=plant, info=dict(info or {}),
+                   starts=starts)
 
     def with_effect(self, effect: Effect, params: dict) -> "Model":
         """This model plus ``effect`` with its ``params`` (nothing re-fitted)."""
@@ -104,6 +117,8 @@ class Model:
                "effect_params": self.shown_effect_params(),
                "constants": dict(self.constants)}
         doc.update({k: self.info[k] for k in INFO_KEYS if k in self.info and k != "method"})
+        if self.starts:
+            doc["starts"] = {run: dict(st) for run, st in self.starts.items()}
         if doc["method"] is None:
             doc.pop("method")
         return doc
@@ -136,7 +151,10 @@ class Model:
                     raise UserError(f"{origin}: key 'effect_params.{key}' missing or not a "
                                     "number")
         info = {k: doc[k] for k in INFO_KEYS if k in doc}
-        return cls(params={k: float(doc["params"][k]) for k in PLANTS[structure].names},
+        starts = {run: {k: float(v) for k, v in st.items()}
+                  for run, st in (doc.get("starts") or {}).items()}
+        return cls(starts=starts,
+                   params={k: float(doc["params"][k]) for k in PLANTS[structure].names},
                    effects=effects,
                    effect_params={e.name: {p.name: float(eps[e.name][p.name]) for p in e.params}
                                   for e in effects},
@@ -158,8 +176,9 @@ class Model:
 
         sim = Simulator(runs, self.effects, plant=self.plant_class)
         plant = np.array([[self.params[k] for k in self.plant_class.names]])
+        starts = [self.starts.get(r.name) for r in sim.runs] if self.starts else None
         out = sim.simulate(plant, {e: {k: np.array([v]) for k, v in ps.items()}
-                                   for e, ps in self.effect_params.items()})
+                                   for e, ps in self.effect_params.items()}, starts)
         return [{"w": s["w"][0], "theta": s["theta"][0], "i": s["i"][0]} for s in out]
 
     def __repr__(self) -> str:

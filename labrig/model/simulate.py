@@ -30,15 +30,16 @@ import numpy as np
 from labrig.core.errors import UserError
 from labrig.model.effects import AsymmetricDeadband, Asymmetry, Deadband, Effect, Offset, Saturation, ordered
 from labrig.model.expm import loop_slot_fill, zoh_batch
-from labrig.model.layout import (C_A, C_ASYM, C_D, C_KE, C_TC, C_TD, C_TS, C_U0, C_VMAX,
+from labrig.model.layout import (C_A, C_ASYM, C_D, C_I0, C_KE, C_TC, C_TD, C_TH0, C_TS,
+                                 C_U0, C_VMAX, C_W0,
                                  MAP_COLUMNS, N_SLOTS, S_FLAT, S_NEG, S_NEG_GAP, S_POS,
                                  S_POS_GAP, SLOT_W, T_OK)
 from labrig.model.kernels import run_kernels
 
 # kernel parameter columns: R, L, J, B, K (labrig.model.plants: every plant's kernel
 # form), then the effects' (C_D..C_TD), then the back-EMF constant Ke (0 for a
-# current-mode drive)
-N_COLS = 14
+# current-mode drive), then the run's initial state (C_I0, C_W0, C_TH0: labrig.model.start)
+N_COLS = 17
 #: open-loop input and drive effects the kernel applies itself (their formulas are in
 #: labrig.model.candidate_kernel.input_map); a subclass or a user's effect takes the numpy path
 _MAPPED = (Offset, Asymmetry, Deadband, AsymmetricDeadband, Saturation)
@@ -52,7 +53,7 @@ KERNEL_COLUMNS = {"d": C_D, "u0": C_U0, "asym": C_ASYM, "vmax": C_VMAX, "tc": C_
 
 
 class _KernelTable:
-    """Named access to the (P, 14) parameter table for ``Effect.to_kernel``."""
+    """Named access to the (P, 17) parameter table for ``Effect.to_kernel``."""
 
     def __init__(self, prm: np.ndarray):
         self.prm = prm
@@ -174,7 +175,7 @@ class Simulator:
                                 "simulated on open-loop runs; leave the closed-loop runs out")
 
     def _params(self, plant, effect_params):
-        """Candidate parameters -> the kernel's (P, 14) table, effect arrays, user outputs."""
+        """Candidate parameters -> the kernel's (P, 17) table, effect arrays, user outputs."""
         plant = self.plant.kernel(np.asarray(plant, dtype=float))
         P = plant.shape[0]
         prm = np.zeros((P, N_COLS))
@@ -194,7 +195,8 @@ class Simulator:
                 user_output.append(e)
         return prm, ep, user_output
 
-    def simulate(self, plant: np.ndarray, effect_params: dict | None = None) -> list[dict]:
+    def simulate(self, plant: np.ndarray, effect_params: dict | None = None,
+                 starts: list | None = None) -> list[dict]:
         """Simulate.
 
         Parameters
@@ -203,6 +205,10 @@ class Simulator:
             The plant's parameters per candidate (R, L, J, B, K for the voltage plant).
         effect_params : dict
             ``{effect name: {param: array (P,) or scalar}}``.
+        starts : list, optional
+            Per run, None (from rest, where the first samples say) or ``{"w0": (P,),
+            "dtheta": (P,)}`` (either may be missing): the speed at the first sample and
+            the output shaft's offset (:mod:`labrig.model.start`).
 
         Returns
         -------
@@ -211,13 +217,15 @@ class Simulator:
         """
         prm, ep, user_output = self._params(plant, effect_params)
         disc = {}
-        sims = [self._simulate_run(run, prm, ep, user_output, disc) for run in self.runs]
+        starts = starts or [None] * len(self.runs)
+        sims = [self._simulate_run(run, self._started(run, prm, ep, st), ep, user_output, disc)
+                for run, st in zip(self.runs, starts)]
         for run, sim in zip(self.runs, sims):
             if run.speed_window > 1:   # the speed as the sensor reads it
                 sim["w"] = windowed_speed(sim["w"], run.speed_window, run.dt)
         return sims
 
-    def sse(self, plant, effect_params, weights) -> np.ndarray:
+    def sse(self, plant, effect_params, weights, starts: list | None = None) -> np.ndarray:
         """Weighted sum of squared residuals per candidate, without storing trajectories.
 
         ``weights`` is a list, per run, of ``(w_meas, inv_sigma_w, theta_meas,
@@ -228,7 +236,7 @@ class Simulator:
         if user_output or self._windowed:
             # a user's output map, a sensor's window: the trajectories are needed
             total = np.zeros(prm.shape[0])
-            sims = self.simulate(plant, effect_params)
+            sims = self.simulate(plant, effect_params, starts)
             for run, sim, (wm, iw, tm, it, im, ii) in zip(self.runs, sims, weights):
                 total += iw ** 2 * np.sum((wm - sim["w"]) ** 2, axis=1) if iw else 0.0
                 total += it ** 2 * np.sum((tm - sim["theta"]) ** 2, axis=1) if it else 0.0
@@ -236,9 +244,42 @@ class Simulator:
             return total
         disc = {}
         total = np.zeros(prm.shape[0])
-        for run, wts in zip(self.runs, weights):
-            total += self._simulate_run(run, prm, ep, user_output, disc, wts)
+        for run, wts, st in zip(self.runs, weights, starts or [None] * len(self.runs)):
+            total += self._simulate_run(run, self._started(run, prm, ep, st), ep, user_output,
+                                        disc, wts)
         return total
+
+    def _started(self, run: RunData, prm, ep, start):
+        """``prm`` with the run's initial state (a copy; ``prm`` itself when the run
+        starts at rest: the kernels' columns are zeros there)."""
+        if not start:
+            return prm
+        P = prm.shape[0]
+        out = prm.copy()
+        w0 = np.broadcast_to(np.asarray(start.get("w0", 0.0), float), (P,))
+        out[:, C_W0] = w0
+        out[:, C_TH0] = np.broadcast_to(np.asarray(start.get("dtheta", 0.0), float), (P,))
+        if np.any(w0 != 0.0):
+            out[:, C_I0] = (self._first_drive(run, out, ep) - out[:, C_KE] * w0) / out[:, 0]
+        return out
+
+    def _first_drive(self, run: RunData, prm, ep) -> np.ndarray:
+        """The armature voltage (the kernel's drive) of the first sample per candidate: the
+        input through the effects' maps in open loop; in closed loop the linear loop's
+        drive from the start state (the current settles within the electrical lag)."""
+        P = prm.shape[0]
+        u = np.full((1, P), float(run.u[0]))
+        if run.loop == "closed":
+            th = (run.theta0 + prm[:, C_TH0])
+            return run.Ka * (run.kp * (u[0] - run.Kpot * th) - run.kv * run.Kt * prm[:, C_W0])
+        for eff in self.effects:
+            if eff.stage == "input":
+                u = eff.apply(u, **{k: v[None, :] for k, v in ep[eff.name].items()})
+        u = u * run.Ka
+        for eff in self.effects:
+            if eff.stage == "drive":
+                u = eff.apply(u, **{k: v[None, :] for k, v in ep[eff.name].items()})
+        return np.asarray(u, float)[0]
 
     # ------------------------------------------------------------------------------
     def _open_loop_input(self, run: RunData, ep, P):

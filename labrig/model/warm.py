@@ -114,7 +114,7 @@ def _workload() -> None:
                 (1, True, False, (C_D,)), (1, True, False, (C_ASYM,)),
                 (1, True, False, (C_D, C_TC)), (1, True, False, (C_A,)),
                 (1, True, False, (C_A, C_TC))):
-            prm = np.zeros((P, 14))
+            prm = np.zeros((P, 17))
             prm[:, :5] = [8.0, 0.0085, 5.2e-5, 1.0e-5, 0.05]
             prm[:, C_VMAX] = np.inf
             for col in extra:

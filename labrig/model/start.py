@@ -1,0 +1,164 @@
+"""Where each run starts: at rest where its first samples say, or in motion, with its
+initial state fitted as nuisance parameters beside the model.
+
+A kit's recordings often start in motion (PRBS around an operating point, a step from a
+running speed). Simulated from rest, such a run begins with a start-up transient the motor
+never had, and the fit spends the model's parameters (or a delay, or a pole) on it. And an
+encoder's count says where the shaft is only to within one count: the model started at
+the first count is off by up to half a count for the whole run.
+
+So, per run and decided from the data (:func:`run_starts`):
+
+- **speed at the first sample** (``w0``, motor rad/s or m/s) is fitted when the first
+  samples show motion: their mean speed (or, without a speed channel, the slope of the
+  position) is more than :data:`MOVING_SIGMAS` standard errors from zero. The armature
+  current starts in equilibrium with the first sample's drive and that speed,
+  ``i0 = (v0 - Ke w0) / R`` (the electrical lag settles within a few ms, well inside a
+  sample on every rig here);
+- **a position offset** (``dtheta``, at the output shaft, against the position the first
+  samples read) is fitted when the run starts in motion (the first samples' mean is not
+  where the shaft was at the first one) or the position is an encoder's count (its start
+  is unknown within a count).
+
+A run that starts at rest is simulated from rest as before: nothing is fitted and the
+fused kernels run as they did. ``mode`` overrides the decision: ``"rest"`` fits nothing,
+``"estimate"`` fits both for every run.
+
+The parameters ride in the optimiser's vector as ``start[RUN].w0`` and
+``start[RUN].dtheta`` (:func:`start_key`) within a range about the data's own estimate,
+and a model records them per run (``Model.starts``).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from labrig.core.errors import UserError
+
+#: a run is moving at its start when its first samples' mean speed is this many standard
+#: errors (of that mean, from the channel's noise floor) away from zero
+MOVING_SIGMAS = 5.0
+#: the first samples looked at: this long, at least MIN_FIRST samples
+FIRST_S = 0.02
+MIN_FIRST = 4
+#: how a run's start is decided (``--start``)
+MODES = ("auto", "rest", "estimate")
+#: the parameters of a run's start, in the order of the optimiser's vector
+WHAT = ("w0", "dtheta")
+
+
+def start_key(run: str, what: str) -> str:
+    """The flat name of a run's start parameter: ``start[RUN].w0``."""
+    return f"start[{run}].{what}"
+
+
+def parse_key(key: str) -> tuple[str, str] | None:
+    """``start[RUN].w0`` -> ``("RUN", "w0")``; None for any other key."""
+    if not key.startswith("start[") or "]." not in key:
+        return None
+    run, what = key[len("start["):].rsplit("].", 1)
+    return (run, what) if what in WHAT else None
+
+
+def is_start_key(key: str) -> bool:
+    return parse_key(key) is not None
+
+
+@dataclass(frozen=True)
+class RunStart:
+    """A run's start as the data show it, and what is fitted of it.
+
+    ``w0`` and ``dtheta`` are the data's estimates (the middle of their search ranges);
+    ``w_span`` and ``th_span`` the ranges' half widths; ``fit_w0``/``fit_dtheta`` say
+    which are fitted. ``why`` says it in words."""
+
+    run: str
+    moving: bool
+    fit_w0: bool
+    fit_dtheta: bool
+    w0: float = 0.0
+    w_span: float = 0.0
+    dtheta: float = 0.0
+    th_span: float = 0.0
+    why: str = ""
+
+    @property
+    def fitted(self) -> bool:
+        return self.fit_w0 or self.fit_dtheta
+
+    def params(self) -> list[tuple[str, float, float, float]]:
+        """``(key, estimate, lower, upper)`` of each fitted parameter."""
+        out = []
+        if self.fit_w0:
+            out.append((start_key(self.run, "w0"), self.w0, self.w0 - self.w_span,
+                        self.w0 + self.w_span))
+        if self.fit_dtheta:
+            out.append((start_key(self.run, "dtheta"), self.dtheta, self.dtheta - self.th_span,
+                        self.dtheta + self.th_span))
+        return out
+
+
+def _first(run, n_first: int) -> np.ndarray:
+    keep = np.flatnonzero(run.keep())
+    return keep[:n_first]
+
+
+def run_start(run, sigma_w: float | None, sigma_theta: float | None,
+              mode: str = "auto") -> RunStart:
+    """Decide one run's start (a :class:`labrig.model.simulate.RunData`)."""
+    if mode not in MODES:
+        raise UserError(f"--start: unknown mode '{mode}'; choose {', '.join(MODES)}")
+    n_first = max(MIN_FIRST, int(round(FIRST_S / run.dt)))
+    idx = _first(run, n_first)
+    if mode == "rest" or len(idx) < 2:
+        return RunStart(run.name, False, False, False, why="simulated from rest")
+    motor = run.N if run.axis == "rotary" else 1.0   # the speed channel is the motor's
+    w_est, moving, why = 0.0, False, ""
+    if run.w is not None and sigma_w:
+        w = run.w[idx]
+        se = sigma_w / np.sqrt(len(w))
+        moving = abs(np.mean(w)) > MOVING_SIGMAS * se
+        w_est = float(np.mean(w[:2]))   # where it starts (the input may switch at once)
+        why = (f"the first {len(w)} samples' mean speed is {abs(np.mean(w)) / se:.0f} standard "
+               "errors from zero")
+    elif run.theta is not None and sigma_theta:
+        t = idx * run.dt
+        slope, _ = np.polyfit(t, run.theta[idx], 1)
+        se = sigma_theta * np.sqrt(12.0 / len(idx)) / max(t[-1] - t[0], run.dt)
+        w_est = float(slope) * motor
+        moving = abs(slope) > MOVING_SIGMAS * se
+        why = f"first {len(idx)} samples' position slope ({abs(slope) / se:.0f} standard errors)"
+    if mode == "estimate":
+        moving = True
+    th = run.theta
+    dth, th_span = 0.0, 0.0
+    fit_th = th is not None and (moving or run.pos_q > 0)
+    if fit_th:
+        # the model starts at the first samples' mean (RunData.theta0); a moving shaft was
+        # short of it at the first sample by the travel over half the window
+        k = max(1, min(20, len(th) // 50))   # as RunData.theta0 averages them
+        dth = -float(w_est / motor * run.dt * (k - 1) / 2.0) if moving else 0.0
+        th_span = max(run.pos_q, 5.0 * (sigma_theta or 0.0), abs(dth))
+    # from standstill to twice the estimate: room for a filtered or quantised first reading
+    w_span = max(abs(w_est), 10.0 * (sigma_w or 0.0), 1e-3 * motor) if moving else 0.0
+    if moving:
+        text = f"starts in motion ({why}): its speed and position at the first sample fitted"
+    elif fit_th:
+        text = "starts at rest; the encoder's start within a count fitted as a position offset"
+    else:
+        text = "starts at rest" + (f" ({why})" if why else "")
+    return RunStart(run.name, moving, moving, fit_th, w0=w_est if moving else 0.0,
+                    w_span=w_span, dtheta=dth, th_span=th_span, why=text)
+
+
+def run_starts(runs, sigma_w: float | None, sigma_theta: float | None,
+               mode: str = "auto") -> list[RunStart]:
+    """Every run's start (prepared runs, the channels' noise floors)."""
+    return [run_start(r, sigma_w, sigma_theta, mode) for r in runs]
+
+
+def initial_current(v0, w0, prm_R, prm_Ke):
+    """The armature current in equilibrium with the first sample's drive ``v0`` at the
+    speed ``w0`` (arrays over candidates)."""
+    return (v0 - prm_Ke * w0) / prm_R
