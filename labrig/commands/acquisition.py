@@ -122,7 +122,7 @@ def cmd_import(args):
                       controller=parse_controller(args.controller),
                       current_gain=args.current_gain, skip_rows=args.skip_rows,
                       speed_window=args.speed_window, input_step=args.input_step,
-                      warn=_warn_line)
+                      start=args.start, warn=_warn_line)
     print(f"wrote {path} and {path.with_suffix('.json').name}")
     return 0
 
@@ -167,6 +167,10 @@ def _configure_import(p):
     p.add_argument("--input-step", type=float_opt, metavar="V",
                    help="one step of the input in volts (a PWM's duty step, e.g. 12/255 for "
                         "8 bits at 12 V): an effect smaller than a step is not resolved")
+    p.add_argument("--start", choices=("auto", "rest", "moving"), default="auto",
+                   help="how the run starts: rest (simulated from rest), moving (its speed "
+                        "and position at the first sample fitted), auto (decided from its "
+                        "first samples; default)")
     p.add_argument("--gear-ratio", type=float_opt, help="motor/output (default 1)")
     p.add_argument("--amplifier-gain", type=float_opt, default=1.0,
                    help="voltage drive: armature volts per input volt (default 1)")

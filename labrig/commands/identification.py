@@ -117,7 +117,7 @@ def cmd_identify(args):
                            p=w.get("p", 1.0), q=w.get("q", 1.0), c=w.get("i", 1.0),
                            pop=args.pop, iters=args.iters,
                            starts=args.starts, polish=args.polish, start=start, callback=cb,
-                           dataset=dataset, rule=args.rule)
+                           dataset=dataset, rule=args.rule, start_state=args.start_state)
         results.append(res)
     best = min(results, key=lambda r: r.fitness)
     if args.output:
@@ -172,6 +172,12 @@ def _configure(p):
     p.add_argument("--iters", type=int, default=200, help="iterations of JFO/PSO (default 200)")
     p.add_argument("--starts", type=int, default=8, help="CO multi-starts (default 8)")
     p.add_argument("--polish", action="store_true", help="polish JFO/PSO results with CO")
+    p.add_argument("--start", dest="start_state", default="auto",
+                   choices=("auto", "rest", "estimate"),
+                   help="each run's initial state: auto (a run that starts in motion, or an "
+                        "encoder's count, gets its speed and position at the first sample "
+                        "fitted; default), rest (every run from rest), estimate (every run's "
+                        "fitted)")
     p.add_argument("--rule", default="paper", choices=["paper", "reference"],
                    help="JFO passive/active test: the paper's (|c|) or the authors' MATLAB "
                         "code's (signed c, half the passive moves)")

@@ -109,6 +109,9 @@ class SidecarExperiment(_Closed):
     controller: Optional[Controller] = None
     #: one step of the input (V), when the bridge's resolution is known (a PWM's step)
     input_step_v: Num(0.0, 10.0) = None
+    #: how the run starts, when its owner knows (labrig import --start): at rest, or in
+    #: motion (its initial state fitted); absent: decided from the data (labrig.model.start)
+    start: Optional[Literal["rest", "moving"]] = None
 
 
 class SidecarSensors(_Closed):

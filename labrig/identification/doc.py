@@ -73,6 +73,8 @@ class IdentRecord(_Doc):
     message: str = ""
     history: list[Num] = []
     per_run: dict[str, Any] = {}
+    #: each run's start where it is not rest (labrig.model.start)
+    starts: dict[str, Any] = {}
     dataset: dict[str, Any] = {}
     plant: Optional[str] = None
     axis: Optional[str] = None

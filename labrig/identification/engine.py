@@ -16,6 +16,7 @@ from labrig.core.errors import UserError
 from labrig.core.timing import mark
 from labrig.model import drive_units
 from labrig.model.effects import Effect
+from labrig.model.start import start_report
 from labrig.model.effectset import EffectSet
 from labrig.model.model import Model
 from labrig.model.reach import Reach
@@ -194,7 +195,8 @@ class Identification(Displayable):
                 "seed": self.result.seed, "message": self.result.message,
                 "history": [float(h) for h in self.result.history],
                 "step_info": self.step_info(), "noise": self.metrics["noise"],
-                "per_run": self.metrics["per_run"]}
+                "per_run": self.metrics["per_run"],
+                **({"starts": self.dataset["starts"]} if self.dataset.get("starts") else {})}
 
     def to_json(self) -> dict:
         """What ``labrig identify --json`` prints: :meth:`to_dict` with unbounded
@@ -293,6 +295,9 @@ class FitOptions:
     max_nfev: int | None = None
     subsample: int | None = None
     identifiability: bool = True
+    #: each run's start (labrig.model.start): "auto" (the run file, else its first
+    #: samples), "rest" (every run from rest) or "estimate" (every run's fitted)
+    start_state: str = "auto"
 
 
 def _channel_notes(obj, p: float, q: float, params: dict, constants: dict) -> dict | None:
@@ -361,7 +366,8 @@ def identify(runs, method: str = METHOD, effects: list[Effect] = (), *, seed: in
     effects = EffectSet.parse(effects)
     space = build_space(effects, bounds, fixed, reach=reach or Reach.of(runs),
                         plant=plant_of_runs(runs))
-    obj = Objective(runs, effects, space, p=o.p, q=o.q, masks=masks, c=o.c)
+    obj = Objective(runs, effects, space, p=o.p, q=o.q, masks=masks, c=o.c,
+                    start=o.start_state)
     t0 = time.perf_counter()  # after the simulator is ready: a first compile is not fitting
     constants = dataset_constants(runs)
     lo, hi = space.search_bounds()
@@ -394,6 +400,8 @@ def identify(runs, method: str = METHOD, effects: list[Effect] = (), *, seed: in
         dataset["current_unused"] = True
     if obj.n_gaps:  # the samples the link lost, left out (reported, never fitted)
         dataset["gap_samples"] = int(obj.n_gaps)
+    if any(st.fitted for st in space.starts):  # the runs' starts, as decided and fitted
+        dataset["starts"] = start_report(space.starts, space.as_dict(phys))
     # with the identifiability report only: the loop's re-fits never show them
     notes = _channel_notes(obj, o.p, o.q, space.as_dict(phys), constants) \
         if o.identifiability else None

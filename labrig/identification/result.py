@@ -208,6 +208,11 @@ def identification_warnings(ident: Any) -> list[str]:
                      "(labrig diagnose does so itself)")
     if ident.dataset.get("sensor_lag"):
         notes.append(ident.dataset["sensor_lag"])
+    if ident.dataset.get("starts"):
+        from labrig.model.start import describe_starts
+
+        notes.append(describe_starts(ident.dataset["starts"], plant.speed_unit(),
+                                     plant.position_unit()))
     from labrig.model import drive_units
 
     shown = drive_units.shown_keys(ident.effects, plant.kind, ident.constants)

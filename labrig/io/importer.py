@@ -207,6 +207,8 @@ class ImportOptions:
     speed_window: float | None = None
     #: one step of the input (V): a PWM's duty step, a DAC's code
     input_step: float | None = None
+    #: how the run starts when its owner knows: "rest", "moving" (None: from the data)
+    start: str | None = None
 
 
 def import_csv(src: Path | str, outdir: Path | str, mapping: dict[str, str],
@@ -264,6 +266,10 @@ def import_csv(src: Path | str, outdir: Path | str, mapping: dict[str, str],
     experiment = {"loop": o.loop, "waveform": o.waveform}
     if o.input_step is not None:  # what the input can resolve: an effect below it is not
         experiment["input_step_v"] = float(o.input_step)
+    if o.start not in (None, "auto"):
+        if o.start not in ("rest", "moving"):
+            raise UserError(f"--start: expected auto, rest or moving, got '{o.start}'")
+        experiment["start"] = o.start
     if o.loop == "closed":
         # fitted through the loop, the controller is part of the model: without its
         # gains the fit would be of a different system

@@ -178,6 +178,12 @@ class Run:
         return float(self.sensors.get("pos_quantum") or 0.0)
 
     @property
+    def start(self) -> str:
+        """How the run starts as its sidecar states it (``experiment.start``: "rest" or
+        "moving"), else "auto": decided from the data (:mod:`labrig.model.start`)."""
+        return str(self.experiment.get("start") or "auto")
+
+    @property
     def input_step(self) -> float:
         """One step of the input (V) as the sidecar states it (``bridge.dac_step_v``, or
         ``experiment.input_step_v`` for an imported run); 0 unknown."""

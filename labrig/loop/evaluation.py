@@ -160,6 +160,9 @@ def evaluate(runs, model: Model, sigmas=None, weights: Weights | None = None) ->
     quanta = {ch: f.q for ch, f in obj.floors.items()}
     per_run = [run_residuals(rd, {"w": s["w"][0], "theta": s["theta"][0]}, obj.sigma_w,
                              obj.sigma_theta, quanta) for rd, s in zip(obj.runs, sims)]
+    for rr in per_run:   # the fitted start of a run that starts in motion (its figure marks it)
+        st = model.starts.get(rr["name"])
+        rr["start"] = {**st, "moving": "w0" in st} if st else None
     kept = [(rr["channels"], slice(None) if rr["lost"] is None else ~rr["lost"])
             for rr in per_run]  # a sample the link lost is not counted
     r = np.concatenate([c["residual"][k] for chans, k in kept for c in chans.values()])

@@ -51,6 +51,10 @@ def plot_run_comparison(rr: dict, ax=None, title: str = ""):
         ax.plot(t, _broken(c["measured"], lost), color="0.25", lw=1.0, label="measured")
         ax.plot(t, c["simulated"], color="tab:red", lw=1.0, ls="--",
                 label=f"model (fit {c['fit_percent']:.1f} %)")
+        start = rr.get("start") or {}
+        if start.get("moving"):   # the run's fitted initial state (labrig.model.start)
+            ax.plot(t[0], c["simulated"][0], "o", color="tab:red", ms=7, mfc="none", mew=1.6,
+                    label="fitted start (the run starts in motion)")
         ax.set_ylabel(f"{ch}\n{units[ch]}")
         legend_outside(ax, "above")
         ax.grid(alpha=0.3)

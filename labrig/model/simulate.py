@@ -93,6 +93,8 @@ class RunData:
     measured: np.ndarray | None = None
     #: the speed channel is a moving window of this many samples (0: not filtered)
     speed_window: int = 0
+    #: how the run starts as its file states it: "auto" (from the data), "rest", "moving"
+    start: str = "auto"
 
     def keep(self) -> np.ndarray:
         """The samples that are measurements (every one unless the link lost some)."""
@@ -111,7 +113,8 @@ class RunData:
                    w=run.speed, theta=th, theta0=theta0, amplitude=run.amplitude,
                    current=run.current, pos_q=run.pos_quantum, axis=run.axis,
                    measured=run.measured if run.n_gaps else None,
-                   speed_window=int(round(run.speed_window_s / run.dt)) if run.has_speed else 0)
+                   speed_window=int(round(run.speed_window_s / run.dt)) if run.has_speed else 0,
+                   start=run.start)
 
 
 class _PlantView:

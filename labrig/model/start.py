@@ -106,9 +106,14 @@ def _first(run, n_first: int) -> np.ndarray:
 
 def run_start(run, sigma_w: float | None, sigma_theta: float | None,
               mode: str = "auto") -> RunStart:
-    """Decide one run's start (a :class:`labrig.model.simulate.RunData`)."""
+    """Decide one run's start (a :class:`labrig.model.simulate.RunData`): ``mode`` "auto"
+    follows the run file (``experiment.start``, labrig import --start) and else the data;
+    "rest" and "estimate" override both."""
     if mode not in MODES:
         raise UserError(f"--start: unknown mode '{mode}'; choose {', '.join(MODES)}")
+    declared = getattr(run, "start", "auto")
+    if mode == "auto" and declared in ("rest", "moving"):
+        mode = "rest" if declared == "rest" else "estimate"
     n_first = max(MIN_FIRST, int(round(FIRST_S / run.dt)))
     idx = _first(run, n_first)
     if mode == "rest" or len(idx) < 2:
@@ -143,7 +148,8 @@ def run_start(run, sigma_w: float | None, sigma_theta: float | None,
     # from standstill to twice the estimate: room for a filtered or quantised first reading
     w_span = max(abs(w_est), 10.0 * (sigma_w or 0.0), 1e-3 * motor) if moving else 0.0
     if moving:
-        text = f"starts in motion ({why}): its speed and position at the first sample fitted"
+        what = "speed and position" if fit_th else "speed"
+        text = f"starts in motion ({why}): its {what} at the first sample fitted"
     elif fit_th:
         text = "starts at rest; the encoder's start within a count fitted as a position offset"
     else:
@@ -162,3 +168,36 @@ def initial_current(v0, w0, prm_R, prm_Ke):
     """The armature current in equilibrium with the first sample's drive ``v0`` at the
     speed ``w0`` (arrays over candidates)."""
     return (v0 - prm_Ke * w0) / prm_R
+
+
+def start_report(starts, values: dict) -> dict:
+    """``{run: {"start": "moving" | "rest", "w0": ..., "dtheta": ..., "why": ...}}`` of
+    the runs whose start is fitted, with the fitted values (``values``: flat)."""
+    out = {}
+    for st in starts:
+        if not st.fitted:
+            continue
+        entry = {"start": "moving" if st.moving else "rest"}
+        for what in WHAT:
+            key = start_key(st.run, what)
+            if key in values:
+                entry[what] = float(values[key])
+        entry["why"] = st.why
+        out[st.run] = entry
+    return out
+
+
+def describe_starts(report: dict, speed_unit: str, position_unit: str) -> str:
+    """One line on the runs' fitted starts (``start_report``)."""
+    moving = [f"{run} at {e['w0']:.3g} {speed_unit}" for run, e in report.items()
+              if e.get("start") == "moving" and "w0" in e]
+    offset = [run for run, e in report.items() if e.get("start") == "rest" and "dtheta" in e]
+    parts = []
+    if moving:
+        parts.append("runs that start in motion, their state at the first sample fitted: "
+                     + ", ".join(moving))
+    if offset:
+        parts.append(f"{len(offset)} run(s) at rest whose encoder start within a count is "
+                     f"fitted as a position offset ({position_unit})")
+    return "; ".join(parts) + " (labrig import --start rest, or identify --start rest, " \
+        "simulates from rest)"
