@@ -183,3 +183,36 @@ def test_an_encoders_start_within_a_count_is_not_physics(tmp_path, seed):
     for r in runs:   # each offset within a count (the start's unknown part)
         assert abs(res.model.starts[r.name]["dtheta"]) <= q
     assert res.ladder.steps[-1].rmse_over_noise["position"] <= 1.2
+
+
+# -- a measured torque: no amplifier in front of it, a threshold in it is friction ---------
+
+@pytest.mark.slow
+def test_friction_larger_one_way_on_a_measured_torque(tmp_path):
+    """A torque-driven rig, speed only, its input the measured current times Kt, friction
+    50 % larger in reverse, steps of both signs from rest: no dead zone, rail or offset is
+    a candidate (the input is measured), and the friction curve is found with its two
+    levels, J and B within 10 % (the old loop took an asymmetric dead zone of the drive)."""
+    from labrig.loop.auto import auto_diagnose
+    from twin import measured_current_rig
+
+    for src in measured_current_rig(tmp_path / "logger"):
+        labrig("import", src, "-o", tmp_path / "runs", "--map", "t=t,u=current,speed=speed",
+               "--drive", "torque", "--input-gain", "0.05", "--input-measured",
+               "--waveform", "step", check=0)
+    runs = read_dataset(tmp_path / "runs")
+    assert all(r.input_measured for r in runs)
+    res = auto_diagnose(runs, seed=0)
+    assert res.model.names == ["friction_curve"], [m.label for m in res.moves]
+    ps = res.model.effect_params["friction_curve"]
+    kd = 0.05   # N m per input unit: the levels in N m
+    assert ps["tcp_v"] * kd == pytest.approx(0.02, rel=0.05)
+    assert ps["tcn_v"] * kd == pytest.approx(0.03, rel=0.05)
+    assert res.model.params["J"] == pytest.approx(2e-4, rel=0.1)
+    assert res.model.params["B"] == pytest.approx(2e-3, rel=0.1)
+    assert "50 % larger in reverse" in res.verdict or any(
+        "50 % larger in reverse" in (r.verdict or "") for r in res.rounds)
+    for rnd in res.rounds:   # nothing at an amplifier's input was even tried
+        tried = {c.effect for c in rnd.ranking}
+        assert not tried & {"deadband", "asymmetric_deadband", "saturation", "offset",
+                            "asymmetry"}, tried

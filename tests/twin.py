@@ -483,3 +483,46 @@ def encoder_squares(twin: "Twin", folder, *, cpr=4000, amps=(1.2, 1.5, 2.0, 2.5)
         path.write_text("\n".join(rows) + "\n")
         out.append(path)
     return out
+
+
+# -- a torque drive logged with its measured current, friction larger one way -----------
+
+def measured_current_rig(folder, *, J=2e-4, B=2e-3, kt=0.05, forward=0.02, reverse=0.03,
+                         torques=(0.05, -0.05, 0.08, -0.08), fs=500.0, seed=23) -> list[Path]:
+    """A servo driven through a current loop, stepped from rest in both directions, logged
+    as ``t,current,speed``: the current is the drive's measured one (A, with its sensor's
+    noise), the torque on the rotor ``kt`` times it. Coulomb friction is ``forward`` N m
+    while turning forward and ``reverse`` in reverse (the rotor sticks while the torque
+    is within the level of the way it would turn). Euler, 20 steps per sample."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng(seed)
+    dt, sub = 1.0 / fs, 20
+    h = dt / sub
+    out = []
+    for i, a in enumerate(torques):
+        n = int(3.0 * fs)
+        tq = np.zeros(n)
+        tq[int(0.2 * fs):int(2.2 * fs)] = a
+        w = 0.0
+        ws = np.empty(n)
+        for k in range(n):
+            ws[k] = w
+            for _ in range(sub):
+                way = w if w != 0.0 else tq[k]
+                level = forward if way > 0 else reverse
+                if w == 0.0 and abs(tq[k]) <= level:
+                    continue                                   # stuck
+                w_new = w + h * (tq[k] - B * w - math.copysign(level, way)) / J
+                if w != 0.0 and w_new * w < 0.0:
+                    w_new = 0.0                                # stops rather than reverses
+                w = w_new
+        t = np.arange(n) * dt
+        current = tq / kt + rng.normal(0.0, 4e-3, n)
+        speed = ws + rng.normal(0.0, 0.05, n)
+        path = folder / f"step{i}.csv"
+        rows = ["t,current,speed"] + [f"{x:.5f},{c:.6g},{s:.6g}"
+                                      for x, c, s in zip(t, current, speed)]
+        path.write_text("\n".join(rows) + "\n")
+        out.append(path)
+    return out

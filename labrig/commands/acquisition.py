@@ -122,7 +122,7 @@ def cmd_import(args):
                       controller=parse_controller(args.controller),
                       current_gain=args.current_gain, skip_rows=args.skip_rows,
                       speed_window=args.speed_window, input_step=args.input_step,
-                      start=args.start, warn=_warn_line)
+                      start=args.start, input_measured=args.input_measured, warn=_warn_line)
     print(f"wrote {path} and {path.with_suffix('.json').name}")
     return 0
 
@@ -167,6 +167,11 @@ def _configure_import(p):
     p.add_argument("--input-step", type=float_opt, metavar="V",
                    help="one step of the input in volts (a PWM's duty step, e.g. 12/255 for "
                         "8 bits at 12 V): an effect smaller than a step is not resolved")
+    p.add_argument("--input-measured", action="store_true",
+                   help="torque/force drive: the input column is a measured current "
+                        "(times --input-gain, its torque or force constant), not a command: "
+                        "no dead zone, rail or offset of an amplifier acts on it, and a "
+                        "threshold in it is friction")
     p.add_argument("--start", choices=("auto", "rest", "moving"), default="auto",
                    help="how the run starts: rest (simulated from rest), moving (its speed "
                         "and position at the first sample fitted), auto (decided from its "

@@ -137,6 +137,10 @@ class SidecarRig(_Closed):
     axis: Optional[Literal["rotary", "linear"]] = None
     #: a torque/force drive's gain kd (N m or N per input volt)
     input_gain: Num(gt=0, le=1e6) = None
+    #: the input is the drive's command ("command", default) or a measured torque or
+    #: force, a current channel times its constant ("measured"): nothing at the
+    #: amplifier's input acts on it (labrig.model.effects.input_can_have)
+    input: Optional[Literal["command", "measured"]] = None
     name: Optional[str] = None
 
 

@@ -209,6 +209,8 @@ class ImportOptions:
     input_step: float | None = None
     #: how the run starts when its owner knows: "rest", "moving" (None: from the data)
     start: str | None = None
+    #: the input column is a measured torque or force (a current times its constant)
+    input_measured: bool = False
 
 
 def import_csv(src: Path | str, outdir: Path | str, mapping: dict[str, str],
@@ -256,6 +258,9 @@ def import_csv(src: Path | str, outdir: Path | str, mapping: dict[str, str],
         raise UserError(f"--input-gain: a {o.drive}-driven axis needs its drive's gain kd "
                         f"({'N m' if o.drive == 'torque' else 'N'} per input volt), e.g. "
                         "--input-gain 20")
+    if o.input_measured and o.drive == "voltage":
+        raise UserError("--input-measured: only for --drive torque or force (the input is a "
+                        "measured current times its torque or force constant, --input-gain)")
     if o.drive == "voltage" and o.input_gain is not None:
         raise UserError("--input-gain: only for --drive torque or force; a voltage drive's "
                         "gain is --amplifier-gain")
@@ -359,6 +364,8 @@ def import_csv(src: Path | str, outdir: Path | str, mapping: dict[str, str],
            "name": f"imported from {src.name}", "drive": o.drive, "axis": axis}
     if o.input_gain is not None:
         rig["input_gain"] = float(o.input_gain)
+    if o.input_measured:
+        rig["input"] = "measured"
     run = Run(name=name or src.stem, data=pd.DataFrame(cols),
               meta=make_meta(sample_rate_hz=fs, source="import",
                              experiment=experiment,

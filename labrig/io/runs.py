@@ -126,6 +126,11 @@ class Run:
         return self.meta.get("rig", {}).get("drive") or "voltage"
 
     @property
+    def input_measured(self) -> bool:
+        """The input is a measured torque or force (``rig.input: measured``), not a command."""
+        return self.meta.get("rig", {}).get("input") == "measured"
+
+    @property
     def axis(self) -> str:
         """``rotary`` (rad, rad/s) or ``linear`` (m, m/s)."""
         return axis_of(self.meta)

@@ -32,7 +32,7 @@ from labrig.loop.explain import context as explain_context
 from labrig.identification.engine import dataset_constants, identify
 from labrig.identification.result import at_bounds as bound_sides
 from labrig.model import drive_units
-from labrig.model.effects import CATALOGUE, catalogue_name, get_effect
+from labrig.model.effects import CATALOGUE, catalogue_name, get_effect, input_can_have
 from labrig.model.model import Model, param_keys
 from labrig.model.reach import Reach
 from labrig.analysis.agreement import WINDOW_DECLARED_IN
@@ -143,9 +143,12 @@ def linear_model(runs, *, seed=0, fixed=None, weights=Weights(), start: Model | 
     return again.model() if ident is None else min([ident, again], key=lambda f: f.fitness).model()
 
 
-def candidate_names(base: Model, candidates=None) -> list[str]:
+def candidate_names(base: Model, candidates=None, runs=(), evaluation=None) -> list[str]:
     """Catalogue effects ``base`` could take: not already in it, not a second friction
-    law, output map or delay, not a second member of a family (a second dead zone)."""
+    law, output map or delay, not a second member of a family (a second dead zone), and
+    none the ``runs``' input cannot have (:func:`labrig.model.effects.input_can_have`). An
+    open-ended effect is a candidate only when named or when the ``evaluation`` of
+    ``base`` shows what it adds (``Effect.offered``)."""
     names = [catalogue_name(n) for n in candidates] if candidates else \
         [n for n in CATALOGUE if n not in base.names]
     taken = {e.stage for e in base.effects if e.stage in ("friction", "output", "delay")}
@@ -153,7 +156,9 @@ def candidate_names(base: Model, candidates=None) -> list[str]:
     out = []
     for n in names:
         eff = get_effect(n)
-        if eff.stage in taken or eff.family_name in families:
+        if eff.stage in taken or eff.family_name in families or not input_can_have(eff, runs):
+            continue
+        if eff.open_ended and not candidates and not eff.offered(evaluation, runs):
             continue
         out.append(n)
     return out
@@ -256,7 +261,7 @@ def diagnose(runs, model: Model | None = None, *, candidates=None, seed: int = 0
         return entry(ident, name)
 
     # the candidates side by side (labrig.core.parallel), in the catalogue's order
-    tried = each(candidate, enumerate(candidate_names(base, candidates)))
+    tried = each(candidate, enumerate(candidate_names(base, candidates, runs, ev0)))
     diverged = [c for c in tried if isinstance(c, str)]
     ranking: list[Candidate] = [c for c in tried if not isinstance(c, str)]
     if diverged and not ranking:
@@ -393,7 +398,7 @@ def _revisions(runs, base: Model, entry, *, seed, fixed, weights) -> list[Candid
                          move="remove", params=base.effect_params[old]))
         eff = get_effect(old)
         for new in dict.fromkeys(([eff.simpler] if eff.simpler else []) + list(eff.look_alikes)):
-            if new in base.names or new not in candidate_names(reduced):
+            if new in base.names or new not in candidate_names(reduced, runs=runs):
                 continue
             out.append(entry(refit_with(runs, reduced, get_effect(new), seed=seed, fixed=fixed,
                                         weights=weights, carried=base.effect_params[old]),

@@ -186,7 +186,7 @@ def _threshold_pair(judge: _Judge, model, cv_now: float, log):
         reduced = without(reduced, n)
     # what a model can hold is candidate_names' rule (not one family, not two friction
     # laws); it reads only the effects, so the first member is added unfitted to ask it
-    free = candidate_names(reduced, THRESHOLD_FAMILY)
+    free = candidate_names(reduced, THRESHOLD_FAMILY, judge.runs)
     pairs = [(a, b) for a, b in combinations(free, 2) if {a, b} != set(replaced)
              and b in candidate_names(reduced.with_effect(get_effect(a), {}), [b])]
     if not pairs:
@@ -293,7 +293,7 @@ def _revise(judge, model, new, cv_now, moves, ladder, k, log, on_step):
             if alt in model.names:
                 continue
             reduced = without(model, old)
-            if alt not in candidate_names(reduced):
+            if alt not in candidate_names(reduced, runs=judge.runs):
                 continue
             m = judge.add(reduced, alt)
             cv = judge.cv(m)

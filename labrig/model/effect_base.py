@@ -80,6 +80,16 @@ class Effect(abc.ABC):
     #: how it responds to each kind of input a proposal can play
     #: (:data:`labrig.loop.inputs.KINDS`), in plain words
     responses: dict = {}
+    #: an open-ended effect (a curve, not one named mechanism): ``diagnose`` offers it only
+    #: where :meth:`offered` says the data show what it adds, and a named effect that
+    #: explains as well wins on parsimony
+    open_ended: bool = False
+
+    def offered(self, evaluation, runs) -> bool:
+        """Whether ``diagnose`` tries this effect on a model whose evaluation (per run
+        residuals, :class:`labrig.loop.evaluation.Evaluation`) is ``evaluation``; a named
+        effect always is."""
+        return True
 
     def inert(self) -> dict:
         """Parameter values that switch the effect off (``diagnose`` checks that the

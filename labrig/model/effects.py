@@ -46,7 +46,8 @@ from labrig.core.errors import UserError
 from labrig.model.effect_base import (STAGE_BASES, STAGES, DelayEffect, DriveEffect,  # noqa: F401
                                       Effect, FrictionEffect, InputEffect, OutputEffect, Param)
 from labrig.model.drive_units import level, unit as drive_unit
-from labrig.model.friction import CoulombFriction, Stiction, run_amplitudes as _run_amplitudes
+from labrig.model.friction import (CoulombFriction, FrictionCurve, Stiction,
+                                    run_amplitudes as _run_amplitudes)
 
 
 
@@ -366,7 +367,22 @@ def ordered(effects) -> list:
 
 CATALOGUE: dict[str, type[Effect]] = {cls.name: cls for cls in (
     Deadband, CoulombFriction, Saturation, Backlash, Delay, Stiction, Offset, Asymmetry,
-    AsymmetricDeadband)}
+    AsymmetricDeadband, FrictionCurve)}
+
+
+#: where an amplifier's own effects act: before and after its gain (a dead zone, an input
+#: offset, an asymmetry of its gain, its rail)
+AMPLIFIER_STAGES = ("input", "drive")
+
+
+def input_can_have(effect: Effect, runs) -> bool:
+    """The one rule of what the runs' input can have in front of it. A measured torque or
+    force (a current channel times its constant, ``labrig import --input-measured``) is
+    what reaches the rotor: an effect that lives at an amplifier's input or output (dead
+    zone, rail, input offset, asymmetric gain) cannot act on it, and a threshold the data
+    show in it is friction (docs/physics.md, 'Effects the input cannot have')."""
+    measured = any(getattr(r, "input_measured", False) for r in runs)
+    return not (measured and effect.stage in AMPLIFIER_STAGES)
 
 
 def _check_effect_class(cls, where: str) -> type[Effect]:

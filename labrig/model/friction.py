@@ -141,3 +141,110 @@ class Stiction(FrictionEffect):
     def initial_guess(self, runs, plant):
         g = CoulombFriction().initial_guess(runs, plant)
         return {"tc_v": g["tc_v"], "excess": 0.5}
+
+
+#: the steady speed residual's common shift (noise floors) from which friction is larger one
+#: way (the open-ended friction curve is offered)
+ONE_SHIFT = 1.0
+
+
+class FrictionCurve(FrictionEffect):
+    """Coulomb friction of its own size in each direction: ``Tc+`` while turning forward,
+    ``Tc-`` in reverse, each the torque that also holds the rotor at rest that way.
+
+    Physics: bearings preloaded one way, a gear mesh or a seal that drags more in one
+    direction, a drive's current sensor that reads a little high one way: the torque it
+    takes to move forward and in reverse differ (Rhoban/bam measured such asymmetries on
+    real servos). Viscous friction is the plant's own B. It is the same as symmetric
+    friction of the mean level plus a constant torque of half the difference, which is how
+    the simulators apply it (the constant torque enters with the drive, so on a voltage
+    drive a dead zone or rail in the model acts on it too). Residual signature of a model
+    with symmetric friction: the steady speeds of +A and -A are both off in the same
+    direction, by an amount that does not grow with A; the start that way is late.
+    Offered by ``diagnose`` only where the residual shows it (:meth:`offered`).
+
+    The parameters are friction levels as bridge voltages, as ``coulomb_friction``'s.
+    """
+
+    name = "friction_curve"
+    threshold = "tcp_v"
+    size = "tcp_v"
+    family = "friction law"
+    simpler = "coulomb_friction"
+    rival = "coulomb_friction"
+    look_alikes = ("coulomb_friction",)
+    open_ended = True
+    responses = CoulombFriction.responses
+    params = (Param("tcp_v", "V", 1e-3, 5.0, "friction while turning forward, as the bridge "
+                    "voltage that balances it at stall"),
+              Param("tcn_v", "V", 1e-3, 5.0, "friction while turning in reverse, likewise"))
+    summary = "friction larger one way: Coulomb friction with its own level in each direction"
+    signature = ("the steady speeds of +A and -A are both off in the same direction by an "
+                 "amount that does not grow with A; the start one way is late")
+    experiment = ("slow ramps from rest in each direction: the drive at which it starts to "
+                  "move differs, and so does the steady drive to keep a low speed")
+
+    def inert(self) -> dict:
+        return {"tcp_v": 0.0, "tcn_v": 0.0}
+
+    def friction(self, plant, tcp_v, tcn_v):
+        t = 0.5 * (np.asarray(tcp_v) + np.asarray(tcn_v)) * plant.Ka * plant.K / plant.R
+        return t, t
+
+    def input_bias(self, tcp_v, tcn_v):
+        """Half the difference, as the input that drives with it (forward when the reverse
+        friction is the larger)."""
+        return 0.5 * (np.asarray(tcn_v) - np.asarray(tcp_v))
+
+    def to_kernel(self, kernel, p, plant) -> bool:
+        FrictionEffect.to_kernel(self, kernel, p, plant)
+        kernel.add("u0", self.input_bias(p["tcp_v"], p["tcn_v"]))
+        return True
+
+    def explain_params(self, params, context):
+        up, down = params["tcp_v"], params["tcn_v"]
+        big, small = (down, up) if down >= up else (up, down)
+        way = "in reverse" if down >= up else "forward"
+        return (f"friction is {100 * (big / max(small, 1e-12) - 1):.0f} % larger {way}: "
+                f"{level(up, context)} forward, {level(down, context)} in reverse "
+                f"(as the {'drive' if context.get('plant', 'voltage') != 'voltage' else 'input'} "
+                "that balances it)")
+
+    def data_bounds(self, reach):
+        return {"tcp_v": (1e-3, reach.amax), "tcn_v": (1e-3, reach.amax)}
+
+    def scan_grid(self, reach):
+        tc = np.linspace(0.02, 0.8, 6) * reach.amax
+        a, b = np.meshgrid(tc, tc)
+        return {"tcp_v": a.ravel(), "tcn_v": b.ravel()}
+
+    def initial_guess(self, runs, plant):
+        g = CoulombFriction().initial_guess(runs, plant)["tc_v"]
+        return {"tcp_v": g, "tcn_v": g}
+
+    def offered(self, evaluation, runs) -> bool:
+        """Only where the model's speed residual says one direction drags more: in steady
+        motion both directions' mean residuals lie on the same side, by more than
+        :data:`ONE_WAY` of their mean size and 5 standard errors (symmetric friction
+        leaves them on opposite sides, each towards zero speed)."""
+        if evaluation is None:
+            return False
+        fwd, rev = [], []
+        for rr in evaluation.per_run:
+            c = rr["channels"].get("speed")
+            if c is None:
+                continue
+            steady = np.asarray(rr["labels"]) == "steady"
+            y = c["measured"]
+            fwd.append(c["residual"][steady & (y > 0)])
+            rev.append(c["residual"][steady & (y < 0)])
+        fwd = np.concatenate(fwd) if fwd else np.zeros(0)
+        rev = np.concatenate(rev) if rev else np.zeros(0)
+        if len(fwd) < 20 or len(rev) < 20:
+            return False
+        a, b = float(np.mean(fwd)), float(np.mean(rev))
+        se = np.sqrt(np.var(fwd) / len(fwd) + np.var(rev) / len(rev))
+        # residual = measured - model: friction larger forward leaves both negative; a
+        # shift of a noise floor at least, and clear of the samples' scatter
+        shift = 0.5 * (a + b)
+        return a * b > 0 and abs(shift) > max(5.0 * se, ONE_SHIFT)

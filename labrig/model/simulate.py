@@ -167,9 +167,11 @@ class Simulator:
         self._windowed = any(r.speed_window > 1 for r in self.runs)
         self.effects = ordered(list(effects))
         self.substeps = int(substeps)
-        # an effect that acts inside a closed loop's drive or on the pot's shaft
+        # an effect that acts inside a closed loop's drive or on the pot's shaft (or adds a
+        # constant drive: a friction larger one way, labrig.model.friction.FrictionCurve)
         self._in_loop = any(e.stage in ("input", "drive") or "a_rad" in e.kernel_columns
-                            for e in self.effects)
+                            or hasattr(e, "input_bias") for e in self.effects)
+        self._biased = [e for e in self.effects if hasattr(e, "input_bias")]
         for e in self.effects:
             if e.stage in ("input", "drive") and not e.kernel_columns \
                     and type(e).to_kernel is Effect.to_kernel \
@@ -271,7 +273,8 @@ class Simulator:
         input through the effects' maps in open loop; in closed loop the linear loop's
         drive from the start state (the current settles within the electrical lag)."""
         P = prm.shape[0]
-        u = np.full((1, P), float(run.u[0]))
+        u = np.full((1, P), float(run.u[0])) + sum(
+            (e.input_bias(**ep[e.name]) for e in self._biased), np.zeros(P))[None, :]
         if run.loop == "closed":
             th = (run.theta0 + prm[:, C_TH0])
             return run.Ka * (run.kp * (u[0] - run.Kpot * th) - run.kv * run.Kt * prm[:, C_W0])
@@ -290,7 +293,8 @@ class Simulator:
         kernels to apply (built-in effects), or the mapped inputs laid out (samples,
         candidates) for a user's effect."""
         staged = [e for e in self.effects if e.stage in ("input", "drive")]
-        if not staged:
+        bias = sum((e.input_bias(**ep[e.name]) for e in self._biased), np.zeros(P))
+        if not staged and not self._biased:
             return np.ascontiguousarray(run.u[:, None] * run.Ka), _NO_MAP
         if all(type(e) in _MAPPED for e in staged):
             imap = np.zeros((P, len(MAP_COLUMNS)))
@@ -298,8 +302,9 @@ class Simulator:
             for e in staged:
                 for k, v in ep[e.name].items():
                     imap[:, MAP_COLUMNS.index(k)] = v
+            imap[:, MAP_COLUMNS.index("u0_v")] += bias   # a constant drive enters as an offset
             return np.ascontiguousarray(run.u[:, None], dtype=float), imap
-        e = run.u[:, None]  # a sample's inputs contiguous
+        e = run.u[:, None] + bias[None, :]  # a sample's inputs contiguous
         for eff in self.effects:
             if eff.stage == "input":
                 e = eff.apply(e, **{k: v[None, :] for k, v in ep[eff.name].items()})
