@@ -216,3 +216,69 @@ def test_friction_larger_one_way_on_a_measured_torque(tmp_path):
         tried = {c.effect for c in rnd.ranking}
         assert not tried & {"deadband", "asymmetric_deadband", "saturation", "offset",
                             "asymmetry"}, tried
+
+
+# -- a curve that is no named effect ---------------------------------------------------------
+
+def _independent_hammerstein(records, dt):
+    """A Hammerstein output-error fit written apart from labrig (scipy only): a
+    piecewise-linear static curve through knots at 0, 1.2, 2.4, 3.6 and 4.6 V (its last
+    value 1: the gain is the motor's), then a first-order motor exact between samples,
+    from rest; the logged speed is the mean over the sample before. Run-mean fit %."""
+    from scipy.optimize import least_squares
+
+    knots = np.array([0.0, 1.2, 2.4, 3.6, 4.6])
+
+    def sim(x, u):
+        km, tau = x[0], x[1]
+        vals = np.concatenate([[0.0], x[2:5], [1.0]])
+        v = np.interp(np.abs(u), knots, vals, right=None) * np.sign(u)
+        a = np.exp(-dt / tau)
+        n = len(u)
+        w = np.zeros(n + 1)
+        for k in range(n):
+            w[k + 1] = km * v[k] + (w[k] - km * v[k]) * a
+        mean = np.zeros(n)
+        for k in range(1, n):
+            ws = km * v[k - 1]
+            mean[k] = ws + (w[k - 1] - ws) * tau / dt * (1 - a)
+        return mean
+
+    def res(x):
+        return np.concatenate([sim(x, u) - y for u, y in records])
+
+    x0 = np.array([1000.0, 0.05, 0.3, 0.6, 0.85])
+    x = least_squares(res, x0, bounds=([1, 1e-3, 0, 0, 0], [1e5, 2, 1.5, 1.5, 1.5]),
+                      x_scale="jac").x
+    return float(np.mean([_fit_percent(y, sim(x, u)) for u, y in records]))
+
+
+@pytest.mark.slow
+def test_a_drive_that_is_a_curve_of_the_command(tmp_path):
+    """A hobby shield whose motor voltage is a concave function of the command, stepped
+    from rest to eight levels: the steady curve bends (no named effect follows it), the
+    static input curve is offered and found, ends near the floor, and its run-mean fit is
+    within 1 point of an independent Hammerstein fit (the old loop ended with the linear
+    model)."""
+    import pandas as pd
+    from labrig.loop.auto import auto_diagnose
+    from twin import shield_steps
+
+    srcs = shield_steps(tmp_path / "logger")
+    for src in srcs:
+        labrig("import", src, "-o", tmp_path / "runs", "--map", "t=t,u=u,speed=speed",
+               "--waveform", "step", check=0)
+    runs = read_dataset(tmp_path / "runs")
+    res = auto_diagnose(runs, seed=0)
+    assert res.model.names == ["input_curve"], [m.label for m in res.moves]
+    curve = res.model.effect_params["input_curve"]
+    assert curve["b2"] > 0.05   # concave: bends down towards a soft rail
+    assert "bends down towards a soft rail" in res.rounds[0].verdict
+    sims = res.model.simulate(runs)
+    ours = np.mean([_fit_percent(r.speed, s["w"]) for r, s in zip(runs, sims)])
+    records = [(pd.read_csv(s)["u"].to_numpy(), pd.read_csv(s)["speed"].to_numpy())
+               for s in srcs]
+    theirs = _independent_hammerstein(records, 0.01)
+    print(f"run-mean fit: labrig {ours:.2f} %, independent Hammerstein {theirs:.2f} %")
+    assert ours >= theirs - 1.0, (ours, theirs)
+    assert res.ladder.steps[-1].rmse_over_noise["speed"] <= 1.2

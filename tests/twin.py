@@ -526,3 +526,41 @@ def measured_current_rig(folder, *, J=2e-4, B=2e-3, kt=0.05, forward=0.02, rever
         path.write_text("\n".join(rows) + "\n")
         out.append(path)
     return out
+
+
+# -- a hobby shield whose drive is a concave function of the command --------------------
+
+def shield_steps(folder, *, R=2.0, K=0.01, J=2e-6, B=1e-7, supply=12.0, power=0.55, fs=100.0,
+                 cpr=400, levels=(1.2, 1.8, 2.4, 2.9, 3.4, 3.8, 4.2, 4.6), seed=29) -> list[Path]:
+    """An Arduino motor shield stepped from rest to each command (0-5 V) and back, logged
+    at ``fs`` as ``t,u,speed``: the motor's voltage is ``supply (u/5)^power`` (a concave
+    PWM mapping: the bridge's dead time and the winding's inductance eat less of a long
+    duty than of a short one), ``J w' = K (v - K w)/R - B w``; the speed is the encoder's
+    counts (``cpr`` a turn) over the sample before, in rad/s."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng(seed)
+    dt, sub = 1.0 / fs, 20
+    h = dt / sub
+    out = []
+    for lv in levels:
+        n0, n1, n2 = int(0.3 * fs), int(1.5 * fs), int(1.0 * fs)
+        u = np.concatenate([np.zeros(n0), np.full(n1, lv), np.zeros(n2)])
+        w, ang = 0.0, rng.uniform(0, 2 * math.pi / cpr)
+        angle = np.empty(len(u) + 1)
+        angle[0] = ang
+        for k, uk in enumerate(u):
+            v = supply * (uk / 5.0) ** power if uk > 0 else 0.0
+            for _ in range(sub):
+                dw = h * (K * (v - K * w) / R - B * w) / J
+                ang += h * (w + 0.5 * dw)
+                w += dw
+            angle[k + 1] = ang
+        counts = np.floor(angle * cpr / (2 * math.pi))
+        speed = np.concatenate([[0.0], np.diff(counts)[:-1]]) * 2 * math.pi / cpr / dt
+        t = np.arange(len(u)) * dt
+        path = folder / f"step_{lv:.1f}V.csv"
+        rows = ["t,u,speed"] + [f"{a:.3f},{b:.3f},{c:.4f}" for a, b, c in zip(t, u, speed)]
+        path.write_text("\n".join(rows) + "\n")
+        out.append(path)
+    return out

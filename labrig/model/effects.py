@@ -46,6 +46,7 @@ from labrig.core.errors import UserError
 from labrig.model.effect_base import (STAGE_BASES, STAGES, DelayEffect, DriveEffect,  # noqa: F401
                                       Effect, FrictionEffect, InputEffect, OutputEffect, Param)
 from labrig.model.drive_units import level, unit as drive_unit
+from labrig.model.curves import InputCurve
 from labrig.model.friction import (CoulombFriction, FrictionCurve, Stiction,
                                     run_amplitudes as _run_amplitudes)
 
@@ -367,7 +368,7 @@ def ordered(effects) -> list:
 
 CATALOGUE: dict[str, type[Effect]] = {cls.name: cls for cls in (
     Deadband, CoulombFriction, Saturation, Backlash, Delay, Stiction, Offset, Asymmetry,
-    AsymmetricDeadband, FrictionCurve)}
+    AsymmetricDeadband, FrictionCurve, InputCurve)}
 
 
 #: where an amplifier's own effects act: before and after its gain (a dead zone, an input

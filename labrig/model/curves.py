@@ -1,0 +1,169 @@
+"""Open-ended effects: a smooth curve where no named mechanism fits.
+
+The catalogue's named effects are one mechanism each (a dead zone, a hard rail). A hobby
+shield whose PWM duty is not proportional to the motor's voltage, a bridge that rounds
+off softly before its rail, a driver's own nonlinearity: these bend the steady speed
+against the command smoothly over the whole range, and no named effect follows them.
+:class:`InputCurve` is such a static map, the input nonlinearity of a Hammerstein model,
+monotone and smooth, with a few knots. ``diagnose`` offers it only where the steady
+curve the data show bends (:meth:`InputCurve.offered`), and a named effect that explains
+as well wins on parsimony.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from labrig.model.effect_base import InputEffect, Param
+
+#: a steady curve bends when a straight line with a threshold leaves this many noise
+#: floors at one of its levels
+BEND_FLOORS = 3.0
+#: ... at no fewer than this many distinct input levels of one sign
+MIN_LEVELS = 4
+
+
+def _hermite(x, xk, yk):
+    """Monotone cubic Hermite interpolation (Fritsch-Carlson slopes) through the knots
+    ``xk``, ``yk`` (P, 4) at ``x`` (n, P), x >= 0; beyond the last knot a straight line
+    with the curve's end slope."""
+    h = np.diff(xk, axis=1)                          # (P, 3)
+    d = np.diff(yk, axis=1) / h                      # secants
+    m = np.empty_like(yk)
+    m[:, 0], m[:, -1] = d[:, 0], d[:, -1]
+    inner = d[:, :-1] * d[:, 1:] > 0
+    hm = 2 * h[:, 1:] + h[:, :-1]
+    hp = h[:, 1:] + 2 * h[:, :-1]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        harm = (hm + hp) / (hm / d[:, :-1] + hp / d[:, 1:])
+    m[:, 1:-1] = np.where(inner, harm, 0.0)
+    out = np.empty_like(x)
+    for j in range(3):   # the three segments, each vectorised over samples and candidates
+        x0, x1 = xk[:, j], xk[:, j + 1]
+        seg = (x >= x0) & (x < x1) if j < 2 else (x >= x0)
+        t = np.clip((x - x0) / h[:, j], 0.0, 1.0)
+        h00, h10 = 2 * t ** 3 - 3 * t ** 2 + 1, t ** 3 - 2 * t ** 2 + t
+        h01, h11 = -2 * t ** 3 + 3 * t ** 2, t ** 3 - t ** 2
+        y = h00 * yk[:, j] + h10 * h[:, j] * m[:, j] + h01 * yk[:, j + 1] \
+            + h11 * h[:, j] * m[:, j + 1]
+        if j == 2:   # beyond the last knot: straight on
+            y = np.where(x > x1, yk[:, 3] + (x - x1) * m[:, 3], y)
+        out = np.where(seg, y, out)
+    return out
+
+
+class InputCurve(InputEffect):
+    """A static curve from the command to the drive: ``v = f(u)``, odd, monotone and
+    smooth (a Hammerstein input).
+
+    Physics: a PWM shield whose duty maps to the motor's voltage through the bridge's
+    dead time and the motor's inductance, a bridge that saturates softly before its rail,
+    a driver's nonlinearity: the steady speed against the command bends over the whole
+    range, not at one threshold. The curve passes through 0 and through ``span_v`` (the
+    largest input the data reach, where it meets the straight line: the overall gain is
+    the plant's), and bends at a third and two thirds of it by ``b1`` and ``b2`` (its
+    value there over the straight line's, minus 1: positive bends down towards a soft
+    rail, negative up); beyond ``span_v`` it goes on straight with its end slope.
+    Monotone cubic interpolation (Fritsch-Carlson) keeps it monotone and smooth.
+    """
+
+    name = "input_curve"
+    size = "b2"
+    open_ended = True
+    family = "input curve"
+    look_alikes = ("saturation", "deadband")
+    params = (Param("span_v", "V", 1e-3, 1e3, "the input where the curve meets the straight "
+                    "line again (the data's largest)"),
+              Param("b1", "-", -0.9, 1.4, "the curve at a third of span_v over the straight "
+                    "line's, minus 1", log=False),
+              Param("b2", "-", -0.45, 0.45, "the curve at two thirds of span_v over the "
+                    "straight line's, minus 1", log=False))
+    summary = "a smooth static curve from the command to the drive (PWM mapping, soft rail)"
+    signature = ("the steady speed against the command bends over the whole range, not at "
+                 "one threshold: a straight line leaves residuals of one sign in the middle "
+                 "and the other at the ends")
+    experiment = ("a staircase of many levels over the whole range in one direction: the "
+                  "steady speeds trace the curve")
+
+    def apply(self, v, span_v, b1, b2):
+        v = np.asarray(v, float)
+        scalar = v.ndim == 0
+        V = v.reshape(-1, 1) if v.ndim < 2 else v          # (samples, 1 or candidates)
+        ps = [np.asarray(p, float).reshape(-1) for p in (span_v, b1, b2)]
+        P = max(V.shape[1], *(len(p) for p in ps))
+        s, b1, b2 = (np.broadcast_to(p, (P,)) for p in ps)
+        xk = np.stack([0 * s, s / 3, 2 * s / 3, s], axis=1)
+        y2 = np.clip((1 + b2) * 2 * s / 3, 1e-6 * s, s * (1 - 1e-6))
+        y1 = np.clip((1 + b1) * s / 3, 1e-6 * s, y2 * (1 - 1e-6))   # monotone
+        yk = np.stack([0 * s, y1, y2, s], axis=1)
+        X = np.broadcast_to(V, (V.shape[0], P))
+        out = np.sign(X) * _hermite(np.abs(X), xk, yk)
+        if scalar:
+            return out.reshape(-1)[0] if P == 1 else out.reshape(-1)
+        return out if v.ndim == 2 or P > 1 else out.reshape(v.shape)
+
+    def inert(self) -> dict:
+        return {"b1": 0.0, "b2": 0.0}
+
+    def data_bounds(self, reach):
+        return {"span_v": (0.5 * reach.amax, 1.5 * reach.amax)}
+
+    def scan_grid(self, reach):
+        b = np.array([-0.3, -0.1, 0.1, 0.25, 0.4])
+        b1, b2 = np.meshgrid(b * 1.5, np.clip(b, -0.4, 0.4))
+        n = b1.size
+        return {"span_v": np.full(n, reach.amax), "b1": b1.ravel(), "b2": b2.ravel()}
+
+    def initial_guess(self, runs, plant):
+        amax = max(float(np.max(np.abs(r.u))) for r in runs)
+        return {"span_v": amax, "b1": 0.0, "b2": 0.0}
+
+    def explain_params(self, params, context):
+        s, b1, b2 = params["span_v"], params["b1"], params["b2"]
+        shape = ("bends down towards a soft rail" if b2 > 0.02 else
+                 "bends up (little drive at small commands)" if b2 < -0.02 else
+                 "is nearly straight")
+        return (f"the drive {shape}: at {s / 3:.3g} V and {2 * s / 3:.3g} V it gets "
+                f"{100 * (1 + b1):.0f} % and {100 * (1 + b2):.0f} % of the straight line's "
+                f"(through 0 and {s:.3g} V)")
+
+    def offered(self, evaluation, runs) -> bool:
+        """Only where the steady curve bends: the steady speeds of at least
+        :data:`MIN_LEVELS` input levels of one sign leave a straight line with a
+        threshold by more than :data:`BEND_FLOORS` noise floors of a level's mean."""
+        if evaluation is None or "speed" not in evaluation.floors \
+                or any(r.loop == "closed" for r in runs):   # (simulated in open loop only)
+            return False
+        sigma = evaluation.floors["speed"].sigma
+        u, w, n = steady_levels(runs)
+        for sign in (1.0, -1.0):
+            keep = np.sign(u) == sign
+            if keep.sum() < MIN_LEVELS:
+                continue
+            x, y, k = np.abs(u[keep]), np.abs(w[keep]), n[keep]
+            A = np.column_stack([x, np.ones_like(x)])
+            coef, *_ = np.linalg.lstsq(A * np.sqrt(k)[:, None], y * np.sqrt(k), rcond=None)
+            if np.max(np.abs(y - A @ coef)) > BEND_FLOORS * sigma:
+                return True
+        return False
+
+
+def steady_levels(runs, settle: float = 0.6):
+    """The steady speed at each constant input of ``runs`` (prepared or not): per stretch
+    of one input value lasting at least 0.3 s (and 10 samples), the mean speed over its
+    last ``1 - settle``. Returns input levels, mean speeds and sample counts (arrays)."""
+    from labrig.model.simulate import prepare
+
+    us, ws, ns = [], [], []
+    for r in prepare(runs):
+        if r.w is None or r.loop != "open":
+            continue
+        u = np.asarray(r.u, float)
+        edges = np.flatnonzero(np.abs(np.diff(u)) > 1e-9) + 1
+        bounds = np.concatenate([[0], edges, [len(u)]])
+        min_len = max(10, int(0.3 / r.dt))
+        for a, b in zip(bounds[:-1], bounds[1:]):
+            if b - a < min_len or u[a] == 0.0:
+                continue
+            tail = slice(a + int(settle * (b - a)), b)
+            us.append(u[a]), ws.append(float(np.mean(r.w[tail]))), ns.append(b - a - int(settle * (b - a)))
+    return np.array(us), np.array(ws), np.array(ns, float)
