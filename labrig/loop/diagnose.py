@@ -32,7 +32,8 @@ from labrig.loop.explain import context as explain_context
 from labrig.identification.engine import dataset_constants, identify
 from labrig.identification.result import at_bounds as bound_sides
 from labrig.model import drive_units
-from labrig.model.effects import CATALOGUE, catalogue_name, get_effect, input_can_have
+from labrig.loop.candidates import candidate_names
+from labrig.model.effects import catalogue_name, get_effect
 from labrig.model.model import Model, param_keys
 from labrig.model.reach import Reach
 from labrig.analysis.agreement import WINDOW_DECLARED_IN
@@ -141,27 +142,6 @@ def linear_model(runs, *, seed=0, fixed=None, weights=Weights(), start: Model | 
         ident = None
     again = refit(runs, start, seed=seed, fixed=fixed, weights=weights)
     return again.model() if ident is None else min([ident, again], key=lambda f: f.fitness).model()
-
-
-def candidate_names(base: Model, candidates=None, runs=(), evaluation=None) -> list[str]:
-    """Catalogue effects ``base`` could take: not already in it, not a second friction
-    law, output map or delay, not a second member of a family (a second dead zone), and
-    none the ``runs``' input cannot have (:func:`labrig.model.effects.input_can_have`). An
-    open-ended effect is a candidate only when named or when the ``evaluation`` of
-    ``base`` shows what it adds (``Effect.offered``)."""
-    names = [catalogue_name(n) for n in candidates] if candidates else \
-        [n for n in CATALOGUE if n not in base.names]
-    taken = {e.stage for e in base.effects if e.stage in ("friction", "output", "delay")}
-    families = {e.family_name for e in base.effects}
-    out = []
-    for n in names:
-        eff = get_effect(n)
-        if eff.stage in taken or eff.family_name in families or not input_can_have(eff, runs):
-            continue
-        if eff.open_ended and not candidates and not eff.offered(evaluation, runs):
-            continue
-        out.append(n)
-    return out
 
 
 def diagnose(runs, model: Model | None = None, *, candidates=None, seed: int = 0,

@@ -25,8 +25,8 @@ from dataclasses import dataclass, field
 from itertools import combinations
 
 from labrig.loop.crossval import cross_validate
-from labrig.loop.diagnose import (MIN_DBIC, MIN_GAIN, SIMPLER_MARGIN, SWAP_GAIN, bic,
-                                  candidate_names, diagnose)
+from labrig.loop.candidates import candidate_names
+from labrig.loop.diagnose import MIN_DBIC, MIN_GAIN, SIMPLER_MARGIN, SWAP_GAIN, bic, diagnose
 from labrig.loop.evaluation import evaluate
 from labrig.loop.ladder import Ladder, LadderStep, rung_label
 from labrig.core.parallel import each

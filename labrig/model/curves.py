@@ -127,43 +127,65 @@ class InputCurve(InputEffect):
                 f"(through 0 and {s:.3g} V)")
 
     def offered(self, evaluation, runs) -> bool:
-        """Only where the steady curve bends: the steady speeds of at least
-        :data:`MIN_LEVELS` input levels of one sign leave a straight line with a
-        threshold by more than :data:`BEND_FLOORS` noise floors of a level's mean."""
+        """Only where the steady curve bends in a way no named effect does: the steady
+        speeds of at least :data:`MIN_LEVELS` input levels of one sign leave every
+        straight line with a threshold, clipped or not at a rail (a dead zone, friction,
+        a rail: the named effects' steady curves), by more than :data:`BEND_FLOORS` noise
+        floors."""
         if evaluation is None or "speed" not in evaluation.floors \
                 or any(r.loop == "closed" for r in runs):   # (simulated in open loop only)
             return False
         sigma = evaluation.floors["speed"].sigma
-        u, w, n = steady_levels(runs)
+        u, w, n = steady_levels(runs, sigma)
         for sign in (1.0, -1.0):
             keep = np.sign(u) == sign
             if keep.sum() < MIN_LEVELS:
                 continue
-            x, y, k = np.abs(u[keep]), np.abs(w[keep]), n[keep]
-            A = np.column_stack([x, np.ones_like(x)])
-            coef, *_ = np.linalg.lstsq(A * np.sqrt(k)[:, None], y * np.sqrt(k), rcond=None)
-            if np.max(np.abs(y - A @ coef)) > BEND_FLOORS * sigma:
+            x, y = np.abs(u[keep]), np.abs(w[keep])
+            if _named_miss(x, y) > BEND_FLOORS * sigma:
                 return True
         return False
 
 
-def steady_levels(runs, settle: float = 0.6):
-    """The steady speed at each constant input of ``runs`` (prepared or not): per stretch
-    of one input value lasting at least 0.3 s (and 10 samples), the mean speed over its
-    last ``1 - settle``. Returns input levels, mean speeds and sample counts (arrays)."""
-    from labrig.model.simulate import prepare
+def _named_miss(x, y) -> float:
+    """The largest miss of the best steady curve the named effects draw through the
+    points ``(x, y)`` (one sign): a straight line with a threshold, clipped above at a
+    rail at any of the levels or not at all."""
+    order = np.argsort(x)
+    x, y = x[order], y[order]
+    best = np.inf
+    for j in range(2, len(x) + 1):     # levels j.. are on the rail (their mean)
+        A = np.column_stack([x[:j], np.ones(j)])
+        coef, *_ = np.linalg.lstsq(A, y[:j], rcond=None)
+        miss = np.abs(y[:j] - A @ coef)
+        if j < len(x):
+            top = y[j:].mean()
+            miss = np.concatenate([miss, np.abs(y[j:] - top)])
+        best = min(best, float(np.max(miss)))
+    return best
 
+
+def steady_levels(runs, sigma: float, settle: float = 0.6):
+    """The steady speed at each constant input of ``runs`` (prepared or not): per stretch
+    of one input value lasting at least 0.5 s (and 25 samples), the mean speed over its
+    last ``1 - settle``, when that tail is flat (its halves' means within 3 standard
+    errors, from the speed's noise floor ``sigma``). Returns input levels, mean speeds
+    and sample counts (arrays)."""
     us, ws, ns = [], [], []
-    for r in prepare(runs):
-        if r.w is None or r.loop != "open":
+    for r in runs:   # a Run (its .speed) or a prepared RunData (its .w)
+        w = r.w if hasattr(r, "w") else getattr(r, "speed", None)
+        if w is None or r.loop != "open":
             continue
         u = np.asarray(r.u, float)
         edges = np.flatnonzero(np.abs(np.diff(u)) > 1e-9) + 1
         bounds = np.concatenate([[0], edges, [len(u)]])
-        min_len = max(10, int(0.3 / r.dt))
+        min_len = max(25, int(0.5 / r.dt))   # a tail of 10 samples at least
         for a, b in zip(bounds[:-1], bounds[1:]):
             if b - a < min_len or u[a] == 0.0:
                 continue
-            tail = slice(a + int(settle * (b - a)), b)
-            us.append(u[a]), ws.append(float(np.mean(r.w[tail]))), ns.append(b - a - int(settle * (b - a)))
+            tail = w[a + int(settle * (b - a)):b]
+            half = len(tail) // 2
+            if abs(tail[:half].mean() - tail[half:].mean()) > 3 * sigma * np.sqrt(2.0 / half):
+                continue   # still settling: not a steady level
+            us.append(u[a]), ws.append(float(np.mean(tail))), ns.append(len(tail))
     return np.array(us), np.array(ws), np.array(ns, float)

@@ -223,11 +223,13 @@ class FrictionCurve(FrictionEffect):
         return {"tcp_v": g, "tcn_v": g}
 
     def offered(self, evaluation, runs) -> bool:
-        """Only where the model's speed residual says one direction drags more: in steady
-        motion both directions' mean residuals lie on the same side, by more than
-        :data:`ONE_WAY` of their mean size and 5 standard errors (symmetric friction
-        leaves them on opposite sides, each towards zero speed)."""
-        if evaluation is None:
+        """Only on a measured torque or force (``labrig import --input-measured``: on a
+        commanded input the same torques are Coulomb friction plus an input offset, named
+        effects the search pairs) and where the model's speed residual says one direction
+        drags more: in steady motion both directions' mean residuals lie on the same side,
+        by a noise floor at least and 5 standard errors (symmetric friction leaves them on
+        opposite sides, each towards zero speed)."""
+        if evaluation is None or not any(getattr(r, "input_measured", False) for r in runs):
             return False
         fwd, rev = [], []
         for rr in evaluation.per_run:

@@ -57,6 +57,9 @@ def simulate_truth(p: ServoParams, u: np.ndarray, dt: float, *, effects=(),
     td = sum(e.delay_s(**ep) for e, ep in by_stage.get("delay", []))
     fric = by_stage.get("friction", [])
     outp = by_stage.get("output", [])
+    # friction larger one way: the mean level as friction, half the difference as a
+    # constant drive entering where an input offset does (labrig.model.friction.FrictionCurve)
+    bias = sum(float(e.input_bias(**ep)) for e, ep in fric if hasattr(e, "input_bias"))
 
     R, L, J, B, K, Ka, Ke = p.R, p.L, p.J, p.B, p.K, p.Ka, p.ke
     # inductance invisible at this step (docs/physics.md, 'The simulators')
@@ -77,6 +80,7 @@ def simulate_truth(p: ServoParams, u: np.ndarray, dt: float, *, effects=(),
                 v = kp * (r - p.Kpot * (play if outp else th / p.N)) - kv * p.Kt * w
             else:
                 v = r
+            v += bias
             for e, ep in by_stage.get("input", []):
                 v = float(e.apply(np.float64(v), **ep))
             v = min(max(Ka * v, -rail_v), rail_v)
