@@ -228,8 +228,8 @@ def test_the_step_by_step_loop_ends_the_same_for_every_seed(linear_axis_runs, se
     n, f, recs = _end(linear_axis_runs, seed)
     assert n == names, (seed, recs)
     for k, v in flat.items():
-        if k.startswith("start["):   # an encoder's start within its count: to 2 % of a count
-            assert f[k] == pytest.approx(v, abs=0.02 / 2e5), (seed, k)
+        if k.startswith("start["):   # an encoder's start within its count: to a tenth of one
+            assert f[k] == pytest.approx(v, abs=0.1 / 2e5), (seed, k)
             continue
         assert f[k] == pytest.approx(v, rel=0.01), (seed, k)
 

@@ -83,9 +83,7 @@ class Space:
 
     def to_search(self, physical: dict) -> np.ndarray:
         i = self.free_idx
-        v = np.array([physical.get(self.names[k], self.estimates.get(self.names[k]))
-                      if self.names[k] in self.estimates else physical[self.names[k]]
-                      for k in i], float)
+        v = np.array([self._value(physical, self.names[k]) for k in i], float)
         lo, hi = self.lower[i], self.upper[i]
         return self._fwd(np.clip(v, lo, hi), i)
 
@@ -100,11 +98,15 @@ class Space:
                 out[:, self.names.index(n)] = v
         return out
 
+    def _value(self, physical: dict, name: str) -> float:
+        """A parameter's value from a flat dict; a run's start it lacks: the data's estimate."""
+        if name not in physical and name in self.estimates:
+            return self.estimates[name]
+        return physical[name]
+
     def physical_row(self, physical: dict) -> np.ndarray:
-        """Every parameter's physical value from a model's flat dict, in ``names``' order;
-        a run's start the model does not record takes the data's estimate."""
-        return np.array([physical[n] if n in physical or n not in self.estimates
-                         else self.estimates[n] for n in self.names], float)
+        """Every parameter's physical value from a model's flat dict, in ``names``' order."""
+        return np.array([self._value(physical, n) for n in self.names], float)
 
     def as_dict(self, row: np.ndarray) -> dict:
         return {n: float(v) for n, v in zip(self.names, row)}

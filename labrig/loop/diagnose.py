@@ -323,13 +323,18 @@ def diagnose(runs, model: Model | None = None, *, candidates=None, seed: int = 0
     if diverged:
         verdict += (f" Not ranked: {', '.join(diverged)} (every start of the re-fit diverged: "
                     "the simulation overflowed).")
+    moving = [r for r, st in base.starts.items() if "w0" in st]
+    if moving:   # stated: these runs are not simulated from rest (labrig.model.start)
+        verdict += (f" Runs that start in motion, simulated from their fitted start: "
+                    f"{', '.join(moving)}.")
     return Diagnosis(
         diverged=diverged,
         baseline={"source": base_source, "effects": base.names,
                   "fitness": ev0.metrics["fitness"],
                   "rmse_over_noise": ev0.metrics["rmse_over_noise"],
                   "fit_percent": ev0.metrics["fit_percent"], "bic": bic0,
-                  "n": n, "n_effective": n_eff, "cross_validated": cv0.rmse},
+                  "n": n, "n_effective": n_eff, "cross_validated": cv0.rmse,
+                  **({"starts": base.starts} if base.starts else {})},
         regimes=regimes, ranking=ranking, recommendation=rec, verdict=verdict,
         cross_validation={"kind": folds.kind, "folds": len(folds.folds),
                           "baseline": cv0.rmse, "channels": cv0.channels},

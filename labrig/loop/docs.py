@@ -77,6 +77,8 @@ class Baseline(_Doc):
     n: Optional[int] = None
     n_effective: Num = None
     cross_validated: Num = None
+    #: each run's fitted start where it is not rest (labrig.model.start)
+    starts: dict[str, dict[str, float]] = {}
 
 
 class Criteria(_Doc):
