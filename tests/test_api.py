@@ -63,9 +63,11 @@ def test_results_show_one_screen_and_html(tmp_path):
     lad = lr.ladder(runs, [fit])
     model_file = fit.model().save(tmp_path / "m.json")
     assert lr.load_model(model_file).params == pytest.approx(fit.model().params)
-    for obj in (fit, ev, lad, lr.analyse(runs), lr.effects()):
-        text = repr(obj)
+    diag = lr.diagnose(runs, fit, candidates=["deadband", "coulomb_friction"])
+    for obj in (fit, ev, lad, lr.analyse(runs), lr.effects(), diag):
+        text = repr(obj)   # one screen: 30 lines of 100 columns, 2,000 characters
         assert text.startswith("<") and len(text.splitlines()) <= 30, type(obj).__name__
+        assert len(text) <= 2000, (type(obj).__name__, len(text))
         html = obj._repr_html_()
         assert "<table>" in html
     for obj in (fit, ev, lad):   # the results of the loop show their figure

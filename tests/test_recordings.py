@@ -257,9 +257,9 @@ def _independent_hammerstein(records, dt):
 def test_a_drive_that_is_a_curve_of_the_command(tmp_path):
     """A hobby shield whose motor voltage is a concave function of the command, stepped
     from rest to eight levels: the steady curve bends (no named effect follows it), the
-    static input curve is offered and found, ends near the floor, and its run-mean fit is
-    within 1 point of an independent Hammerstein fit (the old loop ended with the linear
-    model)."""
+    static input curve is offered and found, takes the error down tenfold, and its run-mean
+    fit is within 1 point of an independent Hammerstein fit (the old loop ended with the
+    linear model)."""
     import pandas as pd
     from labrig.loop.auto import auto_diagnose
     from twin import shield_steps
@@ -281,4 +281,7 @@ def test_a_drive_that_is_a_curve_of_the_command(tmp_path):
     theirs = _independent_hammerstein(records, 0.01)
     print(f"run-mean fit: labrig {ours:.2f} %, independent Hammerstein {theirs:.2f} %")
     assert ours >= theirs - 1.0, (ours, theirs)
-    assert res.ladder.steps[-1].rmse_over_noise["speed"] <= 1.2
+    # (not "at the floor": this record's speed floor, 4.9 rad/s, is inflated by the 40 ms
+    # rises its 7-sample detrending cannot follow; the count is 1.57 rad/s)
+    ladder = res.ladder.steps
+    assert ladder[-1].rmse_over_noise["speed"] < 0.1 * ladder[0].rmse_over_noise["speed"]

@@ -13,6 +13,8 @@ from labrig.core.tables import Table, table_html
 
 #: a repr longer than this many lines is cut, and says how to see the rest
 REPR_LINES = 30
+#: ... and at most this many characters (a screen of 100 columns holds about 2,000)
+REPR_CHARS = 2000
 
 
 class Displayable:
@@ -26,15 +28,22 @@ class Displayable:
         return [rows] if isinstance(rows, Table) else list(rows)
 
     def __repr__(self) -> str:
+        """One screen: the headline and the tables, without their notes, cut at
+        :data:`REPR_LINES` lines or :data:`REPR_CHARS` characters, whichever comes first."""
         try:
-            text = "\n\n".join(t.to_text(width=100) for t in self._tables())
+            text = "\n\n".join(t.to_text(width=100, notes=False) for t in self._tables())
         except Exception as exc:  # a repr never raises: say what is missing instead
             text = f"(no table: {type(exc).__name__}: {exc})"
         lines = [f"<{self.headline()}>"] + text.splitlines()
-        if len(lines) > REPR_LINES:
-            lines = lines[:REPR_LINES - 1] + [f"... {len(lines) - REPR_LINES + 1} more lines: "
-                                              ".table_rows(), .to_pandas() or .to_json()"]
-        return "\n".join(lines)
+        more = ".table_rows(), .to_pandas() or .to_json()"
+        keep, size = [], 0
+        for k, line in enumerate(lines):
+            if k == REPR_LINES - 1 or size + len(line) + 1 > REPR_CHARS - 80:
+                keep.append(f"... {len(lines) - k} more lines: {more}")
+                break
+            keep.append(line)
+            size += len(line) + 1
+        return "\n".join(keep)
 
     def _figure_for_html(self):
         return self.plot()

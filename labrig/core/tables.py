@@ -21,8 +21,8 @@ class Table:
     #: column indices to right-align (numbers)
     numeric: tuple[int, ...] = ()
 
-    def to_text(self, width: int = 110) -> str:
-        """The table as plain text, drawn by rich (no colour codes)."""
+    def to_text(self, width: int = 110, notes: bool = True) -> str:
+        """The table as plain text, drawn by rich (no colour codes); ``notes`` below it."""
         from rich import box
         from rich.console import Console
         from rich.table import Table as RichTable
@@ -38,7 +38,7 @@ class Table:
         Console(file=buf, width=width, color_system=None, force_terminal=False,
                 legacy_windows=False).print(t)
         text = "\n".join(line.rstrip() for line in buf.getvalue().rstrip().splitlines())
-        if self.notes:
+        if self.notes and notes:
             text += "\n" + "\n".join(self.notes)
         return text
 
