@@ -195,8 +195,7 @@ def diagnose(runs, model: Model | None = None, *, candidates=None, seed: int = 0
     ev0 = evaluate(runs, base, weights=weights)
     sig = ev0.sigmas
     n = ev0.n
-    rho = min(max(ev0.rho1, 0.0), 0.995)
-    n_eff = max(n * (1 - rho) / (1 + rho), 10.0)
+    n_eff = ev0.n_effective
     k0 = len(param_keys(base)) - len(fixed)
     bic0 = bic(ev0.wsse, n, n_eff, k0)
     f0 = ev0.fitness

@@ -72,6 +72,14 @@ class Evaluation(Displayable):
         """Weighted sum of squared normalised residuals (for the BIC)."""
         return self.fitness ** 2 * self.n
 
+    @property
+    def n_effective(self) -> float:
+        """The residuals' count corrected for their colour, ``n (1 - rho) / (1 + rho)``
+        with the lag-1 autocorrelation held in [0, 0.995], at least 10 (the BIC's N:
+        simulation residuals are coloured even for a right model)."""
+        rho = min(max(self.rho1, 0.0), 0.995)
+        return max(self.n * (1 - rho) / (1 + rho), 10.0)
+
     def worst_regime(self):
         return worst_regime(self.regimes)
 

@@ -112,9 +112,8 @@ class _Judge:
         self.folds, self.sigmas = first.folds, first.evaluation.sigmas
         self.weights = first.evaluation.weights
         ev0 = first.evaluation
-        rho = min(max(ev0.rho1, 0.0), 0.995)
         self.n = ev0.n
-        self.n_eff = max(self.n * (1 - rho) / (1 + rho), 10.0)
+        self.n_eff = ev0.n_effective
 
     def evaluate(self, model):
         return evaluate(self.runs, model, self.sigmas, weights=self.weights)
