@@ -159,8 +159,8 @@ def _diagnosis():
 
 
 def test_the_ranking_notes_state_the_numbers_diagnose_uses():
-    """ranking.py cannot import diagnose.py (diagnose imports it): its copies of the
-    ranking's numbers must be diagnose's."""
+    """The ranking's notes and the diagnosis read one set of criteria
+    (labrig.loop.criteria)."""
     from labrig.loop import diagnose, ranking
 
     assert ranking.PARSIMONY == diagnose.PARSIMONY

@@ -19,7 +19,6 @@ and the evidence, in numbers and in words.
 """
 from __future__ import annotations
 
-import math
 import time
 
 from labrig.core.parallel import each
@@ -33,6 +32,11 @@ from labrig.identification.engine import dataset_constants, identify
 from labrig.identification.result import at_bounds as bound_sides
 from labrig.model import drive_units
 from labrig.loop.candidates import candidate_names
+# every threshold and rule of the decision (also under the names callers have used)
+from labrig.loop.criteria import (CV_CANDIDATES, FLOOR, MAX_REFINE, MIN_DBIC,  # noqa: F401
+                                  MIN_GAIN, PARSIMONY, REFINE, SIMPLER_MARGIN, SWAP_GAIN,
+                                  UNDECIDED, bic, score as _score, supported as _supported,
+                                  undecided)
 from labrig.model.effects import catalogue_name, get_effect
 from labrig.model.model import Model, param_keys
 from labrig.model.reach import Reach
@@ -41,29 +45,6 @@ from labrig.analysis.noise import Weights
 from labrig.loop.refit import refit, refit_with, without
 from labrig.loop.residuals import REGIME_TEXT, worst_regime
 from labrig.io.runs import require_excitation
-
-#: a candidate must lower the cross-validated (and the in-sample) error by this much
-MIN_GAIN = 0.05
-#: and be strongly supported by BIC (Kass & Raftery: |dBIC| > 10 is "very strong")
-MIN_DBIC = -10.0
-#: below this rmse/noise the model is called at the noise floor (in words only: the
-#: decision is the cross-validation's)
-FLOOR = 1.15
-#: candidates cross-validated per round (the best by in-sample error)
-CV_CANDIDATES = 4
-#: relative penalty per extra parameter when held-out errors are compared
-PARSIMONY = 0.02
-#: two supported explanations whose scores are this close are reported as undecided
-UNDECIDED = 0.02
-#: a base this much worse than a candidate with its effect switched off is refined ...
-REFINE = 0.01
-#: ... at most this many times
-MAX_REFINE = 2
-#: a replacement by an effect with as many parameters must gain this much (held out)
-SWAP_GAIN = 0.02
-#: a simpler replacement (fewer parameters) may be this much worse on held-out data
-SIMPLER_MARGIN = 0.02
-
 
 def balanced_weights(ev: Evaluation, runs=None) -> Weights:
     """Channel weights that give each channel the same say at the starting model: each
@@ -106,11 +87,6 @@ def agreement_of(runs, ev: Evaluation):
     unit = ev.floors["position"].unit if "position" in ev.floors else "rad"
     speed_unit = ev.floors["speed"].unit if "speed" in ev.floors else "rad/s"
     return channel_agreement(prepare(runs), ev.sigmas[0], ev.sigmas[1], unit, speed_unit)
-
-
-def bic(sse, n, n_eff, k):
-    """BIC with the effective sample count (residual colour corrected)."""
-    return n_eff * math.log(max(sse, 1e-300) / n) + k * math.log(n_eff)
 
 
 def at_bounds(ident) -> list[str]:
@@ -408,44 +384,18 @@ def _fold_sizes(cv, c: Candidate) -> list:
             if size and j + 1 not in skip]
 
 
-def _supported(c: Candidate) -> bool:
-    """The decision, in the terms the ranking table states (:meth:`Diagnosis._ranking_rules`)."""
-    cv = c.cross_validated
-    if cv is None or c.unresolved:
-        return False
-    majority = cv["folds_improved"] > cv["folds"] / 2
-    if c.move == "remove":   # the mirror of adding: it stays only when it earns MIN_GAIN
-        return cv["with_effect"] < cv["baseline"] / (1 - MIN_GAIN)
-    if c.move == "replace" and c.extra_params < 0:   # simpler and about as good
-        return cv["with_effect"] <= (1 + SIMPLER_MARGIN) * cv["baseline"]
-    gain = SWAP_GAIN if c.move == "replace" and c.extra_params == 0 else MIN_GAIN
-    return bool(c.delta_bic < MIN_DBIC and c.improvement >= gain and cv["improvement"] >= gain
-                and majority)
-
-
 def _undecided(supported: list) -> str:
     """A word when the runner-up is a different explanation that predicts held-out data
     within :data:`UNDECIDED` of the first: the order between them is not evidence."""
     if len(supported) < 2:
         return ""
     a, b = supported[0], supported[1]
-    if a.effect == b.effect or \
-            get_effect(a.effect).family_name == get_effect(b.effect).family_name:
-        return ""
-    if _score(b) > (1 + UNDECIDED) * _score(a):
+    if not undecided(a, b):
         return ""
     return (f" Undecided against {b.label}: its held-out error ({b.cross_validated['with_effect']:.2f}) "
             f"is within {100 * UNDECIDED:g} % of this one's, so these data do not tell the two "
             f"apart; `labrig propose --between {a.effect},{b.effect}` designs the run that "
             "would.")
-
-
-def _score(c: Candidate) -> float:
-    """Cross-validated error with a mild penalty per parameter the move adds beyond one
-    (a bonus per parameter it takes away), so a simpler model that predicts held-out
-    data about as well ranks first (a symmetric dead zone over an asymmetric one that
-    fits no better, Coulomb friction over stiction, a model without a useless effect)."""
-    return c.cross_validated["with_effect"] * (1 + PARSIMONY * (c.extra_params - 1))
 
 
 def explain(entry: Candidate, ev0: Evaluation, const: dict) -> str:

@@ -13,15 +13,8 @@ from labrig.model.model import Model
 from labrig.loop.residuals import REGIME_TEXT
 from labrig.core.tables import Table, fmt
 from labrig.core.display import Displayable
-
-#: how labrig.loop.diagnose ranks and picks candidates, for the table's notes (the loop's
-#: diagnose imports this module, so it cannot be imported here; tests/test_messages.py
-#: checks that the two agree): the penalty per extra parameter of ``_score`` and the
-#: number of candidates cross-validated
-PARSIMONY = 0.02
-CV_CANDIDATES = 4
-SWAP_GAIN = 0.02
-SIMPLER_MARGIN = 0.02
+# how the diagnosis ranks and picks candidates, for the table's notes
+from labrig.loop.criteria import CV_CANDIDATES, PARSIMONY, SIMPLER_MARGIN, SWAP_GAIN
 
 
 @dataclass

@@ -26,7 +26,9 @@ from itertools import combinations
 
 from labrig.loop.crossval import cross_validate
 from labrig.loop.candidates import candidate_names
-from labrig.loop.diagnose import MIN_DBIC, MIN_GAIN, SIMPLER_MARGIN, SWAP_GAIN, bic, diagnose
+from labrig.loop.criteria import (MIN_DBIC, MIN_GAIN, NEAR_FLOOR, PAIR_POOL, SIMPLER_MARGIN,
+                                  SWAP_GAIN, bic)
+from labrig.loop.diagnose import diagnose
 from labrig.loop.evaluation import evaluate
 from labrig.loop.ladder import Ladder, LadderStep, rung_label
 from labrig.core.parallel import each
@@ -36,10 +38,6 @@ from labrig.model.reach import Reach
 from labrig.loop.refit import refit, refit_with, without
 from labrig.loop.resolution import unresolved
 
-#: no single effect is "near the floor" above this rmse/noise: try pairs
-NEAR_FLOOR = 1.5
-#: candidates (by in-sample gain) whose pairs are tried
-PAIR_POOL = 3
 #: the effects that set how much drive it takes to move: their pairs are tried whenever
 #: no single effect earns its parameters and the model still misses
 THRESHOLD_FAMILY = ("offset", "coulomb_friction", "stiction", "deadband",

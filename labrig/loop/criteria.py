@@ -1,0 +1,77 @@
+"""The diagnosis's criteria: every threshold and rule of "supported", "undecided",
+"refined" and "near the floor", in one place, with why (docs/physics.md, 'Diagnosis').
+
+The diagnosis (:mod:`labrig.loop.diagnose`), the search (:mod:`labrig.loop.search`) and
+the ranking's words (:mod:`labrig.loop.ranking`) read them from here; nothing else holds
+a copy.
+"""
+from __future__ import annotations
+
+import math
+
+#: a candidate must lower the cross-validated (and the in-sample) error by this much
+MIN_GAIN = 0.05
+#: and be strongly supported by BIC (Kass & Raftery: |dBIC| > 10 is "very strong")
+MIN_DBIC = -10.0
+#: below this rmse/noise the model is called at the noise floor (in words only: the
+#: decision is the cross-validation's)
+FLOOR = 1.15
+#: candidates cross-validated per round (the best by in-sample error)
+CV_CANDIDATES = 4
+#: relative penalty per extra parameter when held-out errors are compared
+PARSIMONY = 0.02
+#: two supported explanations whose scores are this close are reported as undecided
+UNDECIDED = 0.02
+#: a base this much worse than a candidate with its effect switched off is refined ...
+REFINE = 0.01
+#: ... at most this many times
+MAX_REFINE = 2
+#: a replacement by an effect with as many parameters must gain this much (held out)
+SWAP_GAIN = 0.02
+#: a simpler replacement (fewer parameters) may be this much worse on held-out data
+SIMPLER_MARGIN = 0.02
+#: the search tries pairs when no single candidate comes this near the floor ...
+NEAR_FLOOR = 1.5
+#: ... among this many leading candidates (one per family)
+PAIR_POOL = 3
+
+
+def bic(sse, n, n_eff, k):
+    """BIC with the sample count corrected for the residuals' colour (``n_eff``)."""
+    return n_eff * math.log(max(sse, 1e-300) / n) + k * math.log(n_eff)
+
+
+def supported(c) -> bool:
+    """The decision on a :class:`~labrig.loop.ranking.Candidate`, in the terms the ranking
+    table states (:meth:`Diagnosis._ranking_rules`)."""
+    cv = c.cross_validated
+    if cv is None or c.unresolved:
+        return False
+    majority = cv["folds_improved"] > cv["folds"] / 2
+    if c.move == "remove":   # the mirror of adding: it stays only when it earns MIN_GAIN
+        return cv["with_effect"] < cv["baseline"] / (1 - MIN_GAIN)
+    if c.move == "replace" and c.extra_params < 0:   # simpler and about as good
+        return cv["with_effect"] <= (1 + SIMPLER_MARGIN) * cv["baseline"]
+    gain = SWAP_GAIN if c.move == "replace" and c.extra_params == 0 else MIN_GAIN
+    return bool(c.delta_bic < MIN_DBIC and c.improvement >= gain and cv["improvement"] >= gain
+                and majority)
+
+
+def score(c) -> float:
+    """Cross-validated error with a mild penalty per parameter the move adds beyond one
+    (a bonus per parameter it takes away), so a simpler model that predicts held-out
+    data about as well ranks first (a symmetric dead zone over an asymmetric one that
+    fits no better, Coulomb friction over stiction, a model without a useless effect)."""
+    return c.cross_validated["with_effect"] * (1 + PARSIMONY * (c.extra_params - 1))
+
+
+def undecided(a, b) -> bool:
+    """Whether the runner-up ``b``, a different explanation (another family), predicts
+    held-out data within :data:`UNDECIDED` of the first ``a``: their order is not
+    evidence."""
+    from labrig.model.effects import get_effect
+
+    if a.effect == b.effect or \
+            get_effect(a.effect).family_name == get_effect(b.effect).family_name:
+        return False
+    return score(b) <= (1 + UNDECIDED) * score(a)
