@@ -222,6 +222,15 @@ def torque_drive_from_rest(folder, *, J=2e-4, B=2e-3, coulomb=0.02, offset=0.006
     return out
 
 
+def _rk4_dw(f, w, v, h):
+    """One classic Runge-Kutta step of ``w' = f(w, v)`` with ``v`` held: the change of w."""
+    k1 = f(w, v)
+    k2 = f(w + 0.5 * h * k1, v)
+    k3 = f(w + 0.5 * h * k2, v)
+    k4 = f(w + h * k3, v)
+    return h / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
+
+
 # -- an Arduino + H-bridge gear motor, logged by its sketch -----------------------------
 
 def hbridge_staircase(folder, *, window_s=0.05, dpos=1.2, dneg=1.8, fs=100.0,
@@ -264,11 +273,7 @@ def hbridge_staircase(folder, *, window_s=0.05, dpos=1.2, dneg=1.8, fs=100.0,
         angle[k] = ang
         v = bridge(u[k])
         for _ in range(sub):
-            k1 = f(w, v)
-            k2 = f(w + 0.5 * h * k1, v)
-            k3 = f(w + 0.5 * h * k2, v)
-            k4 = f(w + h * k3, v)
-            dw = h / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
+            dw = _rk4_dw(f, w, v, h)
             ang += h * (w + 0.5 * dw)
             w += dw
     count = np.floor(angle * cpr / (2 * math.pi)).astype(int)
@@ -302,31 +307,14 @@ def force_axis_closed_loop(folder, *, M=2.5, Fv=40.0, coulomb=22.0, offset=3.0, 
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     dt, sub = 1.0 / fs, 50
-    h = dt / sub
     q = 1.0 / counts_per_m
     out = []
     for j, levels in enumerate(steps):
         n0, per = int(0.2 * fs), int(step_s * fs)
         ref = np.concatenate([np.zeros(n0)] + [np.full(per, r) for r in levels])
         n = len(ref)
-        x = v = 0.0
-        meas_prev = 0.0
-        pos, drive = np.empty(n), np.empty(n)
-        for k in range(n):
-            meas = math.floor(x / q + 0.5) * q
-            u = kp * (ref[k] - meas) - kv * (meas - meas_prev) / dt
-            meas_prev = meas
-            pos[k], drive[k] = meas, u
-            force = kd * u + offset
-            for _ in range(sub):
-                if v == 0.0 and abs(force) <= coulomb:
-                    continue
-                s = math.copysign(1.0, v if v != 0.0 else force)
-                v_new = v + h * (force - Fv * v - coulomb * s) / M
-                if v != 0.0 and v_new * v < 0.0:
-                    v_new = 0.0
-                x += 0.5 * h * (v + v_new)
-                v = v_new
+        pos, drive = _carriage_in_a_loop(ref, np.zeros(n), M=M, Fv=Fv, coulomb=coulomb,
+                                         offset=offset, kd=kd, kp=kp, kv=kv, dt=dt, sub=sub, q=q)
         t = np.arange(n) * dt
         path = folder / f"loop{j}.csv"
         rows = ["t,ref,drive,pos"] + [f"{a:.4f},{b:.5f},{c:.6f},{d:.6f}"
@@ -334,6 +322,35 @@ def force_axis_closed_loop(folder, *, M=2.5, Fv=40.0, coulomb=22.0, offset=3.0, 
         path.write_text("\n".join(rows) + "\n")
         out.append(path)
     return out
+
+
+def _carriage_in_a_loop(ref, drive_noise, *, M, Fv, coulomb, offset, kd, kp, kv, dt, sub, q):
+    """A carriage driven by a force-mode drive in a digital PD loop on its encoder: at each
+    sample the controller reads the count and holds ``u = kp (ref - x) - kv x'`` (plus
+    ``drive_noise``) until the next; ``M v' = kd u + offset - Fv v - Fc sign(v)``, the
+    carriage sticking while the force is within the Coulomb level; Euler, ``sub`` steps a
+    sample. Returns the measured positions and the drive per sample."""
+    n = len(ref)
+    h = dt / sub
+    x = v = 0.0
+    meas_prev = 0.0
+    pos, drive = np.empty(n), np.empty(n)
+    for k in range(n):
+        meas = math.floor(x / q + 0.5) * q
+        u = kp * (ref[k] - meas) - kv * (meas - meas_prev) / dt + drive_noise[k]
+        meas_prev = meas
+        pos[k], drive[k] = meas, u
+        force = kd * u + offset
+        for _ in range(sub):
+            if v == 0.0 and abs(force) <= coulomb:
+                continue
+            s = math.copysign(1.0, v if v != 0.0 else force)
+            v_new = v + h * (force - Fv * v - coulomb * s) / M
+            if v != 0.0 and v_new * v < 0.0:
+                v_new = 0.0
+            x += 0.5 * h * (v + v_new)
+            v = v_new
+    return pos, drive
 
 
 # -- a long force-driven axis record, in the shape of the EMPS benchmark ----------------
@@ -351,7 +368,6 @@ def emps_like_axis(folder, *, M=95.1, Fv=203.5, coulomb=20.4, offset=-3.16, kd=3
     folder.mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(seed)
     dt, sub = 1.0 / fs, 20
-    h = dt / sub
     n = int(round(duration_s * fs))
     t = np.arange(n) * dt
     # point-to-point moves: a smooth (cosine) ramp to each target, then a dwell
@@ -367,25 +383,9 @@ def emps_like_axis(folder, *, M=95.1, Fv=203.5, coulomb=20.4, offset=-3.16, kd=3
     wn, zeta = 30.0, 0.7
     kp = M * wn ** 2 / kd
     kv = (2 * zeta * wn * M - Fv) / kd
-    q = 1.0 / counts_per_m
-    x = v = 0.0
-    meas_prev = 0.0
-    qm, vir = np.empty(n), np.empty(n)
-    for k in range(n):
-        meas = math.floor(x / q + 0.5) * q
-        u = kp * (ref[k] - meas) - kv * (meas - meas_prev) / dt + rng.normal(0.0, 2e-3)
-        meas_prev = meas
-        qm[k], vir[k] = meas, u
-        force = kd * u + offset
-        for _ in range(sub):
-            if v == 0.0 and abs(force) <= coulomb:
-                continue
-            s = math.copysign(1.0, v if v != 0.0 else force)
-            v_new = v + h * (force - Fv * v - coulomb * s) / M
-            if v != 0.0 and v_new * v < 0.0:
-                v_new = 0.0
-            x += 0.5 * h * (v + v_new)
-            v = v_new
+    qm, vir = _carriage_in_a_loop(ref, rng.normal(0.0, 2e-3, n), M=M, Fv=Fv, coulomb=coulomb,
+                                  offset=offset, kd=kd, kp=kp, kv=kv, dt=dt, sub=sub,
+                                  q=1.0 / counts_per_m)
     path = folder / "emps.csv"
     rows = ["t,qg,vir,qm"] + [f"{a:.4f},{b:.6f},{c:.6f},{d:.7f}"
                               for a, b, c, d in zip(t, ref, vir, qm)]
@@ -411,11 +411,7 @@ def _kit_motor(u, w0, *, R, K, J, B, dz, fs, sub=20):
         ws[k] = w
         d = 0.0
         for _ in range(sub):
-            k1 = f(w, v)
-            k2 = f(w + 0.5 * h * k1, v)
-            k3 = f(w + 0.5 * h * k2, v)
-            k4 = f(w + h * k3, v)
-            dw = h / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
+            dw = _rk4_dw(f, w, v, h)
             d += h * (w + 0.5 * dw)
             w += dw
         travel[k] = d

@@ -278,14 +278,19 @@ class Simulator:
         if run.loop == "closed":
             th = (run.theta0 + prm[:, C_TH0])
             return run.Ka * (run.kp * (u[0] - run.Kpot * th) - run.kv * run.Kt * prm[:, C_W0])
+        return np.asarray(self._through_maps(u, ep, run.Ka), float)[0]
+
+    def _through_maps(self, e, ep, Ka):
+        """Inputs (samples, 1 or candidates) through the input effects, the gain ``Ka`` and
+        the drive effects, each candidate with its own parameters (the general path)."""
         for eff in self.effects:
             if eff.stage == "input":
-                u = eff.apply(u, **{k: v[None, :] for k, v in ep[eff.name].items()})
-        u = u * run.Ka
+                e = eff.apply(e, **{k: v[None, :] for k, v in ep[eff.name].items()})
+        e = e * Ka
         for eff in self.effects:
             if eff.stage == "drive":
-                u = eff.apply(u, **{k: v[None, :] for k, v in ep[eff.name].items()})
-        return np.asarray(u, float)[0]
+                e = eff.apply(e, **{k: v[None, :] for k, v in ep[eff.name].items()})
+        return e
 
     # ------------------------------------------------------------------------------
     def _open_loop_input(self, run: RunData, ep, P):
@@ -304,14 +309,7 @@ class Simulator:
                     imap[:, MAP_COLUMNS.index(k)] = v
             imap[:, MAP_COLUMNS.index("u0_v")] += bias   # a constant drive enters as an offset
             return np.ascontiguousarray(run.u[:, None], dtype=float), imap
-        e = run.u[:, None] + bias[None, :]  # a sample's inputs contiguous
-        for eff in self.effects:
-            if eff.stage == "input":
-                e = eff.apply(e, **{k: v[None, :] for k, v in ep[eff.name].items()})
-        e = e * run.Ka
-        for eff in self.effects:
-            if eff.stage == "drive":
-                e = eff.apply(e, **{k: v[None, :] for k, v in ep[eff.name].items()})
+        e = self._through_maps(run.u[:, None] + bias[None, :], ep, run.Ka)  # samples contiguous
         return np.ascontiguousarray(e, dtype=float), _NO_MAP
 
     def _simulate_run(self, run: RunData, prm, ep, user_output, disc, weights=None):
