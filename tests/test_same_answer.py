@@ -334,7 +334,7 @@ def test_two_explanations_within_two_percent_are_reported_as_undecided():
     """The order of two different explanations whose held-out errors are within 2 % is
     not evidence: the verdict says so and names the experiment that would decide; two
     members of one family (Coulomb friction and stiction) are not two explanations."""
-    from labrig.loop.diagnose import _undecided
+    from labrig.loop.explain import undecided_note as _undecided
     from labrig.loop.ranking import Candidate
 
     def cand(name, cv, k=1):

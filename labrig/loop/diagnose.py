@@ -27,23 +27,22 @@ from labrig.loop.resolution import unresolved
 from labrig.loop.ranking import Candidate, Diagnosis
 from labrig.core.errors import FitDiverged, UserError
 from labrig.loop.evaluation import Evaluation, evaluate
-from labrig.loop.explain import context as explain_context
+from labrig.loop.explain import context as explain_context, explain, round_verdict
 from labrig.identification.engine import dataset_constants, identify
 from labrig.identification.result import at_bounds as bound_sides
 from labrig.model import drive_units
 from labrig.loop.candidates import candidate_names
 # every threshold and rule of the decision (also under the names callers have used)
 from labrig.loop.criteria import (CV_CANDIDATES, FLOOR, MAX_REFINE, MIN_DBIC,  # noqa: F401
-                                  MIN_GAIN, PARSIMONY, REFINE, SIMPLER_MARGIN, SWAP_GAIN,
-                                  UNDECIDED, bic, score as _score, supported as _supported,
-                                  undecided)
-from labrig.model.effects import catalogue_name, get_effect
+                                  MIN_GAIN, PARSIMONY, REFINE, SIMPLER_MARGIN, SWAP_GAIN, bic,
+                                  score as _score, supported as _supported)
+from labrig.model.effects import get_effect
 from labrig.model.model import Model, param_keys
 from labrig.model.reach import Reach
 from labrig.analysis.agreement import WINDOW_DECLARED_IN
 from labrig.analysis.noise import Weights
 from labrig.loop.refit import refit, refit_with, without
-from labrig.loop.residuals import REGIME_TEXT, worst_regime
+from labrig.loop.residuals import worst_regime
 from labrig.io.runs import require_excitation
 
 def balanced_weights(ev: Evaluation, runs=None) -> Weights:
@@ -274,34 +273,8 @@ def diagnose(runs, model: Model | None = None, *, candidates=None, seed: int = 0
                "worst": None if worst is None else {"channel": worst[0], "regime": worst[1],
                                                      "rmse_over_noise": worst[2]},
                "noise": ev0.metrics["noise"]}
-    rmse0 = ev0.rmse
-    ripple = _ripple(ev0, runs) if rec is None and rmse0 > FLOOR else None
-    if rec is not None:
-        verdict = f"{supported[0].action}: " + supported[0].explanation + _undecided(supported)
-    elif rmse0 <= FLOOR:
-        verdict = (f"The model is at the noise floor (rmse/noise {rmse0:.2f}) and no effect "
-                   "predicts held-out data better: nothing is missing that these data can show.")
-    elif weights.decides:
-        verdict = _sensor_verdict(weights, ev0.metrics["rmse_over_noise"])
-    elif ripple is not None:
-        verdict = (f"The model misses (rmse/noise {rmse0:.2f}) and no catalogue effect earns "
-                   f"its parameters: {ripple.describe()}. A plant effect cannot follow it. "
-                   "Average the speed over a turn, filter the line out (a notch at "
-                   f"{ripple.order:.2g} x the rotation frequency), or write it as an effect "
-                   "of your own (docs/physics.md, 'Writing your own effect').")
-    else:
-        verdict = (f"The model misses (rmse/noise {rmse0:.2f}) but no catalogue effect earns its "
-                   "parameters on BIC and on held-out data; the cause may be outside the catalogue "
-                   "(write your own effect: docs/physics.md, 'Writing your own effect'), in the "
-                   "sensors' calibration, or in effects that only act together (diagnose --auto "
-                   "tries pairs).")
-    if diverged:
-        verdict += (f" Not ranked: {', '.join(diverged)} (every start of the re-fit diverged: "
-                    "the simulation overflowed).")
-    moving = [r for r, st in base.starts.items() if "w0" in st]
-    if moving:   # stated: these runs are not simulated from rest (labrig.model.start)
-        verdict += (f" Runs that start in motion, simulated from their fitted start: "
-                    f"{', '.join(moving)}.")
+    ripple = _ripple(ev0, runs) if rec is None and ev0.rmse > FLOOR else None
+    verdict = round_verdict(supported, ev0, weights, ripple, diverged, base.starts)
     return Diagnosis(
         diverged=diverged,
         baseline={"source": base_source, "effects": base.names,
@@ -327,25 +300,6 @@ def _ripple(ev: Evaluation, runs):
     from labrig.model.simulate import prepare
 
     return ripple_line(ev.per_run, prepare(runs))
-
-
-def _sensor_verdict(weights: Weights, per: dict) -> str:
-    """The verdict when nothing earns its parameters and one channel was weighted down
-    because the sensors disagree (``Weights.decides``, ``Weights.why``): which channel
-    decides, how near its floor it is, and that the rest of the other channel's error is
-    the sensor's."""
-    decides = weights.decides
-    other = "position" if decides == "speed" else "speed"
-    what = "drift against the speed" if decides == "speed" else "lag against the position"
-    # a late speed's remedy is in its why (declare the window); a drifting position's:
-    advice = (" Zero or recalibrate the position channel, or fit the speed alone "
-              "(--weights p=0,q=1)." if decides == "speed" else " Or log the raw counts.")
-    r = per[decides]
-    where = "at" if r <= FLOOR else "near" if r <= 1.5 else "above"
-    return (f"No catalogue effect earns its parameters. The sensors disagree: {weights.why}. "
-            f"The {decides}, which decides, is {where} its noise floor (rmse/noise {r:.2f}); "
-            f"the {other} misses (rmse/noise {per[other]:.2f}) by its {what}: a sensor "
-            f"matter, not the plant.{advice}")
 
 
 def _revisions(runs, base: Model, entry, *, seed, fixed, weights) -> list[Candidate]:
@@ -382,55 +336,3 @@ def _fold_sizes(cv, c: Candidate) -> list:
     skip = {d["fold"] for d in (c.cross_validated or {}).get("not_counted", [])}
     return [p.get(f"{c.effect}.{size}", float("nan")) for j, p in enumerate(cv.fold_params)
             if size and j + 1 not in skip]
-
-
-def _undecided(supported: list) -> str:
-    """A word when the runner-up is a different explanation that predicts held-out data
-    within :data:`UNDECIDED` of the first: the order between them is not evidence."""
-    if len(supported) < 2:
-        return ""
-    a, b = supported[0], supported[1]
-    if not undecided(a, b):
-        return ""
-    return (f" Undecided against {b.label}: its held-out error ({b.cross_validated['with_effect']:.2f}) "
-            f"is within {100 * UNDECIDED:g} % of this one's, so these data do not tell the two "
-            f"apart; `labrig propose --between {a.effect},{b.effect}` designs the run that "
-            "would.")
-
-
-def explain(entry: Candidate, ev0: Evaluation, const: dict) -> str:
-    """Plain words with numbers: what, where in these runs, how much, how to confirm."""
-    cv = entry.cross_validated
-    if cv:
-        held = (f" Cross-validated: {cv['baseline']:.2f} -> {cv['with_effect']:.2f} on held-out "
-                f"data, better in {cv['folds_improved']} of {cv['folds']} folds.")
-        for d in cv.get("not_counted", []):
-            held += (f" Fold {d['fold']} is not counted: the data it trains on do not pin "
-                     f"{d['parameter']} ({d['fold_value']:.3g} there, {d['value']:.3g} on all "
-                     f"runs), so it cannot predict what it holds out.")
-        ev = cv.get("evidence") or []
-        if ev:
-            held += " The held-out evidence is in the " + "; ".join(
-                f"{REGIME_TEXT[d['regime']]} of the {d['channel']} ({d['base']:.2f} -> "
-                f"{d['candidate']:.2f}, {100 * d['share_of_time']:.0f} % of the time)" for d in ev) + "."
-    else:
-        held = " Not cross-validated (its in-sample gain is below the threshold)."
-    bound = (" The fit ended at a bound: " + "; ".join(entry.at_bound) + ".") if entry.at_bound else ""
-    size = f" Its size is not resolved: {entry.unresolved}." if entry.unresolved else ""
-    r0 = ev0.rmse
-    change = (f"rmse/noise {r0:.2f} -> {entry.rmse_over_noise:.2f} on all runs, "
-              f"delta BIC {entry.delta_bic:.0f}.{held}{bound}{size}")
-    if entry.move == "remove":
-        eff = get_effect(entry.effect)
-        verdict = ("Without it the model predicts held-out data as well: it no longer earns "
-                   "its parameters." if entry.supported else
-                   "Taking it out costs more than it saves: it stays.")
-        return (f"The model without {entry.effect} ({eff.explain_params(entry.params, const)}), "
-                f"re-fitted: {change} {verdict}")
-    eff = entry.model.effects.by_name(entry.effect)
-    verdict = ("It earns its parameters." if entry.supported else
-               "It does not earn its parameters on these data.")
-    instead = f" In place of {entry.replaces}." if entry.move == "replace" else ""
-    return (f"{eff.summary[0].upper()}{eff.summary[1:]}.{instead} Fitted: "
-            f"{eff.explain_params(entry.params, const)}. {change} {verdict} "
-            f"Expected signature: {eff.signature}. To confirm: {eff.experiment}.")
