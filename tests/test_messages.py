@@ -230,7 +230,7 @@ def test_separation_is_the_decisions_ratio_and_a_proposal_predicts_that_one():
     minus one), said with its definition wherever it appears; its sum of squares is the
     "predicted difference"."""
     from labrig.loop.decide import Decision
-    from labrig.loop.inputs import Candidate as Input
+    from labrig.loop.inputs import InputCandidate as Input
     from labrig.loop.proposal import SEPARATION, Hypothesis, Judged, Proposal
 
     model = SimpleNamespace(describe=lambda: "a model")

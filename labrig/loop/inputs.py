@@ -39,7 +39,7 @@ def why(kind: str, pair) -> str:
 
 
 @dataclass
-class Candidate:
+class InputCandidate:
     """One input the rig could play."""
 
     kind: str
@@ -85,7 +85,7 @@ def _holds(usual, fill: float) -> list:
 
 
 def candidates(*, threshold: float | None, amax: float, tau: float, budget_s: float,
-               dt: float) -> list[Candidate]:
+               dt: float) -> list[InputCandidate]:
     """The candidate inputs for effects whose threshold is ``threshold`` V (0 when they
     have none, like a delay and backlash; None when the data do not pin it: then every
     level is spread across the whole range, never set around a fitted value)."""
@@ -93,16 +93,16 @@ def candidates(*, threshold: float | None, amax: float, tau: float, budget_s: fl
     settle = float(np.clip(4 * tau, 0.2, budget_s / 6))
     pinned = threshold is not None
     th = threshold if pinned and threshold > 0 else 0.3 * amax
-    out: list[Candidate] = []
+    out: list[InputCandidate] = []
 
     def add(kind, segs, label):
         pts = _pts(segs)
         if len(pts) <= MAX_POINTS and pts[-1][0] <= budget_s + 1e-9 and \
                 max(abs(u) for _, u in pts) <= amax + 1e-9:
-            out.append(Candidate(kind, pts, label))
+            out.append(InputCandidate(kind, pts, label))
             # and its mirror image: the same test starting the other way (the travel the
             # data allow may differ by direction)
-            out.append(Candidate(kind, [[t, -u if u else 0.0] for t, u in pts],
+            out.append(InputCandidate(kind, [[t, -u if u else 0.0] for t, u in pts],
                                  label + ", mirrored"))
 
     near_th = {min(f * th, amax) for f in (1.5, 2.5)} if pinned else set()

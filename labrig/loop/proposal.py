@@ -16,7 +16,7 @@ from labrig.core.display import Displayable
 from labrig.core.errors import UserError
 from labrig.core.tables import Table
 from labrig.io.runs import Run
-from labrig.loop.inputs import MAX_POINTS, Candidate, why
+from labrig.loop.inputs import MAX_POINTS, InputCandidate, why
 from labrig.model.model import Model
 
 LEAD_IN_S = 0.5
@@ -82,7 +82,7 @@ class Hypothesis:
 class Judged:
     """One candidate input and how well it separates the pair."""
 
-    candidate: Candidate
+    candidate: InputCandidate
     naive: float                      # predicted difference of the best fits (noise units)
     robust: float = 0.0               # the worst over plausible truths and rival variants
     #: plausible truth -> predicted separation after the rival re-fits (leaders only)
@@ -285,7 +285,7 @@ class Proposal(Displayable):
         return plot_proposal(self, ax=ax)
 
 
-def synthetic_run(template: Run, cand: Candidate, name: str, sim: dict | None = None,
+def synthetic_run(template: Run, cand: InputCandidate, name: str, sim: dict | None = None,
                   noise: dict | None = None, rng=None) -> Run:
     """A run of ``cand`` as ``template``'s rig would record it: volts through the same
     sensors, the model's prediction ``sim`` (``w``, ``theta``) plus seeded noise."""

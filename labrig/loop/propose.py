@@ -32,7 +32,7 @@ import time
 import numpy as np
 
 from labrig.core.errors import UserError
-from labrig.loop.inputs import Candidate, candidates
+from labrig.loop.inputs import InputCandidate, candidates
 from labrig.loop.proposal import DECISIVE, Hypothesis, Judged, Proposal, synthetic_run
 from labrig.model.effects import catalogue_name, get_effect
 from labrig.model.model import Model
@@ -190,7 +190,7 @@ def _levels_threshold(hyps) -> float | None:
     return float(np.mean([threshold_of(h.model) for h in sized]))
 
 
-def separation_after_refit(runs, base: Model, rival: str, truth: Model, cand: Candidate,
+def separation_after_refit(runs, base: Model, rival: str, truth: Model, cand: InputCandidate,
                            template: Run, sig: dict, *, seed, weights, rng) -> tuple:
     """The decision's separation predicted for ``cand`` when ``truth`` is the truth: the
     run it would record (with the rig's noise) added to ``runs``, the rival re-fitted to

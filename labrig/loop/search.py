@@ -32,16 +32,17 @@ from labrig.loop.diagnose import diagnose
 from labrig.loop.evaluation import evaluate
 from labrig.loop.ladder import Ladder, LadderStep, rung_label
 from labrig.core.parallel import each
-from labrig.model.effects import get_effect
+from labrig.model.effects import CATALOGUE, get_effect
 from labrig.model.model import Model, param_keys
 from labrig.model.reach import Reach
 from labrig.loop.refit import refit, refit_with, without
 from labrig.loop.resolution import unresolved
 
-#: the effects that set how much drive it takes to move: their pairs are tried whenever
-#: no single effect earns its parameters and the model still misses
-THRESHOLD_FAMILY = ("offset", "coulomb_friction", "stiction", "deadband",
-                    "asymmetric_deadband")
+#: the catalogue's effects that set how much drive it takes to move (``Effect.pair_rank``,
+#: in its order): their pairs are tried whenever no single effect earns its parameters and
+#: the model still misses
+THRESHOLD_FAMILY = tuple(sorted((n for n, c in CATALOGUE.items() if c.pair_rank is not None),
+                                key=lambda n: CATALOGUE[n].pair_rank))
 # a swap must lower the cross-validated error by SWAP_GAIN; a simpler family member may
 # be SIMPLER_MARGIN worse (the step-by-step diagnose uses the same two, hence imported)
 #: log lines are wrapped at this width (words whole, never cut)
@@ -150,9 +151,22 @@ def _pool(ranking) -> list:
     return sorted(best.values(), key=lambda c: -c.improvement)[:PAIR_POOL]
 
 
-def _pair(judge: _Judge, diag, log):
-    """The best pair of the leading candidates, when no single one is near the floor:
-    ``(model, cv, names)`` or None."""
+@dataclass
+class Step:
+    """A move the search considers: its kind ("add" or "pair"), the effects it adds (and
+    those it takes out in their place), the fitted model, its evaluation and its
+    cross-validated error."""
+
+    kind: str
+    names: list
+    model: Model
+    evaluation: object
+    cv: float
+    replaced: list = field(default_factory=list)
+
+
+def _pair(judge: _Judge, diag, log) -> Step | None:
+    """The best pair of the leading candidates, when no single one is near the floor."""
     pool = _pool(diag.ranking)
     if not pool or min(c.rmse_over_noise for c in pool) <= NEAR_FLOOR:
         return None
@@ -170,14 +184,14 @@ def _pair(judge: _Judge, diag, log):
     if best is None:
         return None
     _say(log, f"  trying the pair {' + '.join(best[2])} (no single effect is near the floor)")
-    return best[0], best[1], judge.cv(best[0]), best[2]
+    return Step("pair", best[2], best[0], best[1], judge.cv(best[0]))
 
 
-def _threshold_pair(judge: _Judge, model, cv_now: float, log):
+def _threshold_pair(judge: _Judge, model, cv_now: float, log) -> Step | None:
     """The best pair of :data:`THRESHOLD_FAMILY`, fitted together in place of the model's
-    own members of that family: ``(model, evaluation, cv, names, replaced)`` when it
-    predicts held-out data clearly better (and BIC agrees), else None."""
-    replaced = [n for n in model.names if n in THRESHOLD_FAMILY]
+    own members of that family (``replaced``), when it predicts held-out data clearly
+    better (and BIC agrees), else None."""
+    replaced = [e.name for e in model.effects if e.pair_rank is not None]
     reduced = model
     for n in replaced:
         reduced = without(reduced, n)
@@ -206,7 +220,7 @@ def _threshold_pair(judge: _Judge, model, cv_now: float, log):
                 f"{cv:.2f}")
     if cv >= (1 - MIN_GAIN) * cv_now:
         return None
-    return m, ev, cv, names, replaced
+    return Step("pair", names, m, ev, cv, replaced)
 
 
 def search(runs, model: Model | None = None, *, max_rounds: int = 3, seed: int = 0,
@@ -235,25 +249,24 @@ def search(runs, model: Model | None = None, *, max_rounds: int = 3, seed: int =
         step = None
         if diag.recommendation:
             c = diag.candidate(diag.recommendation)
-            step = ("add", [c.effect], c.model, c.evaluation, c.cross_validated["with_effect"])
+            step = Step("add", [c.effect], c.model, c.evaluation,
+                        c.cross_validated["with_effect"])
         pair = _pair(judge, diag, log) if added + 2 <= max_rounds else None
         if pair is not None:
-            m, ev, cv, names = pair
-            single_cv = step[4] if step else cv_now
-            dbic = judge.bic(m, ev) - judge.bic(step[2] if step else model,
-                                                step[3] if step else diag.evaluation)
-            if cv < (1 - MIN_GAIN) * single_cv and dbic < MIN_DBIC:
-                step = ("pair", names, m, ev, cv)
-        replaced = []
+            single_cv = step.cv if step else cv_now
+            dbic = judge.bic(pair.model, pair.evaluation) - judge.bic(
+                step.model if step else model, step.evaluation if step else diag.evaluation)
+            if pair.cv < (1 - MIN_GAIN) * single_cv and dbic < MIN_DBIC:
+                step = pair
         if step is None and diag.evaluation.fitness > NEAR_FLOOR:
             found = _threshold_pair(judge, model, cv_now, log)
-            if found is not None and added + 2 - len(found[4]) <= max_rounds:
-                m, ev, cv, names, replaced = found
-                step = ("pair", names, m, ev, cv)
+            if found is not None and added + 2 - len(found.replaced) <= max_rounds:
+                step = found
         if step is None:
             break
-        kind, names, model, ev, cv = step
-        moves.append(Move(kind, names, cv_now, cv, k, replaces=replaced))
+        names, model, ev, cv, replaced = step.names, step.model, step.evaluation, step.cv, \
+            step.replaced
+        moves.append(Move(step.kind, names, cv_now, cv, k, replaces=replaced))
         cv_now = cv
         added += len(names) - len(replaced)
         ladder.steps.append(LadderStep.of(rung_label(model.names, ladder.steps[-1].effects),

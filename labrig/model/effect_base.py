@@ -80,6 +80,11 @@ class Effect(abc.ABC):
     #: how it responds to each kind of input a proposal can play
     #: (:data:`labrig.loop.inputs.KINDS`), in plain words
     responses: dict = {}
+    #: the effect sets how much drive it takes to move (a dead zone, an offset, a friction
+    #: level): when no single effect earns its parameters, the search fits pairs of such
+    #: effects together, in this rank's order (None: not one of them). A user's effect
+    #: with a rank joins the pairs like a built-in one
+    pair_rank: int | None = None
     #: an open-ended effect (a curve, not one named mechanism): ``diagnose`` offers it only
     #: where :meth:`offered` says the data show what it adds, and a named effect that
     #: explains as well wins on parsimony

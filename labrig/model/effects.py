@@ -63,6 +63,7 @@ class Deadband(InputEffect):
     """
 
     name = "deadband"
+    pair_rank = 3
     threshold = "d_v"
     size = "d_v"
     rival = "coulomb_friction"
@@ -249,6 +250,7 @@ class Offset(InputEffect):
     """Amplifier input offset ``u + u0``: drift of the SA150D's zero."""
 
     name = "offset"
+    pair_rank = 0
     stage = "input"
     size = "u0_v"
     params = (Param("u0_v", "V", -0.5, 0.5, "input offset voltage", log=False),)
@@ -311,6 +313,7 @@ class AsymmetricDeadband(InputEffect):
     """
 
     name = "asymmetric_deadband"
+    pair_rank = 4
     simpler = "deadband"
     rival = "coulomb_friction"
     proposed_as = "deadband"

@@ -29,6 +29,7 @@ class CoulombFriction(FrictionEffect):
     """
 
     name = "coulomb_friction"
+    pair_rank = 1
     threshold = "tc_v"
     size = "tc_v"
     rival = "deadband"
@@ -99,6 +100,7 @@ class Stiction(FrictionEffect):
     """Coulomb friction plus a higher breakaway torque (Karnopp): ``ts = tc*(1 + s)``."""
 
     name = "stiction"
+    pair_rank = 2
     threshold = "tc_v"
     size = "tc_v"
     simpler = "coulomb_friction"
