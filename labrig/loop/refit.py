@@ -168,7 +168,9 @@ def refit(runs, model: Model, *, seed: int = 0, fixed: dict | None = None,
 
 def without(model: Model, name: str) -> Model:
     """``model`` with the effect ``name`` taken out (its parameters dropped)."""
-    effects = [e for e in model.effects if e.name != name]
-    flat = {k: v for k, v in model.flat().items() if not k.startswith(f"{name}.")}
-    return Model.from_flat(flat, effects, model.constants, plant=model.plant,
-                           info=dict(model.info or {}))
+    return Model(params=dict(model.params),
+                 effects=[e for e in model.effects if e.name != name],
+                 effect_params={e: dict(ps) for e, ps in model.effect_params.items()
+                                if e != name},
+                 constants=dict(model.constants), plant=model.plant,
+                 info=dict(model.info or {}), starts={r: dict(s) for r, s in model.starts.items()})
