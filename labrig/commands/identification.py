@@ -69,7 +69,7 @@ def cmd_identify(args):
     voltage, torque or force driven). Reports the identifiable combinations (Km, tau_m,
     tau_e) first, then the plant's parameters with identifiability warnings, and the
     physical parameters in the axis's units."""
-    from labrig.identification.config_file import load_identify_config
+    from labrig.io.identify_config import load_identify_config
     from labrig.identification.engine import identify
     from labrig.identification.table import all_warnings, format_identification, identification_dict
     from labrig.model.effectset import EffectSet

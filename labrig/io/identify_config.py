@@ -1,11 +1,14 @@
-"""Files an identification reads besides the runs: the identify config TOML.
+"""The identify config TOML: bounds, fixed values and effects an identification reads
+besides the runs (``labrig identify --config``).
 
 Model files are :class:`labrig.model.model.Model` (``Model.load`` / ``Model.save``).
 """
 from __future__ import annotations
 
+from labrig.core.errors import ConfigError
+from labrig.core.schemas import IdentifyConfig, validate
+from labrig.io.config import read_toml
 from labrig.model.effectset import EffectSet
-from labrig.core.schemas import validate
 
 
 def load_identify_config(path) -> dict:
@@ -17,10 +20,6 @@ def load_identify_config(path) -> dict:
     """
     if not path:
         return {}
-    from labrig.io.config import read_toml
-    from labrig.core.errors import ConfigError
-    from labrig.core.schemas import IdentifyConfig
-
     cfg = validate(IdentifyConfig, read_toml(path, "identify config"), path, ConfigError)
     EffectSet.parse(cfg.effects, origin=f"{path}: key 'effects'")
     return {"bounds": {k: tuple(v) for k, v in cfg.bounds.items()},
