@@ -22,9 +22,9 @@ _PUBLIC = {
     "Model": "labrig.model.model", "Run": "labrig.io.runs", "Effect": "labrig.model.effects",
     "Param": "labrig.model.effect_base",
     "AnalysisResult": "labrig.analysis.result", "Identification": "labrig.identification.engine",
-    "Diagnosis": "labrig.loop.ranking", "AutoDiagnosis": "labrig.loop.auto",
-    "Evaluation": "labrig.loop.evaluation", "Ladder": "labrig.loop.ladder",
-    "Proposal": "labrig.loop.proposal", "Catalogue": "labrig.model.catalogue",
+    "Diagnosis": "labrig.diagnosis.ranking", "AutoDiagnosis": "labrig.diagnosis.auto",
+    "Evaluation": "labrig.diagnosis.evaluation", "Ladder": "labrig.diagnosis.ladder",
+    "Proposal": "labrig.diagnosis.proposal", "Catalogue": "labrig.model.catalogue",
     "LabrigError": "labrig.core.errors", "UserError": "labrig.core.errors",
 }
 

@@ -177,10 +177,10 @@ def diagnose(source, model=None, *, candidates=None, seed: int = SEED,
     """Where the model fails and which catalogue effect is missing (``labrig diagnose``).
 
     ``model`` (a Model, a model file or an Identification) defaults to the linear model
-    fitted here. Returns a :class:`~labrig.loop.ranking.Diagnosis`; its
+    fitted here. Returns a :class:`~labrig.diagnosis.ranking.Diagnosis`; its
     ``recommended_model()`` is the re-fitted model with the recommended effect.
     """
-    from labrig.loop.diagnose import diagnose as _diagnose
+    from labrig.diagnosis.diagnose import diagnose as _diagnose
     from labrig.model.effects import get_effect
 
     for c in candidates or ():
@@ -193,10 +193,10 @@ def auto(source, model=None, *, max_rounds: int = 3, seed: int = SEED,
          fixed: dict | None = None, through: str = "auto", log=None, on_step=None):
     """The loop run to the end: add, pair, swap and remove effects while the
     cross-validated error falls (``labrig diagnose --auto``). Returns an
-    :class:`~labrig.loop.auto.AutoDiagnosis` with the final model and its ladder;
+    :class:`~labrig.diagnosis.auto.AutoDiagnosis` with the final model and its ladder;
     ``log(line)`` receives the rounds' summaries and ``on_step(k, model)`` every rung as
     the search climbs the ladder."""
-    from labrig.loop.auto import auto_diagnose
+    from labrig.diagnosis.auto import auto_diagnose
 
     if max_rounds < 1:
         raise UserError(f"max_rounds: {max_rounds} adds nothing; give 1 or more")
@@ -211,10 +211,10 @@ def propose(source, model, between: str | None = None, *, budget_s: float = 20.0
 
     ``between`` is ``"a,b"`` (default: the model's effect and its usual look-alike);
     ``rig`` a rig file or :class:`~labrig.io.config.RigConfig` whose limits bound the
-    input. Returns a :class:`~labrig.loop.proposal.Proposal`; ``to_toml()`` is the plan.
+    input. Returns a :class:`~labrig.diagnosis.proposal.Proposal`; ``to_toml()`` is the plan.
     """
     from labrig.io.config import RigConfig, load_rig
-    from labrig.loop.propose import propose as _propose
+    from labrig.diagnosis.propose import propose as _propose
 
     amax = None
     if rig is not None:
@@ -226,9 +226,9 @@ def propose(source, model, between: str | None = None, *, budget_s: float = 20.0
 
 def compare(source, model, *, through: str = "auto"):
     """The model simulated on the runs: fit %, rmse/noise by run and regime, residuals
-    (``labrig compare``). Returns an :class:`~labrig.loop.evaluation.Evaluation`; its
+    (``labrig compare``). Returns an :class:`~labrig.diagnosis.evaluation.Evaluation`; its
     ``plot()`` overlays model and measurement with the residual and its noise band."""
-    from labrig.loop.evaluation import evaluate
+    from labrig.diagnosis.evaluation import evaluate
 
     return evaluate(read_runs(source, through=through), _model(model))
 
@@ -237,9 +237,9 @@ def ladder(source, models, *, through: str = "auto"):
     """The error after each added effect, against the noise floor (``labrig ladder``).
 
     ``models``: a list of Models, model files or fits, simplest first. Returns a
-    :class:`~labrig.loop.ladder.Ladder`.
+    :class:`~labrig.diagnosis.ladder.Ladder`.
     """
-    from labrig.loop.ladder import evaluate_ladder
+    from labrig.diagnosis.ladder import evaluate_ladder
 
     return evaluate_ladder(read_runs(source, through=through), [_model(m) for m in models])
 

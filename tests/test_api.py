@@ -33,7 +33,7 @@ def test_import_is_light_and_picks_no_backend():
                          check=True).stdout.strip()
     assert out == "[]"
     # the whole library imported, still no backend chosen: a notebook keeps its own
-    code = ("import matplotlib; import labrig.report.html, labrig.loop.auto, "
+    code = ("import matplotlib; import labrig.report.html, labrig.diagnosis.auto, "
             "labrig.analysis.plots; print(matplotlib.rcParams._get_backend_or_none())")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          check=True, env={"PATH": "/usr/bin:/bin", "MPLBACKEND": ""}).stdout

@@ -22,7 +22,7 @@ LAYERS = [
     ["bridge"],      # the rig: simulated, serial, emulated; sweeps
     ["analysis"],    # deadband, Km, tau_m from runs; noise floors
     ["identification"],  # JFO, PSO, CO fits and their results
-    ["loop"],        # residuals, diagnosis, evidence, search, ladder, proposals
+    ["diagnosis"],   # the missing-physics loop: residuals, diagnosis, evidence, search, ladder, proposals
     ["classroom"],   # batches and mystery rigs
     ["report"],      # the HTML report
     ["api"],         # the public verbs (labrig.api, re-exported by labrig)
@@ -149,7 +149,7 @@ def test_folders_are_layers():
 def test_what_the_loop_knows_of_an_effect_lives_on_the_effect():
     """No table keyed by effect name in the loop: a user's own effect takes part in the
     search and in proposals through its own attributes, like a built-in one."""
-    from labrig.loop.inputs import KINDS
+    from labrig.diagnosis.inputs import KINDS
     from labrig.model.effects import CATALOGUE
 
     names = set(CATALOGUE)

@@ -9,12 +9,12 @@ from labrig.bridge.sweep import sweep
 from labrig.io.experiment import Experiment
 from labrig.bridge.sim import SimRig
 from labrig.io.config import load_plan
-from labrig.loop.diagnose import linear_model
+from labrig.diagnosis.diagnose import linear_model
 from labrig.core.errors import ConfigError
 from labrig.model.effects import get_effect
-from labrig.loop.decide import Decision, decide
-from labrig.loop.propose import propose
-from labrig.loop.refit import refit_with
+from labrig.diagnosis.decide import Decision, decide
+from labrig.diagnosis.propose import propose
+from labrig.diagnosis.refit import refit_with
 from labrig.io.runs import read_dataset
 from conftest import labrig, make_rig, sim_dataset
 from twin import Twin
@@ -183,7 +183,7 @@ def test_the_robustness_guard_admits_variants_and_changes_the_proposal(deadzone_
     """Without the plausible variants the dead zone is judged at its fitted 0.05 V, which
     no input tells from no dead zone at all: the proposal differs (here: nothing is
     predicted to separate); with them it separates at every plausible size."""
-    import labrig.loop.propose as P
+    import labrig.diagnosis.propose as P
 
     _, _, runs, model, prop = deadzone_proposal
     assert len(prop.hypotheses[0].members) > 1          # the guard admits variants
@@ -292,7 +292,7 @@ def test_default_pair_is_the_diagnosis_first_confusable_pair(tmp_path):
     """`diagnose --auto -o DIR` writes diagnosis.json beside model.json: propose takes its
     first confusable pair (an asymmetric dead zone asked about as a dead zone)."""
     from labrig.core.errors import UserError
-    from labrig.loop.propose import pair_from_diagnosis
+    from labrig.diagnosis.propose import pair_from_diagnosis
 
     model = tmp_path / "model.json"
     assert pair_from_diagnosis(model) is None

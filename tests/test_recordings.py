@@ -7,7 +7,7 @@ import pytest
 
 from labrig.core.errors import FitDiverged
 from labrig.io.runs import read_dataset
-from labrig.loop.refit import refit_with
+from labrig.diagnosis.refit import refit_with
 from labrig.model.effects import CATALOGUE, get_effect
 from labrig.model.model import Model
 from conftest import labrig
@@ -130,7 +130,7 @@ def test_runs_that_start_in_motion_are_fitted_from_their_own_start(tmp_path):
     delay, and its run-mean fit is within 1 point of an independent output-error fit with
     estimated initial state. From rest (the old behaviour) it ended at rmse/noise 8.7."""
     import pandas as pd
-    from labrig.loop.auto import auto_diagnose
+    from labrig.diagnosis.auto import auto_diagnose
     from twin import kit_recordings
 
     srcs = kit_recordings(tmp_path / "logger")
@@ -168,7 +168,7 @@ def test_an_encoders_start_within_a_count_is_not_physics(tmp_path, seed):
     else hidden, the start anywhere within the first count and no input step declared:
     each run's position offset is fitted, so nothing but the rail is added (the old loop
     added a dead zone of 1 mV for these two starts), the rail within 1 %, at the floor."""
-    from labrig.loop.auto import auto_diagnose
+    from labrig.diagnosis.auto import auto_diagnose
     from twin import Twin, encoder_squares
 
     for src in encoder_squares(Twin(rail=8.0), tmp_path / "logger", seed=seed):
@@ -193,7 +193,7 @@ def test_friction_larger_one_way_on_a_measured_torque(tmp_path):
     50 % larger in reverse, steps of both signs from rest: no dead zone, rail or offset is
     a candidate (the input is measured), and the friction curve is found with its two
     levels, J and B within 10 % (the old loop took an asymmetric dead zone of the drive)."""
-    from labrig.loop.auto import auto_diagnose
+    from labrig.diagnosis.auto import auto_diagnose
     from twin import measured_current_rig
 
     for src in measured_current_rig(tmp_path / "logger"):
@@ -261,7 +261,7 @@ def test_a_drive_that_is_a_curve_of_the_command(tmp_path):
     fit is within 1 point of an independent Hammerstein fit (the old loop ended with the
     linear model)."""
     import pandas as pd
-    from labrig.loop.auto import auto_diagnose
+    from labrig.diagnosis.auto import auto_diagnose
     from twin import shield_steps
 
     srcs = shield_steps(tmp_path / "logger")

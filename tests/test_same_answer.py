@@ -8,9 +8,9 @@ import pytest
 from labrig.io.config import load_plan, load_rig
 from labrig.io.experiment import Experiment
 from labrig.io.runs import read_dataset
-from labrig.loop.crossval import CrossValidation, fold_evidence, make_folds, segments
-from labrig.loop.diagnose import diagnose
-from labrig.loop.resolution import input_quantum, jackknife_se, unresolved
+from labrig.diagnosis.crossval import CrossValidation, fold_evidence, make_folds, segments
+from labrig.diagnosis.diagnose import diagnose
+from labrig.diagnosis.resolution import input_quantum, jackknife_se, unresolved
 from labrig.model.effects import get_effect
 from conftest import make_rig, sim_dataset, square_plan
 
@@ -297,7 +297,7 @@ def test_words_an_arduino_model_runs_sorted_no_minus_zero(tmp_path):
     from labrig.core.tables import fmt
     from labrig.identification.table import comparison_table
     from labrig.io.runs import natural_key
-    from labrig.loop.residuals import regime_table
+    from labrig.diagnosis.residuals import regime_table
 
     runs = _arduino(tmp_path)
     # runs sort by the numbers in their names, not as text
@@ -334,8 +334,8 @@ def test_two_explanations_within_two_percent_are_reported_as_undecided():
     """The order of two different explanations whose held-out errors are within 2 % is
     not evidence: the verdict says so and names the experiment that would decide; two
     members of one family (Coulomb friction and stiction) are not two explanations."""
-    from labrig.loop.explain import undecided_note as _undecided
-    from labrig.loop.ranking import Candidate
+    from labrig.diagnosis.explain import undecided_note as _undecided
+    from labrig.diagnosis.ranking import Candidate
 
     def cand(name, cv, k=1):
         return Candidate(name, 1.0, 0.5, -100.0, {}, {}, extra_params=k,

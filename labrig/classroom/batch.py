@@ -94,7 +94,7 @@ class Diagnose(Task):
     figures = ("effects", "rmse_over_noise", "confusable")
 
     def run(self, folder, options):
-        from labrig.loop.auto import auto_diagnose
+        from labrig.diagnosis.auto import auto_diagnose
         from labrig.io.runs import read_dataset
 
         runs = read_dataset([folder])

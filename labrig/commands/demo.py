@@ -34,13 +34,13 @@ def cmd_demo(args):
     from labrig.bridge.sim import SimRig
     from labrig.identification.table import format_identification
     from labrig.io.config import load_plan, load_rig
-    from labrig.loop.diagnose import diagnose
-    from labrig.loop.evaluation import evaluate
+    from labrig.diagnosis.diagnose import diagnose
+    from labrig.diagnosis.evaluation import evaluate
     from labrig.identification.engine import identify
-    from labrig.loop.ladder import evaluate_ladder
+    from labrig.diagnosis.ladder import evaluate_ladder
     from labrig.model.effects import get_effect
     from labrig.model.model import Model
-    from labrig.loop.plots import plot_regimes, plot_run_comparison
+    from labrig.diagnosis.plots import plot_regimes, plot_run_comparison
     from labrig.core.figures import save
     from labrig.report.html import build_report
     from labrig.identification.plots import plot_convergence

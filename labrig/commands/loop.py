@@ -27,8 +27,8 @@ def cmd_compare(args):
     """For every run: measured and simulated speed and position (fit % in the legend),
     residuals in noise units with the stretches outside the noise band shaded by regime,
     residual autocorrelation and input cross-correlation with their bands."""
-    from labrig.loop.evaluation import evaluate
-    from labrig.loop.plots import plot_regimes, plot_run_comparison
+    from labrig.diagnosis.evaluation import evaluate
+    from labrig.diagnosis.plots import plot_regimes, plot_run_comparison
     from labrig.core.figures import save
 
     from labrig.commands.registry import refuse_existing
@@ -76,7 +76,7 @@ def cmd_diagnose(args):
     floor), then rank every catalogue effect the model lacks: re-fitted from scanned
     starts, compared on BIC and by cross-validation, each with its evidence and the
     experiment that would confirm it."""
-    from labrig.loop.diagnose import diagnose
+    from labrig.diagnosis.diagnose import diagnose
     from labrig.commands.identification import parse_assignments
     from labrig.commands.registry import refuse_existing
 
@@ -125,7 +125,7 @@ def _saved_text(output, recommendation) -> str:
 
 def _decide(runs, model, seed):
     """Runs proposed by `labrig propose` among the data: how the pair's separation moved."""
-    from labrig.loop.decide import decide
+    from labrig.diagnosis.decide import decide
 
     with Progress("the proposed runs", total=None) as bar:
         return decide(runs, model, seed=seed, log=bar.log)
@@ -152,7 +152,7 @@ def _weights(text):
 
 def _auto(args, runs, model, fixed, weights) -> int:
     """``diagnose --auto``: the rounds to the end; -o is a folder of their results."""
-    from labrig.loop.auto import auto_diagnose
+    from labrig.diagnosis.auto import auto_diagnose
     from labrig.core.fileio import write_json
     from labrig.core.figures import save
     from labrig.commands.registry import refuse_existing
@@ -197,15 +197,15 @@ def _ask_rig(args, runs, res) -> dict:
     from labrig.bridge.sweep import sweep
     from labrig.io.config import load_plan, load_rig
     from labrig.core.fileio import atomic_write
-    from labrig.loop.decide import decide
-    from labrig.loop.propose import propose
+    from labrig.diagnosis.decide import decide
+    from labrig.diagnosis.propose import propose
     from labrig.io.runs import read_dataset
     from labrig.commands.registry import refuse_existing
 
     if not res.confusable:
         return {"text": "asked the rig nothing: no two effects explain the data about "
                         "equally well", "pair": None}
-    from labrig.loop.propose import proposed_as
+    from labrig.diagnosis.propose import proposed_as
 
     first, second = (proposed_as(n) for n in (res.confusable[0].first,
                                                   res.confusable[0].second))
@@ -284,8 +284,8 @@ def cmd_ladder(args):
     """Evaluate a chain of models (`--models m0.json,m1.json,...`, as saved by
     `labrig identify --model PREV --effects NEW -o NEXT`), or, without --models, run the
     loop automatically: identify, diagnose, add the recommended effect, repeat."""
-    from labrig.loop.ladder import evaluate_ladder
-    from labrig.loop.search import auto_ladder
+    from labrig.diagnosis.ladder import evaluate_ladder
+    from labrig.diagnosis.search import auto_ladder
     from labrig.core.figures import save
     from labrig.commands.identification import read_for_fit
 

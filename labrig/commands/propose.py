@@ -20,7 +20,7 @@ def cmd_propose(args):
     help, writes no plan and exits with status 1."""
     from labrig.io.config import load_rig
     from labrig.model.model import Model
-    from labrig.loop.propose import pair_from_diagnosis, propose
+    from labrig.diagnosis.propose import pair_from_diagnosis, propose
     from labrig.core.figures import save
     from labrig.commands.identification import read_for_fit
     from labrig.commands.registry import refuse_existing

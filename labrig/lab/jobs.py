@@ -44,7 +44,7 @@ def fit(folders, model_doc=None, add=(), remove=(), label="") -> dict:
     worst run (``runs`` names them all; :func:`overlays` draws the others: each figure
     costs about half a second, and the diagnosis should not wait for them)."""
     import labrig.api as lr
-    from labrig.loop.refit import without
+    from labrig.diagnosis.refit import without
 
     runs = _runs(folders)
     base = _model(model_doc)
@@ -76,7 +76,7 @@ def diagnose(folders, model_doc) -> dict:
     """The ranking of the effects the model lacks, with the evidence, the confusable pairs
     and each effect's physics sentence."""
     import labrig.api as lr
-    from labrig.loop.auto import confusable_pairs
+    from labrig.diagnosis.auto import confusable_pairs
     from labrig.model.effects import get_effect
 
     diag = lr.diagnose(_runs(folders), _model(model_doc), seed=LAB_SEED)
@@ -137,7 +137,7 @@ def propose(folders, model_doc, between: str) -> dict:
 
 def decide(folders, model_doc) -> dict:
     """Both explanations fitted with and without the proposed runs."""
-    from labrig.loop.decide import decide as _decide
+    from labrig.diagnosis.decide import decide as _decide
 
     d = _decide(_runs(folders), _model(model_doc), seed=LAB_SEED)
     if d is None:

@@ -37,7 +37,7 @@ def _warm() -> bool:
     none of them."""
     import control  # noqa: F401
 
-    import labrig.loop.search  # noqa: F401
+    import labrig.diagnosis.search  # noqa: F401
     from labrig.model.warm import ready
 
     ready()

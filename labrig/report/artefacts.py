@@ -3,7 +3,7 @@
 ``analysis.json``, ``identify_all.json`` (and ``model0.json``'s fit record),
 ``diagnosis.json`` and ``ladder.json`` are parsed into their documents (each defined
 once, beside the result that writes it: :mod:`labrig.analysis.doc`,
-:mod:`labrig.identification.doc`, :mod:`labrig.loop.docs`); a file that does not fit is
+:mod:`labrig.identification.doc`, :mod:`labrig.diagnosis.docs`); a file that does not fit is
 ignored with a note on the page, never half-used. The documents are lax about numbers
 (an int is a float, ``null`` where a value may be missing) but every key the page reads
 has its type. Where the stage has a result object, the record turns into it
@@ -20,7 +20,7 @@ from pydantic import ValidationError
 from labrig.analysis.doc import AnalysisDoc  # noqa: F401  (the documents the report reads)
 from labrig.core.schemas import MAX_JSON_BYTES, JsonDoc, describe
 from labrig.identification.doc import IdentifyAllDoc, IdentRecord  # noqa: F401
-from labrig.loop.docs import DiagnosisDoc, LadderDoc, Regimes  # noqa: F401
+from labrig.diagnosis.docs import DiagnosisDoc, LadderDoc, Regimes  # noqa: F401
 
 
 # -- reading --------------------------------------------------------------------------

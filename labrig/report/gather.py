@@ -211,7 +211,7 @@ def _model0(story: Story, live) -> None:
 def _failures(story: Story, say):
     """Regime table, regimes figure and the worst run's comparison. Returns the live
     evaluation of the linear model when it had to be computed (else None)."""
-    from labrig.loop.plots import plot_regimes, plot_run_comparison
+    from labrig.diagnosis.plots import plot_regimes, plot_run_comparison
 
     w = story.work
     doc = _artefact(story, "diagnosis.json", DiagnosisDoc)
@@ -230,7 +230,7 @@ def _failures(story: Story, say):
                 break
     ev0 = None
     if story.model0 is not None and (doc is None or reg_png is None or cmp_png is None):
-        from labrig.loop.evaluation import evaluate
+        from labrig.diagnosis.evaluation import evaluate
 
         say("report: simulating the linear model on every run")
         ev0 = evaluate(story.runs, story.model0)
@@ -284,11 +284,11 @@ def _diagnosis(story: Story, seed, say):
         story.missing["diagnosis"] = (f"labrig diagnose {story.data_dir} --json > diagnosis.json "
                                       "(no model to diagnose here)")
         return None
-    from labrig.loop.diagnose import diagnose
+    from labrig.diagnosis.diagnose import diagnose
 
     say("report: diagnosing the linear model (tries every catalogue effect, ~30 s)")
     story.diagnosis = diagnose(story.runs, story.model0, seed=seed)
-    story.sources["diagnosis"] = f"computed by this report (labrig.loop.diagnose, seed {seed})"
+    story.sources["diagnosis"] = f"computed by this report (labrig.diagnosis.diagnose, seed {seed})"
     return story.diagnosis
 
 
@@ -306,7 +306,7 @@ def _ladder(story: Story, diag_live, ev0, say, seed=1) -> None:
             "model0.json,model1.json --json > ladder.json` in the work folder, or the report "
             "without --quick")
     elif w and (w / "model0.json").is_file() and (w / "model1.json").is_file():
-        from labrig.loop.ladder import evaluate_ladder
+        from labrig.diagnosis.ladder import evaluate_ladder
 
         say("report: evaluating the error ladder")
         ladder = evaluate_ladder(story.runs, [str(w / "model0.json"), str(w / "model1.json")])
@@ -327,7 +327,7 @@ def _ladder(story: Story, diag_live, ev0, say, seed=1) -> None:
 def _corrected(story: Story, diag_live, ev0, say, seed) -> list:
     """The corrected model on the worst run, below the linear model on the same run: the
     error falling, seen on the data (the work folder's figures when it has them)."""
-    from labrig.loop.plots import plot_run_comparison
+    from labrig.diagnosis.plots import plot_run_comparison
 
     w, rec = story.work, story.diagnosis.recommendation if story.diagnosis else None
     name = story.worst_run or (ev0.worst_run()["name"] if ev0 is not None else None)
@@ -346,14 +346,14 @@ def _corrected(story: Story, diag_live, ev0, say, seed) -> list:
         if diag_live is not None and diag_live.candidate(rec).evaluation is not None:
             ev1 = diag_live.candidate(rec).evaluation
         elif has_m1 and not story.quick:
-            from labrig.loop.evaluation import evaluate
+            from labrig.diagnosis.evaluation import evaluate
             from labrig.model.model import Model
 
             say("report: simulating the corrected model (model1.json)")
             ev1 = evaluate(story.runs, Model.load(w / "model1.json"))
         elif story.model0 is not None and not story.quick:
             from labrig.identification.engine import identify
-            from labrig.loop.evaluation import evaluate
+            from labrig.diagnosis.evaluation import evaluate
             from labrig.model.effects import get_effect
 
             say(f"report: fitting the linear model + {rec} (warm start from the linear model)")
@@ -373,7 +373,7 @@ def _corrected(story: Story, diag_live, ev0, say, seed) -> list:
 
 def _ladder_from_diagnosis(story: Story, diag_live, ev0):
     """Linear model, then + the recommended effect as fitted by the diagnosis."""
-    from labrig.loop.ladder import Ladder, LadderStep
+    from labrig.diagnosis.ladder import Ladder, LadderStep
 
     d = story.diagnosis
     rec = d.recommendation

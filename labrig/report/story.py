@@ -15,8 +15,8 @@ from labrig.core.figures import png_bytes
 
 if TYPE_CHECKING:  # annotations only: gathering imports the heavy modules lazily
     from labrig.analysis.result import AnalysisResult
-    from labrig.loop.ranking import Diagnosis
-    from labrig.loop.ladder import Ladder
+    from labrig.diagnosis.ranking import Diagnosis
+    from labrig.diagnosis.ladder import Ladder
     from labrig.model.model import Model
     from labrig.report.artefacts import IdentRecord, Regimes
 

@@ -13,7 +13,7 @@ import numpy as np
 from labrig.identification.objective import Objective, adequacy, build_space
 from labrig.model.model import Model, param_keys
 from labrig.analysis.noise import Weights
-from labrig.loop.residuals import autocorr, regime_table, run_residuals, worst_regime, worst_run
+from labrig.diagnosis.residuals import autocorr, regime_table, run_residuals, worst_regime, worst_run
 from labrig.core.tables import Table, fmt
 from labrig.core.display import Displayable
 
@@ -28,7 +28,7 @@ class Evaluation(Displayable):
         ``fitness``, ``rmse_over_noise`` and ``fit_percent`` (overall and per channel),
         ``per_run`` and ``noise`` (the keys of ``labrig identify --json``).
     per_run : list of dict
-        Residuals per run (``labrig.loop.residuals.run_residuals``).
+        Residuals per run (``labrig.diagnosis.residuals.run_residuals``).
     regimes : dict
         The regime table (``by_regime``, ``by_amplitude``).
     sse, n : float, int
@@ -140,7 +140,7 @@ class Evaluation(Displayable):
         against simulated, with the residual in noise units, its noise band and the
         stretches outside it shaded by regime (``labrig compare``'s figure);
         ``kind="regimes"``: rmse/noise by regime."""
-        from labrig.loop.plots import plot_regimes, plot_run_comparison
+        from labrig.diagnosis.plots import plot_regimes, plot_run_comparison
 
         if kind == "regimes":
             return plot_regimes(self.regimes, ax=ax)

@@ -1,13 +1,13 @@
 """The error ladder: the model's error after each added effect, against the noise floor.
 
 :func:`evaluate_ladder` judges a chain of saved models;
-:func:`labrig.loop.search.auto_ladder` builds the chain itself. Both return a :class:`Ladder`.
+:func:`labrig.diagnosis.search.auto_ladder` builds the chain itself. Both return a :class:`Ladder`.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from labrig.loop.evaluation import Evaluation, evaluate
+from labrig.diagnosis.evaluation import Evaluation, evaluate
 from labrig.model.model import Model
 from labrig.core.tables import Table, fmt
 from labrig.core.display import Displayable
@@ -75,7 +75,7 @@ class Ladder(Displayable):
         return t
 
     def plot(self, ax=None):
-        from labrig.loop.plots import plot_ladder
+        from labrig.diagnosis.plots import plot_ladder
 
         return plot_ladder(self, ax=ax)
 

@@ -10,7 +10,7 @@ from one amplitude trades off against the gain, so 0.05 V and 1.5 V fit alike). 
    without it, which the rival contains too: no input can tell them apart that way. One
    that already explains the data clearly worse is not designed for. The others are
    judged true at their best fit when the data pin its size, else at each plausible size.
-2. **Candidate inputs** (:mod:`labrig.loop.inputs`): levels around the threshold only
+2. **Candidate inputs** (:mod:`labrig.diagnosis.inputs`): levels around the threshold only
    when the data pin it, else spread across the whole range; steps that coast to rest at
    0 V, ramps, dwells, reversals, staircases; within the budget, the board's table and
    the input limit.
@@ -19,7 +19,7 @@ from one amplitude trades off against the gain, so 0.05 V and 1.5 V fit alike). 
    are each played, in simulation, on every plausible truth with the rig's noise; the
    rival is re-fitted to the old runs and that run together, from scanned starts, as
    ``diagnose`` will fit it. What it then fails to explain is the **predicted separation**:
-   the decision's measure (:mod:`labrig.loop.decide`: the worse rmse/noise over the
+   the decision's measure (:mod:`labrig.diagnosis.decide`: the worse rmse/noise over the
    better, minus one), the worst over the truths.
 4. The input with the largest predicted separation is proposed when it reaches
    :data:`DECISIVE`; when no input within the budget does, the proposal says so and what
@@ -32,12 +32,12 @@ import time
 import numpy as np
 
 from labrig.core.errors import UserError
-from labrig.loop.inputs import InputCandidate, candidates
-from labrig.loop.proposal import DECISIVE, Hypothesis, Judged, Proposal, synthetic_run
+from labrig.diagnosis.inputs import InputCandidate, candidates
+from labrig.diagnosis.proposal import DECISIVE, Hypothesis, Judged, Proposal, synthetic_run
 from labrig.model.effects import catalogue_name, get_effect
 from labrig.model.model import Model
 from labrig.analysis.noise import Weights, channel_floors
-from labrig.loop.refit import fit, refit_with, without
+from labrig.diagnosis.refit import fit, refit_with, without
 from labrig.io.runs import Run
 
 #: candidate inputs judged by the re-fit: the leaders by the worst-case predicted
@@ -196,7 +196,7 @@ def separation_after_refit(runs, base: Model, rival: str, truth: Model, cand: In
     run it would record (with the rig's noise) added to ``runs``, the rival re-fitted to
     them all from scanned starts (as ``diagnose`` fits it), its rmse/noise over the
     truth's, minus one; and the re-fitted rival."""
-    from labrig.loop.evaluation import evaluate
+    from labrig.diagnosis.evaluation import evaluate
 
     clean = truth.simulate([synthetic_run(template, cand, "p")])[0]
     new = synthetic_run(template, cand, "proposed", clean, sig, rng)

@@ -1,6 +1,6 @@
 """The result of ``labrig diagnose``: typed, with its JSON, its tables and its figure.
 
-:func:`labrig.loop.diagnose.diagnose` computes a :class:`Diagnosis`; the CLI prints
+:func:`labrig.diagnosis.diagnose.diagnose` computes a :class:`Diagnosis`; the CLI prints
 :meth:`Diagnosis.to_text`, ``--json`` prints :meth:`Diagnosis.to_json` and the report
 renders :meth:`Diagnosis.table_rows`, so nothing is formatted twice.
 """
@@ -8,13 +8,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 
-from labrig.loop.evaluation import Evaluation
+from labrig.diagnosis.evaluation import Evaluation
 from labrig.model.model import Model
-from labrig.loop.residuals import REGIME_TEXT
+from labrig.diagnosis.residuals import REGIME_TEXT
 from labrig.core.tables import Table, fmt
 from labrig.core.display import Displayable
 # how the diagnosis ranks and picks candidates, for the table's notes
-from labrig.loop.criteria import CV_CANDIDATES, PARSIMONY, SIMPLER_MARGIN, SWAP_GAIN
+from labrig.diagnosis.criteria import CV_CANDIDATES, PARSIMONY, SIMPLER_MARGIN, SWAP_GAIN
 
 
 @dataclass
@@ -284,9 +284,9 @@ class Diagnosis(Displayable):
         cross-validated rmse/noise, dBIC, folds) beside where the model fails;
         ``kind="regimes"``: rmse/noise by regime for every channel."""
         if kind == "regimes":
-            from labrig.loop.plots import plot_regimes
+            from labrig.diagnosis.plots import plot_regimes
 
             return plot_regimes(self.regimes, ax=ax)
-        from labrig.loop.ranking_plots import plot_ranking
+        from labrig.diagnosis.ranking_plots import plot_ranking
 
         return plot_ranking(self, ax=ax)

@@ -1,8 +1,8 @@
 """The diagnosis's criteria: every threshold and rule of "supported", "undecided",
 "refined" and "near the floor", in one place, with why (docs/physics.md, 'Diagnosis').
 
-The diagnosis (:mod:`labrig.loop.diagnose`), the search (:mod:`labrig.loop.search`) and
-the ranking's words (:mod:`labrig.loop.ranking`) read them from here; nothing else holds
+The diagnosis (:mod:`labrig.diagnosis.diagnose`), the search (:mod:`labrig.diagnosis.search`) and
+the ranking's words (:mod:`labrig.diagnosis.ranking`) read them from here; nothing else holds
 a copy.
 """
 from __future__ import annotations
@@ -42,7 +42,7 @@ def bic(sse, n, n_eff, k):
 
 
 def supported(c) -> bool:
-    """The decision on a :class:`~labrig.loop.ranking.Candidate`, in the terms the ranking
+    """The decision on a :class:`~labrig.diagnosis.ranking.Candidate`, in the terms the ranking
     table states (:meth:`Diagnosis._ranking_rules`)."""
     cv = c.cross_validated
     if cv is None or c.unresolved:

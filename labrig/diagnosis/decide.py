@@ -1,7 +1,7 @@
 """Did the proposed runs decide? Both explanations fitted with and without them.
 
 ``labrig diagnose DIR DIR/new`` calls :func:`decide` when some runs carry
-``experiment.between`` (they were proposed by :func:`labrig.loop.propose.propose`).
+``experiment.between`` (they were proposed by :func:`labrig.diagnosis.propose.propose`).
 """
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from labrig.core.display import Displayable
 from labrig.core.errors import UserError
 from labrig.core.tables import Table
 from labrig.io.runs import Run
-from labrig.loop.refit import refit_with, without
+from labrig.diagnosis.refit import refit_with, without
 from labrig.model.effects import catalogue_name, get_effect
 from labrig.model.model import Model
 
@@ -29,7 +29,7 @@ class Decision(Displayable):
     def separation(r: dict) -> float:
         """The worse explanation's rmse/noise over the better one's, minus one: what every
         text line calls *separation* (a proposal's sum of squares in noise units is its
-        *predicted difference*, labrig.loop.propose)."""
+        *predicted difference*, labrig.diagnosis.propose)."""
         lo, hi = sorted(r.values())
         return hi / lo - 1.0
 
@@ -71,7 +71,7 @@ class Decision(Displayable):
 
 def _best_fit_with(runs, base: Model, effect: str, seed: int, start: Model | None):
     """The best of a re-fit from ``start`` and a fit from scanned starts on ``base``."""
-    from labrig.loop.refit import refit
+    from labrig.diagnosis.refit import refit
 
     fits = [refit_with(runs, base, get_effect(effect), seed=seed)]
     if start is not None:
@@ -85,7 +85,7 @@ def _best_fit_with(runs, base: Model, effect: str, seed: int, start: Model | Non
 def decide(runs: list[Run], model: Model | None = None, *, seed: int = 0, log=None):
     """When some runs were proposed to tell two effects apart (``experiment.between``),
     fit both explanations with and without them; None when no run was proposed."""
-    from labrig.loop.diagnose import linear_model
+    from labrig.diagnosis.diagnose import linear_model
 
     new = [r for r in runs if r.experiment.get("between")]
     if not new:

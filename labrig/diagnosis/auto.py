@@ -1,6 +1,6 @@
 """``labrig diagnose --auto``: the missing-physics loop run to the end.
 
-:func:`labrig.loop.search.search` adds, pairs, swaps and removes effects round after round
+:func:`labrig.diagnosis.search.search` adds, pairs, swaps and removes effects round after round
 until the cross-validated error stops falling (or ``max_rounds`` effects were added).
 The result holds the final model, the error ladder (in-sample and cross-validated),
 the moves of the search, the thresholds of the final model stated through the effects
@@ -12,12 +12,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from labrig.loop.ranking import Candidate, Diagnosis
-from labrig.loop.explain import thresholds
-from labrig.loop.ladder import Ladder
+from labrig.diagnosis.ranking import Candidate, Diagnosis
+from labrig.diagnosis.explain import thresholds
+from labrig.diagnosis.ladder import Ladder
 from labrig.model.effects import get_effect
 from labrig.model.model import Model
-from labrig.loop.residuals import REGIME_TEXT
+from labrig.diagnosis.residuals import REGIME_TEXT
 from labrig.core.tables import Table, fmt
 from labrig.core.display import Displayable
 
@@ -163,7 +163,7 @@ def _where_they_differ(a: Candidate, b: Candidate) -> dict | None:
 def auto_diagnose(runs, model: Model | None = None, *, max_rounds: int = 3, seed: int = 0,
                   fixed: dict | None = None, weights=None, log=None,
                   on_step=None) -> AutoDiagnosis:
-    """Run the search (:func:`labrig.loop.search.search`) and name the confusable pairs of
+    """Run the search (:func:`labrig.diagnosis.search.search`) and name the confusable pairs of
     every round.
 
     Parameters
@@ -182,7 +182,7 @@ def auto_diagnose(runs, model: Model | None = None, *, max_rounds: int = 3, seed
     on_step : callable(k, model), optional
         Called for every rung of the ladder as the search climbs it (k = 0: the start).
     """
-    from labrig.loop.search import search
+    from labrig.diagnosis.search import search
 
     res = search(runs, model, max_rounds=max_rounds, seed=seed, fixed=fixed, weights=weights,
                  log=log, on_step=on_step)
@@ -198,7 +198,7 @@ def sensor_lag(model: Model, runs, ev) -> str:
     sensor's (:func:`labrig.analysis.agreement.lag_explained`); '' otherwise."""
     from labrig.analysis.agreement import lag_explained
     from labrig.identification.identifiability import time_constants
-    from labrig.loop.diagnose import agreement_of
+    from labrig.diagnosis.diagnose import agreement_of
 
     if "speed" not in ev.floors:
         return ""

@@ -1,7 +1,7 @@
 """What ``labrig propose`` returns: the explanations it weighed, the candidate inputs it
 judged, and the proposal (or the plain statement that nothing within the limits separates
 the pair), with its text, tables, plan file and figure. The search is
-:mod:`labrig.loop.propose`; the words are those of docs/physics.md, 'Experiments that
+:mod:`labrig.diagnosis.propose`; the words are those of docs/physics.md, 'Experiments that
 decide'.
 """
 from __future__ import annotations
@@ -16,13 +16,13 @@ from labrig.core.display import Displayable
 from labrig.core.errors import UserError
 from labrig.core.tables import Table
 from labrig.io.runs import Run
-from labrig.loop.inputs import MAX_POINTS, InputCandidate, why
+from labrig.diagnosis.inputs import MAX_POINTS, InputCandidate, why
 from labrig.model.model import Model
 
 LEAD_IN_S = 0.5
 #: what the naive ranking uses, in the words every text line uses
 DIFFERENCE = "sum of squared differences of the two predictions, in noise units"
-#: what a proposal is judged by: the decision's own measure (labrig.loop.decide)
+#: what a proposal is judged by: the decision's own measure (labrig.diagnosis.decide)
 SEPARATION = "worse rmse/noise over better, minus one"
 #: a proposal is made when the rival, re-fitted, is predicted to stay at least this far
 #: behind for every plausible truth: its rmse/noise at least twice the truth's
@@ -280,7 +280,7 @@ class Proposal(Displayable):
 
     def plot(self, ax=None):
         """Both explanations' predicted responses to the proposed input, with the noise band."""
-        from labrig.loop.propose_plots import plot_proposal
+        from labrig.diagnosis.propose_plots import plot_proposal
 
         return plot_proposal(self, ax=ax)
 

@@ -24,19 +24,19 @@ import textwrap
 from dataclasses import dataclass, field
 from itertools import combinations
 
-from labrig.loop.crossval import cross_validate
-from labrig.loop.candidates import candidate_names
-from labrig.loop.criteria import (MIN_DBIC, MIN_GAIN, NEAR_FLOOR, PAIR_POOL, SIMPLER_MARGIN,
+from labrig.diagnosis.crossval import cross_validate
+from labrig.diagnosis.candidates import candidate_names
+from labrig.diagnosis.criteria import (MIN_DBIC, MIN_GAIN, NEAR_FLOOR, PAIR_POOL, SIMPLER_MARGIN,
                                   SWAP_GAIN, bic)
-from labrig.loop.diagnose import diagnose
-from labrig.loop.evaluation import evaluate
-from labrig.loop.ladder import Ladder, LadderStep, rung_label
+from labrig.diagnosis.diagnose import diagnose
+from labrig.diagnosis.evaluation import evaluate
+from labrig.diagnosis.ladder import Ladder, LadderStep, rung_label
 from labrig.core.parallel import each
 from labrig.model.effects import CATALOGUE, get_effect
 from labrig.model.model import Model, param_keys
 from labrig.model.reach import Reach
-from labrig.loop.refit import refit, refit_with, without
-from labrig.loop.resolution import unresolved
+from labrig.diagnosis.refit import refit, refit_with, without
+from labrig.diagnosis.resolution import unresolved
 
 #: the catalogue's effects that set how much drive it takes to move (``Effect.pair_rank``,
 #: in its order): their pairs are tried whenever no single effect earns its parameters and
@@ -344,7 +344,7 @@ def auto_ladder(runs, max_steps=3, outdir=None, seed=0, log=print) -> Ladder:
     ``outdir/step<k>.json`` when ``outdir`` is given."""
     from pathlib import Path
 
-    from labrig.loop.diagnose import linear_model
+    from labrig.diagnosis.diagnose import linear_model
 
     out = Path(outdir) if outdir else None
     paths: dict = {}

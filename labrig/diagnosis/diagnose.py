@@ -8,10 +8,10 @@ and the evidence, in numbers and in words.
    that neither drowns the other;
 2. re-fits the model with every catalogue effect it lacks, from starts scanned over
    the range the data can see and in two basins of the electrical pole
-   (``labrig.loop.refit``), so no threshold starts on a plateau;
+   (``labrig.diagnosis.refit``), so no threshold starts on a plateau;
 3. compares the candidates on equal terms: BIC with the sample count corrected for
    the colour of simulation residuals, and the error on data the fits did not see,
-   by cross-validation (``labrig.loop.crossval``: whole runs held out in turn, or blocks
+   by cross-validation (``labrig.diagnosis.crossval``: whole runs held out in turn, or blocks
    of a single long run), so an extra parameter cannot win by overfitting or by luck;
 4. explains the winner: what it is in the rig, where its signature shows in these
    runs (the regimes that carry the held-out evidence), and the experiment that would
@@ -22,18 +22,18 @@ from __future__ import annotations
 import time
 
 from labrig.core.parallel import each
-from labrig.loop.crossval import cross_validate, fold_evidence, make_folds
-from labrig.loop.resolution import unresolved
-from labrig.loop.ranking import Candidate, Diagnosis
+from labrig.diagnosis.crossval import cross_validate, fold_evidence, make_folds
+from labrig.diagnosis.resolution import unresolved
+from labrig.diagnosis.ranking import Candidate, Diagnosis
 from labrig.core.errors import FitDiverged, UserError
-from labrig.loop.evaluation import Evaluation, evaluate
-from labrig.loop.explain import context as explain_context, explain, round_verdict
+from labrig.diagnosis.evaluation import Evaluation, evaluate
+from labrig.diagnosis.explain import context as explain_context, explain, round_verdict
 from labrig.identification.engine import dataset_constants, identify
 from labrig.identification.result import at_bounds as bound_sides
 from labrig.model import drive_units
-from labrig.loop.candidates import candidate_names
+from labrig.diagnosis.candidates import candidate_names
 # every threshold and rule of the decision (also under the names callers have used)
-from labrig.loop.criteria import (CV_CANDIDATES, FLOOR, MAX_REFINE, MIN_DBIC,  # noqa: F401
+from labrig.diagnosis.criteria import (CV_CANDIDATES, FLOOR, MAX_REFINE, MIN_DBIC,  # noqa: F401
                                   MIN_GAIN, PARSIMONY, REFINE, SIMPLER_MARGIN, SWAP_GAIN, bic,
                                   score as _score, supported as _supported)
 from labrig.model.effects import get_effect
@@ -41,8 +41,8 @@ from labrig.model.model import Model, param_keys
 from labrig.model.reach import Reach
 from labrig.analysis.agreement import WINDOW_DECLARED_IN
 from labrig.analysis.noise import Weights
-from labrig.loop.refit import refit, refit_with, without
-from labrig.loop.residuals import worst_regime
+from labrig.diagnosis.refit import refit, refit_with, without
+from labrig.diagnosis.residuals import worst_regime
 from labrig.io.runs import require_excitation
 
 def balanced_weights(ev: Evaluation, runs=None) -> Weights:
@@ -138,7 +138,7 @@ def diagnose(runs, model: Model | None = None, *, candidates=None, seed: int = 0
     weights : Weights, optional
         Channel weights (default: balanced on the starting model).
     folds : Folds, optional
-        Cross-validation folds (default: :func:`labrig.loop.crossval.make_folds`).
+        Cross-validation folds (default: :func:`labrig.diagnosis.crossval.make_folds`).
     revise : bool
         With a model that has effects, also test removing each of them and replacing
         each by its look-alikes and simpler family members (default True; the search of
