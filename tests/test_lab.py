@@ -270,3 +270,34 @@ def test_a_closed_page_stops_the_rig(browser, tmp_path):
         assert len(first) < 6 and not list(folder.glob("*.tmp"))
     finally:
         server.stop()
+
+
+def test_the_loop_on_runs_that_start_in_motion(browser, tmp_path):
+    """A kit's recordings that start in motion (tests/twin.py), imported and opened in the
+    lab: the page's fit and its added effect carry each run's fitted start, as the command
+    line's do (the same rmse/noise), and the error falls to the floor."""
+    from twin import kit_recordings
+
+    folder = tmp_path / "runs"
+    for src in kit_recordings(tmp_path / "logger"):
+        labrig("import", src, "-o", folder, "--map", "t=t,u=u,speed=speed",
+               "--waveform", "custom", check=0)
+    server = Server(folder, "--fast")
+    try:
+        page = Page(browser, server.url)
+        page.page.get_by_text("The loop", exact=True).click()
+        page.click(".lab-fit")
+        page.idle()
+        linear = page.number(".lab-rmse", r"rmse/noise ([\d.]+)")
+        cli = json.loads(labrig("identify", folder, "--seed", "0", "--json", check=0).stdout)
+        assert set(cli["starts"]) == {"prbs_2.5V", "prbs_3.5V", "prbs_4.5V", "step"}
+        assert linear == pytest.approx(cli["rmse_over_noise"]["overall"], abs=0.006)
+        page.click(".lab-add")                  # the recommended effect is selected
+        page.idle()
+        after = page.number(".lab-rmse", r"rmse/noise ([\d.]+)")
+        assert after < 1.2 < linear
+        page.wait(lambda: page.page.locator(".lab-overlay img").count() == 1, 30, "the overlay")
+        page.shot("moving_start")
+        page.close()
+    finally:
+        server.stop()
