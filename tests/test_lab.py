@@ -88,6 +88,12 @@ class Page:
         self.page.goto(url)
         self.page.wait_for_selector(".lab-start", timeout=60000)
 
+    def fit_the_linear_model(self):
+        """The loop's tab, then its first button, as a student starts the loop."""
+        self.page.get_by_text("The loop", exact=True).click()
+        self.click(".lab-fit")
+        self.idle()
+
     def _route(self, route):
         if route.request.url.startswith(LOCAL):
             route.continue_()
@@ -180,9 +186,7 @@ def test_the_loop_on_one_page_agrees_with_the_cli(browser, tmp_path):
         watcher = Page(browser, server.url)     # a second page watches, read-only
         assert "read-only" in watcher.text(".bk-panel-models-markup-HTML") or \
             watcher.page.locator(".lab-start button").first.is_disabled()
-        page.page.get_by_text("The loop", exact=True).click()
-        page.click(".lab-fit")
-        page.idle()
+        page.fit_the_linear_model()
         linear = page.number(".lab-rmse", r"rmse/noise ([\d.]+)")
         page.shot("linear")
         # the fit drew the model on the worst run; the others came after the diagnosis
@@ -226,9 +230,7 @@ def test_ask_the_rig_from_the_page(browser, tmp_path):
     server = Server(folder, "--fast")
     try:
         page = Page(browser, server.url)
-        page.page.get_by_text("The loop", exact=True).click()
-        page.click(".lab-fit")
-        page.idle()
+        page.fit_the_linear_model()
         page.page.get_by_text("Ask the rig", exact=True).click()
         page.click(".lab-propose")
         page.idle()
@@ -285,9 +287,7 @@ def test_the_loop_on_runs_that_start_in_motion(browser, tmp_path):
     server = Server(folder, "--fast")
     try:
         page = Page(browser, server.url)
-        page.page.get_by_text("The loop", exact=True).click()
-        page.click(".lab-fit")
-        page.idle()
+        page.fit_the_linear_model()
         linear = page.number(".lab-rmse", r"rmse/noise ([\d.]+)")
         cli = json.loads(labrig("identify", folder, "--seed", "0", "--json", check=0).stdout)
         assert set(cli["starts"]) == {"prbs_2.5V", "prbs_3.5V", "prbs_4.5V", "step"}

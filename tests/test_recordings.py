@@ -13,6 +13,12 @@ from labrig.model.model import Model
 from conftest import labrig
 
 
+def _imported(srcs, folder, *options):
+    """Each logger export imported with ``labrig import`` as its owner would, read back."""
+    for src in srcs:
+        labrig("import", src, "-o", folder, *options, check=0)
+    return read_dataset(folder)
+
 # -- never a crash: a start whose simulation diverges -------------------------------------
 
 @pytest.fixture(scope="module")
@@ -134,10 +140,8 @@ def test_runs_that_start_in_motion_are_fitted_from_their_own_start(tmp_path):
     from twin import kit_recordings
 
     srcs = kit_recordings(tmp_path / "logger")
-    for src in srcs:
-        labrig("import", src, "-o", tmp_path / "runs", "--map", "t=t,u=u,speed=speed",
-               "--waveform", "custom", check=0)
-    runs = read_dataset(tmp_path / "runs")
+    runs = _imported(srcs, tmp_path / "runs", "--map", "t=t,u=u,speed=speed",
+                     "--waveform", "custom")
     res = auto_diagnose(runs, seed=0)
     names = res.model.names
     assert len(names) == 1 and names[0] in ("deadband", "coulomb_friction"), names
@@ -171,11 +175,10 @@ def test_an_encoders_start_within_a_count_is_not_physics(tmp_path, seed):
     from labrig.diagnosis.auto import auto_diagnose
     from twin import Twin, encoder_squares
 
-    for src in encoder_squares(Twin(rail=8.0), tmp_path / "logger", seed=seed):
-        labrig("import", src, "-o", tmp_path / "runs", "--map", "t=t,u=u,pos=count",
-               "--pos-unit", "counts:4000", "--gear-ratio", "30", "--amplifier-gain", "5",
-               "--waveform", "square", check=0)
-    runs = read_dataset(tmp_path / "runs")
+    runs = _imported(encoder_squares(Twin(rail=8.0), tmp_path / "logger", seed=seed),
+                     tmp_path / "runs", "--map", "t=t,u=u,pos=count", "--pos-unit",
+                     "counts:4000", "--gear-ratio", "30", "--amplifier-gain", "5",
+                     "--waveform", "square")
     res = auto_diagnose(runs, seed=0)
     assert res.model.names == ["saturation"], [m.label for m in res.moves]
     assert res.model.effect_params["saturation"]["vmax_v"] == pytest.approx(8.0, rel=0.01)
@@ -196,11 +199,9 @@ def test_friction_larger_one_way_on_a_measured_torque(tmp_path):
     from labrig.diagnosis.auto import auto_diagnose
     from twin import measured_current_rig
 
-    for src in measured_current_rig(tmp_path / "logger"):
-        labrig("import", src, "-o", tmp_path / "runs", "--map", "t=t,u=current,speed=speed",
-               "--drive", "torque", "--input-gain", "0.05", "--input-measured",
-               "--waveform", "step", check=0)
-    runs = read_dataset(tmp_path / "runs")
+    runs = _imported(measured_current_rig(tmp_path / "logger"), tmp_path / "runs", "--map",
+                     "t=t,u=current,speed=speed", "--drive", "torque", "--input-gain", "0.05",
+                     "--input-measured", "--waveform", "step")
     assert all(r.input_measured for r in runs)
     res = auto_diagnose(runs, seed=0)
     assert res.model.names == ["friction_curve"], [m.label for m in res.moves]
@@ -265,10 +266,8 @@ def test_a_drive_that_is_a_curve_of_the_command(tmp_path):
     from twin import shield_steps
 
     srcs = shield_steps(tmp_path / "logger")
-    for src in srcs:
-        labrig("import", src, "-o", tmp_path / "runs", "--map", "t=t,u=u,speed=speed",
-               "--waveform", "step", check=0)
-    runs = read_dataset(tmp_path / "runs")
+    runs = _imported(srcs, tmp_path / "runs", "--map", "t=t,u=u,speed=speed",
+                     "--waveform", "step")
     res = auto_diagnose(runs, seed=0)
     assert res.model.names == ["input_curve"], [m.label for m in res.moves]
     curve = res.model.effect_params["input_curve"]

@@ -18,6 +18,7 @@ from typing import Any, Callable
 import numpy as np
 
 from labrig.core.fileio import finite_json
+from labrig.model.start import describe_starts
 
 __all__ = ["IdentResult", "finite_json", "at_bounds", "bound_warnings", "fit_warnings",
            "identification_warnings"]
@@ -209,8 +210,6 @@ def identification_warnings(ident: Any) -> list[str]:
     if ident.dataset.get("sensor_lag"):
         notes.append(ident.dataset["sensor_lag"])
     if ident.dataset.get("starts"):
-        from labrig.model.start import describe_starts
-
         notes.append(describe_starts(ident.dataset["starts"], plant.speed_unit(),
                                      plant.position_unit()))
     from labrig.model import drive_units

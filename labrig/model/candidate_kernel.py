@@ -14,7 +14,8 @@ import math
 
 import numba
 
-from labrig.model.layout import C_A, C_I0, C_TC, C_TH0, C_TS, C_W0, M_D, M_DN, M_DP, M_K, M_U0, M_VMAX, T_OK
+from labrig.model.layout import (C_A, C_I0, C_TC, C_TH0, C_TS, C_W0, M_D, M_DN, M_DP, M_K, M_U0,
+                                 M_VMAX, T_OK)
 from labrig.model.loop_kernel import loop_drive, loop_step, play_operator
 
 

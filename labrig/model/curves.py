@@ -23,30 +23,27 @@ MIN_LEVELS = 4
 
 
 def _hermite(x, xk, yk):
-    """Monotone cubic Hermite interpolation (Fritsch-Carlson slopes) through the knots
-    ``xk``, ``yk`` (P, 4) at ``x`` (n, P), x >= 0; beyond the last knot a straight line
-    with the curve's end slope."""
-    h = np.diff(xk, axis=1)                          # (P, 3)
-    d = np.diff(yk, axis=1) / h                      # secants
-    m = np.empty_like(yk)
-    m[:, 0], m[:, -1] = d[:, 0], d[:, -1]
-    inner = d[:, :-1] * d[:, 1:] > 0
-    hm = 2 * h[:, 1:] + h[:, :-1]
-    hp = h[:, 1:] + 2 * h[:, :-1]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        harm = (hm + hp) / (hm / d[:, :-1] + hp / d[:, 1:])
-    m[:, 1:-1] = np.where(inner, harm, 0.0)
-    out = np.empty_like(x)
-    for j in range(3):   # the three segments, each vectorised over samples and candidates
-        x0, x1 = xk[:, j], xk[:, j + 1]
-        seg = (x >= x0) & (x < x1) if j < 2 else (x >= x0)
-        t = np.clip((x - x0) / h[:, j], 0.0, 1.0)
+    """Monotone cubic Hermite interpolation (Fritsch-Carlson slopes) through the four
+    knots ``xk``, ``yk`` (lists of arrays that broadcast with ``x``) at ``x >= 0``; beyond
+    the last knot a straight line with the curve's end slope."""
+    h = [xk[j + 1] - xk[j] for j in range(3)]
+    d = [(yk[j + 1] - yk[j]) / h[j] for j in range(3)]       # secants
+    m = [d[0]]
+    for j in (1, 2):
+        hm, hp = 2 * h[j] + h[j - 1], h[j] + 2 * h[j - 1]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            harm = (hm + hp) / (hm / d[j - 1] + hp / d[j])
+        m.append(np.where(d[j - 1] * d[j] > 0, harm, 0.0))
+    m.append(d[2])
+    out = 0.0
+    for j in range(3):   # the three segments
+        seg = (x >= xk[j]) & (x < xk[j + 1]) if j < 2 else (x >= xk[j])
+        t = np.clip((x - xk[j]) / h[j], 0.0, 1.0)
         h00, h10 = 2 * t ** 3 - 3 * t ** 2 + 1, t ** 3 - 2 * t ** 2 + t
         h01, h11 = -2 * t ** 3 + 3 * t ** 2, t ** 3 - t ** 2
-        y = h00 * yk[:, j] + h10 * h[:, j] * m[:, j] + h01 * yk[:, j + 1] \
-            + h11 * h[:, j] * m[:, j + 1]
+        y = h00 * yk[j] + h10 * h[j] * m[j] + h01 * yk[j + 1] + h11 * h[j] * m[j + 1]
         if j == 2:   # beyond the last knot: straight on
-            y = np.where(x > x1, yk[:, 3] + (x - x1) * m[:, 3], y)
+            y = np.where(x > xk[3], yk[3] + (x - xk[3]) * m[3], y)
         out = np.where(seg, y, out)
     return out
 
@@ -85,21 +82,11 @@ class InputCurve(InputEffect):
                   "steady speeds trace the curve")
 
     def apply(self, v, span_v, b1, b2):
+        s = np.asarray(span_v, float)
+        y2 = np.clip((1 + np.asarray(b2, float)) * 2 * s / 3, 1e-6 * s, s * (1 - 1e-6))
+        y1 = np.clip((1 + np.asarray(b1, float)) * s / 3, 1e-6 * s, y2 * (1 - 1e-6))  # monotone
         v = np.asarray(v, float)
-        scalar = v.ndim == 0
-        V = v.reshape(-1, 1) if v.ndim < 2 else v          # (samples, 1 or candidates)
-        ps = [np.asarray(p, float).reshape(-1) for p in (span_v, b1, b2)]
-        P = max(V.shape[1], *(len(p) for p in ps))
-        s, b1, b2 = (np.broadcast_to(p, (P,)) for p in ps)
-        xk = np.stack([0 * s, s / 3, 2 * s / 3, s], axis=1)
-        y2 = np.clip((1 + b2) * 2 * s / 3, 1e-6 * s, s * (1 - 1e-6))
-        y1 = np.clip((1 + b1) * s / 3, 1e-6 * s, y2 * (1 - 1e-6))   # monotone
-        yk = np.stack([0 * s, y1, y2, s], axis=1)
-        X = np.broadcast_to(V, (V.shape[0], P))
-        out = np.sign(X) * _hermite(np.abs(X), xk, yk)
-        if scalar:
-            return out.reshape(-1)[0] if P == 1 else out.reshape(-1)
-        return out if v.ndim == 2 or P > 1 else out.reshape(v.shape)
+        return np.sign(v) * _hermite(np.abs(v), [0 * s, s / 3, 2 * s / 3, s], [0 * s, y1, y2, s])
 
     def inert(self) -> dict:
         return {"b1": 0.0, "b2": 0.0}
@@ -136,7 +123,7 @@ class InputCurve(InputEffect):
                 or any(r.loop == "closed" for r in runs):   # (simulated in open loop only)
             return False
         sigma = evaluation.floors["speed"].sigma
-        u, w, n = steady_levels(runs, sigma)
+        u, w = steady_levels(runs, sigma)
         for sign in (1.0, -1.0):
             keep = np.sign(u) == sign
             if keep.sum() < MIN_LEVELS:
@@ -169,9 +156,9 @@ def steady_levels(runs, sigma: float, settle: float = 0.6):
     """The steady speed at each constant input of ``runs`` (prepared or not): per stretch
     of one input value lasting at least 0.5 s (and 25 samples), the mean speed over its
     last ``1 - settle``, when that tail is flat (its halves' means within 3 standard
-    errors, from the speed's noise floor ``sigma``). Returns input levels, mean speeds
-    and sample counts (arrays)."""
-    us, ws, ns = [], [], []
+    errors, from the speed's noise floor ``sigma``). Returns input levels and mean speeds
+    (arrays)."""
+    us, ws = [], []
     for r in runs:   # a Run (its .speed) or a prepared RunData (its .w)
         w = r.w if hasattr(r, "w") else getattr(r, "speed", None)
         if w is None or r.loop != "open":
@@ -187,5 +174,5 @@ def steady_levels(runs, sigma: float, settle: float = 0.6):
             half = len(tail) // 2
             if abs(tail[:half].mean() - tail[half:].mean()) > 3 * sigma * np.sqrt(2.0 / half):
                 continue   # still settling: not a steady level
-            us.append(u[a]), ws.append(float(np.mean(tail))), ns.append(len(tail))
-    return np.array(us), np.array(ws), np.array(ns, float)
+            us.append(u[a]), ws.append(float(np.mean(tail)))
+    return np.array(us), np.array(ws)

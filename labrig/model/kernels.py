@@ -28,7 +28,8 @@ import numpy as np
 
 from labrig.model.candidate_kernel import (each_par, each_ser, friction_step, input_map,
                                           loop_sample_alone)
-from labrig.model.layout import (BLOCK, C_A, C_ASYM, C_D, C_I0, C_TC, C_TH0, C_W0, C_TS, C_U0, C_VMAX, DELAY,
+from labrig.model.layout import (BLOCK, C_A, C_ASYM, C_D, C_I0, C_TC, C_TH0, C_TS, C_U0,
+                                 C_VMAX, C_W0, DELAY,
                                  FEEDBACK, FRICTION, MODES, MOVING, M_D, M_DN, M_DP, M_K, M_U0,
                                  M_VMAX, N_ROWS, N_ROWS_LOOP, PLAY, R_A00, R_A01, R_A02, R_A10,
                                  R_A11, R_A12, R_A20, R_A21, R_A22M1, R_ACC, R_CUR, R_DLY, R_DI,

@@ -35,6 +35,7 @@ from labrig.model.layout import (C_A, C_ASYM, C_D, C_I0, C_KE, C_TC, C_TD, C_TH0
                                  MAP_COLUMNS, N_SLOTS, S_FLAT, S_NEG, S_NEG_GAP, S_POS,
                                  S_POS_GAP, SLOT_W, T_OK)
 from labrig.model.kernels import run_kernels
+from labrig.model.start import initial_current
 
 # kernel parameter columns: R, L, J, B, K (labrig.model.plants: every plant's kernel
 # form), then the effects' (C_D..C_TD), then the back-EMF constant Ke (0 for a
@@ -265,16 +266,20 @@ class Simulator:
         out[:, C_W0] = w0
         out[:, C_TH0] = np.broadcast_to(np.asarray(start.get("dtheta", 0.0), float), (P,))
         if np.any(w0 != 0.0):
-            out[:, C_I0] = (self._first_drive(run, out, ep) - out[:, C_KE] * w0) / out[:, 0]
+            out[:, C_I0] = initial_current(self._first_drive(run, out, ep), w0, out[:, 0],
+                                           out[:, C_KE])
         return out
+
+    def _bias(self, ep, P) -> np.ndarray:
+        """The constant drive (input volts) of a friction larger one way, per candidate."""
+        return sum((e.input_bias(**ep[e.name]) for e in self._biased), np.zeros(P))
 
     def _first_drive(self, run: RunData, prm, ep) -> np.ndarray:
         """The armature voltage (the kernel's drive) of the first sample per candidate: the
         input through the effects' maps in open loop; in closed loop the linear loop's
         drive from the start state (the current settles within the electrical lag)."""
         P = prm.shape[0]
-        u = np.full((1, P), float(run.u[0])) + sum(
-            (e.input_bias(**ep[e.name]) for e in self._biased), np.zeros(P))[None, :]
+        u = np.full((1, P), float(run.u[0])) + self._bias(ep, P)[None, :]
         if run.loop == "closed":
             th = (run.theta0 + prm[:, C_TH0])
             return run.Ka * (run.kp * (u[0] - run.Kpot * th) - run.kv * run.Kt * prm[:, C_W0])
@@ -298,7 +303,7 @@ class Simulator:
         kernels to apply (built-in effects), or the mapped inputs laid out (samples,
         candidates) for a user's effect."""
         staged = [e for e in self.effects if e.stage in ("input", "drive")]
-        bias = sum((e.input_bias(**ep[e.name]) for e in self._biased), np.zeros(P))
+        bias = self._bias(ep, P)
         if not staged and not self._biased:
             return np.ascontiguousarray(run.u[:, None] * run.Ka), _NO_MAP
         if all(type(e) in _MAPPED for e in staged):

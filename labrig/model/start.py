@@ -99,23 +99,16 @@ class RunStart:
         return out
 
 
-def _first(run, n_first: int) -> np.ndarray:
-    keep = np.flatnonzero(run.keep())
-    return keep[:n_first]
-
-
 def run_start(run, sigma_w: float | None, sigma_theta: float | None,
               mode: str = "auto") -> RunStart:
     """Decide one run's start (a :class:`labrig.model.simulate.RunData`): ``mode`` "auto"
     follows the run file (``experiment.start``, labrig import --start) and else the data;
     "rest" and "estimate" override both."""
-    if mode not in MODES:
-        raise UserError(f"--start: unknown mode '{mode}'; choose {', '.join(MODES)}")
     declared = getattr(run, "start", "auto")
     if mode == "auto" and declared in ("rest", "moving"):
         mode = "rest" if declared == "rest" else "estimate"
     n_first = max(MIN_FIRST, int(round(FIRST_S / run.dt)))
-    idx = _first(run, n_first)
+    idx = np.flatnonzero(run.keep())[:n_first]   # (a lost sample says nothing)
     if mode == "rest" or len(idx) < 2:
         return RunStart(run.name, False, False, False, why="simulated from rest")
     motor = run.N if run.axis == "rotary" else 1.0   # the speed channel is the motor's
@@ -161,6 +154,8 @@ def run_start(run, sigma_w: float | None, sigma_theta: float | None,
 def run_starts(runs, sigma_w: float | None, sigma_theta: float | None,
                mode: str = "auto") -> list[RunStart]:
     """Every run's start (prepared runs, the channels' noise floors)."""
+    if mode not in MODES:
+        raise UserError(f"--start: unknown mode '{mode}'; choose {', '.join(MODES)}")
     return [run_start(r, sigma_w, sigma_theta, mode) for r in runs]
 
 
