@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 
 from labrig.io.experiment import Experiment
-from labrig.bridge.emulate import APT_PACKAGES, FIRMWARE_DIR, Emulator, missing_tools
+from labrig.bridge.emulate import (APT_PACKAGES, FIRMWARE_DIR, Emulator, firmware_make,
+                                   missing_tools)
 from labrig.bridge.serial import SerialBridge, bridge_settings, volts_to_dac_word
 from labrig.io.config import RigConfig
 from labrig.core.errors import RigError, UserError
@@ -31,8 +32,7 @@ LSB = 10.0 / 4096
 
 
 def _make(*targets):
-    return subprocess.run(["make", "-C", str(FIRMWARE_DIR), "--no-print-directory", *targets],
-                          capture_output=True, text=True, timeout=300)
+    return firmware_make(*targets, timeout=300)   # (the lock the emulator's builds take)
 
 
 def test_core_unit_tests_pass():

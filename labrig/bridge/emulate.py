@@ -10,6 +10,7 @@ harness ``firmware/build/emulator/labrig-emu`` and exposes its pseudo-terminal a
 """
 from __future__ import annotations
 
+import fcntl
 import os
 import shutil
 import signal
@@ -38,6 +39,19 @@ def missing_tools() -> list[str]:
     return missing
 
 
+def firmware_make(*targets: str, timeout: float | None = None) -> subprocess.CompletedProcess:
+    """``make -C firmware TARGETS``, one at a time across processes: two builds in the one
+    build folder remove each other's objects (one's ``rm -f core.a`` lands between the
+    other's archive and its link), so each holds an exclusive lock on the folder's lock
+    file for the whole build."""
+    lock = FIRMWARE_DIR / "build" / ".make.lock"
+    lock.parent.mkdir(parents=True, exist_ok=True)
+    with open(lock, "w") as held:
+        fcntl.flock(held, fcntl.LOCK_EX)   # released when the file closes, whatever happens
+        return subprocess.run(["make", "-C", str(FIRMWARE_DIR), "--no-print-directory",
+                               *targets], capture_output=True, text=True, timeout=timeout)
+
+
 def build(board: str = "uno") -> tuple[Path, Path]:
     """Build (incrementally) the firmware for ``board`` and the harness.
 
@@ -57,8 +71,7 @@ def build(board: str = "uno") -> tuple[Path, Path]:
     if missing:
         raise RigError(f"cannot build the emulator: {', '.join(missing)} missing; install with: "
                        f"apt-get install -y --no-install-recommends {APT_PACKAGES}")
-    r = subprocess.run(["make", "-C", str(FIRMWARE_DIR), "--no-print-directory", board, "emulator"],
-                       capture_output=True, text=True)
+    r = firmware_make(board, "emulator")
     if r.returncode != 0:
         tail = "\n".join((r.stdout + r.stderr).strip().splitlines()[-15:])
         raise RigError(f"firmware build failed (make -C {FIRMWARE_DIR} {board} emulator):\n{tail}")
