@@ -284,3 +284,31 @@ def test_a_drive_that_is_a_curve_of_the_command(tmp_path):
     # rises its 7-sample detrending cannot follow; the count is 1.57 rad/s)
     ladder = res.ladder.steps
     assert ladder[-1].rmse_over_noise["speed"] < 0.1 * ladder[0].rmse_over_noise["speed"]
+
+
+# -- the current at a run's start, where the model has it ------------------------------------
+
+@pytest.mark.slow
+def test_a_measured_current_starts_where_it_was(tmp_path):
+    """A voltage drive logged with its armature current, each recording starting as the
+    drive steps from a level it has long run at (a slow armature, L/R = 20 ms): the
+    current at the first sample is the old level's, not in equilibrium with the first
+    drive. It is fitted per run beside the speed (``start[RUN].i0``), lands on the true
+    one within 3 of the current's noise widths, and the fit reaches the noise floor; an
+    equilibrium start would be 1-1.5 A off (100-150 noise widths) for 20 samples."""
+    from twin import running_with_current
+
+    R, K, B = 2.0, 0.05, 1e-4
+    levels = ((3.0, 5.0), (5.0, 2.0), (2.0, 4.0))
+    srcs = running_with_current(tmp_path / "logger", levels=levels)
+    _imported(srcs, tmp_path / "runs", "--map", "t=t,u=u,speed=speed,current=current",
+              "--waveform", "step")
+    labrig("identify", tmp_path / "runs", "--method", "co", "-o", tmp_path / "m.json")
+    doc = json.loads((tmp_path / "m.json").read_text())
+    for j, (before, _) in enumerate(levels):
+        w = before * K / (K * K + R * B)
+        start = doc["starts"][f"run{j}"]
+        assert start["w0"] == pytest.approx(w, abs=0.5)
+        assert start["i0"] == pytest.approx((before - K * w) / R, abs=0.03)
+    assert doc["params"]["L"] == pytest.approx(0.04, rel=0.05)
+    assert doc["rmse_over_noise"]["current"] <= 1.1

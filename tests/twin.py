@@ -560,3 +560,49 @@ def shield_steps(folder, *, R=2.0, K=0.01, J=2e-6, B=1e-7, supply=12.0, power=0.
         path.write_text("\n".join(rows) + "\n")
         out.append(path)
     return out
+
+
+# -- a voltage drive with its armature current logged, recorded from a running motor -------
+
+def running_with_current(folder, *, R=2.0, L=0.04, K=0.05, J=1e-4, B=1e-4, fs=1000.0,
+                         levels=((3.0, 5.0), (5.0, 2.0), (2.0, 4.0)), seed=31) -> list[Path]:
+    """A motor on a voltage drive, its speed and armature current logged at ``fs``; each
+    recording starts the moment the drive steps from the level it has long been running
+    at to a new one (``levels``: (before, after) volts), so the first sample finds the
+    motor turning at the old level's speed with the old level's current (a slow armature,
+    L/R = 20 ms: the current needs 20 samples to follow); after 0.3 s it steps back.
+    Written as ``t,u,speed,current`` (rad/s, A). RK4, 8 steps per sample."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng(seed)
+    dt, sub = 1.0 / fs, 8
+    h = dt / sub
+
+    def f(x, v):
+        i, w = x
+        return np.array([(v - R * i - K * w) / L, (K * i - B * w) / J])
+
+    out = []
+    for j, (before, after) in enumerate(levels):
+        w = before * K / (K * K + R * B)            # steady at the old level
+        x = np.array([(before - K * w) / R, w])
+        n = int(0.6 * fs)
+        u = np.where(np.arange(n) < n // 2, after, before)
+        ws, cur = np.empty(n), np.empty(n)
+        for k in range(n):
+            ws[k], cur[k] = x[1], x[0]
+            for _ in range(sub):
+                k1 = f(x, u[k])
+                k2 = f(x + 0.5 * h * k1, u[k])
+                k3 = f(x + 0.5 * h * k2, u[k])
+                k4 = f(x + h * k3, u[k])
+                x = x + h / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
+        t = np.arange(n) * dt
+        speed = ws + rng.normal(0.0, 0.2, n)
+        current = cur + rng.normal(0.0, 0.01, n)
+        path = folder / f"run{j}.csv"
+        rows = ["t,u,speed,current"] + [f"{a:.5f},{b:.6g},{c:.6g},{d:.6g}"
+                                        for a, b, c, d in zip(t, u, speed, current)]
+        path.write_text("\n".join(rows) + "\n")
+        out.append(path)
+    return out

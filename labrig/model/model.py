@@ -59,8 +59,9 @@ class Model:
     plant: str = VoltagePlant.kind
     info: dict = field(default_factory=dict)
     #: the fitted start of each run that does not start at rest (labrig.model.start):
-    #: ``{run name: {"w0": motor speed at the first sample, "dtheta": the output shaft's
-    #: offset from where its first samples read}}``; a run not named starts at rest
+    #: ``{run name: {"w0": motor speed at the first sample, "i0": the armature current
+    #: there (a measured current only), "dtheta": the output shaft's offset from where its
+    #: first samples read}}``; a run not named starts at rest
     starts: dict = field(default_factory=dict)
 
     def __post_init__(self):

@@ -213,8 +213,9 @@ class Simulator:
             ``{effect name: {param: array (P,) or scalar}}``.
         starts : list, optional
             Per run, None (from rest, where the first samples say) or ``{"w0": (P,),
-            "dtheta": (P,)}`` (either may be missing): the speed at the first sample and
-            the output shaft's offset (:mod:`labrig.model.start`).
+            "i0": (P,), "dtheta": (P,)}`` (any may be missing): the speed and current at
+            the first sample and the output shaft's offset (:mod:`labrig.model.start`);
+            without ``i0`` the current starts in equilibrium with the first drive.
 
         Returns
         -------
@@ -265,7 +266,9 @@ class Simulator:
         w0 = np.broadcast_to(np.asarray(start.get("w0", 0.0), float), (P,))
         out[:, C_W0] = w0
         out[:, C_TH0] = np.broadcast_to(np.asarray(start.get("dtheta", 0.0), float), (P,))
-        if np.any(w0 != 0.0):
+        if "i0" in start:      # measured, and fitted (labrig.model.start)
+            out[:, C_I0] = np.broadcast_to(np.asarray(start["i0"], float), (P,))
+        elif np.any(w0 != 0.0):
             out[:, C_I0] = initial_current(self._first_drive(run, out, ep), w0, out[:, 0],
                                            out[:, C_KE])
         return out

@@ -11,10 +11,13 @@ So, per run and decided from the data (:func:`run_starts`):
 
 - **speed at the first sample** (``w0``, motor rad/s or m/s) is fitted when the first
   samples show motion: their mean speed (or, without a speed channel, the slope of the
-  position) is more than :data:`MOVING_SIGMAS` standard errors from zero. The armature
-  current starts in equilibrium with the first sample's drive and that speed,
-  ``i0 = (v0 - Ke w0) / R`` (the electrical lag settles within a few ms, well inside a
-  sample on every rig here);
+  position) is more than :data:`MOVING_SIGMAS` standard errors from zero;
+- **the armature current at the first sample** (``i0``, A) is fitted beside it when the
+  model has the current as an output and the run measured it (a voltage drive with a
+  current channel). Without a current channel it starts in equilibrium with the first
+  sample's drive and speed, ``i0 = (v0 - Ke w0) / R`` (:func:`initial_current`): what the
+  speed alone cannot tell apart, as the electrical lag settles within a few ms, well
+  inside a sample on every rig here;
 - **a position offset** (``dtheta``, at the output shaft, against the position the first
   samples read) is fitted when the run starts in motion (the first samples' mean is not
   where the shaft was at the first one) or the position is an encoder's count (its start
@@ -24,7 +27,7 @@ A run that starts at rest is simulated from rest as before: nothing is fitted an
 fused kernels run as they did. ``mode`` overrides the decision: ``"rest"`` fits nothing,
 ``"estimate"`` fits both for every run.
 
-The parameters ride in the optimiser's vector as ``start[RUN].w0`` and
+The parameters ride in the optimiser's vector as ``start[RUN].w0``, ``start[RUN].i0`` and
 ``start[RUN].dtheta`` (:func:`start_key`) within a range about the data's own estimate,
 and a model records them per run (``Model.starts``).
 """
@@ -45,7 +48,7 @@ MIN_FIRST = 4
 #: how a run's start is decided (``--start``)
 MODES = ("auto", "rest", "estimate")
 #: the parameters of a run's start, in the order of the optimiser's vector
-WHAT = ("w0", "dtheta")
+WHAT = ("w0", "i0", "dtheta")
 
 
 def start_key(run: str, what: str) -> str:
@@ -69,9 +72,9 @@ def is_start_key(key: str) -> bool:
 class RunStart:
     """A run's start as the data show it, and what is fitted of it.
 
-    ``w0`` and ``dtheta`` are the data's estimates (the middle of their search ranges);
-    ``w_span`` and ``th_span`` the ranges' half widths; ``fit_w0``/``fit_dtheta`` say
-    which are fitted. ``why`` says it in words."""
+    ``w0``, ``i0`` and ``dtheta`` are the data's estimates (the middle of their search
+    ranges); ``w_span``, ``i_span`` and ``th_span`` the ranges' half widths;
+    ``fit_w0``/``fit_i0``/``fit_dtheta`` say which are fitted. ``why`` says it in words."""
 
     run: str
     moving: bool
@@ -82,6 +85,9 @@ class RunStart:
     dtheta: float = 0.0
     th_span: float = 0.0
     why: str = ""
+    fit_i0: bool = False
+    i0: float = 0.0
+    i_span: float = 0.0
 
     @property
     def fitted(self) -> bool:
@@ -93,6 +99,9 @@ class RunStart:
         if self.fit_w0:
             out.append((start_key(self.run, "w0"), self.w0, self.w0 - self.w_span,
                         self.w0 + self.w_span))
+        if self.fit_i0:
+            out.append((start_key(self.run, "i0"), self.i0, self.i0 - self.i_span,
+                        self.i0 + self.i_span))
         if self.fit_dtheta:
             out.append((start_key(self.run, "dtheta"), self.dtheta, self.dtheta - self.th_span,
                         self.dtheta + self.th_span))
@@ -100,10 +109,11 @@ class RunStart:
 
 
 def run_start(run, sigma_w: float | None, sigma_theta: float | None,
-              mode: str = "auto") -> RunStart:
+              mode: str = "auto", sigma_i: float | None = None) -> RunStart:
     """Decide one run's start (a :class:`labrig.model.simulate.RunData`): ``mode`` "auto"
     follows the run file (``experiment.start``, labrig import --start) and else the data;
-    "rest" and "estimate" override both."""
+    "rest" and "estimate" override both. ``sigma_i``: the current's noise floor when the
+    model has the current as an output (None: the current is not fitted)."""
     declared = getattr(run, "start", "auto")
     if mode == "auto" and declared in ("rest", "moving"):
         mode = "rest" if declared == "rest" else "estimate"
@@ -140,23 +150,29 @@ def run_start(run, sigma_w: float | None, sigma_theta: float | None,
         th_span = max(run.pos_q, 5.0 * (sigma_theta or 0.0), abs(dth))
     # from standstill to twice the estimate: room for a filtered or quantised first reading
     w_span = max(abs(w_est), 10.0 * (sigma_w or 0.0), 1e-3 * motor) if moving else 0.0
+    fit_i = moving and sigma_i is not None and getattr(run, "current", None) is not None
+    i_est = float(np.mean(run.current[idx[:2]])) if fit_i else 0.0
+    # a reading's worth either side, and room for a current still settling
+    i_span = max(abs(i_est), 10.0 * (sigma_i or 0.0)) if fit_i else 0.0
     if moving:
-        what = "speed and position" if fit_th else "speed"
+        what = ", ".join(w for w, on in (("speed", True), ("current", fit_i),
+                                         ("position", fit_th)) if on)
         text = f"starts in motion ({why}): its {what} at the first sample fitted"
     elif fit_th:
         text = "starts at rest; the encoder's start within a count fitted as a position offset"
     else:
         text = "starts at rest" + (f" ({why})" if why else "")
     return RunStart(run.name, moving, moving, fit_th, w0=w_est if moving else 0.0,
-                    w_span=w_span, dtheta=dth, th_span=th_span, why=text)
+                    w_span=w_span, dtheta=dth, th_span=th_span, why=text, fit_i0=fit_i,
+                    i0=i_est, i_span=i_span)
 
 
 def run_starts(runs, sigma_w: float | None, sigma_theta: float | None,
-               mode: str = "auto") -> list[RunStart]:
+               mode: str = "auto", sigma_i: float | None = None) -> list[RunStart]:
     """Every run's start (prepared runs, the channels' noise floors)."""
     if mode not in MODES:
         raise UserError(f"--start: unknown mode '{mode}'; choose {', '.join(MODES)}")
-    return [run_start(r, sigma_w, sigma_theta, mode) for r in runs]
+    return [run_start(r, sigma_w, sigma_theta, mode, sigma_i) for r in runs]
 
 
 def initial_current(v0, w0, prm_R, prm_Ke):
@@ -166,7 +182,7 @@ def initial_current(v0, w0, prm_R, prm_Ke):
 
 
 def start_report(starts, values: dict) -> dict:
-    """``{run: {"start": "moving" | "rest", "w0": ..., "dtheta": ..., "why": ...}}`` of
+    """``{run: {"start": "moving" | "rest", "w0": ..., "i0": ..., "dtheta": ..., "why": ...}}`` of
     the runs whose start is fitted, with the fitted values (``values``: flat)."""
     out = {}
     for st in starts:
@@ -184,7 +200,8 @@ def start_report(starts, values: dict) -> dict:
 
 def describe_starts(report: dict, speed_unit: str, position_unit: str) -> str:
     """One line on the runs' fitted starts (``start_report``)."""
-    moving = [f"{run} at {e['w0']:.3g} {speed_unit}" for run, e in report.items()
+    moving = [f"{run} at {e['w0']:.3g} {speed_unit}"
+              + (f", {e['i0']:.3g} A" if "i0" in e else "") for run, e in report.items()
               if e.get("start") == "moving" and "w0" in e]
     offset = [run for run, e in report.items() if e.get("start") == "rest" and "dtheta" in e]
     parts = []
