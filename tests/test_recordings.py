@@ -312,3 +312,33 @@ def test_a_measured_current_starts_where_it_was(tmp_path):
         assert start["i0"] == pytest.approx((before - K * w) / R, abs=0.03)
     assert doc["params"]["L"] == pytest.approx(0.04, rel=0.05)
     assert doc["rmse_over_noise"]["current"] <= 1.1
+
+
+@pytest.mark.slow
+def test_friction_with_a_stribeck_peak_on_a_measured_torque(tmp_path):
+    """The torque-driven rig of the test above with a Stribeck peak: friction falls from
+    0.015 N m above each direction's level at rest to the level within 0.3 rad/s, and two
+    of the steps (0.03 forward, 0.04 reverse) lie between a level and its peak, so the rotor
+    stays at rest where the two-level curve lets it move. --auto adds the friction curve,
+    then refines it in place (from its fitted levels) to the curve with a breakaway:
+    levels within 5 %, the breakaway between what the steps pin (holding 0.03 and 0.04,
+    letting 0.05 and 0.06 go: 0.01 to 0.03 N m), J and B within 10 %, at the noise floor."""
+    from labrig.diagnosis.auto import auto_diagnose
+    from twin import measured_current_rig
+
+    runs = _imported(measured_current_rig(tmp_path / "logger", breakaway=0.015,
+                                          torques=(0.05, -0.06, 0.08, -0.08, 0.03, -0.04)),
+                     tmp_path / "runs", "--map", "t=t,u=current,speed=speed", "--drive",
+                     "torque", "--input-gain", "0.05", "--input-measured", "--waveform", "step")
+    res = auto_diagnose(runs, seed=0)
+    assert res.model.names == ["stribeck_curve"], [m.label for m in res.moves]
+    assert [m.label for m in res.moves] == ["+ friction_curve", "friction_curve -> stribeck_curve"]
+    ps = res.model.effect_params["stribeck_curve"]
+    kd = 0.05
+    assert ps["tcp_v"] * kd == pytest.approx(0.02, rel=0.05)
+    assert ps["tcn_v"] * kd == pytest.approx(0.03, rel=0.05)
+    peak = ps["excess"] * 0.5 * (ps["tcp_v"] + ps["tcn_v"]) * kd
+    assert 0.01 < peak < 0.03, peak
+    assert res.model.params["J"] == pytest.approx(2e-4, rel=0.1)
+    assert res.model.params["B"] == pytest.approx(2e-3, rel=0.1)
+    assert res.ladder.steps[-1].rmse_over_noise["speed"] <= 1.2

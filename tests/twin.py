@@ -484,12 +484,15 @@ def encoder_squares(twin: "Twin", folder, *, cpr=4000, amps=(1.2, 1.5, 2.0, 2.5)
 # -- a torque drive logged with its measured current, friction larger one way -----------
 
 def measured_current_rig(folder, *, J=2e-4, B=2e-3, kt=0.05, forward=0.02, reverse=0.03,
-                         torques=(0.05, -0.05, 0.08, -0.08), fs=500.0, seed=23) -> list[Path]:
+                         torques=(0.05, -0.05, 0.08, -0.08), fs=500.0, seed=23,
+                         breakaway=0.0, stribeck=0.3) -> list[Path]:
     """A servo driven through a current loop, stepped from rest in both directions, logged
     as ``t,current,speed``: the current is the drive's measured one (A, with its sensor's
     noise), the torque on the rotor ``kt`` times it. Coulomb friction is ``forward`` N m
     while turning forward and ``reverse`` in reverse (the rotor sticks while the torque
-    is within the level of the way it would turn). Euler, 20 steps per sample."""
+    is within the level of the way it would turn). With ``breakaway`` (N m), a Stribeck
+    peak: friction ``level + breakaway exp(-(w/stribeck)^2)`` while moving, and the rotor
+    held at rest up to ``level + breakaway``. Euler, 20 steps per sample."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(seed)
@@ -507,7 +510,11 @@ def measured_current_rig(folder, *, J=2e-4, B=2e-3, kt=0.05, forward=0.02, rever
             for _ in range(sub):
                 way = w if w != 0.0 else tq[k]
                 level = forward if way > 0 else reverse
-                if w == 0.0 and abs(tq[k]) <= level:
+                if breakaway:
+                    if w == 0.0 and abs(tq[k]) <= level + breakaway:
+                        continue                               # held by the peak
+                    level = level + breakaway * math.exp(-(w / stribeck) ** 2)
+                elif w == 0.0 and abs(tq[k]) <= level:
                     continue                                   # stuck
                 w_new = w + h * (tq[k] - B * w - math.copysign(level, way)) / J
                 if w != 0.0 and w_new * w < 0.0:

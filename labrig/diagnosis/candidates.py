@@ -26,3 +26,19 @@ def candidate_names(base: Model, candidates=None, runs=(), evaluation=None) -> l
             continue
         out.append(n)
     return out
+
+
+def refinements(base: Model, runs) -> list[tuple[str, str, list]]:
+    """``(old, new, starts)`` for each catalogue effect ``new`` that refines an effect
+    ``old`` of ``base`` on these ``runs`` (``old`` in its ``extends``), with starts for
+    ``new``'s parameters from ``old``'s fitted ones (``Effect.from_simpler``): tried in its
+    place, from there."""
+    out = []
+    for old in base.names:
+        for n in CATALOGUE:
+            eff = get_effect(n)
+            if old in eff.extends and n not in base.names:
+                starts = eff.from_simpler(old, base.effect_params[old], runs)
+                if starts:
+                    out.append((old, n, starts))
+    return out

@@ -31,7 +31,7 @@ from labrig.diagnosis.explain import context as explain_context, explain, round_
 from labrig.identification.engine import dataset_constants, identify
 from labrig.identification.result import at_bounds as bound_sides
 from labrig.model import drive_units
-from labrig.diagnosis.candidates import candidate_names
+from labrig.diagnosis.candidates import candidate_names, refinements
 # every threshold and rule of the decision (also under the names callers have used)
 from labrig.diagnosis.criteria import (CV_CANDIDATES, FLOOR, MAX_REFINE, MIN_DBIC,  # noqa: F401
                                   MIN_GAIN, PARSIMONY, REFINE, SIMPLER_MARGIN, SWAP_GAIN, bic,
@@ -317,6 +317,10 @@ def _revisions(runs, base: Model, entry, *, seed, fixed, weights) -> list[Candid
             out.append(entry(refit_with(runs, reduced, get_effect(new), seed=seed, fixed=fixed,
                                         weights=weights, carried=base.effect_params[old]),
                              new, move="replace", replaces=old))
+    for old, new, start in refinements(base, runs):   # a refinement, from where old was fitted
+        out.append(entry(refit_with(runs, without(base, old), get_effect(new), seed=seed,
+                                    fixed=fixed, weights=weights, carried=start),
+                         new, move="replace", replaces=old))
     return out
 
 

@@ -106,7 +106,8 @@ def refit_with(runs, base: Model, effect, *, seed: int = 0, fixed: dict | None =
     """``base`` plus ``effect``, re-fitted from scanned starts in two basins; returns the
     best :class:`labrig.identification.engine.Identification`. ``carried``: the values of
     the effect's parameters where the model it replaces left them (a replacement also
-    starts there, when they are all of its parameters: a simpler family member)."""
+    starts there, when they are all of its parameters: a simpler family member), or a
+    list of such starts (a refinement's, ``Effect.from_simpler``)."""
     from labrig.model.reach import Reach
 
     reach = reach or Reach.of(runs, base)
@@ -114,9 +115,10 @@ def refit_with(runs, base: Model, effect, *, seed: int = 0, fixed: dict | None =
     fixed = dict(fixed or {})
     params = {**base.flat(), **fixed}
     extra = []
-    if carried and set(effect.param_names()) <= set(carried):
-        extra = [{**params, **{f"{effect.name}.{k}": float(carried[k])
-                               for k in effect.param_names()}}]
+    for c in ([carried] if isinstance(carried, dict) else carried or []):
+        if set(effect.param_names()) <= set(c):
+            extra.append({**params, **{f"{effect.name}.{k}": float(c[k])
+                                       for k in effect.param_names()}})
     return _best_of_starts(runs, effects, effect, params, reach=reach, fixed=fixed, seed=seed,
                            weights=weights, extra=extra)
 

@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 from itertools import combinations
 
 from labrig.diagnosis.crossval import cross_validate
-from labrig.diagnosis.candidates import candidate_names
+from labrig.diagnosis.candidates import candidate_names, refinements
 from labrig.diagnosis.criteria import (MIN_DBIC, MIN_GAIN, NEAR_FLOOR, PAIR_POOL, SIMPLER_MARGIN,
                                   SWAP_GAIN, bic)
 from labrig.diagnosis.diagnose import diagnose
@@ -135,9 +135,9 @@ class _Judge:
                 return why
         return None
 
-    def add(self, model, name):
+    def add(self, model, name, carried=None):
         return refit_with(self.runs, model, get_effect(name), seed=self.seed, fixed=self.fixed,
-                          weights=self.weights).model()
+                          weights=self.weights, carried=carried).model()
 
 
 def _pool(ranking) -> list:
@@ -294,6 +294,17 @@ def _revise(judge, model, new, cv_now, moves, ladder, k, log, on_step):
         if cv <= (1 + SIMPLER_MARGIN) * cv_now:
             _say(log, f"  {alt} instead of {old}: as good on held-out data ({cv_now:.2f} -> "
                       f"{cv:.2f}) with fewer parameters")
+            moves.append(Move("swap", [old, alt], cv_now, cv, k))
+            model, cv_now = m, cv
+            _rung(ladder, model, judge, cv, on_step)
+            new = [alt if n == old else n for n in new]
+    for old, alt, start in refinements(model, judge.runs):
+        # a refinement from where the simpler law was fitted: a parameter more, so it
+        # must earn it as an addition does
+        m = judge.add(without(model, old), alt, carried=start)
+        cv = judge.cv(m)
+        if cv < (1 - MIN_GAIN) * cv_now and not judge.unresolved(m, [alt]):
+            _say(log, f"  {alt} in place of {old}: cross-validated {cv_now:.2f} -> {cv:.2f}")
             moves.append(Move("swap", [old, alt], cv_now, cv, k))
             model, cv_now = m, cv
             _rung(ladder, model, judge, cv, on_step)

@@ -70,6 +70,10 @@ class Effect(abc.ABC):
     size: str = ""
     #: a member of the family with fewer parameters, tried in its place by the search
     simpler: str = ""
+    #: fitted effects this one is tried in place of, starting from their values
+    #: (:meth:`from_simpler`): an open-ended refinement only ever added to what the data
+    #: already pin (the friction curve's Stribeck peak)
+    extends: tuple = ()
     #: effects whose residuals look like this one's, in the order the search tries to
     #: swap them in for it
     look_alikes: tuple = ()
@@ -95,6 +99,12 @@ class Effect(abc.ABC):
         residuals, :class:`labrig.diagnosis.evaluation.Evaluation`) is ``evaluation``; a named
         effect always is."""
         return True
+
+    def from_simpler(self, name: str, params: dict, runs) -> list[dict]:
+        """Starts for this effect's re-fit in place of the fitted effect ``name`` (one of
+        :attr:`extends`, with ``params``): the first reproduces it exactly, the others
+        add some of what this effect adds; empty: it cannot, or not on these ``runs``."""
+        return []
 
     def inert(self) -> dict:
         """Parameter values that switch the effect off (``diagnose`` checks that the

@@ -47,7 +47,7 @@ from labrig.model.effect_base import (STAGE_BASES, STAGES, DelayEffect, DriveEff
                                       Effect, FrictionEffect, InputEffect, OutputEffect, Param)
 from labrig.model.drive_units import level, unit as drive_unit
 from labrig.model.curves import InputCurve
-from labrig.model.friction import (CoulombFriction, FrictionCurve, Stiction,
+from labrig.model.friction import (CoulombFriction, FrictionCurve, Stiction, StribeckCurve,
                                     run_amplitudes as _run_amplitudes)
 
 
@@ -371,7 +371,7 @@ def ordered(effects) -> list:
 
 CATALOGUE: dict[str, type[Effect]] = {cls.name: cls for cls in (
     Deadband, CoulombFriction, Saturation, Backlash, Delay, Stiction, Offset, Asymmetry,
-    AsymmetricDeadband, FrictionCurve, InputCurve)}
+    AsymmetricDeadband, FrictionCurve, StribeckCurve, InputCurve)}
 
 
 #: where an amplifier's own effects act: before and after its gain (a dead zone, an input

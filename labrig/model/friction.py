@@ -1,4 +1,5 @@
-"""Friction laws of the catalogue: Coulomb friction and stiction (Karnopp)."""
+"""Friction laws of the catalogue: Coulomb friction and stiction (Karnopp), and the
+open-ended friction curve: a level of its own each way, with a Stribeck peak at rest."""
 from __future__ import annotations
 
 import numpy as np
@@ -193,7 +194,7 @@ class FrictionCurve(FrictionEffect):
         t = 0.5 * (np.asarray(tcp_v) + np.asarray(tcn_v)) * plant.Ka * plant.K / plant.R
         return t, t
 
-    def input_bias(self, tcp_v, tcn_v):
+    def input_bias(self, tcp_v, tcn_v, **_):
         """Half the difference, as the input that drives with it (forward when the reverse
         friction is the larger)."""
         return 0.5 * (np.asarray(tcn_v) - np.asarray(tcp_v))
@@ -252,3 +253,101 @@ class FrictionCurve(FrictionEffect):
         # shift of a noise floor at least, and clear of the samples' scatter
         shift = 0.5 * (a + b)
         return a * b > 0 and abs(shift) > max(5.0 * se, ONE_SHIFT)
+
+
+class StribeckCurve(FrictionCurve):
+    """The friction curve with a Stribeck peak: Coulomb friction of its own level each
+    way, and a breakaway ``excess`` above each that holds the rotor at rest.
+
+    Physics: a lubricated contact at rest has squeezed its film out; the torque to
+    break it loose is higher than the torque to keep it sliding, and the friction falls
+    from that peak to its kinetic level over a small speed (Stribeck's curve; Rhoban/bam
+    measured it on real servos). The kernels hold friction constant while the speed
+    keeps its sign (their exact zero-order hold), so the fall is a step: Karnopp's
+    stick band, the peak held at rest and the kinetic level once moving. Viscous
+    friction is the plant's B. The breakaway each way is the kinetic level plus
+    ``excess`` times the mean level (a film's peak is common to both directions).
+    Residual signature of the two-level curve: steps whose drive lies between a
+    direction's kinetic level and its breakaway start in the model and stay at rest in
+    the data; a start from rest is late by more than the kinetic level explains.
+
+    Not offered alone: ``diagnose`` and ``--auto`` try it in place of the fitted
+    friction curve or stiction, from their fitted levels (:meth:`from_simpler`), so a
+    breakaway is only ever added to levels the data already pin.
+    """
+
+    name = "stribeck_curve"
+    threshold = "tcp_v"
+    size = "excess"
+    simpler = "friction_curve"
+    extends = ("friction_curve", "stiction")
+    rival = "friction_curve"
+    look_alikes = ("friction_curve", "stiction")
+    params = FrictionCurve.params + (
+        Param("excess", "-", 0.0, 3.0, "breakaway above each direction's kinetic level, "
+              "as a fraction of their mean (the Stribeck peak at rest)"),)
+    summary = ("friction larger one way with a Stribeck peak: each direction's Coulomb "
+               "level, and a breakaway above it that holds the rotor at rest")
+    signature = ("drives between a direction's kinetic level and its breakaway leave the "
+                 "rotor at rest where the two-level curve lets it move; starts from rest "
+                 "are late")
+    experiment = ("slow ramps from rest in each direction: the rotor breaks loose above "
+                  "the level that then keeps it moving, and jumps to speed")
+
+    def inert(self) -> dict:
+        return {"excess": 0.0}
+
+    def friction(self, plant, tcp_v, tcn_v, excess):
+        t, _ = FrictionCurve.friction(self, plant, tcp_v, tcn_v)
+        return t, t * (1.0 + np.asarray(excess))
+
+    def to_kernel(self, kernel, p, plant) -> bool:
+        FrictionEffect.to_kernel(self, kernel, p, plant)
+        kernel.add("u0", self.input_bias(p["tcp_v"], p["tcn_v"]))
+        return True
+
+    def explain_params(self, params, context):
+        mean = 0.5 * (params["tcp_v"] + params["tcn_v"])
+        return (FrictionCurve.explain_params(self, params, context)
+                + f"; it breaks loose {level(params['excess'] * mean, context)} above each "
+                  f"(the Stribeck peak at rest, {100 * params['excess']:.0f} % of the mean "
+                  "level; steps pin it only between the largest drive that left the rotor at "
+                  "rest and the smallest that moved it, a slow ramp from rest pins it)")
+
+    def data_bounds(self, reach):
+        return {**FrictionCurve.data_bounds(self, reach), "excess": (0.0, 3.0)}
+
+    def scan_grid(self, reach):
+        g = FrictionCurve.scan_grid(self, reach)
+        n = len(g["tcp_v"])
+        return {"tcp_v": np.tile(g["tcp_v"], 2), "tcn_v": np.tile(g["tcn_v"], 2),
+                "excess": np.repeat([0.0, 0.5], n)}
+
+    def initial_guess(self, runs, plant):
+        return {**FrictionCurve.initial_guess(self, runs, plant), "excess": 0.0}
+
+    def offered(self, evaluation, runs) -> bool:
+        """Never as an addition (see the class): only in place of a fitted simpler law."""
+        return False
+
+    def from_simpler(self, name: str, params: dict, runs) -> list[dict]:
+        """The fitted simpler law ``name`` (``params``) exactly, then with breakaways of
+        :data:`BREAKAWAY_STARTS` above it (a breakaway changes the fit only where it holds
+        a rotor the simpler law lets move, so the error is flat in ``excess`` near zero
+        and a re-fit from there alone stays there). Only on a measured torque or force, as
+        the friction curve (:meth:`FrictionCurve.offered`)."""
+        if not any(getattr(r, "input_measured", False) for r in runs):
+            return []
+        if name == "friction_curve":
+            levels = {"tcp_v": params["tcp_v"], "tcn_v": params["tcn_v"], "excess": 0.0}
+        elif name == "stiction":
+            levels = {"tcp_v": params["tc_v"], "tcn_v": params["tc_v"],
+                      "excess": params["excess"]}
+        else:
+            return []
+        return [levels] + [{**levels, "excess": levels["excess"] + e} for e in BREAKAWAY_STARTS]
+
+
+#: breakaways (fractions of the mean level) a Stribeck curve's re-fit also starts from,
+#: above the simpler law it replaces
+BREAKAWAY_STARTS = (0.25, 0.5, 1.0)
