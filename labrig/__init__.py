@@ -14,11 +14,10 @@ names are loaded on first use, so ``import labrig`` stays quick.
 from labrig.core.version import __version__
 
 #: public name -> module that defines it
-_PUBLIC = {
-    "sweep": "labrig.api", "read_runs": "labrig.api", "analyse": "labrig.api", "identify": "labrig.api",
-    "diagnose": "labrig.api", "auto": "labrig.api", "propose": "labrig.api",
-    "compare": "labrig.api", "ladder": "labrig.api", "effects": "labrig.api",
-    "load_model": "labrig.api",
+_PUBLIC = {name: "labrig.verbs" for name in (
+    "sweep", "read_runs", "analyse", "identify", "add_effect", "remove_effect", "diagnose",
+    "auto", "propose", "decide", "compare", "ladder", "effects", "load_model")}
+_PUBLIC.update({
     "Model": "labrig.model.model", "Run": "labrig.io.runs", "Effect": "labrig.model.effects",
     "Param": "labrig.model.effect_base",
     "AnalysisResult": "labrig.analysis.result", "Identification": "labrig.identification.engine",
@@ -26,7 +25,7 @@ _PUBLIC = {
     "Evaluation": "labrig.diagnosis.evaluation", "Ladder": "labrig.diagnosis.ladder",
     "Proposal": "labrig.diagnosis.proposal", "Catalogue": "labrig.model.catalogue",
     "LabrigError": "labrig.core.errors", "UserError": "labrig.core.errors",
-}
+})
 
 __all__ = list(_PUBLIC) + ["__version__"]
 

@@ -23,9 +23,9 @@ LAYERS = [
     ["analysis"],    # deadband, Km, tau_m from runs; noise floors
     ["identification"],  # JFO, PSO, CO fits and their results
     ["diagnosis"],   # the missing-physics loop: residuals, diagnosis, evidence, search, ladder, proposals
+    ["verbs", "api"],  # the public verbs, the front ends' one door (labrig.api is its old name)
     ["classroom"],   # batches and mystery rigs
     ["report"],      # the HTML report
-    ["api"],         # the public verbs (labrig.api, re-exported by labrig)
     ["lab"],         # the lab station in the browser (Panel)
     ["commands"],    # one module per subcommand
     ["cli", "__main__"],
@@ -165,3 +165,18 @@ def test_what_the_loop_knows_of_an_effect_lives_on_the_effect():
         for other in (e.rival, e.simpler, e.proposed_as, *e.look_alikes):
             assert not other or other in names, (name, other)
         assert set(e.responses) <= set(KINDS), name
+
+
+#: the front ends: they reach the library through its one door, the verbs (and core's
+#: errors, defaults, tables and figures), and their own folder; the command line may also
+#: start the other front ends
+DOOR = ("verbs", "core")
+FRONT_ENDS = {"lab": (), "classroom": ()}
+
+
+def test_front_ends_reach_the_library_through_the_verbs():
+    graph, _ = _graph()
+    past = sorted((m, d) for m, deps in graph.items() if _part(m) in FRONT_ENDS
+                  for d in deps
+                  if _part(d) not in DOOR + (_part(m),) + FRONT_ENDS[_part(m)])
+    assert past == []

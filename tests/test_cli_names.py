@@ -111,7 +111,7 @@ def test_files_name_effects_in_any_case(tmp_path):
 
 
 def test_mystery_check_finds_an_effect_named_in_another_case(tmp_path):
-    from labrig.classroom.mystery import check, load_mystery
+    from labrig.io.mystery import check, load_mystery
 
     mys = tmp_path / "lab.mystery"
     assert main(["mystery", "new", "--seed", "7", "-o", str(mys)]) == 0

@@ -442,7 +442,7 @@ def test_bad_mystery(tmp_path, capsys, case, command):
 
 @pytest.mark.parametrize("case", ["header", "truncated", "empty", "binary"])
 def test_damaged_mystery(tmp_path, capsys, case):
-    from labrig.classroom.mystery import new_mystery, write_mystery
+    from labrig.io.mystery import new_mystery, write_mystery
 
     path = write_mystery(new_mystery(3), tmp_path / "m.mystery", seed=3)
     lines = path.read_text().splitlines()
@@ -459,7 +459,7 @@ def test_damaged_mystery(tmp_path, capsys, case):
 
 @pytest.mark.parametrize("case", ["R text", "not json", "deep", "format", "params list"])
 def test_mystery_check_bad_model(tmp_path, capsys, case):
-    from labrig.classroom.mystery import new_mystery, write_mystery
+    from labrig.io.mystery import new_mystery, write_mystery
 
     path = write_mystery(new_mystery(3), tmp_path / "m.mystery", seed=3)
     m = tmp_path / "student.json"

@@ -8,7 +8,7 @@ import pytest
 
 from labrig.io.config import load_rig, rig_from_dict
 from labrig.core.errors import UserError
-from labrig.classroom.mystery import HIDDEN_EFFECTS, PLANT_SPREAD, check, load_mystery, new_mystery, read_mystery, reveal, write_mystery, _default_doc, _derived
+from labrig.io.mystery import HIDDEN_EFFECTS, PLANT_SPREAD, check, load_mystery, new_mystery, read_mystery, reveal, write_mystery, _default_doc, _derived
 
 from conftest import labrig
 

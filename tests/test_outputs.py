@@ -93,7 +93,7 @@ def test_every_output_file_is_refused_before_the_work(cmd, ds, model, tmp_path, 
                                                       monkeypatch):
     for target in ("labrig.diagnosis.diagnose.evaluate", "labrig.diagnosis.diagnose.diagnose",
                    "labrig.diagnosis.search.auto_ladder", "labrig.diagnosis.ladder.evaluate_ladder",
-                   "labrig.report.html.build_report", "labrig.classroom.mystery.new_mystery"):
+                   "labrig.report.html.build_report", "labrig.io.mystery.new_mystery"):
         monkeypatch.setattr(target, no_call)
     folder = tmp_path / "o"
     folder.mkdir()

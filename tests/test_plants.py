@@ -253,7 +253,7 @@ def test_a_mystery_rig_of_a_linear_axis_is_drawn_run_and_graded(tmp_path):
     """`mystery new --rig configs/rig_linear_axis.toml`: the plant's own parameters drawn
     around the base rig, hidden effects sized for a linear axis; reveal speaks of kg and
     m/s; check grades a model identified with the hidden effects."""
-    from labrig.classroom.mystery import PLANT_SPREAD, new_mystery
+    from labrig.io.mystery import PLANT_SPREAD, new_mystery
 
     doc = new_mystery(4, "configs/rig_linear_axis.toml")
     assert doc["rig"]["drive"] == "force" and set(doc["plant"]) == {"M_kg", "Fv_ns_per_m"}

@@ -110,7 +110,7 @@ def test_identify_config_naming_user_effect_is_refused(evil, capsys):
 
 
 def test_mystery_check_never_runs_the_students_code(evil, capsys):
-    from labrig.classroom.mystery import new_mystery, write_mystery
+    from labrig.io.mystery import new_mystery, write_mystery
 
     path = write_mystery(new_mystery(10), evil / "c.mystery", seed=10)
     m = _model(evil / "student.json", ["evil.py:Evil"], {"evil": {"tc_v": 0.2}})

@@ -20,6 +20,8 @@ from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import labrig.verbs as lr
+from labrig.core.defaults import METHOD
 from labrig.core.errors import LabrigError, UserError
 
 #: a hand-in larger than this is refused (a run folder is a few MB)
@@ -54,9 +56,7 @@ class Analyse(Task):
     figures = ("runs", "deadband_v", "km", "tau_s", "gain_trend")
 
     def run(self, folder, options):
-        from labrig.analysis import analyse
-
-        res = analyse([folder]).to_json()
+        res = lr.analyse([folder]).to_json()
         figs = {k: res.get(k) for k in self.figures if k != "runs"}
         figs["runs"] = len(res.get("runs") or [])
         return figs, {"analysis.json": res}
@@ -68,18 +68,11 @@ class Identify(Task):
                "at_bound")
 
     def run(self, folder, options):
-        from labrig.core.defaults import METHOD
-        from labrig.identification.engine import identify
-        from labrig.identification.table import identification_dict
-        from labrig.model.effectset import EffectSet
-        from labrig.io.runs import read_dataset
-
-        runs = read_dataset([folder])
-        res = identify(runs, options.get("method", METHOD),
-                       EffectSet.parse(options.get("effects") or []),
-                       seed=options.get("seed", 1), pop=options.get("pop", 50),
-                       iters=options.get("iters", 200))
-        d = identification_dict(res)
+        # the runs as read (a closed loop fitted through it), as the batch always has
+        res = lr.identify([folder], options.get("method", METHOD), options.get("effects") or [],
+                          seed=options.get("seed", 1), through="loop",
+                          pop=options.get("pop", 50), iters=options.get("iters", 200))
+        d = res.to_json()
         ident, rmse = d.get("identifiable") or {}, d.get("rmse_over_noise") or {}
         figs = {"method": d["method"], "effects": ",".join(d["effects"]) or "-",
                 "fitness": d["fitness"], "km": (ident.get("km") or {}).get("value"),
@@ -94,12 +87,8 @@ class Diagnose(Task):
     figures = ("effects", "rmse_over_noise", "confusable")
 
     def run(self, folder, options):
-        from labrig.diagnosis.auto import auto_diagnose
-        from labrig.io.runs import read_dataset
-
-        runs = read_dataset([folder])
-        res = auto_diagnose(runs, None, max_rounds=options.get("max_rounds", 3),
-                            seed=options.get("seed", 0))
+        res = lr.auto([folder], max_rounds=options.get("max_rounds", 3),
+                      seed=options.get("seed", 0), through="loop")
         steps = res.ladder.to_json()["steps"]
         final = (steps[-1].get("rmse_over_noise") or {}) if steps else {}
         figs = {"effects": ",".join(res.model.names) or "-",
@@ -113,15 +102,13 @@ class Check(Task):
     figures = ("pass", "score", "found", "missed", "extra", "rmse_over_noise")
 
     def run(self, folder, options):
-        from labrig.classroom.mystery import check
-
         mystery = _one(folder, "*.mystery", "mystery file", options.get("mystery"))
         model = folder / options.get("model", "model.json")
         if not model.exists():
             raise UserError(f"{folder.name}: no {model.name}; hand in the model saved by "
                             "`labrig identify -o` or `labrig diagnose -o`, or name it "
                             "with --model")
-        res = check(mystery, model, tolerance=options.get("tolerance", 20.0) / 100.0)
+        res = lr.check_mystery(mystery, model, tolerance=options.get("tolerance", 20.0) / 100.0)
         res["file"], res["model"] = mystery.name, model.name  # no worker paths in the output
         figs = {"pass": res["pass"], "score": res["score"],
                 "found": ",".join(res["found"]) or "-", "missed": ",".join(res["missed"]) or "-",
@@ -279,9 +266,7 @@ def run_batch(task: str, folders, *, options: dict | None = None, jobs: int = 1,
         raise UserError("batch: give at least one folder")
     options = dict(options or {})
     if options.get("effects"):  # a bad name is the user's mistake, once, not every folder's
-        from labrig.model.effectset import EffectSet
-
-        EffectSet.parse(options["effects"])
+        lr.parse_effects(options["effects"])
     names = output_names(folders)
     rows: list[dict | None] = [None] * len(folders)
     work = []

@@ -38,7 +38,7 @@ def cmd_demo(args):
     from labrig.diagnosis.evaluation import evaluate
     from labrig.identification.engine import identify
     from labrig.diagnosis.ladder import evaluate_ladder
-    from labrig.model.effects import get_effect
+    import labrig.verbs as lr
     from labrig.model.model import Model
     from labrig.diagnosis.plots import plot_regimes, plot_run_comparison
     from labrig.core.figures import save
@@ -85,8 +85,7 @@ def cmd_demo(args):
     models = [out / "model0.json"]
     if rec:
         _say(f"[5/7] identify again with {rec} added (warm start from model0)")
-        res1 = identify(runs, "co", model0.effects + [get_effect(rec)], seed=args.seed,
-                        start=model0.flat(), starts=1)
+        res1 = lr.add_effect(runs, model0, rec, seed=args.seed, through="loop", starts=1)
         res1.model().save(out / "model1.json")
         models.append(out / "model1.json")
     else:

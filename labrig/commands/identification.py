@@ -83,7 +83,7 @@ def cmd_identify(args):
     if args.model:
         model = Model.load(args.model)
         start = model.flat()
-        effects = model.effects + [e for e in asked if e.name not in model.names]
+        effects = model.effects_with(asked)
     if not len(effects) and cfg.get("effects"):
         effects = EffectSet.parse(cfg["effects"], origin=f"{args.config}: key 'effects'")
     bounds = {**cfg.get("bounds", {}), **parse_assignments(args.bounds, "--bounds", pair=True)}

@@ -13,7 +13,7 @@ def cmd_mystery(args):
     effects (use it with `labrig sweep --sim --rig FILE.mystery`); `reveal FILE` shows the
     truth (instructor); `check FILE MODEL.json` grades a model against it. The file is
     obfuscated against casual reading, not encrypted."""
-    from labrig.classroom import mystery as m
+    from labrig.io import mystery as m
 
     if args.action == "new":
         from labrig.commands.registry import refuse_existing

@@ -55,7 +55,7 @@ def encode(content: dict) -> str:
 
 def decode(path: Path | str) -> dict:
     """A mystery file -> ``{"rig": doc, "seed": N | None}`` as stored (the rig is not
-    validated here: see ``labrig.io.config.load_rig`` and ``labrig.classroom.mystery.load_mystery``);
+    validated here: see ``labrig.io.config.load_rig`` and ``labrig.io.mystery.load_mystery``);
     a damaged file is a ``ConfigError`` (exit 2) naming the file and what is wrong."""
     path = Path(path)
     if not path.exists():

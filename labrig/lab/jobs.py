@@ -9,7 +9,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import labrig.verbs as lr
 from labrig.core.defaults import SEED
+from labrig.core.errors import UserError
 from labrig.core.figures import png_bytes
 from labrig.core.tables import Table, table_html
 
@@ -27,14 +29,10 @@ def _html(tables) -> list[str]:
 
 
 def _model(doc):
-    from labrig.model.model import Model
-
-    return None if doc is None else Model.from_json(doc, "the lab page's model")
+    return None if doc is None else lr.model_from_json(doc, "the lab page's model")
 
 
 def _runs(folders):
-    import labrig.api as lr
-
     return lr.read_runs([str(f) for f in folders])
 
 
@@ -43,13 +41,10 @@ def fit(folders, model_doc=None, add=(), remove=(), label="") -> dict:
     ``remove`` taken out, fitted on the runs (CO, the lab's seed), with its overlay on the
     worst run (``runs`` names them all; :func:`overlays` draws the others: each figure
     costs about half a second, and the diagnosis should not wait for them)."""
-    import labrig.api as lr
-    from labrig.diagnosis.refit import without
-
     runs = _runs(folders)
     base = _model(model_doc)
     for name in remove:
-        base = without(base, name)
+        base = lr.remove_effect(base, name)
     if base is not None and not base.names and not add:
         base = None     # back to the linear model: fitted afresh, as identify does
     ident = lr.identify(runs, effects=list(add), model=base, seed=LAB_SEED)
@@ -66,8 +61,6 @@ def fit(folders, model_doc=None, add=(), remove=(), label="") -> dict:
 
 def overlays(folders, model_doc, names) -> dict:
     """The model on the runs ``names``: ``{name: PNG}`` (the figures :func:`fit` left)."""
-    import labrig.api as lr
-
     ev = lr.compare(_runs(folders), _model(model_doc))
     return {name: _png(ev.plot(run=name)) for name in names}
 
@@ -75,12 +68,8 @@ def overlays(folders, model_doc, names) -> dict:
 def diagnose(folders, model_doc) -> dict:
     """The ranking of the effects the model lacks, with the evidence, the confusable pairs
     and each effect's physics sentence."""
-    import labrig.api as lr
-    from labrig.diagnosis.auto import confusable_pairs
-    from labrig.model.effects import get_effect
-
     diag = lr.diagnose(_runs(folders), _model(model_doc), seed=LAB_SEED)
-    pairs = confusable_pairs(diag, 1)
+    pairs = lr.confusable_pairs(diag, 1)
     rows = []
     for c in diag.ranking:
         cv = c.cross_validated
@@ -92,7 +81,7 @@ def diagnose(folders, model_doc) -> dict:
                      "supported": c.supported, "at_bound": list(c.at_bound),
                      "confusable_with": [p.second if p.first == c.effect else p.first
                                          for p in pairs if c.effect in (p.first, p.second)],
-                     "physics": get_effect(c.effect).summary})
+                     "physics": lr.effect(c.effect).summary})
     return {"json": diag.to_json(), "rows": rows, "recommendation": diag.recommendation,
             "verdict": diag.verdict, "pairs": [p.to_json() for p in pairs],
             "figure": _png(diag.plot()), "tables": _html(diag.table_rows())}
@@ -100,16 +89,12 @@ def diagnose(folders, model_doc) -> dict:
 
 def ladder(folders, model_docs) -> dict:
     """The error ladder of the rungs so far."""
-    import labrig.api as lr
-
     lad = lr.ladder(_runs(folders), [_model(d) for d in model_docs])
     return {"json": lad.to_json(), "figure": _png(lad.plot()), "tables": _html(lad.table_rows())}
 
 
 def auto(folders, max_rounds=3, log=None) -> dict:
     """``diagnose --auto``: the rungs it climbed, each fitted as a rung of the page."""
-    import labrig.api as lr
-
     def rung(k, model):   # the ladder growing, round by round, on the page
         info = model.info or {}
         rmse = (info.get("rmse_over_noise") or {}).get("overall")
@@ -127,8 +112,6 @@ def auto(folders, max_rounds=3, log=None) -> dict:
 
 def propose(folders, model_doc, between: str) -> dict:
     """The experiment that separates the pair: its plan, both predictions and why."""
-    import labrig.api as lr
-
     prop = lr.propose(_runs(folders), _model(model_doc), between, seed=LAB_SEED)
     return {"json": prop.to_json(), "plan": prop.to_toml() if prop.separates else None,
             "text": prop.to_text(),
@@ -137,9 +120,7 @@ def propose(folders, model_doc, between: str) -> dict:
 
 def decide(folders, model_doc) -> dict:
     """Both explanations fitted with and without the proposed runs."""
-    from labrig.diagnosis.decide import decide as _decide
-
-    d = _decide(_runs(folders), _model(model_doc), seed=LAB_SEED)
+    d = lr.decide(_runs(folders), _model(model_doc), seed=LAB_SEED)
     if d is None:
         return {"json": None, "text": "no proposed run in these folders"}
     return {"json": d.to_json(), "text": d.to_text(), "leader": d.leader,
@@ -148,8 +129,6 @@ def decide(folders, model_doc) -> dict:
 
 def save_model(model_doc, path, overwrite: bool = False) -> str:
     """Write a rung's model as the CLI's model file (refused if it exists, unless told)."""
-    from labrig.core.errors import UserError
-
     path = Path(path)
     if path.exists() and not overwrite:
         raise UserError(f"{path} exists; tick 'replace' to overwrite it")

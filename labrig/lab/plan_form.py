@@ -1,5 +1,5 @@
 """The plan form of the lab page: the plan schema's fields with their ranges, checked by
-the same reader as a plan file (:func:`labrig.io.config.load_plan`), so a bad value gets
+the same reader as a plan file (:func:`labrig.verbs.load_plan`), so a bad value gets
 the command line's words, shown beside its field."""
 from __future__ import annotations
 
@@ -8,6 +8,7 @@ from pathlib import Path
 
 import panel as pn
 
+import labrig.verbs as lr
 from labrig.core.errors import LabrigError
 
 #: form field -> the plan key its errors name
@@ -21,11 +22,9 @@ class PlanForm:
     table with one run per amplitude, edited in the form."""
 
     def __init__(self, rig, folder=None):
-        from labrig.io.config import CONFIG_DIR
-
         self.rig = rig
         lim = rig.bridge.output_limit_v
-        files = sorted(CONFIG_DIR.glob("plan_*.toml")) + \
+        files = lr.plan_files() + \
             (sorted(Path(folder).glob("*.toml")) if folder else [])
         self.source = pn.widgets.Select(
             name="plan", options={"the form below": "", **{f.name: str(f) for f in files}},
@@ -63,9 +62,6 @@ class PlanForm:
 
     def plan(self):
         """The experiments, or None with the error shown beside its field."""
-        from labrig.bridge.sweep import check_plan
-        from labrig.io.config import load_plan
-
         for m in [*self.msg.values(), self.source_msg]:
             m.visible = False
         try:
@@ -75,8 +71,8 @@ class PlanForm:
                                 "not a list of numbers; write e.g. 1.2, 2.0")
         if self.source.value:   # a plan file, read as `labrig sweep --plan` reads it
             try:
-                plan = load_plan(self.source.value, self.rig)
-                check_plan(plan, self.rig)
+                plan = lr.load_plan(self.source.value, self.rig)
+                lr.check_plan(plan, self.rig)
                 return plan
             except LabrigError as exc:
                 self.source_msg.object = str(exc).splitlines()[0]
@@ -86,8 +82,8 @@ class PlanForm:
             path = Path(d) / "plan.toml"
             path.write_text(self.toml())
             try:
-                plan = load_plan(path, self.rig)
-                check_plan(plan, self.rig)
+                plan = lr.load_plan(path, self.rig)
+                lr.check_plan(plan, self.rig)
                 return plan
             except LabrigError as exc:
                 text = str(exc).replace(str(path), "plan").splitlines()[0]

@@ -10,41 +10,18 @@ from __future__ import annotations
 
 import sys
 
+import labrig.verbs as lr
 from labrig.lab.station import Station
 
 
 def make_station(folder, *, rig_path=None, port=None, emulate=False, realtime=True) -> Station:
     """A station on the simulated rig (default), the board at ``port``, or the emulated
     board (the real firmware in simavr)."""
-    from labrig.io.config import load_rig
-
-    rig = load_rig(rig_path)
-    if port:
-        from labrig.bridge.serial import SerialBridge
-
-        def make():
-            return SerialBridge(port, rig)
-        name = f"board at {port}"
-    elif emulate:
-        from labrig.bridge.emulate import Emulator
-        from labrig.bridge.serial import SerialBridge
-
-        emu = Emulator(rig=rig)
-        pty = emu.start()   # ended with the station (Station.close -> on_close)
-
-        def make():
-            return SerialBridge(pty, rig)
-        name = f"emulated board ({pty})"
-    else:
-        from labrig.bridge.sim import SimRig
-
-        def make():
-            return SimRig(rig)
-        name = "simulated " + (rig.name or "MS150")
+    rig = lr.load_rig(rig_path)
+    make, name, close = lr.open_bridge(rig, port=port, emulate=emulate)
     station = Station(folder, rig, make, realtime=realtime and not port and not emulate,
                       rig_name=name)
-    if emulate:
-        station.on_close.append(emu.stop)
+    station.on_close.append(close)   # the emulator ends with the station
     return station
 
 

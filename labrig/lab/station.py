@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from labrig.bridge.live import LiveBridge
+import labrig.verbs as lr
 from labrig.core.errors import Interrupted, LabrigError
 from labrig.lab import jobs
 from labrig.lab.worker import Worker
@@ -104,11 +104,9 @@ class Station:
     def start_sweep(self, plan, into: Path | None = None) -> None:
         """Play ``plan`` (a list of Experiments) in a thread, writing to ``into`` (default
         the station's folder) exactly as ``labrig sweep`` does."""
-        from labrig.bridge.sweep import check_plan
-
         if self.sweeping:
             raise LabrigError("a sweep is running; Stop it first")
-        check_plan(plan, self.rig)    # a bad plan is refused before the rig moves
+        lr.check_plan(plan, self.rig)    # a bad plan is refused before the rig moves
         self._stop.clear()
         self.sweeping, self.sweep_note, self.written = True, "", []
         self._thread = threading.Thread(target=self._sweep, args=(plan, into or self.folder),
@@ -116,8 +114,6 @@ class Station:
         self._thread.start()
 
     def _sweep(self, plan, outdir) -> None:
-        from labrig.bridge.sweep import sweep
-
         current = {}
 
         def on_start(exp):
@@ -128,9 +124,9 @@ class Station:
             self.written.append(exp.name)
 
         try:   # an unplugged board fails here: one line on the page, like any rig error
-            self._bridge = LiveBridge(self.make_bridge(), self._on_block,
-                                      realtime=self.realtime, stop=self._stop)
-            sweep(self._bridge, plan, self.rig, outdir, on_start=on_start, on_done=on_done)
+            self._bridge = lr.live(self.make_bridge(), self._on_block, realtime=self.realtime,
+                                   stop=self._stop)
+            lr.play(self._bridge, plan, self.rig, outdir, on_start=on_start, on_done=on_done)
             self.sweep_note = f"{len(self.written)} run(s) written to {outdir}"
         except Interrupted as exc:
             self.sweep_note = f"{exc} ({len(self.written)} run(s) written to {outdir})"
@@ -215,8 +211,6 @@ class Station:
 
     def play_proposal(self) -> None:
         """Play the proposed plan into ``asked/`` (only after a prediction is recorded)."""
-        from labrig.io.config import load_plan
-
         if self.proposal is None or self.prediction is None:
             raise LabrigError("record your prediction first: which explanation, and why")
         if self.proposal.get("plan") is None:   # nothing within the budget separates them
@@ -227,7 +221,7 @@ class Station:
         name = f"proposed_{len(list(asked.glob('*.csv'))) + 1}"
         plan_file = asked / f"{name}.toml"
         plan_file.write_text(self.proposal["plan"].replace('name = "proposed"', f'name = "{name}"'))
-        self.start_sweep(load_plan(plan_file, self.rig), into=asked)
+        self.start_sweep(lr.load_plan(plan_file, self.rig), into=asked)
 
     def decide(self) -> None:
         self.submit("decide", jobs.decide, self.folders(), self.model())

@@ -37,10 +37,9 @@ def _warm() -> bool:
     none of them."""
     import control  # noqa: F401
 
-    import labrig.diagnosis.search  # noqa: F401
-    from labrig.model.warm import ready
+    import labrig.verbs as lr
 
-    ready()
+    lr.warm_up()
     return True
 
 

@@ -103,6 +103,11 @@ class Model:
         eps = {**self.effect_params, effect.name: dict(params)}
         return replace(self, effects=self.effects + [effect], effect_params=eps, info={})
 
+    def effects_with(self, asked) -> EffectSet:
+        """This model's effects and those of ``asked`` it lacks, in that order: what a fit
+        warm-started from this model adds to (``identify --model``, ``lr.add_effect``)."""
+        return self.effects + [e for e in EffectSet.parse(asked) if e.name not in self.names]
+
     @property
     def names(self) -> list[str]:
         return self.effects.names

@@ -352,15 +352,12 @@ def _corrected(story: Story, diag_live, ev0, say, seed) -> list:
             say("report: simulating the corrected model (model1.json)")
             ev1 = evaluate(story.runs, Model.load(w / "model1.json"))
         elif story.model0 is not None and not story.quick:
-            from labrig.identification.engine import identify
-            from labrig.diagnosis.evaluation import evaluate
-            from labrig.model.effects import get_effect
+            import labrig.verbs as lr
 
             say(f"report: fitting the linear model + {rec} (warm start from the linear model)")
-            m0 = story.model0
-            res1 = identify(story.runs, "co", m0.effects + [get_effect(rec)], seed=seed,
-                            start=m0.flat(), starts=1)
-            ev1 = evaluate(story.runs, res1.model())
+            res1 = lr.add_effect(story.runs, story.model0, rec, seed=seed, through="loop",
+                                 starts=1)
+            ev1 = lr.compare(story.runs, res1.model(), through="loop")
         rr = ev1 and next((r for r in ev1.per_run if r["name"] == name), None)
         after = rr and fig_bytes(plot_run_comparison(rr, title=f"{name}: {label} vs "
                                                               "measurement"))

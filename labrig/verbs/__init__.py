@@ -1,0 +1,42 @@
+"""The public verbs: what ``import labrig as lr`` gives a notebook or a script, and the
+one door through which the front ends (the command line, the lab station, the classroom
+batch, the report, the demo) reach the library.
+
+Every verb takes its data the same way — a folder of runs, a run file, a list of them,
+or runs already read (:func:`read_runs`) — and has the command line's defaults, so
+``lr.identify("runs")`` is ``labrig identify runs``. Each returns the result object the
+command prints: it shows a one-screen summary as text, its tables and its figure in a
+notebook, and has ``to_json()`` (the command's ``--json``), ``to_pandas()`` and
+``plot(ax=None)``. Models go in and come out as :class:`~labrig.model.model.Model`
+objects (a model file's path or a fit are taken too).
+
+The loop in five lines::
+
+    import labrig as lr
+    runs = lr.read_runs("data/sweep_default")
+    fit = lr.identify(runs)                     # the linear model (CO)
+    diag = lr.diagnose(runs, fit.model())       # which effect is missing?
+    better = lr.add_effect(runs, fit.model(), diag.recommendation)
+
+One module per topic: :mod:`~labrig.verbs.data` (runs, models, the catalogue, rig and
+plan files), :mod:`~labrig.verbs.acquire` (bridges and sweeps), :mod:`~labrig.verbs.fit`
+(analyse, identify, add and remove an effect, compare, the ladder) and
+:mod:`~labrig.verbs.loop` (diagnose, the search, propose, decide) and
+:mod:`~labrig.verbs.mystery` (mystery rigs for a class). Heavy libraries load
+inside the verbs, on first use, so ``import labrig`` stays quick.
+"""
+from labrig.verbs.acquire import live, open_bridge, play, sweep
+from labrig.verbs.data import (check_plan, effect, effects, load_model, load_plan, load_rig,
+                               model_from_json, model_of, parse_effects, plan_files, read_runs,
+                               runs_of)
+from labrig.verbs.fit import add_effect, analyse, compare, identify, ladder, remove_effect
+from labrig.verbs.mystery import (blind, check_mystery, format_check, format_reveal,
+                                  new_mystery, reveal, write_mystery)
+from labrig.verbs.loop import auto, confusable_pairs, decide, diagnose, propose, warm_up
+
+__all__ = ["sweep", "read_runs", "analyse", "identify", "add_effect", "remove_effect",
+           "diagnose", "auto", "propose", "decide", "compare", "ladder", "effects", "effect",
+           "load_model", "model_from_json", "parse_effects", "model_of", "runs_of", "load_rig", "load_plan",
+           "plan_files", "check_plan", "open_bridge", "live", "play", "confusable_pairs",
+           "warm_up", "new_mystery", "write_mystery", "reveal", "check_mystery", "blind",
+           "format_reveal", "format_check"]

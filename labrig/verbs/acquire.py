@@ -1,0 +1,83 @@
+"""Acquisition: a bridge to the rig (simulated, the board, the emulated board) and a
+sweep played on it."""
+from __future__ import annotations
+
+from labrig.verbs.data import runs_of
+
+
+def sweep(output, plan=None, rig=None, *, port: str | None = None, seed: int | None = None,
+          resume: bool = False, on_progress=None):
+    """Play a plan on the simulated rig (default) or the board at ``port`` and write one
+    run per experiment to ``output`` (``labrig sweep``); returns the runs read back.
+
+    Parameters
+    ----------
+    output : str or Path
+        Folder for the runs; an existing run there is refused unless ``resume``.
+    plan, rig : str or Path, optional
+        Plan and rig files (TOML; a rig may be a ``.mystery`` file); default the lab's
+        standard plan and the MS150 rig.
+    port : str, optional
+        Serial device of the bridge; without it the simulated rig plays the plan.
+    seed : int, optional
+        Noise seed of the simulated rig (default: the rig file's).
+    on_progress : callable(n_samples), optional
+        Called as samples arrive.
+    """
+    from labrig.bridge.sweep import sweep as _sweep
+    from labrig.io.config import load_plan, load_rig
+
+    rig_cfg = load_rig(rig)
+    experiments = load_plan(plan, rig_cfg)
+    if port:
+        from labrig.bridge.serial import SerialBridge
+
+        bridge = SerialBridge(port, rig_cfg)
+    else:
+        from labrig.bridge.sim import SimRig
+
+        bridge = SimRig(rig_cfg, seed=seed)
+    written = _sweep(bridge, experiments, rig_cfg, output, resume=resume,
+                     on_progress=on_progress)
+    return runs_of([str(p) for p in written]) if written else runs_of(output)
+
+
+def open_bridge(rig, *, port: str | None = None, emulate: bool = False, seed: int | None = None):
+    """How to reach the rig: ``(make, name, close)``, where ``make()`` gives a fresh
+    bridge for each sweep (the board at ``port``, the real firmware in simavr with
+    ``emulate``, else the simulated rig with its noise ``seed``), ``name`` says which in
+    words and ``close()`` ends what was started (the emulator)."""
+    if port:
+        from labrig.bridge.serial import SerialBridge
+
+        return (lambda: SerialBridge(port, rig)), f"board at {port}", (lambda: None)
+    if emulate:
+        from labrig.bridge.emulate import Emulator
+        from labrig.bridge.serial import SerialBridge
+
+        emu = Emulator(rig=rig)
+        pty = emu.start()
+        return (lambda: SerialBridge(pty, rig)), f"emulated board ({pty})", emu.stop
+    from labrig.bridge.sim import SimRig
+
+    return (lambda: SimRig(rig, seed=seed)), "simulated " + (rig.name or "MS150"), (lambda: None)
+
+
+def live(bridge, on_block=None, **options):
+    """``bridge`` with every block of samples handed to ``on_block`` as it arrives (the
+    lab's live view, the command line's real-time pace): a
+    :class:`~labrig.bridge.live.LiveBridge`."""
+    from labrig.bridge.live import LiveBridge
+
+    return LiveBridge(bridge, on_block, **options)
+
+
+def play(bridge, plan, rig, output, *, resume: bool = False, on_start=None, on_progress=None,
+         on_done=None) -> list:
+    """Play ``plan`` on ``bridge`` and write each run to ``output`` as it finishes (what
+    :func:`sweep` does on a bridge of its own); the hooks see each experiment start,
+    its samples arrive and its run written. Returns the paths written."""
+    from labrig.bridge.sweep import sweep as _sweep
+
+    return _sweep(bridge, plan, rig, output, resume=resume, on_start=on_start,
+                  on_progress=on_progress, on_done=on_done)

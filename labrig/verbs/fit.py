@@ -1,0 +1,98 @@
+"""Fits: the analyser, the identifiers, a model compared with the runs, the ladder."""
+from __future__ import annotations
+
+from labrig.core.defaults import METHOD, SEED
+from labrig.verbs.data import model_of, read_runs
+
+
+def analyse(source, *, tolerance: float | None = None):
+    """Deadband, Km and tau_m from open-loop runs (``labrig analyse``).
+
+    ``source`` as in :func:`read_runs`, or a steady-state table CSV (like the seed
+    paper's Table 1). Returns an :class:`~labrig.analysis.result.AnalysisResult`.
+    """
+    from labrig.analysis.dataset import analyse as _analyse
+    from labrig.analysis.result import GAIN_TOLERANCE
+
+    if not isinstance(source, (list, tuple)):
+        source = [source]
+    return _analyse(list(source), tolerance=GAIN_TOLERANCE if tolerance is None else tolerance)
+
+
+def identify(source, method: str = METHOD, effects=(), *, model=None, seed: int | None = SEED,
+             fixed: dict | None = None, bounds: dict | None = None, through: str = "auto",
+             **options):
+    """Fit the plant and effects (``labrig identify``).
+
+    Parameters
+    ----------
+    source : see :func:`read_runs`
+    method : {"co", "jfo", "pso"}
+        Default ``"co"``, as the command line's ``--method``.
+    effects : list of str
+        Catalogue names (``lr.effects()`` lists them) or ``FILE.py:Class`` of trusted code.
+    model : Model, model file or Identification, optional
+        Start from this model (its effects are kept and ``effects`` added), as ``--model``.
+    seed : int or None
+        Default 0, as the command line: the same files give the same fit. None draws a
+        fresh seed, recorded in the result (``result.seed``) to repeat it.
+    fixed, bounds : dict, optional
+        ``{"R": 8.2}`` and ``{"R": (1, 20)}``, as ``--fix`` and ``--bounds``.
+    **options
+        ``pop``, ``iters``, ``starts``, ``polish``, ``p``, ``q``, ``c`` (channel weights)
+        as in :func:`labrig.identification.engine.identify`.
+
+    Returns
+    -------
+    Identification
+        ``.model()`` is the fitted :class:`~labrig.model.model.Model`.
+    """
+    from labrig.identification.engine import identify as _identify
+    from labrig.model.effectset import EffectSet
+
+    runs = read_runs(source, through=through)
+    asked = EffectSet.parse(list(effects) if not isinstance(effects, str) else effects)
+    start_model, start = model_of(model), None
+    if start_model is not None:
+        start = start_model.flat()
+        asked = start_model.effects_with(asked)
+    return _identify(runs, method, asked, seed=seed, fixed=fixed, bounds=bounds, start=start,
+                     **options)
+
+
+def add_effect(source, model, effect, *, method: str = "co", seed: int | None = SEED,
+               through: str = "auto", **options):
+    """``model`` with ``effect`` (a catalogue name, or several) added, fitted from where
+    ``model`` was fitted: the warm-started add of the loop (``labrig identify --model M
+    --effects E``; the demo, the report and the lab page add this way). ``options`` as
+    :func:`identify` (``starts=1``: one start, from the model). Returns an
+    :class:`~labrig.identification.engine.Identification`."""
+    names = [effect] if isinstance(effect, str) else list(effect)
+    return identify(source, method, names, model=model, seed=seed, through=through, **options)
+
+
+def remove_effect(model, name: str):
+    """``model`` without its effect ``name`` (its other values kept, nothing re-fitted)."""
+    from labrig.diagnosis.refit import without
+
+    return without(model_of(model), name)
+
+
+def compare(source, model, *, through: str = "auto"):
+    """The model simulated on the runs: fit %, rmse/noise by run and regime, residuals
+    (``labrig compare``). Returns an :class:`~labrig.diagnosis.evaluation.Evaluation`; its
+    ``plot()`` overlays model and measurement with the residual and its noise band."""
+    from labrig.diagnosis.evaluation import evaluate
+
+    return evaluate(read_runs(source, through=through), model_of(model))
+
+
+def ladder(source, models, *, through: str = "auto"):
+    """The error after each added effect, against the noise floor (``labrig ladder``).
+
+    ``models``: a list of Models, model files or fits, simplest first. Returns a
+    :class:`~labrig.diagnosis.ladder.Ladder`.
+    """
+    from labrig.diagnosis.ladder import evaluate_ladder
+
+    return evaluate_ladder(read_runs(source, through=through), [model_of(m) for m in models])
