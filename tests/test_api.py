@@ -100,3 +100,26 @@ def test_the_same_files_give_the_same_fit_and_a_fresh_seed_is_said():
                        capture_output=True, text=True)
     said = int(re.search(r"seed (\d+) \(a fresh one; --seed \1 repeats", p.stderr).group(1))
     assert json.loads(p.stdout)["seed"] == said
+
+
+def test_one_progress_hook_for_every_verb(tmp_path):
+    """The events a verb reports while it works (what the command line's bars and the
+    lab's streaming both draw from): an identifier's iterations with the best fitness so
+    far, a diagnosis' candidates as their re-fits start, a sweep's experiments, samples
+    and runs."""
+    events = []
+    fit = lr.identify(DATA, "jfo", seed=1, pop=10, iters=5, progress=events.append)
+    its = [e for e in events if e.kind == "iteration"]
+    assert [e.done for e in its][-1] == 5 and all(e.total == 5 for e in its)
+    assert its[-1].data == pytest.approx(fit.fitness, rel=1e-9)
+    events.clear()
+    lr.diagnose(DATA, fit, candidates=["deadband"], progress=events.append)
+    assert [(e.verb, e.kind, e.data) for e in events] == [("diagnose", "candidate",
+                                                           "deadband")]
+    events.clear()
+    lr.sweep(tmp_path / "runs", plan=ROOT / "configs" / "plan_two_steps.toml",
+             progress=events.append)
+    kinds = [e.kind for e in events]
+    assert kinds.count("experiment") == kinds.count("run") == 2
+    assert sum(e.done for e in events if e.kind == "samples") == sum(
+        len(r.t) for r in lr.read_runs(tmp_path / "runs"))

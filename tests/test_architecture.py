@@ -171,7 +171,8 @@ def test_what_the_loop_knows_of_an_effect_lives_on_the_effect():
 #: errors, defaults, tables and figures), and their own folder; the command line may also
 #: start the other front ends
 DOOR = ("verbs", "core")
-FRONT_ENDS = {"lab": (), "classroom": ()}
+FRONT_ENDS = {"lab": (), "classroom": (), "report": (),
+              "commands": ("lab", "classroom", "report", "cli")}
 
 
 def test_front_ends_reach_the_library_through_the_verbs():

@@ -68,9 +68,9 @@ class Identify(Task):
                "at_bound")
 
     def run(self, folder, options):
-        # the runs as read (a closed loop fitted through it), as the batch always has
+        # the runs as read, as the batch always fitted them
         res = lr.identify([folder], options.get("method", METHOD), options.get("effects") or [],
-                          seed=options.get("seed", 1), through="loop",
+                          seed=options.get("seed", 1), through=None,
                           pop=options.get("pop", 50), iters=options.get("iters", 200))
         d = res.to_json()
         ident, rmse = d.get("identifiable") or {}, d.get("rmse_over_noise") or {}
@@ -88,7 +88,7 @@ class Diagnose(Task):
 
     def run(self, folder, options):
         res = lr.auto([folder], max_rounds=options.get("max_rounds", 3),
-                      seed=options.get("seed", 0), through="loop")
+                      seed=options.get("seed", 0), through=None)
         steps = res.ladder.to_json()["steps"]
         final = (steps[-1].get("rmse_over_noise") or {}) if steps else {}
         figs = {"effects": ",".join(res.model.names) or "-",

@@ -4,6 +4,7 @@ from __future__ import annotations
 import signal
 from pathlib import Path
 
+import labrig.verbs as lr
 from labrig.commands.registry import command, float_opt
 from labrig.core.errors import Terminated, UserError
 from labrig.commands.progress import Progress
@@ -14,34 +15,22 @@ def cmd_sweep(args):
     """Acquire a sweep: one run per experiment of the plan, each written atomically as it
     finishes. Interrupting (Ctrl-C, SIGTERM, SIGHUP) stops the board at 0 V and keeps every
     finished run; --resume continues. Exit codes: 130 Ctrl-C, 143 SIGTERM, 129 SIGHUP."""
-    from labrig.bridge.sweep import sweep
-    from labrig.io.config import load_plan, load_rig
-
     from labrig.commands.registry import output_folder
 
     output_folder(args.output)
-    rig = load_rig(args.rig)
-    plan = load_plan(args.plan, rig)
+    rig = lr.load_rig(args.rig)
+    plan = lr.load_plan(args.plan, rig)
     if args.sim == bool(args.port):
         raise UserError("give exactly one of --sim or --port DEV")
-    if args.sim:
-        from labrig.bridge.sim import SimRig
-
-        bridge = SimRig(rig, seed=args.seed)
-        if args.realtime:
-            from labrig.bridge.live import LiveBridge
-
-            bridge = LiveBridge(bridge, realtime=True)
-    else:
-        from labrig.bridge.serial import SerialBridge
-
-        bridge = SerialBridge(args.port, rig)
+    make, _, _ = lr.open_bridge(rig, port=args.port, seed=args.seed)
+    bridge = make()
+    if args.sim and args.realtime:
+        bridge = lr.live(bridge, realtime=True)
     total = sum(e.n_samples for e in plan)
     with _StopSignals(), Progress("sweep", total=total, unit="samples") as bar:
-        written = sweep(bridge, plan, rig, args.output, resume=args.resume,
-                        on_start=lambda e: bar.describe(e.name),
-                        on_progress=bar.advance,
-                        on_done=lambda e, r: bar.log(f"wrote {Path(args.output) / e.name}.csv"))
+        written = lr.play(bridge, plan, rig, args.output, resume=args.resume,
+                          progress=bar.hook,
+                          on_done=lambda e, r: bar.log(f"wrote {Path(args.output) / e.name}.csv"))
     print(f"{len(written)} run(s) written to {args.output}"
           + (f" ({len(plan) - len(written)} already there)" if args.resume else ""))
     return 0
@@ -105,13 +94,10 @@ def cmd_import(args):
     matrix's column as m[k]): t, u and speed and/or pos in physical units, or raw volts
     tacho=/pos= with gains; current= and, in closed loop, ref=. Choose the plant with
     --drive and --axis."""
-    from labrig.io.importer import import_csv, parse_controller, parse_map
-
     from labrig.commands.registry import output_folder
 
     output_folder(args.output)
-    mapping = parse_map(args.map)
-    path = import_csv(args.src, args.output, mapping, speed_unit=args.speed_unit,
+    path = lr.import_run(args.src, args.output, args.map, speed_unit=args.speed_unit,
                       pos_unit=args.pos_unit, time_unit=args.time_unit,
                       tacho_gain=args.tacho_gain, pos_gain=args.pos_gain,
                       pos_offset=args.pos_offset, gear_ratio=args.gear_ratio,
@@ -119,7 +105,7 @@ def cmd_import(args):
                       waveform=args.waveform, loop=args.loop, overwrite=args.overwrite,
                       position_gain=args.position_gain, velocity_gain=args.velocity_gain,
                       drive=args.drive, axis=args.axis, input_gain=args.input_gain,
-                      controller=parse_controller(args.controller),
+                      controller=args.controller,
                       current_gain=args.current_gain, skip_rows=args.skip_rows,
                       speed_window=args.speed_window, input_step=args.input_step,
                       start=args.start, input_measured=args.input_measured, warn=_warn_line)

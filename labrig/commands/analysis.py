@@ -13,10 +13,10 @@ def cmd_analyse(args):
     paper's Table 1 and a verdict; --json prints one JSON object; -o writes figures."""
     from pathlib import Path
 
-    from labrig.analysis import analyse
+    import labrig.verbs as lr
     from labrig.commands.registry import refuse_existing
 
-    res = analyse(args.paths, tolerance=args.tolerance)
+    res = lr.analyse(args.paths, tolerance=args.tolerance)
     if args.output:
         out = Path(args.output)
         figs = res.figures()    # names only: nothing is drawn or written yet
@@ -31,7 +31,7 @@ def cmd_analyse(args):
 
 def _save(res, figs, out):
     """Save each figure as PNG and close it at once (one figure in memory at a time)."""
-    from labrig.analysis.plots import save_figures
+    from labrig.verbs.figures import save_figures
 
     saved = save_figures(figs, out)
     res.record_figures(saved)          # the paths go into --json and the summary

@@ -29,36 +29,25 @@ def cmd_demo(args):
     """Run the main job on the simulated rig: sweep, analyse, identify with JFO, PSO and
     CO, diagnose what the model misses, add the recommended effect, compare, error
     ladder, report. Everything lands in the output folder."""
-    from labrig.bridge.sweep import sweep
-    from labrig.analysis import analyse
-    from labrig.bridge.sim import SimRig
-    from labrig.identification.table import format_identification
-    from labrig.io.config import load_plan, load_rig
-    from labrig.diagnosis.diagnose import diagnose
-    from labrig.diagnosis.evaluation import evaluate
-    from labrig.identification.engine import identify
-    from labrig.diagnosis.ladder import evaluate_ladder
     import labrig.verbs as lr
-    from labrig.model.model import Model
-    from labrig.diagnosis.plots import plot_regimes, plot_run_comparison
+    import labrig.verbs.figures as lrf
     from labrig.core.figures import save
     from labrig.report.html import build_report
-    from labrig.identification.plots import plot_convergence
-    from labrig.io.runs import read_dataset
 
     t0 = time.perf_counter()
     out = Path(args.output)
     runs_dir, figs = out / "runs", out / "figures"
     figs.mkdir(parents=True, exist_ok=True)
-    rig = load_rig(args.rig)
-    plan = load_plan(args.plan, rig)
+    rig = lr.load_rig(args.rig)
+    plan = lr.load_plan(args.plan, rig)
 
     _say(f"[1/7] sweep on the simulated rig ({len(plan)} experiments) -> {runs_dir}")
-    sweep(SimRig(rig, seed=args.seed), plan, rig, runs_dir, resume=True)
-    runs = read_dataset(runs_dir)
+    make, _, _ = lr.open_bridge(rig, seed=args.seed)
+    lr.play(make(), plan, rig, runs_dir, resume=True)
+    runs = lr.read_runs(runs_dir, through=None)    # every fit below: the runs as read
 
     _say("[2/7] analyse: deadband, Km, tau_m, Kt, gain trend")
-    ana = analyse([runs_dir])
+    ana = lr.analyse([runs_dir])
     for name, fig in ana.figures().items():
         save(fig, figs / name)
     _dump(ana.to_json(), out / "analysis.json")
@@ -66,18 +55,18 @@ def cmd_demo(args):
 
     methods = ["co"] if args.quick else ["jfo", "pso", "co"]
     _say(f"[3/7] identify the linear model with {', '.join(m.upper() for m in methods)}")
-    results = [identify(runs, m, [], seed=args.seed, pop=50, iters=200 if not args.quick else 60,
-                        starts=4) for m in methods]
-    save(plot_convergence(results), figs / "convergence.png", dpi=120)
+    results = [lr.identify(runs, m, [], seed=args.seed, through=None, pop=50,
+                           iters=200 if not args.quick else 60, starts=4) for m in methods]
+    save(lrf.convergence_figure(results), figs / "convergence.png", dpi=120)
     best = min(results, key=lambda r: r.fitness)
     _dump({**best.to_dict(), "method": "all", "best": best.method,
            "results": {r.method: r.to_dict() for r in results}}, out / "identify_all.json")
     best.model().save(out / "model0.json")
-    print("\n" + format_identification(results))
+    print("\n" + lrf.fits_text(results))
 
     _say("[4/7] diagnose: where the model fails and which effect is missing")
-    model0 = Model.load(out / "model0.json")
-    diag = diagnose(runs, model0, seed=args.seed)
+    model0 = lr.load_model(out / "model0.json")
+    diag = lr.diagnose(runs, model0, seed=args.seed, through=None)
     _dump(diag.to_json(), out / "diagnosis.json")
     rec = diag.recommendation
     print(f"\n{diag.verdict}")
@@ -85,22 +74,23 @@ def cmd_demo(args):
     models = [out / "model0.json"]
     if rec:
         _say(f"[5/7] identify again with {rec} added (warm start from model0)")
-        res1 = lr.add_effect(runs, model0, rec, seed=args.seed, through="loop", starts=1)
+        res1 = lr.add_effect(runs, model0, rec, seed=args.seed, through=None, starts=1)
         res1.model().save(out / "model1.json")
         models.append(out / "model1.json")
     else:
         _say("[5/7] nothing to add: the model is at the noise floor")
 
     _say("[6/7] compare and the error ladder")
-    ev = evaluate(runs, Model.load(models[-1]))
-    ev0 = evaluate(runs, model0)
+    ev = lr.compare(runs, models[-1], through=None)
+    ev0 = lr.compare(runs, model0, through=None)
     worst = ev0.worst_run()
-    save(plot_run_comparison(worst, title=f"{worst['name']}: linear model vs measurement"),
+    save(lrf.run_figure(worst, title=f"{worst['name']}: linear model vs measurement"),
          figs / f"compare_{worst['name']}_model0.png")
     for rr in ev.per_run:
-        save(plot_run_comparison(rr), figs / f"compare_{rr['name']}.png")
-    save(plot_regimes(ev0.regimes, title="Where the linear model fails"), figs / "regimes.png")
-    ladder = evaluate_ladder(runs, [str(m) for m in models])
+        save(lrf.run_figure(rr), figs / f"compare_{rr['name']}.png")
+    save(lrf.regimes_figure(ev0.regimes, title="Where the linear model fails"),
+         figs / "regimes.png")
+    ladder = lr.ladder(runs, [str(m) for m in models], through=None)
     save(ladder.plot(), figs / "ladder.png", dpi=120)
     _dump(ladder.to_json(), out / "ladder.json")
 

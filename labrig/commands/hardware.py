@@ -13,11 +13,9 @@ def cmd_emulate(args):
     """Build (if needed) and run the compiled bridge firmware in simavr, with the ADC fed
     by a plant model of the rig. Prints the pty path as the first line of stdout, then
     serves until interrupted: `labrig sweep --port <pty> -o DIR` runs the whole lab on it."""
-    from labrig.bridge.emulate import Emulator
-    from labrig.io.config import load_rig
+    import labrig.verbs as lr
 
-    rig = load_rig(args.rig)
-    emu = Emulator(board=args.board, rig=rig, speed=args.speed)
+    emu = lr.emulator(lr.load_rig(args.rig), board=args.board, speed=args.speed)
     pty = emu.start()
     print(pty, flush=True)
     print(f"labrig emulate: {args.board} firmware in simavr on {pty}; Ctrl-C to stop",

@@ -6,6 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
+import labrig.verbs as lr
+import labrig.verbs.figures as lrf
 from labrig.core.defaults import METHOD, SEED
 from labrig.core.errors import UserError
 from labrig.commands.progress import Progress
@@ -55,10 +57,7 @@ def add_through_option(p):
 
 def read_for_fit(args):
     """The data set as it will be fitted (closed-loop runs by --through) and the way."""
-    from labrig.identification.closedloop import choose_way
-    from labrig.io.runs import read_dataset
-
-    return choose_way(read_dataset(args.data), getattr(args, "through", "auto"))
+    return lr.runs_for_fit(args.data, getattr(args, "through", "auto"))
 
 
 @command("identify",
@@ -69,23 +68,16 @@ def cmd_identify(args):
     voltage, torque or force driven). Reports the identifiable combinations (Km, tau_m,
     tau_e) first, then the plant's parameters with identifiability warnings, and the
     physical parameters in the axis's units."""
-    from labrig.io.identify_config import load_identify_config
-    from labrig.identification.engine import identify
-    from labrig.identification.table import all_warnings, format_identification, identification_dict
-    from labrig.model.effectset import EffectSet
-    from labrig.model.model import Model
-
     runs, way = read_for_fit(args)
     # the command line first: naming FILE.py:Class there is the user's own choice
-    asked = EffectSet.parse(args.effects)
-    cfg = load_identify_config(args.config)
-    start, effects = None, asked
+    asked = lr.parse_effects(args.effects)
+    cfg = lr.load_identify_config(args.config)
+    model, effects = None, asked
     if args.model:
-        model = Model.load(args.model)
-        start = model.flat()
+        model = lr.load_model(args.model)
         effects = model.effects_with(asked)
     if not len(effects) and cfg.get("effects"):
-        effects = EffectSet.parse(cfg["effects"], origin=f"{args.config}: key 'effects'")
+        effects = lr.parse_effects(cfg["effects"], origin=f"{args.config}: key 'effects'")
     bounds = {**cfg.get("bounds", {}), **parse_assignments(args.bounds, "--bounds", pair=True)}
     fixed = {**cfg.get("fixed", {}), **parse_assignments(args.fix, "--fix")}
     w = parse_assignments(args.weights, "--weights")
@@ -110,37 +102,34 @@ def cmd_identify(args):
     for m in methods:
         iters = args.iters if m != "co" else 1
         with Progress(f"identify {m}", total=iters if m != "co" else args.starts) as bar:
-            def cb(it, best, bar=bar):
-                bar.update(it)
-                bar.note(f"best fitness {best:.4g}")
-            res = identify(runs, m, effects, seed=args.seed, bounds=bounds, fixed=fixed,
-                           p=w.get("p", 1.0), q=w.get("q", 1.0), c=w.get("i", 1.0),
-                           pop=args.pop, iters=args.iters,
-                           starts=args.starts, polish=args.polish, start=start, callback=cb,
-                           dataset=dataset, rule=args.rule, start_state=args.start_state)
+            # the runs as chosen above (through=None); from the model's values, if given
+            res = lr.identify(runs, m, effects, model=model, seed=args.seed, bounds=bounds,
+                              fixed=fixed, through=None, p=w.get("p", 1.0), q=w.get("q", 1.0),
+                              c=w.get("i", 1.0), pop=args.pop, iters=args.iters,
+                              starts=args.starts, polish=args.polish, progress=bar.hook,
+                              dataset=dataset, rule=args.rule, start_state=args.start_state)
         results.append(res)
     best = min(results, key=lambda r: r.fitness)
     if args.output:
         best.model().save(args.output)
     if args.figures:
         from labrig.core.figures import save
-        from labrig.identification.plots import plot_convergence
 
         Path(args.figures).mkdir(parents=True, exist_ok=True)
-        save(plot_convergence(results), Path(args.figures) / "convergence.png", dpi=120)
+        save(lrf.convergence_figure(results), Path(args.figures) / "convergence.png", dpi=120)
     if args.json:
-        dicts = {r.method: {**identification_dict(r), **({"closed_loop": way.to_json()}
+        dicts = {r.method: {**r.to_json(), **({"closed_loop": way.to_json()}
                                                           if way.runs else {})}
                  for r in results}
         if len(results) == 1:
             emit_json(dicts[results[0].method])
         else:
             emit_json({**dicts[best.method], "method": "all", "best": best.method,
-                       "results": dicts, "warnings": all_warnings(results)})
+                       "results": dicts, "warnings": lrf.fits_warnings(results)})
     else:
         if way.told:
             print(f"closed-loop runs ({way.runs}): {way.why}\n")
-        print(format_identification(results))
+        print(lrf.fits_text(results))
         if args.output:
             print(f"\nmodel saved to {args.output}")
     return 0

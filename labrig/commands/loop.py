@@ -4,6 +4,8 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+import labrig.verbs as lr
+import labrig.verbs.figures as lrf
 from labrig.commands.registry import command, emit_json
 from labrig.core.defaults import SEED
 from labrig.core.errors import UserError
@@ -12,13 +14,12 @@ from labrig.commands.progress import Progress
 
 
 def _load(args):
-    from labrig.model.model import Model
     from labrig.commands.identification import read_for_fit
 
     runs, way = read_for_fit(args)
     if way.told and not getattr(args, "json", False):
         print(f"closed-loop runs ({way.runs}): {way.why}\n")
-    model = Model.load(args.model) if getattr(args, "model", None) else None
+    model = lr.load_model(args.model) if getattr(args, "model", None) else None
     return runs, model
 
 
@@ -27,8 +28,6 @@ def cmd_compare(args):
     """For every run: measured and simulated speed and position (fit % in the legend),
     residuals in noise units with the stretches outside the noise band shaded by regime,
     residual autocorrelation and input cross-correlation with their bands."""
-    from labrig.diagnosis.evaluation import evaluate
-    from labrig.diagnosis.plots import plot_regimes, plot_run_comparison
     from labrig.core.figures import save
 
     from labrig.commands.registry import refuse_existing
@@ -38,12 +37,12 @@ def cmd_compare(args):
     # the figures this command writes, refused before the simulation if they exist
     refuse_existing([out] + [out / f"compare_{r.name}.png" for r in runs] + [out / "regimes.png"],
                     args.force, what="folder")
-    ev = evaluate(runs, model)
+    ev = lr.compare(runs, model, through=None)
     out.mkdir(parents=True, exist_ok=True)
     table = ev.runs()
     for rr, row in zip(ev.per_run, table):
-        row["figure"] = str(save(plot_run_comparison(rr), out / f"compare_{rr['name']}.png"))
-    save(plot_regimes(ev.regimes), out / "regimes.png")
+        row["figure"] = str(save(lrf.run_figure(rr), out / f"compare_{rr['name']}.png"))
+    save(lrf.regimes_figure(ev.regimes), out / "regimes.png")
     if args.json:
         emit_json({"model": str(args.model), "runs": table,
                    "fit_percent": ev.metrics["fit_percent"],
@@ -76,7 +75,6 @@ def cmd_diagnose(args):
     floor), then rank every catalogue effect the model lacks: re-fitted from scanned
     starts, compared on BIC and by cross-validation, each with its evidence and the
     experiment that would confirm it."""
-    from labrig.diagnosis.diagnose import diagnose
     from labrig.commands.identification import parse_assignments
     from labrig.commands.registry import refuse_existing
 
@@ -90,13 +88,9 @@ def cmd_diagnose(args):
     refuse_existing([args.output] if args.output else [], args.force)  # before the 30 s
     with Progress("diagnose", total=8) as bar:
         cands = [c.strip() for c in args.candidates.split(",")] if args.candidates else None
-        if cands:
-            from labrig.model.effects import get_effect
-
-            for c in cands:
-                get_effect(c)  # unknown names fail here, with the catalogue listed
-        res = diagnose(runs, model, seed=args.seed, fixed=fixed, candidates=cands, weights=weights,
-                       progress=lambda i, name: (bar.update(i), bar.note(f"re-fitting {name}")))
+        # (unknown names fail in the verb, with the catalogue listed)
+        res = lr.diagnose(runs, model, seed=args.seed, fixed=fixed, candidates=cands,
+                          weights=weights, through=None, progress=bar.hook)
     if args.output and res.recommendation:
         res.recommended_model().save(args.output)
     check = _decide(runs, model, args.seed)
@@ -125,10 +119,8 @@ def _saved_text(output, recommendation) -> str:
 
 def _decide(runs, model, seed):
     """Runs proposed by `labrig propose` among the data: how the pair's separation moved."""
-    from labrig.diagnosis.decide import decide
-
     with Progress("the proposed runs", total=None) as bar:
-        return decide(runs, model, seed=seed, log=bar.log)
+        return lr.decide(runs, model, seed=seed, through=None, progress=bar.hook)
 
 
 AUTO_FILES = ("model.json", "ladder.json", "ladder.png", "diagnosis.json")
@@ -138,7 +130,6 @@ def _weights(text):
     """``--weights p=..,q=..`` -> Weights (None: balanced on the starting model)."""
     if not text:
         return None
-    from labrig.analysis.noise import Weights
     from labrig.commands.identification import parse_assignments
 
     w = parse_assignments(text, "--weights")
@@ -147,12 +138,11 @@ def _weights(text):
     p, q = float(w.get("p", 1.0)), float(w.get("q", 1.0))
     if p < 0 or q < 0 or p + q == 0:
         raise UserError("--weights: p and q must be >= 0 and not both 0")
-    return Weights(p=p, q=q)
+    return lr.channel_weights(p=p, q=q)
 
 
 def _auto(args, runs, model, fixed, weights) -> int:
     """``diagnose --auto``: the rounds to the end; -o is a folder of their results."""
-    from labrig.diagnosis.auto import auto_diagnose
     from labrig.core.fileio import write_json
     from labrig.core.figures import save
     from labrig.commands.registry import refuse_existing
@@ -167,8 +157,8 @@ def _auto(args, runs, model, fixed, weights) -> int:
     if args.candidates:
         raise UserError("--candidates: not with --auto (every round tries the whole catalogue)")
     with Progress("diagnose --auto", total=args.max_rounds) as bar:
-        res = auto_diagnose(runs, model, max_rounds=args.max_rounds, seed=args.seed,
-                            fixed=fixed, weights=weights, log=bar.log)
+        res = lr.auto(runs, model, max_rounds=args.max_rounds, seed=args.seed, fixed=fixed,
+                      weights=weights, through=None, progress=bar.hook)
     if out:
         out.mkdir(parents=True, exist_ok=True)
         res.model.save(out / "model.json")
@@ -194,28 +184,23 @@ def _auto(args, runs, model, fixed, weights) -> int:
 def _ask_rig(args, runs, res) -> dict:
     """``--ask-rig``: propose the experiment for the first confusable pair, play it on the
     rig (within the rig file's limits), and decide with the new run."""
-    from labrig.bridge.sweep import sweep
-    from labrig.io.config import load_plan, load_rig
     from labrig.core.fileio import atomic_write
-    from labrig.diagnosis.decide import decide
-    from labrig.diagnosis.propose import propose
-    from labrig.io.runs import read_dataset
     from labrig.commands.registry import refuse_existing
 
     if not res.confusable:
         return {"text": "asked the rig nothing: no two effects explain the data about "
                         "equally well", "pair": None}
-    from labrig.diagnosis.propose import proposed_as
-
-    first, second = (proposed_as(n) for n in (res.confusable[0].first,
-                                                  res.confusable[0].second))
-    rig = load_rig(args.rig)
+    first, second = (lr.proposed_as(n) for n in (res.confusable[0].first,
+                                                     res.confusable[0].second))
+    rig = lr.load_rig(args.rig)
     newdir = Path(args.data[0]) / "asked"
     refuse_existing([newdir, newdir / "plan.toml", newdir / "proposed.csv"], args.force,
                     what="folder")
     with Progress("ask the rig", total=None) as bar:
-        prop = propose(runs, res.model, f"{first},{second}", budget_s=args.budget_s,
-                       seed=args.seed, log=bar.log, rig=rig)
+        # (the input within the data's amplitudes; the rig bounds the travel)
+        prop = lr.propose(runs, res.model, f"{first},{second}", budget_s=args.budget_s,
+                          seed=args.seed, progress=bar.hook, rig=rig, through=None,
+                          rig_amplitude=False)
         if not prop.separates:   # nothing worth playing: the rig is not asked
             return {"pair": list(prop.pair), "proposal": prop.to_json(), "folder": None,
                     "decision": None,
@@ -225,17 +210,11 @@ def _ask_rig(args, runs, res) -> dict:
         for old in (newdir / "proposed.csv", newdir / "proposed.json"):   # --force: replaced
             old.unlink(missing_ok=True)
         atomic_write(newdir / "plan.toml", prop.to_toml())
-        if args.sim:
-            from labrig.bridge.sim import SimRig
-
-            bridge = SimRig(rig)
-        else:
-            from labrig.bridge.serial import SerialBridge
-
-            bridge = SerialBridge(args.port, rig)
+        make, _, _ = lr.open_bridge(rig, port=None if args.sim else args.port)
         bar.log(f"playing {prop.chosen.candidate.label} on the rig")
-        sweep(bridge, load_plan(newdir / "plan.toml", rig), rig, newdir)
-        d = decide(read_dataset([*args.data, newdir]), res.model, seed=args.seed, log=bar.log)
+        lr.play(make(), lr.load_plan(newdir / "plan.toml", rig), rig, newdir)
+        d = lr.decide([*args.data, newdir], res.model, seed=args.seed, through=None,
+                      progress=bar.hook)
     return {"pair": list(prop.pair), "proposal": prop.to_json(), "folder": str(newdir),
             "decision": d.to_json(),
             "text": f"asked the rig: {prop.chosen.candidate.label} ({prop.why}); runs in "
@@ -284,8 +263,6 @@ def cmd_ladder(args):
     """Evaluate a chain of models (`--models m0.json,m1.json,...`, as saved by
     `labrig identify --model PREV --effects NEW -o NEXT`), or, without --models, run the
     loop automatically: identify, diagnose, add the recommended effect, repeat."""
-    from labrig.diagnosis.ladder import evaluate_ladder
-    from labrig.diagnosis.search import auto_ladder
     from labrig.core.figures import save
     from labrig.commands.identification import read_for_fit
 
@@ -298,11 +275,12 @@ def cmd_ladder(args):
     refuse_existing([out, out / "ladder.png", *written], args.force, what="folder")
     out.mkdir(parents=True, exist_ok=True)
     if args.models:
-        ladder = evaluate_ladder(runs, [m.strip() for m in args.models.split(",") if m.strip()])
+        ladder = lr.ladder(runs, [m.strip() for m in args.models.split(",") if m.strip()],
+                           through=None)
     else:
         with Progress("ladder", total=args.max_steps) as bar:
-            ladder = auto_ladder(runs, max_steps=args.max_steps, outdir=out, seed=args.seed,
-                                 log=lambda s: bar.log(s))
+            ladder = lr.auto_ladder(runs, max_steps=args.max_steps, output=out,
+                                    seed=args.seed, through=None, progress=bar.hook)
     save(ladder.plot(), out / "ladder.png", dpi=120)
     if args.json:
         emit_json(ladder.to_json())

@@ -13,7 +13,7 @@ def cmd_mystery(args):
     effects (use it with `labrig sweep --sim --rig FILE.mystery`); `reveal FILE` shows the
     truth (instructor); `check FILE MODEL.json` grades a model against it. The file is
     obfuscated against casual reading, not encrypted."""
-    from labrig.io import mystery as m
+    import labrig.verbs as m
 
     if args.action == "new":
         from labrig.commands.registry import refuse_existing
@@ -33,7 +33,7 @@ def cmd_mystery(args):
             print(m.format_reveal(res))
         return 0
     if args.action == "check":
-        res = m.check(args.file, args.model, tolerance=args.tolerance / 100.0)
+        res = m.check_mystery(args.file, args.model, tolerance=args.tolerance / 100.0)
         if args.blind:
             res = m.blind(res)
         if args.json:

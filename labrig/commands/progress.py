@@ -72,6 +72,22 @@ class Progress:
         if self._bar is not None:
             self._bar.update(self._task, completed=completed)
 
+    def hook(self, event) -> None:
+        """A verb's progress (:class:`labrig.core.progress.Event`) on this bar: an
+        iteration or a candidate moves it and notes its text, an experiment names it,
+        samples advance it, a note is a log line (rungs and written runs: the command
+        says what it made)."""
+        if event.kind in ("iteration", "candidate"):
+            if event.done is not None:
+                self.update(event.done)
+            self.note(event.text)
+        elif event.kind == "experiment":
+            self.describe(event.text)
+        elif event.kind == "samples":
+            self.advance(event.done or 0)
+        elif event.kind == "note":
+            self.log(event.text)
+
     def log(self, text: str):
         """One message on stderr, each of its lines wrapped to the terminal's width."""
         if sys.stderr.isatty():

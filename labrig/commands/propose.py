@@ -18,9 +18,7 @@ def cmd_propose(args):
     reports afterwards: the worse rmse/noise over the better, minus one (1 or more is
     decisive). When no input within the limits reaches it, it says so and what would
     help, writes no plan and exits with status 1."""
-    from labrig.io.config import load_rig
-    from labrig.model.model import Model
-    from labrig.diagnosis.propose import pair_from_diagnosis, propose
+    import labrig.verbs as lr
     from labrig.core.figures import save
     from labrig.commands.identification import read_for_fit
     from labrig.commands.registry import refuse_existing
@@ -30,15 +28,13 @@ def cmd_propose(args):
     refuse_existing([out, figure], args.force)
     out.parent.mkdir(parents=True, exist_ok=True)   # before the work, not after it
     runs, _ = read_for_fit(args)
-    model = Model.load(args.model)
-    amax, rig = None, None
-    if args.rig:  # the rig file may allow more than the data use, and knows its sensors
-        rig = load_rig(args.rig)
-        amax = min(rig.bridge.output_limit_v, rig.amplifier.output_limit_v / rig.amplifier.gain)
-    between = args.between or pair_from_diagnosis(args.model)
+    model = lr.load_model(args.model)
+    # the rig file may allow more than the data use, and knows its sensors
+    rig = lr.load_rig(args.rig) if args.rig else None
+    between = args.between or lr.pair_from_diagnosis(args.model)
     with Progress("propose", total=None) as bar:
-        prop = propose(runs, model, between, budget_s=args.budget_s, amax=amax,
-                       seed=args.seed, log=bar.log, rig=rig)
+        prop = lr.propose(runs, model, between, budget_s=args.budget_s, seed=args.seed,
+                          progress=bar.hook, rig=rig, through=None)
     from labrig.core.fileio import atomic_write
     import sys
 

@@ -111,7 +111,7 @@ def refit_with(runs, base: Model, effect, *, seed: int = 0, fixed: dict | None =
     from labrig.model.reach import Reach
 
     reach = reach or Reach.of(runs, base)
-    effects = base.effects + [effect]
+    effects = base.effects_with([effect])
     fixed = dict(fixed or {})
     params = {**base.flat(), **fixed}
     extra = []

@@ -95,16 +95,19 @@ def ladder(folders, model_docs) -> dict:
 
 def auto(folders, max_rounds=3, log=None) -> dict:
     """``diagnose --auto``: the rungs it climbed, each fitted as a rung of the page."""
-    def rung(k, model):   # the ladder growing, round by round, on the page
-        info = model.info or {}
-        rmse = (info.get("rmse_over_noise") or {}).get("overall")
-        cv = info.get("cross_validated")
-        if log:
-            log(f"rung {k}: {' + '.join(['linear'] + model.names)}"
-                + (f" — rmse/noise {rmse:.2f}" if rmse is not None else "")
+    def progress(event):   # the rounds' lines and the ladder growing, rung by rung
+        if log is None:
+            return
+        if event.kind == "note":
+            log(event.text)
+        elif event.kind == "rung":
+            info = event.data.info or {}
+            rmse = (info.get("rmse_over_noise") or {}).get("overall")
+            cv = info.get("cross_validated")
+            log(event.text + (f" — rmse/noise {rmse:.2f}" if rmse is not None else "")
                 + (f", cross-validated {cv:.2f}" if cv is not None else ""))
 
-    res = lr.auto(_runs(folders), max_rounds=max_rounds, seed=LAB_SEED, log=log, on_step=rung)
+    res = lr.auto(_runs(folders), max_rounds=max_rounds, seed=LAB_SEED, progress=progress)
     return {"json": res.to_json(), "model": res.model.to_json(), "effects": res.model.names,
             "figure": _png(res.plot()), "tables": _html(res.ladder.table_rows()),
             "verdict": res.verdict}

@@ -17,10 +17,9 @@ from pathlib import Path
 
 from pydantic import ValidationError
 
-from labrig.analysis.doc import AnalysisDoc  # noqa: F401  (the documents the report reads)
 from labrig.core.schemas import MAX_JSON_BYTES, JsonDoc, describe
-from labrig.identification.doc import IdentifyAllDoc, IdentRecord  # noqa: F401
-from labrig.diagnosis.docs import DiagnosisDoc, LadderDoc, Regimes  # noqa: F401
+from labrig.verbs.types import (AnalysisDoc, DiagnosisDoc, IdentifyAllDoc,  # noqa: F401
+                                IdentRecord, LadderDoc, Regimes)  # (the documents the report reads)
 
 
 # -- reading --------------------------------------------------------------------------

@@ -11,6 +11,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import labrig.verbs as lr
+import labrig.verbs.figures as lrf
 from labrig.core.errors import UserError
 from labrig.report.artefacts import (AnalysisDoc, DiagnosisDoc, IdentifyAllDoc, IdentRecord,
                                      LadderDoc, Regimes, read_artefact)
@@ -37,11 +39,9 @@ def gather(data_dir, work=None, quick=False, seed=1, log=None) -> Story:
     -------
     Story
     """
-    from labrig.io.runs import read_dataset
-
     data_dir = Path(data_dir)
     story = Story(data_dir=data_dir, work=Path(work) if work else None,
-                  runs=read_dataset(data_dir), quick=quick)
+                  runs=lr.read_runs(data_dir, through=None), quick=quick)
     say = log or (lambda text: None)
     _sweep(story)
     _analysis(story, say)
@@ -79,17 +79,13 @@ def _same_runs(names, story: Story) -> bool:
 # -- the sections ----------------------------------------------------------------------
 
 def _sweep(story: Story) -> None:
-    from labrig.analysis.run_plots import plot_overview
-
     story.sources["sweep"] = str(story.data_dir)
-    story.figures["sweep"] = [Figure("Measured runs", fig_bytes(plot_overview(story.runs)),
+    story.figures["sweep"] = [Figure("Measured runs", fig_bytes(lrf.runs_figure(story.runs)),
                                      "Every run of the data set: the measured response (top) "
                                      "and what the bridge applied (bottom).")]
 
 
 def _analysis(story: Story, say) -> None:
-    from labrig.analysis import analyse
-
     w = story.work
     doc = _artefact(story, "analysis.json", AnalysisDoc)
     if doc is not None and not _same_runs([r.name for r in doc.runs], story):
@@ -107,7 +103,7 @@ def _analysis(story: Story, say) -> None:
     if res is None or not pngs:
         say("report: analysing the runs")
         try:
-            live = analyse([story.data_dir])
+            live = lr.analyse([story.data_dir])
         except Exception as exc:  # a data set analyse cannot read (e.g. closed loop only)
             story.analysis_error = str(exc) or type(exc).__name__
             live = None
@@ -136,8 +132,6 @@ def _analysis(story: Story, say) -> None:
 def _models(story: Story, seed, say) -> list:
     """The identified models: identify_all.json, else model0.json's fit, else CO now.
     Returns the live Identification objects (empty when read from files)."""
-    from labrig.identification.plots import plot_convergence
-
     w = story.work
     doc = _artefact(story, "identify_all.json", IdentifyAllDoc)
     if doc is not None:
@@ -157,12 +151,10 @@ def _models(story: Story, seed, say) -> list:
                                        "identify_all.json` for JFO, PSO and CO side by side)")
     live = []
     if not story.idents:
-        from labrig.identification.engine import identify
-
         say("report: identifying the linear model with CO (a few seconds)")
-        res = identify(story.runs, "co", [], seed=seed, starts=4,
-                       dataset={"paths": [str(story.data_dir)],
-                                "runs": [r.name for r in story.runs]})
+        res = lr.identify(story.runs, "co", [], seed=seed, through=None, starts=4,
+                          dataset={"paths": [str(story.data_dir)],
+                                   "runs": [r.name for r in story.runs]})
         live = [res]
         story.idents = [IdentRecord.model_validate(res.to_dict())]
         story.best = res.method
@@ -176,7 +168,7 @@ def _models(story: Story, seed, say) -> list:
     curves = [r.model_copy(update={"history": []}) if r.method.startswith("co") else r
               for r in story.idents]
     story.figures["models"] = [Figure("Convergence of the identifiers",
-                                      fig_bytes(plot_convergence(curves)),
+                                      fig_bytes(lrf.convergence_figure(curves)),
                                       "Best fitness against iteration: the weighted RMSE "
                                       "of position and speed, each residual divided by its "
                                       "noise floor (eq. 26 of the seed paper, made "
@@ -186,19 +178,17 @@ def _models(story: Story, seed, say) -> list:
 
 def _model0(story: Story, live) -> None:
     """The linear model the later sections judge: model0.json, else the best fit."""
-    from labrig.model.model import Model
-
     w = story.work
     if w and (w / "model0.json").is_file():
         try:
-            story.model0 = Model.load(w / "model0.json")
+            story.model0 = lr.load_model(w / "model0.json")
             story.model0_source = str(w / "model0.json")
             return
         except UserError as exc:
             story.notes.append(f"{w / 'model0.json'} was ignored: {exc}")
     best = story.best_ident
     try:
-        model = live[0].model() if live else Model.from_json(
+        model = live[0].model() if live else lr.model_from_json(
             {"params": best.params, "effects": best.effects,
              "effect_params": best.effect_params}, "identify_all.json")
     except UserError as exc:  # e.g. a user effect that is not trusted (or not here)
@@ -211,8 +201,6 @@ def _model0(story: Story, live) -> None:
 def _failures(story: Story, say):
     """Regime table, regimes figure and the worst run's comparison. Returns the live
     evaluation of the linear model when it had to be computed (else None)."""
-    from labrig.diagnosis.plots import plot_regimes, plot_run_comparison
-
     w = story.work
     doc = _artefact(story, "diagnosis.json", DiagnosisDoc)
     if doc is not None:
@@ -230,10 +218,8 @@ def _failures(story: Story, say):
                 break
     ev0 = None
     if story.model0 is not None and (doc is None or reg_png is None or cmp_png is None):
-        from labrig.diagnosis.evaluation import evaluate
-
         say("report: simulating the linear model on every run")
-        ev0 = evaluate(story.runs, story.model0)
+        ev0 = lr.compare(story.runs, story.model0, through=None)
         if doc is None:
             wr = ev0.worst_regime()
             story.regimes = Regimes.model_validate(
@@ -243,12 +229,13 @@ def _failures(story: Story, say):
             story.sources["failures"] = (f"computed by this report (simulation of "
                                          f"{story.model0_source})")
         if reg_png is None:
-            reg_png = fig_bytes(plot_regimes(ev0.regimes, title="Where the linear model fails"))
+            reg_png = fig_bytes(lrf.regimes_figure(ev0.regimes,
+                                                   title="Where the linear model fails"))
         if cmp_png is None:
             rr = ev0.worst_run()
             worst = rr["name"]
-            cmp_png = fig_bytes(plot_run_comparison(rr, title=f"{worst}: linear model vs "
-                                                              "measurement"))
+            cmp_png = fig_bytes(lrf.run_figure(rr, title=f"{worst}: linear model vs "
+                                                         "measurement"))
     elif story.model0 is None and doc is None:
         story.missing["failures"] = (f"labrig identify {story.data_dir} -o model0.json, then "
                                      f"labrig diagnose {story.data_dir} --model model0.json "
@@ -284,10 +271,8 @@ def _diagnosis(story: Story, seed, say):
         story.missing["diagnosis"] = (f"labrig diagnose {story.data_dir} --json > diagnosis.json "
                                       "(no model to diagnose here)")
         return None
-    from labrig.diagnosis.diagnose import diagnose
-
     say("report: diagnosing the linear model (tries every catalogue effect, ~30 s)")
-    story.diagnosis = diagnose(story.runs, story.model0, seed=seed)
+    story.diagnosis = lr.diagnose(story.runs, story.model0, seed=seed, through=None)
     story.sources["diagnosis"] = f"computed by this report (labrig.diagnosis.diagnose, seed {seed})"
     return story.diagnosis
 
@@ -306,10 +291,9 @@ def _ladder(story: Story, diag_live, ev0, say, seed=1) -> None:
             "model0.json,model1.json --json > ladder.json` in the work folder, or the report "
             "without --quick")
     elif w and (w / "model0.json").is_file() and (w / "model1.json").is_file():
-        from labrig.diagnosis.ladder import evaluate_ladder
-
         say("report: evaluating the error ladder")
-        ladder = evaluate_ladder(story.runs, [str(w / "model0.json"), str(w / "model1.json")])
+        ladder = lr.ladder(story.runs, [str(w / "model0.json"), str(w / "model1.json")],
+                           through=None)
         story.sources["ladder"] = f"computed by this report from {w / 'model0.json'} and model1.json"
     elif story.diagnosis is not None and story.model0 is not None:
         ladder = _ladder_from_diagnosis(story, diag_live, ev0)
@@ -327,8 +311,6 @@ def _ladder(story: Story, diag_live, ev0, say, seed=1) -> None:
 def _corrected(story: Story, diag_live, ev0, say, seed) -> list:
     """The corrected model on the worst run, below the linear model on the same run: the
     error falling, seen on the data (the work folder's figures when it has them)."""
-    from labrig.diagnosis.plots import plot_run_comparison
-
     w, rec = story.work, story.diagnosis.recommendation if story.diagnosis else None
     name = story.worst_run or (ev0.worst_run()["name"] if ev0 is not None else None)
     if name is None or not rec:
@@ -339,28 +321,23 @@ def _corrected(story: Story, diag_live, ev0, say, seed) -> list:
     after = _work_png(story, f"compare_{name}.png") if has_m1 else None
     if before is None and ev0 is not None:
         rr = next((r for r in ev0.per_run if r["name"] == name), None)
-        before = rr and fig_bytes(plot_run_comparison(rr, title=f"{name}: linear model vs "
-                                                                "measurement"))
+        before = rr and fig_bytes(lrf.run_figure(rr, title=f"{name}: linear model vs "
+                                                           "measurement"))
     if after is None:
         ev1 = None
         if diag_live is not None and diag_live.candidate(rec).evaluation is not None:
             ev1 = diag_live.candidate(rec).evaluation
         elif has_m1 and not story.quick:
-            from labrig.diagnosis.evaluation import evaluate
-            from labrig.model.model import Model
-
             say("report: simulating the corrected model (model1.json)")
-            ev1 = evaluate(story.runs, Model.load(w / "model1.json"))
+            ev1 = lr.compare(story.runs, w / "model1.json", through=None)
         elif story.model0 is not None and not story.quick:
-            import labrig.verbs as lr
-
             say(f"report: fitting the linear model + {rec} (warm start from the linear model)")
-            res1 = lr.add_effect(story.runs, story.model0, rec, seed=seed, through="loop",
+            res1 = lr.add_effect(story.runs, story.model0, rec, seed=seed, through=None,
                                  starts=1)
-            ev1 = lr.compare(story.runs, res1.model(), through="loop")
+            ev1 = lr.compare(story.runs, res1.model(), through=None)
         rr = ev1 and next((r for r in ev1.per_run if r["name"] == name), None)
-        after = rr and fig_bytes(plot_run_comparison(rr, title=f"{name}: {label} vs "
-                                                              "measurement"))
+        after = rr and fig_bytes(lrf.run_figure(rr, title=f"{name}: {label} vs "
+                                                         "measurement"))
     if not (before and after):
         return []
     return [Figure(f"{name}: the linear model", before,
@@ -370,7 +347,7 @@ def _corrected(story: Story, diag_live, ev0, say, seed) -> list:
 
 def _ladder_from_diagnosis(story: Story, diag_live, ev0):
     """Linear model, then + the recommended effect as fitted by the diagnosis."""
-    from labrig.diagnosis.ladder import Ladder, LadderStep
+    from labrig.verbs.types import Ladder, LadderStep
 
     d = story.diagnosis
     rec = d.recommendation

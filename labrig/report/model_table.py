@@ -1,19 +1,19 @@
 """Section 3: the identified models side by side (the paper's Table 2, done right).
 
-The table is :func:`labrig.identification.table.comparison_table` of the identification
+The table is :func:`labrig.verbs.figures.fits_table` of the identification
 records, the same builder the CLI prints, whether the fits were read or computed.
 """
 from __future__ import annotations
 
-from labrig.identification.table import comparison_table
 from labrig.core.tables import Table
+from labrig.verbs.figures import fits_table
 from labrig.report.artefacts import IdentRecord
 from labrig.report.blocks import Bullets, Figures, Heading, Section, TableBlock, Text, markup
 from labrig.report.story import Story
 
 def comparison(records: list[IdentRecord], best: str | None) -> Table:
     """Table 2 exactly as ``labrig identify --method all`` prints it (one builder)."""
-    return comparison_table(records, best)
+    return fits_table(records, best)
 
 
 def models_section(story: Story, key: str, title: str) -> Section:

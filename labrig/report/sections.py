@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 
-from labrig.diagnosis.residuals import REGIME_TEXT
+from labrig.verbs.types import REGIME_TEXT
 from labrig.core.tables import Table
 from labrig.report.blocks import Card, Figures, Heading, Section, TableBlock, Text, Verdict, dash_or, markup, num, pct, with_column, without_empty_columns
 from labrig.report.model_table import models_section

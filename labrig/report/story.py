@@ -14,11 +14,8 @@ from typing import TYPE_CHECKING
 from labrig.core.figures import png_bytes
 
 if TYPE_CHECKING:  # annotations only: gathering imports the heavy modules lazily
-    from labrig.analysis.result import AnalysisResult
-    from labrig.diagnosis.ranking import Diagnosis
-    from labrig.diagnosis.ladder import Ladder
-    from labrig.model.model import Model
-    from labrig.report.artefacts import IdentRecord, Regimes
+    from labrig.verbs.types import (AnalysisResult, Diagnosis, IdentRecord, Ladder, Model,
+                                    Regimes)
 
 #: section key -> heading, in page order
 #: the loop first (where the linear model fails, what is missing, the error falling with

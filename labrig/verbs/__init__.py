@@ -25,18 +25,29 @@ plan files), :mod:`~labrig.verbs.acquire` (bridges and sweeps), :mod:`~labrig.ve
 :mod:`~labrig.verbs.mystery` (mystery rigs for a class). Heavy libraries load
 inside the verbs, on first use, so ``import labrig`` stays quick.
 """
-from labrig.verbs.acquire import live, open_bridge, play, sweep
-from labrig.verbs.data import (check_plan, effect, effects, load_model, load_plan, load_rig,
-                               model_from_json, model_of, parse_effects, plan_files, read_runs,
-                               runs_of)
+from labrig.verbs.acquire import emulator, live, open_bridge, play, sweep
+from labrig.verbs.data import (check_plan, effect, effects, import_run, load_identify_config,
+                               load_model, load_plan, load_rig, model_from_json, model_of,
+                               parse_effects, plan_files, read_runs, runs_for_fit, runs_of)
 from labrig.verbs.fit import add_effect, analyse, compare, identify, ladder, remove_effect
+from labrig.verbs.loop import (auto, auto_ladder, channel_weights, confusable_pairs, decide,
+                               diagnose, pair_from_diagnosis, propose, proposed_as, warm_up)
 from labrig.verbs.mystery import (blind, check_mystery, format_check, format_reveal,
                                   new_mystery, reveal, write_mystery)
-from labrig.verbs.loop import auto, confusable_pairs, decide, diagnose, propose, warm_up
 
-__all__ = ["sweep", "read_runs", "analyse", "identify", "add_effect", "remove_effect",
-           "diagnose", "auto", "propose", "decide", "compare", "ladder", "effects", "effect",
-           "load_model", "model_from_json", "parse_effects", "model_of", "runs_of", "load_rig", "load_plan",
-           "plan_files", "check_plan", "open_bridge", "live", "play", "confusable_pairs",
-           "warm_up", "new_mystery", "write_mystery", "reveal", "check_mystery", "blind",
-           "format_reveal", "format_check"]
+__all__ = [
+    # data
+    "read_runs", "runs_of", "runs_for_fit", "import_run", "load_model", "model_from_json",
+    "model_of", "effects", "effect", "parse_effects", "load_rig", "load_plan", "plan_files",
+    "check_plan", "load_identify_config",
+    # acquisition
+    "sweep", "open_bridge", "live", "play", "emulator",
+    # fits
+    "analyse", "identify", "add_effect", "remove_effect", "compare", "ladder",
+    # the loop
+    "diagnose", "auto", "auto_ladder", "channel_weights", "confusable_pairs", "propose",
+    "proposed_as", "pair_from_diagnosis", "decide", "warm_up",
+    # mystery rigs
+    "new_mystery", "write_mystery", "reveal", "check_mystery", "blind", "format_reveal",
+    "format_check",
+]

@@ -2,11 +2,12 @@
 sweep played on it."""
 from __future__ import annotations
 
+from labrig.core.progress import Event, both
 from labrig.verbs.data import runs_of
 
 
 def sweep(output, plan=None, rig=None, *, port: str | None = None, seed: int | None = None,
-          resume: bool = False, on_progress=None):
+          resume: bool = False, on_progress=None, progress=None):
     """Play a plan on the simulated rig (default) or the board at ``port`` and write one
     run per experiment to ``output`` (``labrig sweep``); returns the runs read back.
 
@@ -23,22 +24,16 @@ def sweep(output, plan=None, rig=None, *, port: str | None = None, seed: int | N
         Noise seed of the simulated rig (default: the rig file's).
     on_progress : callable(n_samples), optional
         Called as samples arrive.
+    progress : callable(Event), optional
+        Hears each experiment start, its samples arrive and its run written (:func:`play`).
     """
-    from labrig.bridge.sweep import sweep as _sweep
-    from labrig.io.config import load_plan, load_rig
+    from labrig.verbs.data import load_plan, load_rig
 
     rig_cfg = load_rig(rig)
     experiments = load_plan(plan, rig_cfg)
-    if port:
-        from labrig.bridge.serial import SerialBridge
-
-        bridge = SerialBridge(port, rig_cfg)
-    else:
-        from labrig.bridge.sim import SimRig
-
-        bridge = SimRig(rig_cfg, seed=seed)
-    written = _sweep(bridge, experiments, rig_cfg, output, resume=resume,
-                     on_progress=on_progress)
+    make, _, _ = open_bridge(rig_cfg, port=port, seed=seed)
+    written = play(make(), experiments, rig_cfg, output, resume=resume,
+                   on_progress=on_progress, progress=progress)
     return runs_of([str(p) for p in written]) if written else runs_of(output)
 
 
@@ -52,10 +47,9 @@ def open_bridge(rig, *, port: str | None = None, emulate: bool = False, seed: in
 
         return (lambda: SerialBridge(port, rig)), f"board at {port}", (lambda: None)
     if emulate:
-        from labrig.bridge.emulate import Emulator
         from labrig.bridge.serial import SerialBridge
 
-        emu = Emulator(rig=rig)
+        emu = emulator(rig)
         pty = emu.start()
         return (lambda: SerialBridge(pty, rig)), f"emulated board ({pty})", emu.stop
     from labrig.bridge.sim import SimRig
@@ -73,11 +67,26 @@ def live(bridge, on_block=None, **options):
 
 
 def play(bridge, plan, rig, output, *, resume: bool = False, on_start=None, on_progress=None,
-         on_done=None) -> list:
+         on_done=None, progress=None) -> list:
     """Play ``plan`` on ``bridge`` and write each run to ``output`` as it finishes (what
     :func:`sweep` does on a bridge of its own); the hooks see each experiment start,
-    its samples arrive and its run written. Returns the paths written."""
+    its samples arrive and its run written, and ``progress(event)`` hears all three
+    (kinds ``experiment``, ``samples``, ``run``). Returns the paths written."""
     from labrig.bridge.sweep import sweep as _sweep
 
+    if progress is not None:
+        on_start = both(on_start, lambda e: progress(Event("sweep", "experiment", text=e.name,
+                                                           data=e)))
+        on_progress = both(on_progress, lambda n: progress(Event("sweep", "samples", n)))
+        on_done = both(on_done, lambda e, r: progress(Event("sweep", "run", text=e.name,
+                                                            data=r)))
     return _sweep(bridge, plan, rig, output, resume=resume, on_start=on_start,
                   on_progress=on_progress, on_done=on_done)
+
+
+def emulator(rig, *, board: str = "uno", speed: float = 1.0):
+    """The real firmware for ``board`` under simavr, fed by a plant model of ``rig``: an
+    :class:`~labrig.bridge.emulate.Emulator` (``start()`` gives its pty, ``stop()`` ends it)."""
+    from labrig.bridge.emulate import Emulator
+
+    return Emulator(board=board, rig=rig, speed=speed)

@@ -6,7 +6,7 @@ from os import PathLike
 from labrig.core.errors import UserError
 
 
-def read_runs(source, *, through: str = "auto"):
+def read_runs(source, *, through: str | None = "auto"):
     """The runs of ``source``, as every verb reads them.
 
     Parameters
@@ -14,9 +14,11 @@ def read_runs(source, *, through: str = "auto"):
     source : str, Path, Run, or a list of them
         A folder of runs (``*.csv`` with their ``.json`` sidecars), a run file, or
         runs already read; a list may mix them.
-    through : {"auto", "loop", "input"}
+    through : {"auto", "loop", "input"} or None
         Closed-loop runs: fit through the loop, or from the logged controller output as
-        the input; ``auto`` (the default, as ``--through``) takes the input when logged.
+        the input; ``auto`` (the default, as ``--through``) takes the input when logged;
+        None: the runs as read and in the commands' order, no way chosen (the batch,
+        the demo and the report fit what they read).
 
     Returns
     -------
@@ -25,12 +27,17 @@ def read_runs(source, *, through: str = "auto"):
     """
     from labrig.identification.closedloop import choose_way
 
+    if through is None:
+        return runs_of(source, natural=True)
     runs, _ = choose_way(runs_of(source), through)
     return runs
 
 
-def runs_of(source) -> list:
-    from labrig.io.runs import Run, read_dataset
+def runs_of(source, *, natural: bool = False) -> list:
+    """The runs of ``source`` as read, no way chosen for closed loops: sorted by name, or
+    with ``natural`` in the order ``labrig`` commands read a folder (numbers in names by
+    value: ``sq_3.00V`` before ``sq_12.00V``)."""
+    from labrig.io.runs import Run, natural_key, read_dataset
 
     items = list(source) if isinstance(source, (list, tuple)) else [source]
     if not items:
@@ -45,7 +52,7 @@ def runs_of(source) -> list:
             raise UserError(f"source: {type(x).__name__} is not a folder, a run file or a Run")
     if paths:
         runs += read_dataset(paths)
-    return sorted(runs, key=lambda r: r.name)
+    return sorted(runs, key=(lambda r: natural_key(r.name)) if natural else (lambda r: r.name))
 
 
 def model_of(model):
@@ -77,13 +84,14 @@ def effect(name: str):
     return get_effect(name)
 
 
-def parse_effects(names):
+def parse_effects(names, origin: str | None = None):
     """Effects as ``--effects`` takes them (catalogue names, or ``FILE.py:Class`` of
     trusted code; a list or a comma-separated string) as an
-    :class:`~labrig.model.effectset.EffectSet`; a bad name fails here, once."""
+    :class:`~labrig.model.effectset.EffectSet`; a bad name fails here, once (``origin``
+    names where the names came from)."""
     from labrig.model.effectset import EffectSet
 
-    return EffectSet.parse(names)
+    return EffectSet.parse(names) if origin is None else EffectSet.parse(names, origin=origin)
 
 
 def load_model(path):
@@ -128,3 +136,31 @@ def check_plan(plan, rig) -> None:
     from labrig.bridge.sweep import check_plan as _check
 
     _check(plan, rig)
+
+
+def runs_for_fit(source, through: str = "auto"):
+    """The runs as they will be fitted and the way their closed loops are: ``(runs,
+    way)``; ``way.why`` says it in words, ``way.told`` whether the runs said it."""
+    from labrig.identification.closedloop import choose_way
+
+    return choose_way(runs_of(source, natural=True), through)
+
+
+def import_run(src, output, mapping: str, *, controller: str | None = None, warn=None,
+               **settings):
+    """A foreign CSV or MATLAB .mat file written as a labrig run in ``output`` (``labrig
+    import``): ``mapping`` as ``--map`` (``"t=Time,u=CH1,speed=RPM"``), ``controller`` as
+    ``--controller`` (``"pd:kp=2,kd=0.1"``), the other settings as the command's options;
+    ``warn(line)`` hears what the import had to assume. Returns the CSV's path."""
+    from labrig.io.importer import import_csv, parse_controller, parse_map
+
+    return import_csv(src, output, parse_map(mapping), controller=parse_controller(controller),
+                      warn=warn, **settings)
+
+
+def load_identify_config(path):
+    """An identify config (TOML: ``[bounds]``, ``[fixed]``, ``effects = [...]``) as a dict;
+    None: empty."""
+    from labrig.io.identify_config import load_identify_config as _load
+
+    return _load(path)

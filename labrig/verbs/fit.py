@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 from labrig.core.defaults import METHOD, SEED
+from labrig.core.progress import Event, both
 from labrig.verbs.data import model_of, read_runs
 
 
@@ -20,8 +21,8 @@ def analyse(source, *, tolerance: float | None = None):
 
 
 def identify(source, method: str = METHOD, effects=(), *, model=None, seed: int | None = SEED,
-             fixed: dict | None = None, bounds: dict | None = None, through: str = "auto",
-             **options):
+             fixed: dict | None = None, bounds: dict | None = None,
+             through: str | None = "auto", progress=None, **options):
     """Fit the plant and effects (``labrig identify``).
 
     Parameters
@@ -38,6 +39,9 @@ def identify(source, method: str = METHOD, effects=(), *, model=None, seed: int 
         fresh seed, recorded in the result (``result.seed``) to repeat it.
     fixed, bounds : dict, optional
         ``{"R": 8.2}`` and ``{"R": (1, 20)}``, as ``--fix`` and ``--bounds``.
+    progress : callable(Event), optional
+        Hears each iteration (JFO, PSO) or start (CO) with the best fitness so far
+        (:class:`labrig.core.progress.Event`, kind ``iteration``).
     **options
         ``pop``, ``iters``, ``starts``, ``polish``, ``p``, ``q``, ``c`` (channel weights)
         as in :func:`labrig.identification.engine.identify`.
@@ -56,19 +60,24 @@ def identify(source, method: str = METHOD, effects=(), *, model=None, seed: int 
     if start_model is not None:
         start = start_model.flat()
         asked = start_model.effects_with(asked)
+    if progress is not None:
+        total = options.get("starts", 8) if method == "co" else options.get("iters", 200)
+        options["callback"] = both(options.get("callback"), lambda it, best: progress(
+            Event("identify", "iteration", it, total, f"best fitness {best:.4g}", best)))
     return _identify(runs, method, asked, seed=seed, fixed=fixed, bounds=bounds, start=start,
                      **options)
 
 
 def add_effect(source, model, effect, *, method: str = "co", seed: int | None = SEED,
-               through: str = "auto", **options):
+               through: str | None = "auto", progress=None, **options):
     """``model`` with ``effect`` (a catalogue name, or several) added, fitted from where
     ``model`` was fitted: the warm-started add of the loop (``labrig identify --model M
     --effects E``; the demo, the report and the lab page add this way). ``options`` as
     :func:`identify` (``starts=1``: one start, from the model). Returns an
     :class:`~labrig.identification.engine.Identification`."""
     names = [effect] if isinstance(effect, str) else list(effect)
-    return identify(source, method, names, model=model, seed=seed, through=through, **options)
+    return identify(source, method, names, model=model, seed=seed, through=through,
+                    progress=progress, **options)
 
 
 def remove_effect(model, name: str):
@@ -78,7 +87,7 @@ def remove_effect(model, name: str):
     return without(model_of(model), name)
 
 
-def compare(source, model, *, through: str = "auto"):
+def compare(source, model, *, through: str | None = "auto"):
     """The model simulated on the runs: fit %, rmse/noise by run and regime, residuals
     (``labrig compare``). Returns an :class:`~labrig.diagnosis.evaluation.Evaluation`; its
     ``plot()`` overlays model and measurement with the residual and its noise band."""
@@ -87,12 +96,15 @@ def compare(source, model, *, through: str = "auto"):
     return evaluate(read_runs(source, through=through), model_of(model))
 
 
-def ladder(source, models, *, through: str = "auto"):
+def ladder(source, models, *, through: str | None = "auto"):
     """The error after each added effect, against the noise floor (``labrig ladder``).
 
-    ``models``: a list of Models, model files or fits, simplest first. Returns a
-    :class:`~labrig.diagnosis.ladder.Ladder`.
+    ``models``: a list of Models, model files or fits, simplest first (a file's rung
+    names it). Returns a :class:`~labrig.diagnosis.ladder.Ladder`.
     """
+    from os import PathLike
+
     from labrig.diagnosis.ladder import evaluate_ladder
 
-    return evaluate_ladder(read_runs(source, through=through), [model_of(m) for m in models])
+    return evaluate_ladder(read_runs(source, through=through),
+                           [m if isinstance(m, (str, PathLike)) else model_of(m) for m in models])

@@ -4,16 +4,20 @@ from __future__ import annotations
 
 from labrig.core.defaults import SEED
 from labrig.core.errors import UserError
+from labrig.core.progress import Event, both, note
 from labrig.verbs.data import model_of, read_runs
 
 
 def diagnose(source, model=None, *, candidates=None, seed: int = SEED,
-             fixed: dict | None = None, through: str = "auto"):
+             fixed: dict | None = None, weights=None, through: str | None = "auto",
+             progress=None):
     """Where the model fails and which catalogue effect is missing (``labrig diagnose``).
 
     ``model`` (a Model, a model file or an Identification) defaults to the linear model
-    fitted here. Returns a :class:`~labrig.diagnosis.ranking.Diagnosis`; its
-    ``recommendedmodel_of()`` is the re-fitted model with the recommended effect.
+    fitted here; ``weights`` (:func:`channel_weights`) default to balanced on it;
+    ``progress(event)`` hears each candidate's re-fit start (kind ``candidate``). Returns a
+    :class:`~labrig.diagnosis.ranking.Diagnosis`; its ``recommended_model()`` is the
+    re-fitted model with the recommended effect.
     """
     from labrig.diagnosis.diagnose import diagnose as _diagnose
     from labrig.model.effects import get_effect
@@ -21,32 +25,71 @@ def diagnose(source, model=None, *, candidates=None, seed: int = SEED,
     for c in candidates or ():
         get_effect(c)  # an unknown name fails here, with the catalogue listed
     return _diagnose(read_runs(source, through=through), model_of(model), seed=seed,
-                     fixed=fixed, candidates=list(candidates) if candidates else None)
+                     fixed=fixed, candidates=list(candidates) if candidates else None,
+                     weights=weights, progress=None if progress is None else (
+                         lambda i, name: progress(Event("diagnose", "candidate", i, None,
+                                                        f"re-fitting {name}", name))))
+
+
+def channel_weights(p: float = 1.0, q: float = 1.0):
+    """The weights of position (``p``) and speed (``q``) in the loop's objective
+    (``--weights p=..,q=..``)."""
+    from labrig.analysis.noise import Weights
+
+    return Weights(p=p, q=q)
 
 
 def auto(source, model=None, *, max_rounds: int = 3, seed: int = SEED,
-         fixed: dict | None = None, through: str = "auto", log=None, on_step=None):
+         fixed: dict | None = None, weights=None, through: str | None = "auto", log=None,
+         on_step=None, progress=None):
     """The loop run to the end: add, pair, swap and remove effects while the
     cross-validated error falls (``labrig diagnose --auto``). Returns an
     :class:`~labrig.diagnosis.auto.AutoDiagnosis` with the final model and its ladder;
     ``log(line)`` receives the rounds' summaries and ``on_step(k, model)`` every rung as
-    the search climbs the ladder."""
+    the search climbs the ladder; ``progress(event)`` hears both (kinds ``note`` and
+    ``rung``, the rung's model as its data)."""
     from labrig.diagnosis.auto import auto_diagnose
 
     if max_rounds < 1:
         raise UserError(f"max_rounds: {max_rounds} adds nothing; give 1 or more")
     return auto_diagnose(read_runs(source, through=through), model_of(model),
-                         max_rounds=max_rounds, seed=seed, fixed=fixed, log=log,
-                         on_step=on_step)
+                         max_rounds=max_rounds, seed=seed, fixed=fixed, weights=weights,
+                         log=both(log, note(progress, "auto")),
+                         on_step=both(on_step, _rungs(progress, "auto")))
+
+
+def _rungs(progress, verb):
+    """``on_step(k, model)`` reporting each rung as a ``rung`` event (None: nobody listens)."""
+    if progress is None:
+        return None
+
+    def rung(k, model):
+        names = " + ".join(["linear"] + list(model.names))
+        progress(Event(verb, "rung", k, None, f"rung {k}: {names}", model))
+    return rung
+
+
+def auto_ladder(source, *, max_steps: int = 3, output=None, seed: int = SEED,
+                through: str | None = "auto", log=None, progress=None):
+    """The search's ladder from the linear model (``labrig ladder`` without ``--models``);
+    each rung's model saved as ``output/step<k>.json`` when ``output`` is given. Returns
+    a :class:`~labrig.diagnosis.ladder.Ladder`."""
+    from labrig.diagnosis.search import auto_ladder as _ladder
+
+    return _ladder(read_runs(source, through=through), max_steps=max_steps, outdir=output,
+                   seed=seed, log=both(log, note(progress, "ladder")))
 
 
 def propose(source, model, between: str | None = None, *, budget_s: float = 20.0,
-            seed: int = SEED, rig=None, through: str = "auto"):
+            seed: int = SEED, rig=None, through: str | None = "auto", log=None,
+            rig_amplitude: bool = True, progress=None):
     """The experiment that best tells two explanations apart (``labrig propose``).
 
     ``between`` is ``"a,b"`` (default: the model's effect and its usual look-alike);
-    ``rig`` a rig file or :class:`~labrig.io.config.RigConfig` whose limits bound the
-    input. Returns a :class:`~labrig.diagnosis.proposal.Proposal`; ``to_toml()`` is the plan.
+    ``rig`` a rig file or :class:`~labrig.io.config.RigConfig`: its sensors bound the
+    travel and, with ``rig_amplitude``, its output limits the input (else the data's
+    largest input does). Returns a :class:`~labrig.diagnosis.proposal.Proposal`;
+    ``to_toml()`` is the plan.
     """
     from labrig.io.config import RigConfig, load_rig
     from labrig.diagnosis.propose import propose as _propose
@@ -54,18 +97,39 @@ def propose(source, model, between: str | None = None, *, budget_s: float = 20.0
     amax = None
     if rig is not None:
         rig = rig if isinstance(rig, RigConfig) else load_rig(rig)
-        amax = min(rig.bridge.output_limit_v, rig.amplifier.output_limit_v / rig.amplifier.gain)
+        if rig_amplitude:
+            amax = min(rig.bridge.output_limit_v,
+                       rig.amplifier.output_limit_v / rig.amplifier.gain)
     return _propose(read_runs(source, through=through), model_of(model), between,
-                    budget_s=budget_s, amax=amax, seed=seed, rig=rig)
+                    budget_s=budget_s, amax=amax, seed=seed, rig=rig,
+                    log=both(log, note(progress, "propose")))
 
 
-def decide(source, model=None, *, seed: int = SEED, through: str = "auto", log=None):
+def proposed_as(name: str) -> str:
+    """The effect a proposal tests in place of ``name`` (the symmetric form of an
+    asymmetric one)."""
+    from labrig.diagnosis.propose import proposed_as as _as
+
+    return _as(name)
+
+
+def pair_from_diagnosis(model_path) -> str | None:
+    """The first confusable pair of the ``diagnosis.json`` beside a model that ``diagnose
+    --auto -o DIR`` wrote, as ``"a,b"``; None when there is none."""
+    from labrig.diagnosis.propose import pair_from_diagnosis as _pair
+
+    return _pair(model_path)
+
+
+def decide(source, model=None, *, seed: int = SEED, through: str | None = "auto", log=None,
+           progress=None):
     """Both explanations of a proposal fitted with and without the proposed runs that were
     played (``labrig diagnose DIR DIR/new``): a :class:`~labrig.diagnosis.decide.Decision`,
     or None when the runs hold no proposed run."""
     from labrig.diagnosis.decide import decide as _decide
 
-    return _decide(read_runs(source, through=through), model_of(model), seed=seed, log=log)
+    return _decide(read_runs(source, through=through), model_of(model), seed=seed,
+                   log=both(log, note(progress, "decide")))
 
 
 def confusable_pairs(diagnosis, round_no: int = 1) -> list:

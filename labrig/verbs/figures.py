@@ -1,0 +1,62 @@
+"""The figures and tables of results that the front ends lay out (the command line's
+PNGs, the report's sections): drawn by the library's own plotting, not again by each
+front end."""
+from __future__ import annotations
+
+
+def runs_figure(runs):
+    """Every run: the measured response over what the bridge applied."""
+    from labrig.analysis.run_plots import plot_overview
+
+    return plot_overview(runs)
+
+
+def convergence_figure(results, ax=None):
+    """Best fitness against iteration of one or several fits (or their records)."""
+    from labrig.identification.plots import plot_convergence
+
+    return plot_convergence(results, ax=ax)
+
+
+def run_figure(per_run: dict, ax=None, title: str = ""):
+    """A model against one run's measurement (an entry of ``Evaluation.per_run``), with
+    the residual in noise units, its noise band and the regimes that leave it."""
+    from labrig.diagnosis.plots import plot_run_comparison
+
+    return plot_run_comparison(per_run, ax=ax, title=title)
+
+
+def regimes_figure(regimes: dict, ax=None, title: str = "Where the model fails"):
+    """rmse/noise by regime and channel (``Evaluation.regimes``), with the share of time."""
+    from labrig.diagnosis.plots import plot_regimes
+
+    return plot_regimes(regimes, ax=ax, title=title)
+
+
+def fits_table(results, best: str | None = None):
+    """Fits side by side, one column per method (the paper's Table 2)."""
+    from labrig.identification.table import comparison_table
+
+    return comparison_table(results, best)
+
+
+def fits_text(results) -> str:
+    """Fits as ``labrig identify`` prints them (one, or side by side)."""
+    from labrig.identification.table import format_identification
+
+    return format_identification(results)
+
+
+def fits_warnings(results) -> list:
+    """Every fit's bound and fit warnings, each once."""
+    from labrig.identification.table import all_warnings
+
+    return all_warnings(results)
+
+
+def save_figures(figures, folder, dpi: int | None = None) -> dict:
+    """Save each of ``figures`` (``{name: figure}``, drawn on access) as ``folder/name``,
+    one in memory at a time; returns ``{name: path}``."""
+    from labrig.analysis.plots import save_figures as _save
+
+    return _save(figures, folder) if dpi is None else _save(figures, folder, dpi)

@@ -1,0 +1,14 @@
+"""The types the verbs take and return, and the documents their results are written as
+(pydantic models of the JSON files), for the front ends that read them back or name them
+in annotations."""
+from labrig.analysis.doc import AnalysisDoc
+from labrig.analysis.result import AnalysisResult
+from labrig.diagnosis.docs import DiagnosisDoc, LadderDoc, Regimes
+from labrig.diagnosis.ladder import Ladder, LadderStep
+from labrig.diagnosis.ranking import Diagnosis
+from labrig.diagnosis.residuals import REGIME_TEXT
+from labrig.identification.doc import IdentifyAllDoc, IdentRecord
+from labrig.model.model import Model
+
+__all__ = ["AnalysisDoc", "AnalysisResult", "DiagnosisDoc", "LadderDoc", "Regimes", "Ladder",
+           "LadderStep", "Diagnosis", "REGIME_TEXT", "IdentifyAllDoc", "IdentRecord", "Model"]
