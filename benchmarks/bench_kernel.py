@@ -43,7 +43,7 @@ POP = 50
 #: rounds of (peak, every path), the best of each kept
 ROUNDS = 5
 TRUTH = np.array([8.0, 0.0085, 5.2245e-5, 1.0e-5, 0.05])
-# flops per sample per candidate, counted in labrig/model/kernels.py (_sweep, _input_map):
+# flops per sample per candidate, counted in labrig/simulation/kernels.py (_sweep, _input_map):
 # the update i, w, theta of the linear model: 3 + 3 + 3 multiplications, 2 + 2 + 3
 # additions (16); the residuals: theta / N, two differences, two scalings, two squares
 # and two additions into the sum (9)
@@ -62,7 +62,7 @@ FLOPS = {"linear": LINEAR,
 #: steady input leaves the lanes' mapped inputs as they were): their flops on those samples
 MAP_FLOPS = {"deadband": 3, "offset": 2, "asymmetry": 3, "saturation": 1,
              "asymmetric_deadband": 2}
-#: a closed loop with its input map inside (labrig/model/loop_kernel.py, _sweep_loop; the
+#: a closed loop with its input map inside (labrig/simulation/loop_kernel.py, _sweep_loop; the
 #: table is in benchmarks/README.md), as (a sample in full, a steady input's sample),
 #: counted in the source and the same in the machine code of the build each case runs
 #: (vector multiplications, additions, subtractions and the division per eight lanes,
@@ -182,7 +182,7 @@ def markdown(res: dict) -> str:
     return "\n".join(rows) + "\n\n" + closed_summary(res)
 
 
-#: the effects a closed loop's drive map holds (labrig/model/loop_kernel.py) besides backlash
+#: the effects a closed loop's drive map holds (labrig/simulation/loop_kernel.py) besides backlash
 MAPPED = ("deadband", "offset", "asymmetry", "saturation", "asymmetric_deadband")
 
 

@@ -27,7 +27,7 @@ In ONE run, on this machine:
   labrig's whole-process seconds;
 * `labrig diagnose --auto` on a five-run sweep with two hidden effects and `labrig
   propose` on one confusable step (as benchmarks/bench_auto.py and bench_propose.py);
-* the first run after installation: `python -m labrig.model.warm` with an empty numba
+* the first run after installation: `python -m labrig.simulation.warm` with an empty numba
   cache (the compile `make` does at install), and the same with the cache filled.
 """
 from __future__ import annotations

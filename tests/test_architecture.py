@@ -17,7 +17,8 @@ MAX_LINES = 500
 #: its own level or below (docs/design.md, 'Architecture')
 LAYERS = [
     ["core"],        # errors, atomic files, schemas, tables, figure style, version
-    ["model"],       # plants, effects, simulator kernels, model files
+    ["simulation"],  # the simulator's numerics: numba kernels, exact hold, their layout
+    ["model"],       # plants, effects, model files, the simulator of a model's effects
     ["io"],          # run files, imports, rig and plan files
     ["bridge"],      # the rig: simulated, serial, emulated; sweeps
     ["analysis"],    # deadband, Km, tau_m from runs; noise floors

@@ -127,7 +127,7 @@ def test_readme_quotes_the_recorded_whole_process_benchmark():
     assert f"under {jfo['reference_s'] / 1000:.2f} s at this case's reference" in prose
     rng = rec["reference_range_s"]["linear"]
     assert f"the linear reference took {rng[0]:.2f}-{rng[1]:.2f} s per" in prose
-    from labrig.model.warm import COMPILE_S
+    from labrig.simulation.warm import COMPILE_S
 
     assert f"compiling the simulator once (about {COMPILE_S} s on a 2-core machine" in prose
 

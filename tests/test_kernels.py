@@ -94,7 +94,7 @@ def test_closed_loop_pieces_are_as_accurate_as_the_substeps_they_replace(tmp_pat
     fifth of an ADC count of the tacho and of the pot, and no farther from it than the 16
     semi-implicit sub-steps per sample it replaced."""
     from labrig.io.experiment import Experiment
-    from labrig.model.candidate_kernel import substeps
+    from labrig.simulation.candidate_kernel import substeps
     from labrig.model.servo import ServoParams
     from labrig.model.truth import simulate_truth
 
@@ -134,7 +134,7 @@ def test_zero_order_hold_is_the_matrix_exponential():
     scipy's expm of the augmented matrix, with and without a fractional delay."""
     from scipy.linalg import expm
 
-    from labrig.model.expm import zoh_batch
+    from labrig.simulation.expm import zoh_batch
     from labrig.model.simulate import _plant_matrices
 
     rng = np.random.default_rng(3)

@@ -161,7 +161,8 @@ def _diagnosis():
 def test_the_ranking_notes_state_the_numbers_diagnose_uses():
     """The ranking's notes and the diagnosis read one set of criteria
     (labrig.diagnosis.criteria)."""
-    from labrig.diagnosis import diagnose, ranking
+    from labrig.diagnosis import criteria, diagnose, ranking
+    from labrig.model.effects import get_effect
 
     assert ranking.PARSIMONY == diagnose.PARSIMONY
     assert ranking.CV_CANDIDATES == diagnose.CV_CANDIDATES
@@ -170,14 +171,14 @@ def test_the_ranking_notes_state_the_numbers_diagnose_uses():
     # the order the note states is _score's: cross-validated error, raised per parameter
     # the move adds beyond the first (adding stiction adds two: tc_v and excess), lowered
     # per parameter a removal takes away
-    n = len(diagnose.get_effect("stiction").params)
+    n = len(get_effect("stiction").params)
     cand = ranking.Candidate("stiction", 1.0, 0.5, -100.0, {}, {}, extra_params=n,
                              cross_validated={"with_effect": 2.0})
     assert n >= 2
-    assert diagnose._score(cand) == pytest.approx(2.0 * (1 + ranking.PARSIMONY * (n - 1)))
+    assert criteria.score(cand) == pytest.approx(2.0 * (1 + ranking.PARSIMONY * (n - 1)))
     gone = ranking.Candidate("stiction", 1.0, 0.5, -100.0, {}, {}, move="remove",
                              extra_params=-n, cross_validated={"with_effect": 2.0})
-    assert diagnose._score(gone) == pytest.approx(2.0 * (1 - ranking.PARSIMONY * (n + 1)))
+    assert criteria.score(gone) == pytest.approx(2.0 * (1 - ranking.PARSIMONY * (n + 1)))
 
 
 def test_the_ranking_table_says_what_it_is_ordered_by_and_when_supported():

@@ -91,7 +91,7 @@ def test_identify_output_that_is_a_folder_is_a_user_error(ds, tmp_path, capsys):
 @pytest.mark.parametrize("cmd", ["compare", "diagnose", "ladder", "report", "mystery"])
 def test_every_output_file_is_refused_before_the_work(cmd, ds, model, tmp_path, capsys,
                                                       monkeypatch):
-    for target in ("labrig.diagnosis.diagnose.evaluate", "labrig.diagnosis.diagnose.diagnose",
+    for target in ("labrig.diagnosis.evaluation.evaluate", "labrig.diagnosis.diagnose.diagnose",
                    "labrig.diagnosis.search.auto_ladder", "labrig.diagnosis.ladder.evaluate_ladder",
                    "labrig.report.html.build_report", "labrig.io.mystery.new_mystery"):
         monkeypatch.setattr(target, no_call)

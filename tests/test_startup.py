@@ -51,7 +51,7 @@ def test_identify_path_imports_only_what_it_uses(tmp_path, rig):
 def test_cold_cache_is_announced_once_before_compiling(monkeypatch, capsys):
     """A cold numba cache: one line on stderr saying what happens and about how long,
     then the compile; never again in the same process."""
-    from labrig.model import warm
+    from labrig.simulation import warm
 
     calls = []
     monkeypatch.setattr(warm, "_done", False)
@@ -70,7 +70,7 @@ def test_installed_cache_is_warm():
     this suite compiles."""
     from pathlib import Path
 
-    from labrig.model import warm
+    from labrig.simulation import warm
 
     out = subprocess.run([str(Path(sys.executable).with_name("labrig-warm"))],
                          capture_output=True, text=True, check=True)

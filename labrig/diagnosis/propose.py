@@ -279,7 +279,7 @@ def propose(runs: list[Run], model: Model, between: str | None = None, *,
     """
     from labrig.model.reach import Reach
     from labrig.model.simulate import prepare
-    from labrig.model.warm import ready
+    from labrig.simulation.warm import ready
 
     ready()  # a first compile is announced and kept out of the timing
     t0 = time.perf_counter()

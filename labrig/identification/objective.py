@@ -22,7 +22,7 @@ from labrig.model.plants import VoltagePlant
 from labrig.model.simulate import Simulator, prepare
 from labrig.model.start import WHAT, is_start_key, run_starts, start_key
 from labrig.analysis.noise import channel_floors
-from labrig.model.residual_rows import residual_rows
+from labrig.simulation.residual_rows import residual_rows
 
 #: generic plant bounds of the voltage-driven servo (SI units)
 DEFAULT_BOUNDS = VoltagePlant.bounds

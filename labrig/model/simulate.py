@@ -18,7 +18,7 @@ How it stays both fast and faithful to the truth integrator:
   open or closed), so each piece has its own exact ZOH (the loop table); only the samples
   where the drive crosses into another piece are sub-stepped.
 
-The kernels (:mod:`labrig.model.kernels`) are compiled with numba; they advance a block
+The kernels (:mod:`labrig.simulation.kernels`) are compiled with numba; they advance a block
 of candidates per thread, the candidates in the inner loop so the update vectorises.
 """
 from __future__ import annotations
@@ -29,12 +29,12 @@ import numpy as np
 
 from labrig.core.errors import UserError
 from labrig.model.effects import AsymmetricDeadband, Asymmetry, Deadband, Effect, Offset, Saturation, ordered
-from labrig.model.expm import loop_slot_fill, zoh_batch
-from labrig.model.layout import (C_A, C_ASYM, C_D, C_I0, C_KE, C_TC, C_TD, C_TH0, C_TS,
+from labrig.simulation.expm import loop_slot_fill, zoh_batch
+from labrig.simulation.layout import (C_A, C_ASYM, C_D, C_I0, C_KE, C_TC, C_TD, C_TH0, C_TS,
                                  C_U0, C_VMAX, C_W0,
                                  MAP_COLUMNS, N_SLOTS, S_FLAT, S_NEG, S_NEG_GAP, S_POS,
                                  S_POS_GAP, SLOT_W, T_OK)
-from labrig.model.kernels import run_kernels
+from labrig.simulation.kernels import run_kernels
 from labrig.model.start import initial_current
 
 # kernel parameter columns: R, L, J, B, K (labrig.model.plants: every plant's kernel
@@ -42,7 +42,7 @@ from labrig.model.start import initial_current
 # current-mode drive), then the run's initial state (C_I0, C_W0, C_TH0: labrig.model.start)
 N_COLS = 17
 #: open-loop input and drive effects the kernel applies itself (their formulas are in
-#: labrig.model.candidate_kernel.input_map); a subclass or a user's effect takes the numpy path
+#: labrig.simulation.candidate_kernel.input_map); a subclass or a user's effect takes the numpy path
 _MAPPED = (Offset, Asymmetry, Deadband, AsymmetricDeadband, Saturation)
 _NO_MAP = np.zeros((0, len(MAP_COLUMNS)))
 _NO_TABLE = np.zeros((0, N_SLOTS, SLOT_W))
@@ -158,7 +158,7 @@ class Simulator:
 
     def __init__(self, runs, effects=(), substeps: int = 16, plant=None):
         from labrig.model.plants import VoltagePlant
-        from labrig.model.warm import ready
+        from labrig.simulation.warm import ready
 
         ready()  # a cold numba cache is compiled now, with a message, not inside a timing
 

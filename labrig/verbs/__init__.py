@@ -20,10 +20,15 @@ The loop in five lines::
 
 One module per topic: :mod:`~labrig.verbs.data` (runs, models, the catalogue, rig and
 plan files), :mod:`~labrig.verbs.acquire` (bridges and sweeps), :mod:`~labrig.verbs.fit`
-(analyse, identify, add and remove an effect, compare, the ladder) and
+(analyse, identify, add and remove an effect, compare, the ladder),
 :mod:`~labrig.verbs.loop` (diagnose, the search, propose, decide) and
-:mod:`~labrig.verbs.mystery` (mystery rigs for a class). Heavy libraries load
-inside the verbs, on first use, so ``import labrig`` stays quick.
+:mod:`~labrig.verbs.mystery` (mystery rigs for a class); :mod:`~labrig.verbs.figures`
+and :mod:`~labrig.verbs.types` give the front ends the figures and types of results.
+
+Each verb imports the library inside itself, on first use: measured on this machine (2
+cores), ``import labrig.verbs`` takes 0.02 s and the library's modules eagerly 0.56 s
+(numba, scipy, matplotlib), which every ``labrig --help`` and every ``import labrig`` in
+a notebook would pay.
 """
 from labrig.verbs.acquire import emulator, live, open_bridge, play, sweep
 from labrig.verbs.data import (check_plan, effect, effects, import_run, load_identify_config,

@@ -144,6 +144,6 @@ def warm_up() -> None:
     """Load the loop's modules and compile the simulator's kernels now (numba's cache), so
     a first click or command waits for neither."""
     import labrig.diagnosis.search  # noqa: F401
-    from labrig.model.warm import ready
+    from labrig.simulation.warm import ready
 
     ready()

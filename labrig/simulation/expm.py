@@ -15,7 +15,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from labrig.model.layout import T_A, T_GF, T_GN, T_GO
+from labrig.simulation.layout import T_A, T_GF, T_GN, T_GO
 
 #: Taylor terms after the scaling (the norm at most 0.5: the last term below 1e-21)
 TERMS = 18

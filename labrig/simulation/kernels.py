@@ -9,11 +9,11 @@ bit-for-bit those of either alone):
   instructions (8 candidates per instruction with AVX-512). Samples where one candidate
   needs more than the exact update (the speed reaches zero or the rotor is stuck under
   friction) are flagged in the vector loop and redone for that candidate alone;
-- the **per-candidate kernel** (:mod:`labrig.model.candidate_kernel`) takes trajectories
+- the **per-candidate kernel** (:mod:`labrig.simulation.candidate_kernel`) takes trajectories
   and a Jacobian's few rows.
 
 A closed loop with an input nonlinearity or backlash inside goes through the same blocks
-with its own lane sweep (:mod:`labrig.model.loop_kernel`): exact in each affine piece of
+with its own lane sweep (:mod:`labrig.simulation.loop_kernel`): exact in each affine piece of
 its drive, the samples where the drive changes piece redone alone.
 
 Inputs are laid out (samples, columns): one column shared by every candidate, or one per
@@ -26,9 +26,9 @@ import math
 import numba
 import numpy as np
 
-from labrig.model.candidate_kernel import (each_par, each_ser, friction_step, input_map,
+from labrig.simulation.candidate_kernel import (each_par, each_ser, friction_step, input_map,
                                           loop_sample_alone)
-from labrig.model.layout import (BLOCK, C_A, C_ASYM, C_D, C_I0, C_TC, C_TH0, C_TS, C_U0,
+from labrig.simulation.layout import (BLOCK, C_A, C_ASYM, C_D, C_I0, C_TC, C_TH0, C_TS, C_U0,
                                  C_VMAX, C_W0, DELAY,
                                  FEEDBACK, FRICTION, MODES, MOVING, M_D, M_DN, M_DP, M_K, M_U0,
                                  M_VMAX, N_ROWS, N_ROWS_LOOP, PLAY, R_A00, R_A01, R_A02, R_A10,
@@ -37,7 +37,7 @@ from labrig.model.layout import (BLOCK, C_A, C_ASYM, C_D, C_I0, C_TC, C_TH0, C_T
                                  R_GN1, R_GN2, R_GO0, R_GO1, R_GO2, R_I, R_I0, R_KK, R_MAP, R_PL,
                                  R_PL0, R_RR, R_SLOT, R_SNEW, R_SOLD, R_TC, R_TH, R_TH0, R_TS, R_W,
                                  R_W0, R_XN, SMALL, S_POS, T_OK)
-from labrig.model.loop_kernel import loop_sample, loop_slot
+from labrig.simulation.loop_kernel import loop_sample, loop_slot
 
 
 @numba.njit(cache=True, error_model="numpy")

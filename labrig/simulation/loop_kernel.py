@@ -20,7 +20,7 @@ import math
 
 import numba
 
-from labrig.model.layout import (BLOCK, C_A, C_ASYM, C_D, C_TC, C_TS, C_U0, C_VMAX, DELAY,
+from labrig.simulation.layout import (BLOCK, C_A, C_ASYM, C_D, C_TC, C_TS, C_U0, C_VMAX, DELAY,
                                  FRICTION, G_DEAD, G_NEG, G_POS, G_RAILN, G_RAILP, M_D, M_K,
                                  M_U0, M_VMAX, NO_KINK, PLAY, R_ACC, R_CN, R_CUR, R_DLY, R_FLAG,
                                  R_FRIC, R_G, R_GAP, R_SIDE, R_I, R_I0, R_MAP, R_PL, R_PL0, R_SLOT,

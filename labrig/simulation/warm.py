@@ -1,9 +1,9 @@
 """Compile the simulator's kernels once, before anybody waits for them.
 
-numba compiles :mod:`labrig.model.kernels` on first use and keeps the machine code in its
+numba compiles :mod:`labrig.simulation.kernels` on first use and keeps the machine code in its
 on-disk cache (``__pycache__`` beside the sources), so only the first command after an
 installation pays. ``make`` warms the cache as part of the install
-(``python -m labrig.model.warm``); anything else that meets a cold cache says so on
+(``python -m labrig.simulation.warm``); anything else that meets a cold cache says so on
 stderr before it compiles (:func:`ready`), and the identifiers' timings start after it.
 """
 from __future__ import annotations
@@ -21,7 +21,7 @@ _done = False
 
 
 def _dispatchers():
-    from labrig.model import candidate_kernel, expm, kernels, residual_rows
+    from labrig.simulation import candidate_kernel, expm, kernels, residual_rows
 
     return [kernels.population_par, candidate_kernel.each_par, candidate_kernel.each_ser,
             expm.zoh_batch, expm.loop_slot_fill, residual_rows.residual_rows]
@@ -29,7 +29,7 @@ def _dispatchers():
 
 def _sources() -> list[str]:
     """The kernels' source files: a driver inlines functions from all of them."""
-    from labrig.model import candidate_kernel, expm, kernels, layout, loop_kernel, residual_rows
+    from labrig.simulation import candidate_kernel, expm, kernels, layout, loop_kernel, residual_rows
 
     return [m.__file__ for m in (candidate_kernel, expm, kernels, layout, loop_kernel,
                                  residual_rows)]
@@ -66,7 +66,7 @@ def _cached_kernels() -> list:
     _sources()  # (imports every kernel module)
     out = []
     for name in ("candidate_kernel", "expm", "kernels", "loop_kernel", "residual_rows"):
-        module = sys.modules[f"labrig.model.{name}"]
+        module = sys.modules[f"labrig.simulation.{name}"]
         for obj in vars(module).values():
             if isinstance(obj, numba.core.registry.CPUDispatcher) and \
                     obj.__module__ == module.__name__ \
@@ -90,10 +90,10 @@ def _workload() -> None:
     """Every driver and mode on a tiny problem, with the argument types the simulator
     passes: open and closed loop, friction, delay and play, an input map, trajectories and
     fitness, one candidate at a time and the population kernel (threads from 16)."""
-    from labrig.model.expm import loop_slot_fill, zoh_batch
-    from labrig.model.kernels import run_kernels
-    from labrig.model.residual_rows import residual_rows
-    from labrig.model.layout import (C_A, C_ASYM, C_D, C_TC, C_TS, C_VMAX, MAP_COLUMNS, N_SLOTS,
+    from labrig.simulation.expm import loop_slot_fill, zoh_batch
+    from labrig.simulation.kernels import run_kernels
+    from labrig.simulation.residual_rows import residual_rows
+    from labrig.simulation.layout import (C_A, C_ASYM, C_D, C_TC, C_TS, C_VMAX, MAP_COLUMNS, N_SLOTS,
                                      SLOT_W)
 
     n = 60
@@ -163,7 +163,7 @@ def main(argv=None) -> int:
         prog="labrig-warm", description="Compile labrig's simulator kernels into numba's "
         "cache (make runs this at install; later commands load them)").parse_args(argv)
     # run as a script this file is ``__main__``; the simulators ask the imported module
-    from labrig.model import warm as module
+    from labrig.simulation import warm as module
 
     cold = not module.cache_is_warm()
     seconds = module.warm()

@@ -76,7 +76,7 @@ N_ROWS_LOOP = R_SIDE + 1
 #: MOVING: friction, but no lane of the block is at rest this sample: the build without
 #: the stuck rotor's current decay and its divisions (nothing can be held)
 FEEDBACK, DELAY, FRICTION, PLAY, MOVING = 1, 2, 4, 8, 16
-#: a closed loop with its map (the loop's own builds, labrig.model.loop_kernel):
+#: a closed loop with its map (the loop's own builds, labrig.simulation.loop_kernel):
 #: STEADY: the input did not change and no lane was redone alone in the sample before,
 #: so every lane's drive starts in the piece it ended in (no need to find it again);
 #: NO_KINK: no lane has a dead zone or an asymmetry (the map is the gain and the rail),

@@ -1,6 +1,6 @@
 """The per-candidate kernels: one candidate through a run, sample after sample.
 
-The reference the population kernel (:mod:`labrig.model.kernels`) reproduces bit for bit,
+The reference the population kernel (:mod:`labrig.simulation.kernels`) reproduces bit for bit,
 and the kernel of the cases it leaves: trajectories (each candidate writes its own
 contiguous rows) and a Jacobian's few rows. A closed loop with an input nonlinearity or
 backlash inside is exact in each affine piece of its drive (:func:`loop_step`); only the
@@ -14,9 +14,9 @@ import math
 
 import numba
 
-from labrig.model.layout import (C_A, C_I0, C_TC, C_TH0, C_TS, C_W0, M_D, M_DN, M_DP, M_K, M_U0,
+from labrig.simulation.layout import (C_A, C_I0, C_TC, C_TH0, C_TS, C_W0, M_D, M_DN, M_DP, M_K, M_U0,
                                  M_VMAX, T_OK)
-from labrig.model.loop_kernel import loop_drive, loop_step, play_operator
+from labrig.simulation.loop_kernel import loop_drive, loop_step, play_operator
 
 
 @numba.njit(cache=True, error_model="numpy")

@@ -1,0 +1,288 @@
+"""One diagnosis round as an object (scipy's solver shape): its state — the runs, the
+base model, how it is judged (noise floors, channel weights, folds, its own BIC and
+held-out error) — set once by :meth:`Round.start`, then its jobs as methods: each
+candidate re-fitted and entered (:meth:`Round.candidates`), a base that its candidates'
+re-fits show unconverged refined into a new round (:meth:`Round.refined`), the
+revisions of the effects it has (:meth:`Round.revisions`), the leaders cross-validated
+and ranked (:meth:`Round.rank`) and the result (:meth:`Round.result`). The criteria
+live in :mod:`labrig.diagnosis.criteria`, the words in :mod:`labrig.diagnosis.explain`.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+from labrig.analysis.noise import Weights
+from labrig.core.errors import FitDiverged, UserError
+from labrig.core.parallel import each
+from labrig.diagnosis.baseline import at_bounds, balanced_weights, linear_model
+from labrig.diagnosis.candidates import candidate_names, refinements
+from labrig.diagnosis.criteria import (CV_CANDIDATES, FLOOR, MIN_DBIC, MIN_GAIN, REFINE,
+                                       SIMPLER_MARGIN, SWAP_GAIN, bic, score, supported)
+from labrig.diagnosis.crossval import CrossValidation, Folds, cross_validate, fold_evidence, \
+    make_folds
+from labrig.diagnosis.evaluation import Evaluation, evaluate
+from labrig.diagnosis.explain import context as explain_context, explain, round_verdict
+from labrig.diagnosis.ranking import Candidate, Diagnosis
+from labrig.diagnosis.refit import refit, refit_with, without
+from labrig.diagnosis.residuals import worst_regime
+from labrig.diagnosis.resolution import unresolved
+from labrig.identification.engine import dataset_constants
+from labrig.io.runs import require_excitation
+from labrig.model.effects import get_effect
+from labrig.model.model import Model, param_keys
+from labrig.model.reach import Reach
+
+
+@dataclass
+class Round:
+    """A round's state: everything a candidate is judged against.
+
+    Attributes
+    ----------
+    runs, base : the data and the model the round starts from
+    source : how ``base`` came to be, in words
+    seed, fixed, weights, folds : as :func:`labrig.diagnosis.diagnose.diagnose` takes them
+    ev0 : the base's evaluation (noise floors ``ev0.sigmas``, samples, effective samples)
+    bic0, cv0 : the base's BIC and held-out error
+    reach : what the data reach (the re-fits' bounds and scans)
+    """
+
+    runs: list
+    base: Model
+    source: str
+    seed: int
+    fixed: dict
+    weights: Weights
+    folds: Folds
+    ev0: Evaluation
+    bic0: float
+    cv0: CrossValidation
+    reach: Reach
+    t0: float = field(default_factory=time.perf_counter)
+
+    # -- the start -------------------------------------------------------------------
+    @classmethod
+    def start(cls, runs, model: Model | None = None, *, seed: int = 0,
+              fixed: dict | None = None, weights: Weights | None = None, folds=None,
+              t0: float | None = None) -> "Round":
+        """The round on ``model`` (default: the linear model identified here, on channel
+        weights balanced on it)."""
+        if not runs:
+            raise UserError("the data set is empty: give a folder with at least one run")
+        require_excitation(runs, "diagnose")
+        fixed = dict(fixed or {})
+        if model is None:
+            base = linear_model(runs, seed=seed, fixed=fixed)
+            source = "identified without effects (co)"
+            if weights is None:
+                weights = balanced_weights(evaluate(runs, base), runs)
+                if weights != Weights():  # the linear fit again, on the balanced objective
+                    base = linear_model(runs, seed=seed, fixed=fixed, weights=weights,
+                                        start=base)
+        else:
+            base, source = model, "the given model"
+        weights = weights or balanced_weights(evaluate(runs, base), runs)
+        ev0 = evaluate(runs, base, weights=weights)
+        bic0 = bic(ev0.wsse, ev0.n, ev0.n_effective, len(param_keys(base)) - len(fixed))
+        reach = Reach.of(runs, base)
+        folds = folds or make_folds(runs)
+        cv0 = cross_validate(runs, base, folds, sigmas=ev0.sigmas, weights=weights, seed=seed,
+                             fixed=fixed, reach=reach)
+        return cls(runs, base, source, seed, fixed, weights, folds, ev0, bic0, cv0, reach,
+                   t0=time.perf_counter() if t0 is None else t0)
+
+    @property
+    def f0(self) -> float:
+        return self.ev0.fitness
+
+    @property
+    def k0(self) -> int:
+        return len(param_keys(self.base)) - len(self.fixed)
+
+    # -- the candidates --------------------------------------------------------------
+    def entry(self, ident, effect: str, move: str = "add", replaces=None,
+              params=None) -> Candidate:
+        """A re-fit (:class:`~labrig.identification.engine.Identification`) as a ranked
+        candidate: its error, gain and BIC against the base, and whether the effect
+        itself carries the gain (the effect switched off in the re-fitted model)."""
+        cand = ident.model()
+        ev = evaluate(self.runs, cand, self.ev0.sigmas, weights=self.weights)
+        k = len(param_keys(cand)) - len(self.fixed)
+        c = Candidate(effect=effect, rmse_over_noise=ev.rmse,
+                      failed_starts=ident.failed_starts,
+                      improvement=1.0 - ev.fitness / self.f0,
+                      delta_bic=bic(ev.wsse, self.ev0.n, self.ev0.n_effective, k) - self.bic0,
+                      params=dict(params if params is not None else cand.effect_params[effect]),
+                      fit_percent=ev.metrics["fit_percent"], model=cand, evaluation=ev,
+                      at_bound=at_bounds(ident), move=move, replaces=replaces,
+                      extra_params=k - self.k0)
+        if move != "remove":
+            off = switched_off(cand, effect)
+            if off is not None:
+                c.off_fitness = evaluate(self.runs, off, self.ev0.sigmas,
+                                         weights=self.weights).fitness
+                c.carried = 1.0 - ev.fitness / max(c.off_fitness, 1e-300)
+                if c.carried < MIN_GAIN:
+                    c.unresolved = (f"switched off in the re-fitted model, {effect} costs "
+                                    f"{100 * c.carried:.1f} % of the error: the gain is the rest "
+                                    "of the model re-fitted, not the effect")
+        return c
+
+    def candidates(self, names=None, progress=None) -> tuple[list[Candidate], list[str]]:
+        """Every effect the base could take (or ``names``), re-fitted side by side
+        (:mod:`labrig.core.parallel`) in the catalogue's order: ``(ranked, diverged)``,
+        the second naming those whose every start diverged."""
+        def one(job):
+            i, name = job
+            if progress:
+                progress(i, name)
+            try:
+                ident = refit_with(self.runs, self.base, get_effect(name), seed=self.seed,
+                                   fixed=self.fixed, weights=self.weights, reach=self.reach)
+            except FitDiverged:
+                return name   # every start diverged: said in the verdict, not ranked
+            return self.entry(ident, name)
+
+        tried = each(one, enumerate(candidate_names(self.base, names, self.runs, self.ev0)))
+        diverged = [c for c in tried if isinstance(c, str)]
+        ranking = [c for c in tried if not isinstance(c, str)]
+        if diverged and not ranking:
+            raise FitDiverged(
+                f"every candidate's re-fit diverged ({', '.join(diverged)}: the simulation "
+                "overflowed from every start); start from a model nearer the data (labrig "
+                "identify DATA -o m0.json, then --model m0.json) or narrow the plant's range "
+                "with --bounds")
+        return ranking, diverged
+
+    def stale(self, ranking) -> Candidate | None:
+        """A candidate whose gain comes from re-fitting the rest of the model, not from
+        its effect (the base was not converged), the best such; None when there is none."""
+        stale = [c for c in ranking if c.carried is not None and c.carried < MIN_GAIN
+                 and c.off_fitness < (1 - REFINE) * self.f0]
+        return min(stale, key=lambda c: c.off_fitness) if stale else None
+
+    def refined(self, best: Candidate) -> "Round":
+        """A new round on the base with its own parameters where ``best``'s re-fit found
+        them better, re-fitted (same weights, folds and seed)."""
+        better = Model.from_flat({k: v for k, v in best.model.flat().items()
+                                  if k in self.base.flat()}, self.base.effects,
+                                 self.base.constants, plant=self.base.plant,
+                                 info=dict(self.base.info or {}))
+        better = refit(self.runs, better, seed=self.seed, fixed=self.fixed,
+                       weights=self.weights, reach=self.reach).model()
+        return Round.start(self.runs, better, seed=self.seed, fixed=self.fixed,
+                           weights=self.weights, folds=self.folds, t0=self.t0)
+
+    def revisions(self) -> list[Candidate]:
+        """The base without each of its effects, with each replaced by its simpler family
+        member and its look-alikes, and by its refinements (from where it was fitted),
+        re-fitted."""
+        runs, base, kw = self.runs, self.base, dict(seed=self.seed, fixed=self.fixed,
+                                                    weights=self.weights)
+        out = []
+        for old in base.names:
+            reduced = without(base, old)
+            out.append(self.entry(refit(runs, reduced, **kw), old, move="remove",
+                                  params=base.effect_params[old]))
+            eff = get_effect(old)
+            for new in dict.fromkeys(([eff.simpler] if eff.simpler else [])
+                                     + list(eff.look_alikes)):
+                if new in base.names or new not in candidate_names(reduced, runs=runs):
+                    continue
+                out.append(self.entry(refit_with(runs, reduced, get_effect(new),
+                                                 carried=base.effect_params[old], **kw),
+                                      new, move="replace", replaces=old))
+        for old, new, start in refinements(base, runs):   # from where old was fitted
+            out.append(self.entry(refit_with(runs, without(base, old), get_effect(new),
+                                             carried=start, **kw),
+                                  new, move="replace", replaces=old))
+        return out
+
+    # -- the ranking -----------------------------------------------------------------
+    def rank(self, ranking: list[Candidate], revisions: list[Candidate]) -> list[Candidate]:
+        """The leaders cross-validated (the largest gains; every removal, and each
+        replacement that gains or, simpler, fits about as well), each judged by the
+        criteria, best first."""
+        by_fit = sorted(ranking, key=lambda c: -c.improvement)
+        to_cv = [c for c in by_fit if c.improvement >= MIN_GAIN][:CV_CANDIDATES]
+        # (a simpler replacement is judged "about as good": cross-validated when its
+        # in-sample fit is within that margin too)
+        to_cv += [c for c in revisions if c.move == "remove" or c.improvement >= SWAP_GAIN
+                  or (c.extra_params < 0 and c.improvement >= -SIMPLER_MARGIN)]
+        cvs = each(lambda c: cross_validate(self.runs, c.model, self.folds,
+                                            sigmas=self.ev0.sigmas, weights=self.weights,
+                                            seed=self.seed, fixed=self.fixed,
+                                            reach=Reach.of(self.runs, c.model)), to_cv)
+        for c, cv in zip(to_cv, cvs):
+            c.cross_validated = fold_evidence(self.cv0, cv, c.model,
+                                              None if c.move == "remove" else c.effect)
+            c.unresolved = None if c.move == "remove" else c.unresolved or unresolved(
+                get_effect(c.effect), c.params, self.runs, _fold_sizes(cv, c))
+        ranking = ranking + revisions
+        for c in ranking:
+            c.supported = supported(c)
+        ranking.sort(key=lambda c: (c.cross_validated is None,
+                                    score(c) if c.cross_validated else 0.0, c.delta_bic))
+        return ranking
+
+    def result(self, ranking: list[Candidate], diverged: list[str],
+               source: str | None = None) -> Diagnosis:
+        """The round's :class:`~labrig.diagnosis.ranking.Diagnosis`, with its words."""
+        runs, ev0, base, weights = self.runs, self.ev0, self.base, self.weights
+        good = [c for c in ranking if c.supported]
+        rec = good[0].label if good else None
+        for c in ranking:
+            c.explanation = explain(c, ev0, explain_context(c.model, runs))
+        worst = worst_regime(ev0.regimes)
+        regimes = {"by_regime": ev0.regimes["by_regime"],
+                   "by_amplitude": ev0.regimes["by_amplitude"],
+                   "worst": None if worst is None else {"channel": worst[0], "regime": worst[1],
+                                                         "rmse_over_noise": worst[2]},
+                   "noise": ev0.metrics["noise"]}
+        ripple = _ripple(ev0, runs) if rec is None and ev0.rmse > FLOOR else None
+        verdict = round_verdict(good, ev0, weights, ripple, diverged, base.starts)
+        return Diagnosis(
+            diverged=diverged,
+            baseline={"source": source or self.source, "effects": base.names,
+                      "fitness": ev0.metrics["fitness"],
+                      "rmse_over_noise": ev0.metrics["rmse_over_noise"],
+                      "fit_percent": ev0.metrics["fit_percent"], "bic": self.bic0,
+                      "n": ev0.n, "n_effective": ev0.n_effective,
+                      "cross_validated": self.cv0.rmse,
+                      **({"starts": base.starts} if base.starts else {})},
+            regimes=regimes, ranking=ranking, recommendation=rec, verdict=verdict,
+            cross_validation={"kind": self.folds.kind, "folds": len(self.folds.folds),
+                              "baseline": self.cv0.rmse, "channels": self.cv0.channels},
+            noise={ch: f.to_json() for ch, f in ev0.floors.items()},
+            weights=weights.to_json(),
+            criteria={"min_improvement": MIN_GAIN, "max_delta_bic": MIN_DBIC, "floor": FLOOR},
+            seconds=round(time.perf_counter() - self.t0, 2), base=base, evaluation=ev0,
+            constants=dataset_constants(runs), dataset=[r.name for r in runs],
+            folds=self.folds, cv_baseline=self.cv0)
+
+
+def switched_off(model: Model, effect: str) -> Model | None:
+    """``model`` with ``effect`` made inert (:meth:`Effect.inert`), the rest unchanged;
+    None when the effect does not say how."""
+    off = get_effect(effect).inert()
+    if not off:
+        return None
+    flat = {**model.flat(), **{f"{effect}.{k}": v for k, v in off.items()}}
+    return Model.from_flat(flat, model.effects, model.constants, plant=model.plant)
+
+
+def _ripple(ev: Evaluation, runs):
+    """A line locked to the shaft in the speed residual (:mod:`labrig.analysis.ripple`)."""
+    from labrig.analysis.ripple import ripple_line
+    from labrig.model.simulate import prepare
+
+    return ripple_line(ev.per_run, prepare(runs))
+
+
+def _fold_sizes(cv, c: Candidate) -> list:
+    """The effect's size in the folds that pin it (for the jackknife of its interval)."""
+    size = get_effect(c.effect).size
+    skip = {d["fold"] for d in (c.cross_validated or {}).get("not_counted", [])}
+    return [p.get(f"{c.effect}.{size}", float("nan")) for j, p in enumerate(cv.fold_params)
+            if size and j + 1 not in skip]
