@@ -1,5 +1,5 @@
 """The step-metrics helper: python-control imported in a second process while the fit
-runs (labrig/model/step_helper.py). Each case runs in a fresh interpreter, as the command
+runs (labrig/commands/step_helper.py). Each case runs in a fresh interpreter, as the command
 line does: the helper is only forked from a process without threads."""
 from __future__ import annotations
 
@@ -19,21 +19,22 @@ SERVO = "ServoParams(R=8.0, L=0.01, J=2e-4, B=1e-4, K=0.05, Ka=2.0, N=30.0)"
 
 def _run(body: str) -> dict:
     code = ("import json, os, sys\n"
-            "from labrig.model import step_helper\n"
-            "from labrig.model.servo import ServoParams\n" + body)
+            "from labrig.commands import step_helper\n"
+            "from labrig.model.servo import ServoParams, step_info\n" + body)
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          timeout=120, check=True)
     return json.loads(out.stdout.splitlines()[-1])
 
 
 def test_helper_gives_the_numbers_the_process_gives():
-    """Same function, same libraries: equal to the last digit; the parent never imports
-    python-control, and the helper is gone after stop()."""
+    """Same function, same libraries: equal to the last digit; the library's
+    ``servo.step_info`` asks the helper once the command line started it, the parent
+    never imports python-control, and the helper is gone after stop()."""
     got = _run(
         "step_helper.allow(); step_helper.start()\n"
         "pid = step_helper._helper[0].pid\n"
         f"s = {SERVO}\n"
-        "a = [step_helper.position_step_info(s, kp, kv) for kp, kv in ((2.0, 0.15), (5.0, 0.05))]\n"
+        "a = [step_info(s, kp, kv) for kp, kv in ((2.0, 0.15), (5.0, 0.05))]\n"
         "parent_has_control = 'control' in sys.modules\n"
         "step_helper.stop()\n"
         "alive = os.path.exists(f'/proc/{pid}')\n"

@@ -5,7 +5,7 @@ import signal
 from pathlib import Path
 
 import labrig.verbs as lr
-from labrig.commands.registry import command, float_opt
+from labrig.commands.registry import command, float_opt, output_folder
 from labrig.core.errors import Terminated, UserError
 from labrig.commands.progress import Progress
 
@@ -15,7 +15,6 @@ def cmd_sweep(args):
     """Acquire a sweep: one run per experiment of the plan, each written atomically as it
     finishes. Interrupting (Ctrl-C, SIGTERM, SIGHUP) stops the board at 0 V and keeps every
     finished run; --resume continues. Exit codes: 130 Ctrl-C, 143 SIGTERM, 129 SIGHUP."""
-    from labrig.commands.registry import output_folder
 
     output_folder(args.output)
     rig = lr.load_rig(args.rig)
@@ -94,7 +93,6 @@ def cmd_import(args):
     matrix's column as m[k]): t, u and speed and/or pos in physical units, or raw volts
     tacho=/pos= with gains; current= and, in closed loop, ref=. Choose the plant with
     --drive and --axis."""
-    from labrig.commands.registry import output_folder
 
     output_folder(args.output)
     path = lr.import_run(args.src, args.output, args.map, speed_unit=args.speed_unit,

@@ -3,7 +3,9 @@ from __future__ import annotations
 
 import sys
 
-from labrig.commands.registry import command, emit_json
+from labrig.commands.registry import command, emit_json, float_opt, refuse_existing
+import labrig.verbs as lr
+from labrig.verbs.figures import save_figures
 
 
 @command("analyse", "deadband, Km, tau_m, Kt and the gain-vs-amplitude verdict of a dataset")
@@ -13,8 +15,6 @@ def cmd_analyse(args):
     paper's Table 1 and a verdict; --json prints one JSON object; -o writes figures."""
     from pathlib import Path
 
-    import labrig.verbs as lr
-    from labrig.commands.registry import refuse_existing
 
     res = lr.analyse(args.paths, tolerance=args.tolerance)
     if args.output:
@@ -31,7 +31,6 @@ def cmd_analyse(args):
 
 def _save(res, figs, out):
     """Save each figure as PNG and close it at once (one figure in memory at a time)."""
-    from labrig.verbs.figures import save_figures
 
     saved = save_figures(figs, out)
     res.record_figures(saved)          # the paths go into --json and the summary
@@ -40,7 +39,6 @@ def _save(res, figs, out):
 
 
 def _configure(p):
-    from labrig.commands.registry import float_opt
 
     p.add_argument("paths", nargs="+", metavar="DIR",
                    help="dataset folder(s) or run files, or a steady-state table CSV")

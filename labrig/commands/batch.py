@@ -4,9 +4,10 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from labrig.commands.registry import command, emit_json, float_opt
+from labrig.commands.registry import command, emit_json, float_opt, refuse_existing
 from labrig.commands.progress import Progress
 from labrig.core.defaults import METHOD
+from labrig.core.errors import UserError
 
 TASK_NAMES = ("analyse", "identify", "diagnose", "check")
 
@@ -21,8 +22,6 @@ def cmd_batch(args):
     go on, even when a worker process dies under one. Exit status: 0 when every folder
     succeeded, 1 when any failed (the table says which)."""
     from labrig.classroom.batch import check_scheduler, output_names, run_batch, write_batch
-    from labrig.core.errors import UserError
-    from labrig.commands.registry import refuse_existing
 
     out = Path(args.output)
     if args.scheduler:

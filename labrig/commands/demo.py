@@ -12,6 +12,9 @@ import time
 from pathlib import Path
 
 from labrig.commands.registry import command
+from labrig.core.fileio import atomic_write, json_default
+import labrig.verbs as lr
+import labrig.verbs.figures as lrf
 
 
 def _say(text):
@@ -19,7 +22,6 @@ def _say(text):
 
 
 def _dump(obj, path):
-    from labrig.core.fileio import atomic_write, json_default
 
     atomic_write(Path(path), json.dumps(obj, indent=2, default=json_default) + "\n")
 
@@ -29,8 +31,6 @@ def cmd_demo(args):
     """Run the main job on the simulated rig: sweep, analyse, identify with JFO, PSO and
     CO, diagnose what the model misses, add the recommended effect, compare, error
     ladder, report. Everything lands in the output folder."""
-    import labrig.verbs as lr
-    import labrig.verbs.figures as lrf
     from labrig.core.figures import save
     from labrig.report.html import build_report
 

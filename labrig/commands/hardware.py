@@ -6,6 +6,7 @@ import sys
 import time
 
 from labrig.commands.registry import command
+import labrig.verbs as lr
 
 
 @command("emulate", "run the real firmware under simavr and serve it on a pty")
@@ -13,7 +14,6 @@ def cmd_emulate(args):
     """Build (if needed) and run the compiled bridge firmware in simavr, with the ADC fed
     by a plant model of the rig. Prints the pty path as the first line of stdout, then
     serves until interrupted: `labrig sweep --port <pty> -o DIR` runs the whole lab on it."""
-    import labrig.verbs as lr
 
     emu = lr.emulator(lr.load_rig(args.rig), board=args.board, speed=args.speed)
     pty = emu.start()

@@ -6,15 +6,15 @@ from pathlib import Path
 
 import labrig.verbs as lr
 import labrig.verbs.figures as lrf
-from labrig.commands.registry import command, emit_json
+from labrig.commands.identification import add_through_option, parse_assignments, read_for_fit
+from labrig.commands.progress import Progress
+from labrig.commands.registry import command, emit_json, refuse_existing
 from labrig.core.defaults import SEED
 from labrig.core.errors import UserError
-from labrig.commands.identification import add_through_option
-from labrig.commands.progress import Progress
+from labrig.core.fileio import atomic_write, write_json
 
 
 def _load(args):
-    from labrig.commands.identification import read_for_fit
 
     runs, way = read_for_fit(args)
     if way.told and not getattr(args, "json", False):
@@ -30,7 +30,6 @@ def cmd_compare(args):
     residual autocorrelation and input cross-correlation with their bands."""
     from labrig.core.figures import save
 
-    from labrig.commands.registry import refuse_existing
 
     runs, model = _load(args)
     out = Path(args.output)
@@ -75,8 +74,6 @@ def cmd_diagnose(args):
     floor), then rank every catalogue effect the model lacks: re-fitted from scanned
     starts, compared on BIC and by cross-validation, each with its evidence and the
     experiment that would confirm it."""
-    from labrig.commands.identification import parse_assignments
-    from labrig.commands.registry import refuse_existing
 
     runs, model = _load(args)
     fixed = parse_assignments(args.fix, "--fix")
@@ -130,7 +127,6 @@ def _weights(text):
     """``--weights p=..,q=..`` -> Weights (None: balanced on the starting model)."""
     if not text:
         return None
-    from labrig.commands.identification import parse_assignments
 
     w = parse_assignments(text, "--weights")
     if set(w) - {"p", "q"}:
@@ -143,9 +139,7 @@ def _weights(text):
 
 def _auto(args, runs, model, fixed, weights) -> int:
     """``diagnose --auto``: the rounds to the end; -o is a folder of their results."""
-    from labrig.core.fileio import write_json
     from labrig.core.figures import save
-    from labrig.commands.registry import refuse_existing
 
     if args.max_rounds < 1:
         raise UserError(f"--max-rounds: {args.max_rounds} adds nothing; give 1 or more")
@@ -184,8 +178,6 @@ def _auto(args, runs, model, fixed, weights) -> int:
 def _ask_rig(args, runs, res) -> dict:
     """``--ask-rig``: propose the experiment for the first confusable pair, play it on the
     rig (within the rig file's limits), and decide with the new run."""
-    from labrig.core.fileio import atomic_write
-    from labrig.commands.registry import refuse_existing
 
     if not res.confusable:
         return {"text": "asked the rig nothing: no two effects explain the data about "
@@ -264,9 +256,7 @@ def cmd_ladder(args):
     `labrig identify --model PREV --effects NEW -o NEXT`), or, without --models, run the
     loop automatically: identify, diagnose, add the recommended effect, repeat."""
     from labrig.core.figures import save
-    from labrig.commands.identification import read_for_fit
 
-    from labrig.commands.registry import refuse_existing
 
     runs, _ = read_for_fit(args)
     out = Path(args.output)

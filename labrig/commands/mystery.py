@@ -3,8 +3,9 @@ from __future__ import annotations
 
 import argparse
 
-from labrig.commands.registry import command, emit_json
+from labrig.commands.registry import command, emit_json, float_opt, refuse_existing
 from labrig.core.errors import UserError
+import labrig.verbs as lr
 
 
 @command("mystery", "mystery rigs for the lab: new (student file), reveal, check (grading)")
@@ -13,40 +14,37 @@ def cmd_mystery(args):
     effects (use it with `labrig sweep --sim --rig FILE.mystery`); `reveal FILE` shows the
     truth (instructor); `check FILE MODEL.json` grades a model against it. The file is
     obfuscated against casual reading, not encrypted."""
-    import labrig.verbs as m
 
     if args.action == "new":
-        from labrig.commands.registry import refuse_existing
 
         refuse_existing([args.output], args.force)  # the same words as every other -o
-        doc = m.new_mystery(args.seed, args.rig)
-        path = m.write_mystery(doc, args.output, seed=args.seed, overwrite=args.force)
+        doc = lr.new_mystery(args.seed, args.rig)
+        path = lr.write_mystery(doc, args.output, seed=args.seed, overwrite=args.force)
         n = len(doc["effects"])
         print(f"wrote {path}: mystery rig {args.seed} ({n} hidden effect{'s' * (n != 1)}); "
               f"acquire with `labrig sweep --sim --rig {path} -o runs`")
         return 0
     if args.action == "reveal":
-        res = m.reveal(args.file)
+        res = lr.reveal(args.file)
         if args.json:
             emit_json(res)
         else:
-            print(m.format_reveal(res))
+            print(lr.format_reveal(res))
         return 0
     if args.action == "check":
-        res = m.check_mystery(args.file, args.model, tolerance=args.tolerance / 100.0)
+        res = lr.check_mystery(args.file, args.model, tolerance=args.tolerance / 100.0)
         if args.blind:
-            res = m.blind(res)
+            res = lr.blind(res)
         if args.json:
             emit_json(res)
         else:
-            print(m.format_check(res, blind_mode=args.blind))
+            print(lr.format_check(res, blind_mode=args.blind))
         return 0
     raise UserError("mystery: give an action: new, reveal or check "
                     "(e.g. `labrig mystery new --seed 7 -o lab.mystery`)")
 
 
 def _configure(p):
-    from labrig.commands.registry import float_opt
 
     sub = p.add_subparsers(dest="action", metavar="ACTION")
     dbg = dict(action="store_true", default=argparse.SUPPRESS, help="show tracebacks")

@@ -3,9 +3,12 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from labrig.commands.registry import command, emit_json, float_opt
+from labrig.commands.registry import command, emit_json, float_opt, refuse_existing
 from labrig.commands.progress import Progress
 from labrig.core.defaults import SEED
+import labrig.verbs as lr
+from labrig.commands.identification import add_through_option, read_for_fit
+from labrig.core.fileio import atomic_write
 
 
 @command("propose", "propose the experiment that tells two explanations apart")
@@ -18,10 +21,7 @@ def cmd_propose(args):
     reports afterwards: the worse rmse/noise over the better, minus one (1 or more is
     decisive). When no input within the limits reaches it, it says so and what would
     help, writes no plan and exits with status 1."""
-    import labrig.verbs as lr
     from labrig.core.figures import save
-    from labrig.commands.identification import read_for_fit
-    from labrig.commands.registry import refuse_existing
 
     out = Path(args.output)
     figure = out.with_suffix(".png")
@@ -35,7 +35,6 @@ def cmd_propose(args):
     with Progress("propose", total=None) as bar:
         prop = lr.propose(runs, model, between, budget_s=args.budget_s, seed=args.seed,
                           progress=bar.hook, rig=rig, through=None)
-    from labrig.core.fileio import atomic_write
     import sys
 
     if not prop.separates:   # the analysis is printed; no plan is proposed
@@ -59,7 +58,6 @@ def cmd_propose(args):
 
 
 def _configure(p):
-    from labrig.commands.identification import add_through_option
 
     p.add_argument("data", nargs="+", help="folder(s) of runs")
     p.add_argument("--model", required=True,

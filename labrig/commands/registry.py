@@ -8,6 +8,8 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from labrig.core.fileio import dumps
+from labrig.core.errors import UserError
 
 #: name -> (function(args), one-line help); each function has a ``configure(parser)``
 COMMANDS: dict = {}
@@ -16,7 +18,7 @@ COMMANDS: dict = {}
 def command(name, help, fits=False):
     """Register ``func(args)`` as a subcommand; ``func.configure(parser)`` adds options.
     ``fits``: the command fits models and reports their step metrics (the command line
-    starts its step-metrics helper for it, ``labrig.model.step_helper``)."""
+    starts its step-metrics helper for it, ``labrig.commands.step_helper``)."""
     def deco(func):
         func.fits = fits
         COMMANDS[name] = (func, help)
@@ -30,7 +32,6 @@ def emit_json(obj) -> None:
     Non-finite numbers (an unbounded interval, the rmse of a diverged candidate)
     become null: strict JSON has no inf/nan, and they are results, not bugs.
     """
-    from labrig.core.fileio import dumps
 
     sys.stdout.write(dumps(obj))
 
@@ -50,7 +51,6 @@ NAME_MAX = 255
 def too_long(path: Path | str) -> None:
     """Refuse an output path whose name the file system cannot hold, in one line (the
     OS says "File name too long" only when the file is written, after the work)."""
-    from labrig.core.errors import UserError
 
     path = Path(path)
     shown = str(path) if len(str(path)) <= 60 else str(path)[:40] + "..." + str(path)[-12:]
@@ -77,7 +77,6 @@ def refuse_existing(paths, force: bool, what: str = "file") -> None:
     ``what="folder"``: ``paths[0]`` is the output folder (it may exist; it must not be
     a file) and the rest are the files the command would write into it.
     """
-    from labrig.core.errors import UserError
 
     paths = [Path(p) for p in paths]
     for p in paths:

@@ -4,7 +4,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from labrig.commands.registry import command
+from labrig.commands.registry import command, refuse_existing
 from labrig.core.errors import UserError
 
 
@@ -21,7 +21,6 @@ def cmd_report(args):
     leaves them); what is missing is computed: the analysis, a CO identification,
     and -- unless --quick -- the diagnosis (about 30 s) and the ladder."""
     from labrig.report.html import build_report, find_work
-    from labrig.commands.registry import refuse_existing
 
     # before the analysis, identification and diagnosis (which can take a minute)
     refuse_existing([args.output], args.force)

@@ -165,11 +165,7 @@ class Round:
     def refined(self, best: Candidate) -> "Round":
         """A new round on the base with its own parameters where ``best``'s re-fit found
         them better, re-fitted (same weights, folds and seed)."""
-        better = Model.from_flat({k: v for k, v in best.model.flat().items()
-                                  if k in self.base.flat()}, self.base.effects,
-                                 self.base.constants, plant=self.base.plant,
-                                 info=dict(self.base.info or {}))
-        better = refit(self.runs, better, seed=self.seed, fixed=self.fixed,
+        better = refit(self.runs, self.base.values_from(best.model), seed=self.seed, fixed=self.fixed,
                        weights=self.weights, reach=self.reach).model()
         return Round.start(self.runs, better, seed=self.seed, fixed=self.fixed,
                            weights=self.weights, folds=self.folds, t0=self.t0)
@@ -266,10 +262,7 @@ def switched_off(model: Model, effect: str) -> Model | None:
     """``model`` with ``effect`` made inert (:meth:`Effect.inert`), the rest unchanged;
     None when the effect does not say how."""
     off = get_effect(effect).inert()
-    if not off:
-        return None
-    flat = {**model.flat(), **{f"{effect}.{k}": v for k, v in off.items()}}
-    return Model.from_flat(flat, model.effects, model.constants, plant=model.plant)
+    return model.with_params(effect, **off) if off else None
 
 
 def _ripple(ev: Evaluation, runs):

@@ -21,8 +21,7 @@ from labrig.model.effectset import EffectSet
 from labrig.model.model import Model
 from labrig.model.reach import Reach
 from labrig.model.plants import plant_of_runs
-from labrig.model import step_helper
-from labrig.model.servo import ServoParams
+from labrig.model.servo import ServoParams, step_info
 from labrig.io.runs import require_excitation
 from labrig.identification.identifiability import analyse_identifiability
 from labrig.identification.jellyfish import jellyfish
@@ -141,7 +140,7 @@ class Identification(Displayable):
                 return {"rise_time_s": None, "settling_time_s": None,
                         "overshoot_percent": None, "loop": None}
             try:
-                self._step_info = step_helper.position_step_info(self.servo(), c["kp"], c["kv"])
+                self._step_info = step_info(self.servo(), c["kp"], c["kv"])
             except Exception:  # an unstable identified loop has no step metrics
                 self._step_info = {"rise_time_s": None, "settling_time_s": None,
                                    "overshoot_percent": None}

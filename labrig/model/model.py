@@ -103,6 +103,22 @@ class Model:
         eps = {**self.effect_params, effect.name: dict(params)}
         return replace(self, effects=self.effects + [effect], effect_params=eps, info={})
 
+    def with_params(self, effect: str, **params) -> "Model":
+        """This model with some of ``effect``'s parameters set (nothing re-fitted; the
+        fit record, which no longer describes it, dropped)."""
+        eps = {**self.effect_params, effect: {**self.effect_params[effect],
+                                              **{k: float(v) for k, v in params.items()}}}
+        return replace(self, effect_params=eps, info={})
+
+    def values_from(self, other: "Model") -> "Model":
+        """This model's structure with the values ``other`` holds for its parameters (the
+        plant, its effects', the runs' starts): a model whose own parameters a larger
+        model's fit moved."""
+        theirs = other.flat()
+        flat = {k: theirs.get(k, v) for k, v in self.flat().items()}
+        return Model.from_flat(flat, self.effects, self.constants, plant=self.plant,
+                               info=dict(self.info or {}))
+
     def effects_with(self, asked) -> EffectSet:
         """This model's effects and those of ``asked`` it lacks, in that order: what a fit
         warm-started from this model adds to (``identify --model``, ``lr.add_effect``)."""

@@ -166,3 +166,25 @@ class ServoParams:
         info = control.step_info(sys[1, 0], T=T)
         return {"rise_time_s": float(info["RiseTime"]), "settling_time_s": float(info["SettlingTime"]),
                 "overshoot_percent": float(info["Overshoot"])}
+
+
+#: who computes the position loop's step metrics (``fn(servo, kp, kv)``): None, this
+#: process with python-control; the command line hands them to a helper process that
+#: imports python-control on the other core while the fit runs
+#: (:mod:`labrig.commands.step_helper`)
+_step_info_by = None
+
+
+def step_info_by(fn) -> None:
+    """Compute :func:`step_info` with ``fn(servo, kp, kv)`` from now on (None: in this
+    process). ``fn`` must give what :meth:`ServoParams.position_step_info` gives."""
+    global _step_info_by
+    _step_info_by = fn
+
+
+def step_info(servo: ServoParams, kp: float, kv: float) -> dict:
+    """Rise time, settling time and overshoot of the closed position loop
+    (:meth:`ServoParams.position_step_info`), where :func:`step_info_by` says."""
+    if _step_info_by is not None:
+        return _step_info_by(servo, kp, kv)
+    return servo.position_step_info(kp, kv)

@@ -9,6 +9,8 @@ from labrig.diagnosis.ranking import Diagnosis
 from labrig.diagnosis.residuals import REGIME_TEXT
 from labrig.identification.doc import IdentifyAllDoc, IdentRecord
 from labrig.model.model import Model
+from labrig.model.servo import ServoParams
 
 __all__ = ["AnalysisDoc", "AnalysisResult", "DiagnosisDoc", "LadderDoc", "Regimes", "Ladder",
-           "LadderStep", "Diagnosis", "REGIME_TEXT", "IdentifyAllDoc", "IdentRecord", "Model"]
+           "LadderStep", "Diagnosis", "REGIME_TEXT", "IdentifyAllDoc", "IdentRecord", "Model",
+           "ServoParams"]

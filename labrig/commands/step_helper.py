@@ -27,7 +27,7 @@ import threading
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:   # the command line's entry imports this module: keep it light
-    from labrig.model.servo import ServoParams
+    from labrig.verbs.types import ServoParams
 
 #: how long one answer may take before the process computes it itself (the helper's
 #: python-control import is included in the first: a first import may build
@@ -77,6 +77,9 @@ def start() -> None:
         signal.pthread_sigmask(signal.SIG_SETMASK, held)
         theirs.close()
     _helper = (proc, ours)
+    from labrig.verbs.fit import step_metrics_by
+
+    step_metrics_by(position_step_info)   # the library's fits ask the helper from now on
 
 
 def stop() -> None:
