@@ -98,6 +98,21 @@ def measure() -> dict:
             while _text(page, ".lab-status").strip():   # working, or drawing in the background
                 time.sleep(0.1)
             res["click_fit_diagnose_s"] = time.monotonic() - t1
+            # a slider's move (J, one step by the keyboard) to the changed rmse/noise on the
+            # page: the model simulated on all six runs, the curves and the number redrawn
+            handle = page.locator(".lab-slider-J .noUi-handle").first
+            handle.focus()
+            moves = []
+            for k in range(30):
+                before = _text(page, ".lab-try-rmse")
+                t3 = time.monotonic()
+                handle.press("ArrowRight" if k % 2 == 0 else "ArrowLeft")
+                while _text(page, ".lab-try-rmse") == before and time.monotonic() - t3 < 5:
+                    time.sleep(0.002)
+                moves.append(time.monotonic() - t3)
+            moves.sort()
+            res["slider_median_s"] = moves[len(moves) // 2]
+            res["slider_p95_s"] = moves[int(0.95 * (len(moves) - 1))]
             b.close()
     finally:
         proc.send_signal(signal.SIGINT)
@@ -130,7 +145,10 @@ def markdown(res: dict) -> str:
         f"shown | {f(res.get('click_results_shown_s'))} s | as the CLI: identify + diagnose "
         f"{f(res['cli_identify_diagnose_s'])} s |",
         f"| ... and the model drawn on every other run, in the background (the page idle) | "
-        f"{f(res['click_fit_diagnose_s'])} s | - |"])
+        f"{f(res['click_fit_diagnose_s'])} s | - |",
+        f"| a slider's move to the changed rmse/noise and curves, six runs at 1 kHz "
+        f"(median / 95 %, 30 moves) | {f(res.get('slider_median_s'))} / "
+        f"{f(res.get('slider_p95_s'))} s | 0.1 s (median) |"])
 
 
 if __name__ == "__main__":

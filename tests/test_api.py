@@ -123,3 +123,31 @@ def test_one_progress_hook_for_every_verb(tmp_path):
     assert kinds.count("experiment") == kinds.count("run") == 2
     assert sum(e.done for e in events if e.kind == "samples") == sum(
         len(r.t) for r in lr.read_runs(tmp_path / "runs"))
+
+
+def test_the_interactive_view_draws_what_compare_computes():
+    """``Evaluation.view()`` (the lab page's figures) holds the evaluation's own numbers;
+    a model set by hand (an effect tried, then one parameter moved) is compared as any."""
+    import numpy as np
+
+    import labrig.verbs as verbs
+
+    runs = lr.read_runs(DATA)
+    m = lr.identify(runs, seed=0).model()
+    ev = lr.compare(runs, m)
+    view = ev.view()
+    rr = ev.worst_run()
+    assert view.channels == tuple(rr["channels"])
+    for ch, c in rr["channels"].items():
+        src = view.sources[ch].data
+        assert np.array_equal(src["residual"], c["residual"])
+        assert np.array_equal(src["model"], c["simulated"])
+    tried = verbs.try_effect(runs, m, "coulomb_friction")
+    assert tried.names == ["coulomb_friction"] and tried.params == m.params
+    hand = tried.with_value("coulomb_friction.tc_v", 0.129)
+    assert hand.effect_params["coulomb_friction"]["tc_v"] == 0.129
+    moved = lr.compare(runs, hand).metrics["rmse_over_noise"]["overall"]
+    # friction without the plant re-fitted: the linear fit's gain already absorbed it
+    assert moved > ev.metrics["rmse_over_noise"]["overall"]
+    with pytest.raises(KeyError):
+        hand.with_value("deadband.d_v", 0.1)

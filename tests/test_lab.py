@@ -44,12 +44,13 @@ def _free_port() -> int:
 class Server:
     """`labrig lab` in a subprocess; ended with Ctrl-C (SIGINT) by its PID."""
 
-    def __init__(self, folder: Path, *flags):
+    def __init__(self, folder: Path, *flags, cwd: Path = ROOT):
         self.port = _free_port()
+        env = {**__import__("os").environ, "PYTHONPATH": str(ROOT)}
         self.proc = subprocess.Popen(
             [sys.executable, "-m", "labrig", "lab", str(folder), "--no-browser",
              "--http-port", str(self.port), *flags],
-            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT)
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=cwd, env=env)
         line = self.proc.stdout.readline()
         assert "http://127.0.0.1" in line, line + self.proc.stderr.read()
         self.url = re.search(r"http://\S+/", line).group(0)
@@ -218,6 +219,61 @@ def test_the_loop_on_one_page_agrees_with_the_cli(browser, tmp_path):
         page.wait(lambda: page.page.locator(".lab-overlay img").count() == 1, 30, "the overlay")
         page.shot("loop")
         watcher.close()
+        page.close()
+    finally:
+        server.stop()
+
+
+def test_the_loop_by_hand_sliders_an_effect_tried_and_a_fit_from_there(browser, tmp_path):
+    """The hand view of the loop: the fitted model's rmse/noise is the library's; a
+    parameter's slider moved redraws the curves and the number (set by hand); an effect
+    tried at a hand-set size, unfitted, then *Fit from here* takes the error to the floor.
+    The page is served on a folder with a plain name, as the README's figure shows it."""
+    labrig("sweep", "--sim", "-o", tmp_path / "runs", check=0)
+    server = Server(Path("runs"), "--fast", cwd=tmp_path)
+    try:
+        page = Page(browser, server.url)
+        assert "folder: runs" in page.page.locator("body").evaluate(WORDS)
+        page.fit_the_linear_model()
+        page.wait(lambda: "rmse/noise" in page.text(".lab-try-rmse"), 120, "the hand view")
+        fitted = page.number(".lab-try-rmse", r"rmse/noise ([\d.]+)")
+        assert fitted == page.number(".lab-rmse", r"rmse/noise ([\d.]+)")
+        assert page.page.locator(".lab-slider").count() == 5    # R, L, J, B, K
+        handle = page.page.locator(".lab-slider-J .noUi-handle").first
+        handle.focus()
+        for _ in range(20):
+            handle.press("ArrowRight")
+        page.wait(lambda: "by hand" in page.text(".lab-try-rmse"), 30, "the slider's move")
+        shown = []   # every move drawn: the number stays put for a second
+        page.wait(lambda: shown.append(page.text(".lab-try-rmse")) or
+                  (len(shown) > 4 and len(set(shown[-5:])) == 1), 30, "the moves to settle")
+        moved = page.number(".lab-try-rmse", r"rmse/noise ([\d.]+)")
+        assert moved != fitted
+        page.click(".lab-try-reset")
+        page.wait(lambda: "by hand" not in page.text(".lab-try-rmse"), 30, "back to the fit")
+        assert page.number(".lab-try-rmse", r"rmse/noise ([\d.]+)") == fitted
+        page.page.locator(".lab-try-pick select").first.select_option("coulomb_friction")
+        page.click(".lab-try-add")
+        page.wait(lambda: "coulomb_friction" in page.text(".lab-try-rmse"), 30, "the tried effect")
+        assert page.page.locator(".lab-slider").count() == 6
+        tried = page.number(".lab-try-rmse", r"rmse/noise ([\d.]+)")
+        assert tried != fitted
+        page.shot("by_hand")
+        page.click(".lab-try-fit")
+        page.idle()
+        after = page.number(".lab-rmse", r"rmse/noise ([\d.]+)")
+        assert "coulomb_friction" in page.text(".lab-rmse") and after < 1.3 < fitted
+        page.wait(lambda: "coulomb_friction" in page.text(".lab-try-rmse")
+                  and "by hand" not in page.text(".lab-try-rmse"), 60, "the new rung by hand")
+        assert page.number(".lab-try-rmse", r"rmse/noise ([\d.]+)") == after
+        page.shot("loop_readme")
+        # at the floor nothing is confusable: Propose cannot act, looks it, and says why
+        page.wait(lambda: "recommendation: none" in page.text(".lab-evidence"), 120,
+                  "the new rung's diagnosis")
+        page.page.get_by_text("Ask the rig", exact=True).click()
+        page.wait(lambda: "nothing to ask" in page.text(".lab-ask-note"), 30, "the reason")
+        assert page.page.locator(".lab-propose button").first.is_disabled()
+        assert "--between" not in page.page.locator("body").evaluate(WORDS)
         page.close()
     finally:
         server.stop()

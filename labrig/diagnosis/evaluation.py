@@ -144,13 +144,25 @@ class Evaluation(Displayable):
 
         if kind == "regimes":
             return plot_regimes(self.regimes, ax=ax)
-        if run is None:
-            rr = self.worst_run()
-        else:
-            rr = next((r for r in self.per_run if r["name"] == run), None)
-            if rr is None:
-                raise KeyError(f"run {run!r} is not one of {[r['name'] for r in self.per_run]}")
-        return plot_run_comparison(rr, ax=ax)
+        return plot_run_comparison(self.run(run), ax=ax)
+
+    def run(self, name: str | None = None) -> dict:
+        """The entry of :attr:`per_run` named ``name`` (default: the worst run)."""
+        if name is None:
+            return self.worst_run()
+        rr = next((r for r in self.per_run if r["name"] == name), None)
+        if rr is None:
+            raise KeyError(f"run {name!r} is not one of {[r['name'] for r in self.per_run]}")
+        return rr
+
+    def view(self, run: str | None = None, **size):
+        """The same as :meth:`plot` as interactive Bokeh figures on linked time axes
+        (zoom, pan, hover: time, measured, model, residual), what the lab page shows;
+        a notebook displays it with ``bokeh.io.show`` or ``panel.pane.Bokeh``. Returns
+        the :class:`labrig.diagnosis.interactive.RunView` (its ``layout`` is the figure)."""
+        from labrig.diagnosis.interactive import run_view
+
+        return run_view(self.run(run), **size)
 
 
 def evaluate(runs, model: Model, sigmas=None, weights: Weights | None = None) -> Evaluation:

@@ -36,16 +36,18 @@ def _runs(folders):
     return lr.read_runs([str(f) for f in folders])
 
 
-def fit(folders, model_doc=None, add=(), remove=(), label="") -> dict:
+def fit(folders, model_doc=None, add=(), remove=(), label="", from_here=False) -> dict:
     """A rung: the model (``model_doc``, or the linear model) with ``add`` effects added and
     ``remove`` taken out, fitted on the runs (CO, the lab's seed), with its overlay on the
     worst run (``runs`` names them all; :func:`overlays` draws the others: each figure
-    costs about half a second, and the diagnosis should not wait for them)."""
+    costs about half a second, and the diagnosis should not wait for them).
+    ``from_here``: start from ``model_doc``'s values even without effects (values set by
+    hand on the page)."""
     runs = _runs(folders)
     base = _model(model_doc)
     for name in remove:
         base = lr.remove_effect(base, name)
-    if base is not None and not base.names and not add:
+    if base is not None and not base.names and not add and not from_here:
         base = None     # back to the linear model: fitted afresh, as identify does
     ident = lr.identify(runs, effects=list(add), model=base, seed=LAB_SEED)
     model = ident.model()

@@ -16,6 +16,7 @@ from bokeh.plotting import figure
 
 from labrig.core.display import png_html as _img
 from labrig.core.errors import LabrigError
+from labrig.lab.explore import Explorer
 from labrig.lab.plan_form import PlanForm
 from labrig.lab.station import Station, as_array
 
@@ -108,8 +109,10 @@ class LabPage:
         self.save_btn = pn.widgets.Button(name="Save model", css_classes=["lab-save"])
         self.save_btn.on_click(self._on_save)
         self.save_note = pn.pane.Markdown("")
+        self.explore = Explorer(self.st.folders, lambda doc: self._do(self.st.fit_from, doc))
+        self._explored = None
         self._drivers += [self.fit_btn, self.auto_btn, self.cancel_btn, self.add_btn,
-                          self.rm_btn, self.rep_btn, self.save_btn]
+                          self.rm_btn, self.rep_btn, self.save_btn, *self.explore.drivers]
         actions = pn.Column(
             pn.Row(self.fit_btn, self.auto_btn, self.cancel_btn, self.progress), self.status,
             self.now, pn.pane.Markdown("#### The error falls"), self.ladder,
@@ -117,8 +120,14 @@ class LabPage:
             pn.Row(self.rm_pick, self.rm_btn, self.rep_new, self.rep_btn),
             self.evidence, pn.Row(self.save_name, self.save_force, self.save_btn),
             self.save_note, sizing_mode="stretch_width")
-        return pn.Row(pn.Column(self.run_pick, self.overlay, sizing_mode="stretch_width"),
-                      actions, sizing_mode="stretch_width")
+        hand = pn.Column(pn.pane.Markdown(
+            "#### Try it by hand\nDrag a parameter and watch the curves and the error move; "
+            "try an effect at a size you choose before any fit says; then fit from there."),
+            self.explore.view, sizing_mode="stretch_width", css_classes=["lab-try"])
+        return pn.Column(hand, pn.Row(pn.Column(
+            pn.pane.Markdown("#### The figure `labrig compare` draws"), self.run_pick,
+            self.overlay, sizing_mode="stretch_width"), actions, sizing_mode="stretch_width"),
+            sizing_mode="stretch_width")
 
     def _ask_tab(self):
         self.pair_pick = pn.widgets.Select(name="between", options=[], width=320)
@@ -138,8 +147,9 @@ class LabPage:
         self.play_btn.on_click(lambda e: self._do(self.st.play_proposal))
         self.prediction = pn.pane.Markdown("", css_classes=["lab-prediction"])
         self.decision = pn.pane.HTML("", css_classes=["lab-decision"])
+        self.ask_note = pn.pane.Markdown("", css_classes=["lab-ask-note"])
         self._drivers += [self.propose_btn, self.predict_btn, self.play_btn]
-        return pn.Column(pn.Row(self.pair_pick, self.propose_btn), self.proposal,
+        return pn.Column(pn.Row(self.pair_pick, self.propose_btn), self.ask_note, self.proposal,
                          pn.Row(self.which, self.why, self.predict_btn, self.play_btn),
                          pn.Row(self.prediction, self.decision), sizing_mode="stretch_width")
 
@@ -226,11 +236,15 @@ class LabPage:
             "drawing the model on the other runs" if st.drawing() else "")
         self._paint_error()
         for w in (self.fit_btn, self.auto_btn, self.add_btn, self.rm_btn, self.rep_btn,
-                  self.propose_btn, self.start):
+                  self.propose_btn, self.start, self.explore.fit_btn):
             w.disabled = not self.owner or busy or st.sweeping
         self.cancel_btn.disabled = not self.owner or not busy
+        self.propose_btn.disabled = self.propose_btn.disabled or not self.pair_pick.options
         self.play_btn.disabled = (not self.owner or busy or st.sweeping or st.proposal is None
                                   or st.proposal.get("plan") is None or st.prediction is None)
+        note = _why_not(st, bool(self.pair_pick.options))
+        if self.ask_note.object != note:
+            self.ask_note.object = note
         if st.proposal and st.prediction and not st.sweeping and st.written \
                 and st.decision is None and not busy and self.owner and self._asked:
             self._asked = False
@@ -261,6 +275,9 @@ class LabPage:
                 self.run_pick.value = r["worst"]
             self._show_overlay()
             self.rm_pick.options = list(r["effects"])
+            if self._explored is not r:   # a new rung: the sliders start from its fit
+                self._explored = r
+                self.explore.set_model(r["model"], fitted=True)
         if st.diagnosis:
             d = st.diagnosis
             adds = [row["effect"] for row in d["rows"] if row.get("move", "add") == "add"]
@@ -276,8 +293,7 @@ class LabPage:
                 if rec["move"] == "replace":
                     self.rep_new.value = rec["effect"]
             self.evidence.object = _evidence_html(d)
-            pairs = [",".join(p["pair"]) for p in d["pairs"]]
-            self.pair_pick.options = pairs or ["no confusable pair in this diagnosis"]
+            self.pair_pick.options = [",".join(p["pair"]) for p in d["pairs"]]
         if st.ladder:
             self.ladder.object = _img(st.ladder["figure"], 520) + "".join(st.ladder["tables"])
         if st.proposal:
@@ -304,6 +320,23 @@ class LabPage:
         self.overlay.object = f"<p>drawing the model on {_esc(self.run_pick.value)}…</p>"
         if self.owner and self.st.idle():   # a Cancel stopped the drawing: again
             self.st.draw_overlays()
+
+
+def _why_not(st: Station, pairs: bool) -> str:
+    """Why the Ask tab's next button cannot act yet, in a sentence ('' when it can)."""
+    if st.diagnosis is None:
+        return "Fit and diagnose a model first (The loop): the pairs to ask about come from it."
+    if not pairs:
+        return ("The diagnosis has no two explanations that fit equally well: nothing to ask "
+                "the rig.")
+    if st.proposal is None:
+        return ""
+    if st.proposal.get("plan") is None:
+        return ("No input within the budget separates the pair, so there is nothing to play "
+                "(the proposal says what would).")
+    if st.prediction is None:
+        return "Record which explanation you expect, and why, to play the experiment."
+    return ""
 
 
 def _esc(text: str) -> str:

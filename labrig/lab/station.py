@@ -189,6 +189,10 @@ class Station:
         self.rungs, self.diagnosis, self.ladder = [], None, None
         self.submit("fit", jobs.fit, [self.folder])
 
+    def fit_from(self, model_doc: dict) -> None:
+        """Fit the model the page set by hand, from its values (*Fit from here*)."""
+        self.submit("fit", jobs.fit, [self.folder], model_doc, from_here=True)
+
     def add(self, effect: str) -> None:
         self.submit("fit", jobs.fit, [self.folder], self.model(), add=[effect])
 

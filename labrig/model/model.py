@@ -110,6 +110,18 @@ class Model:
                                               **{k: float(v) for k, v in params.items()}}}
         return replace(self, effect_params=eps, info={})
 
+    def with_value(self, key: str, value: float) -> "Model":
+        """This model with one parameter set: a plant's (``"J"``) or an effect's
+        (``"deadband.d_v"``); nothing re-fitted, the fit record dropped."""
+        if "." in key:
+            effect, name = key.split(".", 1)
+            if effect not in self.effect_params or name not in self.effect_params[effect]:
+                raise KeyError(f"{key}: not a parameter of this model")
+            return self.with_params(effect, **{name: value})
+        if key not in self.params:
+            raise KeyError(f"{key}: not a parameter of this model")
+        return replace(self, params={**self.params, key: float(value)}, info={})
+
     def values_from(self, other: "Model") -> "Model":
         """This model's structure with the values ``other`` holds for its parameters (the
         plant, its effects', the runs' starts): a model whose own parameters a larger

@@ -34,7 +34,8 @@ from labrig.verbs.acquire import emulator, live, open_bridge, play, sweep
 from labrig.verbs.data import (check_plan, effect, effects, import_run, load_identify_config,
                                load_model, load_plan, load_rig, model_from_json, model_of,
                                parse_effects, plan_files, read_runs, runs_for_fit, runs_of)
-from labrig.verbs.fit import add_effect, analyse, compare, identify, ladder, remove_effect
+from labrig.verbs.fit import (add_effect, analyse, compare, identify, ladder, remove_effect,
+                              try_effect)
 from labrig.verbs.loop import (auto, auto_ladder, channel_weights, confusable_pairs, decide,
                                diagnose, pair_from_diagnosis, propose, proposed_as, warm_up)
 from labrig.verbs.mystery import (blind, check_mystery, format_check, format_reveal,
@@ -48,7 +49,7 @@ __all__ = [
     # acquisition
     "sweep", "open_bridge", "live", "play", "emulator",
     # fits
-    "analyse", "identify", "add_effect", "remove_effect", "compare", "ladder",
+    "analyse", "identify", "add_effect", "remove_effect", "try_effect", "compare", "ladder",
     # the loop
     "diagnose", "auto", "auto_ladder", "channel_weights", "confusable_pairs", "propose",
     "proposed_as", "pair_from_diagnosis", "decide", "warm_up",

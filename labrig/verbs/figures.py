@@ -60,3 +60,12 @@ def save_figures(figures, folder, dpi: int | None = None) -> dict:
     from labrig.analysis.plots import save_figures as _save
 
     return _save(figures, folder) if dpi is None else _save(figures, folder, dpi)
+
+
+def run_view(per_run: dict, **size):
+    """One run's model against measurement as interactive Bokeh figures (linked time
+    axes, hover, the residual's noise band): a
+    :class:`~labrig.diagnosis.interactive.RunView`; ``show(per_run)`` redraws it."""
+    from labrig.diagnosis.interactive import run_view as _view
+
+    return _view(per_run, **size)

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 from labrig.core.defaults import METHOD, SEED
+from labrig.core.errors import UserError
 from labrig.core.progress import Event, both
 from labrig.verbs.data import model_of, read_runs
 
@@ -78,6 +79,19 @@ def add_effect(source, model, effect, *, method: str = "co", seed: int | None = 
     names = [effect] if isinstance(effect, str) else list(effect)
     return identify(source, method, names, model=model, seed=seed, through=through,
                     progress=progress, **options)
+
+
+def try_effect(source, model, effect: str):
+    """``model`` with ``effect`` added at the size a fit would start from, nothing
+    re-fitted: to see what the effect does to the curves before any fit says (the lab's
+    *Try an effect*; its sliders then set the size by hand)."""
+    from labrig.model.effects import get_effect
+
+    runs, m = read_runs(source), model_of(model)
+    eff = get_effect(effect)
+    if eff.name in m.names:
+        raise UserError(f"{eff.name}: the model has it already")
+    return m.with_effect(eff, eff.initial_guess(runs, m.servo()))
 
 
 def remove_effect(model, name: str):

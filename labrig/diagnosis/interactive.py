@@ -1,0 +1,112 @@
+"""The model against one run as interactive (Bokeh) figures: what the lab page shows and
+a notebook gets from ``Evaluation.view()``.
+
+Per channel (speed, position, current where present), the measurement and the model on
+one figure and the residual in noise units below it, every time axis linked (zoom into a
+reversal on one and the others follow); the residual's +-1 noise band, the +-1 quantum of
+a quantised sensor (a staircase inside it is the sensor's resolution) and the stretches
+that leave the band shaded by regime, as the PNG of :func:`labrig.diagnosis.plots.
+plot_run_comparison`; hovering gives the time, the measured and model values and the
+residual. :meth:`RunView.show` redraws it from a new evaluation in place (a slider's move),
+without building new figures.
+"""
+from __future__ import annotations
+
+import numpy as np
+from bokeh.layouts import column
+from bokeh.models import (BoxAnnotation, ColumnDataSource, DataRange1d, HoverTool, Legend,
+                          LegendItem, Range1d, Span)
+from bokeh.plotting import figure
+
+from labrig.diagnosis.residuals import AXIS_UNITS, REGIME_TEXT
+
+#: the regimes' colours, as the PNG figures draw them (matplotlib's tab10)
+REGIME_COLOURS = {"start": "#2ca02c", "reversal": "#d62728", "accel": "#ff7f0e",
+                  "steady": "#1f77b4", "coast": "#9467bd", "rest": "#b3b3b3"}
+#: at most this many points per line are drawn (rmse/noise is computed on every sample)
+MAX_POINTS = 5000
+
+
+class RunView:
+    """Figures for the channels ``channels`` of one run at a time (``show`` fills them)."""
+
+    def __init__(self, channels=("speed", "position"), width: int | None = None,
+                 height: int = 190):
+        self.channels = tuple(channels)
+        self.sources, self.stretches, self.quanta, self.figures = {}, {}, {}, []
+        self.x_range = Range1d(0.0, 1.0)
+        size = dict(width=width) if width else dict(sizing_mode="stretch_width")
+        for ch in self.channels:
+            src = ColumnDataSource({"t": [], "measured": [], "model": [], "residual": []})
+            f = figure(height=height, x_range=self.x_range, tools="xpan,xwheel_zoom,box_zoom,reset",
+                       active_scroll="xwheel_zoom", title=ch, **size)
+            m = f.line("t", "measured", source=src, color="#404040", line_width=1.2)
+            s = f.line("t", "model", source=src, color="#d62728", line_width=1.4,
+                       line_dash="dashed")
+            f.add_layout(Legend(items=[LegendItem(label="measured", renderers=[m]),
+                                       LegendItem(label="model", renderers=[s])],
+                                location="top_left", orientation="horizontal"), "above")
+            f.add_tools(HoverTool(renderers=[m], mode="vline", tooltips=[
+                ("t", "@t{0.000} s"), ("measured", "@measured{0.000}"),
+                ("model", "@model{0.000}"), ("residual", "@residual{0.00} noise")]))
+            r = figure(height=int(height * 0.7), x_range=self.x_range,
+                       tools="xpan,xwheel_zoom,box_zoom,reset", active_scroll="xwheel_zoom",
+                       y_axis_label="residual / noise", **size)
+            r.add_layout(BoxAnnotation(bottom=-1.0, top=1.0, fill_color="#2ca02c",
+                                       fill_alpha=0.15, line_alpha=0.0))
+            quanta = (Span(location=0.0, dimension="width", line_dash="dashed", line_color="black",
+                           line_width=1, visible=False),
+                      Span(location=0.0, dimension="width", line_dash="dashed", line_color="black",
+                           line_width=1, visible=False))
+            for q in quanta:
+                r.add_layout(q)
+            band = ColumnDataSource({"left": [], "right": [], "color": [], "regime": []})
+            r.quad(left="left", right="right", bottom=-1e6, top=1e6, color="color",
+                   alpha=0.22, source=band, line_alpha=0.0)
+            line = r.line("t", "residual", source=src, color="#4d4d4d", line_width=0.8)
+            # the residual and its noise band set the scale, not the regimes' shading
+            band_edges = r.scatter(x=[0.0, 0.0], y=[-1.2, 1.2], alpha=0.0, size=0)
+            r.y_range = DataRange1d(renderers=[line, band_edges])
+            r.add_tools(HoverTool(renderers=[line], mode="vline", tooltips=[
+                ("t", "@t{0.000} s"), ("residual", "@residual{0.00} noise")]))
+            self.sources[ch], self.stretches[ch], self.quanta[ch] = src, band, quanta
+            self.figures += [f, r]
+        self.figures[-1].xaxis.axis_label = "time (s)"
+        self.layout = column(*self.figures, **({} if width else {"sizing_mode": "stretch_width"}))
+
+    def show(self, rr: dict) -> None:
+        """Draw the run ``rr`` (an entry of :attr:`Evaluation.per_run`)."""
+        t = np.asarray(rr["t"], float)
+        step = max(1, len(t) // MAX_POINTS)   # drawn decimated; computed on every sample
+        units = rr.get("units") or AXIS_UNITS["rotary"]
+        if len(t):
+            self.x_range.start, self.x_range.end = float(t[0]), float(t[-1])
+        for i, ch in enumerate(self.channels):
+            c = rr["channels"].get(ch)
+            f = self.figures[2 * i]
+            if c is None:
+                self.sources[ch].data = {"t": [], "measured": [], "model": [], "residual": []}
+                continue
+            f.title.text = (f"{ch} ({units.get(ch, '')}): fit {c['fit_percent']:.1f} %, "
+                            f"rmse/noise {c['rmse_over_noise']:.2f}")
+            self.sources[ch].data = {"t": t[::step],
+                                     "measured": np.asarray(c["measured"], float)[::step],
+                                     "model": np.asarray(c["simulated"], float)[::step],
+                                     "residual": np.asarray(c["residual"], float)[::step]}
+            q, sigma = c.get("quantum") or 0.0, c.get("sigma") or 0.0
+            for sgn, span in zip((1, -1), self.quanta[ch]):
+                span.visible = q > 0 and sigma > 0
+                span.location = sgn * q / sigma if span.visible else 0.0
+            st = c.get("stretches") or []
+            self.stretches[ch].data = {
+                "left": [float(t[s["start"]]) for s in st],
+                "right": [float(t[min(s["stop"], len(t) - 1)]) for s in st],
+                "color": [REGIME_COLOURS.get(s["regime"], "#808080") for s in st],
+                "regime": [REGIME_TEXT.get(s["regime"], s["regime"]) for s in st]}
+
+
+def run_view(rr: dict, **size) -> RunView:
+    """A :class:`RunView` of the run ``rr``'s channels, drawn."""
+    view = RunView(tuple(rr["channels"]), **size)
+    view.show(rr)
+    return view
