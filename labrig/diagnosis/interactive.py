@@ -34,6 +34,7 @@ class RunView:
                  height: int = 190):
         self.channels = tuple(channels)
         self.sources, self.stretches, self.quanta, self.figures = {}, {}, {}, []
+        self._shown, self._length = None, 0
         self.x_range = Range1d(0.0, 1.0)
         size = dict(width=width) if width else dict(sizing_mode="stretch_width")
         for ch in self.channels:
@@ -79,8 +80,10 @@ class RunView:
         t = np.asarray(rr["t"], float)
         step = max(1, len(t) // MAX_POINTS)   # drawn decimated; computed on every sample
         units = rr.get("units") or AXIS_UNITS["rotary"]
-        if len(t):
+        same = rr["name"] == self._shown and len(t) == self._length
+        if len(t) and not same:   # the same run again (a slider's move): the zoom stays
             self.x_range.start, self.x_range.end = float(t[0]), float(t[-1])
+        self._shown, self._length = rr["name"], len(t)
         for i, ch in enumerate(self.channels):
             c = rr["channels"].get(ch)
             f = self.figures[2 * i]
@@ -89,10 +92,14 @@ class RunView:
                 continue
             f.title.text = (f"{ch} ({units.get(ch, '')}): fit {c['fit_percent']:.1f} %, "
                             f"rmse/noise {c['rmse_over_noise']:.2f}")
-            self.sources[ch].data = {"t": t[::step],
-                                     "measured": np.asarray(c["measured"], float)[::step],
-                                     "model": np.asarray(c["simulated"], float)[::step],
-                                     "residual": np.asarray(c["residual"], float)[::step]}
+            model = np.asarray(c["simulated"], float)[::step]
+            residual = np.asarray(c["residual"], float)[::step]
+            if same:   # only the model's columns change: only they go to the browser
+                self.sources[ch].data.update(model=model, residual=residual)
+            else:
+                self.sources[ch].data = {"t": t[::step],
+                                         "measured": np.asarray(c["measured"], float)[::step],
+                                         "model": model, "residual": residual}
             q, sigma = c.get("quantum") or 0.0, c.get("sigma") or 0.0
             for sgn, span in zip((1, -1), self.quanta[ch]):
                 span.visible = q > 0 and sigma > 0

@@ -212,16 +212,19 @@ class LabPage:
         if not self.owner and st.claim(self.session):   # the owner left: this page drives
             self._set_owner(True)
         live = st.live
-        self.src.data = {"t": as_array(live.t), "u": as_array(live.u),
-                         "speed": as_array(live.speed) if live.speed else as_array(live.t) * 0,
-                         "pos": as_array(live.pos) if live.pos else as_array(live.t) * 0}
+        shown = (id(live), live.samples)
+        if shown != self._live_shown:   # only what changed goes to the browser (a slider's
+            self._live_shown = shown    # move should not wait behind an unchanged run)
+            self.src.data = {"t": as_array(live.t), "u": as_array(live.u),
+                             "speed": as_array(live.speed) if live.speed else as_array(live.t) * 0,
+                             "pos": as_array(live.pos) if live.pos else as_array(live.t) * 0}
         c = live.counters
-        self.counters.object = (
+        _set(self.counters, (
             f"**{live.name or 'no run yet'}** · samples {live.samples}/{live.n_planned} · gaps "
             f"{c.get('dropped_samples', 0)} · CRC errors {c.get('crc_errors', 0)} · "
-            f"retries {c.get('retries', 0)}" + (" · **running**" if st.sweeping else ""))
-        self.sweep_note.object = st.sweep_note
-        self.runs_list.object = "runs in the folder: " + (", ".join(st.runs_on_disk()) or "none")
+            f"retries {c.get('retries', 0)}" + (" · **running**" if st.sweeping else "")))
+        _set(self.sweep_note, st.sweep_note)
+        _set(self.runs_list, "runs in the folder: " + (", ".join(st.runs_on_disk()) or "none"))
         if self.owner and st.poll():
             self._show_loop()
         elif self._seen != self._state():
@@ -229,11 +232,11 @@ class LabPage:
         busy = st.busy()
         self.progress.visible = self.progress.active = busy
         rungs = [line for line in st.log if line.startswith("rung ")]
-        self.status.object = (
+        _set(self.status, (
             f"working: {st.worker.name} ({time.monotonic() - st.worker.started:.0f} s)"
             + "".join(f"  \n{line}" for line in rungs[-6:])
             + (f"  \n{st.log[-1].splitlines()[0]}" if st.log else "")) if busy else (
-            "drawing the model on the other runs" if st.drawing() else "")
+            "drawing the model on the other runs" if st.drawing() else ""))
         self._paint_error()
         for w in (self.fit_btn, self.auto_btn, self.add_btn, self.rm_btn, self.rep_btn,
                   self.propose_btn, self.start, self.explore.fit_btn):
@@ -253,6 +256,7 @@ class LabPage:
             self._asked = True
 
     _asked = False
+    _live_shown = None
 
     def _state(self) -> tuple:
         st = self.st
@@ -320,6 +324,12 @@ class LabPage:
         self.overlay.object = f"<p>drawing the model on {_esc(self.run_pick.value)}…</p>"
         if self.owner and self.st.idle():   # a Cancel stopped the drawing: again
             self.st.draw_overlays()
+
+
+def _set(pane, text: str) -> None:
+    """A pane's text, sent to the browser only when it changed (ten refreshes a second)."""
+    if pane.object != text:
+        pane.object = text
 
 
 def _why_not(st: Station, pairs: bool) -> str:
