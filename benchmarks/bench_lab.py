@@ -90,7 +90,7 @@ def measure() -> dict:
             # what the student reads first: the model on the worst run, the diagnosis and
             # the ladder; then the page is idle once the model is drawn on every other run
             while not ("recommendation" in _text(page, ".lab-evidence")
-                       and page.locator(".lab-ladder img").count()
+                       and "linear model" in _text(page, ".lab-ladder")
                        and page.locator(".lab-overlay img").count()):
                 time.sleep(0.1)
             res["click_results_shown_s"] = time.monotonic() - t1

@@ -113,9 +113,14 @@ def test_one_progress_hook_for_every_verb(tmp_path):
     assert [e.done for e in its][-1] == 5 and all(e.total == 5 for e in its)
     assert its[-1].data == pytest.approx(fit.fitness, rel=1e-9)
     events.clear()
-    lr.diagnose(DATA, fit, candidates=["deadband"], progress=events.append)
-    assert [(e.verb, e.kind, e.data) for e in events] == [("diagnose", "candidate",
-                                                           "deadband")]
+    diag = lr.diagnose(DATA, fit, candidates=["deadband"], progress=events.append)
+    # the ranking as it forms: the re-fit started, done, then its held-out error known
+    assert [(e.verb, e.kind) for e in events] == [("diagnose", "candidate"),
+                                                  ("diagnose", "fitted"),
+                                                  ("diagnose", "validated")]
+    assert events[0].data == "deadband" and events[1].data.effect == "deadband"
+    assert events[2].done == pytest.approx(diag.ranking[0].cross_validated["with_effect"],
+                                           rel=1e-9)
     events.clear()
     lr.sweep(tmp_path / "runs", plan=ROOT / "configs" / "plan_two_steps.toml",
              progress=events.append)

@@ -270,10 +270,50 @@ def test_the_loop_by_hand_sliders_an_effect_tried_and_a_fit_from_there(browser, 
         # at the floor nothing is confusable: Propose cannot act, looks it, and says why
         page.wait(lambda: "recommendation: none" in page.text(".lab-evidence"), 120,
                   "the new rung's diagnosis")
+        # a candidate of the ranking, as the diagnosis re-fitted it, drawn on the runs
+        pick = page.page.locator(".lab-show-pick select").first
+        options = pick.evaluate("s => Array.from(s.options).map(o => o.value)")
+        assert "- coulomb_friction" in options
+        pick.select_option("- coulomb_friction")
+        page.click(".lab-show")
+        page.wait(lambda: "as the diagnosis re-fitted it" in page.text(".lab-try-rmse"), 30,
+                  "the candidate's curves")
+        assert page.number(".lab-try-rmse", r"rmse/noise ([\d.]+)") > 3.0   # friction gone
+        assert page.page.locator(".lab-ladder-plot canvas").count() >= 1
         page.page.get_by_text("Ask the rig", exact=True).click()
         page.wait(lambda: "nothing to ask" in page.text(".lab-ask-note"), 30, "the reason")
         assert page.page.locator(".lab-propose button").first.is_disabled()
         assert "--between" not in page.page.locator("body").evaluate(WORDS)
+        page.close()
+    finally:
+        server.stop()
+
+
+def test_the_search_shows_itself_as_it_climbs(browser, tmp_path):
+    """Auto on the page: the rungs of the search appear while it runs, each one's model
+    drawn on the runs by the hand view as it comes, the error falling before the job
+    ends."""
+    folder = tmp_path / "runs"
+    labrig("sweep", "--sim", "-o", folder, check=0)
+    server = Server(folder, "--fast")
+    try:
+        page = Page(browser, server.url)
+        page.page.get_by_text("The loop", exact=True).click()
+        page.click(".lab-auto")
+        page.wait(lambda: "the search so far" in page.text(".lab-forming"), 300,
+                  "the first rung while the search runs")
+        assert "working" in page.text(".lab-status")
+        page.wait(lambda: "rmse/noise" in page.text(".lab-try-rmse"), 60, "the rung drawn")
+        page.wait(lambda: page.text(".lab-forming").count("rung") >= 3, 300, "the second rung")
+        rows = re.findall(r"rung (\d+): ([a-z_+ ]+?) ([\d.]+)", page.text(".lab-forming"))
+        page.shot("search_climbing")
+        # the error falling as the student watches: the linear rung above the floor, the
+        # last one near it, and the hand view drawing the newest rung
+        assert rows[0][1].strip() == "linear" and float(rows[0][2]) > 1.3 > float(rows[-1][2])
+        page.wait(lambda: rows[-1][1].strip().split(" + ")[-1] in page.text(".lab-try-rmse"),
+                  30, "the newest rung drawn")
+        page.idle()
+        assert page.number(".lab-rmse", r"rmse/noise ([\d.]+)") < 1.3
         page.close()
     finally:
         server.stop()

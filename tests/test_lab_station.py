@@ -99,3 +99,41 @@ def test_a_fit_shows_the_worst_run_first_and_a_click_overtakes_the_rest(tmp_path
         assert all(png[:8] == b"\x89PNG\r\n\x1a\n" for png in r["overlays"].values())
     finally:
         st.close()
+
+
+@pytest.mark.slow
+def test_the_ranking_forms_on_the_page_as_the_candidates_come_back(tmp_path, rig):
+    """While the diagnosis runs, each candidate arrives as its re-fit is done and again
+    with its held-out error: the page's ranking forms before the job ends, and ends with
+    the numbers of the finished diagnosis."""
+    from conftest import sim_dataset, square_plan
+    from labrig.lab.page import _forming_html
+    from labrig.lab.serve import make_station
+
+    folder = sim_dataset(tmp_path, rig, square_plan(amps=(1.2, 1.6, 2.0), periods=1), seed=1)
+    st = make_station(folder, port=str(tmp_path / "ttyNONE"))
+    try:
+        st.fit_linear()
+        _poll_until(st, lambda: bool(st.rungs))
+        during = []
+        while st.diagnosis is None:
+            st.poll()
+            if st.worker.name == "diagnose" and st.worker.busy:
+                during.append(len(st.stream))
+            time.sleep(0.05)
+        name, seen = st.streamed
+        assert name == "diagnose"
+        kinds = [e["kind"] for e in seen]
+        assert any(0 < n < len(seen) for n in during)     # it grew while the job ran
+        assert kinds.count("fitted") == len(st.diagnosis["rows"])
+        assert kinds.count("validated") == sum(r["cross_validated"] is not None
+                                               for r in st.diagnosis["rows"])
+        for row in st.diagnosis["rows"]:
+            last = [e for e in seen if e["label"] == row["label"]][-1]
+            assert last["rmse_over_noise"] == pytest.approx(row["rmse_over_noise"], rel=1e-12)
+            if row["cross_validated"] is not None:
+                assert last["cross_validated"] == pytest.approx(row["cross_validated"],
+                                                                rel=1e-12)
+        assert "the ranking as it forms" in _forming_html(seen)
+    finally:
+        st.close()

@@ -16,6 +16,9 @@ from typing import Any, Callable
 KINDS = {
     "iteration": "an identifier's iteration (done of total) or a start of CO's; text: the best fitness",
     "candidate": "a candidate effect's re-fit starting (done: its index; data: its name)",
+    "fitted": "a candidate's re-fit done (text: its label and rmse/noise; data: the Candidate)",
+    "validated": "a candidate's held-out error known (done: the cross-validated rmse/noise; "
+                 "data: the Candidate)",
     "rung": "a rung of the ladder (done: its index; data: its model, info holding its errors)",
     "experiment": "a sweep's experiment starting (text: its name; data: the experiment)",
     "samples": "samples arrived in a sweep (done: how many more)",

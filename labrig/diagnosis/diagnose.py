@@ -34,7 +34,7 @@ from labrig.model.model import Model
 
 def diagnose(runs, model: Model | None = None, *, candidates=None, seed: int = 0,
              fixed: dict | None = None, progress=None, weights: Weights | None = None,
-             folds=None, revise: bool = True) -> Diagnosis:
+             folds=None, revise: bool = True, on_candidate=None) -> Diagnosis:
     """Locate the model's error and rank the missing effects.
 
     Parameters
@@ -56,6 +56,9 @@ def diagnose(runs, model: Model | None = None, *, candidates=None, seed: int = 0
         With a model that has effects, also test removing each of them and replacing
         each by its look-alikes and simpler family members (default True; the search of
         ``--auto`` revises on its own).
+    on_candidate : callable(Candidate, float or None), optional
+        Hears each candidate as its re-fit is done (``None``) and as its held-out error
+        is (the cross-validated rmse/noise): the ranking as it forms.
 
     Returns
     -------
@@ -67,7 +70,7 @@ def diagnose(runs, model: Model | None = None, *, candidates=None, seed: int = 0
     rnd = Round.start(runs, model, seed=seed, fixed=fixed, weights=weights, folds=folds)
     first = rnd
     for refined in range(MAX_REFINE + 1):
-        ranking, diverged = rnd.candidates(candidates, progress)
+        ranking, diverged = rnd.candidates(candidates, progress, on_candidate)
         # a candidate whose gain comes from re-fitting the rest of the model, not from its
         # effect, shows that the base was not converged: refine it and start again
         best = rnd.stale(ranking)
@@ -79,4 +82,4 @@ def diagnose(runs, model: Model | None = None, *, candidates=None, seed: int = 0
     if rnd is not first:
         source = (f"{first.source}, refined: the re-fits of its candidates found better values "
                   f"of its own parameters (fitness {first.f0:.4g} -> {rnd.f0:.4g})")
-    return rnd.result(rnd.rank(ranking, revisions), diverged, source)
+    return rnd.result(rnd.rank(ranking, revisions, on_candidate), diverged, source)

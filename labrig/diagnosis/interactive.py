@@ -117,3 +117,41 @@ def run_view(rr: dict, **size) -> RunView:
     view = RunView(tuple(rr["channels"]), **size)
     view.show(rr)
     return view
+
+
+def ladder_figure(steps, width: int | None = None, height: int = 260):
+    """The error ladder as an interactive figure: rmse/noise after each rung (overall and
+    per channel), the cross-validated error where known and the noise floor at 1, on a
+    log scale; hover gives each rung's numbers. ``steps``: a Ladder's ``to_json()["steps"]``
+    (or its :class:`~labrig.diagnosis.ladder.LadderStep` objects)."""
+    from bokeh.models import FactorRange, LogAxis  # noqa: F401  (log scale by y_axis_type)
+
+    steps = [s.to_json() if hasattr(s, "to_json") else s for s in steps]
+    labels = [f"{k}: {s['label']}" for k, s in enumerate(steps)]
+    size = dict(width=width) if width else dict(sizing_mode="stretch_width")
+    f = figure(x_range=FactorRange(*labels), y_axis_type="log", height=height,
+               y_axis_label="rmse / noise", title="The error falls: rmse/noise after each rung",
+               tools="hover,reset,save", **size)
+    data = {"x": labels, "overall": [], "cv": [], "speed": [], "position": []}
+    for s in steps:
+        r = s.get("rmse_over_noise") or {}
+        data["overall"].append(r.get("overall", np.nan))
+        data["speed"].append(r.get("speed", np.nan))
+        data["position"].append(r.get("position", np.nan))
+        cv = s.get("cross_validated")
+        data["cv"].append(np.nan if cv is None else cv)
+    src = ColumnDataSource(data)
+    f.line("x", "overall", source=src, line_width=2, color="#1f77b4", legend_label="overall")
+    f.scatter("x", "overall", source=src, size=9, color="#1f77b4", legend_label="overall")
+    for key, colour, marker in (("speed", "#ff7f0e", "square"), ("position", "#2ca02c",
+                                                                  "triangle")):
+        f.scatter("x", key, source=src, size=7, color=colour, marker=marker, legend_label=key)
+    f.scatter("x", "cv", source=src, size=8, color="#d62728", marker="diamond",
+              legend_label="cross-validated")
+    f.add_layout(Span(location=1.0, dimension="width", line_dash="dotted", line_color="black"))
+    f.hover.tooltips = [("rung", "@x"), ("rmse/noise", "@overall{0.00}"),
+                        ("speed", "@speed{0.00}"), ("position", "@position{0.00}"),
+                        ("cross-validated", "@cv{0.00}")]
+    f.legend.location = "top_right"
+    f.xaxis.major_label_orientation = 0.25
+    return f

@@ -79,6 +79,13 @@ class Ladder(Displayable):
 
         return plot_ladder(self, ax=ax)
 
+    def view(self, **size):
+        """The ladder as an interactive Bokeh figure (hover for each rung's numbers), what
+        the lab page shows."""
+        from labrig.diagnosis.interactive import ladder_figure
+
+        return ladder_figure(self.steps, **size)
+
 
 def rung_label(names, previous) -> str:
     """A rung's label that names exactly the effects of its model.

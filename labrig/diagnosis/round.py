@@ -129,10 +129,12 @@ class Round:
                                     "of the model re-fitted, not the effect")
         return c
 
-    def candidates(self, names=None, progress=None) -> tuple[list[Candidate], list[str]]:
+    def candidates(self, names=None, progress=None,
+                   on_candidate=None) -> tuple[list[Candidate], list[str]]:
         """Every effect the base could take (or ``names``), re-fitted side by side
         (:mod:`labrig.core.parallel`) in the catalogue's order: ``(ranked, diverged)``,
-        the second naming those whose every start diverged."""
+        the second naming those whose every start diverged. ``progress(i, name)`` hears
+        each re-fit start, ``on_candidate(candidate, None)`` each one done."""
         def one(job):
             i, name = job
             if progress:
@@ -142,7 +144,10 @@ class Round:
                                    fixed=self.fixed, weights=self.weights, reach=self.reach)
             except FitDiverged:
                 return name   # every start diverged: said in the verdict, not ranked
-            return self.entry(ident, name)
+            c = self.entry(ident, name)
+            if on_candidate:
+                on_candidate(c, None)
+            return c
 
         tried = each(one, enumerate(candidate_names(self.base, names, self.runs, self.ev0)))
         diverged = [c for c in tried if isinstance(c, str)]
@@ -196,20 +201,27 @@ class Round:
         return out
 
     # -- the ranking -----------------------------------------------------------------
-    def rank(self, ranking: list[Candidate], revisions: list[Candidate]) -> list[Candidate]:
+    def rank(self, ranking: list[Candidate], revisions: list[Candidate],
+             on_candidate=None) -> list[Candidate]:
         """The leaders cross-validated (the largest gains; every removal, and each
         replacement that gains or, simpler, fits about as well), each judged by the
-        criteria, best first."""
+        criteria, best first; ``on_candidate(candidate, held_out_rmse)`` hears each
+        cross-validation done."""
         by_fit = sorted(ranking, key=lambda c: -c.improvement)
         to_cv = [c for c in by_fit if c.improvement >= MIN_GAIN][:CV_CANDIDATES]
         # (a simpler replacement is judged "about as good": cross-validated when its
         # in-sample fit is within that margin too)
         to_cv += [c for c in revisions if c.move == "remove" or c.improvement >= SWAP_GAIN
                   or (c.extra_params < 0 and c.improvement >= -SIMPLER_MARGIN)]
-        cvs = each(lambda c: cross_validate(self.runs, c.model, self.folds,
-                                            sigmas=self.ev0.sigmas, weights=self.weights,
-                                            seed=self.seed, fixed=self.fixed,
-                                            reach=Reach.of(self.runs, c.model)), to_cv)
+        def held_out(c):
+            cv = cross_validate(self.runs, c.model, self.folds, sigmas=self.ev0.sigmas,
+                                weights=self.weights, seed=self.seed, fixed=self.fixed,
+                                reach=Reach.of(self.runs, c.model))
+            if on_candidate:
+                on_candidate(c, cv.rmse)
+            return cv
+
+        cvs = each(held_out, to_cv)
         for c, cv in zip(to_cv, cvs):
             c.cross_validated = fold_evidence(self.cv0, cv, c.model,
                                               None if c.move == "remove" else c.effect)

@@ -69,16 +69,17 @@ class Explorer:
             self._runs, self._runs_key = lr.read_runs(folders), key
         return self._runs
 
-    def set_model(self, model, fitted: bool = False) -> None:
+    def set_model(self, model, fitted: bool = False, why: str = "") -> None:
         """Start from ``model`` (a Model, or a rung's JSON; ``fitted``: a rung's fit, the
-        one the sliders mark and *Back to the fit* returns to): its sliders, its curves."""
+        one the sliders mark and *Back to the fit* returns to; ``why``: what it is, when
+        neither that nor set by hand): its sliders, its curves."""
         if model is None:
             return
         if isinstance(model, dict):
             model = lr.model_from_json(model, "the lab page's model")
         if fitted or self.fitted is None:
             self.fitted = model
-        self.model = model
+        self.model, self._why = model, why
         self._build_sliders()
         names = set(model.names)
         self.try_pick.options = [n for n in lr.effects() if n not in names]
@@ -110,11 +111,12 @@ class Explorer:
 
     # -- moves -----------------------------------------------------------------------
     _generation = 0
+    _why = ""
 
     def _slide(self, key: str, value: float, gen: int) -> None:
         if gen != self._generation:
             return
-        self.model = self.model.with_value(key, value)
+        self.model, self._why = self.model.with_value(key, value), ""
         self.redraw()
 
     def redraw(self) -> None:
@@ -127,7 +129,8 @@ class Explorer:
             return
         rm = self.ev.metrics["rmse_over_noise"]
         label = " + ".join(["linear"] + self.model.names)
-        hand = "" if self.model is self.fitted else " (set by hand, not fitted)"
+        hand = ("" if self.model is self.fitted else f" ({self._why})" if self._why
+                else " (set by hand, not fitted)")
         self.number.object = (f"### rmse/noise {rm['overall']:.2f}\n{label}{hand}; "
                               + ", ".join(f"{ch} {v:.2f}" for ch, v in rm.items()
                                           if ch != "overall"))

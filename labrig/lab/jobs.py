@@ -67,10 +67,17 @@ def overlays(folders, model_doc, names) -> dict:
     return {name: _png(ev.plot(run=name)) for name in names}
 
 
-def diagnose(folders, model_doc) -> dict:
+def diagnose(folders, model_doc, log=None) -> dict:
     """The ranking of the effects the model lacks, with the evidence, the confusable pairs
-    and each effect's physics sentence."""
-    diag = lr.diagnose(_runs(folders), _model(model_doc), seed=LAB_SEED)
+    and each effect's physics sentence; ``log`` hears each candidate as it is re-fitted
+    and cross-validated (the ranking forming on the page)."""
+    def progress(event):
+        if log is not None and event.kind in ("fitted", "validated"):
+            c = event.data
+            log({"kind": event.kind, "label": c.label, "rmse_over_noise": c.rmse_over_noise,
+                 "cross_validated": event.done})
+
+    diag = lr.diagnose(_runs(folders), _model(model_doc), seed=LAB_SEED, progress=progress)
     pairs = lr.confusable_pairs(diag, 1)
     rows = []
     for c in diag.ranking:
@@ -83,7 +90,9 @@ def diagnose(folders, model_doc) -> dict:
                      "supported": c.supported, "at_bound": list(c.at_bound),
                      "confusable_with": [p.second if p.first == c.effect else p.first
                                          for p in pairs if c.effect in (p.first, p.second)],
-                     "physics": lr.effect(c.effect).summary})
+                     "physics": lr.effect(c.effect).summary,
+                     # its re-fitted model: a click shows its curves on the runs
+                     "model": c.model.to_json() if c.model is not None else None})
     return {"json": diag.to_json(), "rows": rows, "recommendation": diag.recommendation,
             "verdict": diag.verdict, "pairs": [p.to_json() for p in pairs],
             "figure": _png(diag.plot()), "tables": _html(diag.table_rows())}
@@ -92,7 +101,7 @@ def diagnose(folders, model_doc) -> dict:
 def ladder(folders, model_docs) -> dict:
     """The error ladder of the rungs so far."""
     lad = lr.ladder(_runs(folders), [_model(d) for d in model_docs])
-    return {"json": lad.to_json(), "figure": _png(lad.plot()), "tables": _html(lad.table_rows())}
+    return {"json": lad.to_json(), "tables": _html(lad.table_rows())}
 
 
 def auto(folders, max_rounds=3, log=None) -> dict:
@@ -108,10 +117,13 @@ def auto(folders, max_rounds=3, log=None) -> dict:
             cv = info.get("cross_validated")
             log(event.text + (f" — rmse/noise {rmse:.2f}" if rmse is not None else "")
                 + (f", cross-validated {cv:.2f}" if cv is not None else ""))
+            # the rung's model, so the page redraws its curves as the search climbs
+            log({"kind": "rung", "label": event.text, "model": event.data.to_json(),
+                 "rmse_over_noise": rmse, "cross_validated": cv})
 
     res = lr.auto(_runs(folders), max_rounds=max_rounds, seed=LAB_SEED, progress=progress)
     return {"json": res.to_json(), "model": res.model.to_json(), "effects": res.model.names,
-            "figure": _png(res.plot()), "tables": _html(res.ladder.table_rows()),
+            "tables": _html(res.ladder.table_rows()),
             "verdict": res.verdict}
 
 

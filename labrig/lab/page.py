@@ -16,6 +16,7 @@ from bokeh.plotting import figure
 
 from labrig.core.display import png_html as _img
 from labrig.core.errors import LabrigError
+import labrig.verbs.figures as lrf
 from labrig.lab.explore import Explorer
 from labrig.lab.plan_form import PlanForm
 from labrig.lab.station import Station, as_array
@@ -87,11 +88,18 @@ class LabPage:
         self.status = pn.pane.Markdown("", css_classes=["lab-status"])
         self.progress = pn.indicators.Progress(active=False, visible=False, width=200)
         self.now = pn.pane.Markdown("", css_classes=["lab-rmse"])
+        self.forming = pn.pane.HTML("", sizing_mode="stretch_width", css_classes=["lab-forming"])
         self.run_pick = pn.widgets.Select(name="run", options=[], width=200,
                                           css_classes=["lab-run-pick"])
         self.run_pick.param.watch(lambda e: self._show_overlay(), "value")
         self.overlay = pn.pane.HTML("", sizing_mode="stretch_width", css_classes=["lab-overlay"])
         self.ladder = pn.pane.HTML("", sizing_mode="stretch_width", css_classes=["lab-ladder"])
+        self.ladder_plot = pn.pane.Bokeh(None, sizing_mode="stretch_width",
+                                         css_classes=["lab-ladder-plot"])
+        self.show_pick = pn.widgets.Select(name="show a candidate's re-fit on the runs",
+                                           options=[], width=260, css_classes=["lab-show-pick"])
+        self.show_btn = pn.widgets.Button(name="Show", css_classes=["lab-show"])
+        self.show_btn.on_click(lambda e: self._show_candidate())
         self.evidence = pn.pane.HTML("", sizing_mode="stretch_width", css_classes=["lab-evidence"])
         self.add_pick = pn.widgets.Select(name="add", options=[], width=200)
         self.add_btn = pn.widgets.Button(name="Add", button_type="success", css_classes=["lab-add"])
@@ -115,10 +123,12 @@ class LabPage:
                           self.rm_btn, self.rep_btn, self.save_btn, *self.explore.drivers]
         actions = pn.Column(
             pn.Row(self.fit_btn, self.auto_btn, self.cancel_btn, self.progress), self.status,
-            self.now, pn.pane.Markdown("#### The error falls"), self.ladder,
+            self.forming,
+            self.now, pn.pane.Markdown("#### The error falls"), self.ladder_plot, self.ladder,
             pn.Row(self.add_pick, self.add_btn),
             pn.Row(self.rm_pick, self.rm_btn, self.rep_new, self.rep_btn),
-            self.evidence, pn.Row(self.save_name, self.save_force, self.save_btn),
+            self.evidence, pn.Row(self.show_pick, self.show_btn),
+            pn.Row(self.save_name, self.save_force, self.save_btn),
             self.save_note, sizing_mode="stretch_width")
         hand = pn.Column(pn.pane.Markdown(
             "#### Try it by hand\nDrag a parameter and watch the curves and the error move; "
@@ -231,6 +241,7 @@ class LabPage:
             self._show_loop()
         busy = st.busy()
         self.progress.visible = self.progress.active = busy
+        self._show_stream()
         rungs = [line for line in st.log if line.startswith("rung ")]
         _set(self.status, (
             f"working: {st.worker.name} ({time.monotonic() - st.worker.started:.0f} s)"
@@ -297,9 +308,11 @@ class LabPage:
                 if rec["move"] == "replace":
                     self.rep_new.value = rec["effect"]
             self.evidence.object = _evidence_html(d)
+            self.show_pick.options = [row["label"] for row in d["rows"] if row.get("model")]
             self.pair_pick.options = [",".join(p["pair"]) for p in d["pairs"]]
         if st.ladder:
-            self.ladder.object = _img(st.ladder["figure"], 520) + "".join(st.ladder["tables"])
+            self.ladder_plot.object = lrf.ladder_view(st.ladder["json"]["steps"])
+            self.ladder.object = "".join(st.ladder["tables"])
         if st.proposal:
             p = st.proposal
             self.proposal.object = (_img(p["figure"], 1100) + "<pre style=\"white-space:pre-wrap\">"
@@ -311,6 +324,35 @@ class LabPage:
         if st.decision:
             self.decision.object = ("<b>the rig says:</b> " + _esc(st.decision["text"])
                                     + "".join(st.decision.get("tables", [])))
+
+    def _show_candidate(self) -> None:
+        """A candidate of the ranking, as the diagnosis re-fitted it, on the runs (the
+        hand view: its curves, its sliders)."""
+        d = self.st.diagnosis
+        row = next((r for r in (d or {}).get("rows", []) if r["label"] == self.show_pick.value),
+                   None)
+        if row is not None and row.get("model"):
+            self.explore.set_model(row["model"], why=f"{row['label']}, as the diagnosis "
+                                                     "re-fitted it")
+
+    def _show_stream(self) -> None:
+        """While a job runs: the ranking as its candidates come back, and each rung of the
+        search's ladder, its model drawn on the runs by the hand view."""
+        st = self.st
+        if len(st.stream) < self._streamed:   # a new job: its own stream
+            self._streamed = 0
+        if not st.stream:
+            _set(self.forming, "")
+            return
+        if len(st.stream) == self._streamed:
+            return
+        for e in st.stream[self._streamed:]:
+            if e["kind"] == "rung":
+                self.explore.set_model(e["model"], fitted=True)
+        self._streamed = len(st.stream)
+        self.forming.object = _forming_html(st.stream)
+
+    _streamed = 0
 
     def _show_overlay(self) -> None:
         if self.owner:
@@ -324,6 +366,31 @@ class LabPage:
         self.overlay.object = f"<p>drawing the model on {_esc(self.run_pick.value)}…</p>"
         if self.owner and self.st.idle():   # a Cancel stopped the drawing: again
             self.st.draw_overlays()
+
+
+def _forming_html(stream: list[dict]) -> str:
+    """The candidates re-fitted so far, best first, with their held-out error once known;
+    or the rungs the search has climbed."""
+    rungs = [e for e in stream if e["kind"] == "rung"]
+    if rungs:
+        rows = "".join(f"<tr><td>{_esc(e['label'])}</td><td>{_num(e['rmse_over_noise'])}</td>"
+                       f"<td>{_num(e['cross_validated'])}</td></tr>" for e in rungs)
+        return ("<p><b>the search so far</b></p><table class='lab-table'><tr><th>rung</th>"
+                f"<th>rmse/noise</th><th>cross-validated</th></tr>{rows}</table>")
+    seen: dict = {}
+    for e in stream:
+        row = seen.setdefault(e["label"], {"rmse": e["rmse_over_noise"], "cv": None})
+        if e["kind"] == "validated":
+            row["cv"] = e["cross_validated"]
+    rows = "".join(f"<tr><td>{_esc(k)}</td><td>{_num(v['rmse'])}</td><td>{_num(v['cv'])}</td></tr>"
+                   for k, v in sorted(seen.items(), key=lambda kv: kv[1]["rmse"]))
+    return (f"<p><b>the ranking as it forms ({len(seen)} re-fitted)</b></p>"
+            "<table class='lab-table'><tr><th>candidate</th><th>rmse/noise</th>"
+            f"<th>cross-validated</th></tr>{rows}</table>")
+
+
+def _num(x) -> str:
+    return "…" if x is None else f"{x:.2f}"
 
 
 def _set(pane, text: str) -> None:

@@ -74,6 +74,10 @@ class Station:
         self.decision: dict | None = None
         self.error = ""
         self.log: list[str] = []
+        #: the running job's events (a candidate re-fitted or cross-validated, a rung)
+        self.stream: list[dict] = []
+        #: the last finished job's name and whole stream (the next job starts its own)
+        self.streamed: tuple = ("", [])
         self._bridge = None
         self._from_auto = False
         self._queued = None                # a click that came while overlays were drawn
@@ -180,6 +184,7 @@ class Station:
     def submit(self, name, fn, *args, **kw) -> None:
         self.error = ""
         self.log = []
+        self.stream = []
         if self.drawing():   # after this figure (about half a second), not after them all
             self._queued = (name, fn, args, kw)
             return
@@ -240,11 +245,13 @@ class Station:
 
     def poll(self) -> bool:
         """Take in a finished job's result; True when something changed."""
-        self.log += self.worker.logs()
+        for item in self.worker.logs():   # lines to read, events to show as they come
+            (self.stream if isinstance(item, dict) else self.log).append(item)
         done = self.worker.poll()
         if done is None:
             return False
         name, value, error = done
+        self.streamed = (name, list(self.stream))   # the finished job's, whole
         if error is not None:
             message = str(error).splitlines()[0] if str(error) else type(error).__name__
             self._submit_queued()   # a figure failed; the click that waited on it still runs
@@ -272,8 +279,7 @@ class Station:
             self.rungs[-1]["overlays"].update(value)
             self.draw_overlays()
         elif name == "auto":
-            self.ladder = {"json": {"steps": value["json"]["ladder"]}, "figure": value["figure"],
-                           "tables": value["tables"]}
+            self.ladder = {"json": {"steps": value["json"]["ladder"]}, "tables": value["tables"]}
             self._from_auto = True
             self.submit("fit", jobs.fit, [self.folder], value["model"])
         elif name == "propose":

@@ -84,13 +84,16 @@ class Worker:
         except Exception as exc:   # the job's own error, shown on the page as one line
             return self.name, None, exc
 
-    def logs(self) -> list[str]:
+    def logs(self) -> list:
+        """What the job reported since: lines (str) and events (dicts, what the page
+        streams: a candidate done, a rung of the ladder)."""
         out = []
         while not self._queue.empty():
             try:
-                out.append(str(self._queue.get_nowait()))
+                item = self._queue.get_nowait()
             except Exception:
                 break
+            out.append(item if isinstance(item, dict) else str(item))
         return out
 
     def cancel(self) -> None:

@@ -69,3 +69,10 @@ def run_view(per_run: dict, **size):
     from labrig.diagnosis.interactive import run_view as _view
 
     return _view(per_run, **size)
+
+
+def ladder_view(steps, **size):
+    """The error ladder (a Ladder's ``to_json()["steps"]``) as an interactive Bokeh figure."""
+    from labrig.diagnosis.interactive import ladder_figure
+
+    return ladder_figure(steps, **size)

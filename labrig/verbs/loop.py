@@ -15,7 +15,9 @@ def diagnose(source, model=None, *, candidates=None, seed: int = SEED,
 
     ``model`` (a Model, a model file or an Identification) defaults to the linear model
     fitted here; ``weights`` (:func:`channel_weights`) default to balanced on it;
-    ``progress(event)`` hears each candidate's re-fit start (kind ``candidate``). Returns a
+    ``progress(event)`` hears each candidate's re-fit start (kind ``candidate``), each
+    re-fit done (``fitted``) and each held-out error known (``validated``): the ranking
+    as it forms. Returns a
     :class:`~labrig.diagnosis.ranking.Diagnosis`; its ``recommended_model()`` is the
     re-fitted model with the recommended effect.
     """
@@ -28,7 +30,18 @@ def diagnose(source, model=None, *, candidates=None, seed: int = SEED,
                      fixed=fixed, candidates=list(candidates) if candidates else None,
                      weights=weights, progress=None if progress is None else (
                          lambda i, name: progress(Event("diagnose", "candidate", i, None,
-                                                        f"re-fitting {name}", name))))
+                                                        f"re-fitting {name}", name))),
+                     on_candidate=None if progress is None else (
+                         lambda c, cv: progress(_candidate_event(c, cv))))
+
+
+def _candidate_event(c, cv) -> Event:
+    """A candidate done: re-fitted (``cv`` None) or cross-validated."""
+    if cv is None:
+        return Event("diagnose", "fitted", None, None,
+                     f"{c.label}: rmse/noise {c.rmse_over_noise:.2f}", c)
+    return Event("diagnose", "validated", cv, None,
+                 f"{c.label}: cross-validated {cv:.2f}", c)
 
 
 def channel_weights(p: float = 1.0, q: float = 1.0):
