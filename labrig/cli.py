@@ -138,7 +138,7 @@ def _exit_on_signal(signum, frame):
     for sig in (signal.SIGTERM, signal.SIGHUP):  # one line, even if a second one comes
         signal.signal(sig, signal.SIG_IGN)
     try:
-        helper = sys.modules.get("labrig.commands.step_helper")
+        helper = sys.modules.get("labrig.step_helper")
         if helper is not None:
             helper.kill_now()
         print(f"labrig: {Terminated(signum)}", file=sys.stderr, flush=True)
@@ -169,7 +169,7 @@ def _main(argv=None) -> int:
             parser.print_help(sys.stderr)
             return 2
         if getattr(args.func, "fits", False):
-            from labrig.commands import step_helper   # python-control, on the other core
+            import labrig.step_helper as step_helper   # python-control, on the other core
 
             step_helper.start()
         return int(args.func(args) or 0)
@@ -204,7 +204,7 @@ def run() -> None:
     import os
 
     from labrig.core.timing import mark
-    from labrig.commands import step_helper
+    import labrig.step_helper as step_helper
 
     step_helper.allow()   # a fresh process, no thread yet: commands may fork their helper
     code = main()

@@ -29,7 +29,7 @@ LAYERS = [
     ["report"],      # the HTML report
     ["lab"],         # the lab station in the browser (Panel)
     ["commands"],    # one module per subcommand
-    ["cli", "__main__"],
+    ["cli", "__main__", "step_helper"],   # the command line (its step-metrics helper process)
     ["labrig"],      # the package itself: the public names
 ]
 

@@ -146,3 +146,11 @@ def test_the_command_line_keeps_freed_memory_in_the_heap():
         assert out.stdout.split() == [first, "False"]
     else:
         assert out.stdout.split() == ["False", "False"]
+
+
+def test_numpy_loads_after_the_command_line_holds_blas_to_one_thread():
+    """What ``labrig.cli.run`` imports before ``main`` sets OPENBLAS_NUM_THREADS=1 (the
+    step-metrics helper's module among it) loads no numpy: a BLAS that starts threaded
+    sums in another order, and the last digits of a fit moved with it."""
+    mods = _imported("import labrig.cli\nimport labrig.step_helper as h\nh.allow()")
+    assert "numpy" not in mods

@@ -1,5 +1,5 @@
 """The step-metrics helper: python-control imported in a second process while the fit
-runs (labrig/commands/step_helper.py). Each case runs in a fresh interpreter, as the command
+runs (labrig/step_helper.py). Each case runs in a fresh interpreter, as the command
 line does: the helper is only forked from a process without threads."""
 from __future__ import annotations
 
@@ -19,7 +19,7 @@ SERVO = "ServoParams(R=8.0, L=0.01, J=2e-4, B=1e-4, K=0.05, Ka=2.0, N=30.0)"
 
 def _run(body: str) -> dict:
     code = ("import json, os, sys\n"
-            "from labrig.commands import step_helper\n"
+            "from labrig import step_helper\n"
             "from labrig.model.servo import ServoParams, step_info\n" + body)
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          timeout=120, check=True)

@@ -18,7 +18,7 @@ COMMANDS: dict = {}
 def command(name, help, fits=False):
     """Register ``func(args)`` as a subcommand; ``func.configure(parser)`` adds options.
     ``fits``: the command fits models and reports their step metrics (the command line
-    starts its step-metrics helper for it, ``labrig.commands.step_helper``)."""
+    starts its step-metrics helper for it, ``labrig.step_helper``)."""
     def deco(func):
         func.fits = fits
         COMMANDS[name] = (func, help)

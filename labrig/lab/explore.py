@@ -94,18 +94,25 @@ class Explorer:
                 items.append((f"{e.name}.{p.name}", m.effect_params[e.name][p.name], p.unit,
                               (p.lower, p.upper)))
         fitted = self.fitted.flat() if self.fitted is not None else {}
+        shown = lr.drive_units(m)   # an effect's level in N m or N on such a drive
         self._generation += 1   # a move still queued on the sliders replaced is dropped
         gen = self._generation
         for key, value, unit, bounds in items:
-            lo, hi = _span(float(value), bounds)
+            label, f = key, 1.0
+            if key in shown:
+                label, f, unit = shown[key]
+                bounds = tuple(b * f for b in bounds) if bounds else bounds
+            value = float(value) * f
+            lo, hi = _span(value, bounds)
             mark = fitted.get(key)
             s = pn.widgets.FloatSlider(
-                name=f"{key} ({unit})" + (f", fitted {mark:.4g}" if mark is not None else
-                                          ", unfitted"),
+                name=f"{label} ({unit})" + (f", fitted {mark * f:.4g}" if mark is not None
+                                            else ", unfitted"),
                 start=lo, end=hi, step=(hi - lo) / STEPS, value=min(max(float(value), lo), hi),
                 format=PrintfTickFormatter(format="%.4g"), width=320,
                 css_classes=["lab-slider", f"lab-slider-{_css(key)}"])
-            s.param.watch(lambda e, key=key, gen=gen: self._slide(key, e.new, gen), "value")
+            s.param.watch(lambda e, key=key, f=f, gen=gen: self._slide(key, e.new / f, gen),
+                          "value")
             rows.append(s)
         self.sliders.objects = rows
 

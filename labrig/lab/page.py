@@ -246,7 +246,8 @@ class LabPage:
         _set(self.status, (
             f"working: {st.worker.name} ({time.monotonic() - st.worker.started:.0f} s)"
             + "".join(f"  \n{line}" for line in rungs[-6:])
-            + (f"  \n{st.log[-1].splitlines()[0]}" if st.log else "")) if busy else (
+            + (f"  \n{st.log[-1].splitlines()[0]}" if st.log and st.log[-1] not in rungs[-6:]
+               else "")) if busy else (
             "drawing the model on the other runs" if st.drawing() else ""))
         self._paint_error()
         for w in (self.fit_btn, self.auto_btn, self.add_btn, self.rm_btn, self.rep_btn,

@@ -14,6 +14,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from labrig.core.offload import handler
+
 if TYPE_CHECKING:  # python-control costs ~0.8 s to import: only the methods that
     import control  # build its objects load it (labrig's own simulators do not need it)
 
@@ -168,23 +170,10 @@ class ServoParams:
                 "overshoot_percent": float(info["Overshoot"])}
 
 
-#: who computes the position loop's step metrics (``fn(servo, kp, kv)``): None, this
-#: process with python-control; the command line hands them to a helper process that
-#: imports python-control on the other core while the fit runs
-#: (:mod:`labrig.commands.step_helper`)
-_step_info_by = None
-
-
-def step_info_by(fn) -> None:
-    """Compute :func:`step_info` with ``fn(servo, kp, kv)`` from now on (None: in this
-    process). ``fn`` must give what :meth:`ServoParams.position_step_info` gives."""
-    global _step_info_by
-    _step_info_by = fn
-
-
 def step_info(servo: ServoParams, kp: float, kv: float) -> dict:
     """Rise time, settling time and overshoot of the closed position loop
-    (:meth:`ServoParams.position_step_info`), where :func:`step_info_by` says."""
-    if _step_info_by is not None:
-        return _step_info_by(servo, kp, kv)
-    return servo.position_step_info(kp, kv)
+    (:meth:`ServoParams.position_step_info`), in this process unless a front end handed
+    the job elsewhere (:mod:`labrig.core.offload`, job ``"step_info"``: the command
+    line's helper process)."""
+    fn = handler("step_info")
+    return fn(servo, kp, kv) if fn is not None else servo.position_step_info(kp, kv)

@@ -31,7 +31,8 @@ cores), ``import labrig.verbs`` takes 0.02 s and the library's modules eagerly 0
 a notebook would pay.
 """
 from labrig.verbs.acquire import emulator, live, open_bridge, play, sweep
-from labrig.verbs.data import (check_plan, effect, effects, import_run, load_identify_config,
+from labrig.verbs.data import (check_plan, drive_units, effect, effects, import_run,
+                               load_identify_config,
                                load_model, load_plan, load_rig, model_from_json, model_of,
                                parse_effects, plan_files, read_runs, runs_for_fit, runs_of)
 from labrig.verbs.fit import (add_effect, analyse, compare, identify, ladder, remove_effect,
@@ -45,7 +46,7 @@ __all__ = [
     # data
     "read_runs", "runs_of", "runs_for_fit", "import_run", "load_model", "model_from_json",
     "model_of", "effects", "effect", "parse_effects", "load_rig", "load_plan", "plan_files",
-    "check_plan", "load_identify_config",
+    "check_plan", "load_identify_config", "drive_units",
     # acquisition
     "sweep", "open_bridge", "live", "play", "emulator",
     # fits

@@ -164,3 +164,14 @@ def load_identify_config(path):
     from labrig.io.identify_config import load_identify_config as _load
 
     return _load(path)
+
+
+def drive_units(model) -> dict:
+    """How ``model``'s effect levels read on its drive: ``{"coulomb_friction.tc_v":
+    ("coulomb_friction.tc_nm", factor, "N m")}`` for each input-volt parameter on a
+    torque or force drive (value in the drive's unit = factor x value); empty on a
+    voltage drive."""
+    from labrig.model.drive_units import shown_keys
+
+    m = model_of(model)
+    return shown_keys(m.effects, m.plant, m.constants)

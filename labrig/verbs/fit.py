@@ -129,6 +129,6 @@ def step_metrics_by(fn) -> None:
     overshoot) with ``fn(servo, kp, kv)`` from now on; None: in this process. The
     command line hands them to a helper process that imports python-control on the
     other core while the fit runs."""
-    from labrig.model.servo import step_info_by
+    from labrig.core.offload import hand
 
-    step_info_by(fn)
+    hand("step_info", fn)

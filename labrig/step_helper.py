@@ -77,9 +77,9 @@ def start() -> None:
         signal.pthread_sigmask(signal.SIG_SETMASK, held)
         theirs.close()
     _helper = (proc, ours)
-    from labrig.verbs.fit import step_metrics_by
+    from labrig.core.offload import hand   # (light: numpy's import keeps its place)
 
-    step_metrics_by(position_step_info)   # the library's fits ask the helper from now on
+    hand("step_info", position_step_info)   # the library's fits ask the helper from now on
 
 
 def stop() -> None:
