@@ -156,3 +156,17 @@ def test_the_interactive_view_draws_what_compare_computes():
     assert moved > ev.metrics["rmse_over_noise"]["overall"]
     with pytest.raises(KeyError):
         hand.with_value("deadband.d_v", 0.1)
+
+
+def test_the_ladder_and_the_ranking_as_interactive_figures():
+    """``Ladder.view()`` and ``Diagnosis.view()``: the numbers of the results they show."""
+    runs = lr.read_runs(DATA)
+    m0 = lr.identify(runs, seed=0).model()
+    diag = lr.diagnose(runs, m0, candidates=["deadband", "coulomb_friction"])
+    fig = diag.view()
+    data = fig.renderers[0].data_source.data
+    assert list(data["label"])[::-1] == [c.label for c in diag.ranking]
+    assert list(data["rmse"])[::-1] == [c.rmse_over_noise for c in diag.ranking]
+    lad = lr.ladder(runs, [m0, diag.recommended_model()])
+    src = lad.view().renderers[0].data_source.data
+    assert list(src["overall"]) == [s.rmse_over_noise["overall"] for s in lad.steps]

@@ -280,6 +280,7 @@ def test_the_loop_by_hand_sliders_an_effect_tried_and_a_fit_from_there(browser, 
                   "the candidate's curves")
         assert page.number(".lab-try-rmse", r"rmse/noise ([\d.]+)") > 3.0   # friction gone
         assert page.page.locator(".lab-ladder-plot canvas").count() >= 1
+        assert page.page.locator(".lab-ranking-plot canvas").count() >= 1
         page.page.get_by_text("Ask the rig", exact=True).click()
         page.wait(lambda: "nothing to ask" in page.text(".lab-ask-note"), 30, "the reason")
         assert page.page.locator(".lab-propose button").first.is_disabled()

@@ -155,3 +155,45 @@ def ladder_figure(steps, width: int | None = None, height: int = 260):
     f.legend.location = "top_right"
     f.xaxis.major_label_orientation = 0.25
     return f
+
+
+def ranking_figure(rows, width: int | None = None):
+    """The diagnosis' ranking as an interactive figure: each move's rmse/noise after its
+    re-fit (a bar, log scale; green when supported), its cross-validated error where
+    known (a diamond) and the noise floor at 1; hover gives the numbers. ``rows``: the
+    candidates (``Diagnosis.ranking``) or their dicts (``label``, ``rmse_over_noise``,
+    ``cross_validated``, ``supported``)."""
+    from bokeh.models import FactorRange
+
+    rows = [_row(r) for r in rows]
+    labels = [r["label"] for r in rows][::-1]            # the best at the top
+    size = dict(width=width) if width else dict(sizing_mode="stretch_width")
+    f = figure(y_range=FactorRange(*labels), x_axis_type="log",
+               height=40 + 26 * max(len(rows), 1), x_axis_label="rmse / noise after the move",
+               title="The ranking: each candidate's error after its re-fit",
+               tools="hover,reset,save", **size)
+    src = ColumnDataSource({
+        "label": labels,
+        "rmse": [r["rmse_over_noise"] for r in rows][::-1],
+        "cv": [np.nan if r["cross_validated"] is None else r["cross_validated"]
+               for r in rows][::-1],
+        "colour": ["#2ca02c" if r["supported"] else "#9e9e9e" for r in rows][::-1],
+        "supported": ["yes" if r["supported"] else "no" for r in rows][::-1]})
+    f.hbar(y="label", right="rmse", left=0.5, height=0.6, color="colour", source=src,
+           alpha=0.7)
+    f.scatter(x="cv", y="label", marker="diamond", size=10, color="#d62728", source=src,
+              legend_label="cross-validated")
+    f.add_layout(Span(location=1.0, dimension="height", line_dash="dotted",
+                      line_color="black"))
+    f.hover.tooltips = [("move", "@label"), ("rmse/noise", "@rmse{0.00}"),
+                        ("cross-validated", "@cv{0.00}"), ("supported", "@supported")]
+    f.legend.location = "bottom_right"
+    return f
+
+
+def _row(r) -> dict:
+    if isinstance(r, dict):
+        return r
+    cv = r.cross_validated
+    return {"label": r.label, "rmse_over_noise": r.rmse_over_noise,
+            "cross_validated": cv["with_effect"] if cv else None, "supported": r.supported}

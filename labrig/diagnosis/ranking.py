@@ -279,6 +279,13 @@ class Diagnosis(Displayable):
                        f"the model with this change ({c.label}), re-fitted")
         return "\n".join(out)
 
+    def view(self, **size):
+        """The ranking as an interactive Bokeh figure (hover for each move's numbers),
+        what the lab page shows beside the table."""
+        from labrig.diagnosis.interactive import ranking_figure
+
+        return ranking_figure(self.ranking, **size)
+
     def plot(self, ax=None, kind: str = "ranking"):
         """``kind="ranking"``: the candidates with their evidence (in-sample and
         cross-validated rmse/noise, dBIC, folds) beside where the model fails;

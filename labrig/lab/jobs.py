@@ -95,7 +95,7 @@ def diagnose(folders, model_doc, log=None) -> dict:
                      "model": c.model.to_json() if c.model is not None else None})
     return {"json": diag.to_json(), "rows": rows, "recommendation": diag.recommendation,
             "verdict": diag.verdict, "pairs": [p.to_json() for p in pairs],
-            "figure": _png(diag.plot()), "tables": _html(diag.table_rows())}
+            "tables": _html(diag.table_rows())}   # (its figure: the page draws it, Bokeh)
 
 
 def ladder(folders, model_docs) -> dict:

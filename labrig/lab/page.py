@@ -96,6 +96,8 @@ class LabPage:
         self.ladder = pn.pane.HTML("", sizing_mode="stretch_width", css_classes=["lab-ladder"])
         self.ladder_plot = pn.pane.Bokeh(None, sizing_mode="stretch_width",
                                          css_classes=["lab-ladder-plot"])
+        self.ranking_plot = pn.pane.Bokeh(None, sizing_mode="stretch_width",
+                                          css_classes=["lab-ranking-plot"])
         self.show_pick = pn.widgets.Select(name="show a candidate's re-fit on the runs",
                                            options=[], width=260, css_classes=["lab-show-pick"])
         self.show_btn = pn.widgets.Button(name="Show", css_classes=["lab-show"])
@@ -127,7 +129,7 @@ class LabPage:
             self.now, pn.pane.Markdown("#### The error falls"), self.ladder_plot, self.ladder,
             pn.Row(self.add_pick, self.add_btn),
             pn.Row(self.rm_pick, self.rm_btn, self.rep_new, self.rep_btn),
-            self.evidence, pn.Row(self.show_pick, self.show_btn),
+            self.ranking_plot, self.evidence, pn.Row(self.show_pick, self.show_btn),
             pn.Row(self.save_name, self.save_force, self.save_btn),
             self.save_note, sizing_mode="stretch_width")
         hand = pn.Column(pn.pane.Markdown(
@@ -309,6 +311,7 @@ class LabPage:
                 if rec["move"] == "replace":
                     self.rep_new.value = rec["effect"]
             self.evidence.object = _evidence_html(d)
+            self.ranking_plot.object = lrf.ranking_view(d["rows"])
             self.show_pick.options = [row["label"] for row in d["rows"] if row.get("model")]
             self.pair_pick.options = [",".join(p["pair"]) for p in d["pairs"]]
         if st.ladder:

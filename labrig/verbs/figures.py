@@ -76,3 +76,11 @@ def ladder_view(steps, **size):
     from labrig.diagnosis.interactive import ladder_figure
 
     return ladder_figure(steps, **size)
+
+
+def ranking_view(rows, **size):
+    """A diagnosis' ranking (its candidates, or the lab's rows) as an interactive Bokeh
+    figure."""
+    from labrig.diagnosis.interactive import ranking_figure
+
+    return ranking_figure(rows, **size)
