@@ -47,12 +47,16 @@ class Server:
     def __init__(self, folder: Path, *flags, cwd: Path = ROOT):
         self.port = _free_port()
         env = {**__import__("os").environ, "PYTHONPATH": str(ROOT)}
+        # the server's own log (a page callback's error lands there), kept to look at
+        ARTEFACTS.mkdir(exist_ok=True)
+        self.log = ARTEFACTS / f"lab_server_{self.port}.log"
+        self._err = open(self.log, "w")
         self.proc = subprocess.Popen(
             [sys.executable, "-m", "labrig", "lab", str(folder), "--no-browser",
              "--http-port", str(self.port), *flags],
-            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=cwd, env=env)
+            stdout=subprocess.PIPE, stderr=self._err, text=True, cwd=cwd, env=env)
         line = self.proc.stdout.readline()
-        assert "http://127.0.0.1" in line, line + self.proc.stderr.read()
+        assert "http://127.0.0.1" in line, line + self.log.read_text()
         self.url = re.search(r"http://\S+/", line).group(0)
 
     def stop(self) -> int:
@@ -122,8 +126,12 @@ class Page:
         raise AssertionError(f"waited {timeout:.0f} s for {what}")
 
     def idle(self) -> None:
+        """No job running: the status says no "working" three looks in a row (a pane read
+        while the page redraws it reads empty, which alone proves nothing)."""
         time.sleep(1.0)
-        self.wait(lambda: "working" not in self.text(".lab-status"), 600, "the fits to finish")
+        quiet = []
+        self.wait(lambda: quiet.append("working" not in self.text(".lab-status"))
+                  or quiet[-3:] == [True] * 3, 600, "the fits to finish")
 
     def number(self, css: str, pattern: str) -> float:
         return float(re.search(pattern, self.text(css)).group(1))
