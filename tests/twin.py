@@ -599,11 +599,7 @@ def running_with_current(folder, *, R=2.0, L=0.04, K=0.05, J=1e-4, B=1e-4, fs=10
         for k in range(n):
             ws[k], cur[k] = x[1], x[0]
             for _ in range(sub):
-                k1 = f(x, u[k])
-                k2 = f(x + 0.5 * h * k1, u[k])
-                k3 = f(x + 0.5 * h * k2, u[k])
-                k4 = f(x + h * k3, u[k])
-                x = x + h / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
+                x = x + _rk4_dw(f, x, u[k], h)
         t = np.arange(n) * dt
         speed = ws + rng.normal(0.0, 0.2, n)
         current = cur + rng.normal(0.0, 0.01, n)

@@ -124,7 +124,7 @@ def ladder_figure(steps, width: int | None = None, height: int = 260):
     per channel), the cross-validated error where known and the noise floor at 1, on a
     log scale; hover gives each rung's numbers. ``steps``: a Ladder's ``to_json()["steps"]``
     (or its :class:`~labrig.diagnosis.ladder.LadderStep` objects)."""
-    from bokeh.models import FactorRange, LogAxis  # noqa: F401  (log scale by y_axis_type)
+    from bokeh.models import FactorRange
 
     steps = [s.to_json() if hasattr(s, "to_json") else s for s in steps]
     labels = [f"{k}: {s['label']}" for k, s in enumerate(steps)]

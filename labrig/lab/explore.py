@@ -62,7 +62,11 @@ class Explorer:
         self.drivers = [self.try_btn, self.reset_btn, self.fit_btn]
 
     # -- the data and the model ------------------------------------------------------
-    def runs(self):
+    def runs(self, look: bool = True):
+        """The runs of the station's folders; ``look``: read the folders' listing again
+        (a new model, a tried effect), else the runs already read (a slider's move)."""
+        if not look and self._runs is not None:
+            return self._runs
         folders = [str(f) for f in self.folders()]
         key = tuple((f, tuple(sorted(p.name for p in Path(f).glob("*.csv")))) for f in folders)
         if key != self._runs_key:
@@ -80,6 +84,7 @@ class Explorer:
         if fitted or self.fitted is None:
             self.fitted = model
         self.model, self._why = model, why
+        self._look = True   # a sweep may have added runs since: the next redraw looks
         self._build_sliders()
         names = set(model.names)
         self.try_pick.options = [n for n in lr.effects() if n not in names]
@@ -119,6 +124,7 @@ class Explorer:
     # -- moves -----------------------------------------------------------------------
     _generation = 0
     _why = ""
+    _look = True
 
     def _slide(self, key: str, value: float, gen: int) -> None:
         if gen != self._generation:
@@ -130,7 +136,8 @@ class Explorer:
         """The hand-set model on every run (the library's numbers), the picked run drawn."""
         self.error.visible = False
         try:
-            self.ev = lr.compare(self.runs(), self.model)
+            self.ev = lr.compare(self.runs(look=self._look), self.model)
+            self._look = False
         except LabrigError as exc:
             self.error.object, self.error.visible = str(exc).splitlines()[0], True
             return

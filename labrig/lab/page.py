@@ -350,9 +350,9 @@ class LabPage:
             return
         if len(st.stream) == self._streamed:
             return
-        for e in st.stream[self._streamed:]:
-            if e["kind"] == "rung":
-                self.explore.set_model(e["model"], fitted=True)
+        rungs = [e for e in st.stream[self._streamed:] if e["kind"] == "rung"]
+        if rungs:   # (several since the last look: the newest is the one to draw)
+            self.explore.set_model(rungs[-1]["model"], fitted=True)
         self._streamed = len(st.stream)
         self.forming.object = _forming_html(st.stream)
 

@@ -301,11 +301,6 @@ class StribeckCurve(FrictionCurve):
         t, _ = FrictionCurve.friction(self, plant, tcp_v, tcn_v)
         return t, t * (1.0 + np.asarray(excess))
 
-    def to_kernel(self, kernel, p, plant) -> bool:
-        FrictionEffect.to_kernel(self, kernel, p, plant)
-        kernel.add("u0", self.input_bias(p["tcp_v"], p["tcn_v"]))
-        return True
-
     def explain_params(self, params, context):
         mean = 0.5 * (params["tcp_v"] + params["tcn_v"])
         return (FrictionCurve.explain_params(self, params, context)

@@ -122,13 +122,3 @@ def ladder(source, models, *, through: str | None = "auto"):
 
     return evaluate_ladder(read_runs(source, through=through),
                            [m if isinstance(m, (str, PathLike)) else model_of(m) for m in models])
-
-
-def step_metrics_by(fn) -> None:
-    """Compute the position loop's step metrics of every fit (rise and settling time,
-    overshoot) with ``fn(servo, kp, kv)`` from now on; None: in this process. The
-    command line hands them to a helper process that imports python-control on the
-    other core while the fit runs."""
-    from labrig.core.offload import hand
-
-    hand("step_info", fn)
