@@ -87,7 +87,8 @@ def cmd_diagnose(args):
         cands = [c.strip() for c in args.candidates.split(",")] if args.candidates else None
         # (unknown names fail in the verb, with the catalogue listed)
         res = lr.diagnose(runs, model, seed=args.seed, fixed=fixed, candidates=cands,
-                          weights=weights, through=None, progress=bar.hook)
+                          weights=weights, through=None, progress=bar.hook,
+                          screen=not args.full)
     if args.output and res.recommendation:
         res.recommended_model().save(args.output)
     check = _decide(runs, model, args.seed)
@@ -152,7 +153,7 @@ def _auto(args, runs, model, fixed, weights) -> int:
         raise UserError("--candidates: not with --auto (every round tries the whole catalogue)")
     with Progress("diagnose --auto", total=args.max_rounds) as bar:
         res = lr.auto(runs, model, max_rounds=args.max_rounds, seed=args.seed, fixed=fixed,
-                      weights=weights, through=None, progress=bar.hook)
+                      weights=weights, through=None, progress=bar.hook, screen=not args.full)
     if out:
         out.mkdir(parents=True, exist_ok=True)
         res.model.save(out / "model.json")
@@ -242,6 +243,10 @@ def _configure_diagnose(p):
                                  "configs/rig_default.toml")
     p.add_argument("--budget-s", type=float, default=20.0,
                    help="--ask-rig: at most this many seconds of new data (default 20)")
+    p.add_argument("--full", action="store_true",
+                   help="re-fit every candidate to the end (by default a re-fit that stalls "
+                        "without gaining is ended early and marked screened out; the same "
+                        "recommendation, slower)")
     p.add_argument("--force", action="store_true", help="replace an existing -o file")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     add_through_option(p)

@@ -162,7 +162,7 @@ def _where_they_differ(a: Candidate, b: Candidate) -> dict | None:
 
 def auto_diagnose(runs, model: Model | None = None, *, max_rounds: int = 3, seed: int = 0,
                   fixed: dict | None = None, weights=None, log=None,
-                  on_step=None) -> AutoDiagnosis:
+                  on_step=None, screen: bool = True) -> AutoDiagnosis:
     """Run the search (:func:`labrig.diagnosis.search.search`) and name the confusable pairs of
     every round.
 
@@ -181,11 +181,14 @@ def auto_diagnose(runs, model: Model | None = None, *, max_rounds: int = 3, seed
     log : callable(str), optional
     on_step : callable(k, model), optional
         Called for every rung of the ladder as the search climbs it (k = 0: the start).
+    screen : bool
+        End a candidate's re-fit early when it stalls without gaining (default True;
+        :func:`labrig.diagnosis.criteria.screen`).
     """
     from labrig.diagnosis.search import search
 
     res = search(runs, model, max_rounds=max_rounds, seed=seed, fixed=fixed, weights=weights,
-                 log=log, on_step=on_step)
+                 log=log, on_step=on_step, screen=screen)
     pairs = [p for k, diag in enumerate(res.rounds, 1) for p in confusable_pairs(diag, k)]
     return AutoDiagnosis(rounds=res.rounds, model=res.model, ladder=res.ladder,
                          confusable=pairs, moves=res.moves,

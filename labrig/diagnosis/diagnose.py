@@ -34,7 +34,8 @@ from labrig.model.model import Model
 
 def diagnose(runs, model: Model | None = None, *, candidates=None, seed: int = 0,
              fixed: dict | None = None, progress=None, weights: Weights | None = None,
-             folds=None, revise: bool = True, on_candidate=None) -> Diagnosis:
+             folds=None, revise: bool = True, on_candidate=None,
+             screen: bool = True, baseline_cv=None) -> Diagnosis:
     """Locate the model's error and rank the missing effects.
 
     Parameters
@@ -59,6 +60,13 @@ def diagnose(runs, model: Model | None = None, *, candidates=None, seed: int = 0
     on_candidate : callable(Candidate, float or None), optional
         Hears each candidate as its re-fit is done (``None``) and as its held-out error
         is (the cross-validated rmse/noise): the ranking as it forms.
+    screen : bool
+        End a candidate's re-fit early when it stalls without gaining
+        (:func:`labrig.diagnosis.criteria.screen`; default True). False re-fits every
+        candidate to the end: the full round, the same recommendation (tested), slower.
+    baseline_cv : CrossValidation, optional
+        ``model``'s cross-validation on these ``folds``, when known (the search hands on
+        the one of the move it took): not computed again.
 
     Returns
     -------
@@ -67,10 +75,11 @@ def diagnose(runs, model: Model | None = None, *, candidates=None, seed: int = 0
     from labrig.simulation.warm import ready
 
     ready()  # a first compile is announced and kept out of the timing
-    rnd = Round.start(runs, model, seed=seed, fixed=fixed, weights=weights, folds=folds)
+    rnd = Round.start(runs, model, seed=seed, fixed=fixed, weights=weights, folds=folds,
+                      baseline_cv=baseline_cv)
     first = rnd
     for refined in range(MAX_REFINE + 1):
-        ranking, diverged = rnd.candidates(candidates, progress, on_candidate)
+        ranking, diverged = rnd.candidates(candidates, progress, on_candidate, screen)
         # a candidate whose gain comes from re-fitting the rest of the model, not from its
         # effect, shows that the base was not converged: refine it and start again
         best = rnd.stale(ranking)

@@ -14,7 +14,8 @@ from labrig.diagnosis.residuals import REGIME_TEXT
 from labrig.core.tables import Table, fmt
 from labrig.core.display import Displayable
 # how the diagnosis ranks and picks candidates, for the table's notes
-from labrig.diagnosis.criteria import CV_CANDIDATES, PARSIMONY, SIMPLER_MARGIN, SWAP_GAIN
+from labrig.diagnosis.criteria import (CV_CANDIDATES, PARSIMONY, SCREEN_AFTER, SCREEN_GAIN,
+                                       SCREEN_STALL, SIMPLER_MARGIN, SWAP_GAIN)
 
 
 @dataclass
@@ -48,9 +49,16 @@ class Candidate:
     off_fitness: float | None = field(default=None, repr=False)
     #: starts of its re-fit that diverged (their simulation overflowed) and were dropped
     failed_starts: int = 0
+    #: screened out (:func:`labrig.diagnosis.criteria.screen`): its re-fit was ended
+    #: after this many iterations, stalled below the screen's gain; its numbers are
+    #: where the re-fit stood then. None: re-fitted to the end
+    screened: int | None = None
     #: live, not in the JSON: the re-fitted model and its evaluation on all runs
     model: Model | None = field(default=None, repr=False)
     evaluation: Evaluation | None = field(default=None, repr=False)
+    #: live, not in the JSON: its cross-validation (the next round's baseline when the
+    #: search takes it)
+    held_out: object = field(default=None, repr=False)
 
     @property
     def label(self) -> str:
@@ -105,6 +113,8 @@ class Candidate:
             d["unresolved"] = self.unresolved
         if self.failed_starts:
             d["failed_starts"] = self.failed_starts
+        if self.screened is not None:
+            d["screened_after_iterations"] = self.screened
         d["supported"] = self.supported
         d["explanation"] = self.explanation
         return d
@@ -204,6 +214,7 @@ class Diagnosis(Displayable):
                                  f"{cv['baseline']:.2f} -> {cv['with_effect']:.2f}" if cv else "-",
                                  f"{cv['folds_improved']}/{cv['folds']}" if cv else "-",
                                  ("yes" if c.supported else "no")
+                                 + (" (screened out)" if c.screened is not None else "")
                                  + (" (size not resolved)" if c.unresolved else "")
                                  + (" (at bound)" if c.at_bound else "")])
         ranking.notes += self._ranking_rules()
@@ -250,7 +261,12 @@ class Diagnosis(Displayable):
             "data do not "
             "pin the new threshold is not counted; '(at bound)': a fitted parameter ended at a "
             "bound of its search range (a warning: it does not enter the decision)",
-        ]
+        ] + ([f"'(screened out)': the re-fit was ended after {SCREEN_AFTER} iterations, "
+              f"having gained under {100 * SCREEN_GAIN:g} % and stalled (its last iteration "
+              f"gained under {100 * SCREEN_STALL:g} % of the error): its numbers are where it "
+              "stood then, and a move that gains under "
+              f"{gain} is never supported (--full re-fits every candidate to the end)"]
+             if any(c.screened is not None for c in self.ranking) else [])
 
     def _tables(self) -> list[Table]:
         regimes, ranking = self.table_rows()

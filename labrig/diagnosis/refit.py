@@ -32,11 +32,24 @@ BASIN_MARGIN = 1.5
 
 
 def fit(runs, effects, start: dict, fixed: dict, *, seed: int, weights: Weights,
-        reach, max_nfev: int = 60, masks=None):
-    """One CO fit from ``start`` (bounds from ``reach``)."""
+        reach, max_nfev: int = 60, masks=None, stop=None):
+    """One CO fit from ``start`` (bounds from ``reach``); ``stop``: a rule that may end
+    it early (:func:`labrig.diagnosis.criteria.screen`)."""
     return identify(runs, "co", effects, seed=seed, start=start, fixed=fixed, starts=1,
                     identifiability=False, max_nfev=max_nfev, p=weights.p, q=weights.q,
-                    masks=masks, reach=reach, subsample=SUBSAMPLE)
+                    masks=masks, reach=reach, subsample=SUBSAMPLE, stop=stop)
+
+
+def thinned_fitness(runs, model: Model, fixed: dict, weights: Weights, reach) -> float:
+    """``model``'s fitness on the residuals a re-fit sees (every k-th, :data:`SUBSAMPLE`):
+    what a re-fit's own history is compared with (the screen,
+    :func:`labrig.diagnosis.criteria.screen`); on all residuals it differs by a per cent
+    or so, as much as a small effect gains."""
+    space = build_space(model.effects, None, fixed, reach=reach, plant=plant_of_runs(runs))
+    obj = Objective(runs, model.effects, space, p=weights.p, q=weights.q)
+    k = max(1, obj.m // SUBSAMPLE)
+    R = obj.residuals_batch(space.to_search({**model.flat(), **fixed})[None, :], k)[0]
+    return float(np.sqrt(np.mean(R ** 2)))
 
 
 def _alternative_pole(params: dict, dt: float) -> dict:
@@ -102,12 +115,15 @@ def starts_for(runs, base_params: dict, effects, new, reach, fixed: dict,
 
 
 def refit_with(runs, base: Model, effect, *, seed: int = 0, fixed: dict | None = None,
-               weights: Weights = Weights(), reach=None, carried: dict | None = None):
+               weights: Weights = Weights(), reach=None, carried: dict | None = None,
+               stop=None):
     """``base`` plus ``effect``, re-fitted from scanned starts in two basins; returns the
     best :class:`labrig.identification.engine.Identification`. ``carried``: the values of
     the effect's parameters where the model it replaces left them (a replacement also
     starts there, when they are all of its parameters: a simpler family member), or a
-    list of such starts (a refinement's, ``Effect.from_simpler``)."""
+    list of such starts (a refinement's, ``Effect.from_simpler``). ``stop``: the screen
+    that may end each start's fit early (:func:`labrig.diagnosis.criteria.screen`); the
+    result's ``stopped`` says when it ended every one."""
     from labrig.model.reach import Reach
 
     reach = reach or Reach.of(runs, base)
@@ -120,16 +136,17 @@ def refit_with(runs, base: Model, effect, *, seed: int = 0, fixed: dict | None =
             extra.append({**params, **{f"{effect.name}.{k}": float(c[k])
                                        for k in effect.param_names()}})
     return _best_of_starts(runs, effects, effect, params, reach=reach, fixed=fixed, seed=seed,
-                           weights=weights, extra=extra)
+                           weights=weights, extra=extra, stop=stop)
 
 
-def _best_of_starts(runs, effects, new, params, *, reach, fixed, seed, weights, extra=()):
+def _best_of_starts(runs, effects, new, params, *, reach, fixed, seed, weights, extra=(),
+                    stop=None):
     """Fit ``effects`` from each scanned start (and each of ``extra``), side by side, and
     keep the best."""
     starts = starts_for(runs, params, effects, new, reach, fixed, weights) + list(extra)
     what = f"the re-fit with {new.name}" if new is not None else "the re-fit"
     return best_fit(each(lambda s: fit(runs, effects, s, fixed, seed=seed, weights=weights,
-                                       reach=reach), starts), what)
+                                       reach=reach, stop=stop), starts), what)
 
 
 def best_fit(fits, what: str = "the re-fit"):

@@ -18,13 +18,14 @@ from labrig.core.parallel import each
 from labrig.diagnosis.baseline import at_bounds, balanced_weights, linear_model
 from labrig.diagnosis.candidates import candidate_names, refinements
 from labrig.diagnosis.criteria import (CV_CANDIDATES, FLOOR, MIN_DBIC, MIN_GAIN, REFINE,
-                                       SIMPLER_MARGIN, SWAP_GAIN, bic, score, supported)
+                                       SCREEN_AFTER, SIMPLER_MARGIN, SWAP_GAIN, bic, score,
+                                       screen, supported)
 from labrig.diagnosis.crossval import CrossValidation, Folds, cross_validate, fold_evidence, \
     make_folds
 from labrig.diagnosis.evaluation import Evaluation, evaluate
 from labrig.diagnosis.explain import context as explain_context, explain, round_verdict
 from labrig.diagnosis.ranking import Candidate, Diagnosis
-from labrig.diagnosis.refit import refit, refit_with, without
+from labrig.diagnosis.refit import refit, refit_with, thinned_fitness, without
 from labrig.diagnosis.residuals import worst_regime
 from labrig.diagnosis.resolution import unresolved
 from labrig.identification.engine import dataset_constants
@@ -65,9 +66,11 @@ class Round:
     @classmethod
     def start(cls, runs, model: Model | None = None, *, seed: int = 0,
               fixed: dict | None = None, weights: Weights | None = None, folds=None,
-              t0: float | None = None) -> "Round":
+              t0: float | None = None, baseline_cv: CrossValidation | None = None) -> "Round":
         """The round on ``model`` (default: the linear model identified here, on channel
-        weights balanced on it)."""
+        weights balanced on it). ``baseline_cv``: ``model``'s cross-validation on these
+        ``folds``, ``weights``, ``seed`` and ``fixed`` when it is known already (the last
+        round's, for the model it recommended): not computed again."""
         if not runs:
             raise UserError("the data set is empty: give a folder with at least one run")
         require_excitation(runs, "diagnose")
@@ -87,8 +90,9 @@ class Round:
         bic0 = bic(ev0.wsse, ev0.n, ev0.n_effective, len(param_keys(base)) - len(fixed))
         reach = Reach.of(runs, base)
         folds = folds or make_folds(runs)
-        cv0 = cross_validate(runs, base, folds, sigmas=ev0.sigmas, weights=weights, seed=seed,
-                             fixed=fixed, reach=reach)
+        cv0 = baseline_cv if baseline_cv is not None and model is not None else \
+            cross_validate(runs, base, folds, sigmas=ev0.sigmas, weights=weights, seed=seed,
+                           fixed=fixed, reach=reach)
         return cls(runs, base, source, seed, fixed, weights, folds, ev0, bic0, cv0, reach,
                    t0=time.perf_counter() if t0 is None else t0)
 
@@ -117,6 +121,9 @@ class Round:
                       fit_percent=ev.metrics["fit_percent"], model=cand, evaluation=ev,
                       at_bound=at_bounds(ident), move=move, replaces=replaces,
                       extra_params=k - self.k0)
+        if ident.stopped:   # screened out: never cross-validated, nothing more to ask
+            c.screened = SCREEN_AFTER
+            return c
         if move != "remove":
             off = switched_off(cand, effect)
             if off is not None:
@@ -129,19 +136,25 @@ class Round:
                                     "of the model re-fitted, not the effect")
         return c
 
-    def candidates(self, names=None, progress=None,
-                   on_candidate=None) -> tuple[list[Candidate], list[str]]:
+    def candidates(self, names=None, progress=None, on_candidate=None,
+                   screen_out: bool = True) -> tuple[list[Candidate], list[str]]:
         """Every effect the base could take (or ``names``), re-fitted side by side
         (:mod:`labrig.core.parallel`) in the catalogue's order: ``(ranked, diverged)``,
-        the second naming those whose every start diverged. ``progress(i, name)`` hears
-        each re-fit start, ``on_candidate(candidate, None)`` each one done."""
+        the second naming those whose every start diverged. With ``screen_out``, a re-fit
+        that stalls without gaining is ended early (:func:`~labrig.diagnosis.criteria.screen`).
+        ``progress(i, name)`` hears each re-fit start, ``on_candidate(candidate, None)``
+        each one done."""
+        rule = screen(thinned_fitness(self.runs, self.base, self.fixed, self.weights, self.reach),
+                      self.ev0.n_effective) if screen_out else None
+
         def one(job):
             i, name = job
             if progress:
                 progress(i, name)
             try:
                 ident = refit_with(self.runs, self.base, get_effect(name), seed=self.seed,
-                                   fixed=self.fixed, weights=self.weights, reach=self.reach)
+                                   fixed=self.fixed, weights=self.weights, reach=self.reach,
+                                   stop=rule)
             except FitDiverged:
                 return name   # every start diverged: said in the verdict, not ranked
             c = self.entry(ident, name)
@@ -223,6 +236,7 @@ class Round:
 
         cvs = each(held_out, to_cv)
         for c, cv in zip(to_cv, cvs):
+            c.held_out = cv
             c.cross_validated = fold_evidence(self.cv0, cv, c.model,
                                               None if c.move == "remove" else c.effect)
             c.unresolved = None if c.move == "remove" else c.unresolved or unresolved(

@@ -113,14 +113,33 @@ class _Judge:
         ev0 = first.evaluation
         self.n = ev0.n
         self.n_eff = ev0.n_effective
+        self._cvs: dict = {}   # id(model) -> (model, CrossValidation): each computed once
 
     def evaluate(self, model):
         return evaluate(self.runs, model, self.sigmas, weights=self.weights)
 
+    def cross_validation(self, model):
+        """``model``'s cross-validation on the first round's terms, computed once."""
+        known = self.known(model)
+        if known is None:
+            known = cross_validate(self.runs, model, self.folds, sigmas=self.sigmas,
+                                   weights=self.weights, seed=self.seed, fixed=self.fixed,
+                                   reach=Reach.of(self.runs, model))
+            self.remember(model, known)
+        return known
+
     def cv(self, model) -> float:
-        return cross_validate(self.runs, model, self.folds, sigmas=self.sigmas,
-                              weights=self.weights, seed=self.seed, fixed=self.fixed,
-                              reach=Reach.of(self.runs, model)).rmse
+        return self.cross_validation(model).rmse
+
+    def remember(self, model, cv) -> None:
+        if cv is not None:
+            self._cvs[id(model)] = (model, cv)
+
+    def known(self, model):
+        """``model``'s cross-validation when one was computed (by a round's ranking or
+        here), else None."""
+        hit = self._cvs.get(id(model))
+        return hit[1] if hit is not None and hit[0] is model else None
 
     def bic(self, model, ev) -> float:
         k = len(param_keys(model)) - len(self.fixed)
@@ -224,15 +243,18 @@ def _threshold_pair(judge: _Judge, model, cv_now: float, log) -> Step | None:
 
 
 def search(runs, model: Model | None = None, *, max_rounds: int = 3, seed: int = 0,
-           fixed: dict | None = None, weights=None, log=None, on_step=None) -> SearchResult:
+           fixed: dict | None = None, weights=None, log=None, on_step=None,
+           screen: bool = True) -> SearchResult:
     """Add, pair, swap and remove effects until the cross-validated error stops falling.
 
     ``on_step(k, model)`` is called for every rung (k = 0 is the starting model);
-    ``max_rounds`` bounds the number of effects added.
+    ``max_rounds`` bounds the number of effects added; ``screen``: as
+    :func:`~labrig.diagnosis.diagnose.diagnose`'s, in every round.
     """
     fixed = dict(fixed or {})
     rounds, moves = [], []
-    diag = diagnose(runs, model, seed=seed, fixed=fixed, weights=weights, revise=False)
+    diag = diagnose(runs, model, seed=seed, fixed=fixed, weights=weights, revise=False,
+                    screen=screen)
     rounds.append(diag)
     judge = _Judge(runs, diag, seed, fixed)
     model = diag.base
@@ -249,6 +271,7 @@ def search(runs, model: Model | None = None, *, max_rounds: int = 3, seed: int =
         step = None
         if diag.recommendation:
             c = diag.candidate(diag.recommendation)
+            judge.remember(c.model, c.held_out)
             step = Step("add", [c.effect], c.model, c.evaluation,
                         c.cross_validated["with_effect"])
         pair = _pair(judge, diag, log) if added + 2 <= max_rounds else None
@@ -277,7 +300,8 @@ def search(runs, model: Model | None = None, *, max_rounds: int = 3, seed: int =
         if added >= max_rounds:
             break
         diag = diagnose(runs, model, seed=seed, fixed=fixed, weights=judge.weights,
-                        folds=judge.folds, revise=False)
+                        folds=judge.folds, revise=False, screen=screen,
+                        baseline_cv=judge.known(model))
         rounds.append(diag)
     return SearchResult(rounds=rounds, ladder=ladder, model=model, moves=moves)
 

@@ -55,9 +55,13 @@ def _run_co(obj, lo, hi, x0, o):
         # the loop's many warm re-fits: every k-th residual (at 1 kHz neighbours are
         # strongly correlated, so the optimum barely moves; the residuals cost k times less)
         k = max(1, obj.m // o["subsample"])
+        rule = o.get("stop")
+        # local's history is the mean square of the thinned residuals over all m: times m,
+        # the mean square per residual (the fitness squared, on every k-th sample)
+        stop = (lambda h: rule([float(np.sqrt(v * obj.m)) for v in h])) if rule else None
         res = local(lambda x: obj.residuals(x, k), lo, hi, x0=x0, starts=1, seed=o["seed"],
                     jac_batch=lambda X: obj.residuals_jac_batch(X, k),
-                    max_nfev=o.get("max_nfev"), callback=root_cb)
+                    max_nfev=o.get("max_nfev"), callback=root_cb, stop=stop)
         res.fun = float(np.sqrt(res.fun))
         res.history = [float(np.sqrt(h)) for h in res.history]
         return res
@@ -110,6 +114,13 @@ class Identification(Displayable):
     def diverged(self) -> bool:
         """The fit's simulation overflowed or went non-finite: no model to use."""
         return not np.isfinite(self.metrics.get("fitness", np.nan))
+
+    @property
+    def stopped(self) -> bool:
+        """Every start of the fit was ended early by its ``stop`` rule (status -2): the
+        model is where the fit stood then, not converged."""
+        starts = (self.result.extra or {}).get("starts") or []
+        return bool(starts) and all(st.get("status") == -2 for st in starts)
 
     def headline(self) -> str:
         m = self.metrics
@@ -297,6 +308,11 @@ class FitOptions:
     #: each run's start (labrig.model.start): "auto" (the run file, else its first
     #: samples), "rest" (every run from rest) or "estimate" (every run's fitted)
     start_state: str = "auto"
+    #: CO from a start on a subsample only: ``stop(fitness history) -> bool`` after each
+    #: iteration may end the fit there (the loop's screen of its candidates,
+    #: :func:`labrig.diagnosis.criteria.screen`); the history is the fitness (root mean
+    #: square, as :attr:`Identification.fitness`) at the start and after each iteration
+    stop: object = None
 
 
 def _channel_notes(obj, p: float, q: float, params: dict, constants: dict) -> dict | None:
@@ -373,7 +389,7 @@ def identify(runs, method: str = METHOD, effects: list[Effect] = (), *, seed: in
     x0 = space.to_search(initial_point(space, effects, runs, constants, start))
     seed = int(np.random.default_rng().integers(2 ** 31)) if seed is None else int(seed)
     opts = {"pop": o.pop, "iters": o.iters, "seed": seed, "starts": o.starts, "callback": callback,
-            "max_nfev": o.max_nfev, "rule": o.rule, "subsample": o.subsample}
+            "max_nfev": o.max_nfev, "rule": o.rule, "subsample": o.subsample, "stop": o.stop}
     mark("fit-start")
     try:
         res = METHODS[method](obj, lo, hi, x0 if (start or method == "co") else None, opts)

@@ -184,7 +184,8 @@ def local(residuals: Callable[[np.ndarray], np.ndarray], lower: Any, upper: Any,
           jac_batch: Callable[[np.ndarray], np.ndarray] | None = None,
           options: dict[str, Any] | None = None,
           callback: Callable[[int, float], Any] | None = None,
-          threads: bool = False) -> IdentResult:
+          threads: bool = False,
+          stop: Callable[[list], bool] | None = None) -> IdentResult:
     """Bounded multi-start nonlinear least squares (trust-region reflective).
 
     Parameters
@@ -219,6 +220,11 @@ def local(residuals: Callable[[np.ndarray], np.ndarray], lower: Any, upper: Any,
         Run the starts side by side on the machine's cores
         (:mod:`labrig.core.parallel`); ``residuals`` and ``jac_batch`` must then be
         safe to call from several threads. The result is the same as one by one.
+    stop : callable, optional
+        ``stop(history) -> bool`` after each iteration of a start (``least_squares``'
+        callback), ``history`` the start's mean square residual at its first point and
+        after each iteration so far; True ends that start there (its status is -2). A
+        start that is not stopped runs exactly as without it.
 
     Returns
     -------
@@ -286,9 +292,18 @@ def local(residuals: Callable[[np.ndarray], np.ndarray], lower: Any, upper: Any,
             return None, {"x0": start, "x": start, "fun": np.inf, "nfev": wrapped.nfev,
                           "status": None, "message": "residuals not finite at start"}, \
                 wrapped.nfev
+        opts = options
+        if stop is not None:
+            seen = [float(np.einsum("i,i", r0, r0)) / r0.size]
+
+            def halt(intermediate_result):
+                seen.append(2.0 * float(intermediate_result.cost) / r0.size)
+                if stop(list(seen)):
+                    raise StopIteration
+            opts = {**options, "callback": halt}
         if jac_batch is not None:
             res = _least_squares()(fun, start, jac=jac_reduced, bounds=(lo, hi),
-                                   method="trf", max_nfev=max_nfev, **options)
+                                   method="trf", max_nfev=max_nfev, **opts)
             # the full residuals and Jacobian at the optimum, as without the reduction
             res.fun = wrapped(res.x)
             res.jac = full_jac.get(res.x.tobytes())
@@ -296,7 +311,7 @@ def local(residuals: Callable[[np.ndarray], np.ndarray], lower: Any, upper: Any,
                 res.jac = jac(res.x)
         else:
             res = _least_squares()(wrapped, start, jac="2-point", bounds=(lo, hi),
-                                   method="trf", max_nfev=max_nfev, **options)
+                                   method="trf", max_nfev=max_nfev, **opts)
         return res, {"x0": start, "x": res.x, "fun": 2.0 * res.cost / res.fun.size,
                      "nfev": wrapped.nfev, "status": int(res.status),
                      "message": res.message}, wrapped.nfev

@@ -10,14 +10,16 @@ from labrig.verbs.data import model_of, read_runs
 
 def diagnose(source, model=None, *, candidates=None, seed: int = SEED,
              fixed: dict | None = None, weights=None, through: str | None = "auto",
-             progress=None):
+             progress=None, screen: bool = True):
     """Where the model fails and which catalogue effect is missing (``labrig diagnose``).
 
     ``model`` (a Model, a model file or an Identification) defaults to the linear model
     fitted here; ``weights`` (:func:`channel_weights`) default to balanced on it;
     ``progress(event)`` hears each candidate's re-fit start (kind ``candidate``), each
     re-fit done (``fitted``) and each held-out error known (``validated``): the ranking
-    as it forms. Returns a
+    as it forms. ``screen=False`` re-fits every candidate to the end (``--full``: by
+    default a re-fit that stalls without gaining is ended early,
+    :func:`labrig.diagnosis.criteria.screen`). Returns a
     :class:`~labrig.diagnosis.ranking.Diagnosis`; its ``recommended_model()`` is the
     re-fitted model with the recommended effect.
     """
@@ -28,7 +30,7 @@ def diagnose(source, model=None, *, candidates=None, seed: int = SEED,
         get_effect(c)  # an unknown name fails here, with the catalogue listed
     return _diagnose(read_runs(source, through=through), model_of(model), seed=seed,
                      fixed=fixed, candidates=list(candidates) if candidates else None,
-                     weights=weights, progress=None if progress is None else (
+                     weights=weights, screen=screen, progress=None if progress is None else (
                          lambda i, name: progress(Event("diagnose", "candidate", i, None,
                                                         f"re-fitting {name}", name))),
                      on_candidate=None if progress is None else (
@@ -54,13 +56,13 @@ def channel_weights(p: float = 1.0, q: float = 1.0):
 
 def auto(source, model=None, *, max_rounds: int = 3, seed: int = SEED,
          fixed: dict | None = None, weights=None, through: str | None = "auto", log=None,
-         on_step=None, progress=None):
+         on_step=None, progress=None, screen: bool = True):
     """The loop run to the end: add, pair, swap and remove effects while the
     cross-validated error falls (``labrig diagnose --auto``). Returns an
     :class:`~labrig.diagnosis.auto.AutoDiagnosis` with the final model and its ladder;
     ``log(line)`` receives the rounds' summaries and ``on_step(k, model)`` every rung as
     the search climbs the ladder; ``progress(event)`` hears both (kinds ``note`` and
-    ``rung``, the rung's model as its data)."""
+    ``rung``, the rung's model as its data); ``screen``: as :func:`diagnose`'s."""
     from labrig.diagnosis.auto import auto_diagnose
 
     if max_rounds < 1:
@@ -68,7 +70,7 @@ def auto(source, model=None, *, max_rounds: int = 3, seed: int = SEED,
     return auto_diagnose(read_runs(source, through=through), model_of(model),
                          max_rounds=max_rounds, seed=seed, fixed=fixed, weights=weights,
                          log=both(log, note(progress, "auto")),
-                         on_step=both(on_step, _rungs(progress, "auto")))
+                         on_step=both(on_step, _rungs(progress, "auto")), screen=screen)
 
 
 def _rungs(progress, verb):
