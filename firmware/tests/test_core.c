@@ -123,7 +123,34 @@ static void run_ticks(int n, int heartbeat)
     }
 }
 
+/* how many DAC words of the SAMPLES collected differ from want(k, ctx), k the sample's
+ * index in the run; *seen: how many words there were */
+static uint32_t bad_words(uint16_t (*want)(uint32_t k, const void *ctx), const void *ctx,
+                          uint32_t *seen)
+{
+    uint32_t bad = 0;
+    *seen = 0;
+    for (int i = 0; i < nmsgs; i++) {
+        if (msgs[i].type != LR_SAMPLES) continue;
+        uint32_t first = lr_get32(msgs[i].body);
+        for (int j = 0; j < msgs[i].body[4]; j++) {
+            if (lr_get16(msgs[i].body + 5 + 8 * j) != want(first + j, ctx)) bad++;
+            (*seen)++;
+        }
+    }
+    return bad;
+}
+
 /* ---------------- vector tests ---------------- */
+typedef struct { uint32_t lead; uint16_t zero; size_t nw; const uint8_t *raw; } pwl_t;
+/* the word the host's rule plays at sample k: 0 V in the lead-in, then the vector's words
+ * (0xFFFF, never played, past them) */
+static uint16_t pwl_word(uint32_t k, const void *ctx)
+{
+    const pwl_t *p = ctx;
+    return k < p->lead ? p->zero : (k - p->lead < p->nw ? lr_get16(p->raw + 2 * (k - p->lead)) : 0xFFFF);
+}
+
 /* The board plays a pwl word for word as the host's rule says (the vector's words come
  * from labrig.bridge.protocol.pwl_words): linear between breakpoints in integers,
  * the last breakpoint held, 0 V in the lead-in. */
@@ -141,18 +168,8 @@ static void test_pwl(jnode_t *v)
     lr_core_poll();
     run_ticks(total + 200, 1);
     collect();
-    uint32_t bad = 0, seen = 0;
-    for (int i = 0; i < nmsgs; i++) {
-        if (msgs[i].type != LR_SAMPLES) continue;
-        uint32_t first = lr_get32(msgs[i].body);
-        for (int j = 0; j < msgs[i].body[4]; j++) {
-            uint32_t k = first + j;
-            uint16_t got = lr_get16(msgs[i].body + 5 + 8 * j);
-            uint16_t exp = k < lead ? zero : (k - lead < nw ? lr_get16(raw + 2 * (k - lead)) : 0xFFFF);
-            if (got != exp) bad++;
-            seen++;
-        }
-    }
+    pwl_t pwl = {lead, zero, nw, raw};
+    uint32_t seen, bad = bad_words(pwl_word, &pwl, &seen);
     CHECK(seen == total && bad == 0, "pwl played as the host's rule says (seen %u of %u, bad %u)",
           seen, total, bad);
 }
@@ -292,6 +309,14 @@ static void test_square_run(void)
     CHECK(lr_core_counters()->watchdog_trips == 0, "no watchdog trip with heartbeats");
 }
 
+/* the staircase of test_staircase: 0 V for the 250-sample lead-in, then each level of
+ * lv for 300 samples, the last one held */
+static uint16_t staircase_word(uint32_t k, const void *ctx)
+{
+    const uint16_t *lv = ctx;
+    return k < 250 ? 2048 : lv[(k - 250) / 300 > 3 ? 3 : (k - 250) / 300];
+}
+
 static void test_staircase(void)
 {
     uint8_t b[128];
@@ -299,17 +324,7 @@ static void test_staircase(void)
     configure_and_start(b, 1, LR_WAVE_STAIRCASE, 500, 2000, 250, 300, 1024, 3072, 500, lv, 4);
     run_ticks(2200, 1);
     collect();
-    uint32_t bad = 0, total = 0;
-    for (int i = 0; i < nmsgs; i++) {
-        if (msgs[i].type != LR_SAMPLES) continue;
-        uint32_t first = lr_get32(msgs[i].body);
-        for (int j = 0; j < msgs[i].body[4]; j++) {
-            uint32_t k = first + j;
-            uint16_t want = k < 250 ? 2048 : lv[(k - 250) / 300 > 3 ? 3 : (k - 250) / 300];
-            if (lr_get16(msgs[i].body + 5 + 8 * j) != want) bad++;
-            total++;
-        }
-    }
+    uint32_t total, bad = bad_words(staircase_word, lv, &total);
     CHECK(total == 2000 && bad == 0, "staircase holds the last level (total %u, bad %u)", total, bad);
 }
 
