@@ -1,5 +1,6 @@
-"""What the whole-process benchmarks share: the CLI as a subprocess, the machine's record,
-and the command line (measure and record, or print the README row of the record)."""
+"""What the whole-process benchmarks share: the CLI as a subprocess (and one such command
+timed), the machine's record, the README row of a timed command, and the command line
+(measure and record, or print the README row of the record)."""
 from __future__ import annotations
 
 import argparse
@@ -17,11 +18,28 @@ def labrig(*args) -> subprocess.CompletedProcess:
                           capture_output=True, text=True, check=True)
 
 
+def timed_json(*args) -> tuple[float, dict, float]:
+    """``labrig ARGS`` (a command given ``--json``) timed as a whole process: its seconds,
+    the JSON it printed and the load average just before it started."""
+    load = os.getloadavg()[0]
+    t0 = time.perf_counter()
+    p = labrig(*args)
+    seconds = time.perf_counter() - t0
+    return seconds, json.loads(p.stdout), load
+
+
 def machine(load: float) -> dict:
     """The conditions of a measurement: load average before it, CPUs, versions, time."""
     return {"loadavg_before": round(load, 2), "cpus": os.cpu_count(),
             "python": platform.python_version(), "machine": platform.machine(),
             "when": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())}
+
+
+def readme_row(what: str, res: dict, found: str, within: str) -> str:
+    """The README row of a timed command's result ``res``: ``what`` was timed, its seconds
+    and what it ``found``, the target (``within``: ``<`` or ``<=``), PASS or MISS."""
+    return (f"| {what} | **{res['seconds']:.1f} s**, {found} | {within} {res['target_s']:.0f} s | "
+            f"{'PASS' if res['pass'] else 'MISS'} |")
 
 
 def main(doc: str, results, measure, markdown) -> int:
