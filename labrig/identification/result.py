@@ -331,6 +331,22 @@ class PopulationObjective:
         return f
 
 
+#: the ``callback`` parameter of each population solver's function, whose protocol
+#: :meth:`PopulationSolver.step` keeps (see :func:`population_solver_doc`)
+CALLBACK_DOC = """callback : callable, optional
+        ``callback(iteration, best_fun)`` after each iteration (1-based);
+        raising ``StopIteration`` stops the run (its return value is
+        ignored)."""
+
+
+def population_solver_doc(func: Callable) -> Callable:
+    """``func`` with ``%(callback)s`` in its docstring replaced by :data:`CALLBACK_DOC`:
+    every solver documents the callback that :class:`PopulationSolver` calls alike."""
+    if func.__doc__:
+        func.__doc__ = func.__doc__ % {"callback": CALLBACK_DOC}
+    return func
+
+
 class PopulationSolver:
     """Base of the steppable population solvers (JFO, PSO).
 
