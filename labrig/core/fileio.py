@@ -35,6 +35,34 @@ def not_regular(path: Path | str) -> str | None:
     return "not a regular file"
 
 
+def size_within(path: Path, limit: int, error: Callable[[str], Exception], missing: str,
+                too_big: Callable[[int], str]) -> int:
+    """The size in bytes of the file at ``path``, checked before anything reads it.
+
+    Parameters
+    ----------
+    path : Path
+    limit : int
+        The most bytes the reader takes.
+    error : callable
+        The exception to raise, given the line ``"PATH: ..."``.
+    missing : str
+        What the line says when there is no file at ``path``.
+    too_big : callable
+        What the line says for a size over ``limit``, given the size.
+
+    Returns
+    -------
+    int
+    """
+    if not path.is_file():
+        raise error(f"{path}: {missing}")
+    size = path.stat().st_size
+    if size > limit:
+        raise error(f"{path}: {too_big(size)}")
+    return size
+
+
 def _umask() -> int:
     old = os.umask(0o022)
     os.umask(old)
