@@ -17,7 +17,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-from whole_process import labrig, machine, main, readme_row, timed_json
+from whole_process import labrig, machine, main, timed_json, timed_row
 
 HERE = Path(__file__).resolve().parent
 RESULTS = HERE / "results_auto.json"
@@ -41,9 +41,9 @@ def measure() -> dict:
 
 
 def markdown(res: dict) -> str:
-    return readme_row("`labrig diagnose --auto`, five-run sweep, dead zone + rail hidden "
-                      "(subprocess, whole process)", res,
-                      f"found {' + '.join(res['effects_found'])}", "<=")
+    return timed_row("`labrig diagnose --auto`, five-run sweep, dead zone + rail hidden "
+                     "(subprocess, whole process)", res,
+                     f"found {' + '.join(res['effects_found'])}", "<=")
 
 
 if __name__ == "__main__":

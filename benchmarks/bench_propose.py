@@ -17,7 +17,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-from whole_process import labrig, machine, main, readme_row, timed_json
+from whole_process import labrig, machine, main, timed_json, timed_row
 
 HERE = Path(__file__).resolve().parent
 RESULTS = HERE / "results_propose.json"
@@ -47,8 +47,8 @@ def measure() -> dict:
 
 
 def markdown(res: dict) -> str:
-    return readme_row("`labrig propose`, one confusable step, dead zone or Coulomb friction "
-                      "(subprocess, whole process)", res, f"proposed {res['proposed']}", "<")
+    return timed_row("`labrig propose`, one confusable step, dead zone or Coulomb friction "
+                     "(subprocess, whole process)", res, f"proposed {res['proposed']}", "<")
 
 
 if __name__ == "__main__":

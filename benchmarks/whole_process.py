@@ -1,5 +1,5 @@
 """What the whole-process benchmarks share: the CLI as a subprocess (and one such command
-timed), the machine's record, the README row of a timed command, and the command line
+timed), the machine's record, a row of the README's table, and the command line
 (measure and record, or print the README row of the record)."""
 from __future__ import annotations
 
@@ -35,11 +35,17 @@ def machine(load: float) -> dict:
             "when": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())}
 
 
-def readme_row(what: str, res: dict, found: str, within: str) -> str:
-    """The README row of a timed command's result ``res``: ``what`` was timed, its seconds
-    and what it ``found``, the target (``within``: ``<`` or ``<=``), PASS or MISS."""
-    return (f"| {what} | **{res['seconds']:.1f} s**, {found} | {within} {res['target_s']:.0f} s | "
-            f"{'PASS' if res['pass'] else 'MISS'} |")
+def readme_row(what: str, measured: str, target: str, passed: bool) -> str:
+    """A row of the README's table of whole-process results: what was timed, what was
+    measured, the target, and PASS or MISS."""
+    return f"| {what} | {measured} | {target} | {'PASS' if passed else 'MISS'} |"
+
+
+def timed_row(what: str, res: dict, found: str, within: str) -> str:
+    """The README row of a command timed against ``res["target_s"]``: its seconds and what
+    it ``found``; ``within`` (``<`` or ``<=``) says how the target is met."""
+    return readme_row(what, f"**{res['seconds']:.1f} s**, {found}",
+                      f"{within} {res['target_s']:.0f} s", res["pass"])
 
 
 def main(doc: str, results, measure, markdown) -> int:
