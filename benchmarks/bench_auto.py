@@ -13,14 +13,11 @@ written), after one warm-up run so the numba cache exists. Target: <= 15 s on th
 """
 from __future__ import annotations
 
-import json
-import os
 import sys
 import tempfile
-import time
 from pathlib import Path
 
-from whole_process import labrig, machine, main
+from whole_process import labrig, machine, main, timed_json, timed_row
 
 HERE = Path(__file__).resolve().parent
 RESULTS = HERE / "results_auto.json"
@@ -34,11 +31,8 @@ def measure() -> dict:
         tmp = Path(tmp)
         labrig("sweep", "--sim", "--rig", RIG, "--plan", PLAN, "-o", tmp / "runs")
         labrig("diagnose", tmp / "runs", "--auto", "--max-rounds", "1", "-o", tmp / "warm")
-        load = os.getloadavg()[0]
-        t0 = time.perf_counter()
-        p = labrig("diagnose", tmp / "runs", "--auto", "-o", tmp / "auto", "--json")
-        seconds = time.perf_counter() - t0
-        doc = json.loads(p.stdout)
+        seconds, doc, load = timed_json("diagnose", tmp / "runs", "--auto", "-o", tmp / "auto",
+                                        "--json")
     return {"command": "labrig diagnose RUNS --auto -o OUT --json (subprocess, whole process)",
             "seconds": round(seconds, 1), "target_s": TARGET_S, "pass": seconds <= TARGET_S,
             "effects_found": doc["effects"],
@@ -47,10 +41,9 @@ def measure() -> dict:
 
 
 def markdown(res: dict) -> str:
-    return (f"| `labrig diagnose --auto`, five-run sweep, dead zone + rail hidden (subprocess, "
-            f"whole process) | **{res['seconds']:.1f} s**, found "
-            f"{' + '.join(res['effects_found'])} | <= {res['target_s']:.0f} s | "
-            f"{'PASS' if res['pass'] else 'MISS'} |")
+    return timed_row("`labrig diagnose --auto`, five-run sweep, dead zone + rail hidden "
+                     "(subprocess, whole process)", res,
+                     f"found {' + '.join(res['effects_found'])}", "<=")
 
 
 if __name__ == "__main__":

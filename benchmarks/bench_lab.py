@@ -15,7 +15,6 @@ import json
 import os
 import re
 import signal
-import socket
 import subprocess
 import sys
 import tempfile
@@ -24,17 +23,8 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 OUT = Path(__file__).resolve().parent / "results_lab.json"
-WORDS = r"""e => { const out = [];
-  const walk = n => { if (n.nodeType === 3) out.push(n.textContent);
-    else if (n.nodeName !== 'STYLE' && n.nodeName !== 'SCRIPT') {
-      if (n.shadowRoot) walk(n.shadowRoot); n.childNodes.forEach(walk); } };
-  walk(e); return out.join(' ').replace(/\s+/g, ' '); }"""
-
-
-def _port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+sys.path.insert(0, str(ROOT / "tests"))
+from lab_page import WORDS, free_port  # noqa: E402
 
 
 def _text(page, css):
@@ -50,7 +40,7 @@ def measure() -> dict:
     folder = Path(tempfile.mkdtemp(prefix="bench_lab_"))
     subprocess.run([sys.executable, "-m", "labrig", "sweep", "--sim", "-o", str(folder)],
                    check=True, capture_output=True)
-    port = _port()
+    port = free_port()
     t0 = time.monotonic()
     proc = subprocess.Popen([sys.executable, "-m", "labrig", "lab", str(folder), "--no-browser",
                              "--http-port", str(port)], stdout=subprocess.PIPE, text=True)

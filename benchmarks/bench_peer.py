@@ -43,7 +43,7 @@ from pathlib import Path
 
 import numpy as np
 
-from whole_process import labrig, machine, main
+from whole_process import labrig, machine, main, readme_row
 
 HERE = Path(__file__).resolve().parent
 RESULTS = HERE / "results_peer.json"
@@ -211,12 +211,13 @@ def markdown(res: dict) -> str:
     p = res["peer"]
     fitted = ", ".join(f"{n} {statistics.mean(c['fit_seconds']):.0f} s per fit"
                        for n, c in p["candidates"].items() if "fit_seconds" in c)
-    return (f"| one `diagnose` round (README five-run case, from the linear model) against the "
-            f"same round in scipy (least_squares over lsim/solve_ivp per candidate, same "
-            f"starts; {len(p['candidates'])} candidates, {p['evaluations_per_fit']:.0f} "
-            f"evaluations per fit measured on {fitted}) | labrig **{res['labrig']['seconds']:.1f} s** "
-            f"whole process; the peer {p['round_seconds']:.0f} s = **{res['ratio']:.0f}x** | "
-            f">= {res['target']:.0f}x | {'PASS' if res['pass'] else 'MISS'} |")
+    return readme_row("one `diagnose` round (README five-run case, from the linear model) "
+                      "against the same round in scipy (least_squares over lsim/solve_ivp per "
+                      f"candidate, same starts; {len(p['candidates'])} candidates, "
+                      f"{p['evaluations_per_fit']:.0f} evaluations per fit measured on {fitted})",
+                      f"labrig **{res['labrig']['seconds']:.1f} s** whole process; the peer "
+                      f"{p['round_seconds']:.0f} s = **{res['ratio']:.0f}x**",
+                      f">= {res['target']:.0f}x", res["pass"])
 
 
 if __name__ == "__main__":

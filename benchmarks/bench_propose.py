@@ -13,14 +13,11 @@ numba cache exists. Target: < 30 s on this 2-core machine.
 """
 from __future__ import annotations
 
-import json
-import os
 import sys
 import tempfile
-import time
 from pathlib import Path
 
-from whole_process import labrig, machine, main
+from whole_process import labrig, machine, main, timed_json, timed_row
 
 HERE = Path(__file__).resolve().parent
 RESULTS = HERE / "results_propose.json"
@@ -40,12 +37,8 @@ def measure() -> dict:
         labrig("identify", tmp / "runs", "--effects", "deadband", "--seed", "1",
                "-o", tmp / "m.json")
         labrig("propose", tmp / "runs", "--model", tmp / "m.json", "-o", tmp / "warm.toml")
-        load = os.getloadavg()[0]
-        t0 = time.perf_counter()
-        p = labrig("propose", tmp / "runs", "--model", tmp / "m.json", "-o", tmp / "p.toml",
-                   "--json")
-        seconds = time.perf_counter() - t0
-        doc = json.loads(p.stdout)
+        seconds, doc, load = timed_json("propose", tmp / "runs", "--model", tmp / "m.json",
+                                        "-o", tmp / "p.toml", "--json")
     return {"command": "labrig propose RUNS --model M.json -o PLAN --json (subprocess, "
                        "whole process)",
             "seconds": round(seconds, 1), "target_s": TARGET_S, "pass": seconds < TARGET_S,
@@ -54,10 +47,8 @@ def measure() -> dict:
 
 
 def markdown(res: dict) -> str:
-    return (f"| `labrig propose`, one confusable step, dead zone or Coulomb friction "
-            f"(subprocess, whole process) | **{res['seconds']:.1f} s**, proposed "
-            f"{res['proposed']} | < {res['target_s']:.0f} s | "
-            f"{'PASS' if res['pass'] else 'MISS'} |")
+    return timed_row("`labrig propose`, one confusable step, dead zone or Coulomb friction "
+                     "(subprocess, whole process)", res, f"proposed {res['proposed']}", "<")
 
 
 if __name__ == "__main__":

@@ -175,23 +175,31 @@ def test_board_vanishing_mid_stream_raises_rig_error():
         emu.stop()
 
 
+def _sweep_past(port: str, plan: Path, folder: Path, run: str) -> subprocess.Popen:
+    """`labrig sweep --port PORT --plan PLAN -o FOLDER` started in a subprocess (its
+    output piped), returned once ``run`` is finished (its sidecar written; at most 30 s):
+    the next run is then on its way."""
+    import sys
+
+    proc = subprocess.Popen([sys.executable, "-m", "labrig", "sweep", "--port", port,
+                             "--plan", str(plan), "-o", str(folder)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.time() + 30
+    while time.time() < deadline and not (folder / f"{run}.json").exists():
+        time.sleep(0.05)
+    return proc
+
+
 def test_cli_sweep_on_emulated_board_then_board_vanishes(tmp_path):
     """`labrig sweep --port` against the real firmware: runs that `labrig analyse` reads;
     the board vanishing mid-sweep gives exit 1, one clear line, and intact finished runs."""
-    import sys
-
     from labrig.io.runs import read_dataset
 
     plan = tmp_path / "plan.toml"
     plan.write_text("[defaults]\nlead_in_s = 0.3\n[[experiment]]\namplitudes_v = [1.2, 2.0, 2.5]\n"
                     "frequency_hz = 0.5\nperiods = 1\n")
     with Emulator("uno", speed=1.0) as emu:
-        proc = subprocess.Popen([sys.executable, "-m", "labrig", "sweep", "--port", emu.pty,
-                                 "--plan", str(plan), "-o", str(tmp_path / "ds")],
-                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        deadline = time.time() + 30
-        while time.time() < deadline and not (tmp_path / "ds" / "sq_2.00V.json").exists():
-            time.sleep(0.05)
+        proc = _sweep_past(emu.pty, plan, tmp_path / "ds", "sq_2.00V")
         time.sleep(0.5)       # the third run is now streaming
         emu.stop()            # ... and the board disappears
         out, err = proc.communicate(timeout=30)
@@ -213,7 +221,6 @@ def test_sigterm_mid_run_stops_the_board_at_zero(tmp_path, emulators):
     """Point 9 on the emulated board: SIGTERM by PID while a run streams -> exit 143, the
     finished run intact, and the host itself (not the watchdog) put the output at 0 V."""
     import signal
-    import sys
 
     from labrig.io.runs import read_dataset
 
@@ -222,12 +229,7 @@ def test_sigterm_mid_run_stops_the_board_at_zero(tmp_path, emulators):
     plan.write_text("[defaults]\nlead_in_s = 0.1\n[[experiment]]\namplitudes_v = [1.2, 2.0]\n"
                     "frequency_hz = 1.0\nperiods = 1.5\n")
     emu = emulators("uno", dac_log=log, speed=1.0)   # real time: the bench's watchdog margin
-    proc = subprocess.Popen([sys.executable, "-m", "labrig", "sweep", "--port", emu.pty,
-                             "--plan", str(plan), "-o", str(tmp_path / "ds")],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    deadline = time.time() + 30
-    while time.time() < deadline and not (tmp_path / "ds" / "sq_1.20V.json").exists():
-        time.sleep(0.05)
+    proc = _sweep_past(emu.pty, plan, tmp_path / "ds", "sq_1.20V")
     time.sleep(0.4)                       # the second run is streaming, output at +-2 V
     os.kill(proc.pid, signal.SIGTERM)
     out, err = proc.communicate(timeout=30)

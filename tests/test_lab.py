@@ -10,7 +10,6 @@ import json
 import re
 import shutil
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -19,6 +18,7 @@ from pathlib import Path
 import pytest
 
 from conftest import labrig
+from lab_page import WORDS, free_port
 
 ROOT = Path(__file__).resolve().parent.parent
 ARTEFACTS = Path(__file__).resolve().parent / "artefacts"
@@ -27,25 +27,11 @@ LOCAL = ("http://127.0.0.1", "ws://127.0.0.1", "data:", "blob:", "about:")
 
 pytestmark = [pytest.mark.slow, pytest.mark.browser]
 
-#: the words of an element and its shadow root, text nodes joined by spaces (no styles)
-WORDS = r"""e => { const out = [];
-  const walk = n => { if (n.nodeType === 3) out.push(n.textContent);
-    else if (n.nodeName !== 'STYLE' && n.nodeName !== 'SCRIPT') {
-      if (n.shadowRoot) walk(n.shadowRoot); n.childNodes.forEach(walk); } };
-  walk(e); return out.join(' ').replace(/\s+/g, ' '); }"""
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 class Server:
     """`labrig lab` in a subprocess; ended with Ctrl-C (SIGINT) by its PID."""
 
     def __init__(self, folder: Path, *flags, cwd: Path = ROOT):
-        self.port = _free_port()
+        self.port = free_port()
         env = {**__import__("os").environ, "PYTHONPATH": str(ROOT)}
         # the server's own log (a page callback's error lands there), kept to look at
         ARTEFACTS.mkdir(exist_ok=True)

@@ -119,6 +119,14 @@ def _expect_user_error(capsys, argv, *must_contain: str):
     return lines[0]
 
 
+def _expect_bad_file(capsys, path: Path, text: str, command: str, option: str):
+    """``labrig COMMAND RUNS OPTION PATH`` on a good run folder, ``text`` in ``path``: a
+    user error that names the file."""
+    d = _run_dir(path.parent)
+    path.write_text(text)
+    _expect_user_error(capsys, [command, d, option, path], path.name)
+
+
 @pytest.mark.parametrize("case", sorted(SIDECAR_CASES))
 def test_bad_sidecar(tmp_path, capsys, case):
     key, value = SIDECAR_CASES[case]
@@ -350,10 +358,8 @@ MODEL_CASES = {
 @pytest.mark.parametrize("case", sorted(MODEL_CASES))
 def test_bad_model(tmp_path, capsys, case):
     key, value = MODEL_CASES[case]
-    d = _run_dir(tmp_path)
-    m = tmp_path / "model.json"
-    m.write_text(json.dumps(_set(GOOD_MODEL, key, value)))
-    _expect_user_error(capsys, ["compare", d, "--model", m], "model.json")
+    _expect_bad_file(capsys, tmp_path / "model.json", json.dumps(_set(GOOD_MODEL, key, value)),
+                     "compare", "--model")
 
 
 MODEL_TEXT_CASES = {"not json": "{params:", "empty": "", "array": "[]", "deep": DEEP,
@@ -362,10 +368,7 @@ MODEL_TEXT_CASES = {"not json": "{params:", "empty": "", "array": "[]", "deep": 
 
 @pytest.mark.parametrize("case", sorted(MODEL_TEXT_CASES))
 def test_bad_model_text(tmp_path, capsys, case):
-    d = _run_dir(tmp_path)
-    m = tmp_path / "model.json"
-    m.write_text(MODEL_TEXT_CASES[case])
-    _expect_user_error(capsys, ["compare", d, "--model", m], "model.json")
+    _expect_bad_file(capsys, tmp_path / "model.json", MODEL_TEXT_CASES[case], "compare", "--model")
 
 
 def test_missing_model_and_folder(tmp_path, capsys):
@@ -392,10 +395,7 @@ IDCONFIG_CASES = {
 
 @pytest.mark.parametrize("case", sorted(IDCONFIG_CASES))
 def test_bad_identify_config(tmp_path, capsys, case):
-    d = _run_dir(tmp_path)
-    cfg = tmp_path / "id.toml"
-    cfg.write_text(IDCONFIG_CASES[case])
-    _expect_user_error(capsys, ["identify", d, "--config", cfg], "id.toml")
+    _expect_bad_file(capsys, tmp_path / "id.toml", IDCONFIG_CASES[case], "identify", "--config")
 
 
 @pytest.mark.parametrize("opt", [["--fix", "R=nan"], ["--fix", "R=inf"], ["--fix", "R"],

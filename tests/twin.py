@@ -30,6 +30,21 @@ from pathlib import Path
 import numpy as np
 
 
+def _folder(folder) -> Path:
+    """``folder`` as a Path, made (with its parents) when missing: where a run is written."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    return folder
+
+
+def _write_csv(path: Path, header: str, row: str, *columns) -> Path:
+    """``columns`` side by side in the CSV file ``path``: ``header``, then a line a sample
+    through ``row`` (a ``str.format`` template with a field a column); returns ``path``."""
+    lines = [header] + [row.format(*values) for values in zip(*columns)]
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
 @dataclass
 class Twin:
     """An MS150-type rig (the default rig's plant and sensors) with hidden effects.
@@ -128,13 +143,11 @@ class Twin:
     # -- files -------------------------------------------------------------------------
     def record(self, folder, name: str, u: np.ndarray, experiment: dict) -> Path:
         """Play ``u`` and write the run as ``folder/name.csv`` + ``.json``."""
-        folder = Path(folder)
-        folder.mkdir(parents=True, exist_ok=True)
+        folder = _folder(folder)
         y = self.play(u)
         t = np.arange(len(u)) / self.fs
-        rows = ["t,u,tacho,pos"] + [f"{a:.6f},{b:.6f},{c:.6f},{d:.6f}" for a, b, c, d in
-                                    zip(t, y["u"], y["tacho"], y["pos"])]
-        (folder / f"{name}.csv").write_text("\n".join(rows) + "\n")
+        _write_csv(folder / f"{name}.csv", "t,u,tacho,pos", "{:.6f},{:.6f},{:.6f},{:.6f}",
+                   t, y["u"], y["tacho"], y["pos"])
         side = {"format": "labrig-run/1", "sample_rate_hz": self.fs, "source": "twin",
                 "experiment": {"loop": "open", "sample_rate_hz": self.fs, **experiment},
                 "sensors": {"tacho_v_per_rad_s": self.kt, "pos_v_per_rad": self.kpot,
@@ -183,8 +196,7 @@ def torque_drive_from_rest(folder, *, J=2e-4, B=2e-3, coulomb=0.02, offset=0.006
     export it: the logged torque with its noise, the speed, and, with ``position``, a
     position that is not zeroed between runs and wanders (a random walk of ``drift``
     rad per sample) like an integrated channel of a real drive."""
-    folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
+    folder = _folder(folder)
     rng = np.random.default_rng(seed)
     dt, sub = 1.0 / fs, 20
     h = dt / sub
@@ -215,10 +227,8 @@ def torque_drive_from_rest(folder, *, J=2e-4, B=2e-3, coulomb=0.02, offset=0.006
             cols.append(pos0 + ths + np.cumsum(rng.normal(0.0, drift, n))
                         + rng.normal(0.0, 0.002, n))
             head += ",pos"
-        path = folder / f"run{i}.csv"
-        rows = [head] + [",".join(f"{v:.7g}" for v in row) for row in zip(*cols)]
-        path.write_text("\n".join(rows) + "\n")
-        out.append(path)
+        out.append(_write_csv(folder / f"run{i}.csv", head, ",".join(["{:.7g}"] * len(cols)),
+                              *cols))
     return out
 
 
@@ -248,8 +258,7 @@ def hbridge_staircase(folder, *, window_s=0.05, dpos=1.2, dneg=1.8, fs=100.0,
     sketch's moving window: the counts gained over the last ``window_s`` over
     ``window_s`` (0: the last sample's), in rpm of the motor. ``ripple`` adds a ripple
     of that fraction at ``ripple_cycles`` per motor turn to the logged speed."""
-    folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
+    folder = _folder(folder)
     rng = np.random.default_rng(seed)
     dt = 1.0 / fs
     n0 = int(0.5 * fs)
@@ -283,11 +292,9 @@ def hbridge_staircase(folder, *, window_s=0.05, dpos=1.2, dneg=1.8, fs=100.0,
     rpm = (count - before) / cpr / (win * dt) * 60.0
     if ripple:
         rpm = rpm * (1.0 + ripple * np.sin(ripple_cycles * angle))
-    path = folder / "stair.csv"
-    rows = ["ms,u_V,count,speed_rpm"] + [f"{int(round(1e3 * k * dt))},{a:.4f},{c},{s:.3f}"
-                                         for k, (a, c, s) in enumerate(zip(u, count, rpm))]
-    path.write_text("\n".join(rows) + "\n")
-    return path
+    ms = [int(round(1e3 * k * dt)) for k in range(len(u))]
+    return _write_csv(folder / "stair.csv", "ms,u_V,count,speed_rpm", "{},{:.4f},{},{:.3f}",
+                      ms, u, count, rpm)
 
 
 # -- a force-driven linear axis in a digital position loop, logged with its drive -------
@@ -304,8 +311,7 @@ def force_axis_closed_loop(folder, *, M=2.5, Fv=40.0, coulomb=22.0, offset=3.0, 
     carriage sticks while the force is within the Coulomb level. Euler, 50 steps per
     sample. Each run is a CSV ``t,ref,drive,pos`` (position in m, quantised by the
     encoder's count)."""
-    folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
+    folder = _folder(folder)
     dt, sub = 1.0 / fs, 50
     q = 1.0 / counts_per_m
     out = []
@@ -316,11 +322,8 @@ def force_axis_closed_loop(folder, *, M=2.5, Fv=40.0, coulomb=22.0, offset=3.0, 
         pos, drive = _carriage_in_a_loop(ref, np.zeros(n), M=M, Fv=Fv, coulomb=coulomb,
                                          offset=offset, kd=kd, kp=kp, kv=kv, dt=dt, sub=sub, q=q)
         t = np.arange(n) * dt
-        path = folder / f"loop{j}.csv"
-        rows = ["t,ref,drive,pos"] + [f"{a:.4f},{b:.5f},{c:.6f},{d:.6f}"
-                                      for a, b, c, d in zip(t, ref, drive, pos)]
-        path.write_text("\n".join(rows) + "\n")
-        out.append(path)
+        out.append(_write_csv(folder / f"loop{j}.csv", "t,ref,drive,pos",
+                              "{:.4f},{:.5f},{:.6f},{:.6f}", t, ref, drive, pos))
     return out
 
 
@@ -364,8 +367,7 @@ def emps_like_axis(folder, *, M=95.1, Fv=203.5, coulomb=20.4, offset=-3.16, kd=3
     ``t,qg,vir,qm`` (reference m, the drive's input V, the encoder's position m). Euler,
     20 steps per sample; the carriage sticks while the force is within the Coulomb
     level."""
-    folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
+    folder = _folder(folder)
     rng = np.random.default_rng(seed)
     dt, sub = 1.0 / fs, 20
     n = int(round(duration_s * fs))
@@ -386,11 +388,8 @@ def emps_like_axis(folder, *, M=95.1, Fv=203.5, coulomb=20.4, offset=-3.16, kd=3
     qm, vir = _carriage_in_a_loop(ref, rng.normal(0.0, 2e-3, n), M=M, Fv=Fv, coulomb=coulomb,
                                   offset=offset, kd=kd, kp=kp, kv=kv, dt=dt, sub=sub,
                                   q=1.0 / counts_per_m)
-    path = folder / "emps.csv"
-    rows = ["t,qg,vir,qm"] + [f"{a:.4f},{b:.6f},{c:.6f},{d:.7f}"
-                              for a, b, c, d in zip(t, ref, vir, qm)]
-    path.write_text("\n".join(rows) + "\n")
-    return path
+    return _write_csv(folder / "emps.csv", "t,qg,vir,qm", "{:.4f},{:.6f},{:.6f},{:.7f}",
+                      t, ref, vir, qm)
 
 
 # -- a teaching kit's recordings: PRBS around an operating point, a step from a speed ---
@@ -428,8 +427,7 @@ def kit_recordings(folder, *, R=4.0, K=0.5, J=0.02, B=0.002, dz=1.0, fs=50.0, cp
     motion: the logger starts after the motor has run at the run's first input for 3 s. The
     bridge passes nothing below ``dz`` volts. The speed is the encoder's counts (``cpr`` a
     turn) over the 20 ms before each sample, in rad/s; the input is logged exactly."""
-    folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
+    folder = _folder(folder)
     rng = np.random.default_rng(seed)
     dt = 1.0 / fs
     inputs = []
@@ -449,10 +447,8 @@ def kit_recordings(folder, *, R=4.0, K=0.5, J=0.02, B=0.002, dz=1.0, fs=50.0, cp
         # logged sample k (time k dt): the counts gained over the 20 ms before it
         speed = (counts[n0:n0 + len(u)] - counts[n0 - 1:n0 - 1 + len(u)]) * 2 * math.pi / cpr / dt
         t = np.arange(len(u)) * dt
-        path = folder / f"{name}.csv"
-        rows = ["t,u,speed"] + [f"{a:.3f},{b:.4f},{c:.5f}" for a, b, c in zip(t, u, speed)]
-        path.write_text("\n".join(rows) + "\n")
-        out.append(path)
+        out.append(_write_csv(folder / f"{name}.csv", "t,u,speed", "{:.3f},{:.4f},{:.5f}",
+                              t, u, speed))
     return out
 
 
@@ -461,8 +457,7 @@ def encoder_squares(twin: "Twin", folder, *, cpr=4000, amps=(1.2, 1.5, 2.0, 2.5)
     """Square waves on ``twin``, logged as a position-only encoder rig logs them: the
     output shaft's count (``cpr`` a turn) from wherever within its first count the shaft
     happened to stand, ``t,u,count``; the input as the DAC played it."""
-    folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
+    folder = _folder(folder)
     rng = np.random.default_rng(seed)
     q = 2 * math.pi / cpr
     out = []
@@ -474,10 +469,8 @@ def encoder_squares(twin: "Twin", folder, *, cpr=4000, amps=(1.2, 1.5, 2.0, 2.5)
         u = y["u"]                                        # as the DAC played it
         th = y["theta"] + rng.uniform(0.0, q)             # the start within a count
         count = np.floor(th / q).astype(int)
-        path = folder / f"sq_{a:.2f}V.csv"
-        rows = ["t,u,count"] + [f"{x:.4f},{y:.4f},{c}" for x, y, c in zip(t + lead, u, count)]
-        path.write_text("\n".join(rows) + "\n")
-        out.append(path)
+        out.append(_write_csv(folder / f"sq_{a:.2f}V.csv", "t,u,count", "{:.4f},{:.4f},{}",
+                              t + lead, u, count))
     return out
 
 
@@ -493,8 +486,7 @@ def measured_current_rig(folder, *, J=2e-4, B=2e-3, kt=0.05, forward=0.02, rever
     is within the level of the way it would turn). With ``breakaway`` (N m), a Stribeck
     peak: friction ``level + breakaway exp(-(w/stribeck)^2)`` while moving, and the rotor
     held at rest up to ``level + breakaway``. Euler, 20 steps per sample."""
-    folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
+    folder = _folder(folder)
     rng = np.random.default_rng(seed)
     dt, sub = 1.0 / fs, 20
     h = dt / sub
@@ -523,11 +515,8 @@ def measured_current_rig(folder, *, J=2e-4, B=2e-3, kt=0.05, forward=0.02, rever
         t = np.arange(n) * dt
         current = tq / kt + rng.normal(0.0, 4e-3, n)
         speed = ws + rng.normal(0.0, 0.05, n)
-        path = folder / f"step{i}.csv"
-        rows = ["t,current,speed"] + [f"{x:.5f},{c:.6g},{s:.6g}"
-                                      for x, c, s in zip(t, current, speed)]
-        path.write_text("\n".join(rows) + "\n")
-        out.append(path)
+        out.append(_write_csv(folder / f"step{i}.csv", "t,current,speed", "{:.5f},{:.6g},{:.6g}",
+                              t, current, speed))
     return out
 
 
@@ -540,8 +529,7 @@ def shield_steps(folder, *, R=2.0, K=0.01, J=2e-6, B=1e-7, supply=12.0, power=0.
     PWM mapping: the bridge's dead time and the winding's inductance eat less of a long
     duty than of a short one), ``J w' = K (v - K w)/R - B w``; the speed is the encoder's
     counts (``cpr`` a turn) over the sample before, in rad/s."""
-    folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
+    folder = _folder(folder)
     rng = np.random.default_rng(seed)
     dt, sub = 1.0 / fs, 20
     h = dt / sub
@@ -562,10 +550,8 @@ def shield_steps(folder, *, R=2.0, K=0.01, J=2e-6, B=1e-7, supply=12.0, power=0.
         counts = np.floor(angle * cpr / (2 * math.pi))
         speed = np.concatenate([[0.0], np.diff(counts)[:-1]]) * 2 * math.pi / cpr / dt
         t = np.arange(len(u)) * dt
-        path = folder / f"step_{lv:.1f}V.csv"
-        rows = ["t,u,speed"] + [f"{a:.3f},{b:.3f},{c:.4f}" for a, b, c in zip(t, u, speed)]
-        path.write_text("\n".join(rows) + "\n")
-        out.append(path)
+        out.append(_write_csv(folder / f"step_{lv:.1f}V.csv", "t,u,speed", "{:.3f},{:.3f},{:.4f}",
+                              t, u, speed))
     return out
 
 
@@ -579,8 +565,7 @@ def running_with_current(folder, *, R=2.0, L=0.04, K=0.05, J=1e-4, B=1e-4, fs=10
     motor turning at the old level's speed with the old level's current (a slow armature,
     L/R = 20 ms: the current needs 20 samples to follow); after 0.3 s it steps back.
     Written as ``t,u,speed,current`` (rad/s, A). RK4, 8 steps per sample."""
-    folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
+    folder = _folder(folder)
     rng = np.random.default_rng(seed)
     dt, sub = 1.0 / fs, 8
     h = dt / sub
@@ -603,9 +588,6 @@ def running_with_current(folder, *, R=2.0, L=0.04, K=0.05, J=1e-4, B=1e-4, fs=10
         t = np.arange(n) * dt
         speed = ws + rng.normal(0.0, 0.2, n)
         current = cur + rng.normal(0.0, 0.01, n)
-        path = folder / f"run{j}.csv"
-        rows = ["t,u,speed,current"] + [f"{a:.5f},{b:.6g},{c:.6g},{d:.6g}"
-                                        for a, b, c, d in zip(t, u, speed, current)]
-        path.write_text("\n".join(rows) + "\n")
-        out.append(path)
+        out.append(_write_csv(folder / f"run{j}.csv", "t,u,speed,current",
+                              "{:.5f},{:.6g},{:.6g},{:.6g}", t, u, speed, current))
     return out

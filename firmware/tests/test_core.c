@@ -97,6 +97,21 @@ static size_t cfg_body(uint8_t *b, uint8_t loop, uint8_t wave, uint16_t rate, ui
     return 29 + 2u * nl;
 }
 
+/* how the run tests begin: reset, CONFIGURE (seq 1) with the body cfg_body builds in b
+ * from the same arguments, START (seq 2), one poll; returns the body's length for a test
+ * that sends the same CONFIGURE again */
+static size_t configure_and_start(uint8_t *b, uint8_t loop, uint8_t wave, uint16_t rate, uint32_t n,
+                                  uint32_t lead, uint32_t seg, uint16_t lo, uint16_t hi, uint16_t wd,
+                                  const uint16_t *lv, uint8_t nl)
+{
+    reset_all();
+    size_t len = cfg_body(b, loop, wave, rate, n, lead, seg, lo, hi, wd, lv, nl);
+    host_send(LR_CONFIGURE, 1, b, len);
+    host_send(LR_START, 2, NULL, 0);
+    lr_core_poll();
+    return len;
+}
+
 /* run the timer for n ticks with the main loop polled after each, heartbeat every 100 ms */
 static void run_ticks(int n, int heartbeat)
 {
@@ -108,7 +123,34 @@ static void run_ticks(int n, int heartbeat)
     }
 }
 
+/* how many DAC words of the SAMPLES collected differ from want(k, ctx), k the sample's
+ * index in the run; *seen: how many words there were */
+static uint32_t bad_words(uint16_t (*want)(uint32_t k, const void *ctx), const void *ctx,
+                          uint32_t *seen)
+{
+    uint32_t bad = 0;
+    *seen = 0;
+    for (int i = 0; i < nmsgs; i++) {
+        if (msgs[i].type != LR_SAMPLES) continue;
+        uint32_t first = lr_get32(msgs[i].body);
+        for (int j = 0; j < msgs[i].body[4]; j++) {
+            if (lr_get16(msgs[i].body + 5 + 8 * j) != want(first + j, ctx)) bad++;
+            (*seen)++;
+        }
+    }
+    return bad;
+}
+
 /* ---------------- vector tests ---------------- */
+typedef struct { uint32_t lead; uint16_t zero; size_t nw; const uint8_t *raw; } pwl_t;
+/* the word the host's rule plays at sample k: 0 V in the lead-in, then the vector's words
+ * (0xFFFF, never played, past them) */
+static uint16_t pwl_word(uint32_t k, const void *ctx)
+{
+    const pwl_t *p = ctx;
+    return k < p->lead ? p->zero : (k - p->lead < p->nw ? lr_get16(p->raw + 2 * (k - p->lead)) : 0xFFFF);
+}
+
 /* The board plays a pwl word for word as the host's rule says (the vector's words come
  * from labrig.bridge.protocol.pwl_words): linear between breakpoints in integers,
  * the last breakpoint held, 0 V in the lead-in. */
@@ -126,18 +168,8 @@ static void test_pwl(jnode_t *v)
     lr_core_poll();
     run_ticks(total + 200, 1);
     collect();
-    uint32_t bad = 0, seen = 0;
-    for (int i = 0; i < nmsgs; i++) {
-        if (msgs[i].type != LR_SAMPLES) continue;
-        uint32_t first = lr_get32(msgs[i].body);
-        for (int j = 0; j < msgs[i].body[4]; j++) {
-            uint32_t k = first + j;
-            uint16_t got = lr_get16(msgs[i].body + 5 + 8 * j);
-            uint16_t exp = k < lead ? zero : (k - lead < nw ? lr_get16(raw + 2 * (k - lead)) : 0xFFFF);
-            if (got != exp) bad++;
-            seen++;
-        }
-    }
+    pwl_t pwl = {lead, zero, nw, raw};
+    uint32_t seen, bad = bad_words(pwl_word, &pwl, &seen);
     CHECK(seen == total && bad == 0, "pwl played as the host's rule says (seen %u of %u, bad %u)",
           seen, total, bad);
 }
@@ -248,13 +280,9 @@ static void test_hello_and_zero_at_reset(void)
 
 static void test_square_run(void)
 {
-    reset_all();
     uint8_t b[128];
     uint16_t lv[2] = {2663, 1433};
-    size_t n = cfg_body(b, 0, LR_WAVE_SQUARE, 1000, 4500, 500, 1000, 1024, 3072, 500, lv, 2);
-    host_send(LR_CONFIGURE, 1, b, n);
-    host_send(LR_START, 2, NULL, 0);
-    lr_core_poll();
+    configure_and_start(b, 0, LR_WAVE_SQUARE, 1000, 4500, 500, 1000, 1024, 3072, 500, lv, 2);
     CHECK(timer_on, "timer started");
     run_ticks(6000, 1);
     collect();
@@ -281,40 +309,31 @@ static void test_square_run(void)
     CHECK(lr_core_counters()->watchdog_trips == 0, "no watchdog trip with heartbeats");
 }
 
+/* the staircase of test_staircase: 0 V for the 250-sample lead-in, then each level of
+ * lv for 300 samples, the last one held */
+static uint16_t staircase_word(uint32_t k, const void *ctx)
+{
+    const uint16_t *lv = ctx;
+    return k < 250 ? 2048 : lv[(k - 250) / 300 > 3 ? 3 : (k - 250) / 300];
+}
+
 static void test_staircase(void)
 {
-    reset_all();
     uint8_t b[128];
     uint16_t lv[4] = {2048, 2458, 2867, 1638};
-    size_t n = cfg_body(b, 1, LR_WAVE_STAIRCASE, 500, 2000, 250, 300, 1024, 3072, 500, lv, 4);
-    host_send(LR_CONFIGURE, 1, b, n);
-    host_send(LR_START, 2, NULL, 0);
-    lr_core_poll();
+    configure_and_start(b, 1, LR_WAVE_STAIRCASE, 500, 2000, 250, 300, 1024, 3072, 500, lv, 4);
     run_ticks(2200, 1);
     collect();
-    uint32_t bad = 0, total = 0;
-    for (int i = 0; i < nmsgs; i++) {
-        if (msgs[i].type != LR_SAMPLES) continue;
-        uint32_t first = lr_get32(msgs[i].body);
-        for (int j = 0; j < msgs[i].body[4]; j++) {
-            uint32_t k = first + j;
-            uint16_t want = k < 250 ? 2048 : lv[(k - 250) / 300 > 3 ? 3 : (k - 250) / 300];
-            if (lr_get16(msgs[i].body + 5 + 8 * j) != want) bad++;
-            total++;
-        }
-    }
+    uint32_t total, bad = bad_words(staircase_word, lv, &total);
     CHECK(total == 2000 && bad == 0, "staircase holds the last level (total %u, bad %u)", total, bad);
 }
 
 static void test_limits(void)
 {
-    reset_all();
     uint8_t b[128];
     uint16_t lv[2] = {3500, 1433};  /* 3500 is beyond dac_max */
-    size_t n = cfg_body(b, 0, LR_WAVE_SQUARE, 1000, 100, 0, 10, 1024, 3072, 500, lv, 2);
-    host_send(LR_CONFIGURE, 1, b, n);
-    host_send(LR_START, 2, NULL, 0);
-    lr_core_poll(); collect();
+    size_t n = configure_and_start(b, 0, LR_WAVE_SQUARE, 1000, 100, 0, 10, 1024, 3072, 500, lv, 2);
+    collect();
     int k = find(LR_ERROR);
     CHECK(k >= 0 && msgs[k].body[0] == LR_ERR_LIMIT, "level beyond the limit refused");
     CHECK(k >= 0 && k + 1 < nmsgs && msgs[k + 1].type == LR_ERROR && msgs[k + 1].body[0] == LR_ERR_NOT_CONFIGURED,
@@ -339,13 +358,9 @@ static void test_limits(void)
 
 static void test_watchdog(void)
 {
-    reset_all();
     uint8_t b[128];
     uint16_t lv[1] = {2600};
-    size_t n = cfg_body(b, 0, LR_WAVE_CONSTANT, 1000, 100000, 0, 0, 1024, 3072, 300, lv, 1);
-    host_send(LR_CONFIGURE, 1, b, n);
-    host_send(LR_START, 2, NULL, 0);
-    lr_core_poll();
+    configure_and_start(b, 0, LR_WAVE_CONSTANT, 1000, 100000, 0, 0, 1024, 3072, 300, lv, 1);
     run_ticks(250, 0);
     CHECK(dac_hw == 2600 && timer_on, "running before the watchdog time");
     run_ticks(100, 0);
@@ -358,13 +373,9 @@ static void test_watchdog(void)
 
 static void test_overrun_gap(void)
 {
-    reset_all();
     uint8_t b[128];
     uint16_t lv[1] = {2300};
-    size_t n = cfg_body(b, 0, LR_WAVE_CONSTANT, 1000, 100, 0, 0, 1024, 3072, 500, lv, 1);
-    host_send(LR_CONFIGURE, 1, b, n);
-    host_send(LR_START, 2, NULL, 0);
-    lr_core_poll();
+    configure_and_start(b, 0, LR_WAVE_CONSTANT, 1000, 100, 0, 0, 1024, 3072, 500, lv, 1);
     adc_auto = 0;
     for (int i = 0; i < 120; i++) {
         if (timer_on) lr_core_tick();
@@ -425,13 +436,9 @@ static int count_samples(uint32_t *first_min)
 
 static void test_start_retransmission(void)
 {
-    reset_all();
     uint8_t b[128];
     uint16_t lv[2] = {2663, 1433};
-    size_t n = cfg_body(b, 0, LR_WAVE_SQUARE, 1000, 300, 20, 50, 1024, 3072, 500, lv, 2);
-    host_send(LR_CONFIGURE, 1, b, n);
-    host_send(LR_START, 2, NULL, 0);
-    lr_core_poll();
+    size_t n = configure_and_start(b, 0, LR_WAVE_SQUARE, 1000, 300, 20, 50, 1024, 3072, 500, lv, 2);
     run_ticks(100, 1);
     host_send(LR_START, 2, NULL, 0);          /* retransmission while running */
     run_ticks(400, 1);

@@ -139,8 +139,8 @@ def _axes(ax, figsize):
     return ax.figure, ax, False
 
 
-def plot_speed_vs_voltage(res, ax=None):
-    """Steady speed against input voltage, the fitted line(s) and the deadband.
+#: what every plot of a whole result takes and returns, added to its docstring
+_RESULT_PLOT_DOC = """
 
     Parameters
     ----------
@@ -152,7 +152,33 @@ def plot_speed_vs_voltage(res, ax=None):
     -------
     matplotlib.figure.Figure
     """
-    fig, ax, own = _axes(ax, (8.4, 4.6))
+
+
+def _result_plot(figsize):
+    """Make ``draw(res, ax)`` a ``plot_*(res, ax=None)`` of a whole result: drawn on the
+    Axes given or on a new figure of ``figsize`` (then laid out tight), finished alike
+    (a grid, the legend outside on the right), the figure returned."""
+    def make(draw):
+        def plot(res, ax=None):
+            fig, ax, own = _axes(ax, figsize)
+            draw(res, ax)
+            ax.grid(alpha=0.3)
+            legend_outside(ax, "right")
+            if own:
+                fig.tight_layout()
+            return fig
+
+        # not functools.wraps: the signature shown is this one, with ax optional
+        plot.__name__, plot.__qualname__ = draw.__name__, draw.__qualname__
+        plot.__module__ = draw.__module__
+        plot.__doc__ = draw.__doc__ and draw.__doc__ + _RESULT_PLOT_DOC
+        return plot
+    return make
+
+
+@_result_plot(figsize=(8.4, 4.6))
+def plot_speed_vs_voltage(res, ax):
+    """Steady speed against input voltage, the fitted line(s) and the deadband."""
     lv = [L for L in res.levels if L.speed is not None]
     mov = [L for L in lv if L.moving]
     rest = [L for L in lv if not L.moving]
@@ -182,11 +208,6 @@ def plot_speed_vs_voltage(res, ax=None):
     dz = "not measurable" if res.deadband_v is None else f"{res.deadband_v:.3f} V"
     ax.set_title(f"Speed against voltage — km {_fmt(res.km, '.4g')} {res.speed_unit} per V, "
                  f"deadband {dz}", fontsize=10)
-    ax.grid(alpha=0.3)
-    legend_outside(ax, "right")
-    if own:
-        fig.tight_layout()
-    return fig
 
 
 def _draw_line(ax, line, vmax):
@@ -206,20 +227,9 @@ def _draw_line(ax, line, vmax):
                 "fwd" not in line.intercepts else None)
 
 
-def plot_km_vs_amplitude(res, ax=None):
-    """The paper's Km = w/V per level against |V|, both directions, tolerance band.
-
-    Parameters
-    ----------
-    res : AnalysisResult
-    ax : Axes, optional
-        Draw here; by default on a new figure.
-
-    Returns
-    -------
-    matplotlib.figure.Figure
-    """
-    fig, ax, own = _axes(ax, (8.4, 4.2))
+@_result_plot(figsize=(8.4, 4.2))
+def plot_km_vs_amplitude(res, ax):
+    """The paper's Km = w/V per level against |V|, both directions, tolerance band."""
     pts = [L for L in res.levels if L.km_paper is not None and L.moving]
     for sgn, mk, lab in ((1, "o", "forward"), (-1, "s", "reverse")):
         p = [L for L in pts if np.sign(L.v) == sgn]
@@ -246,11 +256,6 @@ def plot_km_vs_amplitude(res, ax=None):
     ax.set_ylabel(f"Km = w / Vm ({res.speed_unit} per V)")
     ax.set_ylim(bottom=0)
     ax.set_title(title, fontsize=9)
-    ax.grid(alpha=0.3)
-    legend_outside(ax, "right")
-    if own:
-        fig.tight_layout()
-    return fig
 
 
 def _fmt(x, fmt):

@@ -56,13 +56,19 @@ def cmd_compare(args):
     return 0
 
 
+def _last_options(p, force_help: str) -> None:
+    """The options each loop command's list ends with: ``--force`` (``force_help``
+    says what it replaces), ``--json`` and ``--through``."""
+    p.add_argument("--force", action="store_true", help=force_help)
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    add_through_option(p)
+
+
 def _configure_compare(p):
     p.add_argument("data", nargs="+", help="folder(s) of runs")
     p.add_argument("--model", required=True, help="a model saved by `labrig identify -o`")
     p.add_argument("-o", "--output", default="compare", help="folder for the figures")
-    p.add_argument("--force", action="store_true", help="replace figures already in the folder")
-    p.add_argument("--json", action="store_true", help="print one JSON object")
-    add_through_option(p)
+    _last_options(p, "replace figures already in the folder")
 
 
 cmd_compare.configure = _configure_compare
@@ -94,13 +100,11 @@ def cmd_diagnose(args):
     check = _decide(runs, model, args.seed)
     saved = _saved_text(args.output, res.recommendation) if args.output else None
     if args.json:
-        emit_json({**res.to_json(), **({"proposal_check": check.to_json()} if check else {})})
+        emit_json(_json_with_check(res, check))
         if saved and not res.recommendation:  # stdout is the JSON: the warning goes beside it
             print(f"labrig: {saved}", file=sys.stderr)
     else:
-        print(res.to_text())
-        if check:
-            print("\n" + check.to_text())
+        print(_text_with_check(res, check))
         if saved:
             print(f"\n{saved}")
     return 0
@@ -119,6 +123,16 @@ def _decide(runs, model, seed):
     """Runs proposed by `labrig propose` among the data: how the pair's separation moved."""
     with Progress("the proposed runs", total=None) as bar:
         return lr.decide(runs, model, seed=seed, through=None, progress=bar.hook)
+
+
+def _json_with_check(res, check) -> dict:
+    """``res``'s JSON, with the proposal check's when the data hold proposed runs."""
+    return {**res.to_json(), **({"proposal_check": check.to_json()} if check else {})}
+
+
+def _text_with_check(res, check) -> str:
+    """``res``'s text, then the proposal check's after a blank line when there is one."""
+    return res.to_text() + ("\n\n" + check.to_text() if check else "")
 
 
 AUTO_FILES = ("model.json", "ladder.json", "ladder.png", "diagnosis.json")
@@ -163,12 +177,9 @@ def _auto(args, runs, model, fixed, weights) -> int:
     check = _decide(runs, model, args.seed)
     asked = _ask_rig(args, runs, res) if args.ask_rig else None
     if args.json:
-        emit_json({**res.to_json(), **({"proposal_check": check.to_json()} if check else {}),
-                   **({"asked": asked} if asked else {})})
+        emit_json({**_json_with_check(res, check), **({"asked": asked} if asked else {})})
     else:
-        print(res.to_text())
-        if check:
-            print("\n" + check.to_text())
+        print(_text_with_check(res, check))
         if out:
             print(f"\nwritten to {out}/: {', '.join(AUTO_FILES)}")
         if asked:
@@ -247,9 +258,7 @@ def _configure_diagnose(p):
                    help="re-fit every candidate to the end (by default a re-fit that stalls "
                         "without gaining is ended early and marked screened out; the same "
                         "recommendation, slower)")
-    p.add_argument("--force", action="store_true", help="replace an existing -o file")
-    p.add_argument("--json", action="store_true", help="print one JSON object")
-    add_through_option(p)
+    _last_options(p, "replace an existing -o file")
 
 
 cmd_diagnose.configure = _configure_diagnose
@@ -293,9 +302,7 @@ def _configure_ladder(p):
                    help="automatic mode: random seed of the fits; same seed, same ladder "
                         f"(default {SEED})")
     p.add_argument("-o", "--output", default="ladder", help="folder for models and the figure")
-    p.add_argument("--force", action="store_true", help="replace files already in the folder")
-    p.add_argument("--json", action="store_true", help="print one JSON object")
-    add_through_option(p)
+    _last_options(p, "replace files already in the folder")
 
 
 cmd_ladder.configure = _configure_ladder

@@ -7,7 +7,7 @@ import math
 import os
 import tempfile
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import stat
 
@@ -33,6 +33,34 @@ def not_regular(path: Path | str) -> str | None:
         if test(mode):
             return what
     return "not a regular file"
+
+
+def size_within(path: Path, limit: int, error: Callable[[str], Exception], missing: str,
+                too_big: Callable[[int], str]) -> int:
+    """The size in bytes of the file at ``path``, checked before anything reads it.
+
+    Parameters
+    ----------
+    path : Path
+    limit : int
+        The most bytes the reader takes.
+    error : callable
+        The exception to raise, given the line ``"PATH: ..."``.
+    missing : str
+        What the line says when there is no file at ``path``.
+    too_big : callable
+        What the line says for a size over ``limit``, given the size.
+
+    Returns
+    -------
+    int
+    """
+    if not path.is_file():
+        raise error(f"{path}: {missing}")
+    size = path.stat().st_size
+    if size > limit:
+        raise error(f"{path}: {too_big(size)}")
+    return size
 
 
 def _umask() -> int:
@@ -73,7 +101,12 @@ def json_default(o):
     raise TypeError(f"not JSON serialisable: {type(o).__name__}")
 
 
-def finite_json(value: Any) -> Any:
+def _as_is(x: Any) -> Any:
+    return x
+
+
+def finite_json(value: Any, *, key: Callable[[Any], Any] = _as_is,
+                other: Callable[[Any], Any] = _as_is) -> Any:
     """``value`` with every non-finite float replaced by ``None``, at any depth.
 
     Python floats, numpy scalars and arrays inside dicts, lists and tuples are
@@ -81,21 +114,37 @@ def finite_json(value: Any) -> Any:
     ``default`` deals with those). Strict JSON has no ``inf``/``nan``, and an
     unbounded interval or a diverged candidate's rmse must not end a command in
     an internal error.
+
+    Parameters
+    ----------
+    value : Any
+    key : callable, optional
+        Applied to every dict key (by default the keys are kept).
+    other : callable, optional
+        Applied to every object of another type (by default it is kept): the
+        identifier's results make a nested result its dict this way.
+
+    Returns
+    -------
+    Any
     """
-    if isinstance(value, dict):
-        return {k: finite_json(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [finite_json(v) for v in value]
-    if isinstance(value, np.ndarray):
-        return finite_json(value.tolist())
-    if isinstance(value, (bool, np.bool_)):
-        return bool(value)
-    if isinstance(value, np.integer):
-        return int(value)
-    if isinstance(value, (float, np.floating)):
-        value = float(value)
-        return value if math.isfinite(value) else None
-    return value
+    def convert(v):
+        if isinstance(v, dict):
+            return {key(k): convert(x) for k, x in v.items()}
+        if isinstance(v, (list, tuple)):
+            return [convert(x) for x in v]
+        if isinstance(v, np.ndarray):
+            return convert(v.tolist())
+        if isinstance(v, (bool, np.bool_)):
+            return bool(v)
+        if isinstance(v, np.integer):
+            return int(v)
+        if isinstance(v, (float, np.floating)):
+            v = float(v)
+            return v if math.isfinite(v) else None
+        return other(v)
+
+    return convert(value)
 
 
 def dumps(obj: Any) -> str:

@@ -22,6 +22,7 @@ from pydantic import (AfterValidator, BaseModel, BeforeValidator, ConfigDict, Fi
                       ValidationError, model_validator)
 
 from labrig.core.errors import UserError
+from labrig.core.fileio import size_within
 
 #: a JSON file a user hands in is small (a model, a sidecar); a bigger one is a mistake
 MAX_JSON_BYTES = 8 * 1024 * 1024
@@ -351,12 +352,9 @@ def read_json(path: Path | str, what: str, error: type[UserError] = UserError,
     """Parse a user's JSON file, or raise one line: not found, too big, not JSON,
     nested too deep."""
     path = Path(path)
-    if not path.is_file():
-        raise error(f"{path}: {what} not found{hint}")
-    size = path.stat().st_size
-    if size > MAX_JSON_BYTES:
-        raise error(f"{path}: {size / 1e6:.1f} MB is too big for a {what} "
-                    f"(limit {MAX_JSON_BYTES / 1e6:.0f} MB); is this the right file?")
+    size_within(path, MAX_JSON_BYTES, error, f"{what} not found{hint}",
+                lambda size: f"{size / 1e6:.1f} MB is too big for a {what} "
+                             f"(limit {MAX_JSON_BYTES / 1e6:.0f} MB); is this the right file?")
     try:
         return json.loads(path.read_text(encoding="utf-8"))
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:

@@ -49,7 +49,8 @@ from typing import Any, Callable
 
 import numpy as np
 
-from labrig.identification.result import IdentResult, PopulationSolver, check_float
+from labrig.identification.result import (IdentResult, PopulationSolver, check_float,
+                                          population_solver_doc)
 
 __all__ = ["jellyfish", "JellyfishSolver", "logistic_init", "wrap_bounds"]
 
@@ -225,6 +226,7 @@ class JellyfishSolver(PopulationSolver):
         }
 
 
+@population_solver_doc
 def jellyfish(fun: Callable[[np.ndarray], np.ndarray], lower: Any, upper: Any, *,
               pop: int = 50, iters: int = 200, seed: int | None = None,
               rule: str = "paper", beta: float = 3.0, gamma: float = 0.1,
@@ -254,10 +256,7 @@ def jellyfish(fun: Callable[[np.ndarray], np.ndarray], lower: Any, upper: Any, *
     batch : bool
         True: one vectorised call per iteration (synchronous variant).
         False: exact sequential reference semantics.
-    callback : callable, optional
-        ``callback(iteration, best_fun)`` after each iteration (1-based);
-        raising ``StopIteration`` stops the run (its return value is
-        ignored).
+    %(callback)s
 
     Returns
     -------

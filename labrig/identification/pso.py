@@ -28,7 +28,8 @@ from typing import Any, Callable
 
 import numpy as np
 
-from labrig.identification.result import IdentResult, PopulationSolver, check_float
+from labrig.identification.result import (IdentResult, PopulationSolver, check_float,
+                                          population_solver_doc)
 
 __all__ = ["pso", "PSOSolver", "constriction", "apply_boundary"]
 
@@ -154,6 +155,7 @@ class PSOSolver(PopulationSolver):
                 "c2": self.c2, "chi": self.chi, "boundary": self.boundary}
 
 
+@population_solver_doc
 def pso(fun: Callable[[np.ndarray], np.ndarray], lower: Any, upper: Any, *,
         pop: int = 50, iters: int = 200, seed: int | None = None,
         c1: float = 2.05, c2: float = 2.05, boundary: str = "absorb",
@@ -178,10 +180,7 @@ def pso(fun: Callable[[np.ndarray], np.ndarray], lower: Any, upper: Any, *,
         Acceleration coefficients, ``c1 + c2 > 4``.
     boundary : {"absorb", "reflect", "random", "wrap"}
         Boundary handling; see the module docstring.
-    callback : callable, optional
-        ``callback(iteration, best_fun)`` after each iteration (1-based);
-        raising ``StopIteration`` stops the run (its return value is
-        ignored).
+    %(callback)s
 
     Returns
     -------

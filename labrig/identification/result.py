@@ -98,20 +98,16 @@ class IdentResult:
 
 
 def _jsonable(value: Any) -> Any:
-    """Convert numpy containers/scalars recursively to JSON-safe values."""
-    if isinstance(value, dict):
-        return {str(k): _jsonable(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_jsonable(v) for v in value]
-    if isinstance(value, np.ndarray):
-        return _jsonable(value.tolist())
-    if isinstance(value, (bool, np.bool_)):
-        return bool(value)
-    if isinstance(value, (Integral, np.integer)):
+    """Convert numpy containers/scalars recursively to JSON-safe values
+    (:func:`finite_json`, with string keys, any integral number an int and a nested
+    result its dict)."""
+    return finite_json(value, key=str, other=_jsonable_leaf)
+
+
+def _jsonable_leaf(value: Any) -> Any:
+    """What :func:`finite_json` leaves as it is, as the result's JSON holds it."""
+    if isinstance(value, Integral):
         return int(value)
-    if isinstance(value, (float, np.floating)):
-        value = float(value)
-        return value if math.isfinite(value) else None
     if isinstance(value, IdentResult):
         return value.to_dict()
     return value
@@ -329,6 +325,22 @@ class PopulationObjective:
         f[np.isnan(f)] = np.inf
         self.nfev += P
         return f
+
+
+#: the ``callback`` parameter of each population solver's function, whose protocol
+#: :meth:`PopulationSolver.step` keeps (see :func:`population_solver_doc`)
+CALLBACK_DOC = """callback : callable, optional
+        ``callback(iteration, best_fun)`` after each iteration (1-based);
+        raising ``StopIteration`` stops the run (its return value is
+        ignored)."""
+
+
+def population_solver_doc(func: Callable) -> Callable:
+    """``func`` with ``%(callback)s`` in its docstring replaced by :data:`CALLBACK_DOC`:
+    every solver documents the callback that :class:`PopulationSolver` calls alike."""
+    if func.__doc__:
+        func.__doc__ = func.__doc__ % {"callback": CALLBACK_DOC}
+    return func
 
 
 class PopulationSolver:

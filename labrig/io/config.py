@@ -13,6 +13,7 @@ from pathlib import Path
 
 from labrig.io.experiment import Experiment
 from labrig.core.errors import ConfigError, UserError
+from labrig.core.fileio import size_within
 from labrig.core.schemas import PlanFile, RigFile, validate
 
 CONFIG_DIR = Path(__file__).resolve().parents[2] / "configs"
@@ -160,11 +161,8 @@ _ATTRS = {
 
 def read_toml(path: Path | str, what: str) -> dict:
     path = Path(path)
-    if not path.is_file():
-        raise ConfigError(f"{path}: {what} file not found")
-    if path.stat().st_size > 1_000_000:
-        raise ConfigError(f"{path}: too big for a {what} file (over 1 MB); is this the "
-                          "right file?")
+    size_within(path, 1_000_000, ConfigError, f"{what} file not found",
+                lambda size: f"too big for a {what} file (over 1 MB); is this the right file?")
     try:
         return tomllib.loads(path.read_text(encoding="utf-8"))
     except tomllib.TOMLDecodeError as exc:

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from labrig.core.fileio import not_regular
+from labrig.core.fileio import not_regular, size_within
 from labrig.core.errors import RunFileError
 
 #: a larger file is refused before reading (the same bound as csvfile.MAX_CSV_BYTES)
@@ -90,12 +90,10 @@ def _load(path: Path, tops: list[str] | None, read: bool = True) -> tuple[dict, 
     what = not_regular(path)
     if what:
         raise RunFileError(f"{path}: is {what}, not a data file; give a regular file")
-    if not path.is_file():
-        raise RunFileError(f"{path}: file not found")
-    size = path.stat().st_size
-    if size > MAX_MAT_BYTES:
-        raise RunFileError(f"{path}: {size / 1e9:.1f} GB is more than labrig reads "
-                           f"({MAX_MAT_BYTES / 1e9:.0f} GB); save fewer or shorter channels")
+    size = size_within(path, MAX_MAT_BYTES, RunFileError, "file not found",
+                       lambda size: f"{size / 1e9:.1f} GB is more than labrig reads "
+                                    f"({MAX_MAT_BYTES / 1e9:.0f} GB); save fewer or shorter "
+                                    "channels")
     if size == 0:
         raise RunFileError(f"{path}: not a MAT file (the file is empty)")
     with path.open("rb") as fh:

@@ -33,17 +33,14 @@ def markup(fmt: str, *args, **kwargs) -> Markup:
 
 def num(x, fmt: str = ".4g", unit: str = "", dash: str = "–") -> str:
     """A number formatted; None, NaN and inf become a dash, a non-number stays as is."""
-    if x is None or isinstance(x, bool):
-        return dash if x is None else str(x)
-    try:
-        v = float(x)
-    except (TypeError, ValueError):
+    if isinstance(x, bool):
         return str(x)
-    if not math.isfinite(v):
-        return dash
-    if fmt.endswith("d"):
-        v = int(round(v))
-    return format(v, fmt) + (f" {unit}" if unit else "")
+
+    def f(v):
+        if fmt.endswith("d"):
+            v = int(round(v))
+        return format(v, fmt) + (f" {unit}" if unit else "")
+    return dash_or(x, f, dash)
 
 
 def pct(x, fmt: str = ".1f") -> str:
@@ -54,11 +51,11 @@ def pct(x, fmt: str = ".1f") -> str:
     return dash_or(x, f)
 
 
-def dash_or(x, f) -> str:
-    """``f(x)`` for a finite number, a dash for a missing one."""
+def dash_or(x, f, dash: str = "–") -> str:
+    """``f(x)`` for a finite number, ``dash`` for a missing one; a non-number as is."""
     try:
         if x is None or not math.isfinite(float(x)):
-            return "–"
+            return dash
         return f(float(x))
     except (TypeError, ValueError):
         return str(x)
