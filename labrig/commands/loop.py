@@ -254,10 +254,8 @@ def _configure_diagnose(p):
                                  "configs/rig_default.toml")
     p.add_argument("--budget-s", type=float, default=20.0,
                    help="--ask-rig: at most this many seconds of new data (default 20)")
-    p.add_argument("--full", action="store_true",
-                   help="re-fit every candidate to the end (by default a re-fit that stalls "
-                        "without gaining is ended early and marked screened out; the same "
-                        "recommendation, slower)")
+    p.add_argument("--full", action="store_true", help="re-fit every candidate to the end "
+                   "(default: one that stalls without gaining is screened out early)")
     _last_options(p, "replace an existing -o file")
 
 
