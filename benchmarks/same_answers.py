@@ -2,6 +2,7 @@
 trees of labrig, compared with the timings left out.
 
     python benchmarks/same_answers.py OLD_TREE [NEW_TREE]
+    python benchmarks/same_answers.py --sheets OLD_TREE [NEW_TREE]
 
 ``OLD_TREE`` is a checkout of the commit to compare with (``git worktree add /tmp/old
 COMMIT``); ``NEW_TREE`` defaults to this checkout. Each command runs in a fresh process
@@ -9,6 +10,12 @@ with ``PYTHONPATH`` set to the tree, on the repository's own data (``data/``) an
 simulated sweep made here, in a temporary folder per tree; its ``--json`` output (or the
 JSON files it writes) is compared key by key. A difference is printed with its path and
 both values, and the exit status is the number of commands that differ.
+
+With ``--sheets``: every command of the five exercise sheets (in order, in a fresh
+folder with copies of ``data/`` and ``configs/``, as ``tests/test_exercises.py`` runs
+them) and every command the README's and the sheets' checked figures name, in both
+trees: each command's exit status and ``--json`` output, and every JSON file the
+commands left in the folder, compared the same way (about five minutes a tree).
 
 This is how a change that should keep behaviour is checked (issue 47: the front ends
 through the verbs): run it before committing, on a quiet machine (the fits are
@@ -100,15 +107,78 @@ def _run(tree: Path, work: Path) -> dict:
     return out
 
 
+def _one(tree: Path, work: Path, line: str, env: dict) -> dict:
+    """One line of a sheet or a checked figure, run in ``work`` on ``tree``."""
+    import shlex
+
+    argv = shlex.split(line, comments=True)
+    cmd = ([sys.executable, "-m", "labrig"] if argv[0] == "labrig" else [sys.executable]) \
+        + argv[1:]
+    p = subprocess.run(cmd, cwd=work, env=env, capture_output=True, text=True, timeout=1800)
+    doc = {"exit": p.returncode}
+    if "--json" in argv:
+        try:
+            doc["stdout"] = json.loads(p.stdout)
+        except json.JSONDecodeError:
+            doc["stdout"] = p.stdout
+    return doc
+
+
+def _run_sheets(tree: Path, work: Path) -> dict:
+    """Every sheet's and the README's commands on ``tree``: ``{where: result}``."""
+    sys.path.insert(0, str(ROOT / "tests"))
+    import quoted
+    import test_exercises as ex
+
+    env = {**os.environ, "PYTHONPATH": str(tree), "CI": "true", "MPLBACKEND": "Agg",
+           "PYTHONHASHSEED": "0"}
+    out = {}
+    for sheet in [*ex.SHEETS, None]:
+        wd = work / (sheet.stem if sheet else "readme")
+        ex.setup_workdir(wd)
+        done = set()
+        for step in (ex.parse_sheet(sheet) if sheet else []):
+            if step[0] == "file":
+                (wd / step[1]).parent.mkdir(parents=True, exist_ok=True)
+                (wd / step[1]).write_text(step[2], encoding="utf-8")
+                continue
+            line = step[4]
+            out[f"{sheet.name}: {line}"] = _clean(_one(tree, wd, line, env))
+            done.add(line)
+        for doc in (ex._docs_of(sheet) if sheet else [ROOT / "README.md"]):
+            for c in quoted.parse(doc):
+                for line in c.after + [c.command]:
+                    if line not in done:
+                        out[f"{doc.name}: {line}"] = _clean(_one(tree, wd, line, env))
+                        done.add(line)
+        for f in sorted(wd.rglob("*.json")):
+            rel = f.relative_to(wd)
+            if rel.parts[0] not in ("data", "configs"):
+                try:
+                    out[f"{wd.name}/{rel}"] = _clean(json.loads(f.read_text()))
+                except json.JSONDecodeError:
+                    out[f"{wd.name}/{rel}"] = "not JSON"
+        print(f"  {tree.name}: {wd.name} done", file=sys.stderr)
+    return out
+
+
 def main(argv) -> int:
+    sheets = "--sheets" in argv
+    argv = [a for a in argv if a != "--sheets"]
     if not argv:
         print(__doc__)
         return 2
     old, new = Path(argv[0]).resolve(), Path(argv[1] if len(argv) > 1 else ROOT).resolve()
+    run = _run_sheets if sheets else _run
     with tempfile.TemporaryDirectory() as a, tempfile.TemporaryDirectory() as b:
-        before, after = _run(old, Path(a)), _run(new, Path(b))
+        before, after = run(old, Path(a)), run(new, Path(b))
     differ = 0
-    for name, _, _ in COMMANDS:
+    names = list(dict.fromkeys([*before, *after])) if sheets else [n for n, _, _ in COMMANDS]
+    for name in names:
+        if name not in before or name not in after:
+            print(f"{name}: only in {'new' if name in after else 'old'}")
+            differ += 1
+            continue
         d = _diff(before[name], after[name])
         print(f"{name}: {'same' if not d else f'{len(d)} difference(s)'}")
         for line in d[:20]:
