@@ -42,6 +42,15 @@ def _run_pso(obj, lo, hi, x0, o):
                callback=o.get("callback"))
 
 
+#: a start of CO's multi-start search still going after this many evaluations of the
+#: residuals is crawling (along an electrical pole the data do not resolve, typically, one
+#: start in four) and is ended there: it loses by far (cost 170 against 114 on the
+#: README's five-run case) after scipy's limit of 100 per parameter, while the starts
+#: that win converge within 12-40 (measured on the README's and the shipped sweeps). The
+#: best start's fit is unchanged: it ends long before.
+START_MAX_NFEV = 100
+
+
 def _run_co(obj, lo, hi, x0, o):
     """Multi-start least squares. The starts are screened on every k-th residual (about
     8000 of them; the simulation runs on every sample, only the residuals are thinned),
@@ -67,10 +76,11 @@ def _run_co(obj, lo, hi, x0, o):
         return res
     full = lambda x: local(obj.residuals, lo, hi, x0=x, starts=1, seed=o["seed"],  # noqa: E731
                            jac_batch=obj.residuals_jac_batch, max_nfev=o.get("max_nfev"))
+    starts_nfev = o.get("max_nfev") or START_MAX_NFEV
     if o["starts"] > 1 and stride > 1:
         screen = local(lambda x: obj.residuals(x, stride), lo, hi, x0=x0, starts=o["starts"],
                        seed=o["seed"], jac_batch=lambda X: obj.residuals_jac_batch(X, stride),
-                       max_nfev=o.get("max_nfev"), callback=root_cb, threads=True)
+                       max_nfev=starts_nfev, callback=root_cb, threads=True)
         res = full(screen.x)
         res.nfev += screen.nfev
         res.nit = screen.nit
@@ -79,8 +89,8 @@ def _run_co(obj, lo, hi, x0, o):
                        f"then polished on all: {res.message}")
     else:
         res = local(obj.residuals, lo, hi, x0=x0, starts=o["starts"], seed=o["seed"],
-                    jac_batch=obj.residuals_jac_batch, max_nfev=o.get("max_nfev"), callback=root_cb,
-                    threads=True)
+                    jac_batch=obj.residuals_jac_batch, callback=root_cb, threads=True,
+                    max_nfev=starts_nfev if o["starts"] > 1 else o.get("max_nfev"))
     # local reports mean squares; the fitness (and its history) is the root
     res.fun = float(np.sqrt(res.fun))
     res.history = [float(np.sqrt(h)) for h in res.history]
