@@ -100,6 +100,8 @@ class RunView:
                 self.sources[ch].data = {"t": t[::step],
                                          "measured": np.asarray(c["measured"], float)[::step],
                                          "model": model, "residual": residual}
+            if same:   # the run's noise, quantum and regimes are the data's: unchanged
+                continue
             q, sigma = c.get("quantum") or 0.0, c.get("sigma") or 0.0
             for sgn, span in zip((1, -1), self.quanta[ch]):
                 span.visible = q > 0 and sigma > 0
