@@ -11,6 +11,8 @@ from labrig.analysis.result import GAIN_TOLERANCE, AnalysisResult, RunAnalysis
 from labrig.analysis.run import analyse_run
 from labrig.analysis.summarise import summarise
 from labrig.analysis.table1 import analyse_table
+from labrig.io.runs import Run, read_dataset
+from labrig.io.steady_table import is_table
 
 
 def analyse(paths, *, tolerance: float = GAIN_TOLERANCE) -> AnalysisResult:
@@ -33,9 +35,6 @@ def analyse(paths, *, tolerance: float = GAIN_TOLERANCE) -> AnalysisResult:
     AnalysisError, RunFileError
         With the file or run name and how to fix it.
     """
-    from labrig.io.runs import Run, read_dataset
-    from labrig.io.steady_table import is_table
-
     if isinstance(paths, (str, Path)):
         paths = [paths]
     paths = list(paths)

@@ -130,6 +130,8 @@ def fit_edge(t, y, i_edge, i_end, pre, *, kind="speed", sigma=0.0, min_step=0.0,
     lo = [-np.inf] * (len(x0) - 2) + [math.log(dt / 4), lo_td]
     hi = [np.inf] * (len(x0) - 2) + [math.log(20 * seg_dur), hi_td]
     try:
+        # scipy.optimize costs ~0.22 s to import; the fits import this package (noise
+        # floors) without fitting an edge, and test_startup keeps it off their path
         from scipy.optimize import least_squares
 
         sol = least_squares(res, x0, bounds=(lo, hi), loss="soft_l1", f_scale=fscale,

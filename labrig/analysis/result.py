@@ -13,6 +13,7 @@ import pandas as pd
 
 from labrig.analysis.stepfit import StepFit
 from labrig.core.display import Displayable
+from labrig.analysis.text import summary_text, table_rows
 
 #: relative change of w/V over the amplitude range still called "constant"
 GAIN_TOLERANCE = 0.03
@@ -304,14 +305,10 @@ class AnalysisResult(Displayable):
 
     def table_rows(self) -> list:
         """The per-level table and the summary table, as :class:`labrig.core.tables.Table`."""
-        from labrig.analysis.text import table_rows
-
         return table_rows(self)
 
     def summary(self) -> str:
         """The readable summary: the tables, the verdict, the saved figures."""
-        from labrig.analysis.text import summary_text
-
         return summary_text(self)
 
     # -- figures ------------------------------------------------------------------
@@ -333,7 +330,7 @@ class AnalysisResult(Displayable):
             warnings.warn("AnalysisResult.plot(figdir) is deprecated; save the figures of "
                           "figures() instead", DeprecationWarning, stacklevel=2)
             return self.save_figures(ax)
-        from labrig.analysis.plots import plot_speed_vs_voltage
+        from labrig.analysis.plots import plot_speed_vs_voltage  # matplotlib: ~0.2 s more
 
         return plot_speed_vs_voltage(self, ax=ax)
 
@@ -347,14 +344,14 @@ class AnalysisResult(Displayable):
             Names are known without drawing; each access draws a new figure, so that
             saving and closing one at a time keeps one figure in memory.
         """
-        from labrig.analysis.plots import analysis_figures
+        from labrig.analysis.plots import analysis_figures  # matplotlib: ~0.2 s more to import
 
         return analysis_figures(self)
 
     def save_figures(self, figdir) -> list[str]:
         """Save every figure of :meth:`figures` as PNG into ``figdir`` (closing each)
         and record the paths (:meth:`record_figures`); returns them."""
-        from labrig.analysis.plots import save_figures
+        from labrig.analysis.plots import save_figures  # matplotlib: ~0.2 s more to import
 
         self.record_figures(save_figures(self.figures(), figdir))
         return self.figure_paths

@@ -10,6 +10,7 @@ import pandas as pd
 from labrig.core.errors import AnalysisError
 from labrig.analysis.result import GAIN_TOLERANCE, AnalysisResult, Level
 from labrig.analysis.summarise import summarise
+from labrig.io.steady_table import read_table1
 
 
 def analyse_table(path, *, tolerance: float = GAIN_TOLERANCE) -> AnalysisResult:
@@ -18,8 +19,6 @@ def analyse_table(path, *, tolerance: float = GAIN_TOLERANCE) -> AnalysisResult:
     Only steady states: ``tau_s`` is None; ``kt`` is the median of tacho_v / w when
     the table has a tacho voltage column.
     """
-    from labrig.io.steady_table import read_table1
-
     path = Path(path)
     df = read_table1(path)
     name = path.stem

@@ -23,6 +23,7 @@ from pathlib import Path
 import labrig.verbs as lr
 from labrig.core.defaults import METHOD
 from labrig.core.errors import LabrigError, UserError
+from labrig.core.fileio import atomic_write, dumps
 
 #: a hand-in larger than this is refused (a run folder is a few MB)
 MAX_FOLDER_BYTES = 200 * 2 ** 20
@@ -178,7 +179,7 @@ def run_one(task: "str | Task", name: str, files: dict, options: dict, threads: 
     t0 = time.perf_counter()
     folder = None
     if threads:
-        import numba
+        import numba  # ~0.2 s to import; only when threads are set
 
         numba.set_num_threads(max(1, min(threads, numba.config.NUMBA_NUM_THREADS)))
     try:
@@ -215,7 +216,7 @@ class BatchResult:
         return sum(r["status"] != "ok" for r in self.rows)
 
     def to_pandas(self):
-        import pandas as pd
+        import pandas as pd  # ~0.2 s to import, for a notebook's table only
 
         cols = ["folder", "name", "status", *(self.figures or TASKS[self.task].figures),
                 "seconds", "error"]
@@ -312,6 +313,7 @@ def _joblib(jobs, task, work, options, threads):
         for k, name, files, shown in work:
             yield k, run_one(task, name, files, options, 0, shown)
         return
+    # loky: ~0.17 s to import, only for a pool (jobs > 1)
     from joblib.externals.loky import get_reusable_executor
 
     try:
@@ -332,6 +334,7 @@ def _joblib(jobs, task, work, options, threads):
 def _pool_round(jobs, task, work, options, threads):
     """Yield the rows of ``work`` run on a pool of ``jobs``; return the items whose worker
     died (the pool breaks for all of them at once)."""
+    # only for a pool: concurrent.futures.process ~0.015 s, loky ~0.17 s to import
     from concurrent.futures import as_completed
     from concurrent.futures.process import BrokenProcessPool
 
@@ -367,7 +370,7 @@ def _task(task) -> Task:
 
 def _dask(scheduler, task, work, options):
     try:
-        from dask.distributed import Client, as_completed
+        from dask.distributed import Client, as_completed  # only for --scheduler; may be missing
     except ImportError:  # pragma: no cover - a dependency, but say what to install
         raise UserError("--scheduler needs dask.distributed: pip install 'dask[distributed]'")
     try:
@@ -391,8 +394,6 @@ def _dask(scheduler, task, work, options):
 
 def write_batch(result: BatchResult, out: Path) -> list[Path]:
     """results.csv, results.json and each folder's files under ``out/<name>/``."""
-    from labrig.core.fileio import atomic_write, dumps
-
     out.mkdir(parents=True, exist_ok=True)
     written = []
     for r in result.rows:

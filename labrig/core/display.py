@@ -8,6 +8,7 @@ gives the first line. Nothing here computes: it only presents what the result ho
 from __future__ import annotations
 
 import base64
+from html import escape
 
 from labrig.core.tables import Table, table_html
 
@@ -49,8 +50,6 @@ class Displayable:
         return self.plot()
 
     def _repr_html_(self) -> str:
-        from html import escape
-
         parts = [f"<div><b>{escape(self.headline())}</b></div>"]
         parts += [table_html(t) for t in self._tables()]
         try:
@@ -64,7 +63,7 @@ class Displayable:
 
 def figure_html(fig) -> str:
     """A matplotlib figure as an inline PNG ``<img>``; the figure is closed after."""
-    from labrig.core.figures import png_bytes
+    from labrig.core.figures import png_bytes  # matplotlib: ~0.35 s to import
 
     return png_html(png_bytes(fig, dpi=80))
 

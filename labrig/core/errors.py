@@ -1,5 +1,7 @@
 """The exception hierarchy; the CLI maps it to exit codes in one place (cli.py)."""
 
+import signal
+
 
 class LabrigError(Exception):
     """Base of every error labrig raises on purpose."""
@@ -50,8 +52,6 @@ class Terminated(Interrupted):
     """
 
     def __init__(self, signum: int, detail: str = ""):
-        import signal
-
         self.signum = int(signum)
         self.exit_code = 128 + self.signum
         text = f"terminated by {signal.Signals(self.signum).name}"

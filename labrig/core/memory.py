@@ -14,6 +14,7 @@ allocator. Elsewhere (macOS, musl) it does nothing.
 """
 from __future__ import annotations
 
+import ctypes
 import sys
 
 #: glibc's ``mallopt`` parameter (malloc.h)
@@ -31,7 +32,6 @@ def keep_freed_memory() -> bool:
     if _done or not sys.platform.startswith("linux"):
         return False
     _done = True
-    import ctypes
 
     try:
         mallopt = ctypes.CDLL(None).mallopt

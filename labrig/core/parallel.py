@@ -18,11 +18,15 @@ import functools
 import os
 import threading
 
+from labrig.core.errors import UserError
+
 _local = threading.local()
 
 
 @functools.cache
 def _threadsafe() -> bool:
+    # probes, inside: either pool may be missing (ImportError), and numba (numpy) must not
+    # load with this module, which the command line imports before one_blas_thread()
     try:
         from numba.np.ufunc import omppool  # noqa: F401
         return True
@@ -49,8 +53,6 @@ def one_blas_thread() -> None:
 def jobs() -> int:
     """How many fits run at once: the cores, unless ``LABRIG_THREADS`` says otherwise
     (at most twice the cores)."""
-    from labrig.core.errors import UserError
-
     want = os.environ.get("LABRIG_THREADS", "").strip()
     if want and not (want.isdigit() and int(want) > 0):
         raise UserError(f"LABRIG_THREADS={want!r}: give a whole number of threads >= 1 "
@@ -65,7 +67,7 @@ def each(fn, items) -> list:
     n = min(jobs(), len(items))
     if n <= 1 or getattr(_local, "inside", False):
         return [fn(x) for x in items]
-    from joblib import Parallel, delayed
+    from joblib import Parallel, delayed  # ~0.1 s to import; only when fits run at once
 
     def run(x):
         _local.inside = True

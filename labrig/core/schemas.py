@@ -12,6 +12,7 @@ Nothing here runs code: effect names are plain strings until
 """
 from __future__ import annotations
 
+import difflib
 import json
 import re
 import typing
@@ -407,7 +408,6 @@ def _what(cls, err, kind, key, item, section_word) -> str:
         if section_word and "." not in key and not item:
             return (f"unknown section [{key}]; expected one of "
                     f"{', '.join(f'[{a}]' for a in allowed)}")
-        import difflib
 
         close = difflib.get_close_matches(str(err["loc"][-1]), allowed, n=1, cutoff=0.6)
         hint = (f"; did you mean '{close[0]}'?" if close else

@@ -20,6 +20,10 @@ from labrig.model.model import Model
 from labrig.diagnosis.residuals import REGIME_TEXT
 from labrig.core.tables import Table, fmt
 from labrig.core.display import Displayable
+from labrig.diagnosis.search import search
+from labrig.analysis.agreement import lag_explained
+from labrig.identification.identifiability import time_constants
+from labrig.diagnosis.diagnose import agreement_of
 
 #: two candidates are confusable when their errors differ by less than this (relative)
 CONFUSABLE = 0.10
@@ -185,8 +189,6 @@ def auto_diagnose(runs, model: Model | None = None, *, max_rounds: int = 3, seed
         End a candidate's re-fit early when it stalls without gaining (default True;
         :func:`labrig.diagnosis.criteria.screen`).
     """
-    from labrig.diagnosis.search import search
-
     res = search(runs, model, max_rounds=max_rounds, seed=seed, fixed=fixed, weights=weights,
                  log=log, on_step=on_step, screen=screen)
     pairs = [p for k, diag in enumerate(res.rounds, 1) for p in confusable_pairs(diag, k)]
@@ -199,10 +201,6 @@ def auto_diagnose(runs, model: Model | None = None, *, max_rounds: int = 3, seed
 def sensor_lag(model: Model, runs, ev) -> str:
     """A sentence when the model's fitted lag (electrical pole, delay) is the speed
     sensor's (:func:`labrig.analysis.agreement.lag_explained`); '' otherwise."""
-    from labrig.analysis.agreement import lag_explained
-    from labrig.identification.identifiability import time_constants
-    from labrig.diagnosis.diagnose import agreement_of
-
     if "speed" not in ev.floors:
         return ""
     agree = agreement_of(runs, ev) if "position" in ev.floors else None

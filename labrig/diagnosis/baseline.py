@@ -3,7 +3,7 @@ given, the channel weights that give each channel the same say, and a fit's para
 at a bound, in words."""
 from __future__ import annotations
 
-from labrig.analysis.agreement import WINDOW_DECLARED_IN
+from labrig.analysis.agreement import WINDOW_DECLARED_IN, channel_agreement
 from labrig.analysis.noise import Weights
 from labrig.diagnosis.evaluation import Evaluation
 from labrig.diagnosis.refit import refit
@@ -11,6 +11,7 @@ from labrig.identification.engine import identify
 from labrig.identification.result import at_bounds as bound_sides
 from labrig.model import drive_units
 from labrig.model.model import Model
+from labrig.model.simulate import prepare
 
 
 def balanced_weights(ev: Evaluation, runs=None) -> Weights:
@@ -48,9 +49,6 @@ def agreement_of(runs, ev: Evaluation):
     """The position's agreement with the integral of the speed on ``runs``
     (:class:`labrig.analysis.agreement.ChannelAgreement`), with the noise floors of
     ``ev``; None without both channels."""
-    from labrig.analysis.agreement import channel_agreement
-    from labrig.model.simulate import prepare
-
     unit = ev.floors["position"].unit if "position" in ev.floors else "rad"
     speed_unit = ev.floors["speed"].unit if "speed" in ev.floors else "rad/s"
     return channel_agreement(prepare(runs), ev.sigmas[0], ev.sigmas[1], unit, speed_unit)

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import math
 
+from labrig.model.effects import get_effect
+
 #: a candidate must lower the cross-validated (and the in-sample) error by this much
 MIN_GAIN = 0.05
 #: and be strongly supported by BIC (Kass & Raftery: |dBIC| > 10 is "very strong")
@@ -104,8 +106,6 @@ def undecided(a, b) -> bool:
     """Whether the runner-up ``b``, a different explanation (another family), predicts
     held-out data within :data:`UNDECIDED` of the first ``a``: their order is not
     evidence."""
-    from labrig.model.effects import get_effect
-
     if a.effect == b.effect or \
             get_effect(a.effect).family_name == get_effect(b.effect).family_name:
         return False

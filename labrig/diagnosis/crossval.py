@@ -31,6 +31,7 @@ from labrig.model.simulate import prepare
 from labrig.analysis.noise import run_speed
 from labrig.diagnosis.refit import fit
 from labrig.diagnosis.residuals import input_edges, label_regimes
+from labrig.model.effects import get_effect
 
 #: folds, and blocks per run when the input has too few segments to interleave
 MAX_FOLDS = 4
@@ -219,8 +220,6 @@ def unpinned_folds(cv: CrossValidation, model: Model, effect: str) -> dict:
     """Folds whose training part does not pin ``effect``'s threshold: its fold fit lands
     more than :data:`PIN_FACTOR` away from the fit to all data (the held-out part held
     what set it). ``{fold index: (parameter, fold value, all-data value)}``."""
-    from labrig.model.effects import get_effect
-
     name = get_effect(effect).threshold
     if not name:
         return {}

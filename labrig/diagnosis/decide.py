@@ -11,9 +11,10 @@ from labrig.core.display import Displayable
 from labrig.core.errors import UserError
 from labrig.core.tables import Table
 from labrig.io.runs import Run
-from labrig.diagnosis.refit import refit_with, without
+from labrig.diagnosis.refit import refit_with, without, refit
 from labrig.model.effects import catalogue_name, get_effect
 from labrig.model.model import Model
+from labrig.diagnosis.diagnose import linear_model
 
 
 @dataclass(repr=False)
@@ -71,8 +72,6 @@ class Decision(Displayable):
 
 def _best_fit_with(runs, base: Model, effect: str, seed: int, start: Model | None):
     """The best of a re-fit from ``start`` and a fit from scanned starts on ``base``."""
-    from labrig.diagnosis.refit import refit
-
     fits = [refit_with(runs, base, get_effect(effect), seed=seed)]
     if start is not None:
         fits.append(refit(runs, start, seed=seed))
@@ -85,8 +84,6 @@ def _best_fit_with(runs, base: Model, effect: str, seed: int, start: Model | Non
 def decide(runs: list[Run], model: Model | None = None, *, seed: int = 0, log=None):
     """When some runs were proposed to tell two effects apart (``experiment.between``),
     fit both explanations with and without them; None when no run was proposed."""
-    from labrig.diagnosis.diagnose import linear_model
-
     new = [r for r in runs if r.experiment.get("between")]
     if not new:
         return None

@@ -30,6 +30,7 @@ from labrig.diagnosis.criteria import (CV_CANDIDATES, FLOOR, MAX_REFINE, MIN_DBI
 from labrig.diagnosis.ranking import Diagnosis
 from labrig.diagnosis.round import Round, switched_off  # noqa: F401
 from labrig.model.model import Model
+from labrig.simulation.warm import ready
 
 
 def diagnose(runs, model: Model | None = None, *, candidates=None, seed: int = 0,
@@ -72,8 +73,6 @@ def diagnose(runs, model: Model | None = None, *, candidates=None, seed: int = 0
     -------
     Diagnosis
     """
-    from labrig.simulation.warm import ready
-
     ready()  # a first compile is announced and kept out of the timing
     rnd = Round.start(runs, model, seed=seed, fixed=fixed, weights=weights, folds=folds,
                       baseline_cv=baseline_cv)

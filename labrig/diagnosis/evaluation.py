@@ -9,6 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+import pandas as pd
 
 from labrig.identification.objective import Objective, adequacy, build_space
 from labrig.model.model import Model, param_keys
@@ -16,6 +17,7 @@ from labrig.analysis.noise import Weights
 from labrig.diagnosis.residuals import autocorr, regime_table, run_residuals, worst_regime, worst_run
 from labrig.core.tables import Table, fmt
 from labrig.core.display import Displayable
+from labrig.identification.result import fit_warnings
 
 
 @dataclass(repr=False)
@@ -109,16 +111,12 @@ class Evaluation(Displayable):
 
     def to_pandas(self):
         """Per run and channel: fit % and rmse/noise, one row each."""
-        import pandas as pd
-
         return pd.DataFrame([{"run": r["run"], "channel": ch, "fit_percent": r["fit_percent"][ch],
                               "rmse_over_noise": r["rmse_over_noise"][ch]}
                              for r in self.runs() for ch in r["fit_percent"]])
 
     def warnings(self) -> list[str]:
         """A run whose fit % is below zero (the model is worse than a constant)."""
-        from labrig.identification.result import fit_warnings
-
         return [w for r in self.runs() for w in fit_warnings(r["fit_percent"], f"run '{r['run']}'")]
 
     def table_rows(self) -> Table:
@@ -140,6 +138,7 @@ class Evaluation(Displayable):
         against simulated, with the residual in noise units, its noise band and the
         stretches outside it shaded by regime (``labrig compare``'s figure);
         ``kind="regimes"``: rmse/noise by regime."""
+        # matplotlib: ~0.27 s more to import, only for a figure
         from labrig.diagnosis.plots import plot_regimes, plot_run_comparison
 
         if kind == "regimes":
@@ -160,7 +159,7 @@ class Evaluation(Displayable):
         (zoom, pan, hover: time, measured, model, residual), what the lab page shows;
         a notebook displays it with ``bokeh.io.show`` or ``panel.pane.Bokeh``. Returns
         the :class:`labrig.diagnosis.interactive.RunView` (its ``layout`` is the figure)."""
-        from labrig.diagnosis.interactive import run_view
+        from labrig.diagnosis.interactive import run_view  # bokeh: ~0.3 s more to import
 
         return run_view(self.run(run), **size)
 

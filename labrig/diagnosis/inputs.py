@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from labrig.model.effects import get_effect
+from labrig.io.experiment import pwl_values
 
 #: breakpoints of a proposed input: what the boards' table holds (32), with room to spare,
 #: so a proposal plays on the board as on the simulated rig
@@ -52,8 +53,6 @@ class InputCandidate:
 
     def values(self, fs: float, lead_in: float) -> np.ndarray:
         """The input per sample at ``fs`` after ``lead_in`` s at 0 V (as the rig plays it)."""
-        from labrig.io.experiment import pwl_values
-
         n0 = int(round(lead_in * fs))
         n = n0 + int(round(self.duration * fs)) + 1
         k = np.arange(n) - n0

@@ -14,8 +14,8 @@ from __future__ import annotations
 
 import numpy as np
 from bokeh.layouts import column
-from bokeh.models import (BoxAnnotation, ColumnDataSource, DataRange1d, HoverTool, Legend,
-                          LegendItem, Range1d, Span)
+from bokeh.models import (BoxAnnotation, ColumnDataSource, DataRange1d, FactorRange, HoverTool,
+                          Legend, LegendItem, Range1d, Span)
 from bokeh.plotting import figure
 
 from labrig.diagnosis.residuals import AXIS_UNITS, REGIME_TEXT
@@ -126,8 +126,6 @@ def ladder_figure(steps, width: int | None = None, height: int = 260):
     per channel), the cross-validated error where known and the noise floor at 1, on a
     log scale; hover gives each rung's numbers. ``steps``: a Ladder's ``to_json()["steps"]``
     (or its :class:`~labrig.diagnosis.ladder.LadderStep` objects)."""
-    from bokeh.models import FactorRange
-
     steps = [s.to_json() if hasattr(s, "to_json") else s for s in steps]
     labels = [f"{k}: {s['label']}" for k, s in enumerate(steps)]
     size = dict(width=width) if width else dict(sizing_mode="stretch_width")
@@ -165,8 +163,6 @@ def ranking_figure(rows, width: int | None = None):
     known (a diamond) and the noise floor at 1; hover gives the numbers. ``rows``: the
     candidates (``Diagnosis.ranking``) or their dicts (``label``, ``rmse_over_noise``,
     ``cross_validated``, ``supported``)."""
-    from bokeh.models import FactorRange
-
     rows = [_row(r) for r in rows]
     labels = [r["label"] for r in rows][::-1]            # the best at the top
     size = dict(width=width) if width else dict(sizing_mode="stretch_width")

@@ -7,6 +7,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import pandas as pd
+
 from labrig.diagnosis.evaluation import Evaluation, evaluate
 from labrig.model.model import Model
 from labrig.core.tables import Table, fmt
@@ -54,8 +56,6 @@ class Ladder(Displayable):
         return {"steps": [s.to_json() for s in self.steps]}
 
     def to_pandas(self):
-        import pandas as pd
-
         return pd.DataFrame([{"step": s.label,
                               **{f"rmse/noise {k}": v for k, v in s.rmse_over_noise.items()},
                               **{f"fit % {k}": v for k, v in s.fit_percent.items()}}
@@ -75,14 +75,14 @@ class Ladder(Displayable):
         return t
 
     def plot(self, ax=None):
-        from labrig.diagnosis.plots import plot_ladder
+        from labrig.diagnosis.plots import plot_ladder  # matplotlib: ~0.27 s more to import
 
         return plot_ladder(self, ax=ax)
 
     def view(self, **size):
         """The ladder as an interactive Bokeh figure (hover for each rung's numbers), what
         the lab page shows."""
-        from labrig.diagnosis.interactive import ladder_figure
+        from labrig.diagnosis.interactive import ladder_figure  # bokeh: ~0.3 s more to import
 
         return ladder_figure(self.steps, **size)
 

@@ -280,7 +280,7 @@ class Proposal(Displayable):
 
     def plot(self, ax=None):
         """Both explanations' predicted responses to the proposed input, with the noise band."""
-        from labrig.diagnosis.propose_plots import plot_proposal
+        from labrig.diagnosis.propose_plots import plot_proposal  # matplotlib: ~0.25 s to import
 
         return plot_proposal(self, ax=ax)
 

@@ -28,6 +28,7 @@ from one amplitude trades off against the gain, so 0.05 V and 1.5 V fit alike). 
 from __future__ import annotations
 
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -39,6 +40,11 @@ from labrig.model.model import Model
 from labrig.analysis.noise import Weights, channel_floors
 from labrig.diagnosis.refit import fit, refit_with, without
 from labrig.io.runs import Run
+from labrig.core.schemas import read_json
+from labrig.diagnosis.evaluation import evaluate
+from labrig.model.reach import Reach
+from labrig.model.simulate import prepare
+from labrig.simulation.warm import ready
 
 #: candidate inputs judged by the re-fit: the leaders by the worst-case predicted
 #: difference, at most :data:`PER_KIND` of a kind
@@ -74,10 +80,6 @@ def pair_from_diagnosis(model_path) -> str | None:
     """The first confusable pair of the ``diagnosis.json`` that ``diagnose --auto -o DIR``
     wrote beside the model, as ``"a,b"``; None when there is none. The file is data: its
     names are checked against the catalogue like ``--between``."""
-    from pathlib import Path
-
-    from labrig.core.schemas import read_json
-
     path = Path(model_path).parent / "diagnosis.json"
     if not path.is_file():
         return None
@@ -196,8 +198,6 @@ def separation_after_refit(runs, base: Model, rival: str, truth: Model, cand: In
     run it would record (with the rig's noise) added to ``runs``, the rival re-fitted to
     them all from scanned starts (as ``diagnose`` fits it), its rmse/noise over the
     truth's, minus one; and the re-fitted rival."""
-    from labrig.diagnosis.evaluation import evaluate
-
     clean = truth.simulate([synthetic_run(template, cand, "p")])[0]
     new = synthetic_run(template, cand, "proposed", clean, sig, rng)
     data = runs + [new]
@@ -277,10 +277,6 @@ def propose(runs: list[Run], model: Model, between: str | None = None, *,
         ``separates`` False when no input within the limits is predicted to separate the
         pair by :data:`DECISIVE`; ``advice`` then says what would.
     """
-    from labrig.model.reach import Reach
-    from labrig.model.simulate import prepare
-    from labrig.simulation.warm import ready
-
     ready()  # a first compile is announced and kept out of the timing
     t0 = time.perf_counter()
     if not 1.0 <= budget_s <= 600.0:

@@ -8,6 +8,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 
+import pandas as pd
+
 from labrig.diagnosis.evaluation import Evaluation
 from labrig.model.model import Model
 from labrig.diagnosis.residuals import REGIME_TEXT
@@ -16,6 +18,8 @@ from labrig.core.display import Displayable
 # how the diagnosis ranks and picks candidates, for the table's notes
 from labrig.diagnosis.criteria import (CV_CANDIDATES, PARSIMONY, SCREEN_AFTER, SCREEN_GAIN,
                                        SCREEN_STALL, SIMPLER_MARGIN, SWAP_GAIN)
+from labrig.model.effects import CATALOGUE, get_effect
+from labrig.model import drive_units
 
 
 @dataclass
@@ -87,12 +91,9 @@ class Candidate:
             return dict(self.params)
         eff = m.effects.by_name(self.effect) if self.effect in m.names else None
         if eff is None:
-            from labrig.model.effects import CATALOGUE, get_effect
-
             eff = get_effect(self.effect) if self.effect in CATALOGUE else None
         if eff is None:
             return dict(self.params)
-        from labrig.model import drive_units
 
         return drive_units.to_drive([eff], {self.effect: self.params}, m.plant,
                                     m.constants)[self.effect]
@@ -184,8 +185,6 @@ class Diagnosis(Displayable):
 
     def to_pandas(self):
         """The ranking as a DataFrame, one row per candidate effect."""
-        import pandas as pd
-
         return pd.DataFrame([{"effect": c.effect, "move": c.label, "rmse_over_noise": c.rmse_over_noise,
                               "improvement": c.improvement, "delta_bic": c.delta_bic,
                               "cross_validated": (c.cross_validated or {}).get("with_effect"),
@@ -298,7 +297,7 @@ class Diagnosis(Displayable):
     def view(self, **size):
         """The ranking as an interactive Bokeh figure (hover for each move's numbers),
         what the lab page shows beside the table."""
-        from labrig.diagnosis.interactive import ranking_figure
+        from labrig.diagnosis.interactive import ranking_figure  # bokeh: ~0.3 s more to import
 
         return ranking_figure(self.ranking, **size)
 
@@ -307,9 +306,9 @@ class Diagnosis(Displayable):
         cross-validated rmse/noise, dBIC, folds) beside where the model fails;
         ``kind="regimes"``: rmse/noise by regime for every channel."""
         if kind == "regimes":
-            from labrig.diagnosis.plots import plot_regimes
+            from labrig.diagnosis.plots import plot_regimes  # matplotlib: ~0.27 s to import
 
             return plot_regimes(self.regimes, ax=ax)
-        from labrig.diagnosis.ranking_plots import plot_ranking
+        from labrig.diagnosis.ranking_plots import plot_ranking  # matplotlib: ~0.27 s to import
 
         return plot_ranking(self, ax=ax)

@@ -24,6 +24,7 @@ from labrig.model.plants import plant_of_runs
 from labrig.identification.objective import Objective, build_space
 from labrig.model.model import Model
 from labrig.analysis.noise import Weights
+from labrig.model.reach import Reach
 
 #: the loop's re-fits see about this many residuals (every k-th)
 SUBSAMPLE = 16000
@@ -124,8 +125,6 @@ def refit_with(runs, base: Model, effect, *, seed: int = 0, fixed: dict | None =
     list of such starts (a refinement's, ``Effect.from_simpler``). ``stop``: the screen
     that may end each start's fit early (:func:`labrig.diagnosis.criteria.screen`); the
     result's ``stopped`` says when it ended every one."""
-    from labrig.model.reach import Reach
-
     reach = reach or Reach.of(runs, base)
     effects = base.effects_with([effect])
     fixed = dict(fixed or {})
@@ -176,8 +175,6 @@ def best_fit(fits, what: str = "the re-fit"):
 def refit(runs, model: Model, *, seed: int = 0, fixed: dict | None = None,
           weights: Weights = Weights(), reach=None):
     """``model`` re-fitted as it is (both basins of the electrical pole)."""
-    from labrig.model.reach import Reach
-
     reach = reach or Reach.of(runs, model)
     fixed = dict(fixed or {})
     params = {**model.flat(), **fixed}

@@ -33,6 +33,8 @@ from labrig.io.runs import require_excitation
 from labrig.model.effects import get_effect
 from labrig.model.model import Model, param_keys
 from labrig.model.reach import Reach
+from labrig.analysis.ripple import ripple_line
+from labrig.model.simulate import prepare
 
 
 @dataclass
@@ -293,9 +295,6 @@ def switched_off(model: Model, effect: str) -> Model | None:
 
 def _ripple(ev: Evaluation, runs):
     """A line locked to the shaft in the speed residual (:mod:`labrig.analysis.ripple`)."""
-    from labrig.analysis.ripple import ripple_line
-    from labrig.model.simulate import prepare
-
     return ripple_line(ev.per_run, prepare(runs))
 
 

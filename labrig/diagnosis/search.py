@@ -23,12 +23,13 @@ from __future__ import annotations
 import textwrap
 from dataclasses import dataclass, field
 from itertools import combinations
+from pathlib import Path
 
 from labrig.diagnosis.crossval import cross_validate
 from labrig.diagnosis.candidates import candidate_names, refinements
 from labrig.diagnosis.criteria import (MIN_DBIC, MIN_GAIN, NEAR_FLOOR, PAIR_POOL, SIMPLER_MARGIN,
                                   SWAP_GAIN, bic)
-from labrig.diagnosis.diagnose import diagnose
+from labrig.diagnosis.diagnose import diagnose, linear_model
 from labrig.diagnosis.evaluation import evaluate
 from labrig.diagnosis.ladder import Ladder, LadderStep, rung_label
 from labrig.core.parallel import each
@@ -377,10 +378,6 @@ def _rung(ladder, model, judge, cv, on_step):
 def auto_ladder(runs, max_steps=3, outdir=None, seed=0, log=print) -> Ladder:
     """The ladder of :func:`search` from the linear model; each rung's model is saved as
     ``outdir/step<k>.json`` when ``outdir`` is given."""
-    from pathlib import Path
-
-    from labrig.diagnosis.diagnose import linear_model
-
     out = Path(outdir) if outdir else None
     paths: dict = {}
 

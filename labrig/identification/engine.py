@@ -10,6 +10,7 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
+import pandas as pd
 
 from labrig.core.defaults import LOOP_GAINS, METHOD, SEED
 from labrig.core.errors import UserError
@@ -23,13 +24,15 @@ from labrig.model.reach import Reach
 from labrig.model.plants import plant_of_runs
 from labrig.model.servo import ServoParams, step_info
 from labrig.io.runs import require_excitation
-from labrig.identification.identifiability import analyse_identifiability
+from labrig.identification.identifiability import analyse_identifiability, time_constants
 from labrig.identification.jellyfish import jellyfish
 from labrig.identification.local import local, polish as _polish
 from labrig.identification.objective import Objective, Space, build_space
 from labrig.identification.pso import pso
 from labrig.identification.result import IdentResult
 from labrig.core.display import Displayable
+from labrig.identification.table import comparison_table, identification_dict
+from labrig.analysis.agreement import channel_agreement, lag_explained
 
 
 def _run_jfo(obj, lo, hi, x0, o):
@@ -221,20 +224,14 @@ class Identification(Displayable):
     def to_json(self) -> dict:
         """What ``labrig identify --json`` prints: :meth:`to_dict` with unbounded
         intervals null and the bound and fit warnings under ``warnings``."""
-        from labrig.identification.table import identification_dict
-
         return identification_dict(self)
 
     def table_rows(self):
         """The Table 2 column of this fit (:func:`labrig.identification.table.comparison_table`)."""
-        from labrig.identification.table import comparison_table
-
         return comparison_table([self])
 
     def to_pandas(self):
         """Every parameter with its value (physical units) and whether it was fixed."""
-        import pandas as pd
-
         return pd.DataFrame([{"parameter": n, "value": v, "fixed": n in self.space.fixed}
                              for n, v in self.params.items()]).set_index("parameter")
 
@@ -242,6 +239,7 @@ class Identification(Displayable):
         """``kind="fit"``: the model on the runs it was fitted to (measured and simulated,
         one panel per run); ``kind="convergence"``: best fitness against iteration (JFO
         and PSO; CO's local starts have no iterations to show)."""
+        # matplotlib: ~0.24 s more to import, only for a figure
         from labrig.identification.plots import plot_convergence, plot_fit
 
         if kind == "fit" and self.runs:
@@ -329,9 +327,6 @@ def _channel_notes(obj, p: float, q: float, params: dict, constants: dict) -> di
     """What the channels say of each other (:mod:`labrig.analysis.agreement`): a position
     that drifts against the integral of the speed and, at these weights, outweighs it; a
     fitted lag (electrical pole, delay) that is the speed sensor's own."""
-    from labrig.analysis.agreement import channel_agreement, lag_explained
-    from labrig.identification.identifiability import time_constants
-
     agree = None
     if "position" in obj.floors and "speed" in obj.floors:
         agree = channel_agreement(obj.runs, obj.sigma_w, obj.sigma_theta,

@@ -31,6 +31,7 @@ import numpy as np
 
 from labrig.identification.lhs import latin_hypercube
 from labrig.identification.result import IdentResult, check_bounds, check_callable, check_int, check_seed
+from labrig.core.parallel import each
 
 __all__ = ["local", "polish", "covariance", "batch_jacobian", "reduced"]
 
@@ -317,8 +318,6 @@ def local(residuals: Callable[[np.ndarray], np.ndarray], lower: Any, upper: Any,
                      "message": res.message}, wrapped.nfev
 
     if threads:
-        from labrig.core.parallel import each
-
         outcomes = each(one, points)
     else:
         outcomes = [one(p) for p in points]

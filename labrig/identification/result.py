@@ -19,6 +19,7 @@ import numpy as np
 
 from labrig.core.fileio import finite_json
 from labrig.model.start import describe_starts
+from labrig.model import drive_units
 
 __all__ = ["IdentResult", "finite_json", "at_bounds", "bound_warnings", "fit_warnings",
            "identification_warnings"]
@@ -208,7 +209,6 @@ def identification_warnings(ident: Any) -> list[str]:
     if ident.dataset.get("starts"):
         notes.append(describe_starts(ident.dataset["starts"], plant.speed_unit(),
                                      plant.position_unit()))
-    from labrig.model import drive_units
 
     shown = drive_units.shown_keys(ident.effects, plant.kind, ident.constants)
     return (bound_warnings(ident.space, ident.params, units, shown)

@@ -11,10 +11,13 @@ import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from labrig.io.experiment import Experiment
+from labrig.io.experiment import PWL_MAX_POINTS, Experiment
 from labrig.core.errors import ConfigError, UserError
 from labrig.core.fileio import size_within
 from labrig.core.schemas import PlanFile, RigFile, validate
+from labrig.model.plants import check_axis, plant_class
+from labrig.io.mysteryfile import decode
+from labrig.model.effects import CATALOGUE, catalogue_name
 
 CONFIG_DIR = Path(__file__).resolve().parents[2] / "configs"
 DEFAULT_RIG = CONFIG_DIR / "rig_default.toml"
@@ -49,8 +52,6 @@ class Plant:
 
     def values(self, drive: str = "voltage") -> dict:
         """The parameters of the plant ``drive`` names."""
-        from labrig.model.plants import plant_class
-
         return {k: getattr(self, k) for k in plant_class(drive).names}
 
 
@@ -194,8 +195,6 @@ def rig_from_dict(doc: dict, path: str = "<rig>") -> RigConfig:
 def _check_plant(path, rig: RigConfig, checked) -> None:
     """The drive and axis agree, a linear or torque axis has no gear unless stated, and
     only a voltage plant has an armature current to sense."""
-    from labrig.model.plants import check_axis
-
     section = checked.rig.model_dump(exclude_unset=True) if checked.rig else {}
     if "axis" not in section:
         rig.axis = "linear" if rig.drive == "force" else "rotary"
@@ -273,8 +272,6 @@ def load_rig(path: Path | str | None = None) -> RigConfig:
     """
     path = Path(path) if path is not None else packaged_config("rig_default.toml")
     if path.suffix == ".mystery":
-        from labrig.io.mysteryfile import decode
-
         return rig_from_dict(decode(path)["rig"], str(path))
     return rig_from_dict(read_toml(path, "rig"), str(path))
 
@@ -327,8 +324,6 @@ def load_plan(path: Path | str | None = None, rig: RigConfig | None = None) -> l
 def _check_points(where, points, fs) -> None:
     """A pwl waveform's breakpoints: 2..64 of them, times from 0 and rising by at least a
     sample (the firmware's table holds whole samples)."""
-    from labrig.io.experiment import PWL_MAX_POINTS
-
     if not points or len(points) < 2:
         raise ConfigError(f"{where}: a pwl waveform needs 'points' = [[t_s, u_v], ...], at "
                           "least two")
@@ -367,8 +362,6 @@ def _check_experiment(path, k, e) -> Experiment:
         raise ConfigError(f"{where}: 'points' belong to waveform = \"pwl\"; remove them or "
                           "set the waveform")
     if e.get("between"):
-        from labrig.model.effects import CATALOGUE, catalogue_name
-
         e["between"] = [catalogue_name(n) for n in e["between"]]  # names in any case
         for name in e["between"]:
             if name not in CATALOGUE:

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import hashlib
 import math
 import re
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -25,9 +26,11 @@ import pandas as pd
 
 from labrig.core.errors import RunFileError, UserError
 from labrig.model.plants import AXES, check_axis
-from labrig.core.schemas import RUN_NAME_MAX, Controller, check_run_name
+from labrig.core.schemas import RUN_NAME_MAX, Controller, Sidecar, check_run_name, validate
 from labrig.io.exportfile import CsvLayout, read_export
-from labrig.io.runs import Run, make_meta, write_run
+from labrig.io.runs import Run, make_meta, read_run, write_run
+from labrig.io.matfile import read_mat_columns
+from labrig.io.csvfile import check_ranges
 
 #: physical units per axis -> factor to the axis's SI unit
 SPEED_UNITS = {"rotary": {"rad/s": 1.0, "rpm": 2 * math.pi / 60.0, "deg/s": math.pi / 180.0},
@@ -85,7 +88,6 @@ def parse_controller(text: str | None) -> dict | None:
         raise UserError("--controller: kp missing (e.g. pd:kp=2,kd=0.1)")
     if body["kind"] == "pd" and body.get("ki"):
         raise UserError("--controller: a pd controller has no ki; write pid:kp=..,kd=..,ki=..")
-    from labrig.core.schemas import validate
 
     return validate(Controller, body, "--controller", UserError).model_dump(exclude_none=True)
 
@@ -123,8 +125,6 @@ def read_columns(src: Path, columns: list[str],
     """Named channels of a CSV export (and where its header and data were found) or of a
     MATLAB .mat file (no layout)."""
     if src.suffix.lower() == ".mat":
-        from labrig.io.matfile import read_mat_columns
-
         if skip_rows is not None:
             raise UserError(f"--skip-rows: only for a CSV export; {src.name} is a MATLAB file")
         return read_mat_columns(src, columns), None
@@ -172,8 +172,6 @@ def time_factor(src: Path, column: str, layout: CsvLayout | None,
 
 
 def _warn(text: str) -> None:
-    import warnings
-
     warnings.warn(text, UserWarning, stacklevel=3)
 
 
@@ -356,9 +354,7 @@ def import_csv(src: Path | str, outdir: Path | str, mapping: dict[str, str],
     fs = 1.0 / float(np.median(dt))
     if abs(fs - round(fs)) < 1e-3 * fs:
         fs = float(round(fs))
-    from labrig.io.csvfile import check_ranges  # before anything is written
-
-    check_ranges(src, pd.DataFrame(cols), mapping, first_row)
+    check_ranges(src, pd.DataFrame(cols), mapping, first_row)  # before anything is written
     rig = {"gear_ratio": float(o.gear_ratio if o.gear_ratio is not None else 1.0),
            "amplifier_gain": float(o.amplifier_gain),
            "name": f"imported from {src.name}", "drive": o.drive, "axis": axis}
@@ -372,13 +368,10 @@ def import_csv(src: Path | str, outdir: Path | str, mapping: dict[str, str],
                              sensors=sensors,
                              rig=rig,
                              imported_from=str(src.name)))
-    from labrig.core.schemas import Sidecar, validate  # never write a run nobody can read back
-
+    # never write a run nobody can read back
     validate(Sidecar, run.meta, f"{src} (as imported)", RunFileError)
     path = write_run(run, outdir, overwrite=overwrite)
-    from labrig.io.runs import read_run  # validate what we wrote, exactly as every reader will
-
-    read_run(path)
+    read_run(path)  # validate what we wrote, exactly as every reader will
     for text in notes:
         (warn or _warn)(text)
     return path

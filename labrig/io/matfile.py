@@ -14,6 +14,7 @@ line that names the file, the variable and the fix.
 from __future__ import annotations
 
 import difflib
+import math
 import re
 from pathlib import Path
 
@@ -21,6 +22,7 @@ import numpy as np
 
 from labrig.core.fileio import not_regular, size_within
 from labrig.core.errors import RunFileError
+from labrig.io import csvfile
 
 #: a larger file is refused before reading (the same bound as csvfile.MAX_CSV_BYTES)
 MAX_MAT_BYTES = 2_000_000_000
@@ -100,7 +102,7 @@ def _load(path: Path, tops: list[str] | None, read: bool = True) -> tuple[dict, 
         head = fh.read(520)
     # v7.3 is HDF5 behind a 512-byte MATLAB text header; scipy cannot read it
     if not (head.startswith(b"MATLAB 7.3") or _HDF5_MAGIC in (head[:8], head[512:520])):
-        from scipy.io import loadmat, whosmat
+        from scipy.io import loadmat, whosmat  # ~0.07 s to import; only a .mat import needs it
         try:
             whos = whosmat(str(path), appendmat=False)
             names = [n for n, _, _ in whos]
@@ -119,7 +121,7 @@ def _load(path: Path, tops: list[str] | None, read: bool = True) -> tuple[dict, 
             raise RunFileError(f"{path}: not a readable MAT file ({exc}); re-save it in "
                                "MATLAB with save(..., '-v7')") from None
     try:
-        import h5py
+        import h5py  # only a v7.3 (HDF5) file needs it, and it may be missing (below)
     except ImportError:
         raise RunFileError(f"{path}: the file is MATLAB v7.3 (HDF5); install h5py (pip "
                            "install h5py) or re-save it in MATLAB with save(..., '-v7')") from None
@@ -137,6 +139,7 @@ def _load(path: Path, tops: list[str] | None, read: bool = True) -> tuple[dict, 
 
 def _tree_v5(v):
     """A scipy value as a tree: dict (struct), ndarray (numeric) or str (what it is)."""
+    # scipy.sparse and scipy.io: ~0.07 s to import; only a .mat import needs them
     from scipy import sparse
     from scipy.io import matlab as m
     if sparse.issparse(v):
@@ -167,7 +170,7 @@ def _tree_h5(path: Path, node, where: str, read: bool, seen: dict):
     size is checked before its data are read (`seen` holds the bytes declared so far and
     the structs walked, so a struct linked into itself is refused, not walked forever).
     """
-    import h5py
+    import h5py  # optional: only a v7.3 file reaches here, after _load imported it
     if isinstance(node, h5py.Group):
         first = seen["groups"].setdefault(node.id, where)
         if first != where:
@@ -213,7 +216,7 @@ def _h5_node(path: Path, group, name: str, where: str, soft: str = "", hops: int
     """``group[name]`` with every link on the way looked at before it is followed: a
     link to another file (``ExternalLink``) or to nothing (a dangling ``SoftLink``) is
     refused, as is a link of another kind; a soft link inside the file is followed."""
-    import h5py
+    import h5py  # optional: only a v7.3 file reaches here, after _load imported it
     node = group.file if name.startswith("/") else group
     for part in filter(None, name.split("/")):
         if part == ".":
@@ -247,10 +250,6 @@ def _check_declared(path: Path, node, where: str, seen: dict) -> None:
     """Refuse a dataset whose declared shape is more than labrig reads in one run (the
     CSV reader's limits: csvfile.MAX_ROWS samples a channel, MAX_MAT_BYTES in all),
     from the file's metadata, before any of its data is read or allocated."""
-    import math
-
-    from labrig.io import csvfile
-
     samples = max(node.shape, default=1)
     if samples > csvfile.MAX_ROWS:
         raise RunFileError(f"{path}: variable '{where}' declares {samples:,} samples, more "

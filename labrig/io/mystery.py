@@ -19,11 +19,14 @@ from pathlib import Path
 
 import numpy as np
 
-from labrig.io.config import packaged_config, rig_from_dict, rig_to_doc
+from labrig.io.config import packaged_config, rig_from_dict, rig_to_doc, load_rig
 from labrig.core.errors import UserError
 from labrig.core.fileio import atomic_write
 from labrig.model.plants import plant_class
 from labrig.io.mysteryfile import SUFFIX, decode, encode
+from labrig.model.effects import CATALOGUE, catalogue_name, get_effect
+from labrig.model import drive_units
+from labrig.model.model import read_model_file
 
 
 #: effects a mystery rig may hide, with the range (uniform) of their parameter, chosen
@@ -77,7 +80,6 @@ def _base_doc(base_rig) -> dict:
     """The full document of the rig a mystery is drawn around (every key filled in)."""
     if base_rig is None:
         return _default_doc()
-    from labrig.io.config import load_rig
 
     return rig_to_doc(load_rig(base_rig))
 
@@ -205,8 +207,6 @@ def read_mystery(path: Path | str) -> dict:
 
 def reveal(path: Path | str) -> dict:
     """The hidden truth of a mystery file, with the default rig for comparison."""
-    from labrig.model.effects import get_effect
-
     m = load_mystery(path)
     doc = m["rig"]
     rig_from_dict(doc, str(path))
@@ -269,8 +269,6 @@ def format_reveal(r: dict) -> str:
 
 def _model_effects(model: dict) -> dict:
     """name -> params of a model file's effects (user effects by their class name)."""
-    from labrig.model.effects import catalogue_name
-
     # a hand-written model may spell a catalogue effect in any case
     eps = {catalogue_name(k): v for k, v in (model.get("effect_params") or {}).items()}
     out = {}
@@ -284,9 +282,6 @@ def _model_effects(model: dict) -> dict:
                  {catalogue_name(str(e)) for e in model.get("effects") or []}]
         out[name] = eps[cands[0]] if cands else {}
     # a torque or force drive's file names its levels in N m or N: back to input volts
-    from labrig.model import drive_units
-    from labrig.model.effects import CATALOGUE, get_effect
-
     effects = [get_effect(n) for n in out if n in CATALOGUE]
     out = drive_units.from_drive(effects, out, model.get("structure") or "voltage",
                                  model.get("constants") or {})
@@ -309,8 +304,6 @@ def check(path: Path | str, model_path: Path | str, tolerance: float = PASS_TOLE
     for finding it and 1 for its parameters; minus 0.5 for every extra effect; as a
     percentage of the maximum.
     """
-    from labrig.model.model import read_model_file
-
     truth = load_mystery(path)["rig"]
     model_path = Path(model_path)
     # validated, never loaded: grading reads the effects' names and numbers only, so a

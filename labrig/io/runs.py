@@ -10,8 +10,10 @@ or the ``speed`` column as it is) and ``Run.position`` the output-shaft angle in
 from __future__ import annotations
 
 import json
+import re
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
+from html import escape
 from pathlib import Path
 
 import numpy as np
@@ -19,8 +21,8 @@ import pandas as pd
 
 from labrig.core.errors import AnalysisError, RunFileError, UserError
 from labrig.io.csvfile import SENSOR_COLUMNS, read_run_csv
-from labrig.core.fileio import atomic_write, json_default
-from labrig.model.plants import AXES
+from labrig.core.fileio import atomic_write, json_default, not_regular
+from labrig.model.plants import AXES, check_axis
 
 FORMAT = "labrig-run/1"
 #: the order labrig writes a run's columns in (others follow); a run has ``tacho`` or
@@ -250,8 +252,6 @@ class Run:
                 f"{what or 'unknown experiment'}{amp}; columns {chans})")
 
     def _repr_html_(self) -> str:
-        from html import escape
-
         return f"<pre>{escape(repr(self))}</pre>"
 
 
@@ -266,8 +266,6 @@ def _stem_paths(path: Path) -> tuple[Path, Path]:
 
 def read_run(path: Path | str) -> Run:
     """Read and validate one run (give the CSV, the JSON or the stem)."""
-    from labrig.core.fileio import not_regular
-
     csv_path, json_path = _stem_paths(Path(path))
     for p in (csv_path, json_path):
         what = not_regular(p)
@@ -310,13 +308,13 @@ def read_dataset(paths) -> list[Run]:
 def natural_key(name: str) -> tuple:
     """Sort key that reads the numbers in a name as numbers: ``step_3.00V`` before
     ``step_12.00V`` (as text, "1" sorts before "3")."""
-    import re
-
     parts = re.split(r"(\d+(?:\.\d+)?)", name)
     return tuple((0, float(p), "") if k % 2 else (1, 0.0, p) for k, p in enumerate(parts))
 
 
 def _read_sidecar(json_path: Path, csv_path: Path) -> dict:
+    # core.schemas brings pydantic (~0.07 s more to import): not for a module that only
+    # needs Run (analysis, the sweep), only once a run is read
     from labrig.core.schemas import Sidecar, read_json, validate
 
     if not json_path.exists():
@@ -344,8 +342,6 @@ def _read_sidecar(json_path: Path, csv_path: Path) -> dict:
                            "'experiment.velocity_gain' missing; add it, or import with "
                            "--loop closed --controller pd:kp=..,kd=..")
     if checked.rig.drive is not None or checked.rig.axis is not None:
-        from labrig.model.plants import check_axis
-
         drive = checked.rig.drive or "voltage"
         axis = checked.rig.axis or ("linear" if drive == "force" else "rotary")
         try:
@@ -447,7 +443,7 @@ def write_run(run: Run, directory: Path | str, overwrite: bool = False) -> Path:
     without sidecar, which readers reject by name and ``sweep --resume`` redoes;
     never a half-written file. An existing run is only replaced with ``overwrite``.
     """
-    from labrig.core.schemas import check_run_name
+    from labrig.core.schemas import check_run_name  # pydantic, ~0.07 s: only once a run is written
 
     directory = Path(directory)
     check_run_name(run.name, f"run '{run.name}'")

@@ -6,6 +6,7 @@ from dataclasses import dataclass, field
 
 from labrig.core.display import Displayable
 from labrig.core.tables import Table
+from labrig.model.effects import CATALOGUE
 
 
 @dataclass(repr=False)
@@ -16,8 +17,6 @@ class Catalogue(Displayable):
 
     @classmethod
     def builtin(cls) -> "Catalogue":
-        from labrig.model.effects import CATALOGUE
-
         return cls(dict(CATALOGUE))
 
     def __getitem__(self, name: str):
@@ -40,7 +39,7 @@ class Catalogue(Displayable):
         return t
 
     def to_pandas(self):
-        import pandas as pd
+        import pandas as pd  # ~0.19 s to import, for a notebook's table only
 
         return pd.DataFrame([{"effect": n, "stage": e.stage,
                               "parameters": [p.name for p in e.params],

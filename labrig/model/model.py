@@ -21,6 +21,7 @@ from labrig.model.effectset import EffectSet, param_key
 from labrig.model.plants import PLANTS, VoltagePlant, plant_class
 from labrig.model.servo import ServoParams
 from labrig.model.start import parse_key, start_key
+from labrig.core.tables import Table, fmt, table_html
 
 FORMAT = "labrig-model/1"
 
@@ -206,6 +207,8 @@ class Model:
     # -- simulation ------------------------------------------------------------------------
     def simulate(self, runs) -> list[dict]:
         """Simulate this model on ``runs``: per run ``{"w": (n,), "theta": (n,)}``."""
+        # the simulator brings numba (~0.12 s more to import); reading or writing a model
+        # file never simulates
         from labrig.model.simulate import Simulator
 
         sim = Simulator(runs, self.effects, plant=self.plant_class)
@@ -219,8 +222,6 @@ class Model:
         return f"Model({self.plant}: {self.describe()})"
 
     def _repr_html_(self) -> str:
-        from labrig.core.tables import Table, fmt, table_html
-
         t = Table(f"{' + '.join(['linear'] + self.names)} ({self.plant} plant)",
                   ["parameter", "value"], numeric=(1,))
         t.rows = [[k, fmt(v, ".4g")] for k, v in self.params.items()]

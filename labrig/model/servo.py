@@ -116,7 +116,7 @@ class ServoParams:
 
     def open_loop(self) -> "control.StateSpace":
         """u (bridge V) -> [w, theta_out]."""
-        import control
+        import control  # python-control: ~0.8 s to import
 
         return control.ss(self.A_open(), self.B_open(), self.C_out(), np.zeros((2, 1)),
                           inputs=["u"], outputs=["w", "theta"], states=["i", "w", "theta_m"])
@@ -127,7 +127,7 @@ class ServoParams:
         Built by python-control's feedback composition of the plant with the
         sensor gains, so the loop is exactly the one in the paper's Fig. 3/eq. 29.
         """
-        import control
+        import control  # python-control: ~0.8 s to import
 
         plant = self.open_loop()
         sensors = control.ss([], [], [], [[kv * self.Kt, kp * self.Kpot]],
@@ -150,7 +150,7 @@ class ServoParams:
 
     def speed_tf(self) -> "control.TransferFunction":
         """W/U = Ka K / (J L s^2 + (J R + B L) s + B R + K Ke)."""
-        import control
+        import control  # python-control: ~0.8 s to import
 
         return control.tf([self.Ka * self.K],
                           [self.J * self.L, self.J * self.R + self.B * self.L,
@@ -163,7 +163,7 @@ class ServoParams:
         # electrical pole of an identified model (tau_e can be microseconds)
         slow = np.min(np.abs(np.real(np.linalg.eigvals(self.A_closed(kp, kv)))))
         T = np.linspace(0.0, 12.0 / max(slow, 1e-6), 6001)
-        import control
+        import control  # python-control: ~0.8 s to import
 
         info = control.step_info(sys[1, 0], T=T)
         return {"rise_time_s": float(info["RiseTime"]), "settling_time_s": float(info["SettlingTime"]),

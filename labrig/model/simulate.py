@@ -36,6 +36,8 @@ from labrig.simulation.layout import (C_A, C_ASYM, C_D, C_I0, C_KE, C_TC, C_TD, 
                                  S_POS_GAP, SLOT_W, T_OK)
 from labrig.simulation.kernels import run_kernels
 from labrig.model.start import initial_current
+from labrig.model.plants import VoltagePlant
+from labrig.simulation.warm import ready
 
 # kernel parameter columns: R, L, J, B, K (labrig.model.plants: every plant's kernel
 # form), then the effects' (C_D..C_TD), then the back-EMF constant Ke (0 for a
@@ -157,9 +159,6 @@ class Simulator:
     """
 
     def __init__(self, runs, effects=(), substeps: int = 16, plant=None):
-        from labrig.model.plants import VoltagePlant
-        from labrig.simulation.warm import ready
-
         ready()  # a cold numba cache is compiled now, with a message, not inside a timing
 
         self.plant = plant or VoltagePlant

@@ -17,6 +17,7 @@ from labrig.core.errors import UserError
 from labrig.report.artefacts import (AnalysisDoc, DiagnosisDoc, IdentifyAllDoc, IdentRecord,
                                      LadderDoc, Regimes, read_artefact)
 from labrig.report.story import Figure, Story, fig_bytes
+from labrig.verbs.types import Ladder, LadderStep
 
 
 def gather(data_dir, work=None, quick=False, seed=1, log=None) -> Story:
@@ -347,8 +348,6 @@ def _corrected(story: Story, diag_live, ev0, say, seed) -> list:
 
 def _ladder_from_diagnosis(story: Story, diag_live, ev0):
     """Linear model, then + the recommended effect as fitted by the diagnosis."""
-    from labrig.verbs.types import Ladder, LadderStep
-
     d = story.diagnosis
     rec = d.recommendation
     if ev0 is not None:

@@ -19,6 +19,7 @@ from markupsafe import Markup
 from labrig.core.version import __version__
 from labrig.report.sections import cards, sections
 from labrig.report.story import Story
+from labrig.core.fileio import atomic_write
 
 TEMPLATES = Path(__file__).resolve().parent / "templates"
 
@@ -66,8 +67,6 @@ def render(story: Story, created: datetime | None = None) -> str:
 def write(page: str, output) -> Path:
     """Write ``page`` to ``output`` atomically (its folder is made if needed), with the
     user's usual file mode: a report is for sharing."""
-    from labrig.core.fileio import atomic_write
-
     out = Path(output)
     out.parent.mkdir(parents=True, exist_ok=True)
     atomic_write(out, page)
