@@ -264,6 +264,19 @@ def test_the_loop_by_hand_sliders_an_effect_tried_and_a_fit_from_there(browser, 
         # at the floor nothing is confusable: Propose cannot act, looks it, and says why
         page.wait(lambda: "recommendation: none" in page.text(".lab-evidence"), 120,
                   "the new rung's diagnosis")
+        # a click on a candidate's row of the ranking draws it on the runs
+        canvas = page.page.locator(".lab-ranking-plot canvas").first
+        canvas.scroll_into_view_if_needed()
+        box = canvas.bounding_box()
+        for y in range(40, int(box["height"]) - 30, 13):
+            page.page.mouse.click(box["x"] + box["width"] * 0.6, box["y"] + y)
+            page.page.wait_for_timeout(200)
+            if "as the diagnosis re-fitted it" in page.text(".lab-try-rmse"):
+                break
+        page.wait(lambda: "as the diagnosis re-fitted it" in page.text(".lab-try-rmse"), 30,
+                  "the clicked candidate's curves")
+        tapped = page.page.locator(".lab-show-pick select").first.evaluate("s => s.value")
+        assert tapped and tapped in page.text(".lab-try-rmse")
         # a candidate of the ranking, as the diagnosis re-fitted it, drawn on the runs
         pick = page.page.locator(".lab-show-pick select").first
         options = pick.evaluate("s => Array.from(s.options).map(o => o.value)")

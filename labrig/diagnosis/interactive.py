@@ -160,7 +160,8 @@ def ladder_figure(steps, width: int | None = None, height: int = 260):
 def ranking_figure(rows, width: int | None = None):
     """The diagnosis' ranking as an interactive figure: each move's rmse/noise after its
     re-fit (a bar, log scale; green when supported), its cross-validated error where
-    known (a diamond) and the noise floor at 1; hover gives the numbers. ``rows``: the
+    known (a diamond) and the noise floor at 1; hover gives the numbers (the lab page
+    draws the candidate whose row is clicked). ``rows``: the
     candidates (``Diagnosis.ranking``) or their dicts (``label``, ``rmse_over_noise``,
     ``cross_validated``, ``supported``)."""
     rows = [_row(r) for r in rows]
@@ -168,8 +169,8 @@ def ranking_figure(rows, width: int | None = None):
     size = dict(width=width) if width else dict(sizing_mode="stretch_width")
     f = figure(y_range=FactorRange(*labels), x_axis_type="log",
                height=40 + 26 * max(len(rows), 1), x_axis_label="rmse / noise after the move",
-               title="The ranking: each candidate's error after its re-fit",
-               tools="hover,reset,save", **size)
+               title="The ranking: each candidate's error after its re-fit (click one to "
+                     "see it)", tools="hover,tap,reset,save", **size)
     src = ColumnDataSource({
         "label": labels,
         "rmse": [r["rmse_over_noise"] for r in rows][::-1],

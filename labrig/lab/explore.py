@@ -162,7 +162,15 @@ class Explorer:
             self._view = lrf.run_view(rr)
             self.plots.objects = [pn.pane.Bokeh(self._view.layout, sizing_mode="stretch_width")]
         else:
-            self._view.show(rr)
+            # a Bokeh figure already on the page changes only under the document's lock: a
+            # button's click is handled without it (Bokeh refused the change, and the curves
+            # stayed as they were), so the redraw waits for the document's next tick
+            doc = self._view.layout.document
+            view = self._view
+            if doc is None:
+                view.show(rr)
+            else:
+                doc.add_next_tick_callback(lambda: view.show(rr))
 
     def _try(self) -> None:
         if self.model is None or not self.try_pick.value:

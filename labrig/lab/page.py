@@ -8,6 +8,8 @@ live samples and finished jobs onto the page, so the page never waits on the rig
 """
 from __future__ import annotations
 
+import math
+
 import time
 
 import panel as pn
@@ -311,8 +313,11 @@ class LabPage:
                 if rec["move"] == "replace":
                     self.rep_new.value = rec["effect"]
             self.evidence.object = _evidence_html(d)
-            self.ranking_plot.object = lrf.ranking_view(d["rows"])
             self.show_pick.options = [row["label"] for row in d["rows"] if row.get("model")]
+            fig = lrf.ranking_view(d["rows"])
+            # a click on a candidate's row: the click's y is the row (factor k spans k..k+1)
+            fig.on_event("tap", lambda event, fig=fig: self._on_tap(fig, event))
+            self.ranking_plot.object = fig
             self.pair_pick.options = [",".join(p["pair"]) for p in d["pairs"]]
         if st.ladder:
             self.ladder_plot.object = lrf.ladder_view(st.ladder["json"]["steps"])
@@ -328,6 +333,23 @@ class LabPage:
         if st.decision:
             self.decision.object = ("<b>the rig says:</b> " + _esc(st.decision["text"])
                                     + "".join(st.decision.get("tables", [])))
+
+    def _on_tap(self, fig, event) -> None:
+        factors = list(fig.y_range.factors)
+        k = math.floor(event.y) if event.y is not None else -1
+        if not 0 <= k < len(factors):
+            return
+        # the click arrives while Bokeh applies the browser's message; the page's own
+        # changes wait for the document's next tick (with its lock), as Bokeh requires
+        job = lambda: self._tapped(factors[k])  # noqa: E731
+        doc = fig.document
+        doc.add_next_tick_callback(job) if doc is not None else job()
+
+    def _tapped(self, label: str) -> None:
+        """A candidate's row of the ranking clicked: that candidate shown, as *Show* does."""
+        if label in self.show_pick.options:
+            self.show_pick.value = label
+            self._show_candidate()
 
     def _show_candidate(self) -> None:
         """A candidate of the ranking, as the diagnosis re-fitted it, on the runs (the
