@@ -167,3 +167,9 @@ def test_readme_quotes_the_recorded_sheet_and_peer_benchmarks():
     readme = (ROOT / "README.md").read_text()
     assert _markdown("bench_sheets.py") in readme
     assert _markdown("bench_peer.py") in readme
+
+
+def test_readme_quotes_the_recorded_click_benchmark():
+    """The loop's speed targets (a round, --auto, closed against open loops) are what
+    benchmarks/bench_click.py writes from benchmarks/results_click.json, misses included."""
+    assert _markdown("bench_click.py") in (ROOT / "README.md").read_text()
