@@ -203,6 +203,9 @@ def test_the_loop_on_one_page_agrees_with_the_cli(browser, tmp_path):
         top = diag["ranking"][0]
         ev = page.text(".lab-evidence")
         assert re.search(rf"{top['effect']}\s*{top['rmse_over_noise']:.2f}", ev)
+        # the candidates the command line screens out, the page marks the same way
+        screened = [c for c in diag["ranking"] if "screened_after_iterations" in c]
+        assert screened and ev.count("screened out") == len(screened)
         page.click(".lab-add")                  # the recommended effect is selected
         page.idle()
         after = page.number(".lab-rmse", r"rmse/noise ([\d.]+)")

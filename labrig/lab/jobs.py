@@ -88,6 +88,7 @@ def diagnose(folders, model_doc, log=None) -> dict:
                      "cross_validated": cv["with_effect"] if cv else None,
                      "folds": f"{cv['folds_improved']}/{cv['folds']}" if cv else "-",
                      "supported": c.supported, "at_bound": list(c.at_bound),
+                     "screened": c.screened is not None,
                      "confusable_with": [p.second if p.first == c.effect else p.first
                                          for p in pairs if c.effect in (p.first, p.second)],
                      "physics": lr.effect(c.effect).summary,

@@ -455,7 +455,8 @@ def _evidence_html(d: dict) -> str:
     rows = []
     for r in d["rows"]:
         cv = "-" if r["cross_validated"] is None else f"{r['cross_validated']:.2f}"
-        sup = ("yes" if r["supported"] else "no") + (" (at bound)" if r["at_bound"] else "")
+        sup = ("yes" if r["supported"] else "no") + (" (at bound)" if r["at_bound"] else "") \
+            + (" (screened out)" if r.get("screened") else "")
         rows.append(f"<tr><td><b>{_esc(r.get('label', r['effect']))}</b></td><td>{r['rmse_over_noise']:.2f}</td>"
                     f"<td>{r['delta_bic']:.0f}</td><td>{cv}</td><td>{r['folds']}</td>"
                     f"<td>{sup}</td><td>{_esc(', '.join(r['confusable_with']))}</td>"
