@@ -114,9 +114,36 @@ def measure() -> dict:
     subprocess.run([sys.executable, "-m", "labrig", "diagnose", str(folder), "--model", str(m0)],
                    check=True, capture_output=True)
     res["cli_identify_diagnose_s"] = time.monotonic() - t2
+    res["worker_jobs_s"] = worker_jobs(folder)
     res["when"] = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
     res["load_at_start"] = os.getloadavg()[0]
     return res
+
+
+def worker_jobs(folder: Path) -> dict:
+    """The click's jobs (fit, diagnose, ladder) in the page's worker process alone, warm,
+    with no page and no browser beside them: what the click's own fits cost."""
+    from labrig.lab import jobs
+    from labrig.lab.worker import Worker
+
+    w = Worker()
+    try:
+        def run(fn, *args):
+            w.submit(fn.__name__, fn, *args)
+            t = time.monotonic()
+            while (done := w.poll()) is None:
+                time.sleep(0.01)
+            if done[2] is not None:
+                raise done[2]
+            return time.monotonic() - t, done[1]
+
+        run(jobs.fit, [folder])   # warm: the worker's first job loads what the page's did
+        fit_s, f = run(jobs.fit, [folder])
+        diag_s, _ = run(jobs.diagnose, [folder], f["model"])
+        ladder_s, _ = run(jobs.ladder, [folder], [f["model"]])
+    finally:
+        w.close()
+    return {"fit": round(fit_s, 2), "diagnose": round(diag_s, 2), "ladder": round(ladder_s, 2)}
 
 
 def markdown(res: dict) -> str:
@@ -136,6 +163,9 @@ def markdown(res: dict) -> str:
         f"{f(res['cli_identify_diagnose_s'])} s |",
         f"| ... and the model drawn on every other run, in the background (the page idle) | "
         f"{f(res['click_fit_diagnose_s'])} s | - |",
+        *([f"| the click's jobs in the page's worker alone, no page or browser beside them "
+           f"(fit / diagnose / ladder) | {f(j['fit'])} / {f(j['diagnose'])} / "
+           f"{f(j['ladder'])} s | - |"] if (j := res.get("worker_jobs_s")) else []),
         f"| a slider's move to the changed rmse/noise and curves, six runs at 1 kHz "
         f"(median / 95 %, 30 moves) | {f(res.get('slider_median_s'))} / "
         f"{f(res.get('slider_p95_s'))} s | 0.1 s (median) |"])
