@@ -107,8 +107,8 @@ def _run(tree: Path, work: Path) -> dict:
     return out
 
 
-def _one(tree: Path, work: Path, line: str, env: dict) -> dict:
-    """One line of a sheet or a checked figure, run in ``work`` on ``tree``."""
+def _one(work: Path, line: str, env: dict) -> dict:
+    """One line of a sheet or a checked figure, run in ``work`` (on the tree ``env`` names)."""
     import shlex
 
     argv = shlex.split(line, comments=True)
@@ -143,13 +143,13 @@ def _run_sheets(tree: Path, work: Path) -> dict:
                 (wd / step[1]).write_text(step[2], encoding="utf-8")
                 continue
             line = step[4]
-            out[f"{sheet.name}: {line}"] = _clean(_one(tree, wd, line, env))
+            out[f"{sheet.name}: {line}"] = _clean(_one(wd, line, env))
             done.add(line)
         for doc in (ex._docs_of(sheet) if sheet else [ROOT / "README.md"]):
             for c in quoted.parse(doc):
                 for line in c.after + [c.command]:
                     if line not in done:
-                        out[f"{doc.name}: {line}"] = _clean(_one(tree, wd, line, env))
+                        out[f"{doc.name}: {line}"] = _clean(_one(wd, line, env))
                         done.add(line)
         for f in sorted(wd.rglob("*.json")):
             rel = f.relative_to(wd)

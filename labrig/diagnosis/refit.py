@@ -48,7 +48,7 @@ def thinned_fitness(runs, model: Model, fixed: dict, weights: Weights, reach) ->
     or so, as much as a small effect gains."""
     space = build_space(model.effects, None, fixed, reach=reach, plant=plant_of_runs(runs))
     obj = Objective(runs, model.effects, space, p=weights.p, q=weights.q)
-    k = max(1, obj.m // SUBSAMPLE)
+    k = obj.thinning(SUBSAMPLE)   # as the re-fit thins them
     R = obj.residuals_batch(space.to_search({**model.flat(), **fixed})[None, :], k)[0]
     return float(np.sqrt(np.mean(R ** 2)))
 

@@ -66,7 +66,7 @@ def _run_co(obj, lo, hi, x0, o):
     if o.get("subsample") and o["starts"] == 1:
         # the loop's many warm re-fits: every k-th residual (at 1 kHz neighbours are
         # strongly correlated, so the optimum barely moves; the residuals cost k times less)
-        k = max(1, obj.m // o["subsample"])
+        k = obj.thinning(o["subsample"])
         rule = o.get("stop")
         # local's history is the mean square of the thinned residuals over all m: times m,
         # the mean square per residual (the fitness squared, on every k-th sample)

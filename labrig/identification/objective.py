@@ -245,6 +245,10 @@ class Objective:
         return self.sim.simulate(plant, ep, self.run_starts(phys))
 
     # -- residuals ----------------------------------------------------------------------
+    def thinning(self, about: int) -> int:
+        """The stride at which a fit sees about ``about`` residuals (every k-th)."""
+        return max(1, self.m // about)
+
     def _layout(self, stride: int) -> list:
         """Per run and channel: (run, simulated key, measured samples kept, their index
         in the run, scale), in the residual vector's order; every ``stride``-th residual

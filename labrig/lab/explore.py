@@ -162,15 +162,8 @@ class Explorer:
             self._view = lrf.run_view(rr)
             self.plots.objects = [pn.pane.Bokeh(self._view.layout, sizing_mode="stretch_width")]
         else:
-            # a Bokeh figure already on the page changes only under the document's lock: a
-            # button's click is handled without it (Bokeh refused the change, and the curves
-            # stayed as they were), so the redraw waits for the document's next tick
-            doc = self._view.layout.document
             view = self._view
-            if doc is None:
-                view.show(rr)
-            else:
-                doc.add_next_tick_callback(lambda: view.show(rr))
+            under_lock(view.layout, lambda: view.show(rr))
 
     def _try(self) -> None:
         if self.model is None or not self.try_pick.value:
@@ -183,6 +176,15 @@ class Explorer:
     def _fit_here(self) -> None:
         if self.model is not None:
             self.fit_from(self.model.to_json())
+
+
+def under_lock(model, job) -> None:
+    """Run ``job`` (a change to the Bokeh ``model`` or its page) now when ``model`` is on
+    no page, else at its document's next tick, under the document's lock: a Bokeh figure
+    already on the page changes only under it, and a button's click or a figure's event is
+    handled without it (Bokeh refused the change, and the curves stayed as they were)."""
+    doc = model.document
+    doc.add_next_tick_callback(job) if doc is not None else job()
 
 
 def _span(value: float, bounds) -> tuple[float, float]:

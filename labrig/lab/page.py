@@ -19,7 +19,7 @@ from bokeh.plotting import figure
 from labrig.core.display import png_html as _img
 from labrig.core.errors import LabrigError
 import labrig.verbs.figures as lrf
-from labrig.lab.explore import Explorer
+from labrig.lab.explore import Explorer, under_lock
 from labrig.lab.plan_form import PlanForm
 from labrig.lab.station import Station, as_array
 
@@ -273,6 +273,7 @@ class LabPage:
 
     _asked = False
     _live_shown = None
+    _diagnosis_shown = None
 
     def _state(self) -> tuple:
         st = self.st
@@ -298,8 +299,10 @@ class LabPage:
             if self._explored is not r:   # a new rung: the sliders start from its fit
                 self._explored = r
                 self.explore.set_model(r["model"], fitted=True)
-        if st.diagnosis:
-            d = st.diagnosis
+        # a diagnosis is drawn once: redrawn on every change of state (an overlay
+        # coming in) it replaced the ranking under a student's click and reset the pickers
+        if st.diagnosis and st.diagnosis is not self._diagnosis_shown:
+            d = self._diagnosis_shown = st.diagnosis
             adds = [row["effect"] for row in d["rows"] if row.get("move", "add") == "add"]
             self.add_pick.options = adds
             self.rep_new.options = list(dict.fromkeys(
@@ -339,11 +342,7 @@ class LabPage:
         k = math.floor(event.y) if event.y is not None else -1
         if not 0 <= k < len(factors):
             return
-        # the click arrives while Bokeh applies the browser's message; the page's own
-        # changes wait for the document's next tick (with its lock), as Bokeh requires
-        job = lambda: self._tapped(factors[k])  # noqa: E731
-        doc = fig.document
-        doc.add_next_tick_callback(job) if doc is not None else job()
+        under_lock(fig, lambda: self._tapped(factors[k]))
 
     def _tapped(self, label: str) -> None:
         """A candidate's row of the ranking clicked: that candidate shown, as *Show* does."""

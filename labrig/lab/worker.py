@@ -11,14 +11,14 @@ import inspect
 import multiprocessing
 import time
 
+from labrig.core.memory import keep_freed_memory
+
 _LOG = None     # the worker's end of the log queue (set by _init in the worker)
 
 
 def _init(queue) -> None:
     global _LOG
     _LOG = queue
-    from labrig.core.memory import keep_freed_memory
-
     # a spawned process has the parent's environment (one BLAS thread) but not its
     # allocator setting: without it every fit's arrays are faulted in afresh, and the
     # page's fits ran up to twice as long as the command line's
