@@ -273,7 +273,6 @@ class LabPage:
 
     _asked = False
     _live_shown = None
-    _diagnosis_shown = None
 
     def _state(self) -> tuple:
         st = self.st
@@ -299,10 +298,8 @@ class LabPage:
             if self._explored is not r:   # a new rung: the sliders start from its fit
                 self._explored = r
                 self.explore.set_model(r["model"], fitted=True)
-        # a diagnosis is drawn once: redrawn on every change of state (an overlay
-        # coming in) it replaced the ranking under a student's click and reset the pickers
-        if st.diagnosis and st.diagnosis is not self._diagnosis_shown:
-            d = self._diagnosis_shown = st.diagnosis
+        if st.diagnosis:
+            d = st.diagnosis
             adds = [row["effect"] for row in d["rows"] if row.get("move", "add") == "add"]
             self.add_pick.options = adds
             self.rep_new.options = list(dict.fromkeys(
