@@ -272,9 +272,14 @@ def test_the_loop_by_hand_sliders_an_effect_tried_and_a_fit_from_there(browser, 
         # a click on a candidate's row of the ranking draws it on the runs
         canvas = page.page.locator(".lab-ranking-plot canvas").first
         # (the page redraws the ranking when its state changes: find it again if it went)
-        canvas = page.page.locator(".lab-ranking-plot canvas").first
-        canvas.scroll_into_view_if_needed()
-        box = canvas.bounding_box()
+        for _ in range(10):
+            try:
+                canvas = page.page.locator(".lab-ranking-plot canvas").first
+                canvas.scroll_into_view_if_needed(timeout=3000)
+                box = canvas.bounding_box()
+                break
+            except Exception:
+                page.page.wait_for_timeout(500)
         for y in range(40, int(box["height"]) - 30, 13):
             page.page.mouse.click(box["x"] + box["width"] * 0.6, box["y"] + y)
             page.page.wait_for_timeout(200)
