@@ -13,6 +13,14 @@ WORDS = r"""e => { const out = [];
   walk(e); return out.join(' ').replace(/\s+/g, ' '); }"""
 
 
+#: what the overlay's speed figure draws (its Bokeh models, by name): the time in view
+#: (start, end), the number of points drawn and the time between two of them
+DRAWN = r"""() => { const doc = Bokeh.documents.find(d => d.get_model_by_name("run-view-speed"));
+  const src = doc.get_model_by_name("run-view-speed"), x = doc.get_model_by_name("run-view-time");
+  const t = src.data.get ? src.data.get("t") : src.data.t;
+  return [x.start, x.end, t.length, t[1] - t[0]]; }"""
+
+
 def free_port() -> int:
     """A TCP port on 127.0.0.1 that is free now (the system picks it)."""
     with socket.socket() as s:

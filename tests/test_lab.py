@@ -18,7 +18,7 @@ from pathlib import Path
 import pytest
 
 from conftest import labrig
-from lab_page import WORDS, free_port
+from lab_page import DRAWN, WORDS, free_port
 
 ROOT = Path(__file__).resolve().parent.parent
 ARTEFACTS = Path(__file__).resolve().parent / "artefacts"
@@ -190,8 +190,8 @@ def test_the_loop_on_one_page_agrees_with_the_cli(browser, tmp_path):
         assert len(names) == 6
         shown = other.evaluate("s => s.value")
         other.select_option(next(n for n in names if n != shown))
-        page.wait(lambda: "drawing" not in page.text(".lab-overlay")
-                  and page.page.locator(".lab-overlay img").count() == 1, 30, "the overlay")
+        page.wait(lambda: "drawing" not in page.text(".lab-compare-figure")
+                  and page.page.locator(".lab-compare-figure img").count() == 1, 30, "the overlay")
         rec = re.search(r"recommendation: (\w+)", page.text(".lab-evidence")).group(1)
         # the same numbers from the command line, same data and seed
         m0 = tmp_path / "m0.json"
@@ -215,7 +215,7 @@ def test_the_loop_on_one_page_agrees_with_the_cli(browser, tmp_path):
         # the quiet looks of idle() can fall between two of them on a busy machine
         page.wait(lambda: "+ coulomb_friction" in page.text(".lab-ladder"), 60, "the ladder")
         # the run on screen is drawn first once the new rung's diagnosis is in
-        page.wait(lambda: page.page.locator(".lab-overlay img").count() == 1, 30, "the overlay")
+        page.wait(lambda: page.page.locator(".lab-compare-figure img").count() == 1, 30, "the overlay")
         page.shot("loop")
         watcher.close()
         page.close()
@@ -237,8 +237,8 @@ def test_the_loop_by_hand_sliders_an_effect_tried_and_a_fit_from_there(browser, 
         page.wait(lambda: "rmse/noise" in page.text(".lab-try-rmse"), 120, "the hand view")
         fitted = page.number(".lab-try-rmse", r"rmse/noise ([\d.]+)")
         assert fitted == page.number(".lab-rmse", r"rmse/noise ([\d.]+)")
-        assert page.page.locator(".lab-slider").count() == 5    # R, L, J, B, K
-        handle = page.page.locator(".lab-slider-J .noUi-handle").first
+        assert page.page.locator(".lab-param").count() == 5    # R, L, J, B, K
+        handle = page.page.locator(".lab-param-J .noUi-handle").first
         handle.focus()
         for _ in range(20):
             handle.press("ArrowRight")
@@ -248,13 +248,32 @@ def test_the_loop_by_hand_sliders_an_effect_tried_and_a_fit_from_there(browser, 
                   (len(shown) > 4 and len(set(shown[-5:])) == 1), 30, "the moves to settle")
         moved = page.number(".lab-try-rmse", r"rmse/noise ([\d.]+)")
         assert moved != fitted
+        # zoom into the overlay (the wheel over the speed figure): the time in view
+        # narrows, and every sample in it is drawn (the whole run is drawn decimated)
+        start, end, n, dt = page.page.evaluate(DRAWN)
+        assert end - start > 8.0 and dt == pytest.approx(0.009)   # 8.5 s at 1 kHz, 1 in 9
+        canvas = page.page.locator(".lab-overlay canvas").first
+        canvas.scroll_into_view_if_needed()
+        box = canvas.bounding_box()
+        page.page.mouse.move(box["x"] + box["width"] / 2, box["y"] + box["height"] / 2)
+        for _ in range(20):   # a reversal's second or so
+            page.page.mouse.wheel(0, -100)
+            page.page.wait_for_timeout(150)
+            start, end, n, dt = page.page.evaluate(DRAWN)
+            if end - start < 1.0:
+                break
+        page.wait(lambda: page.page.evaluate(DRAWN)[3] < 0.0015, 30, "the samples zoomed into")
+        start, end, n, dt = page.page.evaluate(DRAWN)
+        assert 0.2 < end - start < 1.0 and dt == pytest.approx(0.001)
+        assert n >= (end - start) / dt   # the time in view, at every sample
+        page.shot("zoomed")
         page.click(".lab-try-reset")
         page.wait(lambda: "by hand" not in page.text(".lab-try-rmse"), 30, "back to the fit")
         assert page.number(".lab-try-rmse", r"rmse/noise ([\d.]+)") == fitted
         page.page.locator(".lab-try-pick select").first.select_option("coulomb_friction")
         page.click(".lab-try-add")
         page.wait(lambda: "coulomb_friction" in page.text(".lab-try-rmse"), 30, "the tried effect")
-        assert page.page.locator(".lab-slider").count() == 6
+        assert page.page.locator(".lab-param").count() == 6
         tried = page.number(".lab-try-rmse", r"rmse/noise ([\d.]+)")
         assert tried != fitted
         page.shot("by_hand")
@@ -413,7 +432,7 @@ def test_the_loop_on_runs_that_start_in_motion(browser, tmp_path):
         page.idle()
         after = page.number(".lab-rmse", r"rmse/noise ([\d.]+)")
         assert after < 1.2 < linear
-        page.wait(lambda: page.page.locator(".lab-overlay img").count() == 1, 30, "the overlay")
+        page.wait(lambda: page.page.locator(".lab-compare-figure img").count() == 1, 30, "the overlay")
         page.shot("moving_start")
         page.close()
     finally:

@@ -164,10 +164,13 @@ class Evaluation(Displayable):
         return run_view(self.run(run), **size)
 
 
-def evaluate(runs, model: Model, sigmas=None, weights: Weights | None = None) -> Evaluation:
+def evaluate(runs, model: Model, sigmas=None, weights: Weights | None = None,
+             detail: bool = True) -> Evaluation:
     """Simulate ``model`` on ``runs``; ``sigmas`` fixes the noise levels (to compare
     candidates on equal terms), else they are measured from the runs
-    (:mod:`labrig.analysis.noise`); ``weights`` are the channel weights of the fitness."""
+    (:mod:`labrig.analysis.noise`); ``weights`` are the channel weights of the fitness;
+    ``detail=False``: the residuals and every rmse/noise and fit %, without the regimes,
+    stretches and correlations (``regimes`` empty, ``rho1`` nan): a slider's move."""
     weights = weights or Weights()
     space = build_space(model.effects, plant=model.plant_class)
     obj = Objective(runs, model.effects, space, p=weights.p, q=weights.q)
@@ -178,7 +181,7 @@ def evaluate(runs, model: Model, sigmas=None, weights: Weights | None = None) ->
     metrics = adequacy(obj.runs, sims, obj.sigma_w, obj.sigma_theta, weights.p, weights.q)
     quanta = {ch: f.q for ch, f in obj.floors.items()}
     per_run = [run_residuals(rd, {"w": s["w"][0], "theta": s["theta"][0]}, obj.sigma_w,
-                             obj.sigma_theta, quanta) for rd, s in zip(obj.runs, sims)]
+                             obj.sigma_theta, quanta, detail) for rd, s in zip(obj.runs, sims)]
     for rr in per_run:   # the fitted start of a run that starts in motion (its figure marks it)
         st = model.starts.get(rr["name"])
         rr["start"] = {**st, "moving": "w0" in st} if st else None
@@ -188,8 +191,9 @@ def evaluate(runs, model: Model, sigmas=None, weights: Weights | None = None) ->
     metrics["counts"] = {ch: sum(len(chans[ch]["residual"][k]) for chans, k in kept
                                  if ch in chans) for ch in ("speed", "position")}
     rho1 = float(np.mean([autocorr(c["residual"], 1)[0] for rr in per_run
-                          for c in rr["channels"].values()]))
-    return Evaluation(metrics=metrics, per_run=per_run, regimes=regime_table(per_run),
+                          for c in rr["channels"].values()])) if detail else float("nan")
+    return Evaluation(metrics=metrics, per_run=per_run,
+                      regimes=regime_table(per_run) if detail else {},
                       sse=float(np.sum(r ** 2)), n=int(len(r)),
                       sigmas=(obj.sigma_w, obj.sigma_theta), rho1=rho1, floors=obj.floors,
                       weights=weights)

@@ -129,16 +129,19 @@ AXIS_UNITS = {"rotary": {"speed": "rad/s (motor)", "position": "rad (output)"},
 
 
 def run_residuals(rd, sim: dict, sigma_w: float, sigma_theta: float,
-                  quanta: dict | None = None) -> dict:
+                  quanta: dict | None = None, detail: bool = True) -> dict:
     """Residuals of one run in noise units, with regimes and stretches.
 
     ``quanta`` maps a channel to its quantisation step in the channel's units
     (:attr:`labrig.analysis.noise.NoiseFloor.q`; 0 or absent: none seen). Each channel carries
     it as ``quantum`` with ``quantum_kind`` (an encoder's count or an ADC step), so a
-    figure can show the staircase a quantised reading leaves in the residual."""
+    figure can show the staircase a quantised reading leaves in the residual.
+
+    ``detail=False``: the residuals and their numbers only (no regimes, stretches or
+    correlations): two thirds of the time of a slider's re-simulation went to them."""
     quanta = quanta or {}
     w_ref = rd.w if rd.w is not None else np.gradient(rd.theta * rd.N, rd.dt)
-    labels = label_regimes(rd.u, w_ref)
+    labels = label_regimes(rd.u, w_ref) if detail else None
     keep = rd.keep()
     out = {"name": rd.name, "labels": labels, "amplitude": rd.amplitude, "loop": rd.loop,
            # samples the link lost: residual 0 (no evidence), drawn as gaps, not counted
@@ -151,17 +154,19 @@ def run_residuals(rd, sim: dict, sigma_w: float, sigma_theta: float,
         if y is None:
             continue
         r = np.where(keep, (y - yh) / sig, 0.0)  # a sample the link lost is no evidence
-        out["channels"][ch] = {"measured": y, "simulated": yh, "residual": r, "sigma": sig,
-                               "fit_percent": fit_percent(y[keep], yh[keep]),
-                               "rmse_over_noise": float(np.sqrt(np.mean(r[keep] ** 2))),
-                               "stretches": stretches(r, labels, width),
-                               "autocorr": autocorr(r), "crosscorr": crosscorr(r, rd.u),
-                               "band": Z99 / np.sqrt(len(r)),
-                               "quantum": float(quanta.get(ch) or 0.0),
-                               "quantum_kind": "encoder count" if ch == "position" and
-                               getattr(rd, "pos_q", 0.0) > 0 else
-                               "count over the speed's window" if ch == "speed" and
-                               getattr(rd, "speed_window", 0) > 1 else "ADC step"}
+        out["channels"][ch] = c = {
+            "measured": y, "simulated": yh, "residual": r, "sigma": sig,
+            "fit_percent": fit_percent(y[keep], yh[keep]),
+            "rmse_over_noise": float(np.sqrt(np.mean(r[keep] ** 2)))}
+        if detail:
+            c.update(stretches=stretches(r, labels, width), autocorr=autocorr(r),
+                     crosscorr=crosscorr(r, rd.u))
+        c.update({"band": Z99 / np.sqrt(len(r)),
+                  "quantum": float(quanta.get(ch) or 0.0),
+                  "quantum_kind": "encoder count" if ch == "position" and
+                  getattr(rd, "pos_q", 0.0) > 0 else
+                  "count over the speed's window" if ch == "speed" and
+                  getattr(rd, "speed_window", 0) > 1 else "ADC step"})
     return out
 
 

@@ -41,7 +41,8 @@ class Explorer:
         self.run_pick = pn.widgets.Select(name="run", options=[], width=220,
                                           css_classes=[f"{css}-run"])
         self.run_pick.param.watch(lambda e: self._show(), "value")
-        self.plots = pn.Column(sizing_mode="stretch_width", css_classes=[f"{css}-plots"])
+        self.plots = pn.Column(sizing_mode="stretch_width",
+                               css_classes=[f"{css}-plots", "lab-overlay"])
         self.sliders = pn.Column(width=330, css_classes=[f"{css}-sliders"])
         self.try_pick = pn.widgets.Select(name="try an effect (unfitted)", options=[],
                                           width=220, css_classes=[f"{css}-pick"])
@@ -110,12 +111,12 @@ class Explorer:
             value = float(value) * f
             lo, hi = _span(value, bounds)
             mark = fitted.get(key)
-            s = pn.widgets.FloatSlider(
+            s = LiveSlider(
                 name=f"{label} ({unit})" + (f", fitted {mark * f:.4g}" if mark is not None
                                             else ", unfitted"),
                 start=lo, end=hi, step=(hi - lo) / STEPS, value=min(max(float(value), lo), hi),
                 format=PrintfTickFormatter(format="%.4g"), width=320,
-                css_classes=["lab-slider", f"lab-slider-{_css(key)}"])
+                css_classes=["lab-param", f"lab-param-{_css(key)}"])
             s.param.watch(lambda e, key=key, f=f, gen=gen: self._slide(key, e.new / f, gen),
                           "value")
             rows.append(s)
@@ -125,19 +126,23 @@ class Explorer:
     _generation = 0
     _why = ""
     _look = True
+    _detailed = False   # self.ev has the regimes (not a slider's quick evaluation)
 
     def _slide(self, key: str, value: float, gen: int) -> None:
         if gen != self._generation:
             return
         self.model, self._why = self.model.with_value(key, value), ""
-        self.redraw()
+        self.redraw(moved=True)
 
-    def redraw(self) -> None:
-        """The hand-set model on every run (the library's numbers), the picked run drawn."""
+    def redraw(self, moved: bool = False) -> None:
+        """The hand-set model on every run (the library's numbers), the picked run drawn.
+        ``moved``: a slider's move, handled under the document's lock (a
+        :class:`LiveSlider`'s change): the numbers and the model's curves only, drawn
+        at once (the run's regimes are the data's, and stay as drawn)."""
         self.error.visible = False
         try:
-            self.ev = lr.compare(self.runs(look=self._look), self.model)
-            self._look = False
+            self.ev = lr.compare(self.runs(look=self._look), self.model, detail=not moved)
+            self._look, self._detailed = False, not moved
         except LabrigError as exc:
             self.error.object, self.error.visible = str(exc).splitlines()[0], True
             return
@@ -145,6 +150,8 @@ class Explorer:
         label = " + ".join(["linear"] + self.model.names)
         hand = ("" if self.model is self.fitted else f" ({self._why})" if self._why
                 else " (set by hand, not fitted)")
+        # (a Bokeh Div here went out with the curves, but its every change made the
+        # browser lay out the whole page again: slower)
         self.number.object = (f"### rmse/noise {rm['overall']:.2f}\n{label}{hand}; "
                               + ", ".join(f"{ch} {v:.2f}" for ch, v in rm.items()
                                           if ch != "overall"))
@@ -152,15 +159,19 @@ class Explorer:
         if self.run_pick.options != names:
             self.run_pick.options = names
             self.run_pick.value = self.ev.worst_run()["name"]
-        self._show()
+        self._show(moved)
 
-    def _show(self) -> None:
+    def _show(self, moved: bool = False) -> None:
         if self.ev is None or self.run_pick.value is None:
             return
+        if not moved and not self._detailed:   # another run after a move: its regimes
+            self.ev, self._detailed = lr.compare(self.runs(look=False), self.model), True
         rr = self.ev.run(self.run_pick.value)
         if self._view is None or set(self._view.channels) != set(rr["channels"]):
             self._view = lrf.run_view(rr)
             self.plots.objects = [pn.pane.Bokeh(self._view.layout, sizing_mode="stretch_width")]
+        elif moved:
+            self._view.show(rr)
         else:
             view = self._view
             under_lock(view.layout, lambda: view.show(rr))
@@ -176,6 +187,16 @@ class Explorer:
     def _fit_here(self) -> None:
         if self.model is not None:
             self.fit_from(self.model.to_json())
+
+
+class LiveSlider(pn.widgets.FloatSlider):
+    """A slider whose every move reaches the server at once. Panel holds a widget's
+    change 50 ms to gather the ones that follow (``Syncable._debounce``); here that was
+    half the 0.1 s a move may take to redraw. Moves that arrive while one is handled are
+    still gathered into one (Panel's own queue of pending events), so a drag never
+    queues more than one re-simulation. Panel's Tabulator does the same for its data."""
+
+    _debounce = 0
 
 
 def under_lock(model, job) -> None:

@@ -94,7 +94,7 @@ class LabPage:
         self.run_pick = pn.widgets.Select(name="run", options=[], width=200,
                                           css_classes=["lab-run-pick"])
         self.run_pick.param.watch(lambda e: self._show_overlay(), "value")
-        self.overlay = pn.pane.HTML("", sizing_mode="stretch_width", css_classes=["lab-overlay"])
+        self.overlay = pn.pane.HTML("", sizing_mode="stretch_width", css_classes=["lab-compare-figure"])
         self.ladder = pn.pane.HTML("", sizing_mode="stretch_width", css_classes=["lab-ladder"])
         self.ladder_plot = pn.pane.Bokeh(None, sizing_mode="stretch_width",
                                          css_classes=["lab-ladder-plot"])
@@ -254,11 +254,15 @@ class LabPage:
                else "")) if busy else (
             "drawing the model on the other runs" if st.drawing() else ""))
         self._paint_error()
+        # each widget set once, to its final state: a button that flipped in every
+        # refresh (Propose: enabled, then disabled again) sent two changes ten times a
+        # second, and each made the browser lay out the whole page again (~30 ms)
+        idle = self.owner and not busy and not st.sweeping
         for w in (self.fit_btn, self.auto_btn, self.add_btn, self.rm_btn, self.rep_btn,
-                  self.propose_btn, self.start, self.explore.fit_btn):
-            w.disabled = not self.owner or busy or st.sweeping
+                  self.start, self.explore.fit_btn):
+            w.disabled = not idle
+        self.propose_btn.disabled = not idle or not self.pair_pick.options
         self.cancel_btn.disabled = not self.owner or not busy
-        self.propose_btn.disabled = self.propose_btn.disabled or not self.pair_pick.options
         self.play_btn.disabled = (not self.owner or busy or st.sweeping or st.proposal is None
                                   or st.proposal.get("plan") is None or st.prediction is None)
         note = _why_not(st, bool(self.pair_pick.options))

@@ -101,13 +101,15 @@ def remove_effect(model, name: str):
     return without(model_of(model), name)
 
 
-def compare(source, model, *, through: str | None = "auto"):
+def compare(source, model, *, through: str | None = "auto", detail: bool = True):
     """The model simulated on the runs: fit %, rmse/noise by run and regime, residuals
     (``labrig compare``). Returns an :class:`~labrig.diagnosis.evaluation.Evaluation`; its
-    ``plot()`` overlays model and measurement with the residual and its noise band."""
+    ``plot()`` overlays model and measurement with the residual and its noise band.
+    ``detail=False``: the residuals, fit % and rmse/noise only, the same numbers in a
+    third of the time (no regimes, stretches or correlations: what a slider redraws)."""
     from labrig.diagnosis.evaluation import evaluate
 
-    return evaluate(read_runs(source, through=through), model_of(model))
+    return evaluate(read_runs(source, through=through), model_of(model), detail=detail)
 
 
 def ladder(source, models, *, through: str | None = "auto"):
