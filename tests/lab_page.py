@@ -14,11 +14,13 @@ WORDS = r"""e => { const out = [];
 
 
 #: what the overlay's speed figure draws (its Bokeh models, by name): the time in view
-#: (start, end), the number of points drawn and the time between two of them
+#: (start, end), the number of points drawn, the time between two of them and the sum
+#: of the model's drawn values
 DRAWN = r"""() => { const doc = Bokeh.documents.find(d => d.get_model_by_name("run-view-speed"));
   const src = doc.get_model_by_name("run-view-speed"), x = doc.get_model_by_name("run-view-time");
-  const t = src.data.get ? src.data.get("t") : src.data.t;
-  return [x.start, x.end, t.length, t[1] - t[0]]; }"""
+  const col = k => src.data.get ? src.data.get(k) : src.data[k];
+  const t = col("t"), m = col("model");
+  return [x.start, x.end, t.length, t[1] - t[0], Array.from(m).reduce((a, b) => a + b, 0)]; }"""
 
 
 def free_port() -> int:

@@ -239,6 +239,7 @@ def test_the_loop_by_hand_sliders_an_effect_tried_and_a_fit_from_there(browser, 
         assert fitted == page.number(".lab-rmse", r"rmse/noise ([\d.]+)")
         assert page.page.locator(".lab-param").count() == 5    # R, L, J, B, K
         handle = page.page.locator(".lab-param-J .noUi-handle").first
+        curve = page.page.evaluate(DRAWN)[4]
         handle.focus()
         for _ in range(20):
             handle.press("ArrowRight")
@@ -248,9 +249,10 @@ def test_the_loop_by_hand_sliders_an_effect_tried_and_a_fit_from_there(browser, 
                   (len(shown) > 4 and len(set(shown[-5:])) == 1), 30, "the moves to settle")
         moved = page.number(".lab-try-rmse", r"rmse/noise ([\d.]+)")
         assert moved != fitted
+        assert abs(page.page.evaluate(DRAWN)[4] - curve) > 1e-3 * abs(curve)   # the curve too
         # zoom into the overlay (the wheel over the speed figure): the time in view
         # narrows, and every sample in it is drawn (the whole run is drawn decimated)
-        start, end, n, dt = page.page.evaluate(DRAWN)
+        start, end, n, dt, _ = page.page.evaluate(DRAWN)
         assert end - start > 8.0 and dt == pytest.approx(0.009)   # 8.5 s at 1 kHz, 1 in 9
         canvas = page.page.locator(".lab-overlay canvas").first
         canvas.scroll_into_view_if_needed()
@@ -259,11 +261,11 @@ def test_the_loop_by_hand_sliders_an_effect_tried_and_a_fit_from_there(browser, 
         for _ in range(20):   # a reversal's second or so
             page.page.mouse.wheel(0, -100)
             page.page.wait_for_timeout(150)
-            start, end, n, dt = page.page.evaluate(DRAWN)
+            start, end, n, dt, _ = page.page.evaluate(DRAWN)
             if end - start < 1.0:
                 break
         page.wait(lambda: page.page.evaluate(DRAWN)[3] < 0.0015, 30, "the samples zoomed into")
-        start, end, n, dt = page.page.evaluate(DRAWN)
+        start, end, n, dt, _ = page.page.evaluate(DRAWN)
         assert 0.2 < end - start < 1.0 and dt == pytest.approx(0.001)
         assert n >= (end - start) / dt   # the time in view, at every sample
         page.shot("zoomed")
@@ -340,6 +342,12 @@ def test_the_search_shows_itself_as_it_climbs(browser, tmp_path):
         page = Page(browser, server.url)
         page.page.get_by_text("The loop", exact=True).click()
         page.click(".lab-auto")
+        # the first round's candidates come in one by one, each with its error
+        counts = set()
+        page.wait(lambda: counts.add(int((re.findall(r"as it forms \((\d+) re-fitted",
+                                                     page.text(".lab-forming")) or [0])[0]))
+                  or len(counts - {0}) >= 2, 300, "the ranking growing while the search runs")
+        assert "working" in page.text(".lab-status")
         page.wait(lambda: "the search so far" in page.text(".lab-forming"), 300,
                   "the first rung while the search runs")
         assert "working" in page.text(".lab-status")

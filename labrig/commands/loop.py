@@ -32,18 +32,26 @@ def cmd_compare(args):
 
 
     runs, model = _load(args)
+    hand = parse_assignments(args.set, "--set")
     out = Path(args.output)
     # the figures this command writes, refused before the simulation if they exist
     refuse_existing([out] + [out / f"compare_{r.name}.png" for r in runs] + [out / "regimes.png"],
                     args.force, what="folder")
+    if args.save_model:
+        refuse_existing([args.save_model], args.force)
+    if hand:
+        model = lr.set_by_hand(runs, model, hand)
     ev = lr.compare(runs, model, through=None)
     out.mkdir(parents=True, exist_ok=True)
     table = ev.runs()
     for rr, row in zip(ev.per_run, table):
         row["figure"] = str(save(lrf.run_figure(rr), out / f"compare_{rr['name']}.png"))
     save(lrf.regimes_figure(ev.regimes), out / "regimes.png")
+    if args.save_model:   # the hand-set model: `identify --model` fits from it
+        model.save(args.save_model)
     if args.json:
-        emit_json({"model": str(args.model), "runs": table,
+        emit_json({"model": str(args.model), "set_by_hand": hand,
+                   "saved_model": args.save_model, "runs": table,
                    "fit_percent": ev.metrics["fit_percent"],
                    "rmse_over_noise": ev.metrics["rmse_over_noise"],
                    "figures": [t["figure"] for t in table] + [str(out / "regimes.png")],
@@ -53,6 +61,11 @@ def cmd_compare(args):
     for w in ev.warnings():
         print(f"\nwarning: {w}")
     print(f"\nfigures in {out}/ (compare_<run>.png, regimes.png)")
+    if hand:
+        print("set by hand, nothing fitted: " + ", ".join(f"{k}={v:g}" for k, v in hand.items()))
+    if args.save_model:
+        print(f"the model as compared: {args.save_model} (fit from it: labrig identify "
+              f"{' '.join(args.data)} --model {args.save_model} --starts 1)")
     return 0
 
 
@@ -68,7 +81,13 @@ def _configure_compare(p):
     p.add_argument("data", nargs="+", help="folder(s) of runs")
     p.add_argument("--model", required=True, help="a model saved by `labrig identify -o`")
     p.add_argument("-o", "--output", default="compare", help="folder for the figures")
-    _last_options(p, "replace figures already in the folder")
+    p.add_argument("--set", metavar="NAME=VALUE,...",
+                   help="set parameters by hand, nothing fitted: a plant's (J=4e-5) or an "
+                        "effect's (coulomb_friction.tc_v=0.13; an effect the model lacks is "
+                        "added); see what the value does to the curves before any fit says")
+    p.add_argument("--save-model", metavar="FILE",
+                   help="save the model as compared (with --set: the hand-set one)")
+    _last_options(p, "replace figures already in the folder (and the --save-model file)")
 
 
 cmd_compare.configure = _configure_compare

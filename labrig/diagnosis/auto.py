@@ -166,7 +166,7 @@ def _where_they_differ(a: Candidate, b: Candidate) -> dict | None:
 
 def auto_diagnose(runs, model: Model | None = None, *, max_rounds: int = 3, seed: int = 0,
                   fixed: dict | None = None, weights=None, log=None,
-                  on_step=None, screen: bool = True) -> AutoDiagnosis:
+                  on_step=None, screen: bool = True, on_candidate=None) -> AutoDiagnosis:
     """Run the search (:func:`labrig.diagnosis.search.search`) and name the confusable pairs of
     every round.
 
@@ -188,9 +188,11 @@ def auto_diagnose(runs, model: Model | None = None, *, max_rounds: int = 3, seed
     screen : bool
         End a candidate's re-fit early when it stalls without gaining (default True;
         :func:`labrig.diagnosis.criteria.screen`).
+    on_candidate : callable(candidate, cv), optional
+        Each round's candidates as they are re-fitted (cv None) and cross-validated.
     """
     res = search(runs, model, max_rounds=max_rounds, seed=seed, fixed=fixed, weights=weights,
-                 log=log, on_step=on_step, screen=screen)
+                 log=log, on_step=on_step, screen=screen, on_candidate=on_candidate)
     pairs = [p for k, diag in enumerate(res.rounds, 1) for p in confusable_pairs(diag, k)]
     return AutoDiagnosis(rounds=res.rounds, model=res.model, ladder=res.ladder,
                          confusable=pairs, moves=res.moves,

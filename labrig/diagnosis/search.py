@@ -245,17 +245,19 @@ def _threshold_pair(judge: _Judge, model, cv_now: float, log) -> Step | None:
 
 def search(runs, model: Model | None = None, *, max_rounds: int = 3, seed: int = 0,
            fixed: dict | None = None, weights=None, log=None, on_step=None,
-           screen: bool = True) -> SearchResult:
+           screen: bool = True, on_candidate=None) -> SearchResult:
     """Add, pair, swap and remove effects until the cross-validated error stops falling.
 
     ``on_step(k, model)`` is called for every rung (k = 0 is the starting model);
+    ``on_candidate(candidate, cv)``: each round's candidates as they are re-fitted and
+    cross-validated (:func:`~labrig.diagnosis.diagnose.diagnose`'s);
     ``max_rounds`` bounds the number of effects added; ``screen``: as
     :func:`~labrig.diagnosis.diagnose.diagnose`'s, in every round.
     """
     fixed = dict(fixed or {})
     rounds, moves = [], []
     diag = diagnose(runs, model, seed=seed, fixed=fixed, weights=weights, revise=False,
-                    screen=screen)
+                    screen=screen, on_candidate=on_candidate)
     rounds.append(diag)
     judge = _Judge(runs, diag, seed, fixed)
     model = diag.base
@@ -302,7 +304,7 @@ def search(runs, model: Model | None = None, *, max_rounds: int = 3, seed: int =
             break
         diag = diagnose(runs, model, seed=seed, fixed=fixed, weights=judge.weights,
                         folds=judge.folds, revise=False, screen=screen,
-                        baseline_cv=judge.known(model))
+                        baseline_cv=judge.known(model), on_candidate=on_candidate)
         rounds.append(diag)
     return SearchResult(rounds=rounds, ladder=ladder, model=model, moves=moves)
 

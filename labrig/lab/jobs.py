@@ -73,9 +73,7 @@ def diagnose(folders, model_doc, log=None) -> dict:
     and cross-validated (the ranking forming on the page)."""
     def progress(event):
         if log is not None and event.kind in ("fitted", "validated"):
-            c = event.data
-            log({"kind": event.kind, "label": c.label, "rmse_over_noise": c.rmse_over_noise,
-                 "cross_validated": event.done})
+            log(_candidate_entry(event))
 
     diag = lr.diagnose(_runs(folders), _model(model_doc), seed=LAB_SEED, progress=progress)
     pairs = lr.confusable_pairs(diag, 1)
@@ -99,6 +97,13 @@ def diagnose(folders, model_doc, log=None) -> dict:
             "tables": _html(diag.table_rows())}   # (its figure: the page draws it, Bokeh)
 
 
+def _candidate_entry(event) -> dict:
+    """A candidate re-fitted (``fitted``) or cross-validated, as the page lists it."""
+    c = event.data
+    return {"kind": event.kind, "label": c.label, "rmse_over_noise": c.rmse_over_noise,
+            "cross_validated": event.done}
+
+
 def ladder(folders, model_docs) -> dict:
     """The error ladder of the rungs so far."""
     lad = lr.ladder(_runs(folders), [_model(d) for d in model_docs])
@@ -112,6 +117,8 @@ def auto(folders, max_rounds=3, log=None) -> dict:
             return
         if event.kind == "note":
             log(event.text)
+        elif event.kind in ("fitted", "validated"):   # the round's ranking forming
+            log(_candidate_entry(event))
         elif event.kind == "rung":
             info = event.data.info or {}
             rmse = (info.get("rmse_over_noise") or {}).get("overall")

@@ -395,24 +395,30 @@ class LabPage:
 
 
 def _forming_html(stream: list[dict]) -> str:
-    """The candidates re-fitted so far, best first, with their held-out error once known;
-    or the rungs the search has climbed."""
+    """The rungs the search has climbed so far, and the candidates of the round under
+    way (re-fitted since the last rung), best first, with their held-out error once
+    known."""
     rungs = [e for e in stream if e["kind"] == "rung"]
-    if rungs:
-        rows = "".join(f"<tr><td>{_esc(e['label'])}</td><td>{_num(e['rmse_over_noise'])}</td>"
-                       f"<td>{_num(e['cross_validated'])}</td></tr>" for e in rungs)
-        return ("<p><b>the search so far</b></p><table class='lab-table'><tr><th>rung</th>"
-                f"<th>rmse/noise</th><th>cross-validated</th></tr>{rows}</table>")
+    last = max((i for i, e in enumerate(stream) if e["kind"] == "rung"), default=-1)
     seen: dict = {}
-    for e in stream:
+    for e in stream[last + 1:]:
         row = seen.setdefault(e["label"], {"rmse": e["rmse_over_noise"], "cv": None})
         if e["kind"] == "validated":
             row["cv"] = e["cross_validated"]
-    rows = "".join(f"<tr><td>{_esc(k)}</td><td>{_num(v['rmse'])}</td><td>{_num(v['cv'])}</td></tr>"
-                   for k, v in sorted(seen.items(), key=lambda kv: kv[1]["rmse"]))
-    return (f"<p><b>the ranking as it forms ({len(seen)} re-fitted)</b></p>"
-            "<table class='lab-table'><tr><th>candidate</th><th>rmse/noise</th>"
-            f"<th>cross-validated</th></tr>{rows}</table>")
+    html = ""
+    if rungs:
+        rows = "".join(f"<tr><td>{_esc(e['label'])}</td><td>{_num(e['rmse_over_noise'])}</td>"
+                       f"<td>{_num(e['cross_validated'])}</td></tr>" for e in rungs)
+        html = ("<p><b>the search so far</b></p><table class='lab-table'><tr><th>rung</th>"
+                f"<th>rmse/noise</th><th>cross-validated</th></tr>{rows}</table>")
+    if seen:
+        rows = "".join(f"<tr><td>{_esc(k)}</td><td>{_num(v['rmse'])}</td>"
+                       f"<td>{_num(v['cv'])}</td></tr>"
+                       for k, v in sorted(seen.items(), key=lambda kv: kv[1]["rmse"]))
+        html += (f"<p><b>the ranking as it forms ({len(seen)} re-fitted)</b></p>"
+                 "<table class='lab-table lab-forming-ranking'><tr><th>candidate</th>"
+                 f"<th>rmse/noise</th><th>cross-validated</th></tr>{rows}</table>")
+    return html
 
 
 def _num(x) -> str:

@@ -36,7 +36,7 @@ from labrig.verbs.data import (check_plan, drive_units, effect, effects, import_
                                load_model, load_plan, load_rig, model_from_json, model_of,
                                parse_effects, plan_files, read_runs, runs_for_fit, runs_of)
 from labrig.verbs.fit import (add_effect, analyse, compare, identify, ladder, remove_effect,
-                              try_effect)
+                              set_by_hand, try_effect)
 from labrig.verbs.loop import (auto, auto_ladder, channel_weights, confusable_pairs, decide,
                                diagnose, pair_from_diagnosis, propose, proposed_as, warm_up)
 from labrig.verbs.mystery import (blind, check_mystery, format_check, format_reveal,
@@ -50,7 +50,8 @@ __all__ = [
     # acquisition
     "sweep", "open_bridge", "live", "play", "emulator",
     # fits
-    "analyse", "identify", "add_effect", "remove_effect", "try_effect", "compare", "ladder",
+    "analyse", "identify", "add_effect", "remove_effect", "try_effect", "set_by_hand", "compare",
+    "ladder",
     # the loop
     "diagnose", "auto", "auto_ladder", "channel_weights", "confusable_pairs", "propose",
     "proposed_as", "pair_from_diagnosis", "decide", "warm_up",

@@ -94,6 +94,37 @@ def try_effect(source, model, effect: str):
     return m.with_effect(eff, eff.initial_guess(runs, m.servo()))
 
 
+def set_by_hand(source, model, values: dict):
+    """``model`` with parameters set by hand, nothing re-fitted (the lab's sliders;
+    ``labrig compare --set``): ``values`` maps a plant parameter (``"J"``) or an
+    effect's (``"coulomb_friction.tc_v"``, in the units :func:`effect` lists) to its
+    value. An effect the model lacks is added first, as :func:`try_effect` adds it.
+    A value outside the parameter's range is refused, naming the range."""
+    from labrig.model.effects import get_effect
+
+    m = model_of(model)
+    for key, value in values.items():
+        name, dot, par = key.partition(".")
+        if dot and name not in m.names:
+            get_effect(name)   # an unknown name fails here, with the catalogue listed
+            m = try_effect(source, m, name)
+        if dot:
+            eff = next(e for e in m.effects if e.name == name)
+            p = next((q for q in eff.params if q.name == par), None)
+            bounds = (p.lower, p.upper) if p is not None else None
+        else:
+            bounds = m.plant_class.bounds.get(key) if key in m.params else None
+        if bounds is None:
+            known = list(m.params) + [f"{e.name}.{q.name}" for e in m.effects for q in e.params]
+            raise UserError(f"{key}: not a parameter of the model; its parameters: "
+                            + ", ".join(known))
+        if not bounds[0] <= value <= bounds[1]:
+            raise UserError(f"{key}={value:g}: outside its range {bounds[0]:g} to "
+                            f"{bounds[1]:g}; give a value inside it")
+        m = m.with_value(key, float(value))
+    return m
+
+
 def remove_effect(model, name: str):
     """``model`` without its effect ``name`` (its other values kept, nothing re-fitted)."""
     from labrig.diagnosis.refit import without

@@ -33,17 +33,23 @@ def diagnose(source, model=None, *, candidates=None, seed: int = SEED,
                      weights=weights, screen=screen, progress=None if progress is None else (
                          lambda i, name: progress(Event("diagnose", "candidate", i, None,
                                                         f"re-fitting {name}", name))),
-                     on_candidate=None if progress is None else (
-                         lambda c, cv: progress(_candidate_event(c, cv))))
+                     on_candidate=_candidates(progress, "diagnose"))
 
 
-def _candidate_event(c, cv) -> Event:
-    """A candidate done: re-fitted (``cv`` None) or cross-validated."""
-    if cv is None:
-        return Event("diagnose", "fitted", None, None,
-                     f"{c.label}: rmse/noise {c.rmse_over_noise:.2f}", c)
-    return Event("diagnose", "validated", cv, None,
-                 f"{c.label}: cross-validated {cv:.2f}", c)
+def _candidates(progress, verb):
+    """``on_candidate(c, cv)`` reporting a candidate done as a ``fitted`` (``cv`` None)
+    or ``validated`` event (None: nobody listens)."""
+    if progress is None:
+        return None
+
+    def done(c, cv):
+        if cv is None:
+            progress(Event(verb, "fitted", None, None,
+                           f"{c.label}: rmse/noise {c.rmse_over_noise:.2f}", c))
+        else:
+            progress(Event(verb, "validated", cv, None,
+                           f"{c.label}: cross-validated {cv:.2f}", c))
+    return done
 
 
 def channel_weights(p: float = 1.0, q: float = 1.0):
@@ -62,7 +68,9 @@ def auto(source, model=None, *, max_rounds: int = 3, seed: int = SEED,
     :class:`~labrig.diagnosis.auto.AutoDiagnosis` with the final model and its ladder;
     ``log(line)`` receives the rounds' summaries and ``on_step(k, model)`` every rung as
     the search climbs the ladder; ``progress(event)`` hears both (kinds ``note`` and
-    ``rung``, the rung's model as its data); ``screen``: as :func:`diagnose`'s."""
+    ``rung``, the rung's model as its data) and each round's candidates as
+    :func:`diagnose`'s does (``fitted``, ``validated``); ``screen``: as
+    :func:`diagnose`'s."""
     from labrig.diagnosis.auto import auto_diagnose
 
     if max_rounds < 1:
@@ -70,7 +78,8 @@ def auto(source, model=None, *, max_rounds: int = 3, seed: int = SEED,
     return auto_diagnose(read_runs(source, through=through), model_of(model),
                          max_rounds=max_rounds, seed=seed, fixed=fixed, weights=weights,
                          log=both(log, note(progress, "auto")),
-                         on_step=both(on_step, _rungs(progress, "auto")), screen=screen)
+                         on_step=both(on_step, _rungs(progress, "auto")), screen=screen,
+                         on_candidate=_candidates(progress, "auto"))
 
 
 def _rungs(progress, verb):
