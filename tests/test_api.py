@@ -134,8 +134,11 @@ def test_the_interactive_view_draws_what_compare_computes():
     """``Evaluation.view()`` (the lab page's figures) holds the evaluation's own numbers;
     a model set by hand (an effect tried, then one parameter moved) is compared as any."""
     import numpy as np
+    from bokeh.events import RangesUpdate
 
     import labrig.verbs as verbs
+    from labrig.core.errors import UserError
+    from labrig.diagnosis.interactive import MAX_POINTS
 
     runs = lr.read_runs(DATA)
     m = lr.identify(runs, seed=0).model()
@@ -143,14 +146,32 @@ def test_the_interactive_view_draws_what_compare_computes():
     view = ev.view()
     rr = ev.worst_run()
     assert view.channels == tuple(rr["channels"])
+    drawn = view.drawn   # the whole run in view, at most MAX_POINTS of it drawn
+    n = len(rr["t"])
+    assert drawn.start == 0 and drawn.stop == n and len(range(n)[drawn]) <= MAX_POINTS
     for ch, c in rr["channels"].items():
         src = view.sources[ch].data
-        assert np.array_equal(src["residual"], c["residual"])
-        assert np.array_equal(src["model"], c["simulated"])
+        assert np.array_equal(src["residual"], c["residual"][drawn])
+        assert np.array_equal(src["model"], c["simulated"][drawn])
+    # a slider's quick evaluation: the same numbers, without regimes and correlations
+    quick = lr.compare(runs, m, detail=False)
+    for key in ("rmse_over_noise", "fit_percent"):
+        assert quick.metrics[key] == ev.metrics[key]
+    assert [r["channels"]["speed"]["rmse_over_noise"] for r in quick.per_run] == \
+        [r["channels"]["speed"]["rmse_over_noise"] for r in ev.per_run]
+    assert not quick.regimes and "stretches" not in quick.per_run[0]["channels"]["speed"]
+    # zoomed into a second of the run: every sample of it drawn
+    view._zoomed(RangesUpdate(view.figures[0], x0=1.0, x1=2.0))
+    t = view.sources["speed"].data["t"]
+    assert t[0] <= 1.0 and t[-1] >= 2.0 and np.allclose(np.diff(t), rr["t"][1] - rr["t"][0])
     tried = verbs.try_effect(runs, m, "coulomb_friction")
     assert tried.names == ["coulomb_friction"] and tried.params == m.params
     hand = tried.with_value("coulomb_friction.tc_v", 0.129)
     assert hand.effect_params["coulomb_friction"]["tc_v"] == 0.129
+    assert verbs.set_by_hand(runs, m, {"coulomb_friction.tc_v": 0.129}).effect_params == \
+        hand.effect_params
+    with pytest.raises(UserError, match="outside its range"):
+        verbs.set_by_hand(runs, m, {"coulomb_friction.tc_v": 50.0})
     moved = lr.compare(runs, hand).metrics["rmse_over_noise"]["overall"]
     # friction without the plant re-fitted: the linear fit's gain already absorbed it
     assert moved > ev.metrics["rmse_over_noise"]["overall"]

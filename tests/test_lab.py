@@ -269,6 +269,11 @@ def test_the_loop_by_hand_sliders_an_effect_tried_and_a_fit_from_there(browser, 
         assert 0.2 < end - start < 1.0 and dt == pytest.approx(0.001)
         assert n >= (end - start) / dt   # the time in view, at every sample
         page.shot("zoomed")
+        # the toolbar's reset: the whole run again, drawn one sample in nine
+        page.page.locator(".lab-overlay .bk-tool-icon-reset").first.click()
+        page.wait(lambda: page.page.evaluate(DRAWN)[3] > 0.005, 30, "the whole run again")
+        start, end, n, dt, _ = page.page.evaluate(DRAWN)
+        assert end - start > 8.0 and dt == pytest.approx(0.009)
         page.click(".lab-try-reset")
         page.wait(lambda: "by hand" not in page.text(".lab-try-rmse"), 30, "back to the fit")
         assert page.number(".lab-try-rmse", r"rmse/noise ([\d.]+)") == fitted

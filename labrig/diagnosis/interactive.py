@@ -19,7 +19,7 @@ budget (0.1 s), at 2000 points it keeps within it.
 from __future__ import annotations
 
 import numpy as np
-from bokeh.events import RangesUpdate
+from bokeh.events import RangesUpdate, Reset
 from bokeh.layouts import column
 from bokeh.models import (BoxAnnotation, ColumnDataSource, DataRange1d, FactorRange, HoverTool,
                           Legend, LegendItem, Range1d, Span)
@@ -83,7 +83,14 @@ class RunView:
             self.figures += [f, r]
         for f in self.figures:
             f.on_event(RangesUpdate, self._zoomed)
+            f.on_event(Reset, self._reset)
         self.figures[-1].xaxis.axis_label = "time (s)"
+        # one toolbar in view, above the first figure: each figure's own, at its side, was
+        # too short to show its tools (reset hid behind "..."); the others' tools still
+        # act (the time axis is shared: a zoom or a reset on one is on all)
+        self.figures[0].toolbar_location = "above"
+        for f in self.figures[1:]:
+            f.toolbar_location = None
         self.layout = column(*self.figures, **({} if width else {"sizing_mode": "stretch_width"}))
 
     def show(self, rr: dict) -> None:
@@ -93,6 +100,8 @@ class RunView:
         same = rr["name"] == self._shown and len(t) == self._length
         if len(t) and not same:   # the same run again (a slider's move): the zoom stays
             self.x_range.start, self.x_range.end = float(t[0]), float(t[-1])
+            # (what the toolbar's reset returns to: else the first run the view showed)
+            self.x_range.reset_start, self.x_range.reset_end = float(t[0]), float(t[-1])
         self._shown, self._length, self._t = rr["name"], len(t), t
         for i, ch in enumerate(self.channels):
             c = rr["channels"].get(ch)
@@ -122,6 +131,12 @@ class RunView:
         else:
             self._draw(self._window_of(self.x_range.start, self.x_range.end))
 
+    @property
+    def drawn(self) -> slice:
+        """The samples of the run drawn now: the time in view with its margins, one in
+        ``step``."""
+        return self._window
+
     def _window_of(self, start: float, end: float) -> slice:
         """The samples drawn for the time ``start``-``end`` in view: half as much again
         either side (a short pan needs nothing new), one in ``step`` so that the view
@@ -147,6 +162,11 @@ class RunView:
             else:
                 self.sources[ch].data = {"t": self._t[window],
                                          **{k: v[window] for k, v in full.items()}}
+
+    def _reset(self, event) -> None:
+        """The toolbar's reset: the whole run (the browser resets the axes themselves)."""
+        if len(self._t):
+            self._draw(self._window_of(self._t[0], self._t[-1]))
 
     def _zoomed(self, event) -> None:
         """A zoom or a pan: the samples of the new window, if it needs others."""
