@@ -5,6 +5,8 @@ import json
 import numpy as np
 import pytest
 
+import labrig.verbs as lr
+
 from labrig.core.errors import FitDiverged
 from labrig.io.runs import read_dataset
 from labrig.diagnosis.refit import refit_with
@@ -312,6 +314,14 @@ def test_a_measured_current_starts_where_it_was(tmp_path):
         assert start["i0"] == pytest.approx((before - K * w) / R, abs=0.03)
     assert doc["params"]["L"] == pytest.approx(0.04, rel=0.05)
     assert doc["rmse_over_noise"]["current"] <= 1.1
+    # compared, the current is drawn beside the speed (the lab's hand view, a notebook's
+    # view()), at the floor; the evaluation's numbers stay the speed's
+    ev = lr.compare(tmp_path / "runs", tmp_path / "m.json")
+    for rr in ev.per_run:
+        assert rr["current"]["rmse_over_noise"] <= 1.2 and "current" not in rr["channels"]
+    view = ev.view()
+    assert view.channels == ("speed", "current") and len(view.figures) == 4
+    assert view.figures[2].title.text.startswith("current (A): fit")
 
 
 @pytest.mark.slow

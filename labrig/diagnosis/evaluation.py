@@ -14,7 +14,8 @@ import pandas as pd
 from labrig.identification.objective import Objective, adequacy, build_space
 from labrig.model.model import Model, param_keys
 from labrig.analysis.noise import Weights
-from labrig.diagnosis.residuals import autocorr, regime_table, run_residuals, worst_regime, worst_run
+from labrig.diagnosis.residuals import (autocorr, current_residual, regime_table, run_residuals,
+                                        worst_regime, worst_run)
 from labrig.core.tables import Table, fmt
 from labrig.core.display import Displayable
 from labrig.identification.result import fit_warnings
@@ -182,6 +183,9 @@ def evaluate(runs, model: Model, sigmas=None, weights: Weights | None = None,
     quanta = {ch: f.q for ch, f in obj.floors.items()}
     per_run = [run_residuals(rd, {"w": s["w"][0], "theta": s["theta"][0]}, obj.sigma_w,
                              obj.sigma_theta, quanta, detail) for rd, s in zip(obj.runs, sims)]
+    if obj.use_i:   # a measured current: drawn beside the channels, not in their numbers
+        for rr, rd, s in zip(per_run, obj.runs, sims):
+            rr["current"] = current_residual(rd, s["i"][0], obj.sigma_i)
     for rr in per_run:   # the fitted start of a run that starts in motion (its figure marks it)
         st = model.starts.get(rr["name"])
         rr["start"] = {**st, "moving": "w0" in st} if st else None

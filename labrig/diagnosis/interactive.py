@@ -34,6 +34,16 @@ REGIME_COLOURS = {"start": "#2ca02c", "reversal": "#d62728", "accel": "#ff7f0e",
 MAX_POINTS = 1000
 
 
+def drawn_channels(rr: dict) -> tuple:
+    """The channels a :class:`RunView` draws for the run ``rr``: its own, and the
+    measured current beside them where the run has one."""
+    return tuple(rr["channels"]) + (("current",) if rr.get("current") else ())
+
+
+def _channel(rr: dict, ch: str):
+    return rr.get("current") if ch == "current" else rr["channels"].get(ch)
+
+
 class RunView:
     """Figures for the channels ``channels`` of one run at a time (``show`` fills them)."""
 
@@ -104,12 +114,12 @@ class RunView:
             self.x_range.reset_start, self.x_range.reset_end = float(t[0]), float(t[-1])
         self._shown, self._length, self._t = rr["name"], len(t), t
         for i, ch in enumerate(self.channels):
-            c = rr["channels"].get(ch)
+            c = _channel(rr, ch)
             if c is None:
                 self._full.pop(ch, None)
                 continue
             self.figures[2 * i].title.text = (
-                f"{ch} ({units.get(ch, '')}): fit {c['fit_percent']:.1f} %, "
+                f"{ch} ({units.get(ch, 'A')}): fit {c['fit_percent']:.1f} %, "
                 f"rmse/noise {c['rmse_over_noise']:.2f}")
             self._full[ch] = {k: np.asarray(c[v], float) for k, v in
                               (("measured", "measured"), ("model", "simulated"),
@@ -183,7 +193,7 @@ class RunView:
 
 def run_view(rr: dict, **size) -> RunView:
     """A :class:`RunView` of the run ``rr``'s channels, drawn."""
-    view = RunView(tuple(rr["channels"]), **size)
+    view = RunView(drawn_channels(rr), **size)
     view.show(rr)
     return view
 

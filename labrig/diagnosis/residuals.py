@@ -170,6 +170,22 @@ def run_residuals(rd, sim: dict, sigma_w: float, sigma_theta: float,
     return out
 
 
+def current_residual(rd, i_sim: np.ndarray, sigma_i: float) -> dict | None:
+    """The measured armature current against the model's, in noise units, as a channel of
+    :func:`run_residuals` (None: the run has no current). Kept apart from the run's
+    ``channels``: the numbers of an evaluation (rmse/noise overall, by regime, BIC) are
+    the speed's and the position's; the current is drawn beside them."""
+    y = rd.current
+    if y is None:
+        return None
+    keep = rd.keep()
+    r = np.where(keep, (y - i_sim) / sigma_i, 0.0)
+    return {"measured": y, "simulated": i_sim, "residual": r, "sigma": sigma_i,
+            "fit_percent": fit_percent(y[keep], i_sim[keep]),
+            "rmse_over_noise": float(np.sqrt(np.mean(r[keep] ** 2))),
+            "band": Z99 / np.sqrt(len(r)), "quantum": 0.0, "quantum_kind": "ADC step"}
+
+
 def worst_run(per_run: list[dict]) -> dict:
     """The run whose worst channel is furthest from the noise floor."""
     return max(per_run, key=lambda rr: max((c["rmse_over_noise"] for c in rr["channels"].values()),

@@ -167,7 +167,7 @@ class Explorer:
         if not moved and not self._detailed:   # another run after a move: its regimes
             self.ev, self._detailed = lr.compare(self.runs(look=False), self.model), True
         rr = self.ev.run(self.run_pick.value)
-        if self._view is None or set(self._view.channels) != set(rr["channels"]):
+        if self._view is None or self._view.channels != lrf.drawn_channels(rr):
             self._view = lrf.run_view(rr)
             self.plots.objects = [pn.pane.Bokeh(self._view.layout, sizing_mode="stretch_width")]
         elif moved:

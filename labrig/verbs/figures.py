@@ -71,6 +71,14 @@ def run_view(per_run: dict, **size):
     return _view(per_run, **size)
 
 
+def drawn_channels(per_run: dict) -> tuple:
+    """The channels :func:`run_view` draws for a run: its own, and the measured current
+    beside them where the run has one."""
+    from labrig.diagnosis.interactive import drawn_channels as _channels
+
+    return _channels(per_run)
+
+
 def ladder_view(steps, **size):
     """The error ladder (a Ladder's ``to_json()["steps"]``) as an interactive Bokeh figure."""
     from labrig.diagnosis.interactive import ladder_figure
