@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import time
+from pathlib import Path
 
 import pytest
 
@@ -137,3 +138,30 @@ def test_the_ranking_forms_on_the_page_as_the_candidates_come_back(tmp_path, rig
         assert "the ranking as it forms" in _forming_html(seen)
     finally:
         st.close()
+
+
+def test_the_hand_view_in_a_notebook_is_the_library(tmp_path):
+    """``hand_view`` (the page's *Try it by hand* as a notebook component): a slider's
+    move gives ``lr.compare``'s rmse/noise for the model with that value; an effect tried
+    unfitted; *Fit from here* takes the error to the floor."""
+    import labrig.verbs as lr
+    from labrig.lab.explore import hand_view
+
+    data = str(Path(__file__).resolve().parent.parent / "data" / "sweep_default")
+    m0 = lr.model_of(lr.identify(data, seed=0))
+    ex = hand_view(data, m0)
+    assert ex.ev.metrics == lr.compare(data, m0).metrics
+    slider = next(s for s in ex.sliders.objects if "lab-param-J" in s.css_classes)
+    slider.value = slider.value * 1.5
+    moved = m0.with_value("J", ex.model.params["J"])
+    assert ex.model.params["J"] == pytest.approx(1.5 * m0.params["J"], rel=1e-9)
+    shown = float(ex.number.object.split()[2])
+    assert shown == pytest.approx(
+        lr.compare(data, moved).metrics["rmse_over_noise"]["overall"], abs=0.005)
+    assert "set by hand" in ex.number.object
+    ex.try_pick.value = "coulomb_friction"
+    ex.try_btn.clicks += 1
+    assert ex.model.names == ["coulomb_friction"] and "lab-param-coulomb-friction-tc-v" in \
+        " ".join(c for s in ex.sliders.objects for c in s.css_classes)
+    ex.fit_btn.clicks += 1
+    assert ex.ev.metrics["rmse_over_noise"]["overall"] < 1.1 and ex.model is ex.fitted

@@ -189,6 +189,25 @@ class Explorer:
             self.fit_from(self.model.to_json())
 
 
+def hand_view(source, model) -> Explorer:
+    """*Try it by hand* in a notebook: the lab page's hand view (a slider for every
+    parameter, the curves and rmse/noise redrawn as one moves, an effect tried
+    unfitted) on the runs of ``source`` (a folder or a list of folders), starting from
+    ``model`` (a Model, a model file or a fit); *Fit from here* fits in this process
+    from the hand-set values (``labrig identify --model ... --starts 1``). Display its
+    ``view`` (``pn.extension()`` first); ``model`` and ``ev`` are the hand-set model
+    and its :class:`~labrig.diagnosis.evaluation.Evaluation`."""
+    folders = [source] if isinstance(source, (str, Path)) else list(source)
+
+    def fit_from(doc):
+        start = lr.model_from_json(doc, "the hand-set model")
+        ex.set_model(lr.model_of(lr.identify(folders, model=start, starts=1)), fitted=True)
+
+    ex = Explorer(lambda: folders, fit_from)
+    ex.set_model(lr.model_of(model), fitted=True)
+    return ex
+
+
 class LiveSlider(pn.widgets.FloatSlider):
     """A slider whose every move reaches the server at once. Panel holds a widget's
     change 50 ms to gather the ones that follow (``Syncable._debounce``); here that was
