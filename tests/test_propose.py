@@ -163,6 +163,43 @@ def test_an_unpinned_threshold_gets_levels_across_the_range_not_around_its_fit(
 
 
 @pytest.mark.slow
+def test_the_smallest_dead_zone_the_proposal_separates_is_stated_and_holds(deadzone_proposal):
+    """From one amplitude the dead zone's plausible sizes run down to where it and
+    Coulomb friction are the same model: the proposal states the smallest dead zone its
+    input separates (between the smallest plausible size and the smallest it judged), and
+    the claim holds either side of it: a dead zone 1.5 times that size, fitted with its
+    size fixed, is predicted separated after the rival re-fits; one at the smallest
+    plausible size is not."""
+    import labrig.diagnosis.propose as P
+    from labrig.analysis.noise import Weights, channel_floors
+    from labrig.diagnosis.refit import fit
+    from labrig.model.reach import Reach
+    from labrig.model.simulate import prepare
+
+    _, _, runs, model, prop = deadzone_proposal
+    (s,) = prop.smallest
+    assert s["effect"] == "deadband" and s["key"] == "d_v" and not s["every_plausible_size"]
+    h = prop.hypotheses[0]
+    judged = sorted(size for size, _ in h.members[1:])
+    assert s["plausible_from"] < s["size"] < judged[0]
+    assert f"for any deadband d_v above {s['size']:.3g} V" in prop.to_text()
+    assert prop.to_json()["smallest_separable"][0]["size"] == s["size"]
+    floors = channel_floors(prepare(runs))
+    sig = {ch: floors[ch].sigma for ch in ("speed", "position")}
+    reach = Reach.of(runs, model)
+
+    def separation(size):
+        truth = fit(runs, h.model.effects, h.model.flat(), {"deadband.d_v": size}, seed=0,
+                    weights=Weights(), reach=reach, max_nfev=40).model()
+        return P.separation_after_refit(
+            runs, P.without(model, "deadband"), "coulomb_friction", truth,
+            prop.chosen.candidate, prop.template, sig, seed=0, weights=Weights(),
+            rng=np.random.default_rng([1, 2, 3]))[0]
+
+    assert separation(1.5 * s["size"]) >= 1.0 > separation(s["plausible_from"])
+
+
+@pytest.mark.slow
 def test_the_leaders_are_ranked_by_their_separation_after_the_rival_refits(deadzone_proposal):
     """Several leading inputs are re-fitted, and the one proposed is the best of them after
     the re-fit (it was the best by the naive difference, re-fitted alone, before)."""

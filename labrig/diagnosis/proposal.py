@@ -125,6 +125,23 @@ class Proposal(Displayable):
     plausible: list = field(default_factory=list)   # plausible models per hypothesis
     separates: bool = True
     advice: str = ""
+    #: per explanation judged across sizes the data cannot narrow: the smallest size the
+    #: proposed input separates (:func:`labrig.diagnosis.propose.smallest_separable`)
+    smallest: list = field(default_factory=list)
+
+    def smallest_text(self) -> str:
+        """'it separates them for any deadband d_v above 0.08 V ...', one clause each."""
+        out = []
+        for s in self.smallest:
+            if s["every_plausible_size"]:
+                out.append(f"for every {s['effect']} {s['key']} the data allow (down to "
+                           f"{s['plausible_from']:.3g} {s['unit']})")
+            else:
+                out.append(f"for any {s['effect']} {s['key']} above {s['size']:.3g} "
+                           f"{s['unit']} (the data allow {s['plausible_from']:.3g} "
+                           f"{s['unit']} and up; smaller, the two explanations differ on this "
+                           "input by less than the noise lets the decision see)")
+        return ("it separates them " + "; and ".join(out)) if out else ""
 
     def headline(self) -> str:
         if not self.separates:
@@ -188,6 +205,7 @@ class Proposal(Displayable):
                                 "why_not_judged_true": h.skipped or None}
                                for h in self.hypotheses],
                 "separates": self.separates, "advice": self.advice or None,
+                "smallest_separable": self.smallest or None,
                 "proposed": {"kind": c.candidate.kind, "label": c.candidate.label,
                              "duration_s": c.candidate.duration, "why": self.why,
                              "points": c.candidate.points,
@@ -241,7 +259,8 @@ class Proposal(Displayable):
                        f"why: {self.why}.\n"
                        f"predicted separation ({SEPARATION}) after the rival re-fits: {after} "
                        f"({DECISIVE:g} or more is decisive: the wrong one's rmse/noise at "
-                       "least twice the right one's)")
+                       "least twice the right one's)"
+                       + (f"\n{self.smallest_text()}" if self.smallest else ""))
 
     def table_rows(self) -> list[Table]:
         """The explanations' fits, and the candidate inputs by predicted separation."""

@@ -207,6 +207,53 @@ def separation_after_refit(runs, base: Model, rival: str, truth: Model, cand: In
     return max(0.0, r_rival / r_truth - 1.0), res.model()
 
 
+#: bisection steps (on a log scale) for the smallest size the proposed input separates
+SIZE_STEPS = 3
+
+
+def smallest_separable(runs, base: Model, h, rival: str, chosen, template: Run, sig: dict, *,
+                       seed: int, weights: Weights, reach) -> dict | None:
+    """The smallest size of the explanation ``h`` (judged true across the sizes the data
+    cannot exclude) at which the proposed input still separates it from ``rival``: from
+    the smallest plausible size (its best fit, not judged above) up to the smallest size
+    judged at which it separates and does at every larger one, bisected on a log scale,
+    ``h`` fitted with its size fixed at each and the rival re-fitted. The bracket's upper
+    end is reported: an input proven there. None when no judged size separates.
+
+    Below that size the two explanations differ, on this input, by less than the noise
+    lets the decision see: a threshold that small is the model without it, near enough."""
+    judged = []
+    for size, _ in h.members[1:]:
+        sep = chosen.refit.get(f"{h.effect} {h.key} = {size:.3g} {h.unit}")
+        if sep is not None:
+            judged.append((size, sep))
+    judged.sort()
+    ok = None
+    for size, sep in reversed(judged):   # the smallest size from which every one separates
+        if sep < DECISIVE:
+            break
+        ok = size
+    if ok is None:
+        return None
+    lo = min(size for size, _ in h.members)
+    out = {"effect": h.effect, "key": h.key, "unit": h.unit, "plausible_from": lo}
+
+    def separates(size, step):
+        truth = fit(runs, h.model.effects, h.model.flat(), {f"{h.effect}.{h.key}": size},
+                    seed=seed, weights=weights, reach=reach, max_nfev=40).model()
+        sep, _ = separation_after_refit(runs, base, rival, truth, chosen.candidate, template,
+                                        sig, seed=seed, weights=weights,
+                                        rng=np.random.default_rng([seed, 7, step]))
+        return sep >= DECISIVE
+
+    if lo >= ok or separates(lo, 0):
+        return {**out, "size": min(lo, ok), "every_plausible_size": True}
+    for step in range(1, SIZE_STEPS + 1):
+        mid = float(np.sqrt(lo * ok))
+        lo, ok = (lo, mid) if separates(mid, step) else (mid, ok)
+    return {**out, "size": ok, "every_plausible_size": False}
+
+
 def _truth_order(hyps) -> list:
     """``[(index in the pair, label, Model)]`` of every truth to judge, the smallest size
     of each explanation first (the hardest to tell from the rival), alternating between
@@ -366,10 +413,19 @@ def propose(runs: list[Run], model: Model, between: str | None = None, *,
         separates = chosen.worst >= DECISIVE
     else:   # neither may be the truth: nothing to design for
         chosen, separates = leaders[0], False
+    smallest = []
+    if separates:   # an explanation judged across sizes: the smallest this input separates
+        for hi, h in enumerate(hyps):
+            if not h.skipped and not h.pinned and h.key:
+                say(f"finding the smallest {h.effect} the proposed input separates")
+                found = smallest_separable(runs, base, h, pair[1 - hi], chosen, template, sig,
+                                           seed=seed, weights=weights, reach=reach)
+                if found is not None:
+                    smallest.append(found)
     prop = Proposal(pair=pair, hypotheses=hyps, judged=judged, chosen=chosen, sigmas=sig,
                     template=template, budget_s=budget_s, amax=amax,
                     seconds=time.perf_counter() - t0, plausible=[len(f) for f in family],
-                    separates=separates)
+                    separates=separates, smallest=smallest)
     if not separates:
         prop.advice = (_advice(budget_s, amax, rig, pair, chosen) if truths else
                        "neither explanation can be the truth on these data: "
