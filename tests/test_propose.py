@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from labrig.bridge.sweep import sweep
+from labrig.diagnosis.ask import ask_until_sure
 from labrig.io.experiment import Experiment
 from labrig.bridge.sim import SimRig
 from labrig.io.config import load_plan
@@ -323,6 +324,61 @@ def test_ask_the_rig_plays_the_proposal_and_decides(tmp_path):
     assert dec["leader"] == "coulomb_friction"      # the default rig hides Coulomb friction
     assert dec["separation_after"] > dec["separation_before"]
     assert (runs / "asked" / "plan.toml").exists() and (runs / "asked" / "proposed.csv").exists()
+
+
+@pytest.mark.slow
+def test_asking_until_sure_gives_the_one_shot_verdicts_with_fewer_rig_seconds(tmp_path):
+    """Sequential asking on the second simulator's pairs (dead zone or Coulomb friction,
+    each true; dead zone or stiction; delay or backlash, each true): experiments of at
+    most 5 s, each chosen on the data so far and played on the twin, until one
+    explanation wins. Every verdict is the truth (the one-shot plans' verdicts, tested
+    above), and the rig seconds used are fewer than the one-shot plans' in total and in
+    every case. Where one explanation holds the other at a size of zero (Coulomb
+    friction true, asked against stiction) nothing can decide: asking stops after two
+    experiments that show no difference, before the one-shot plan's length."""
+    used, one_shot = 0.0, 0.0
+    cases = dict(TWIN_CASES, nested=("coulomb_friction", ("coulomb_friction", "stiction"),
+                                     dict(coulomb_v=0.2)))
+    for case, (truth, pair, hidden) in cases.items():
+        twin = Twin(**hidden)
+        twin.square(tmp_path / case / "ds", amplitude=2.5)
+        runs = read_dataset(tmp_path / case / "ds")
+        model = refit_with(runs, linear_model(runs, seed=0), get_effect(pair[0]),
+                           seed=0).model()
+
+        def play(plan, k, case=case, twin=twin):
+            (tmp_path / case / f"plan{k}.toml").write_text(plan)
+            twin.play_plan(tmp_path / case / f"plan{k}.toml", tmp_path / case / f"asked{k}")
+            return read_dataset(tmp_path / case / f"asked{k}")
+
+        a = ask_until_sure(runs, model, ",".join(pair), play, budget_s=20.0, step_s=5.0,
+                           seed=0)
+        assert a.one_shot_s is not None and a.rig_seconds < a.one_shot_s + 1e-9, a.to_text()
+        if case == "nested":
+            assert not a.sure and "no difference" in a.stopped and len(a.steps) == 2
+            continue
+        assert a.sure and a.leader == truth, a.to_text()
+        assert all(s.duration_s <= 5.0 for s in a.steps)
+        used, one_shot = used + a.rig_seconds, one_shot + a.one_shot_s
+    assert used < 0.5 * one_shot
+
+
+@pytest.mark.slow
+def test_ask_the_rig_until_sure_from_the_command_line(tmp_path):
+    """`diagnose --auto --ask-rig --sim --step-s 5` on the README's two steps: short
+    experiments played into runs3/asked/step<k>/, the friction the rig hides decided,
+    the rig seconds reported against the one-shot plan's."""
+    runs = tmp_path / "runs3"
+    labrig("sweep", "--sim", "--plan", "configs/plan_two_steps.toml", "-o", runs, check=0)
+    d = json.loads(labrig("diagnose", runs, "--auto", "--ask-rig", "--sim", "--step-s", "5",
+                          "--json", check=0).stdout)
+    a = d["asked"]["asking"]
+    assert a["sure"] and a["leader"] == "coulomb_friction"
+    assert a["rig_seconds"] <= 5.0 * len(a["steps"]) and a["one_shot_seconds"] > 0
+    assert (runs / "asked" / "step1" / "plan.toml").exists()
+    assert (runs / "asked" / "step1" / "asked1.csv").exists()
+    proc = labrig("diagnose", runs, "--auto", "--step-s", "5")
+    assert proc.returncode == 2 and "--step-s: only with --ask-rig" in proc.stderr
 
 
 def test_default_pair_is_the_diagnosis_first_confusable_pair(tmp_path):

@@ -179,6 +179,11 @@ def _auto(args, runs, model, fixed, weights) -> int:
         raise UserError(f"--max-rounds: {args.max_rounds} adds nothing; give 1 or more")
     if args.ask_rig and not (args.sim or args.port):
         raise UserError("--ask-rig: say which rig to ask, --sim or --port DEV")
+    if args.step_s is not None and not args.ask_rig:
+        raise UserError("--step-s: only with --ask-rig (the length of each experiment asked)")
+    if args.step_s is not None and not 2.0 <= args.step_s <= args.budget_s:
+        raise UserError(f"--step-s: {args.step_s:g} s; give 2 s up to --budget-s "
+                        f"({args.budget_s:g} s)")
     out = Path(args.output) if args.output else None
     if out:
         refuse_existing([out] + [out / f for f in AUTO_FILES], args.force, what="folder")
@@ -217,6 +222,8 @@ def _ask_rig(args, runs, res) -> dict:
                                                      res.confusable[0].second))
     rig = lr.load_rig(args.rig)
     newdir = Path(args.data[0]) / "asked"
+    if args.step_s:
+        return _ask_until_sure(args, runs, res, f"{first},{second}", rig, newdir)
     refuse_existing([newdir, newdir / "plan.toml", newdir / "proposed.csv"], args.force,
                     what="folder")
     with Progress("ask the rig", total=None) as bar:
@@ -242,6 +249,32 @@ def _ask_rig(args, runs, res) -> dict:
             "decision": d.to_json(),
             "text": f"asked the rig: {prop.chosen.candidate.label} ({prop.why}); runs in "
                     f"{newdir}/\n{d.to_text()}"}
+
+
+def _ask_until_sure(args, runs, res, between, rig, newdir) -> dict:
+    """``--ask-rig --step-s S``: experiments of at most S seconds played one at a time
+    into DATA/asked/step<k>/, each chosen on the data so far, until one explanation wins
+    or the budget is spent."""
+    refuse_existing([newdir], args.force, what="folder")
+    make, _, _ = lr.open_bridge(rig, port=None if args.sim else args.port)
+
+    def play(plan, k):
+        folder = newdir / f"step{k}"
+        if folder.exists():   # --force: the earlier asking's step is replaced
+            for old in folder.iterdir():
+                old.unlink()
+        folder.mkdir(parents=True, exist_ok=True)
+        atomic_write(folder / "plan.toml", plan)
+        lr.play(make(), lr.load_plan(folder / "plan.toml", rig), rig, folder)
+        return lr.read_runs(folder, through=None)
+
+    with Progress("ask the rig", total=None) as bar:
+        asking = lr.ask_until_sure(runs, res.model, between, play, budget_s=args.budget_s,
+                                   step_s=args.step_s, seed=args.seed, rig=rig, through=None,
+                                   rig_amplitude=False, progress=bar.hook)
+    return {"pair": list(asking.pair), "asking": asking.to_json(), "folder": str(newdir),
+            "decision": asking.decision.to_json() if asking.decision else None,
+            "text": f"{asking.to_text()}\nruns in {newdir}/step<k>/"}
 
 
 def _configure_diagnose(p):
@@ -273,6 +306,11 @@ def _configure_diagnose(p):
                                  "configs/rig_default.toml")
     p.add_argument("--budget-s", type=float, default=20.0,
                    help="--ask-rig: at most this many seconds of new data (default 20)")
+    p.add_argument("--step-s", type=float, default=None,
+                   help="--ask-rig: ask until sure, in experiments of at most this many "
+                        "seconds played one at a time (each chosen on the data so far; it "
+                        "stops as soon as one explanation wins), instead of one plan of the "
+                        "whole budget")
     p.add_argument("--full", action="store_true", help="re-fit every candidate to the end "
                    "(default: one that stalls without gaining is screened out early)")
     _last_options(p, "replace an existing -o file")

@@ -169,12 +169,14 @@ class Proposal(Displayable):
                 "points": [[float(t), float(u)] for t, u in self.chosen.candidate.points],
                 "between": list(self.pair)}
 
-    def to_toml(self) -> str:
-        """The plan file: an ordinary plan with one ``pwl`` experiment."""
-        if not self.separates:
+    def to_toml(self, name: str = "proposed", step: bool = False) -> str:
+        """The plan file: an ordinary plan with one ``pwl`` experiment named ``name``.
+        ``step``: a step of a sequence (:mod:`labrig.diagnosis.ask`), written even when
+        it is not predicted to decide alone (the evidence adds up)."""
+        if not self.separates and not (step and self.chosen.refit):
             raise UserError(f"no input within {self.budget_s:g} s separates {self.pair[0]} "
                             f"and {self.pair[1]}; {self.advice}")
-        e = self.experiment()
+        e = self.experiment(name)
         a, b = self.pair
         lim = self.limits
         lines = [f"# Proposed by `labrig propose`: the experiment that best tells {a} and {b} "

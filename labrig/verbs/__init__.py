@@ -37,8 +37,9 @@ from labrig.verbs.data import (check_plan, drive_units, effect, effects, import_
                                parse_effects, plan_files, read_runs, runs_for_fit, runs_of)
 from labrig.verbs.fit import (add_effect, analyse, compare, identify, ladder, remove_effect,
                               set_by_hand, try_effect)
-from labrig.verbs.loop import (auto, auto_ladder, channel_weights, confusable_pairs, decide,
-                               diagnose, pair_from_diagnosis, propose, proposed_as, warm_up)
+from labrig.verbs.loop import (ask_until_sure, auto, auto_ladder, channel_weights,
+                               confusable_pairs, decide, diagnose, pair_from_diagnosis, propose,
+                               proposed_as, warm_up)
 from labrig.verbs.mystery import (blind, check_mystery, format_check, format_reveal,
                                   new_mystery, reveal, write_mystery)
 
@@ -54,6 +55,7 @@ __all__ = [
     "ladder",
     # the loop
     "diagnose", "auto", "auto_ladder", "channel_weights", "confusable_pairs", "propose",
+    "ask_until_sure",
     "proposed_as", "pair_from_diagnosis", "decide", "warm_up",
     # mystery rigs
     "new_mystery", "write_mystery", "reveal", "check_mystery", "blind", "format_reveal",

@@ -115,18 +115,44 @@ def propose(source, model, between: str | None = None, *, budget_s: float = 20.0
     largest input does). Returns a :class:`~labrig.diagnosis.proposal.Proposal`;
     ``to_toml()`` is the plan.
     """
-    from labrig.io.config import RigConfig, load_rig
     from labrig.diagnosis.propose import propose as _propose
 
-    amax = None
-    if rig is not None:
-        rig = rig if isinstance(rig, RigConfig) else load_rig(rig)
-        if rig_amplitude:
-            amax = min(rig.bridge.output_limit_v,
-                       rig.amplifier.output_limit_v / rig.amplifier.gain)
+    rig, amax = _rig_limit(rig, rig_amplitude)
     return _propose(read_runs(source, through=through), model_of(model), between,
                     budget_s=budget_s, amax=amax, seed=seed, rig=rig,
                     log=both(log, note(progress, "propose")))
+
+
+def ask_until_sure(source, model, between: str, play, *, budget_s: float = 20.0,
+                   step_s: float = 5.0, seed: int = SEED, rig=None,
+                   through: str | None = "auto", rig_amplitude: bool = True, log=None,
+                   progress=None):
+    """Ask the rig until sure: experiments of at most ``step_s`` seconds, each the best
+    for the data so far, played one at a time by ``play(plan_toml, k) -> runs`` and
+    judged after each (the decision's fits and margin), until one explanation of
+    ``between`` (``"a,b"``) wins or ``budget_s`` seconds are spent. ``rig`` and
+    ``rig_amplitude`` as :func:`propose`'s. Returns an
+    :class:`~labrig.diagnosis.ask.Asking`: the steps, the rig seconds used and the
+    one-shot plan's."""
+    from labrig.diagnosis.ask import ask_until_sure as _ask
+
+    rig, amax = _rig_limit(rig, rig_amplitude)
+    return _ask(read_runs(source, through=through), model_of(model), between, play,
+                budget_s=budget_s, step_s=step_s, seed=seed, amax=amax, rig=rig,
+                log=both(log, note(progress, "ask")))
+
+
+def _rig_limit(rig, rig_amplitude: bool):
+    """The rig (a file read, or as given) and the input limit it sets (None: the data's
+    largest input)."""
+    from labrig.io.config import RigConfig, load_rig
+
+    if rig is None:
+        return None, None
+    rig = rig if isinstance(rig, RigConfig) else load_rig(rig)
+    amax = (min(rig.bridge.output_limit_v, rig.amplifier.output_limit_v / rig.amplifier.gain)
+            if rig_amplitude else None)
+    return rig, amax
 
 
 def proposed_as(name: str) -> str:
