@@ -402,6 +402,38 @@ def test_ask_the_rig_from_the_page(browser, tmp_path):
     assert list((folder / "asked").glob("proposed_1.csv"))
 
 
+def test_ask_until_sure_from_the_page(browser, tmp_path):
+    """Ask the rig until sure on the page: the worker's job has the page's rig play each
+    short experiment (streamed like a sweep) into asked/step<k>/, the verdict after each
+    step shown as it comes, then the result: the friction the rig hides, in fewer rig
+    seconds than the one-shot plan."""
+    folder = tmp_path / "steps"
+    labrig("sweep", "--sim", "--plan", ROOT / "configs" / "plan_two_steps.toml", "-o", folder,
+           check=0)
+    server = Server(folder, "--fast")
+    try:
+        page = Page(browser, server.url)
+        page.fit_the_linear_model()
+        page.page.get_by_text("Ask the rig", exact=True).click()
+        page.wait(lambda: not page.page.locator(".lab-ask-sure button").first.is_disabled(),
+                  120, "Ask until sure to be enabled")
+        page.click(".lab-ask-sure")
+        seen = []
+        page.wait(lambda: seen.append(page.text(".lab-asking")) or
+                  "asked until sure" in seen[-1], 600, "the asking's result")
+        assert any("the rig is playing it" in t for t in seen)   # each step streamed in
+        text = page.text(".lab-asking")
+        assert "sure: coulomb_friction explains the data" in text, text
+        used, one = map(float, re.search(r"([\d.]+) s of rig time \(the one-shot plan: "
+                                         r"([\d.]+) s\)", text).groups())
+        assert used <= one
+        page.shot("ask_until_sure")
+        page.close()
+    finally:
+        server.stop()
+    assert list((folder / "asked" / "step1").glob("step1.csv"))
+
+
 def test_a_closed_page_stops_the_rig(browser, tmp_path):
     """The page that drives a sweep is closed mid-sweep: the server ends that session and
     the sweep stops (STOP, ZERO), keeping the finished runs; no more runs appear."""

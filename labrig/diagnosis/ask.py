@@ -134,7 +134,8 @@ def ask_until_sure(runs, model: Model, between: str, play, *, budget_s: float = 
     model : Model
         The current model; the pair's effects are swapped in and out of it.
     play : callable(plan_toml: str, k: int) -> list of Run
-        Plays the plan of step ``k`` (1, 2, ...) on the rig and returns its runs.
+        Plays the plan of step ``k`` (1, 2, ...) on the rig and returns its runs (none:
+        the rig was stopped, and asking ends with the steps finished).
     amax, rig :
         As :func:`labrig.diagnosis.propose.propose`'s.
 
@@ -178,6 +179,9 @@ def ask_until_sure(runs, model: Model, between: str, play, *, budget_s: float = 
         plan = prop.to_toml(name=f"asked{k}", step=True)
         say(f"step {k}: playing {c.candidate.label} ({c.candidate.duration:.1f} s)")
         new = play(plan, k)
+        if not new:   # the rig was stopped: every finished step is kept
+            out.stopped = f"the rig was stopped during step {k}"
+            break
         data += new
         d = decide(data, model, seed=seed)
         out.steps.append(AskStep(c.candidate.label, float(c.candidate.duration), c.worst, d))

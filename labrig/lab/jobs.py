@@ -143,6 +143,21 @@ def propose(folders, model_doc, between: str) -> dict:
             "figure": _png(prop.plot()), "pair": list(prop.pair)}
 
 
+def ask_until_sure(folders, model_doc, between: str, step_s: float = 5.0,
+                   budget_s: float = 20.0, log=None, ask_rig=None) -> dict:
+    """Ask the rig until sure: short experiments, each played by the page on the rig
+    (``ask_rig``: it answers with the folder of the step's runs, or that the student
+    stopped the rig) and judged after each; ``log`` hears every step."""
+    def play(plan, k):
+        answer = ask_rig({"plan": plan, "k": k})
+        return [] if answer.get("stopped") else lr.read_runs(answer["folder"])
+
+    a = lr.ask_until_sure(_runs(folders), _model(model_doc), between, play,
+                          budget_s=budget_s, step_s=step_s, seed=LAB_SEED, log=log)
+    return {"json": a.to_json(), "text": a.to_text(), "leader": a.leader,
+            "tables": _html(a.table_rows())}
+
+
 def decide(folders, model_doc) -> dict:
     """Both explanations fitted with and without the proposed runs."""
     d = lr.decide(_runs(folders), _model(model_doc), seed=LAB_SEED)

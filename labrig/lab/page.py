@@ -162,8 +162,13 @@ class LabPage:
         self.prediction = pn.pane.Markdown("", css_classes=["lab-prediction"])
         self.decision = pn.pane.HTML("", css_classes=["lab-decision"])
         self.ask_note = pn.pane.Markdown("", css_classes=["lab-ask-note"])
-        self._drivers += [self.propose_btn, self.predict_btn, self.play_btn]
-        return pn.Column(pn.Row(self.pair_pick, self.propose_btn), self.ask_note, self.proposal,
+        self.sure_btn = pn.widgets.Button(name="Ask until sure (experiments of 5 s)",
+                                          css_classes=["lab-ask-sure"])
+        self.sure_btn.on_click(lambda e: self._do(self.st.ask_until_sure, self.pair_pick.value))
+        self.asking = pn.pane.HTML("", sizing_mode="stretch_width", css_classes=["lab-asking"])
+        self._drivers += [self.propose_btn, self.predict_btn, self.play_btn, self.sure_btn]
+        return pn.Column(pn.Row(self.pair_pick, self.propose_btn, self.sure_btn), self.ask_note,
+                         self.asking, self.proposal,
                          pn.Row(self.which, self.why, self.predict_btn, self.play_btn),
                          pn.Row(self.prediction, self.decision), sizing_mode="stretch_width")
 
@@ -262,6 +267,8 @@ class LabPage:
                   self.start, self.explore.fit_btn):
             w.disabled = not idle
         self.propose_btn.disabled = not idle or not self.pair_pick.options
+        self.sure_btn.disabled = self.propose_btn.disabled
+        _set(self.asking, _asking_html(st))
         self.cancel_btn.disabled = not self.owner or not busy
         self.play_btn.disabled = (not self.owner or busy or st.sweeping or st.proposal is None
                                   or st.proposal.get("plan") is None or st.prediction is None)
@@ -429,6 +436,21 @@ def _set(pane, text: str) -> None:
     """A pane's text, sent to the browser only when it changed (ten refreshes a second)."""
     if pane.object != text:
         pane.object = text
+
+
+def _asking_html(st: Station) -> str:
+    """Asking until sure: each step's verdict as it comes (the job's lines), then the
+    result; a Stop ends it with every finished step kept."""
+    if st.worker.busy and st.worker.name == "ask":
+        steps = [line for line in st.log if line.startswith("step ")]
+        live = " (the rig is playing it: Stop keeps every finished step)" if st.sweeping else ""
+        return ("<p><b>asking the rig until sure</b>" + live + "</p><pre>"
+                + _esc("\n".join(steps[-8:]) or "the one-shot plan first, for comparison")
+                + "</pre>")
+    if st.asking:
+        return ("<p><b>asked until sure:</b></p><pre style=\"white-space:pre-wrap\">"
+                + _esc(st.asking["text"]) + "</pre>")
+    return ""
 
 
 def _why_not(st: Station, pairs: bool) -> str:

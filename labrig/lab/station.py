@@ -72,6 +72,9 @@ class Station:
         self.proposal: dict | None = None
         self.prediction: dict | None = None
         self.decision: dict | None = None
+        #: asking until sure: the finished job's result, and the step the rig plays now
+        self.asking: dict | None = None
+        self._rig_request: tuple | None = None   # (folder the step's runs go to)
         self.error = ""
         self.log: list[str] = []
         #: the running job's events (a candidate re-fitted or cross-validated, a rung)
@@ -163,10 +166,15 @@ class Station:
 
     # -- the loop --------------------------------------------------------------------
     def folders(self) -> list[Path]:
-        out = [self.folder]
-        if (self.folder / "asked").is_dir() and any((self.folder / "asked").glob("*.csv")):
-            out.append(self.folder / "asked")
-        return out
+        """The station's folder, and the runs asked of the rig (``asked/``, and one
+        folder per step of an asking until sure, ``asked/step<k>/``)."""
+        asked = self.folder / "asked"
+        if not asked.is_dir():
+            return [self.folder]
+        steps = sorted(asked.glob("step*"), key=lambda d: int(d.name[4:] or 0)
+                       if d.name[4:].isdigit() else 0)
+        return [self.folder] + [d for d in [asked, *steps]
+                                if d.is_dir() and any(d.glob("*.csv"))]
 
     def busy(self) -> bool:
         """A click must wait: a job runs, other than the background drawing of overlays
@@ -235,8 +243,50 @@ class Station:
     def decide(self) -> None:
         self.submit("decide", jobs.decide, self.folders(), self.model())
 
+    def ask_until_sure(self, between: str, step_s: float = 5.0) -> None:
+        """Short experiments played one at a time, judged after each (the worker's job
+        asks the rig for each step: :meth:`_play_step`), until one explanation wins."""
+        if self.sweeping:
+            raise LabrigError("a sweep is running; Stop it first")
+        self.asking = None
+        self.submit("ask", jobs.ask_until_sure, self.folders(), self.model(), between,
+                    step_s=step_s)
+
+    def _play_step(self, request: dict) -> None:
+        """The worker's job asks the rig to play a step: into ``asked/step<n>/`` (the
+        next free number), streamed like any sweep; :meth:`poll` answers once it ends."""
+        asked = self.folder / "asked"
+        n = 1
+        while (asked / f"step{n}").exists():
+            n += 1
+        folder = asked / f"step{n}"
+        folder.mkdir(parents=True)
+        plan_file = folder / "plan.toml"
+        # the run is named after its folder: names stay unique across askings
+        plan_file.write_text(request["plan"].replace(f'name = "asked{request["k"]}"',
+                                                     f'name = "step{n}"'))
+        self._rig_request = (folder,)
+        try:
+            self.start_sweep(lr.load_plan(plan_file, self.rig), into=folder)
+        except LabrigError:
+            self._rig_request = None
+            self.worker.reply({"stopped": True})
+            raise
+
+    def _answer_rig(self) -> None:
+        """A step the rig played has ended: its runs (or that it was stopped) go back to
+        the worker's job."""
+        if self._rig_request is None or self.sweeping:
+            return
+        (folder,), self._rig_request = self._rig_request, None
+        done = any(folder.glob("*.csv"))
+        self.worker.reply({"folder": str(folder)} if done else {"stopped": True})
+
     def cancel(self) -> None:
         self._queued = None
+        if self._rig_request is not None:   # the step being played stops too (at 0 V)
+            self.stop()
+            self._rig_request = None
         self.worker.cancel()
         self.error = "cancelled"
 
@@ -246,7 +296,14 @@ class Station:
     def poll(self) -> bool:
         """Take in a finished job's result; True when something changed."""
         for item in self.worker.logs():   # lines to read, events to show as they come
+            if isinstance(item, dict) and item.get("kind") == "rig":
+                try:
+                    self._play_step(item)
+                except LabrigError as exc:
+                    self.error = str(exc).splitlines()[0]
+                continue
             (self.stream if isinstance(item, dict) else self.log).append(item)
+        self._answer_rig()
         done = self.worker.poll()
         if done is None:
             return False
@@ -286,6 +343,8 @@ class Station:
             self.proposal = value
         elif name == "decide":
             self.decision = value
+        elif name == "ask":
+            self.asking = value
         return True
 
     def _submit_queued(self) -> None:

@@ -3,7 +3,10 @@ numba kernels run (they hold the interpreter lock), and Cancel can end a fit at 
 
 Built on the standard library's ``multiprocessing.Pool`` (spawn: no state inherited from
 the server); Cancel terminates the pool and starts a fresh one. A job may report progress
-lines through ``log``: they arrive on :meth:`Worker.logs`.
+lines through ``log``: they arrive on :meth:`Worker.logs`. A job that must have the rig
+play something (the rig belongs to the page's process) asks through ``ask_rig``: the
+request arrives on :meth:`Worker.logs` as an event of kind ``rig``, and the job waits for
+the page's :meth:`Worker.reply`.
 """
 from __future__ import annotations
 
@@ -14,11 +17,12 @@ import time
 from labrig.core.memory import keep_freed_memory
 
 _LOG = None     # the worker's end of the log queue (set by _init in the worker)
+_REPLIES = None  # the page's answers to a job's requests of the rig
 
 
-def _init(queue) -> None:
-    global _LOG
-    _LOG = queue
+def _init(queue, replies) -> None:
+    global _LOG, _REPLIES
+    _LOG, _REPLIES = queue, replies
     # a spawned process has the parent's environment (one BLAS thread) but not its
     # allocator setting: without it every fit's arrays are faulted in afresh, and the
     # page's fits ran up to twice as long as the command line's
@@ -31,9 +35,18 @@ def _init(queue) -> None:
     warnings.simplefilter("ignore", RuntimeWarning)  # wild candidates overflow on purpose
 
 
+def _ask_rig(request: dict):
+    """From a job: have the page play ``request`` on the rig, and wait for its answer."""
+    _LOG.put({"kind": "rig", **request})
+    return _REPLIES.get()
+
+
 def _call(fn, args, kw):
-    if "log" in inspect.signature(fn).parameters:
+    params = inspect.signature(fn).parameters
+    if "log" in params:
         kw = {**kw, "log": _LOG.put}
+    if "ask_rig" in params:
+        kw = {**kw, "ask_rig": _ask_rig}
     return fn(*args, **kw)
 
 
@@ -55,6 +68,7 @@ class Worker:
     def __init__(self):
         self._ctx = multiprocessing.get_context("spawn")
         self._queue = self._ctx.Queue()
+        self._replies = self._ctx.Queue()
         self._pool = None
         self._job = None
         self.name = ""
@@ -62,7 +76,7 @@ class Worker:
         self._start()
 
     def _start(self) -> None:
-        self._pool = self._ctx.Pool(1, initializer=_init, initargs=(self._queue,))
+        self._pool = self._ctx.Pool(1, initializer=_init, initargs=(self._queue, self._replies))
         self._pool.apply_async(_warm)
 
     @property
@@ -102,15 +116,25 @@ class Worker:
             out.append(item if isinstance(item, dict) else str(item))
         return out
 
+    def reply(self, answer) -> None:
+        """The page's answer to the running job's request of the rig."""
+        self._replies.put(answer)
+
     def cancel(self) -> None:
         """End the running job at once (the process is terminated) and start afresh."""
         self._pool.terminate()
         self._pool.join()
         self._job = None
+        while not self._replies.empty():   # an answer the ended job never read
+            try:
+                self._replies.get_nowait()
+            except Exception:
+                break
         self._start()
 
     def close(self) -> None:
         self._pool.terminate()
         self._pool.join()
-        self._queue.close()
-        self._queue.join_thread()
+        for q in (self._queue, self._replies):
+            q.close()
+            q.join_thread()
