@@ -165,3 +165,33 @@ def test_the_hand_view_in_a_notebook_is_the_library(tmp_path):
         " ".join(c for s in ex.sliders.objects for c in s.css_classes)
     ex.fit_btn.clicks += 1
     assert ex.ev.metrics["rmse_over_noise"]["overall"] < 1.1 and ex.model is ex.fitted
+
+
+@pytest.mark.slow
+def test_asking_until_sure_stopped_mid_step_keeps_what_was_finished(tmp_path):
+    """Ask until sure on the station, stopped while its first step plays on the rig (in
+    real time): the step ends without a run (a run on disk is never half-written), the
+    asking ends saying where it was stopped, and the folders the loop fits are the
+    station's own, unchanged."""
+    from conftest import labrig
+    from labrig.lab.serve import make_station
+
+    folder = tmp_path / "runs"
+    labrig("sweep", "--sim", "--plan", Path(__file__).resolve().parent.parent / "configs" /
+           "plan_two_steps.toml", "-o", folder, check=0)
+    st = make_station(folder)
+    try:
+        st.fit_linear()
+        _poll_until(st, st.idle)
+        pair = ",".join(st.diagnosis["pairs"][0]["pair"])
+        st.ask_until_sure(pair)
+        _poll_until(st, lambda: st.sweeping)     # the first step plays
+        time.sleep(1.0)
+        st.stop()
+        _poll_until(st, lambda: st.asking is not None)
+        assert "the rig was stopped during step 1" in st.asking["text"]
+        assert not st.asking["json"]["steps"] and not st.asking["json"]["sure"]
+        assert not list((folder / "asked" / "step1").glob("*.csv"))
+        assert st.folders() == [folder]
+    finally:
+        st.close()
