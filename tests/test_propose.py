@@ -364,6 +364,30 @@ def test_asking_until_sure_gives_the_one_shot_verdicts_with_fewer_rig_seconds(tm
 
 
 @pytest.mark.slow
+def test_a_pair_with_an_open_ended_effect_is_proposed_and_asked(tmp_path):
+    """Beyond threshold pairs: a dead zone against a smooth curve of the command (the
+    open-ended input_curve, which could bend into a dead zone's shape or a soft rail's),
+    from the twin's 2.5 V square wave with a 0.55 V dead zone. The one-shot plan is
+    proposed, and asking until sure decides for the dead zone (the curve's rmse/noise at
+    least twice the dead zone's) in fewer rig seconds than that plan."""
+    twin = Twin(deadzone_v=0.55)
+    twin.square(tmp_path / "ds", amplitude=2.5)
+    runs = read_dataset(tmp_path / "ds")
+    model = refit_with(runs, linear_model(runs, seed=0), get_effect("deadband"), seed=0).model()
+
+    def play(plan, k):
+        (tmp_path / f"plan{k}.toml").write_text(plan)
+        twin.play_plan(tmp_path / f"plan{k}.toml", tmp_path / f"asked{k}")
+        return read_dataset(tmp_path / f"asked{k}")
+
+    a = ask_until_sure(runs, model, "deadband,input_curve", play, budget_s=20.0, step_s=5.0,
+                       seed=0)
+    assert a.one_shot_s is not None          # the one-shot proposal separates them too
+    assert a.sure and a.leader == "deadband", a.to_text()
+    assert a.rig_seconds < a.one_shot_s
+
+
+@pytest.mark.slow
 def test_ask_the_rig_until_sure_from_the_command_line(tmp_path):
     """`diagnose --auto --ask-rig --sim --step-s 5` on the README's two steps: short
     experiments played into runs3/asked/step<k>/, the friction the rig hides decided,
