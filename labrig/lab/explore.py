@@ -209,11 +209,15 @@ def hand_view(source, model) -> Explorer:
 
 
 class LiveSlider(pn.widgets.FloatSlider):
-    """A slider whose every move reaches the server at once. Panel holds a widget's
-    change 50 ms to gather the ones that follow (``Syncable._debounce``); here that was
-    half the 0.1 s a move may take to redraw. Moves that arrive while one is handled are
-    still gathered into one (Panel's own queue of pending events), so a drag never
-    queues more than one re-simulation. Panel's Tabulator does the same for its data."""
+    """A slider whose every move is handled at the next turn of the server's loop.
+    Panel waits 50 ms after a widget's change (``Syncable._debounce``) to gather the
+    ones that follow: half the 0.1 s a move may take to redraw. Moves that arrive while
+    one is handled are still gathered into one (Panel's queue of pending events), so a
+    drag never queues more than one re-simulation. The change is handled as a timeout
+    callback of the session, under the document's lock, so the curves are redrawn from
+    it directly (``Explorer.redraw(moved=True)``). (Panel's ``_priority_changes``, the
+    other way to skip the wait, handles the change without the lock: Bokeh refused the
+    curves' change from there.)"""
 
     _debounce = 0
 
