@@ -13,8 +13,8 @@ without building new figures.
 What is drawn is the samples in view, at most :data:`MAX_POINTS` per line (every
 sample once the student zooms in that far): a zoom or a pan asks for the samples of
 the new window. A slider's move sends only the model's columns of that window: a
-browser re-drawing six 1 kHz lines of 8500 points took longer than the move's whole
-budget (0.1 s), at 2000 points it keeps within it.
+browser re-drawing six lines of 8500 points (a 1 kHz run) took most of the move's whole
+budget (0.1 s); at 1000, about one per pixel of the page's figure, it keeps within it.
 """
 from __future__ import annotations
 
