@@ -1,13 +1,15 @@
 """The lab page as a student meets it, in headless Chromium: how soon it is interactive
-after launch, how far the live view lags a 1 kHz run, and a click's fits against the
-same command line.
+after launch, how far the live view lags a 1 kHz run, a click's fits against the same
+command line, and a slider's move to the changed number and curves (timed in the page:
+from the key's event to the frame after both have changed).
 
     python benchmarks/bench_lab.py             # one run (~3 min), writes results_lab.json
     python benchmarks/bench_lab.py --markdown  # the README rows of results_lab.json
 
 Targets (docs: issue "The lab station in the browser"): interactive within 3 s of launch
 (warm cache), the live view at most 0.5 s behind a 1 kHz run, a click's re-fit as long as
-the CLI's. Measured, never asserted.
+the CLI's; issue "The loop in your hands": a slider's move within 0.1 s (median).
+Measured, never asserted.
 """
 from __future__ import annotations
 
