@@ -284,6 +284,8 @@ class LabPage:
 
     _asked = False
     _live_shown = None
+    _drawn_diagnosis = None
+    _drawn_ladder = None
 
     def _state(self) -> tuple:
         st = self.st
@@ -305,12 +307,18 @@ class LabPage:
                 self.run_pick.options = runs
                 self.run_pick.value = r["worst"]
             self._show_overlay()
-            self.rm_pick.options = list(r["effects"])
             if self._explored is not r:   # a new rung: the sliders start from its fit
                 self._explored = r
+                self.rm_pick.options = list(r["effects"])
                 self.explore.set_model(r["model"], fitted=True)
-        if st.diagnosis:
-            d = st.diagnosis
+        # the diagnosis and the ladder are drawn once each, when they arrive: redrawn on
+        # every change of state (an overlay arriving) they reset the student's picks and
+        # replaced the ranking under a click
+        if st.diagnosis is None and self._drawn_diagnosis is not None:
+            self._drawn_diagnosis = None
+            self.pair_pick.options = []   # nothing to ask about until the next diagnosis
+        if st.diagnosis and st.diagnosis is not self._drawn_diagnosis:
+            d = self._drawn_diagnosis = st.diagnosis
             adds = [row["effect"] for row in d["rows"] if row.get("move", "add") == "add"]
             self.add_pick.options = adds
             self.rep_new.options = list(dict.fromkeys(
@@ -330,7 +338,8 @@ class LabPage:
             fig.on_event("tap", lambda event, fig=fig: self._on_tap(fig, event))
             self.ranking_plot.object = fig
             self.pair_pick.options = [",".join(p["pair"]) for p in d["pairs"]]
-        if st.ladder:
+        if st.ladder and st.ladder is not self._drawn_ladder:
+            self._drawn_ladder = st.ladder
             self.ladder_plot.object = lrf.ladder_view(st.ladder["json"]["steps"])
             self.ladder.object = "".join(st.ladder["tables"])
         if st.proposal:
