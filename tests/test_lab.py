@@ -427,6 +427,9 @@ def test_ask_until_sure_from_the_page(browser, tmp_path):
         used, one = map(float, re.search(r"([\d.]+) s of rig time \(the one-shot plan: "
                                          r"([\d.]+) s\)", text).groups())
         assert used <= one
+        # both explanations drawn on the step's run, their errors in the legend
+        page.wait(lambda: page.page.locator(".lab-asking-plot canvas").count() >= 1, 30,
+                  "both explanations drawn")
         page.shot("ask_until_sure")
         page.close()
     finally:

@@ -123,7 +123,7 @@ class Asking(Displayable):
 
 def ask_until_sure(runs, model: Model, between: str, play, *, budget_s: float = 20.0,
                    step_s: float = 5.0, seed: int = 0, amax: float | None = None, rig=None,
-                   log=None) -> Asking:
+                   log=None, on_step=None) -> Asking:
     """Play experiments of at most ``step_s`` seconds one at a time until the pair
     ``between`` (``"a,b"``) is decided or ``budget_s`` seconds of rig time are spent.
 
@@ -138,6 +138,9 @@ def ask_until_sure(runs, model: Model, between: str, play, *, budget_s: float = 
         the rig was stopped, and asking ends with the steps finished).
     amax, rig :
         As :func:`labrig.diagnosis.propose.propose`'s.
+    on_step : callable(AskStep, runs), optional
+        Each step as it is judged, with the runs it played (its decision's ``models``
+        are both explanations fitted to everything so far: what a figure draws).
 
     Returns
     -------
@@ -185,6 +188,8 @@ def ask_until_sure(runs, model: Model, between: str, play, *, budget_s: float = 
         data += new
         d = decide(data, model, seed=seed)
         out.steps.append(AskStep(c.candidate.label, float(c.candidate.duration), c.worst, d))
+        if on_step is not None:
+            on_step(out.steps[-1], new)
         say(f"step {k}: separation {Decision.separation(d.after):.2f}, {d.leader} ahead")
         if out.sure:
             out.stopped = "decided"

@@ -5,7 +5,7 @@
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from labrig.core.display import Displayable
 from labrig.core.errors import UserError
@@ -25,6 +25,8 @@ class Decision(Displayable):
     before: dict          # effect -> rmse/noise on the runs without the proposed ones
     after: dict           # effect -> rmse/noise on all runs
     new_runs: list
+    #: effect -> its model fitted to all runs (what a figure draws on the new runs)
+    models: dict = field(default_factory=dict, repr=False)
 
     @staticmethod
     def separation(r: dict) -> float:
@@ -110,4 +112,4 @@ def decide(runs: list[Run], model: Model | None = None, *, seed: int = 0, log=No
             prev[name] = fit_.model()
             res[name] = float(fit_.metrics["rmse_over_noise"]["overall"])
         out[label] = res
-    return Decision(pair, out["before"], out["after"], [r.name for r in new])
+    return Decision(pair, out["before"], out["after"], [r.name for r in new], dict(prev))

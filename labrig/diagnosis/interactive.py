@@ -191,6 +191,46 @@ class RunView:
             self._draw(window)
 
 
+#: the two explanations of a pair, as the decision's figures colour them
+PAIR_COLOURS = ("#d62728", "#1f77b4")
+
+
+def pair_view(evaluations: dict, run: str | None = None, width: int | None = None,
+              height: int = 200):
+    """Two explanations of a pair on one run (``evaluations``: ``{effect: Evaluation}``
+    of the same runs; ``run``: default the last): the measurement and each
+    explanation's model per channel, its rmse/noise on those runs in the legend, time
+    axes linked. What the lab page redraws after each experiment asked of the rig (on
+    that experiment's run)."""
+    size = dict(width=width) if width else dict(sizing_mode="stretch_width")
+    evs = list(evaluations.items())
+    first = evs[0][1]
+    name = run or first.per_run[-1]["name"]
+    rr0 = first.run(name)
+    t = np.asarray(rr0["t"], float)
+    step = max(1, -(-len(t) // MAX_POINTS))
+    x_range = Range1d(float(t[0]), float(t[-1]) if len(t) > 1 else 1.0)
+    figs = []
+    for ch, c0 in rr0["channels"].items():
+        f = figure(height=height, x_range=x_range, tools="xpan,xwheel_zoom,box_zoom,reset",
+                   active_scroll="xwheel_zoom", title=f"{name}: {ch}", **size)
+        items = [LegendItem(label="measured", renderers=[f.line(
+            t[::step], np.asarray(c0["measured"], float)[::step], color="#404040",
+            line_width=1.2)])]
+        for (effect, ev), colour in zip(evs, PAIR_COLOURS):
+            c = ev.run(name)["channels"][ch]
+            r = f.line(t[::step], np.asarray(c["simulated"], float)[::step], color=colour,
+                       line_width=1.4, line_dash="dashed")
+            items.append(LegendItem(label=f"{effect} (rmse/noise "
+                                          f"{ev.metrics['rmse_over_noise']['overall']:.2f})",
+                                    renderers=[r]))
+        f.add_layout(Legend(items=items, location="top_left", orientation="horizontal"),
+                     "above")
+        figs.append(f)
+    figs[-1].xaxis.axis_label = "time (s)"
+    return column(*figs, **({} if width else {"sizing_mode": "stretch_width"}))
+
+
 def run_view(rr: dict, **size) -> RunView:
     """A :class:`RunView` of the run ``rr``'s channels, drawn."""
     view = RunView(drawn_channels(rr), **size)

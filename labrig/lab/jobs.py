@@ -148,12 +148,25 @@ def ask_until_sure(folders, model_doc, between: str, step_s: float = 5.0,
     """Ask the rig until sure: short experiments, each played by the page on the rig
     (``ask_rig``: it answers with the folder of the step's runs, or that the student
     stopped the rig) and judged after each; ``log`` hears every step."""
+    folders_played = {}
+
     def play(plan, k):
         answer = ask_rig({"plan": plan, "k": k})
-        return [] if answer.get("stopped") else lr.read_runs(answer["folder"])
+        if answer.get("stopped"):
+            return []
+        folders_played[k] = answer["folder"]
+        return lr.read_runs(answer["folder"])
+
+    def on_step(step, runs):   # both explanations, as fitted now: the page draws them
+        if log is not None:
+            log({"kind": "ask_step", "k": len(folders_played), "label": step.label,
+                 "folder": folders_played[max(folders_played)],
+                 "models": {e: m.to_json() for e, m in step.decision.models.items()},
+                 "after": dict(step.decision.after)})
 
     a = lr.ask_until_sure(_runs(folders), _model(model_doc), between, play,
-                          budget_s=budget_s, step_s=step_s, seed=LAB_SEED, log=log)
+                          budget_s=budget_s, step_s=step_s, seed=LAB_SEED, log=log,
+                          on_step=on_step)
     return {"json": a.to_json(), "text": a.to_text(), "leader": a.leader,
             "tables": _html(a.table_rows())}
 

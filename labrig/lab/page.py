@@ -18,6 +18,7 @@ from bokeh.plotting import figure
 
 from labrig.core.display import png_html as _img
 from labrig.core.errors import LabrigError
+import labrig.verbs as lr
 import labrig.verbs.figures as lrf
 from labrig.lab.explore import Explorer, under_lock
 from labrig.lab.plan_form import PlanForm
@@ -166,9 +167,12 @@ class LabPage:
                                           css_classes=["lab-ask-sure"])
         self.sure_btn.on_click(lambda e: self._do(self.st.ask_until_sure, self.pair_pick.value))
         self.asking = pn.pane.HTML("", sizing_mode="stretch_width", css_classes=["lab-asking"])
+        # both explanations on the last step's run, redrawn after each step
+        self.asking_plot = pn.pane.Bokeh(None, sizing_mode="stretch_width",
+                                         css_classes=["lab-asking-plot"])
         self._drivers += [self.propose_btn, self.predict_btn, self.play_btn, self.sure_btn]
         return pn.Column(pn.Row(self.pair_pick, self.propose_btn, self.sure_btn), self.ask_note,
-                         self.asking, self.proposal,
+                         self.asking, self.asking_plot, self.proposal,
                          pn.Row(self.which, self.why, self.predict_btn, self.play_btn),
                          pn.Row(self.prediction, self.decision), sizing_mode="stretch_width")
 
@@ -269,6 +273,7 @@ class LabPage:
         self.propose_btn.disabled = not idle or not self.pair_pick.options
         self.sure_btn.disabled = self.propose_btn.disabled
         _set(self.asking, _asking_html(st))
+        self._show_asked_step()
         self.cancel_btn.disabled = not self.owner or not busy
         self.play_btn.disabled = (not self.owner or busy or st.sweeping or st.proposal is None
                                   or st.proposal.get("plan") is None or st.prediction is None)
@@ -284,6 +289,23 @@ class LabPage:
 
     _asked = False
     _live_shown = None
+    _asked_drawn = None
+
+    def _show_asked_step(self) -> None:
+        """After each step asked of the rig: both explanations, as fitted to everything
+        so far, drawn on that step's run (the library's comparison of each)."""
+        steps = [e for e in self.st.stream if e.get("kind") == "ask_step"]
+        if not steps or steps[-1] is self._asked_drawn:
+            return
+        e = self._asked_drawn = steps[-1]
+        try:
+            runs = lr.read_runs([e["folder"]])
+            evs = {name: lr.compare(runs, lr.model_from_json(doc, "the asked step's model"))
+                   for name, doc in e["models"].items()}
+        except LabrigError as exc:
+            self._show_error(str(exc))
+            return
+        self.asking_plot.object = lrf.pair_view(evs)
     _drawn_diagnosis = None
     _drawn_ladder = None
 
@@ -414,6 +436,7 @@ def _forming_html(stream: list[dict]) -> str:
     """The rungs the search has climbed so far, and the candidates of the round under
     way (re-fitted since the last rung), best first, with their held-out error once
     known."""
+    stream = [e for e in stream if e["kind"] in ("rung", "fitted", "validated")]
     rungs = [e for e in stream if e["kind"] == "rung"]
     last = max((i for i, e in enumerate(stream) if e["kind"] == "rung"), default=-1)
     seen: dict = {}

@@ -79,6 +79,14 @@ def drawn_channels(per_run: dict) -> tuple:
     return _channels(per_run)
 
 
+def pair_view(evaluations: dict, run: str | None = None, **size):
+    """Two explanations of a pair on one run, as interactive Bokeh figures
+    (``evaluations``: ``{effect: Evaluation}`` of the same runs, from :func:`compare`)."""
+    from labrig.diagnosis.interactive import pair_view as _view
+
+    return _view(evaluations, run, **size)
+
+
 def ladder_view(steps, **size):
     """The error ladder (a Ladder's ``to_json()["steps"]``) as an interactive Bokeh figure."""
     from labrig.diagnosis.interactive import ladder_figure

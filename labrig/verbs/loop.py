@@ -126,20 +126,20 @@ def propose(source, model, between: str | None = None, *, budget_s: float = 20.0
 def ask_until_sure(source, model, between: str, play, *, budget_s: float = 20.0,
                    step_s: float = 5.0, seed: int = SEED, rig=None,
                    through: str | None = "auto", rig_amplitude: bool = True, log=None,
-                   progress=None):
+                   progress=None, on_step=None):
     """Ask the rig until sure: experiments of at most ``step_s`` seconds, each the best
     for the data so far, played one at a time by ``play(plan_toml, k) -> runs`` and
     judged after each (the decision's fits and margin), until one explanation of
     ``between`` (``"a,b"``) wins or ``budget_s`` seconds are spent. ``rig`` and
-    ``rig_amplitude`` as :func:`propose`'s. Returns an
-    :class:`~labrig.diagnosis.ask.Asking`: the steps, the rig seconds used and the
-    one-shot plan's."""
+    ``rig_amplitude`` as :func:`propose`'s; ``on_step(step, runs)`` hears each step as
+    it is judged. Returns an :class:`~labrig.diagnosis.ask.Asking`: the steps, the rig
+    seconds used and the one-shot plan's."""
     from labrig.diagnosis.ask import ask_until_sure as _ask
 
     rig, amax = _rig_limit(rig, rig_amplitude)
     return _ask(read_runs(source, through=through), model_of(model), between, play,
                 budget_s=budget_s, step_s=step_s, seed=seed, amax=amax, rig=rig,
-                log=both(log, note(progress, "ask")))
+                log=both(log, note(progress, "ask")), on_step=on_step)
 
 
 def _rig_limit(rig, rig_amplitude: bool):
