@@ -108,7 +108,7 @@ def test_the_ranking_forms_on_the_page_as_the_candidates_come_back(tmp_path, rig
     with its held-out error: the page's ranking forms before the job ends, and ends with
     the numbers of the finished diagnosis."""
     from conftest import sim_dataset, square_plan
-    from labrig.lab.page import _forming_html
+    from labrig.lab.words import forming_html
     from labrig.lab.serve import make_station
 
     folder = sim_dataset(tmp_path, rig, square_plan(amps=(1.2, 1.6, 2.0), periods=1), seed=1)
@@ -135,7 +135,7 @@ def test_the_ranking_forms_on_the_page_as_the_candidates_come_back(tmp_path, rig
             if row["cross_validated"] is not None:
                 assert last["cross_validated"] == pytest.approx(row["cross_validated"],
                                                                 rel=1e-12)
-        assert "the ranking as it forms" in _forming_html(seen)
+        assert "the ranking as it forms" in forming_html(seen)
     finally:
         st.close()
 

@@ -23,6 +23,8 @@ import labrig.verbs.figures as lrf
 from labrig.lab.explore import Explorer, under_lock
 from labrig.lab.plan_form import PlanForm
 from labrig.lab.station import Station, as_array
+from labrig.lab.words import (asking_html, esc, evidence_html, forming_html, set_text,
+                              why_not)
 
 #: display refresh period (ms): at least 10 updates per second
 REFRESH_MS = 100
@@ -242,12 +244,12 @@ class LabPage:
                              "speed": as_array(live.speed) if live.speed else as_array(live.t) * 0,
                              "pos": as_array(live.pos) if live.pos else as_array(live.t) * 0}
         c = live.counters
-        _set(self.counters, (
+        set_text(self.counters, (
             f"**{live.name or 'no run yet'}** · samples {live.samples}/{live.n_planned} · gaps "
             f"{c.get('dropped_samples', 0)} · CRC errors {c.get('crc_errors', 0)} · "
             f"retries {c.get('retries', 0)}" + (" · **running**" if st.sweeping else "")))
-        _set(self.sweep_note, st.sweep_note)
-        _set(self.runs_list, "runs in the folder: " + (", ".join(st.runs_on_disk()) or "none"))
+        set_text(self.sweep_note, st.sweep_note)
+        set_text(self.runs_list, "runs in the folder: " + (", ".join(st.runs_on_disk()) or "none"))
         if self.owner and st.poll():
             self._show_loop()
         elif self._seen != self._state():
@@ -256,7 +258,7 @@ class LabPage:
         self.progress.visible = self.progress.active = busy
         self._show_stream()
         rungs = [line for line in st.log if line.startswith("rung ")]
-        _set(self.status, (
+        set_text(self.status, (
             f"working: {st.worker.name} ({time.monotonic() - st.worker.started:.0f} s)"
             + "".join(f"  \n{line}" for line in rungs[-6:])
             + (f"  \n{st.log[-1].splitlines()[0]}" if st.log and st.log[-1] not in rungs[-6:]
@@ -272,12 +274,12 @@ class LabPage:
             w.disabled = not idle
         self.propose_btn.disabled = not idle or not self.pair_pick.options
         self.sure_btn.disabled = self.propose_btn.disabled
-        _set(self.asking, _asking_html(st))
+        set_text(self.asking, asking_html(st))
         self._show_asked_step()
         self.cancel_btn.disabled = not self.owner or not busy
         self.play_btn.disabled = (not self.owner or busy or st.sweeping or st.proposal is None
                                   or st.proposal.get("plan") is None or st.prediction is None)
-        note = _why_not(st, bool(self.pair_pick.options))
+        note = why_not(st, bool(self.pair_pick.options))
         if self.ask_note.object != note:
             self.ask_note.object = note
         if st.proposal and st.prediction and not st.sweeping and st.written \
@@ -353,7 +355,7 @@ class LabPage:
                 self.rm_pick.value = rec["replaces"] or rec["effect"]
                 if rec["move"] == "replace":
                     self.rep_new.value = rec["effect"]
-            self.evidence.object = _evidence_html(d)
+            self.evidence.object = evidence_html(d)
             self.show_pick.options = [row["label"] for row in d["rows"] if row.get("model")]
             fig = lrf.ranking_view(d["rows"])
             # a click on a candidate's row: the click's y is the row (factor k spans k..k+1)
@@ -367,13 +369,13 @@ class LabPage:
         if st.proposal:
             p = st.proposal
             self.proposal.object = (_img(p["figure"], 1100) + "<pre style=\"white-space:pre-wrap\">"
-                                    + _esc(p["text"]) + "</pre>")
+                                    + esc(p["text"]) + "</pre>")
             self.which.options = list(p["pair"])
         if st.prediction:
             pr = st.prediction
             self.prediction.object = f"**your prediction:** {pr['which']} — {pr['why']}"
         if st.decision:
-            self.decision.object = ("<b>the rig says:</b> " + _esc(st.decision["text"])
+            self.decision.object = ("<b>the rig says:</b> " + esc(st.decision["text"])
                                     + "".join(st.decision.get("tables", [])))
 
     def _on_tap(self, fig, event) -> None:
@@ -406,7 +408,7 @@ class LabPage:
         if len(st.stream) < self._streamed:   # a new job: its own stream
             self._streamed = 0
         if not st.stream:
-            _set(self.forming, "")
+            set_text(self.forming, "")
             return
         if len(st.stream) == self._streamed:
             return
@@ -414,7 +416,7 @@ class LabPage:
         if rungs:   # (several since the last look: the newest is the one to draw)
             self.explore.set_model(rungs[-1]["model"], fitted=True)
         self._streamed = len(st.stream)
-        self.forming.object = _forming_html(st.stream)
+        self.forming.object = forming_html(st.stream)
 
     _streamed = 0
 
@@ -427,100 +429,6 @@ class LabPage:
         if self.run_pick.value in pngs:
             self.overlay.object = _img(pngs[self.run_pick.value])
             return
-        self.overlay.object = f"<p>drawing the model on {_esc(self.run_pick.value)}…</p>"
+        self.overlay.object = f"<p>drawing the model on {esc(self.run_pick.value)}…</p>"
         if self.owner and self.st.idle():   # a Cancel stopped the drawing: again
             self.st.draw_overlays()
-
-
-def _forming_html(stream: list[dict]) -> str:
-    """The rungs the search has climbed so far, and the candidates of the round under
-    way (re-fitted since the last rung), best first, with their held-out error once
-    known."""
-    stream = [e for e in stream if e["kind"] in ("rung", "fitted", "validated")]
-    rungs = [e for e in stream if e["kind"] == "rung"]
-    last = max((i for i, e in enumerate(stream) if e["kind"] == "rung"), default=-1)
-    seen: dict = {}
-    for e in stream[last + 1:]:
-        row = seen.setdefault(e["label"], {"rmse": e["rmse_over_noise"], "cv": None})
-        if e["kind"] == "validated":
-            row["cv"] = e["cross_validated"]
-    html = ""
-    if rungs:
-        rows = "".join(f"<tr><td>{_esc(e['label'])}</td><td>{_num(e['rmse_over_noise'])}</td>"
-                       f"<td>{_num(e['cross_validated'])}</td></tr>" for e in rungs)
-        html = ("<p><b>the search so far</b></p><table class='lab-table'><tr><th>rung</th>"
-                f"<th>rmse/noise</th><th>cross-validated</th></tr>{rows}</table>")
-    if seen:
-        rows = "".join(f"<tr><td>{_esc(k)}</td><td>{_num(v['rmse'])}</td>"
-                       f"<td>{_num(v['cv'])}</td></tr>"
-                       for k, v in sorted(seen.items(), key=lambda kv: kv[1]["rmse"]))
-        html += (f"<p><b>the ranking as it forms ({len(seen)} re-fitted)</b></p>"
-                 "<table class='lab-table lab-forming-ranking'><tr><th>candidate</th>"
-                 f"<th>rmse/noise</th><th>cross-validated</th></tr>{rows}</table>")
-    return html
-
-
-def _num(x) -> str:
-    return "…" if x is None else f"{x:.2f}"
-
-
-def _set(pane, text: str) -> None:
-    """A pane's text, sent to the browser only when it changed (ten refreshes a second)."""
-    if pane.object != text:
-        pane.object = text
-
-
-def _asking_html(st: Station) -> str:
-    """Asking until sure: each step's verdict as it comes (the job's lines), then the
-    result; a Stop ends it with every finished step kept."""
-    if st.worker.busy and st.worker.name == "ask":
-        steps = [line for line in st.log if line.startswith("step ")]
-        live = " (the rig is playing it: Stop keeps every finished step)" if st.sweeping else ""
-        return ("<p><b>asking the rig until sure</b>" + live + "</p><pre>"
-                + _esc("\n".join(steps[-8:]) or "the one-shot plan first, for comparison")
-                + "</pre>")
-    if st.asking:
-        return ("<p><b>asked until sure:</b></p><pre style=\"white-space:pre-wrap\">"
-                + _esc(st.asking["text"]) + "</pre>")
-    return ""
-
-
-def _why_not(st: Station, pairs: bool) -> str:
-    """Why the Ask tab's next button cannot act yet, in a sentence ('' when it can)."""
-    if st.diagnosis is None:
-        return "Fit and diagnose a model first (The loop): the pairs to ask about come from it."
-    if not pairs:
-        return ("The diagnosis has no two explanations that fit equally well: nothing to ask "
-                "the rig.")
-    if st.proposal is None:
-        return ""
-    if st.proposal.get("plan") is None:
-        return ("No input within the budget separates the pair, so there is nothing to play "
-                "(the proposal says what would).")
-    if st.prediction is None:
-        return "Record which explanation you expect, and why, to play the experiment."
-    return ""
-
-
-def _esc(text: str) -> str:
-    from html import escape
-
-    return escape(text)
-
-
-def _evidence_html(d: dict) -> str:
-    """The catalogue as diagnose ranked it, with its evidence and physics sentence."""
-    head = ("<tr><th>effect</th><th>rmse/noise</th><th>dBIC</th><th>cross-validated</th>"
-            "<th>folds</th><th>supported</th><th>confusable with</th><th>what it is</th></tr>")
-    rows = []
-    for r in d["rows"]:
-        cv = "-" if r["cross_validated"] is None else f"{r['cross_validated']:.2f}"
-        sup = ("yes" if r["supported"] else "no") + (" (at bound)" if r["at_bound"] else "") \
-            + (" (screened out)" if r.get("screened") else "")
-        rows.append(f"<tr><td><b>{_esc(r.get('label', r['effect']))}</b></td><td>{r['rmse_over_noise']:.2f}</td>"
-                    f"<td>{r['delta_bic']:.0f}</td><td>{cv}</td><td>{r['folds']}</td>"
-                    f"<td>{sup}</td><td>{_esc(', '.join(r['confusable_with']))}</td>"
-                    f"<td>{_esc(r['physics'])}</td></tr>")
-    rec = d["recommendation"] or "none"
-    return (f"<p><b>recommendation: {_esc(rec)}</b></p><table class='lab-table'>{head}"
-            + "".join(rows) + f"</table><p>{_esc(d['verdict'])}</p>")
