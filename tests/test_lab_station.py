@@ -169,10 +169,10 @@ def test_the_hand_view_in_a_notebook_is_the_library(tmp_path):
 
 @pytest.mark.slow
 def test_asking_until_sure_stopped_mid_step_keeps_what_was_finished(tmp_path):
-    """Ask until sure on the station, stopped while its first step plays on the rig (in
-    real time): the step ends without a run (a run on disk is never half-written), the
-    asking ends saying where it was stopped, and the folders the loop fits are the
-    station's own, unchanged."""
+    """Ask until sure on the station, its page closed while the first step plays on the
+    rig (in real time): the rig is stopped, the step ends without a run (a run on disk is
+    never half-written), the asking's job is answered at once and ends saying where it was
+    stopped, and the folders the loop fits are the station's own, unchanged."""
     from conftest import labrig
     from labrig.lab.serve import make_station
 
@@ -184,10 +184,12 @@ def test_asking_until_sure_stopped_mid_step_keeps_what_was_finished(tmp_path):
         st.fit_linear()
         _poll_until(st, st.idle)
         pair = ",".join(st.diagnosis["pairs"][0]["pair"])
+        st.claim("page")
         st.ask_until_sure(pair)
         _poll_until(st, lambda: st.sweeping)     # the first step plays
         time.sleep(1.0)
-        st.stop()
+        st.release("page")                       # the page closed
+        assert not st.sweeping and st._rig_request is None
         _poll_until(st, lambda: st.asking is not None)
         assert "the rig was stopped during step 1" in st.asking["text"]
         assert not st.asking["json"]["steps"] and not st.asking["json"]["sure"]

@@ -101,6 +101,7 @@ class Station:
         """A closed page or a lost connection: stop the rig safely, free the station."""
         if self.owner == session:
             self.stop()
+            self._answer_rig()   # an asking's step was playing: its job ends now, not later
             self.owner = None
 
     # -- acquisition -----------------------------------------------------------------
