@@ -372,7 +372,9 @@ def test_the_search_shows_itself_as_it_climbs(browser, tmp_path):
         server.stop()
 
 
-def test_ask_the_rig_from_the_page(browser, tmp_path):
+def _two_steps_on_the_ask_tab(browser, tmp_path):
+    """The README's two steps from rest served, the linear model fitted, the Ask tab
+    open: (folder, server, page)."""
     folder = tmp_path / "steps"
     labrig("sweep", "--sim", "--plan", ROOT / "configs" / "plan_two_steps.toml", "-o", folder,
            check=0)
@@ -381,6 +383,15 @@ def test_ask_the_rig_from_the_page(browser, tmp_path):
         page = Page(browser, server.url)
         page.fit_the_linear_model()
         page.page.get_by_text("Ask the rig", exact=True).click()
+    except BaseException:
+        server.stop()
+        raise
+    return folder, server, page
+
+
+def test_ask_the_rig_from_the_page(browser, tmp_path):
+    folder, server, page = _two_steps_on_the_ask_tab(browser, tmp_path)
+    try:
         page.click(".lab-propose")
         page.idle()
         assert "proposed:" in page.text(".lab-proposal")
@@ -407,14 +418,8 @@ def test_ask_until_sure_from_the_page(browser, tmp_path):
     short experiment (streamed like a sweep) into asked/step<k>/, the verdict after each
     step shown as it comes, then the result: the friction the rig hides, in fewer rig
     seconds than the one-shot plan."""
-    folder = tmp_path / "steps"
-    labrig("sweep", "--sim", "--plan", ROOT / "configs" / "plan_two_steps.toml", "-o", folder,
-           check=0)
-    server = Server(folder, "--fast")
+    folder, server, page = _two_steps_on_the_ask_tab(browser, tmp_path)
     try:
-        page = Page(browser, server.url)
-        page.fit_the_linear_model()
-        page.page.get_by_text("Ask the rig", exact=True).click()
         page.wait(lambda: not page.page.locator(".lab-ask-sure button").first.is_disabled(),
                   120, "Ask until sure to be enabled")
         page.click(".lab-ask-sure")
