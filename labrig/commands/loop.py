@@ -40,7 +40,10 @@ def cmd_compare(args):
     if args.save_model:
         refuse_existing([args.save_model], args.force)
     if hand:
-        model = lr.set_by_hand(runs, model, hand)
+        try:
+            model = lr.set_by_hand(runs, model, hand)
+        except UserError as exc:   # the verb names the parameter; the command, its option
+            raise UserError(f"--set: {exc}") from None
     ev = lr.compare(runs, model, through=None)
     out.mkdir(parents=True, exist_ok=True)
     table = ev.runs()

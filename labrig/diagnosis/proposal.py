@@ -62,8 +62,11 @@ class Hypothesis:
             return []
         if self.pinned:
             return [(self.effect, self.model)]
-        return [(f"{self.effect} {self.key} = {s:.3g} {self.unit}", m)
-                for s, m in self.members[1:]]
+        return [(self.label(s), m) for s, m in self.members[1:]]
+
+    def label(self, size: float) -> str:
+        """How a truth of this explanation at ``size`` is named ('deadband d_v = 0.25 V')."""
+        return f"{self.effect} {self.key} = {size:.3g} {self.unit}"
 
     def describe_size(self) -> str:
         if not self.key:

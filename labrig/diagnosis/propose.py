@@ -224,7 +224,7 @@ def smallest_separable(runs, base: Model, h, rival: str, chosen, template: Run, 
     lets the decision see: a threshold that small is the model without it, near enough."""
     judged = []
     for size, _ in h.members[1:]:
-        sep = chosen.refit.get(f"{h.effect} {h.key} = {size:.3g} {h.unit}")
+        sep = chosen.refit.get(h.label(size))
         if sep is not None:
             judged.append((size, sep))
     judged.sort()

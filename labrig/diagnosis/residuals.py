@@ -153,16 +153,12 @@ def run_residuals(rd, sim: dict, sigma_w: float, sigma_theta: float,
                            ("position", rd.theta, sim["theta"], sigma_theta)):
         if y is None:
             continue
-        r = np.where(keep, (y - yh) / sig, 0.0)  # a sample the link lost is no evidence
-        out["channels"][ch] = c = {
-            "measured": y, "simulated": yh, "residual": r, "sigma": sig,
-            "fit_percent": fit_percent(y[keep], yh[keep]),
-            "rmse_over_noise": float(np.sqrt(np.mean(r[keep] ** 2)))}
+        c = out["channels"][ch] = _residual(y, yh, sig, keep)
         if detail:
+            r = c["residual"]
             c.update(stretches=stretches(r, labels, width), autocorr=autocorr(r),
                      crosscorr=crosscorr(r, rd.u))
-        c.update({"band": Z99 / np.sqrt(len(r)),
-                  "quantum": float(quanta.get(ch) or 0.0),
+        c.update({"quantum": float(quanta.get(ch) or 0.0),
                   "quantum_kind": "encoder count" if ch == "position" and
                   getattr(rd, "pos_q", 0.0) > 0 else
                   "count over the speed's window" if ch == "speed" and
@@ -170,20 +166,25 @@ def run_residuals(rd, sim: dict, sigma_w: float, sigma_theta: float,
     return out
 
 
+def _residual(y, yh, sig, keep) -> dict:
+    """One channel measured against the model: the residual in noise units (a sample the
+    link lost is no evidence: 0), fit %, rmse/noise over the kept samples, the band."""
+    r = np.where(keep, (y - yh) / sig, 0.0)
+    return {"measured": y, "simulated": yh, "residual": r, "sigma": sig,
+            "fit_percent": fit_percent(y[keep], yh[keep]),
+            "rmse_over_noise": float(np.sqrt(np.mean(r[keep] ** 2))),
+            "band": Z99 / np.sqrt(len(r))}
+
+
 def current_residual(rd, i_sim: np.ndarray, sigma_i: float) -> dict | None:
     """The measured armature current against the model's, in noise units, as a channel of
     :func:`run_residuals` (None: the run has no current). Kept apart from the run's
     ``channels``: the numbers of an evaluation (rmse/noise overall, by regime, BIC) are
     the speed's and the position's; the current is drawn beside them."""
-    y = rd.current
-    if y is None:
+    if rd.current is None:
         return None
-    keep = rd.keep()
-    r = np.where(keep, (y - i_sim) / sigma_i, 0.0)
-    return {"measured": y, "simulated": i_sim, "residual": r, "sigma": sigma_i,
-            "fit_percent": fit_percent(y[keep], i_sim[keep]),
-            "rmse_over_noise": float(np.sqrt(np.mean(r[keep] ** 2))),
-            "band": Z99 / np.sqrt(len(r)), "quantum": 0.0, "quantum_kind": "ADC step"}
+    return {**_residual(rd.current, i_sim, sigma_i, rd.keep()), "quantum": 0.0,
+            "quantum_kind": "ADC step"}
 
 
 def worst_run(per_run: list[dict]) -> dict:

@@ -148,19 +148,19 @@ def ask_until_sure(folders, model_doc, between: str, step_s: float = 5.0,
     """Ask the rig until sure: short experiments, each played by the page on the rig
     (``ask_rig``: it answers with the folder of the step's runs, or that the student
     stopped the rig) and judged after each; ``log`` hears every step."""
-    folders_played = {}
+    played = []   # the folders of the steps played, in order
 
     def play(plan, k):
         answer = ask_rig({"plan": plan, "k": k})
         if answer.get("stopped"):
             return []
-        folders_played[k] = answer["folder"]
+        played.append(answer["folder"])
         return lr.read_runs(answer["folder"])
 
     def on_step(step, runs):   # both explanations, as fitted now: the page draws them
         if log is not None:
-            log({"kind": "ask_step", "k": len(folders_played), "label": step.label,
-                 "folder": folders_played[max(folders_played)],
+            log({"kind": "ask_step", "k": len(played), "label": step.label,
+                 "folder": played[-1],
                  "models": {e: m.to_json() for e, m in step.decision.models.items()},
                  "after": dict(step.decision.after)})
 

@@ -172,8 +172,8 @@ class Station:
         asked = self.folder / "asked"
         if not asked.is_dir():
             return [self.folder]
-        steps = sorted(asked.glob("step*"), key=lambda d: int(d.name[4:] or 0)
-                       if d.name[4:].isdigit() else 0)
+        steps = sorted((d for d in asked.glob("step*") if d.name[4:].isdigit()),
+                       key=lambda d: int(d.name[4:]))
         return [self.folder] + [d for d in [asked, *steps]
                                 if d.is_dir() and any(d.glob("*.csv"))]
 
