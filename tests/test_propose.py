@@ -9,7 +9,8 @@ from labrig.bridge.sweep import sweep
 from labrig.diagnosis.ask import ask_until_sure
 from labrig.io.experiment import Experiment
 from labrig.bridge.sim import SimRig
-from labrig.io.config import load_plan
+from labrig.io.config import load_plan, load_rig
+from labrig.diagnosis.inputs import loop_gains
 from labrig.diagnosis.diagnose import linear_model
 from labrig.core.errors import ConfigError
 from labrig.model.effects import get_effect
@@ -294,6 +295,80 @@ def test_propose_cli_writes_a_plan_the_sweep_plays(tmp_path):
     assert meta["experiment"]["between"] == ["deadband", "coulomb_friction"]
     again = labrig("propose", tmp_path / "ds", "--model", tmp_path / "m.json", "-o", out)
     assert again.returncode == 2 and "--force" in again.stderr
+
+
+# -- closed-loop plans: position steps through the rig's own loop -----------------------
+
+@pytest.mark.slow
+@pytest.mark.parametrize("case", ["deadzone", "backlash"])
+def test_a_closed_loop_plan_separates_the_pair_on_the_twins_loop(tmp_path, case):
+    """The issue's rig (one 2.5 V square wave, a 0.55 V dead zone) and the gap, with a rig
+    file that has the MS150's analog loop: ``loop="closed"`` proposes position steps (the
+    loop's reference, kp 2 and kv 0.15 from the rig file's standard loop, each step's
+    drive kp r within the data's 2.5 V); played through the second simulator's own loop
+    (tests/twin.py: its pot and tacho close it) and decided, the truth wins by at least
+    two (the wrong explanation's rmse/noise over the right one's)."""
+    truth, pair, _ = TWIN_CASES[case]
+    twin, runs, model = _twin_start(tmp_path, case)
+    prop = propose(runs, model, ",".join(pair), budget_s=20.0, seed=0, loop="closed",
+                   rig=load_rig(), amax=2.5)
+    assert prop.separates, prop.to_text()
+    c = prop.chosen.candidate
+    assert c.kind == "position_steps" and c.gains == {"kp": 2.0, "kv": 0.15}
+    assert max(abs(u) for _, u in c.points) * c.gains["kp"] <= 2.5 + 1e-9
+    assert 'loop = "closed"' in prop.to_toml() and "position_gain = 2.0" in prop.to_toml()
+    assert "the rig's own loop" in prop.why
+    d = _play_and_decide(tmp_path, twin, prop, model)
+    new = read_dataset(tmp_path / "ds" / "new")[0]
+    assert new.loop == "closed" and new.gains == {"kp": 2.0, "kv": 0.15}
+    wrong = next(e for e in pair if e != truth)
+    assert d.leader == truth, d.to_text()
+    assert d.after[wrong] >= 2.0 * d.after[truth], d.to_text()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("case", ["deadzone", "backlash"])
+def test_asking_until_sure_through_the_loop(tmp_path, case):
+    """The same two rigs asked until sure with closed-loop steps of at most 5 s: the
+    truth decided (rmse/noise at most half the other's) in fewer rig seconds than the
+    one-shot closed-loop plan."""
+    truth, pair, _ = TWIN_CASES[case]
+    twin, runs, model = _twin_start(tmp_path, case)
+
+    def play(plan, k):
+        (tmp_path / f"plan{k}.toml").write_text(plan)
+        twin.play_plan(tmp_path / f"plan{k}.toml", tmp_path / f"asked{k}")
+        return read_dataset(tmp_path / f"asked{k}")
+
+    a = ask_until_sure(runs, model, ",".join(pair), play, budget_s=20.0, step_s=5.0, seed=0,
+                       rig=load_rig(), amax=2.5, loop="closed")
+    assert a.sure and a.leader == truth, a.to_text()
+    assert all("through the loop" in s.label for s in a.steps)
+    assert a.rig_seconds < a.one_shot_s, a.to_text()
+
+
+def test_closed_loop_plans_need_the_loop_in_the_data_or_the_rig_file(tmp_path):
+    """The gains come from a closed-loop run of the data (the default sweep's), else from a
+    rig file with the analog loop (a tacho and a pot); an encoder rig's digital loop, or
+    neither, gives none: `propose --loop closed` then says how to get one, exit 2, and
+    writes nothing; `--loop` without --ask-rig is refused by diagnose."""
+    assert loop_gains(read_dataset("data/sweep_default"), None) == {"kp": 2.0, "kv": 0.15}
+    assert loop_gains([], load_rig()) == {"kp": 2.0, "kv": 0.15}
+    enc = load_rig()
+    enc.sensors.encoder_counts_per_unit = 1000.0
+    assert loop_gains([], enc) is None and loop_gains([], None) is None
+    twin = Twin(deadzone_v=0.55)
+    twin.square(tmp_path / "ds", amplitude=2.5)
+    labrig("identify", tmp_path / "ds", "--effects", "deadband", "--starts", "1", "-o",
+           tmp_path / "m.json", check=0)
+    out = tmp_path / "plan.toml"
+    proc = labrig("propose", tmp_path / "ds", "--model", tmp_path / "m.json", "--between",
+                  "deadband,coulomb_friction", "--loop", "closed", "-o", out)
+    assert proc.returncode == 2 and "--loop closed" in proc.stderr, proc.stderr
+    assert "closed-loop run" in proc.stderr and "Traceback" not in proc.stderr
+    assert not out.exists() and not out.with_suffix(".png").exists()
+    proc = labrig("diagnose", tmp_path / "ds", "--auto", "--loop", "any")
+    assert proc.returncode == 2 and "--loop: only with --ask-rig" in proc.stderr
 
 
 @pytest.mark.parametrize("args, message", [

@@ -105,8 +105,11 @@ class Twin:
         dw = (self.K * i - self.B * w - self._friction(w)) / self.J
         return (di, dw, w)
 
-    def play(self, u: np.ndarray) -> dict:
-        """The input per sample (V, held between samples) -> sensor volts per sample."""
+    def play(self, u: np.ndarray, gains: dict | None = None) -> dict:
+        """The input per sample (V, held between samples) -> sensor volts per sample.
+        With ``gains`` ({"kp", "kv"}) the input is the reference of the MS150's analog
+        position loop: amplifier input = kp (ref - pot) - kv tacho, the pot read from where
+        the run starts (the bridge's delay is on its output, outside the loop)."""
         dac = 10.0 / 4096
         u = np.round(np.clip(u, -5.0, 5.0) / dac) * dac
         n, dt, sub = len(u), 1.0 / self.fs, 4
@@ -122,7 +125,11 @@ class Twin:
             for j in range(sub):
                 t = k * dt + j * h - lag   # the input the armature sees now
                 kk = int(math.floor(t * self.fs + 1e-9))
-                va = self._armature(u[kk] if kk >= 0 else 0.0)
+                r = u[kk] if kk >= 0 else 0.0
+                if gains is not None:
+                    pot = (load if self.gap_rad > 0.0 else x[2] / self.N) * self.kpot
+                    r = gains["kp"] * (r - pot) - gains["kv"] * self.kt * x[1]
+                va = self._armature(r)
                 k1 = self._deriv(x, va)
                 k2 = self._deriv(tuple(a + 0.5 * h * b for a, b in zip(x, k1)), va)
                 k3 = self._deriv(tuple(a + 0.5 * h * b for a, b in zip(x, k2)), va)
@@ -141,15 +148,25 @@ class Twin:
         return {"u": u, "tacho": q(tacho), "pos": q(pot), "theta": th_out}
 
     # -- files -------------------------------------------------------------------------
-    def record(self, folder, name: str, u: np.ndarray, experiment: dict) -> Path:
-        """Play ``u`` and write the run as ``folder/name.csv`` + ``.json``."""
+    def record(self, folder, name: str, u: np.ndarray, experiment: dict,
+               gains: dict | None = None) -> Path:
+        """Play ``u`` and write the run as ``folder/name.csv`` + ``.json`` (with ``gains``,
+        a closed-loop run: ``u`` is the reference, recorded as ``ref`` too)."""
         folder = _folder(folder)
-        y = self.play(u)
+        y = self.play(u, gains)
         t = np.arange(len(u)) / self.fs
-        _write_csv(folder / f"{name}.csv", "t,u,tacho,pos", "{:.6f},{:.6f},{:.6f},{:.6f}",
-                   t, y["u"], y["tacho"], y["pos"])
+        if gains is None:
+            _write_csv(folder / f"{name}.csv", "t,u,tacho,pos", "{:.6f},{:.6f},{:.6f},{:.6f}",
+                       t, y["u"], y["tacho"], y["pos"])
+            loop = {"loop": "open"}
+        else:
+            _write_csv(folder / f"{name}.csv", "t,u,tacho,pos,ref",
+                       "{:.6f},{:.6f},{:.6f},{:.6f},{:.6f}", t, y["u"], y["tacho"], y["pos"],
+                       y["u"])
+            loop = {"loop": "closed", "position_gain": gains["kp"],
+                    "velocity_gain": gains["kv"]}
         side = {"format": "labrig-run/1", "sample_rate_hz": self.fs, "source": "twin",
-                "experiment": {"loop": "open", "sample_rate_hz": self.fs, **experiment},
+                "experiment": {**loop, "sample_rate_hz": self.fs, **experiment},
                 "sensors": {"tacho_v_per_rad_s": self.kt, "pos_v_per_rad": self.kpot,
                             "pos_offset_v": self.pot0},
                 "rig": {"gear_ratio": self.N, "amplifier_gain": self.Ka,
@@ -158,14 +175,16 @@ class Twin:
         return folder / f"{name}.csv"
 
     def square(self, folder, amplitude: float = 2.5, freq: float = 0.25, periods: int = 2,
-               lead: float = 0.5) -> Path:
-        """One square wave, as the exercise sheets' first run."""
+               lead: float = 0.5, gains: dict | None = None) -> Path:
+        """One square wave, as the exercise sheets' first run (with ``gains``, of the
+        position loop's reference, as the default sweep's closed-loop runs)."""
         n0, n = int(lead * self.fs), int((lead + periods / freq) * self.fs)
         t = (np.arange(n) - n0) / self.fs
         u = np.where(t < 0, 0.0, np.where((t * freq) % 1.0 < 0.5, amplitude, -amplitude))
-        return self.record(folder, f"sq_{amplitude:.2f}V", u,
+        return self.record(folder, f"{'cl_' if gains else ''}sq_{amplitude:.2f}V", u,
                            {"waveform": "square", "amplitude_v": amplitude,
-                            "frequency_hz": freq, "periods": periods, "lead_in_s": lead})
+                            "frequency_hz": freq, "periods": periods, "lead_in_s": lead},
+                           gains)
 
     def play_plan(self, plan, folder) -> list[Path]:
         """Every ``pwl`` experiment of a plan file, as the board plays it."""
@@ -181,7 +200,9 @@ class Twin:
             exp = {"waveform": "pwl", "lead_in_s": lead, "points": e["points"]}
             if "between" in e:
                 exp["between"] = e["between"]
-            out.append(self.record(folder, e["name"], u, exp))
+            gains = {"kp": e["position_gain"], "kv": e["velocity_gain"]} \
+                if e.get("loop") == "closed" else None
+            out.append(self.record(folder, e["name"], u, exp, gains))
         return out
 
 

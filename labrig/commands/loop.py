@@ -8,7 +8,7 @@ import labrig.verbs as lr
 import labrig.verbs.figures as lrf
 from labrig.commands.identification import add_through_option, parse_assignments, read_for_fit
 from labrig.commands.progress import Progress
-from labrig.commands.registry import command, emit_json, refuse_existing
+from labrig.commands.registry import add_loop_option, command, emit_json, refuse_existing
 from labrig.core.defaults import SEED
 from labrig.core.errors import UserError
 from labrig.core.fileio import atomic_write, write_json
@@ -184,6 +184,8 @@ def _auto(args, runs, model, fixed, weights) -> int:
         raise UserError("--ask-rig: say which rig to ask, --sim or --port DEV")
     if args.step_s is not None and not args.ask_rig:
         raise UserError("--step-s: only with --ask-rig (the length of each experiment asked)")
+    if args.loop != "open" and not args.ask_rig:
+        raise UserError("--loop: only with --ask-rig (which inputs the rig is asked to play)")
     if args.step_s is not None and not 2.0 <= args.step_s <= args.budget_s:
         raise UserError(f"--step-s: {args.step_s:g} s; give 2 s up to --budget-s "
                         f"({args.budget_s:g} s)")
@@ -233,7 +235,7 @@ def _ask_rig(args, runs, res) -> dict:
         # (the input within the data's amplitudes; the rig bounds the travel)
         prop = lr.propose(runs, res.model, f"{first},{second}", budget_s=args.budget_s,
                           seed=args.seed, progress=bar.hook, rig=rig, through=None,
-                          rig_amplitude=False)
+                          rig_amplitude=False, loop=args.loop)
         if not prop.separates:   # nothing worth playing: the rig is not asked
             return {"pair": list(prop.pair), "proposal": prop.to_json(), "folder": None,
                     "decision": None,
@@ -274,7 +276,7 @@ def _ask_until_sure(args, runs, res, between, rig, newdir) -> dict:
     with Progress("ask the rig", total=None) as bar:
         asking = lr.ask_until_sure(runs, res.model, between, play, budget_s=args.budget_s,
                                    step_s=args.step_s, seed=args.seed, rig=rig, through=None,
-                                   rig_amplitude=False, progress=bar.hook)
+                                   rig_amplitude=False, loop=args.loop, progress=bar.hook)
     return {"pair": list(asking.pair), "asking": asking.to_json(), "folder": str(newdir),
             "decision": asking.decision.to_json() if asking.decision else None,
             "text": f"{asking.to_text()}\nruns in {newdir}/step<k>/"}
@@ -314,6 +316,7 @@ def _configure_diagnose(p):
                         "seconds played one at a time (each chosen on the data so far; it "
                         "stops as soon as one explanation wins), instead of one plan of the "
                         "whole budget")
+    add_loop_option(p)
     p.add_argument("--full", action="store_true", help="re-fit every candidate to the end "
                    "(default: one that stalls without gaining is screened out early)")
     _last_options(p, "replace an existing -o file")

@@ -3,7 +3,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from labrig.commands.registry import command, emit_json, float_opt, refuse_existing
+from labrig.commands.registry import (add_loop_option, command, emit_json, float_opt,
+                                     refuse_existing)
 from labrig.commands.progress import Progress
 from labrig.core.defaults import SEED
 import labrig.verbs as lr
@@ -34,7 +35,7 @@ def cmd_propose(args):
     between = args.between or lr.pair_from_diagnosis(args.model)
     with Progress("propose", total=None) as bar:
         prop = lr.propose(runs, model, between, budget_s=args.budget_s, seed=args.seed,
-                          progress=bar.hook, rig=rig, through=None)
+                          progress=bar.hook, rig=rig, through=None, loop=args.loop)
     import sys
 
     if not prop.separates:   # the analysis is printed; no plan is proposed
@@ -72,6 +73,7 @@ def _configure(p):
     p.add_argument("--rig", help="rig file: the inputs may then use up to its output limit, "
                                  "and its position sensor's range bounds the travel (default: "
                                  "the largest input and the travel the data show)")
+    add_loop_option(p)
     p.add_argument("--seed", type=int, default=SEED,
                    help=f"seed of the fits and the noise (default {SEED})")
     p.add_argument("-o", "--output", required=True,

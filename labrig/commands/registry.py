@@ -94,3 +94,12 @@ def refuse_existing(paths, force: bool, what: str = "file") -> None:
         more = f" (and {len(existing) - 1} more output file{'s' * (len(existing) > 2)})" \
             if len(existing) > 1 else ""
         raise UserError(f"{existing[0]}: already exists{more}; add --force to replace it")
+
+
+def add_loop_option(p) -> None:
+    """``--loop``: which inputs a proposal may be (propose, diagnose --ask-rig)."""
+    p.add_argument("--loop", choices=("open", "closed", "any"), default="open",
+                   help="the proposed inputs: to the amplifier (open, the default), "
+                        "references of the rig's analog position loop (closed: its gains "
+                        "from a closed-loop run of the data, else --rig's standard loop), "
+                        "or whichever separates better (any)")

@@ -123,7 +123,7 @@ class Asking(Displayable):
 
 def ask_until_sure(runs, model: Model, between: str, play, *, budget_s: float = 20.0,
                    step_s: float = 5.0, seed: int = 0, amax: float | None = None, rig=None,
-                   log=None, on_step=None) -> Asking:
+                   loop: str = "open", log=None, on_step=None) -> Asking:
     """Play experiments of at most ``step_s`` seconds one at a time until the pair
     ``between`` (``"a,b"``) is decided or ``budget_s`` seconds of rig time are spent.
 
@@ -136,8 +136,9 @@ def ask_until_sure(runs, model: Model, between: str, play, *, budget_s: float = 
     play : callable(plan_toml: str, k: int) -> list of Run
         Plays the plan of step ``k`` (1, 2, ...) on the rig and returns its runs (none:
         the rig was stopped, and asking ends with the steps finished).
-    amax, rig :
-        As :func:`labrig.diagnosis.propose.propose`'s.
+    amax, rig, loop :
+        As :func:`labrig.diagnosis.propose.propose`'s (``loop``: which inputs each step
+        may be: the amplifier's, the rig's position loop's reference, or either).
     on_step : callable(AskStep, runs), optional
         Each step as it is judged, with the runs it played (its decision's ``models``
         are both explanations fitted to everything so far: what a figure draws).
@@ -156,7 +157,8 @@ def ask_until_sure(runs, model: Model, between: str, play, *, budget_s: float = 
     # input of the whole budget separates the pair for any truth the data allow, there
     # is nothing to ask (the one-shot proposal writes no plan either)
     say("the one-shot plan of the whole budget, for comparison")
-    one = propose(data, model, between, budget_s=budget_s, amax=amax, seed=seed, rig=rig)
+    one = propose(data, model, between, budget_s=budget_s, amax=amax, seed=seed, rig=rig,
+                  loop=loop)
     out = Asking(pair=one.pair, budget_s=budget_s, step_s=step_s,
                  one_shot_s=float(one.chosen.candidate.duration) if one.separates else None)
     between = ",".join(one.pair)
@@ -173,7 +175,7 @@ def ask_until_sure(runs, model: Model, between: str, play, *, budget_s: float = 
         k += 1
         say(f"step {k}: the best input of at most {min(step_s, left):g} s for the data so far")
         prop = propose(data, model, between, budget_s=min(step_s, left), amax=amax,
-                       seed=seed, rig=rig)
+                       seed=seed, rig=rig, loop=loop)
         c = prop.chosen
         if not prop.separates and not c.refit:
             out.stopped = f"nothing more to ask: {prop.advice}"

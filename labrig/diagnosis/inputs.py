@@ -12,6 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from labrig.core.defaults import LOOP_GAINS
 from labrig.model.effects import get_effect
 from labrig.io.experiment import pwl_values
 
@@ -27,6 +28,8 @@ KINDS = {
     "reversals": "reversals at several speeds",
     "staircase": "a staircase of levels through the threshold",
     "steps": "steps at several amplitudes, each ending in a coast to rest at 0 V",
+    "position_steps": ("position steps through the rig's own loop, there and back, at "
+                       "several sizes"),
 }
 
 
@@ -46,6 +49,13 @@ class InputCandidate:
     kind: str
     points: list          # [[t_s, u_v], ...], t from 0
     label: str            # e.g. "ramp +-1.2 V over 12 s"
+    #: the loop's gains ``{"kp": ..., "kv": ...}`` when the points are a position loop's
+    #: reference (V of the pot, from where the run starts), else None: the amplifier's input
+    gains: dict | None = None
+
+    @property
+    def loop(self) -> str:
+        return "open" if self.gains is None else "closed"
 
     @property
     def duration(self) -> float:
@@ -159,3 +169,48 @@ def candidates(*, threshold: float | None, amax: float, tau: float, budget_s: fl
         add("steps", _from_rest(spread, hold, 1.5 * hold, edge), f"steps {spread[0]:.2f}-{spread[-1]:.2f} V, each coasting to "
                            f"rest, {hold:.2f} s each")
     return out
+
+
+def closed_candidates(*, threshold: float | None, amax: float, gains: dict, tau: float,
+                      budget_s: float, dt: float) -> list[InputCandidate]:
+    """Position steps through the rig's own loop (amplifier input = kp (ref - pot) - kv
+    tacho): the points are the reference. A step of the reference by r drives the amplifier
+    with kp r at first, so the steps stay within ``amax / kp``: the drive the open-loop data
+    already explain. Sizes spread over that range, and (when the data pin the threshold)
+    around the band ``threshold / kp`` where the loop stops short of its reference; ``tau``
+    is the loop's slowest time constant."""
+    kp = float(gains["kp"])
+    top = amax / kp
+    edge = max(10 * dt, 0.01)
+    settle = float(np.clip(4 * tau, 0.2, budget_s / 6))
+    out: list[InputCandidate] = []
+    # fewer sizes where the budget is short (a step of a sequence asked one at a time)
+    sizes = [[f * top for f in fs] for fs in ((0.15, 0.25, 0.35, 0.45, 0.6, 0.8, 1.0),
+                                              (0.2, 0.5, 1.0), (0.4, 1.0))]
+    if threshold:   # steps across the error band the threshold leaves: some stop in it
+        sizes.append([min(f * threshold / kp, top) for f in (0.8, 1.2, 1.6, 2.0, 3.0, 4.0)])
+    for levels in sizes:
+        fill = 0.98 * budget_s / (2 * len(levels)) - 2 * edge
+        for hold in _holds((settle, 2 * settle), fill):
+            pts = _pts(_from_rest(levels, hold, hold, edge))
+            if len(pts) <= MAX_POINTS and pts[-1][0] <= budget_s + 1e-9:
+                label = (f"position steps {levels[0]:.2f}-{levels[-1]:.2f} V through the "
+                         f"loop (kp {kp:g}), {hold:.2f} s each")
+                out.append(InputCandidate("position_steps", pts, label, dict(gains)))
+                out.append(InputCandidate("position_steps",
+                                          [[t, -u if u else 0.0] for t, u in pts],
+                                          label + ", mirrored", dict(gains)))
+    return out
+
+
+def loop_gains(runs, rig) -> dict | None:
+    """The gains of the rig's analog position loop (the MS150's: amplifier input = kp (ref
+    - pot) - kv tacho), or None when neither the data nor the rig file show one: a
+    closed-loop run's own gains, else the standard loop of a rig file with a tacho and a
+    pot on a voltage drive. (A digital loop's PD on axis units is not proposed.)"""
+    for r in runs:
+        if r.loop == "closed" and r.controller is None and r.drive == "voltage":
+            return r.gains
+    if rig is not None and rig.drive == "voltage" and not rig.digital_loop:
+        return {"kp": LOOP_GAINS["position_gain"], "kv": LOOP_GAINS["velocity_gain"]}
+    return None

@@ -167,9 +167,10 @@ class Proposal(Displayable):
 
     def experiment(self, name: str = "proposed") -> dict:
         """The plan's ``[[experiment]]`` table."""
-        return {"name": name, "loop": "open", "waveform": "pwl", "lead_in_s": LEAD_IN_S,
-                "sample_rate_hz": float(self.template.fs),
-                "points": [[float(t), float(u)] for t, u in self.chosen.candidate.points],
+        c = self.chosen.candidate
+        return {"name": name, "loop": c.loop, "waveform": "pwl", "lead_in_s": LEAD_IN_S,
+                "sample_rate_hz": float(self.template.fs), **_loop_keys(c),
+                "points": [[float(t), float(u)] for t, u in c.points],
                 "between": list(self.pair)}
 
     def to_toml(self, name: str = "proposed", step: bool = False) -> str:
@@ -192,7 +193,10 @@ class Proposal(Displayable):
                  f"budget, {lim['points']} of at most {lim['max_points']} breakpoints, "
                  f"|u| <= {lim['peak_v']:.2f} V within +-{lim['amax_v']:.2f} V.", "",
                  "[[experiment]]"]
-        for k in ("name", "loop", "waveform", "lead_in_s", "sample_rate_hz"):
+        for k in ("name", "loop", "waveform", "lead_in_s", "sample_rate_hz", "position_gain",
+                  "velocity_gain"):
+            if k not in e:
+                continue
             v = e[k]
             lines.append(f"{k} = {v!r}".replace("'", '"') if isinstance(v, str) else f"{k} = {v}")
         lines.append("between = [" + ", ".join(f'"{x}"' for x in e["between"]) + "]")
@@ -309,6 +313,13 @@ class Proposal(Displayable):
         return plot_proposal(self, ax=ax)
 
 
+def _loop_keys(cand: InputCandidate) -> dict:
+    """A closed-loop input's gains, as a plan and a run's sidecar state them."""
+    g = cand.gains
+    return {} if g is None else {"position_gain": float(g["kp"]),
+                                 "velocity_gain": float(g["kv"])}
+
+
 def synthetic_run(template: Run, cand: InputCandidate, name: str, sim: dict | None = None,
                   noise: dict | None = None, rng=None) -> Run:
     """A run of ``cand`` as ``template``'s rig would record it: volts through the same
@@ -329,6 +340,8 @@ def synthetic_run(template: Run, cand: InputCandidate, name: str, sim: dict | No
     if template.has_pos:
         cols["pos"] = th * template.kpot + template.pos_offset
     meta = copy.deepcopy(template.meta)
-    meta["experiment"] = {"loop": "open", "waveform": "pwl", "lead_in_s": LEAD_IN_S,
-                          "points": cand.points}
+    meta["experiment"] = {"loop": cand.loop, "waveform": "pwl", "lead_in_s": LEAD_IN_S,
+                          "points": cand.points, **_loop_keys(cand)}
+    if cand.gains is not None:   # the reference, as the bridge records it
+        cols["ref"] = u
     return Run(name=name, data=pd.DataFrame(cols), meta=meta)

@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from labrig.core.errors import UserError
-from labrig.diagnosis.inputs import InputCandidate, candidates
+from labrig.diagnosis.inputs import InputCandidate, candidates, closed_candidates, loop_gains
 from labrig.diagnosis.proposal import DECISIVE, Hypothesis, Judged, Proposal, synthetic_run
 from labrig.model.effects import catalogue_name, get_effect
 from labrig.model.model import Model
@@ -279,7 +279,8 @@ def _leaders(judged: list) -> list:
     return out
 
 
-def _advice(budget_s: float, amax: float, rig, pair, best: Judged) -> str:
+def _advice(budget_s: float, amax: float, rig, pair, best: Judged, loop: str,
+            can_close: bool) -> str:
     """What would help when nothing within the limits separates the pair."""
     tips = []
     if best.candidate.duration >= 0.5 * budget_s:
@@ -291,18 +292,21 @@ def _advice(budget_s: float, amax: float, rig, pair, best: Judged) -> str:
     else:
         tips.append(f"another amplitude: a run at an input level the data lack (the rig "
                     f"allows +-{amax:.2f} V)")
-    if {"backlash", "delay"} & set(pair):
-        tips.append("a position loop (a closed-loop step, where a gap makes the loop "
-                    "hunt and a delay does not)")
-    else:
-        tips.append("a position loop (closed-loop steps settle against the friction or "
-                    "the dead zone differently)")
+    if loop == "open":
+        how = ("--loop any" if can_close else "--loop any, once the data hold a "
+               "closed-loop run or --rig names a rig with its analog loop")
+        if {"backlash", "delay"} & set(pair):
+            tips.append(f"a position loop ({how}: a closed-loop step, where a gap makes the "
+                        "loop hunt and a delay does not)")
+        else:
+            tips.append(f"a position loop ({how}: closed-loop steps settle against the "
+                        "friction or the dead zone differently)")
     return "; ".join(tips)
 
 
 def propose(runs: list[Run], model: Model, between: str | None = None, *,
             budget_s: float = 20.0, amax: float | None = None, seed: int = 0,
-            weights: Weights = Weights(), log=None, rig=None) -> Proposal:
+            weights: Weights = Weights(), log=None, rig=None, loop: str = "open") -> Proposal:
     """Propose the input of at most ``budget_s`` seconds that best separates the pair.
 
     Parameters
@@ -317,6 +321,10 @@ def propose(runs: list[Run], model: Model, between: str | None = None, *,
     rig : RigConfig, optional
         The rig: its position sensor's range bounds the travel (default: the travel the
         data show, either way).
+    loop : {"open", "closed", "any"}
+        Which inputs: the amplifier's input (open), the reference of the rig's own position
+        loop (closed: the gains of a closed-loop run of the data, else those of a rig file
+        with the analog loop), or both, judged alike.
 
     Returns
     -------
@@ -331,6 +339,13 @@ def propose(runs: list[Run], model: Model, between: str | None = None, *,
     opened = [r for r in runs if r.loop == "open"]
     if not opened:
         raise UserError("propose needs at least one open-loop run (its rig plays the input)")
+    if loop not in ("open", "closed", "any"):
+        raise UserError(f"--loop: {loop!r}; give open, closed or any")
+    gains = None if loop == "open" else loop_gains(runs, rig)
+    if loop != "open" and gains is None:
+        raise UserError(f"--loop {loop}: neither the data nor the rig file show the rig's "
+                        "analog position loop; record a closed-loop run (a plan's loop = "
+                        "\"closed\") or give --rig with a tacho and a pot")
     pair = default_pair(model, between)
     say = log or (lambda s: None)
     # the pair's effects, and any of their families (a dead zone for a dead zone), go out
@@ -355,8 +370,15 @@ def propose(runs: list[Run], model: Model, between: str | None = None, *,
     data_amax = max(float(np.max(np.abs(r.u))) for r in opened)
     amax = data_amax if amax is None else float(amax)
     tau = float(np.median([h.model.servo().tau_m for h in hyps]))
-    cands = candidates(threshold=_levels_threshold(hyps), amax=amax, tau=tau,
-                       budget_s=budget_s, dt=template.dt)
+    cands = [] if loop == "closed" else \
+        candidates(threshold=_levels_threshold(hyps), amax=amax, tau=tau, budget_s=budget_s,
+                   dt=template.dt)
+    if gains is not None:   # the loop's slowest time constant sets its steps' holds
+        slow = [1.0 / np.min(np.abs(np.real(np.linalg.eigvals(
+            h.model.servo().A_closed(gains["kp"], gains["kv"]))))) for h in hyps]
+        cands += closed_candidates(threshold=_levels_threshold(hyps), amax=amax, gains=gains,
+                                   tau=float(np.median(slow)), budget_s=budget_s,
+                                   dt=template.dt)
     if not cands:
         raise UserError(f"--budget-s: no candidate input fits in {budget_s:g} s; allow more")
     say(f"simulating {len(cands)} candidate inputs with {sum(map(len, family))} plausible "
@@ -427,7 +449,8 @@ def propose(runs: list[Run], model: Model, between: str | None = None, *,
                     seconds=time.perf_counter() - t0, plausible=[len(f) for f in family],
                     separates=separates, smallest=smallest)
     if not separates:
-        prop.advice = (_advice(budget_s, amax, rig, pair, chosen) if truths else
+        can_close = gains is not None or loop_gains(runs, rig) is not None
+        prop.advice = (_advice(budget_s, amax, rig, pair, chosen, loop, can_close) if truths else
                        "neither explanation can be the truth on these data: "
                        + "; ".join(h.skipped for h in hyps))
     return prop

@@ -49,7 +49,8 @@ def plot_proposal(prop, ax=None):
         legend_outside(a, "right", title="predicted (band: +-1 noise)", title_fontsize=8)
     if ax is None:
         axes[-1].plot(t, run.u, color="0.25", lw=1.0)
-        axes[-1].set_ylabel("u (V)")
+        # a closed-loop plan plays the position loop's reference, not the amplifier's input
+        axes[-1].set_ylabel("reference (V)" if run.loop == "closed" else "u (V)")
         axes[-1].set_xlabel("time (s)")
         axes[-1].grid(alpha=0.3)
         c = prop.chosen

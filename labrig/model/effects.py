@@ -80,6 +80,8 @@ class Deadband(InputEffect):
         "staircase": "with a dead zone every step's speed rises from the threshold on",
         "steps": ("with a dead zone each step's speed rises only from the threshold on, "
                   "and at 0 V the motor coasts down exponentially with tau_m"),
+        "position_steps": ("through the loop a dead zone leaves each position short of "
+                           "its reference by up to d/kp, reached without braking"),
     }
     stage = "input"
     params = (Param("d_v", "V", 1e-3, 2.0, "dead-zone half width at the bridge input"),)
@@ -179,6 +181,8 @@ class Backlash(OutputEffect):
                   "a step up and the other after a step down, whatever the speed"),
         "reversals": ("backlash keeps the output still while the motor crosses the gap, "
                       "for a time that grows as the speed falls"),
+        "position_steps": ("the loop reads the pot behind the gap: the motor crosses it "
+                           "at every reversal and the output settles off by up to the gap"),
     }
     stage = "output"
     params = (Param("a_rad", "rad", 1e-4, 0.5, "half the gear play, at the output shaft"),)
@@ -223,6 +227,7 @@ class Delay(DelayEffect):
         "coast": "a delay starts every coast-down late by the same time",
         "steps": "a delay shifts every step and every coast by the same time",
         "reversals": "a delay shifts every response by the same time, whatever the speed",
+        "position_steps": "a delay shifts every position step by the same time",
     }
     stage = "delay"
     params = (Param("td_s", "s", 1e-5, 0.1, "transport delay"),)

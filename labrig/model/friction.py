@@ -48,6 +48,8 @@ class CoulombFriction(FrictionEffect):
                       "the others start braked"),
         "steps": ("with Coulomb friction every coast to 0 V is braked by the friction too "
                   "and stops in a finite time"),
+        "position_steps": ("through the loop Coulomb friction brakes each step to a stop "
+                           "short of its reference, by up to its level over kp"),
     }
     stage = "friction"
     family = "friction law"
@@ -118,6 +120,8 @@ class Stiction(FrictionEffect):
                       "breakaway level, then jumps"),
         "steps": ("with stiction a step below the breakaway level leaves the motor at "
                   "rest, and every coast to 0 V ends held by the friction"),
+        "position_steps": ("through the loop stiction holds the output until the error's "
+                           "drive passes the breakaway level: small steps stay stuck"),
     }
     stage = "friction"
     family = "friction law"

@@ -106,39 +106,41 @@ def auto_ladder(source, *, max_steps: int = 3, output=None, seed: int = SEED,
 
 def propose(source, model, between: str | None = None, *, budget_s: float = 20.0,
             seed: int = SEED, rig=None, through: str | None = "auto", log=None,
-            rig_amplitude: bool = True, progress=None):
+            rig_amplitude: bool = True, loop: str = "open", progress=None):
     """The experiment that best tells two explanations apart (``labrig propose``).
 
     ``between`` is ``"a,b"`` (default: the model's effect and its usual look-alike);
     ``rig`` a rig file or :class:`~labrig.io.config.RigConfig`: its sensors bound the
     travel and, with ``rig_amplitude``, its output limits the input (else the data's
-    largest input does). Returns a :class:`~labrig.diagnosis.proposal.Proposal`;
-    ``to_toml()`` is the plan.
+    largest input does). ``loop``: ``"open"`` (inputs to the amplifier), ``"closed"``
+    (references of the rig's analog position loop: its gains from a closed-loop run of
+    the data, else the rig file's) or ``"any"``. Returns a
+    :class:`~labrig.diagnosis.proposal.Proposal`; ``to_toml()`` is the plan.
     """
     from labrig.diagnosis.propose import propose as _propose
 
     rig, amax = _rig_limit(rig, rig_amplitude)
     return _propose(read_runs(source, through=through), model_of(model), between,
-                    budget_s=budget_s, amax=amax, seed=seed, rig=rig,
+                    budget_s=budget_s, amax=amax, seed=seed, rig=rig, loop=loop,
                     log=both(log, note(progress, "propose")))
 
 
 def ask_until_sure(source, model, between: str, play, *, budget_s: float = 20.0,
                    step_s: float = 5.0, seed: int = SEED, rig=None,
                    through: str | None = "auto", rig_amplitude: bool = True, log=None,
-                   progress=None, on_step=None):
+                   loop: str = "open", progress=None, on_step=None):
     """Ask the rig until sure: experiments of at most ``step_s`` seconds, each the best
     for the data so far, played one at a time by ``play(plan_toml, k) -> runs`` and
     judged after each (the decision's fits and margin), until one explanation of
     ``between`` (``"a,b"``) wins or ``budget_s`` seconds are spent. ``rig`` and
-    ``rig_amplitude`` as :func:`propose`'s; ``on_step(step, runs)`` hears each step as
+    ``rig_amplitude`` and ``loop`` as :func:`propose`'s; ``on_step(step, runs)`` hears each step as
     it is judged. Returns an :class:`~labrig.diagnosis.ask.Asking`: the steps, the rig
     seconds used and the one-shot plan's."""
     from labrig.diagnosis.ask import ask_until_sure as _ask
 
     rig, amax = _rig_limit(rig, rig_amplitude)
     return _ask(read_runs(source, through=through), model_of(model), between, play,
-                budget_s=budget_s, step_s=step_s, seed=seed, amax=amax, rig=rig,
+                budget_s=budget_s, step_s=step_s, seed=seed, amax=amax, rig=rig, loop=loop,
                 log=both(log, note(progress, "ask")), on_step=on_step)
 
 
