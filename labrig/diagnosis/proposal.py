@@ -131,6 +131,10 @@ class Proposal(Displayable):
     #: per explanation judged across sizes the data cannot narrow: the smallest size the
     #: proposed input separates (:func:`labrig.diagnosis.propose.smallest_separable`)
     smallest: list = field(default_factory=list)
+    #: [(truth label, best separation any leading input reached)]: the smallest sizes no
+    #: input within the budget separates (the noise hides them), set aside from the worst
+    #: case; the smallest size the input separates is then stated
+    unseen: list = field(default_factory=list)
 
     def smallest_text(self) -> str:
         """'it separates them for any deadband d_v above 0.08 V ...', one clause each."""
@@ -144,7 +148,14 @@ class Proposal(Displayable):
                            f"{s['unit']} (the data allow {s['plausible_from']:.3g} "
                            f"{s['unit']} and up; smaller, the two explanations differ on this "
                            "input by less than the noise lets the decision see)")
-        return ("it separates them " + "; and ".join(out)) if out else ""
+        text = ("it separates them " + "; and ".join(out)) if out else ""
+        if self.unseen:
+            text += ("\nnot separated by any input within the budget: " + ", ".join(
+                f"{lab} (the best reaches {best:.2f})" for lab, best in self.unseen)
+                + ": at that size the two explanations differ by less than the noise lets "
+                "the decision see; asking until sure (--ask-rig --step-s) lets the rig "
+                "answer for the size it has")
+        return text
 
     def headline(self) -> str:
         if not self.separates:
@@ -215,6 +226,8 @@ class Proposal(Displayable):
                                for h in self.hypotheses],
                 "separates": self.separates, "advice": self.advice or None,
                 "smallest_separable": self.smallest or None,
+                "not_separable": [{"truth": lab, "best_separation": best}
+                                  for lab, best in self.unseen] or None,
                 "proposed": {"kind": c.candidate.kind, "label": c.candidate.label,
                              "duration_s": c.candidate.duration, "why": self.why,
                              "points": c.candidate.points,
@@ -269,7 +282,7 @@ class Proposal(Displayable):
                        f"predicted separation ({SEPARATION}) after the rival re-fits: {after} "
                        f"({DECISIVE:g} or more is decisive: the wrong one's rmse/noise at "
                        "least twice the right one's)"
-                       + (f"\n{self.smallest_text()}" if self.smallest else ""))
+                       + (f"\n{self.smallest_text()}" if self.smallest or self.unseen else ""))
 
     def table_rows(self) -> list[Table]:
         """The explanations' fits, and the candidate inputs by predicted separation."""

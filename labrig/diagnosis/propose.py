@@ -254,6 +254,34 @@ def smallest_separable(runs, base: Model, h, rival: str, chosen, template: Run, 
     return {**out, "size": ok, "every_plausible_size": False}
 
 
+def _branch_and_bound(leaders, truths, judge) -> None:
+    """Judge the leading inputs on the truths until the best is known. The next re-fit
+    always goes to the input whose worst so far is the highest; once that input has been
+    judged on every truth, no other can beat it (their worst so far bounds their worst),
+    and they stop there. (One fit at a time: the simulator's kernels already use both
+    cores; fits in two processes, each held to one core, were slower.)"""
+    while True:
+        k = max(range(len(leaders)), key=lambda k: (leaders[k].worst if leaders[k].refit
+                                                    else np.inf, -k))
+        todo = [t for t in truths if t[1] not in leaders[k].refit]   # judged in order
+        if not todo:
+            return
+        judge(k, todo[0])
+
+
+def _smallest_unseparated(hyps, truths, chosen):
+    """The smallest size of an explanation judged across sizes the data cannot narrow at
+    which the best input does not separate the pair, when a larger size of it stays to be
+    judged; else None (a pinned size, or its last, is never set aside)."""
+    for hi, h in enumerate(hyps):
+        if h.pinned or not h.key:
+            continue
+        mine = [t for t in truths if t[0] == hi]
+        if len(mine) > 1 and chosen.refit.get(mine[0][1], np.inf) < DECISIVE:
+            return mine[0]
+    return None
+
+
 def _truth_order(hyps) -> list:
     """``[(index in the pair, label, Model)]`` of every truth to judge, the smallest size
     of each explanation first (the hardest to tell from the rival), alternating between
@@ -410,26 +438,43 @@ def propose(runs: list[Run], model: Model, between: str | None = None, *,
     truths = _truth_order(hyps)
     say(f"re-fitting the rival to each of {len(leaders)} leading inputs played on "
         f"{len(truths)} plausible truth(s)")
-    # branch and bound: the next re-fit always goes to the input whose worst so far is
-    # the highest; once that input has been judged on every truth, no other can beat it
-    # (their worst so far bounds their worst), and they stop there. The noise of each
-    # (input, truth) is seeded by both: the same answer whatever the order. (One fit at
-    # a time: the simulator's kernels already use both cores; fits in two processes,
-    # each held to one core, were slower.)
+    # (the noise of each (input, truth) is seeded by both: the same answer whatever the
+    # order in which the branch and bound judges them)
+    fits = {}
+
+    def judge(k, truth):
+        hi, label, m = truth
+        leaders[k].refit[label], rival = separation_after_refit(
+            runs, base, pair[1 - hi], m, leaders[k].candidate, template, sig, seed=seed,
+            weights=weights, rng=np.random.default_rng([seed, k, truth_index[label]]))
+        fits[k, label] = (hi, label, m, rival)
+
+    truth_index = {lab: t for t, (_, lab, _) in enumerate(truths)}
+    unseen = []     # sizes no leading input separates: the noise hides them in the budget
     while truths:
-        k = max(range(len(leaders)), key=lambda k: (leaders[k].worst if leaders[k].refit
-                                                    else np.inf, -k))
-        j, t = leaders[k], len(leaders[k].refit)   # the truths are judged in order
-        if t == len(truths):
+        _branch_and_bound(leaders, truths, judge)
+        chosen = max(leaders, key=lambda j: (j.worst, -j.candidate.duration))
+        if chosen.worst >= DECISIVE:
             break
-        hi, label, m = truths[t]
-        j.refit[label], rival = separation_after_refit(
-            runs, base, pair[1 - hi], m, j.candidate, template, sig, seed=seed,
-            weights=weights, rng=np.random.default_rng([seed, k, t]))
-        if j.refit[label] == j.worst:
-            j.hardest = (hi, label, m, rival)
-    for j in leaders:
+        hidden = _smallest_unseparated(hyps, truths, chosen)
+        if hidden is None:
+            break
+        for k, j in enumerate(leaders):   # every leading input judged at that size
+            if hidden[1] not in j.refit:
+                judge(k, hidden)
+        best = max(j.refit[hidden[1]] for j in leaders)
+        if best >= DECISIVE:   # an input separates it there: no size is set aside
+            break
+        # judged over the sizes at which the two explanations differ by more than the
+        # noise can hide (within the budget); the smallest size it separates is stated
+        unseen.append((hidden[1], best))
+        truths.remove(hidden)
+        for j in leaders:
+            j.refit.pop(hidden[1])
+    for k, j in enumerate(leaders):
         j.stopped = 0 < len(j.refit) < len(truths)
+        if j.refit:
+            j.hardest = fits[k, min(j.refit, key=j.refit.get)]
     if truths:
         chosen = max(leaders, key=lambda j: (j.worst, -j.candidate.duration))
         separates = chosen.worst >= DECISIVE
@@ -447,7 +492,7 @@ def propose(runs: list[Run], model: Model, between: str | None = None, *,
     prop = Proposal(pair=pair, hypotheses=hyps, judged=judged, chosen=chosen, sigmas=sig,
                     template=template, budget_s=budget_s, amax=amax,
                     seconds=time.perf_counter() - t0, plausible=[len(f) for f in family],
-                    separates=separates, smallest=smallest)
+                    separates=separates, smallest=smallest, unseen=unseen)
     if not separates:
         can_close = gains is not None or loop_gains(runs, rig) is not None
         prop.advice = (_advice(budget_s, amax, rig, pair, chosen, loop, can_close) if truths else
