@@ -413,6 +413,24 @@ def test_ask_the_rig_from_the_page(browser, tmp_path):
     assert list((folder / "asked").glob("proposed_1.csv"))
 
 
+def test_a_proposal_through_the_rigs_own_loop_from_the_page(browser, tmp_path):
+    """'through the loop' on the Ask tab: the proposal judges position steps played as
+    the reference of the station's rig's analog loop (its rig file's gains: the two steps
+    are open-loop runs), each named with its loop gain in the proposal's table."""
+    folder, server, page = _two_steps_on_the_ask_tab(browser, tmp_path)
+    try:
+        page.page.locator(".lab-loop button", has_text="through the loop").click()
+        page.click(".lab-propose")
+        page.idle()
+        text = page.text(".lab-proposal")
+        assert "position steps" in text and "through the loop (kp 2)" in text, text
+        assert "ramp through zero" not in text     # the open-loop inputs were not asked for
+        page.shot("propose_through_the_loop")
+        page.close()
+    finally:
+        server.stop()
+
+
 def test_ask_until_sure_from_the_page(browser, tmp_path):
     """Ask the rig until sure on the page: the worker's job has the page's rig play each
     short experiment (streamed like a sweep) into asked/step<k>/, the verdict after each

@@ -135,16 +135,18 @@ def auto(folders, max_rounds=3, log=None) -> dict:
             "verdict": res.verdict}
 
 
-def propose(folders, model_doc, between: str) -> dict:
+def propose(folders, model_doc, between: str, loop: str = "open", rig=None) -> dict:
     """The experiment that separates the pair: its plan, both predictions and why."""
-    prop = lr.propose(_runs(folders), _model(model_doc), between, seed=LAB_SEED)
+    prop = lr.propose(_runs(folders), _model(model_doc), between, seed=LAB_SEED, loop=loop,
+                      rig=rig, rig_amplitude=False)
     return {"json": prop.to_json(), "plan": prop.to_toml() if prop.separates else None,
             "text": prop.to_text(),
             "figure": _png(prop.plot()), "pair": list(prop.pair)}
 
 
 def ask_until_sure(folders, model_doc, between: str, step_s: float = 5.0,
-                   budget_s: float = 20.0, log=None, ask_rig=None) -> dict:
+                   budget_s: float = 20.0, loop: str = "open", rig=None, log=None,
+                   ask_rig=None) -> dict:
     """Ask the rig until sure: short experiments, each played by the page on the rig
     (``ask_rig``: it answers with the folder of the step's runs, or that the student
     stopped the rig) and judged after each; ``log`` hears every step."""
@@ -166,7 +168,7 @@ def ask_until_sure(folders, model_doc, between: str, step_s: float = 5.0,
 
     a = lr.ask_until_sure(_runs(folders), _model(model_doc), between, play,
                           budget_s=budget_s, step_s=step_s, seed=LAB_SEED, log=log,
-                          on_step=on_step)
+                          on_step=on_step, loop=loop, rig=rig, rig_amplitude=False)
     return {"json": a.to_json(), "text": a.to_text(), "leader": a.leader,
             "tables": _html(a.table_rows())}
 

@@ -150,7 +150,13 @@ class LabPage:
         self.pair_pick = pn.widgets.Select(name="between", options=[], width=320)
         self.propose_btn = pn.widgets.Button(name="Propose the experiment",
                                              css_classes=["lab-propose"])
-        self.propose_btn.on_click(lambda e: self._do(self.st.propose, self.pair_pick.value))
+        self.propose_btn.on_click(lambda e: self._do(self.st.propose, self.pair_pick.value,
+                                                     self.loop_pick.value))
+        # which inputs: to the amplifier, or position steps through the rig's own loop
+        self.loop_pick = pn.widgets.RadioButtonGroup(
+            name="inputs", options={"open loop": "open", "through the loop": "closed",
+                                    "either": "any"}, value="open", button_type="light",
+            css_classes=["lab-loop"])
         self.proposal = pn.pane.HTML("", sizing_mode="stretch_width", css_classes=["lab-proposal"])
         self.which = pn.widgets.RadioButtonGroup(name="which", options=["-"], button_type="light",
                                                  css_classes=["lab-which"])
@@ -167,24 +173,26 @@ class LabPage:
         self.ask_note = pn.pane.Markdown("", css_classes=["lab-ask-note"])
         self.sure_btn = pn.widgets.Button(name="Ask until sure (experiments of 5 s)",
                                           css_classes=["lab-ask-sure"])
-        self.sure_btn.on_click(lambda e: self._do(self.st.ask_until_sure, self.pair_pick.value))
+        self.sure_btn.on_click(lambda e: self._do(self.st.ask_until_sure, self.pair_pick.value,
+                                                  loop=self.loop_pick.value))
         self.asking = pn.pane.HTML("", sizing_mode="stretch_width", css_classes=["lab-asking"])
         # both explanations on the last step's run, redrawn after each step
         self.asking_plot = pn.pane.Bokeh(None, sizing_mode="stretch_width",
                                          css_classes=["lab-asking-plot"])
         self._drivers += [self.propose_btn, self.predict_btn, self.play_btn, self.sure_btn]
-        return pn.Column(pn.Row(self.pair_pick, self.propose_btn, self.sure_btn), self.ask_note,
+        return pn.Column(pn.Row(self.pair_pick, self.loop_pick, self.propose_btn, self.sure_btn),
+                         self.ask_note,
                          self.asking, self.asking_plot, self.proposal,
                          pn.Row(self.which, self.why, self.predict_btn, self.play_btn),
                          pn.Row(self.prediction, self.decision), sizing_mode="stretch_width")
 
     # -- actions ---------------------------------------------------------------------
-    def _do(self, action, *args) -> None:
+    def _do(self, action, *args, **kw) -> None:
         if not self.owner:
             return
         self._page_error = ""
         try:
-            action(*args)
+            action(*args, **kw)
         except (LabrigError, RuntimeError, ValueError) as exc:
             self._show_error(str(exc))
 

@@ -220,9 +220,17 @@ class Station:
         self.rungs, self.diagnosis, self.ladder = [], None, None
         self.submit("auto", jobs.auto, [self.folder])
 
-    def propose(self, between: str) -> None:
+    def propose(self, between: str, loop: str = "open") -> None:
+        """``loop``: the inputs proposed (open, closed: through the rig's position loop,
+        any)."""
         self.proposal, self.prediction, self.decision = None, None, None
-        self.submit("propose", jobs.propose, [self.folder], self.model(), between)
+        self.submit("propose", jobs.propose, [self.folder], self.model(), between,
+                    loop=loop, rig=self._loop_rig(loop))
+
+    def _loop_rig(self, loop: str):
+        # a closed-loop input needs the loop's gains: the station's rig file has them when
+        # the data hold no closed-loop run (an open-loop proposal keeps the data's limits)
+        return None if loop == "open" else self.rig
 
     def predict(self, which: str, why: str) -> None:
         self.prediction = {"which": which, "why": why.strip(), "at": time.time()}
@@ -244,14 +252,14 @@ class Station:
     def decide(self) -> None:
         self.submit("decide", jobs.decide, self.folders(), self.model())
 
-    def ask_until_sure(self, between: str, step_s: float = 5.0) -> None:
+    def ask_until_sure(self, between: str, step_s: float = 5.0, loop: str = "open") -> None:
         """Short experiments played one at a time, judged after each (the worker's job
         asks the rig for each step: :meth:`_play_step`), until one explanation wins."""
         if self.sweeping:
             raise LabrigError("a sweep is running; Stop it first")
         self.asking = None
         self.submit("ask", jobs.ask_until_sure, self.folders(), self.model(), between,
-                    step_s=step_s)
+                    step_s=step_s, loop=loop, rig=self._loop_rig(loop))
 
     def _play_step(self, request: dict) -> None:
         """The worker's job asks the rig to play a step: into ``asked/step<n>/`` (the
