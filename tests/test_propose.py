@@ -175,6 +175,7 @@ def test_the_smallest_dead_zone_the_proposal_separates_is_stated_and_holds(deadz
     size fixed, is predicted separated after the rival re-fits; one at the smallest
     plausible size is not."""
     import labrig.diagnosis.propose as P
+    import labrig.diagnosis.separation as S
     from labrig.analysis.noise import Weights, channel_floors
     from labrig.diagnosis.refit import fit
     from labrig.model.reach import Reach
@@ -195,7 +196,7 @@ def test_the_smallest_dead_zone_the_proposal_separates_is_stated_and_holds(deadz
     def separation(size):
         truth = fit(runs, h.model.effects, h.model.flat(), {"deadband.d_v": size}, seed=0,
                     weights=Weights(), reach=reach, max_nfev=40).model()
-        return P.separation_after_refit(
+        return S.separation_after_refit(
             runs, P.without(model, "deadband"), "coulomb_friction", truth,
             prop.chosen.candidate, prop.template, sig, seed=0, weights=Weights(),
             rng=np.random.default_rng([1, 2, 3]))[0]

@@ -129,7 +129,7 @@ class Proposal(Displayable):
     separates: bool = True
     advice: str = ""
     #: per explanation judged across sizes the data cannot narrow: the smallest size the
-    #: proposed input separates (:func:`labrig.diagnosis.propose.smallest_separable`)
+    #: proposed input separates (:func:`labrig.diagnosis.separation.smallest_separable`)
     smallest: list = field(default_factory=list)
     #: [(truth label, best separation any leading input reached)]: the smallest sizes no
     #: input within the budget separates (the noise hides them), set aside from the worst

@@ -33,7 +33,9 @@ from pathlib import Path
 import numpy as np
 
 from labrig.core.errors import UserError
-from labrig.diagnosis.inputs import InputCandidate, candidates, closed_candidates, loop_gains
+from labrig.diagnosis.inputs import candidates, closed_candidates, loop_gains
+from labrig.diagnosis.separation import (branch_and_bound, separation_after_refit,
+                                         smallest_separable, smallest_unseparated)
 from labrig.diagnosis.proposal import DECISIVE, Hypothesis, Judged, Proposal, synthetic_run
 from labrig.model.effects import catalogue_name, get_effect
 from labrig.model.model import Model
@@ -41,7 +43,6 @@ from labrig.analysis.noise import Weights, channel_floors
 from labrig.diagnosis.refit import fit, refit_with, without
 from labrig.io.runs import Run
 from labrig.core.schemas import read_json
-from labrig.diagnosis.evaluation import evaluate
 from labrig.model.reach import Reach
 from labrig.model.simulate import prepare
 from labrig.simulation.warm import ready
@@ -190,96 +191,6 @@ def _levels_threshold(hyps) -> float | None:
     if not sized or any(not h.pinned for h in sized):
         return None
     return float(np.mean([threshold_of(h.model) for h in sized]))
-
-
-def separation_after_refit(runs, base: Model, rival: str, truth: Model, cand: InputCandidate,
-                           template: Run, sig: dict, *, seed, weights, rng) -> tuple:
-    """The decision's separation predicted for ``cand`` when ``truth`` is the truth: the
-    run it would record (with the rig's noise) added to ``runs``, the rival re-fitted to
-    them all from scanned starts (as ``diagnose`` fits it), its rmse/noise over the
-    truth's, minus one; and the re-fitted rival."""
-    clean = truth.simulate([synthetic_run(template, cand, "p")])[0]
-    new = synthetic_run(template, cand, "proposed", clean, sig, rng)
-    data = runs + [new]
-    res = refit_with(data, base, get_effect(rival), seed=seed, weights=weights)
-    r_rival = float(res.metrics["rmse_over_noise"]["overall"])
-    r_truth = float(evaluate(data, truth, weights=weights).metrics["rmse_over_noise"]["overall"])
-    return max(0.0, r_rival / r_truth - 1.0), res.model()
-
-
-#: bisection steps (on a log scale) for the smallest size the proposed input separates
-SIZE_STEPS = 3
-
-
-def smallest_separable(runs, base: Model, h, rival: str, chosen, template: Run, sig: dict, *,
-                       seed: int, weights: Weights, reach) -> dict | None:
-    """The smallest size of the explanation ``h`` (judged true across the sizes the data
-    cannot exclude) at which the proposed input still separates it from ``rival``: from
-    the smallest plausible size (its best fit, not judged above) up to the smallest size
-    judged at which it separates and does at every larger one, bisected on a log scale,
-    ``h`` fitted with its size fixed at each and the rival re-fitted. The bracket's upper
-    end is reported: an input proven there. None when no judged size separates.
-
-    Below that size the two explanations differ, on this input, by less than the noise
-    lets the decision see: a threshold that small is the model without it, near enough."""
-    judged = []
-    for size, _ in h.members[1:]:
-        sep = chosen.refit.get(h.label(size))
-        if sep is not None:
-            judged.append((size, sep))
-    judged.sort()
-    ok = None
-    for size, sep in reversed(judged):   # the smallest size from which every one separates
-        if sep < DECISIVE:
-            break
-        ok = size
-    if ok is None:
-        return None
-    lo = min(size for size, _ in h.members)
-    out = {"effect": h.effect, "key": h.key, "unit": h.unit, "plausible_from": lo}
-
-    def separates(size, step):
-        truth = fit(runs, h.model.effects, h.model.flat(), {f"{h.effect}.{h.key}": size},
-                    seed=seed, weights=weights, reach=reach, max_nfev=40).model()
-        sep, _ = separation_after_refit(runs, base, rival, truth, chosen.candidate, template,
-                                        sig, seed=seed, weights=weights,
-                                        rng=np.random.default_rng([seed, 7, step]))
-        return sep >= DECISIVE
-
-    if lo >= ok or separates(lo, 0):
-        return {**out, "size": min(lo, ok), "every_plausible_size": True}
-    for step in range(1, SIZE_STEPS + 1):
-        mid = float(np.sqrt(lo * ok))
-        lo, ok = (lo, mid) if separates(mid, step) else (mid, ok)
-    return {**out, "size": ok, "every_plausible_size": False}
-
-
-def _branch_and_bound(leaders, truths, judge) -> None:
-    """Judge the leading inputs on the truths until the best is known. The next re-fit
-    always goes to the input whose worst so far is the highest; once that input has been
-    judged on every truth, no other can beat it (their worst so far bounds their worst),
-    and they stop there. (One fit at a time: the simulator's kernels already use both
-    cores; fits in two processes, each held to one core, were slower.)"""
-    while True:
-        k = max(range(len(leaders)), key=lambda k: (leaders[k].worst if leaders[k].refit
-                                                    else np.inf, -k))
-        todo = [t for t in truths if t[1] not in leaders[k].refit]   # judged in order
-        if not todo:
-            return
-        judge(k, todo[0])
-
-
-def _smallest_unseparated(hyps, truths, chosen):
-    """The smallest size of an explanation judged across sizes the data cannot narrow at
-    which the best input does not separate the pair, when a larger size of it stays to be
-    judged; else None (a pinned size, or its last, is never set aside)."""
-    for hi, h in enumerate(hyps):
-        if h.pinned or not h.key:
-            continue
-        mine = [t for t in truths if t[0] == hi]
-        if len(mine) > 1 and chosen.refit.get(mine[0][1], np.inf) < DECISIVE:
-            return mine[0]
-    return None
 
 
 def _truth_order(hyps) -> list:
@@ -452,11 +363,11 @@ def propose(runs: list[Run], model: Model, between: str | None = None, *,
     truth_index = {lab: t for t, (_, lab, _) in enumerate(truths)}
     unseen = []     # sizes no leading input separates: the noise hides them in the budget
     while truths:
-        _branch_and_bound(leaders, truths, judge)
+        branch_and_bound(leaders, truths, judge)
         chosen = max(leaders, key=lambda j: (j.worst, -j.candidate.duration))
         if chosen.worst >= DECISIVE:
             break
-        hidden = _smallest_unseparated(hyps, truths, chosen)
+        hidden = smallest_unseparated(hyps, truths, chosen)
         if hidden is None:
             break
         for k, j in enumerate(leaders):   # every leading input judged at that size
