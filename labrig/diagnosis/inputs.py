@@ -118,7 +118,7 @@ def candidates(*, threshold: float | None, amax: float, tau: float, budget_s: fl
     for U in sorted(near_th | {0.5 * amax, amax}):
         for T in (budget_s / 4, budget_s / 2, budget_s):
             add("ramp", [(T / 4, -U), (T / 2, U), (T / 4, 0.0)],
-                f"ramp through zero +-{U:.2f} V over {T:.0f} s")
+                f"ramp through zero +-{U:.2f} V over {T:.3g} s")
     # dwells near the fitted threshold, and (where it is uncertain) across the whole range
     near = [min(f * th, amax) for f in (0.9, 1.1, 1.3, 1.6, 2.0)]
     spread = [f * amax for f in (0.15, 0.25, 0.35, 0.45, 0.6, 0.8, 1.0)]
