@@ -11,7 +11,15 @@
 Every result shows a summary as text, and its tables and figure in a notebook. The
 names are loaded on first use, so ``import labrig`` stays quick.
 """
+from labrig.core.memory import keep_freed_memory
+from labrig.core.parallel import one_blas_thread
 from labrig.core.version import __version__
+
+# a notebook's fits as the command line's: numpy's BLAS held to one thread (the same last
+# digits, and no idle BLAS thread spinning on the core the second fit needs) and freed
+# memory kept for the next call (labrig.core.parallel, labrig.core.memory; docs/api.md)
+one_blas_thread()
+keep_freed_memory()
 
 #: public name -> module that defines it
 _PUBLIC = {name: "labrig.verbs" for name in (

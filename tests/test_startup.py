@@ -5,6 +5,8 @@ import json
 import subprocess
 import sys
 
+import pytest
+
 
 from conftest import sim_dataset, square_plan
 
@@ -132,20 +134,42 @@ def test_the_starts_hypercube_is_scipys_to_the_last_bit():
 
 
 def test_the_command_line_keeps_freed_memory_in_the_heap():
-    """glibc takes the heap padding once per process (labrig/core/memory.py); a second
-    call does nothing; elsewhere the call is a no-op."""
+    """glibc takes the heap padding once per process (labrig/core/memory.py), when labrig
+    is imported (a notebook's fits as the command line's); a second call does nothing;
+    elsewhere the call is a no-op."""
     import subprocess
     import sys
 
-    out = subprocess.run([sys.executable, "-c", "from labrig.core.memory import keep_freed_memory "
-                          "as k; print(k(), k())"], capture_output=True, text=True, check=True)
-    if sys.platform.startswith("linux"):
-        import platform
+    out = subprocess.run([sys.executable, "-c", "import labrig.core.memory as m; "
+                          "print(m._done, m.keep_freed_memory())"], capture_output=True,
+                         text=True, check=True)
+    linux = sys.platform.startswith("linux")
+    assert out.stdout.split() == [str(linux), "False"]
 
-        first = "True" if platform.libc_ver()[0] == "glibc" else "False"
-        assert out.stdout.split() == [first, "False"]
-    else:
-        assert out.stdout.split() == ["False", "False"]
+
+@pytest.mark.parametrize("first, user, want", [
+    ("import numpy\nimport labrig", None, 1),     # a notebook that imported numpy first
+    ("import labrig\nimport numpy", None, 1),     # labrig first: the environment does it
+    ("import numpy\nimport labrig", "2", 2),      # the user's own setting is kept
+])
+def test_import_labrig_holds_numpys_blas_to_one_thread(first, user, want):
+    """``import labrig`` makes the command line's BLAS setting whatever was imported
+    first (a notebook's fits then sum in the command line's order, at its speed), unless
+    the user set the thread count."""
+    import os
+    import subprocess
+    import sys
+
+    env = {k: v for k, v in os.environ.items()
+           if k not in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "OMP_NUM_THREADS")}
+    if user:
+        env["OPENBLAS_NUM_THREADS"] = user
+    code = (f"{first}\nfrom threadpoolctl import threadpool_info\n"
+            "print(max(i['num_threads'] for i in threadpool_info() "
+            "if i['user_api'] == 'blas'))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         env=env, check=True)
+    assert int(out.stdout) == min(want, os.cpu_count() or 1)
 
 
 def test_numpy_loads_after_the_command_line_holds_blas_to_one_thread():

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import functools
 import os
+import sys
 import threading
 
 from labrig.core.errors import UserError
@@ -43,11 +44,22 @@ def one_blas_thread() -> None:
     """Hold numpy's BLAS to one thread, unless the user has set it. labrig's matrices are
     small (a fit's few-by-few SVDs and Gram matrices, norms of one run), so BLAS threads
     never pay; OpenBLAS's idle threads spin for a while after every call, on the core a
-    second fit needs, and a threaded norm sums in an order that depends on the machine's
-    core count (the last digits of a fit percentage moved with it). Takes effect only
-    before numpy loads its BLAS: the command line calls it first."""
-    for var in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    second fit needs (a diagnose round 2.4 s against 1.7 s on 2 cores, measured), and a
+    threaded norm sums in an order that depends on the machine's core count (the last
+    digits of a fit percentage moved with it). Before numpy loads its BLAS the
+    environment does it (the command line calls this first); once it has loaded (a
+    notebook that imported numpy before labrig), threadpoolctl sets the loaded BLAS."""
+    told = any(var in os.environ for var in BLAS_VARS)
+    for var in BLAS_VARS:
         os.environ.setdefault(var, "1")
+    if not told and "numpy" in sys.modules:
+        from threadpoolctl import threadpool_limits  # (loads nothing numpy has not)
+
+        threadpool_limits(1, user_api="blas")
+
+
+#: the variables the BLAS libraries numpy ships with read when they load
+BLAS_VARS = ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 
 
 def jobs() -> int:
