@@ -66,18 +66,23 @@ class Hypothesis:
 
     def label(self, size: float) -> str:
         """How a truth of this explanation at ``size`` is named ('deadband d_v = 0.25 V')."""
-        return f"{self.effect} {self.key} = {size:.3g} {self.unit}"
+        return f"{self.effect} {self.key} = {size:.3g}{self.units}"
+
+    @property
+    def units(self) -> str:
+        """' V' after a number; nothing for a ratio (a breakaway excess)."""
+        return "" if self.unit in ("", "-") else f" {self.unit}"
 
     def describe_size(self) -> str:
         if not self.key:
             return ""
-        s = f"{self.key} = {self.size:.3g} {self.unit}"
-        if self.degenerate:
+        s = f"{self.key} = {self.size:.3g}{self.units}"
+        if self.degenerate and self.pinned:
             return s + " (at its bound)"
         if not self.pinned:
             sizes = sorted(v for v, _ in self.members)
-            return (f"{self.key} not pinned by the data: {sizes[0]:.3g}-{sizes[-1]:.3g} "
-                    f"{self.unit} fit as well")
+            return (f"{self.key} not pinned by the data: {sizes[0]:.3g}-{sizes[-1]:.3g}"
+                    f"{self.units} fit as well")
         return s
 
 
@@ -140,14 +145,15 @@ class Proposal(Displayable):
         """'it separates them for any deadband d_v above 0.08 V ...', one clause each."""
         out = []
         for s in self.smallest:
+            u = "" if s["unit"] in ("", "-") else f" {s['unit']}"
             if s["every_plausible_size"]:
                 out.append(f"for every {s['effect']} {s['key']} the data allow (down to "
-                           f"{s['plausible_from']:.3g} {s['unit']})")
+                           f"{s['plausible_from']:.3g}{u})")
             else:
-                out.append(f"for any {s['effect']} {s['key']} above {s['size']:.3g} "
-                           f"{s['unit']} (the data allow {s['plausible_from']:.3g} "
-                           f"{s['unit']} and up; smaller, the two explanations differ on this "
-                           "input by less than the noise lets the decision see)")
+                out.append(f"for any {s['effect']} {s['key']} above {s['size']:.3g}{u} "
+                           f"(the data allow {s['plausible_from']:.3g}{u} and up; smaller, "
+                           "the two explanations differ on this input by less than the noise "
+                           "lets the decision see)")
         text = ("it separates them " + "; and ".join(out)) if out else ""
         if self.unseen:
             text += ("\nnot separated by any input within the budget: " + ", ".join(

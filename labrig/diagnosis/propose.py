@@ -114,15 +114,31 @@ def threshold_of(model: Model) -> float:
     return float(max(out)) if out else 0.0
 
 
-def variants(runs, hyp: Hypothesis, reach, *, seed: int, weights: Weights) -> None:
+def varied_key(effect: str, rival: str) -> str:
+    """The size that tells ``effect`` from ``rival``: its threshold, or, when the rival is
+    the simpler law it contains (Coulomb friction within stiction), the parameter the rival
+    lacks (stiction's breakaway excess: at zero the two are the same model)."""
+    eff = get_effect(effect)
+    if eff.simpler == rival:
+        extra = [p.name for p in eff.params
+                 if p.name not in {q.name for q in get_effect(rival).params}]
+        if len(extra) == 1:
+            return extra[0]
+    return eff.threshold or ""
+
+
+def variants(runs, hyp: Hypothesis, reach, *, seed: int, weights: Weights,
+             rival: str = "") -> None:
     """Fill ``hyp.members`` (the sizes the data cannot exclude, best fit first) and
-    ``hyp.degenerate``: its threshold fixed across the range the data allow and the rest
-    re-fitted; those within :data:`PLAUSIBLE` of the best fit stay. A threshold one run
-    cannot pin down (a dead zone from a single amplitude: d and the gain trade off) then
-    spans its range."""
+    ``hyp.degenerate``: its size (:func:`varied_key`) fixed across the range the data allow
+    and the rest re-fitted; those within :data:`PLAUSIBLE` of the best fit stay. A
+    threshold one run cannot pin down (a dead zone from a single amplitude: d and the gain
+    trade off) then spans its range."""
     eff = get_effect(hyp.effect)
-    key = eff.threshold or ""
-    lo, hi = eff.data_bounds(reach).get(key, (None, None)) if key else (None, None)
+    key = varied_key(hyp.effect, rival)
+    bounds = {p.name: (p.lower, p.upper) for p in eff.params}
+    lo, hi = eff.data_bounds(reach).get(key, bounds.get(key, (None, None))) if key else \
+        (None, None)
     if not key or hi is None:
         hyp.members = [(None, hyp.model)]
         return
@@ -175,10 +191,17 @@ def _judge_truths(hyps) -> None:
     """Set ``skipped`` on the explanations no input can show true against the rival, or
     that the data already rank clearly worse."""
     for h, other in ((hyps[0], hyps[1]), (hyps[1], hyps[0])):
-        if h.degenerate:
-            h.skipped = (f"fitted at its bound ({h.key} = {h.size:.3g} {h.unit}): as the "
+        # (at its bound but with larger sizes as plausible, it is judged at those)
+        if h.degenerate and h.pinned:
+            h.skipped = (f"fitted at its bound ({h.key} = {h.size:.3g}{h.units}): as the "
                          f"truth it is the model without it, which {other.effect} "
                          "explains as well")
+        elif get_effect(other.effect).simpler == h.effect and other.key and not other.pinned:
+            # the rival contains it (stiction with no excess is Coulomb friction) and may
+            # be that at any size the data allow: whatever it does, the rival re-fits to it
+            h.skipped = (f"{other.effect} with {other.key} at zero is {h.effect}, and the "
+                         f"data allow that: whatever {h.effect} does, {other.effect} "
+                         "re-fits to it; only the other way round can be shown")
         elif h.rmse_over_noise > PLAUSIBLE * other.rmse_over_noise:
             h.skipped = (f"it already explains the data worse (rmse/noise "
                          f"{h.rmse_over_noise:.2f} against {other.rmse_over_noise:.2f})")
@@ -189,6 +212,8 @@ def _levels_threshold(hyps) -> float | None:
     range (a size the data do not pin, or only degenerate ones)."""
     sized = [h for h in hyps if not h.degenerate]
     if not sized or any(not h.pinned for h in sized):
+        return None
+    if any(not h.pinned for h in hyps if not h.skipped):   # judged across its sizes
         return None
     return float(np.mean([threshold_of(h.model) for h in sized]))
 
@@ -299,7 +324,7 @@ def propose(runs: list[Run], model: Model, between: str | None = None, *,
         say(f"fitting the model with {name}, and the sizes the data cannot exclude")
         ident = refit_with(runs, base, get_effect(name), seed=seed, weights=weights, reach=reach)
         h = Hypothesis(name, ident.model(), float(ident.metrics["rmse_over_noise"]["overall"]))
-        variants(runs, h, reach, seed=seed, weights=weights)
+        variants(runs, h, reach, seed=seed, weights=weights, rival=pair[1 - len(hyps)])
         hyps.append(h)
     _judge_truths(hyps)
     family = [[m for _, m in h.members] for h in hyps]
