@@ -568,6 +568,21 @@ def test_ask_the_rig_until_sure_from_the_command_line(tmp_path):
     assert proc.returncode == 2 and "--step-s: only with --ask-rig" in proc.stderr
 
 
+@pytest.mark.parametrize("step", [[], ["--step-s", "5"]])
+def test_an_unplugged_board_is_said_before_the_search_and_nothing_is_left(tmp_path, step):
+    """`diagnose --auto --ask-rig --port DEV` with no board at DEV: one line naming the
+    port and the cure, exit 1, before the search runs (nothing on stdout) and with no
+    asked/ folder or plan left behind, one-shot or asking until sure."""
+    runs = sim_dataset(tmp_path, make_rig({}), STEP)
+    proc = labrig("diagnose", runs, "--auto", "--ask-rig", "--port", tmp_path / "ttyNOPE",
+                  *step)
+    assert proc.returncode == 1, proc.stderr
+    line = proc.stderr.strip().splitlines()[-1]
+    assert "ttyNOPE" in line and "is the board plugged in" in line
+    assert proc.stdout == "" and "Traceback" not in proc.stderr
+    assert not (runs / "asked").exists()
+
+
 def test_default_pair_is_the_diagnosis_first_confusable_pair(tmp_path):
     """`diagnose --auto -o DIR` writes diagnosis.json beside model.json: propose takes its
     first confusable pair (an asymmetric dead zone asked about as a dead zone)."""

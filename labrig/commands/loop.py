@@ -194,6 +194,10 @@ def _auto(args, runs, model, fixed, weights) -> int:
         refuse_existing([out] + [out / f for f in AUTO_FILES], args.force, what="folder")
     if args.candidates:
         raise UserError("--candidates: not with --auto (every round tries the whole catalogue)")
+    # the rig to ask is reached before the search (an unplugged board is said at once)
+    asking = (lr.load_rig(args.rig), ) if args.ask_rig else None
+    if asking:
+        asking += (_reachable(asking[0], args),)
     with Progress("diagnose --auto", total=args.max_rounds) as bar:
         res = lr.auto(runs, model, max_rounds=args.max_rounds, seed=args.seed, fixed=fixed,
                       weights=weights, through=None, progress=bar.hook, screen=not args.full)
@@ -204,7 +208,7 @@ def _auto(args, runs, model, fixed, weights) -> int:
         write_json(out / "diagnosis.json", res.to_json())
         save(res.plot(), out / "ladder.png", dpi=120)
     check = _decide(runs, model, args.seed)
-    asked = _ask_rig(args, runs, res) if args.ask_rig else None
+    asked = _ask_rig(args, runs, res, *asking) if asking else None
     if args.json:
         emit_json({**_json_with_check(res, check), **({"asked": asked} if asked else {})})
     else:
@@ -216,19 +220,19 @@ def _auto(args, runs, model, fixed, weights) -> int:
     return 0
 
 
-def _ask_rig(args, runs, res) -> dict:
+def _ask_rig(args, runs, res, rig, make) -> dict:
     """``--ask-rig``: propose the experiment for the first confusable pair, play it on the
-    rig (within the rig file's limits), and decide with the new run."""
+    rig (``make()`` a bridge to it, within the rig file's limits), and decide with the new
+    run."""
 
     if not res.confusable:
         return {"text": "asked the rig nothing: no two effects explain the data about "
                         "equally well", "pair": None}
     first, second = (lr.proposed_as(n) for n in (res.confusable[0].first,
                                                      res.confusable[0].second))
-    rig = lr.load_rig(args.rig)
     newdir = Path(args.data[0]) / "asked"
     if args.step_s:
-        return _ask_until_sure(args, runs, res, f"{first},{second}", rig, newdir)
+        return _ask_until_sure(args, runs, res, f"{first},{second}", rig, make, newdir)
     refuse_existing([newdir, newdir / "plan.toml", newdir / "proposed.csv"], args.force,
                     what="folder")
     with Progress("ask the rig", total=None) as bar:
@@ -245,7 +249,6 @@ def _ask_rig(args, runs, res) -> dict:
         for old in (newdir / "proposed.csv", newdir / "proposed.json"):   # --force: replaced
             old.unlink(missing_ok=True)
         atomic_write(newdir / "plan.toml", prop.to_toml())
-        make, _, _ = lr.open_bridge(rig, port=None if args.sim else args.port)
         bar.log(f"playing {prop.chosen.candidate.label} on the rig")
         lr.play(make(), lr.load_plan(newdir / "plan.toml", rig), rig, newdir)
         d = lr.decide([*args.data, newdir], res.model, seed=args.seed, through=None,
@@ -256,12 +259,24 @@ def _ask_rig(args, runs, res) -> dict:
                     f"{newdir}/\n{d.to_text()}"}
 
 
-def _ask_until_sure(args, runs, res, between, rig, newdir) -> dict:
+def _reachable(rig, args):
+    """How to reach the rig asked; a board is greeted now, before any proposal is
+    computed or written (an unplugged port is said at once, with nothing left behind)."""
+    make, _, _ = lr.open_bridge(rig, port=None if args.sim else args.port)
+    if args.port:
+        board = make()
+        try:
+            board.open()
+        finally:
+            board.close()
+    return make
+
+
+def _ask_until_sure(args, runs, res, between, rig, make, newdir) -> dict:
     """``--ask-rig --step-s S``: experiments of at most S seconds played one at a time
     into DATA/asked/step<k>/, each chosen on the data so far, until one explanation wins
     or the budget is spent."""
     refuse_existing([newdir], args.force, what="folder")
-    make, _, _ = lr.open_bridge(rig, port=None if args.sim else args.port)
 
     def play(plan, k):
         folder = newdir / f"step{k}"
