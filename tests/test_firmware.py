@@ -99,6 +99,24 @@ def test_end_to_end_pwl(board):
     assert tacho[1000:1100].mean() > 2.0 and tacho[2300:2400].mean() < -1.0
 
 
+def test_a_closed_loop_pwl_plays_through_the_boards_loop():
+    """A proposed closed-loop plan (``propose --loop closed``: position steps as the
+    reference of the analog loop, kp 2, kv 0.15) on the compiled firmware: the board plays
+    the reference to one DAC step and the loop takes the pot to it and back (the default
+    rig hides no friction: no error band)."""
+    exp = Experiment(name="proposed", loop="closed", waveform="pwl", lead_in_s=0.2,
+                     points=[[0, 0.0], [0.01, 0.5], [1.5, 0.5], [1.51, 0.0], [3.0, 0.0]])
+    with Emulator("uno", RIG) as emu, SerialBridge(emu.pty, RIG) as bridge:
+        idx, u, blocks = _run(bridge, exp)
+        c = bridge.counters()
+    assert c["dropped_samples"] == 0 and np.array_equal(idx, np.arange(exp.n_samples))
+    assert np.max(np.abs(u - _plan(exp, idx))) <= 1.5 * LSB
+    pos = np.concatenate([b.pos for b in blocks])
+    start = pos[:150].mean()
+    assert abs(pos[1500:1700].mean() - start - 0.5) < 0.05     # at the reference
+    assert abs(pos[3000:3200].mean() - start) < 0.05           # and back
+
+
 def test_board_refuses_a_pwl_beyond_its_table():
     points = [[0.01 * k, 0.5 * (-1) ** k] for k in range(40)]   # 40 > the board's 32
     with Emulator("uno", RIG) as emu, SerialBridge(emu.pty, RIG) as bridge:

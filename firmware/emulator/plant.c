@@ -28,8 +28,8 @@ void plant_step(plant_t *s, double dt)
 {
     const plant_params_t *p = &s->p;
     double vin = s->u;
-    if (p->closed)
-        vin = p->kp * (s->u - pos_clean(s)) - p->kv * p->Kt * s->w;
+    if (p->closed)   /* the analog loop sees the pot on the output shaft, not its offset */
+        vin = p->kp * (s->u - p->Kpot * s->theta_m / p->N) - p->kv * p->Kt * s->w;
     double v = p->Ka * vin;
     if (v > p->Vmax) v = p->Vmax;
     if (v < -p->Vmax) v = -p->Vmax;
