@@ -195,9 +195,8 @@ def _auto(args, runs, model, fixed, weights) -> int:
     if args.candidates:
         raise UserError("--candidates: not with --auto (every round tries the whole catalogue)")
     # the rig to ask is reached before the search (an unplugged board is said at once)
-    asking = (lr.load_rig(args.rig), ) if args.ask_rig else None
-    if asking:
-        asking += (_reachable(asking[0], args),)
+    rig = lr.load_rig(args.rig) if args.ask_rig else None
+    make = _reachable(rig, args) if args.ask_rig else None
     with Progress("diagnose --auto", total=args.max_rounds) as bar:
         res = lr.auto(runs, model, max_rounds=args.max_rounds, seed=args.seed, fixed=fixed,
                       weights=weights, through=None, progress=bar.hook, screen=not args.full)
@@ -208,7 +207,7 @@ def _auto(args, runs, model, fixed, weights) -> int:
         write_json(out / "diagnosis.json", res.to_json())
         save(res.plot(), out / "ladder.png", dpi=120)
     check = _decide(runs, model, args.seed)
-    asked = _ask_rig(args, runs, res, *asking) if asking else None
+    asked = _ask_rig(args, runs, res, rig, make) if args.ask_rig else None
     if args.json:
         emit_json({**_json_with_check(res, check), **({"asked": asked} if asked else {})})
     else:

@@ -40,6 +40,10 @@ def _threadsafe() -> bool:
         return False
 
 
+#: the variables the BLAS libraries numpy ships with read when they load
+BLAS_VARS = ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+
+
 def one_blas_thread() -> None:
     """Hold numpy's BLAS to one thread, unless the user has set it. labrig's matrices are
     small (a fit's few-by-few SVDs and Gram matrices, norms of one run), so BLAS threads
@@ -56,10 +60,6 @@ def one_blas_thread() -> None:
         from threadpoolctl import threadpool_limits  # (loads nothing numpy has not)
 
         threadpool_limits(1, user_api="blas")
-
-
-#: the variables the BLAS libraries numpy ships with read when they load
-BLAS_VARS = ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 
 
 def jobs() -> int:

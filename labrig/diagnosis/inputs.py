@@ -88,6 +88,18 @@ def _from_rest(levels, hold: float, rest: float, edge: float) -> list:
     return segs
 
 
+def _admit(out: list, kind: str, pts: list, label: str, *, amax: float, budget_s: float,
+           gains: dict | None = None) -> None:
+    """Append the input ``pts`` and its mirror image (the same test starting the other
+    way: the travel the data allow may differ by direction) when it fits the board's table,
+    the budget and the input limit."""
+    if len(pts) <= MAX_POINTS and pts[-1][0] <= budget_s + 1e-9 and \
+            max(abs(u) for _, u in pts) <= amax + 1e-9:
+        out.append(InputCandidate(kind, pts, label, gains))
+        out.append(InputCandidate(kind, [[t, -u if u else 0.0] for t, u in pts],
+                                  label + ", mirrored", gains))
+
+
 def _holds(usual, fill: float) -> list:
     """The usual hold times and, when longer, the one that fills the budget."""
     return sorted(set(usual) | ({round(fill, 3)} if fill > usual[0] else set()))
@@ -105,14 +117,7 @@ def candidates(*, threshold: float | None, amax: float, tau: float, budget_s: fl
     out: list[InputCandidate] = []
 
     def add(kind, segs, label):
-        pts = _pts(segs)
-        if len(pts) <= MAX_POINTS and pts[-1][0] <= budget_s + 1e-9 and \
-                max(abs(u) for _, u in pts) <= amax + 1e-9:
-            out.append(InputCandidate(kind, pts, label))
-            # and its mirror image: the same test starting the other way (the travel the
-            # data allow may differ by direction)
-            out.append(InputCandidate(kind, [[t, -u if u else 0.0] for t, u in pts],
-                                 label + ", mirrored"))
+        _admit(out, kind, _pts(segs), label, amax=amax, budget_s=budget_s)
 
     near_th = {min(f * th, amax) for f in (1.5, 2.5)} if pinned else set()
     for U in sorted(near_th | {0.5 * amax, amax}):
@@ -192,14 +197,10 @@ def closed_candidates(*, threshold: float | None, amax: float, gains: dict, tau:
     for levels in sizes:
         fill = 0.98 * budget_s / (2 * len(levels)) - 2 * edge
         for hold in _holds((settle, 2 * settle), fill):
-            pts = _pts(_from_rest(levels, hold, hold, edge))
-            if len(pts) <= MAX_POINTS and pts[-1][0] <= budget_s + 1e-9:
-                label = (f"position steps {levels[0]:.2f}-{levels[-1]:.2f} V through the "
-                         f"loop (kp {kp:g}), {hold:.2f} s each")
-                out.append(InputCandidate("position_steps", pts, label, dict(gains)))
-                out.append(InputCandidate("position_steps",
-                                          [[t, -u if u else 0.0] for t, u in pts],
-                                          label + ", mirrored", dict(gains)))
+            _admit(out, "position_steps", _pts(_from_rest(levels, hold, hold, edge)),
+                   f"position steps {levels[0]:.2f}-{levels[-1]:.2f} V through the loop "
+                   f"(kp {kp:g}), {hold:.2f} s each", amax=amax, budget_s=budget_s,
+                   gains=dict(gains))
     return out
 
 

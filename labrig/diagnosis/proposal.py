@@ -31,6 +31,11 @@ DECISIVE = 1.0
 PINNED = 2.0
 
 
+def after_number(unit: str) -> str:
+    """' V' after a number; nothing for a ratio (a breakaway excess, unit '-')."""
+    return "" if unit in ("", "-") else f" {unit}"
+
+
 @dataclass
 class Hypothesis:
     """One explanation, fitted to the data, and the sizes of it the data cannot exclude."""
@@ -70,8 +75,7 @@ class Hypothesis:
 
     @property
     def units(self) -> str:
-        """' V' after a number; nothing for a ratio (a breakaway excess)."""
-        return "" if self.unit in ("", "-") else f" {self.unit}"
+        return after_number(self.unit)
 
     def describe_size(self) -> str:
         if not self.key:
@@ -145,7 +149,7 @@ class Proposal(Displayable):
         """'it separates them for any deadband d_v above 0.08 V ...', one clause each."""
         out = []
         for s in self.smallest:
-            u = "" if s["unit"] in ("", "-") else f" {s['unit']}"
+            u = after_number(s["unit"])
             if s["every_plausible_size"]:
                 out.append(f"for every {s['effect']} {s['key']} the data allow (down to "
                            f"{s['plausible_from']:.3g}{u})")

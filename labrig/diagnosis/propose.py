@@ -334,15 +334,14 @@ def propose(runs: list[Run], model: Model, between: str | None = None, *,
     data_amax = max(float(np.max(np.abs(r.u))) for r in opened)
     amax = data_amax if amax is None else float(amax)
     tau = float(np.median([h.model.servo().tau_m for h in hyps]))
+    threshold = _levels_threshold(hyps)
     cands = [] if loop == "closed" else \
-        candidates(threshold=_levels_threshold(hyps), amax=amax, tau=tau, budget_s=budget_s,
-                   dt=template.dt)
+        candidates(threshold=threshold, amax=amax, tau=tau, budget_s=budget_s, dt=template.dt)
     if gains is not None:   # the loop's slowest time constant sets its steps' holds
-        slow = [1.0 / np.min(np.abs(np.real(np.linalg.eigvals(
-            h.model.servo().A_closed(gains["kp"], gains["kv"]))))) for h in hyps]
-        cands += closed_candidates(threshold=_levels_threshold(hyps), amax=amax, gains=gains,
-                                   tau=float(np.median(slow)), budget_s=budget_s,
-                                   dt=template.dt)
+        tau_loop = np.median([h.model.servo().closed_tau(gains["kp"], gains["kv"])
+                              for h in hyps])
+        cands += closed_candidates(threshold=threshold, amax=amax, gains=gains,
+                                   tau=float(tau_loop), budget_s=budget_s, dt=template.dt)
     if not cands:
         raise UserError(f"--budget-s: no candidate input fits in {budget_s:g} s; allow more")
     say(f"simulating {len(cands)} candidate inputs with {sum(map(len, family))} plausible "

@@ -156,13 +156,17 @@ class ServoParams:
                           [self.J * self.L, self.J * self.R + self.B * self.L,
                            self.B * self.R + self.K * self.ke])
 
+    def closed_tau(self, kp: float, kv: float) -> float:
+        """The closed position loop's slowest time constant (s)."""
+        slow = np.min(np.abs(np.real(np.linalg.eigvals(self.A_closed(kp, kv)))))
+        return 1.0 / max(slow, 1e-6)
+
     def position_step_info(self, kp: float, kv: float) -> dict:
         """Rise time, settling time and overshoot of the closed position loop."""
         sys = self.closed_loop(kp, kv)
         # an explicit time grid: python-control's automatic one fails on the stiff
         # electrical pole of an identified model (tau_e can be microseconds)
-        slow = np.min(np.abs(np.real(np.linalg.eigvals(self.A_closed(kp, kv)))))
-        T = np.linspace(0.0, 12.0 / max(slow, 1e-6), 6001)
+        T = np.linspace(0.0, 12.0 * self.closed_tau(kp, kv), 6001)
         import control  # python-control: ~0.8 s to import
 
         info = control.step_info(sys[1, 0], T=T)
