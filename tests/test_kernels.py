@@ -9,6 +9,7 @@ from conftest import make_rig, sim_dataset, square_plan
 from labrig.model.effects import CATALOGUE
 from labrig.model.simulate import Simulator
 from labrig.io.runs import read_dataset
+from labrig.simulation.layout import C_TC, C_TS
 
 VALUES = {"coulomb_friction": {"tc_v": (0.05, 0.3)},
           "stiction": {"tc_v": (0.05, 0.3), "excess": (0.1, 1.0)},
@@ -127,6 +128,44 @@ def test_closed_loop_pieces_are_as_accurate_as_the_substeps_they_replace(tmp_pat
     ow, ot = (np.sqrt(np.mean((o - fine[k]) ** 2)) for o, k in ((old_w, "w"), (old_th, "theta")))
     assert ew < 0.2 * qw and et < 0.2 * qt, (ew / qw, et / qt)
     assert ew <= 1.05 * ow and et <= 1.05 * ot, (ew, ow, et, ot)
+
+
+@pytest.mark.parametrize("effects", [
+    {"deadband": {"d_v": 0.3}}, {"saturation": {"vmax_v": 3.0}}, {"backlash": {"a_rad": 0.03}},
+    {"asymmetry": {"k": 0.15}, "offset": {"u0_v": 0.05}},
+    {"deadband": {"d_v": 0.2}, "delay": {"td_s": 0.0035}},
+    {"coulomb_friction": {"tc_v": 0.2}, "deadband": {"d_v": 0.1}},
+    {"stiction": {"tc_v": 0.1, "excess": 0.5}, "backlash": {"a_rad": 0.02}},
+], ids=lambda e: "+".join(e))
+def test_loop_candidate_is_loop_step_sample_by_sample(runs, effects):
+    """The per-candidate kernel of a closed loop with its input map keeps what a steady
+    input leaves unchanged (the piece, its levels, the slot's coefficients) instead of
+    finding it again each sample: the same numbers, bit for bit, as stepping
+    :func:`loop_sample_alone` (its piece found afresh every sample) through the run."""
+    from labrig.model.simulate import _loop_table
+    from labrig.simulation.candidate_kernel import loop_sample_alone
+
+    run = next(r for r in runs if r.loop == "closed")
+    sim = Simulator([run], [CATALOGUE[n]() for n in effects])
+    x = np.array([[8.0, 0.0085, 5.2245e-5, 1.0e-5, 0.05]])
+    kept = sim.simulate(x, effects)[0]
+    prm, _, _ = sim._params(x, effects)
+    rd = sim.runs[0]
+    c = np.array([rd.dt, rd.Ka, rd.N, rd.Kt, rd.Kpot, rd.kp, rd.kv, rd.theta0])
+    td = effects.get("delay", {}).get("td_s", 0.0)
+    m = int(np.floor(td / rd.dt + 1e-9))
+    fr = td / rd.dt - m
+    T = _loop_table(prm, rd, np.array([fr]), sim.substeps)
+    friction = prm[0, C_TC] > 0.0 or prm[0, C_TS] > 0.0
+    i, w, th, pl = 0.0, 0.0, c[7] * c[2], c[7]
+    w_ref, th_ref = np.empty(len(rd.u)), np.empty(len(rd.u))
+    for k in range(len(rd.u)):
+        w_ref[k], th_ref[k] = w, (pl if "backlash" in effects else th / c[2])
+        s_old = rd.u[k - m - 1] if k - m - 1 >= 0 else 0.0
+        s_new = rd.u[k - m] if k - m >= 0 else 0.0
+        i, w, th, pl = loop_sample_alone(i, w, th, pl, s_old, s_new, fr, prm[0], friction,
+                                         sim.substeps, c, T, 0)
+    assert np.array_equal(kept["w"][0], w_ref) and np.array_equal(kept["theta"][0], th_ref)
 
 
 def test_zero_order_hold_is_the_matrix_exponential():

@@ -10,9 +10,9 @@ closed (or open) loop with its own exact zero-order hold (a slot of the loop tab
 in its piece, and sub-stepped (as the truth integrator) where it crosses into another,
 a gap opens or closes, or the speed reaches zero under friction.
 
-:func:`loop_step` is one candidate's sample (the per-candidate kernel's);
-:func:`loop_sample` the same for every lane of a block at once (the population kernel's),
-with the same arithmetic in the same order.
+:func:`loop_step` is one candidate's sample (the per-candidate kernel takes its pieces
+one by one); :func:`loop_sample` the same for every lane of a block at once (the
+population kernel's), with the same arithmetic in the same order.
 """
 from __future__ import annotations
 
@@ -97,48 +97,95 @@ def piece_level_no_kink(g, s, sc, kp, Kpot, u0, Ka, vmax):
 
 
 @numba.njit(cache=True, inline="always")
+def gap_side(x, pl, w, a):
+    """Where the pot ``pl`` is in a backlash gap of half width ``a`` (``x``: theta / N):
+    pressed at the gap's lower end moving up (``ep``), at its upper end moving down
+    (``en``), inside it (``gp``), and the pot's offset from x (``sc``: -a, +a, or the
+    pot itself inside the gap; 0 without a gap)."""
+    ep = (a > 0.0) & (x - a >= pl) & (w >= 0.0)  # pressed against the gap's ends
+    en = (a > 0.0) & (x + a <= pl) & (w <= 0.0)
+    gp = (a > 0.0) & (not ep) & (not en)
+    sc = pl if gp else (-a if ep else (a if en else 0.0))
+    return ep, en, gp, sc
+
+
+@numba.njit(cache=True, inline="always")
+def piece_slot(g0, gp):
+    """The loop table's slot of the drive's piece ``g0`` (``gp``: the pot inside its gap)."""
+    return S_FLAT if (g0 == G_DEAD) | (g0 >= G_RAILP) else (g0 + 2 if gp else g0)
+
+
+@numba.njit(cache=True, inline="always")
+def slot_row(T, p, slot):
+    """Candidate ``p``'s coefficients in ``slot`` of the loop table: Ad (a22 - 1), g_old,
+    g_new, g_f, as one tuple the update reads (:func:`piece_update`)."""
+    return (T[p, slot, 0], T[p, slot, 1], T[p, slot, 2], T[p, slot, 3], T[p, slot, 4],
+            T[p, slot, 5], T[p, slot, 6], T[p, slot, 7], T[p, slot, 8],
+            T[p, slot, T_GO], T[p, slot, T_GO + 1], T[p, slot, T_GO + 2],
+            T[p, slot, T_GN], T[p, slot, T_GN + 1], T[p, slot, T_GN + 2],
+            T[p, slot, T_GF], T[p, slot, T_GF + 1], T[p, slot, T_GF + 2])
+
+
+@numba.njit(cache=True, inline="always")
+def piece_update(i, w, th, cn, co, tf, r):
+    """One sample of the affine loop of a piece, its coefficients ``r`` (:func:`slot_row`),
+    its constant drive before (``co``) and after (``cn``) the input's switch, the friction
+    torque ``tf``: the new current, speed and motor angle."""
+    ni = r[0] * i + r[1] * w + r[T_GN] * cn
+    nw = r[3] * i + r[4] * w + r[T_GN + 1] * cn
+    nt = r[6] * i + r[7] * w + th + r[T_GN + 2] * cn
+    ni += r[2] * th
+    nw += r[5] * th
+    nt += r[8] * th
+    ni += r[T_GO] * co
+    nw += r[T_GO + 1] * co
+    nt += r[T_GO + 2] * co
+    ni += r[T_GF] * tf
+    nw += r[T_GF + 1] * tf
+    nt += r[T_GF + 2] * tf
+    return ni, nw, nt
+
+
+@numba.njit(cache=True, inline="always")
+def stays(g0, e1, d, ak, Ka, vmax, nw, w, pl, npl, ep, en, gp, friction):
+    """Whether a sample computed in piece ``g0`` stayed there: its drive at the end (error
+    ``e1``) is in the same piece, no backlash gap opened or closed, and (under
+    ``friction``) the speed kept its sign."""
+    ok = drive_piece(e1, d, ak, Ka, vmax) == g0
+    ok = ok & (not (ep & (nw < 0.0))) & (not (en & (nw > 0.0))) & (not (gp & (npl != pl)))
+    if friction:
+        ok = ok & (nw * w > 0.0)
+    return ok
+
+
+@numba.njit(cache=True, inline="always")
 def loop_step(i, w, th, pl, s_old, s_new, delayed, pr, c, T, p):
     """One sample of candidate ``p`` in a closed loop with its input map, exactly: the piece
     of the map the drive is in at the start is an affine closed (or, flat, open) loop with
     its own exact ZOH (``T[p, slot]``; ``T`` the loop table, (P, N_SLOTS, SLOT_W)).
     Returns the new state and ``ok``: False when the drive leaves the piece, a backlash gap
     opens or closes, or the speed reaches zero under friction within the sample (the
-    caller then sub-steps it)."""
+    caller then sub-steps it). The per-candidate kernel takes the same steps, keeping
+    what a steady input leaves unchanged from one sample to the next."""
     N, Ka, Kpot, kp = c[2], c[1], c[4], c[5]
     kvkt = c[6] * c[3]
     d, u0, ak, vmax, a, tc = pr[C_D], pr[C_U0], pr[C_ASYM], pr[C_VMAX], pr[C_A], pr[C_TC]
     x = th / N
     seen = pl if a > 0.0 else x
-    ep = (a > 0.0) & (x - a >= pl) & (w >= 0.0)  # pressed against the gap's ends
-    en = (a > 0.0) & (x + a <= pl) & (w <= 0.0)
-    gp = (a > 0.0) & (not ep) & (not en)
-    sc = pl if gp else (-a if ep else (a if en else 0.0))
+    ep, en, gp, sc = gap_side(x, pl, w, a)
     g0 = drive_piece(kp * (s_new - Kpot * seen) - kvkt * w + u0, d, ak, Ka, vmax)
     ok = True
     if delayed:
         ok = drive_piece(kp * (s_old - Kpot * seen) - kvkt * w + u0, d, ak, Ka, vmax) == g0
-    slot = S_FLAT if (g0 == G_DEAD) | (g0 >= G_RAILP) else (g0 + 2 if gp else g0)
     cn = piece_level(g0, s_new, sc, kp, Kpot, u0, ak, d, Ka, vmax)
     co = piece_level(g0, s_old, sc, kp, Kpot, u0, ak, d, Ka, vmax)
     tf = tc if w > 0.0 else (-tc if w < 0.0 else 0.0)
-    ni = T[p, slot, 0] * i + T[p, slot, 1] * w + T[p, slot, T_GN] * cn
-    nw = T[p, slot, 3] * i + T[p, slot, 4] * w + T[p, slot, T_GN + 1] * cn
-    nt = T[p, slot, 6] * i + T[p, slot, 7] * w + th + T[p, slot, T_GN + 2] * cn
-    ni += T[p, slot, 2] * th
-    nw += T[p, slot, 5] * th
-    nt += T[p, slot, 8] * th
-    ni += T[p, slot, T_GO] * co
-    nw += T[p, slot, T_GO + 1] * co
-    nt += T[p, slot, T_GO + 2] * co
-    ni += T[p, slot, T_GF] * tf
-    nw += T[p, slot, T_GF + 1] * tf
-    nt += T[p, slot, T_GF + 2] * tf
-    npl = play_operator(pl, nt / N, a) if a > 0.0 else pl
-    seen1 = npl if a > 0.0 else nt / N
-    ok = ok & (drive_piece(kp * (s_new - Kpot * seen1) - kvkt * nw + u0, d, ak, Ka, vmax) == g0)
-    ok = ok & (not (ep & (nw < 0.0))) & (not (en & (nw > 0.0))) & (not (gp & (npl != pl)))
-    if tc > 0.0 or pr[C_TS] > 0.0:
-        ok = ok & (nw * w > 0.0)
+    ni, nw, nt = piece_update(i, w, th, cn, co, tf, slot_row(T, p, piece_slot(g0, gp)))
+    xn = nt / N
+    npl = play_operator(pl, xn, a) if a > 0.0 else pl
+    seen1 = npl if a > 0.0 else xn
+    ok = ok & stays(g0, kp * (s_new - Kpot * seen1) - kvkt * nw + u0, d, ak, Ka, vmax, nw, w,
+                    pl, npl, ep, en, gp, tc > 0.0 or pr[C_TS] > 0.0)
     return ni, nw, nt, npl, ok
 
 
@@ -151,11 +198,8 @@ def loop_slot(w, th, pl, s, pr, c):
     d, u0, ak, vmax, a = pr[C_D], pr[C_U0], pr[C_ASYM], pr[C_VMAX], pr[C_A]
     x = th / N
     seen = pl if a > 0.0 else x
-    ep = (a > 0.0) & (x - a >= pl) & (w >= 0.0)
-    en = (a > 0.0) & (x + a <= pl) & (w <= 0.0)
-    gp = (a > 0.0) & (not ep) & (not en)
-    g0 = drive_piece(kp * (s - Kpot * seen) - kvkt * w + u0, d, ak, Ka, vmax)
-    return S_FLAT if (g0 == G_DEAD) | (g0 >= G_RAILP) else (g0 + 2 if gp else g0)
+    gp = gap_side(x, pl, w, a)[2]
+    return piece_slot(drive_piece(kp * (s - Kpot * seen) - kvkt * w + u0, d, ak, Ka, vmax), gp)
 
 
 @numba.njit(cache=True, error_model="numpy")
