@@ -53,12 +53,14 @@ def _call(fn, args, kw):
 def _warm() -> bool:
     """While the page opens: the loop's modules, numba's cache, and python-control (the
     step metrics of every fit; its import is the slowest), so a first click waits for
-    none of them."""
+    none of them. The kernels load with the first fit (a first diagnosis after it took
+    1.35 s, a warm one 1.37 s: the fit loads what it needs); loaded here they took a
+    core from a sweep started as the page opened (its live view 0.74 s behind, not 0.5)."""
     import control  # noqa: F401
 
     import labrig.verbs as lr
 
-    lr.warm_up()
+    lr.warm_up(load=False)
     return True
 
 
