@@ -197,3 +197,33 @@ def test_asking_until_sure_stopped_mid_step_keeps_what_was_finished(tmp_path):
         assert st.folders() == [folder]
     finally:
         st.close()
+
+
+@pytest.mark.slow
+def test_the_hand_view_waits_for_the_diagnosis_and_a_cancel_still_builds_it(tmp_path, rig):
+    """A new rung's sliders are built once its diagnosis and ladder are in (built beside
+    the diagnosis they took a core from it); when the student cancels the diagnosis, the
+    hand view is built from the rung all the same."""
+    from conftest import sim_dataset, square_plan
+    from labrig.lab.page import LabPage
+    from labrig.lab.serve import make_station
+
+    folder = sim_dataset(tmp_path, rig, square_plan(amps=(1.2, 1.6), periods=1), seed=1)
+    st = make_station(folder, port=str(tmp_path / "ttyNONE"))
+    try:
+        page = LabPage(st, "local")
+        st.fit_linear()
+        t0 = time.monotonic()
+        while not (st.rungs and st.worker.name == "diagnose" and st.worker.busy):
+            assert time.monotonic() - t0 < 300, "the fit did not come back"
+            page.refresh()
+            time.sleep(0.02)
+        page.refresh()
+        assert page.explore.model is None          # the diagnosis has the cores
+        assert "rmse/noise" in page.now.object     # the rung's number is shown at once
+        st.cancel()
+        page.refresh()
+        assert page.explore.model is not None
+        assert page.explore.model.params == st.rungs[-1]["model"]["params"]
+    finally:
+        st.close()

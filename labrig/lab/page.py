@@ -261,7 +261,7 @@ class LabPage:
         set_text(self.runs_list, "runs in the folder: " + (", ".join(st.runs_on_disk()) or "none"))
         if self.owner and st.poll():
             self._show_loop()
-        elif self._seen != self._state():
+        elif self._seen != self._state() or self._hand_view_behind():
             self._show_loop()
         busy = st.busy()
         self._show_stream()
@@ -296,6 +296,12 @@ class LabPage:
             self._do(st.decide)
         if st.sweeping and st.proposal and st.prediction:
             self._asked = True
+
+    def _hand_view_behind(self) -> bool:
+        """The last rung's hand view waits for its chain of jobs (:meth:`_show_loop`),
+        which has ended without a new state to show: cancelled, say."""
+        st = self.st
+        return bool(st.rungs) and self._explored is not st.rungs[-1] and not st.busy()
 
     _asked = False
     _live_shown = None
