@@ -39,6 +39,7 @@ from whole_process import labrig, machine, main, readme_row, timed_json
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
 RESULTS = HERE / "results_click.json"
+sys.path.insert(0, str(ROOT))   # (this tree's labrig, read in this process)
 TARGETS = {"round_s": 1.5, "auto_s": 5.0, "closed_over_open": 0.5}
 
 
@@ -51,7 +52,6 @@ def _median(args, n: int = 3) -> tuple[float, dict, list]:
 
 
 def _rate(folder: Path) -> dict:
-    sys.path.insert(0, str(ROOT))
     from labrig.io.runs import read_dataset
 
     samples = sum(len(r.u) for r in read_dataset(folder))
@@ -63,7 +63,6 @@ def _rate(folder: Path) -> dict:
 
 def _warm_round(runs: Path, model: Path) -> dict:
     """The README's round in this process, warm: what a notebook or the lab's worker waits."""
-    sys.path.insert(0, str(ROOT))
     import labrig as lr
 
     data = lr.read_runs(runs)

@@ -83,6 +83,25 @@ def test_population_kernel_with_a_measured_current(runs, names):
     np.testing.assert_allclose(fast, ref, rtol=1e-9)
 
 
+def _stepped(sim, effects, step):
+    """The run of ``sim`` (one closed-loop run) stepped sample by sample from rest by
+    ``step(i, w, th, pl, s_old, s_new, fr, c) -> (i, w, th, pl)``: its speed and the
+    position the pot reads, as the kernels record them."""
+    rd = sim.runs[0]
+    c = np.array([rd.dt, rd.Ka, rd.N, rd.Kt, rd.Kpot, rd.kp, rd.kv, rd.theta0])
+    td = effects.get("delay", {}).get("td_s", 0.0)
+    m = int(np.floor(td / rd.dt + 1e-9))
+    fr = td / rd.dt - m
+    i, w, th, pl = 0.0, 0.0, c[7] * c[2], c[7]
+    ws, ths = np.empty(len(rd.u)), np.empty(len(rd.u))
+    for k in range(len(rd.u)):
+        ws[k], ths[k] = w, (pl if "backlash" in effects else th / c[2])
+        s_old = rd.u[k - m - 1] if k - m - 1 >= 0 else 0.0
+        s_new = rd.u[k - m] if k - m >= 0 else 0.0
+        i, w, th, pl = step(i, w, th, pl, s_old, s_new, fr, c)
+    return ws, ths
+
+
 @pytest.mark.parametrize("effects", [
     {"deadband": {"d_v": 0.3}}, {"saturation": {"vmax_v": 6.0}}, {"backlash": {"a_rad": 0.03}},
     {"asymmetry": {"k": 0.15}, "offset": {"u0_v": 0.05}},
@@ -111,17 +130,8 @@ def test_closed_loop_pieces_are_as_accurate_as_the_substeps_they_replace(tmp_pat
                           effect_params=effects, loop="closed", kp=2.0, kv=0.15, substeps=400)
     # the sub-steps throughout (the kernel before the pieces), sample by sample
     prm, _, _ = sim._params(x, effects)
-    rd = sim.runs[0]
-    c = np.array([rd.dt, rd.Ka, rd.N, rd.Kt, rd.Kpot, rd.kp, rd.kv, rd.theta0])
-    td = effects.get("delay", {}).get("td_s", 0.0)
-    m, fr = int(np.floor(td / rd.dt + 1e-9)), td / rd.dt - np.floor(td / rd.dt + 1e-9)
-    i, w, th, pl = 0.0, 0.0, c[7] * c[2], c[7]
-    old_w, old_th = np.empty(len(rd.u)), np.empty(len(rd.u))
-    for k in range(len(rd.u)):
-        old_w[k], old_th[k] = w, (pl if "backlash" in effects else th / c[2])
-        s_old = rd.u[k - m - 1] if k - m - 1 >= 0 else 0.0
-        s_new = rd.u[k - m] if k - m >= 0 else 0.0
-        i, w, th, pl = substeps(i, w, th, pl, s_old, s_new, fr, prm[0], 2, 16, c)
+    old_w, old_th = _stepped(sim, effects, lambda i, w, th, pl, s_old, s_new, fr, c: substeps(
+        i, w, th, pl, s_old, s_new, fr, prm[0], 2, 16, c))
     qw = rig.bridge.adc_quantum_v / rig.sensors.tacho_v_per_rad_s
     qt = rig.bridge.adc_quantum_v / rig.sensors.pos_v_per_rad
     ew, et = (np.sqrt(np.mean((pieces[k][0] - fine[k]) ** 2)) for k in ("w", "theta"))
@@ -150,21 +160,13 @@ def test_loop_candidate_is_loop_step_sample_by_sample(runs, effects):
     x = np.array([[8.0, 0.0085, 5.2245e-5, 1.0e-5, 0.05]])
     kept = sim.simulate(x, effects)[0]
     prm, _, _ = sim._params(x, effects)
-    rd = sim.runs[0]
-    c = np.array([rd.dt, rd.Ka, rd.N, rd.Kt, rd.Kpot, rd.kp, rd.kv, rd.theta0])
     td = effects.get("delay", {}).get("td_s", 0.0)
-    m = int(np.floor(td / rd.dt + 1e-9))
-    fr = td / rd.dt - m
-    T = _loop_table(prm, rd, np.array([fr]), sim.substeps)
+    fr = td / sim.runs[0].dt - np.floor(td / sim.runs[0].dt + 1e-9)
+    T = _loop_table(prm, sim.runs[0], np.array([fr]), sim.substeps)
     friction = prm[0, C_TC] > 0.0 or prm[0, C_TS] > 0.0
-    i, w, th, pl = 0.0, 0.0, c[7] * c[2], c[7]
-    w_ref, th_ref = np.empty(len(rd.u)), np.empty(len(rd.u))
-    for k in range(len(rd.u)):
-        w_ref[k], th_ref[k] = w, (pl if "backlash" in effects else th / c[2])
-        s_old = rd.u[k - m - 1] if k - m - 1 >= 0 else 0.0
-        s_new = rd.u[k - m] if k - m >= 0 else 0.0
-        i, w, th, pl = loop_sample_alone(i, w, th, pl, s_old, s_new, fr, prm[0], friction,
-                                         sim.substeps, c, T, 0)
+    w_ref, th_ref = _stepped(sim, effects, lambda i, w, th, pl, s_old, s_new, fr, c:
+                             loop_sample_alone(i, w, th, pl, s_old, s_new, fr, prm[0], friction,
+                                               sim.substeps, c, T, 0))
     assert np.array_equal(kept["w"][0], w_ref) and np.array_equal(kept["theta"][0], th_ref)
 
 

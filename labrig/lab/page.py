@@ -350,7 +350,7 @@ class LabPage:
             # process, and the browser's drawing) they took a core from it (2.5 s against
             # 1.6 s alone, traced); the rung's number and its curve on the worst run are
             # shown at once
-            if self._explored is not r and not st.busy():
+            if self._hand_view_behind():
                 self._explored = r
                 self.rm_pick.options = list(r["effects"])
                 self.explore.set_model(r["model"], fitted=True)
