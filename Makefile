@@ -3,13 +3,15 @@ PY ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
+# the versions tested (CPython 3.11, Linux x86-64); `make lock` refreshes them
+LOCK := requirements/lock-py311-linux-x86_64.txt
 
-.PHONY: demo test test-quick firmware clean
+.PHONY: demo test test-quick test-kernels firmware clean lock
 
-$(STAMP): pyproject.toml
+$(STAMP): pyproject.toml $(LOCK)
 	$(PY) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
-	$(BIN)/python -m pip install -q -e '.[test]'
+	$(BIN)/python -m pip install -q -c $(LOCK) -e '.[test]'
 	$(BIN)/labrig-warm   # compile the simulator now, not in the first command
 	touch $(STAMP)
 
@@ -21,6 +23,14 @@ test: $(STAMP)          ## the whole test suite on both cores (firmware and brow
 	# the emulated board runs in real time: its tests get the machine to themselves (beside
 	# the other worker's fits it dropped samples in 3 of 7 runs on 2 cores)
 	$(BIN)/python -m pytest -q -m firmware
+	$(MAKE) test-kernels
+
+# Another machine's rounding, stood for by two other OpenBLAS kernels (the wheels' OpenBLAS
+# picks one at run time; OPENBLAS_CORETYPE forces it): the quoted figures, the same-answer
+# tests and the screen's equivalence tests must give the same answers under each
+test-kernels: $(STAMP)  ## the kernels-marked tests under OpenBLAS's Prescott (SSE3, no FMA) and Nehalem kernels
+	OPENBLAS_CORETYPE=Prescott $(BIN)/python -m pytest -q -n 2 --dist load -m "kernels and not firmware"
+	OPENBLAS_CORETYPE=Nehalem $(BIN)/python -m pytest -q -n 2 --dist load -m "kernels and not firmware"
 
 # the end-to-end loop files (diagnose, propose, plants, real rigs, sheets, report) are left
 # to `make test`; what is left runs in about two minutes on 2 cores
@@ -31,6 +41,18 @@ test-quick: $(STAMP)    ## about two minutes: no slow, firmware, browser or end-
 
 firmware:               ## build both boards and run the C unit tests
 	$(MAKE) -C firmware all test
+
+# the newest versions pyproject allows, installed into a scratch virtualenv and frozen:
+# run the whole suite on them before committing the new lock
+lock:                   ## refresh requirements/lock-py311-linux-x86_64.txt
+	rm -rf .lock-venv
+	$(PY) -m venv .lock-venv
+	.lock-venv/bin/python -m pip install -q --upgrade pip
+	.lock-venv/bin/python -m pip install -q '.[test]'
+	{ echo "# The versions labrig is tested with: CPython 3.11 on Linux x86-64."; \
+	  echo "# make demo, make test and CI install from this file (pip install -c); make lock refreshes it."; \
+	  .lock-venv/bin/python -m pip freeze --exclude-editable | grep -v '^labrig'; } > $(LOCK)
+	rm -rf .lock-venv build labrig.egg-info
 
 clean:
 	rm -rf demo_out .pytest_cache

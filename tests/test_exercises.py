@@ -202,6 +202,7 @@ def test_quoted_figures_are_declared_beside_their_command():
 
 
 @pytest.mark.slow
+@pytest.mark.kernels
 def test_readme_figures(tmp_path):
     """The README's loop story quotes what its commands give now."""
     setup_workdir(tmp_path)
@@ -211,6 +212,7 @@ def test_readme_figures(tmp_path):
     assert not problems, "README figures out of date:\n" + "\n".join(problems)
 
 
+@pytest.mark.kernels
 @pytest.mark.parametrize("sheet", SHEETS, ids=[s.stem for s in SHEETS])
 def test_sheet_runs(sheet, tmp_path):
     """The sheet runs as written, and every figure it and its instructor notes quote is

@@ -54,6 +54,7 @@ def _checks(nb) -> tuple[list, list]:
 
 
 @pytest.mark.slow
+@pytest.mark.kernels
 def test_the_example_notebook_runs_and_its_figures_hold():
     nbformat = pytest.importorskip("nbformat")
     nbclient = pytest.importorskip("nbclient")

@@ -14,6 +14,9 @@ from labrig.diagnosis.resolution import input_quantum, jackknife_se, unresolved
 from labrig.model.effects import get_effect
 from conftest import make_rig, sim_dataset, square_plan
 
+# the same answer from the same files on any machine: run again under other BLAS kernels
+pytestmark = pytest.mark.kernels
+
 
 class _R:
     """A run as the folds see it: an input, its sample period, loop and amplitude."""

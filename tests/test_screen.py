@@ -12,7 +12,7 @@ from labrig.diagnosis.search import search
 from labrig.io.runs import read_dataset
 from conftest import ROOT, make_rig, sim_dataset, square_plan
 
-pytestmark = pytest.mark.slow
+pytestmark = [pytest.mark.slow, pytest.mark.kernels]
 
 # the hidden effects of tests/test_diagnose.py, the empty case, two at once, the small
 # delays (1 kHz and 250 Hz)
@@ -29,6 +29,17 @@ CASES = {
 }
 
 
+def _fixed_by_data(c) -> dict:
+    """What the data fix of a candidate: Km and tau_m, and its effect's resolved sizes."""
+    sp = c.model.servo()
+    den = sp.B * sp.R + sp.K ** 2
+    out = {"km": sp.Ka * sp.K / den, "tau_m": sp.J * sp.R / den}
+    if c.unresolved is None:
+        out.update({k: v for k, v in c.params.items() if k.startswith(c.effect + ".")
+                    and k not in c.at_bound and not any(k.endswith("." + b) for b in c.at_bound)})
+    return out
+
+
 def same_round(screened, full):
     assert screened.recommendation == full.recommendation
     by_label = {c.label: c for c in full.ranking}
@@ -37,10 +48,13 @@ def same_round(screened, full):
     for c in screened.ranking:
         f = by_label[c.label]
         if c.screened is None:
-            # re-fitted to the end: the same numbers (to the last digits where one of its
-            # two starts was screened and the other won by a hair in the full round)
-            assert c.rmse_over_noise == pytest.approx(f.rmse_over_noise, rel=1e-6), c.label
-            assert c.params == pytest.approx(f.params, rel=1e-4, abs=1e-9), c.label
+            # re-fitted to the end: the same numbers where the data fix them. A re-fit stops
+            # along what the data leave free (the plant's family of equal fits, a rail the
+            # runs never reach) wherever its last steps leave it, so the misfit agrees to
+            # 1e-4 (the criteria act on gains of MIN_GAIN, 5 %), the plant through Km and
+            # tau_m, and the effect's sizes where they are resolved and inside the bounds
+            assert c.rmse_over_noise == pytest.approx(f.rmse_over_noise, rel=1e-4), c.label
+            assert _fixed_by_data(c) == pytest.approx(_fixed_by_data(f), rel=1e-3), c.label
             assert c.supported == f.supported, c.label
             assert (c.cross_validated is None) == (f.cross_validated is None), c.label
             if c.cross_validated:

@@ -29,6 +29,7 @@ from labrig.identification.jellyfish import jellyfish
 from labrig.identification.local import local, polish as _polish
 from labrig.identification.objective import Objective, Space, build_space
 from labrig.identification.pso import pso
+from labrig.identification.settle import settle
 from labrig.identification.result import IdentResult
 from labrig.core.display import Displayable
 from labrig.identification.table import comparison_table, identification_dict
@@ -313,6 +314,9 @@ class FitOptions:
     max_nfev: int | None = None
     subsample: int | None = None
     identifiability: bool = True
+    #: end a local fit at the settled member of a family of equal fits
+    #: (:mod:`labrig.identification.settle`)
+    settle: bool = True
     #: each run's start (labrig.model.start): "auto" (the run file, else its first
     #: samples), "rest" (every run from rest) or "estimate" (every run's fitted)
     start_state: str = "auto"
@@ -410,6 +414,13 @@ def identify(runs, method: str = METHOD, effects: list[Effect] = (), *, seed: in
         res = _polish(best, obj.residuals, lo, hi, jac_batch=obj.residuals_jac_batch)
         res.fun = float(np.sqrt(res.fun))  # polish keeps the global history (already a root)
         name = f"{method}+co"
+    if name.endswith("co") and not o.subsample and o.settle:
+        # where the data leave the plant's parameters unpinned, the fit ends at the
+        # family's settled member, not wherever the machine's rounding left it
+        res = settle(res, obj, lo, hi)
+        if "settled" in (res.extra or {}):
+            res.fun = float(np.sqrt(res.fun))
+    mark("settle-end")
     res.nfev = max(int(res.nfev), obj.nfev)
     phys = space.to_physical(res.x[None, :])[0]
     metrics = obj.metrics(phys)

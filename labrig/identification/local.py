@@ -186,7 +186,8 @@ def local(residuals: Callable[[np.ndarray], np.ndarray], lower: Any, upper: Any,
           options: dict[str, Any] | None = None,
           callback: Callable[[int, float], Any] | None = None,
           threads: bool = False,
-          stop: Callable[[list], bool] | None = None) -> IdentResult:
+          stop: Callable[[list], bool] | None = None,
+          prior: tuple[Any, Any] | None = None) -> IdentResult:
     """Bounded multi-start nonlinear least squares (trust-region reflective).
 
     Parameters
@@ -226,6 +227,14 @@ def local(residuals: Callable[[np.ndarray], np.ndarray], lower: Any, upper: Any,
         callback), ``history`` the start's mean square residual at its first point and
         after each iteration so far; True ends that start there (its status is -2). A
         start that is not stopped runs exactly as without it.
+    prior : (centre, A), optional
+        ``centre`` shape (D,), ``A`` shape (k, D): the k rows ``A @ (x - centre)`` are
+        added to the residuals the trust region minimises (a Gaussian prior on k
+        combinations of the coordinates). Along a valley of equally good fits it settles
+        the answer at the point nearest ``centre`` in A's metric, the same point whatever
+        the rounding of the machine's linear algebra (:mod:`labrig.identification.settle`).
+        The best start is the one of least cost including these rows; ``fun`` and
+        ``cost`` of the result are the data's alone.
 
     Returns
     -------
@@ -254,6 +263,7 @@ def local(residuals: Callable[[np.ndarray], np.ndarray], lower: Any, upper: Any,
         raise ValueError(f"options: may not set {sorted(clash)}")
     seed = check_seed(seed)
     rng = np.random.default_rng(seed)
+    centre, A = _check_prior(prior, D)
 
     points = []
     if x0 is not None:
@@ -282,11 +292,19 @@ def local(residuals: Callable[[np.ndarray], np.ndarray], lower: Any, upper: Any,
         def fun(x: np.ndarray) -> np.ndarray:   # the reduced problem: only |r| matters
             r = wrapped(x)
             out = np.zeros(D + 1)
-            out[-1] = np.sqrt(np.einsum("i,i", r, r)) if np.all(np.isfinite(r)) else np.inf
+            p = A @ (x - centre)
+            out[-1] = np.sqrt(np.einsum("i,i", r, r) + np.einsum("i,i", p, p)) \
+                if np.all(np.isfinite(r)) else np.inf
             return out
 
         def jac_reduced(x: np.ndarray) -> np.ndarray:
-            return reduced(jac(x), wrapped(x))
+            J, r = jac(x), wrapped(x)
+            if prior is not None:   # the prior's rows A (x - centre), their Jacobian A
+                J, r = np.vstack([J, A]), np.concatenate([r, A @ (x - centre)])
+            return reduced(J, r)
+
+        def with_prior(x: np.ndarray) -> np.ndarray:
+            return np.concatenate([wrapped(x), A @ (x - centre)])
 
         r0 = wrapped(start)
         if not np.all(np.isfinite(r0)):
@@ -311,9 +329,14 @@ def local(residuals: Callable[[np.ndarray], np.ndarray], lower: Any, upper: Any,
             if res.jac is None:
                 res.jac = jac(res.x)
         else:
-            res = _least_squares()(wrapped, start, jac="2-point", bounds=(lo, hi),
-                                   method="trf", max_nfev=max_nfev, **opts)
-        return res, {"x0": start, "x": res.x, "fun": 2.0 * res.cost / res.fun.size,
+            res = _least_squares()(with_prior if prior is not None else wrapped, start,
+                                   jac="2-point", bounds=(lo, hi), method="trf",
+                                   max_nfev=max_nfev, **opts)
+            res.fun = wrapped(res.x)
+        # the data's own cost beside the one minimised (with the prior's rows)
+        res.data_cost = float(res.cost) if prior is None else \
+            0.5 * float(np.einsum("i,i", res.fun, res.fun))
+        return res, {"x0": start, "x": res.x, "fun": 2.0 * res.data_cost / res.fun.size,
                      "nfev": wrapped.nfev, "status": int(res.status),
                      "message": res.message}, wrapped.nfev
 
@@ -330,7 +353,7 @@ def local(residuals: Callable[[np.ndarray], np.ndarray], lower: Any, upper: Any,
         nfev += n
         if res is not None and (best is None or res.cost < best.cost):
             best = res
-        history.append(float(2.0 * best.cost / best.fun.size) if best is not None else np.inf)
+        history.append(float(2.0 * best.data_cost / best.fun.size) if best is not None else np.inf)
         if callback is not None:
             callback(k, history[-1])
 
@@ -341,30 +364,46 @@ def local(residuals: Callable[[np.ndarray], np.ndarray], lower: Any, upper: Any,
                            method="co", success=False, extra={"starts": summary})
 
     m = best.fun.size
-    stats = covariance(best.jac, best.cost)
-    extra = {"cost": float(best.cost), "jac": best.jac, **stats, "m": m,
+    stats = covariance(best.jac, best.data_cost)
+    extra = {"cost": float(best.data_cost), "jac": best.jac, **stats, "m": m,
              "active_mask": best.active_mask, "optimality": float(best.optimality),
              "starts": summary}
     return IdentResult(
-        x=best.x.copy(), fun=float(2.0 * best.cost / m), nfev=nfev,
+        x=best.x.copy(), fun=float(2.0 * best.data_cost / m), nfev=nfev,
         nit=len(points), history=history, seed=seed,
         message=f"best of {len(points)} starts: {best.message}", method="co",
         success=bool(best.success and np.isfinite(best.cost)), jac=best.jac,
-        cost=float(best.cost), extra=extra)
+        cost=float(best.data_cost), extra=extra)
+
+
+def _check_prior(prior, D: int) -> tuple[np.ndarray, np.ndarray]:
+    """(centre (D,), A (k, D)); no prior: no rows."""
+    if prior is None:
+        return np.zeros(D), np.zeros((0, D))
+    try:
+        centre, A = (np.asarray(a, dtype=float) for a in prior)
+    except (TypeError, ValueError):
+        raise ValueError("prior: must be a pair (centre, A) of numeric arrays") from None
+    if centre.shape != (D,) or A.ndim != 2 or A.shape[1] != D:
+        raise ValueError(f"prior: centre must have shape {(D,)} and A shape (k, {D})")
+    if not (np.all(np.isfinite(centre)) and np.all(np.isfinite(A))):
+        raise ValueError("prior: centre and A must be finite")
+    return centre, A
 
 
 def polish(result: IdentResult, residuals: Callable[[np.ndarray], np.ndarray],
            lower: Any, upper: Any,
            jac_batch: Callable[[np.ndarray], np.ndarray] | None = None, *,
            max_nfev: int | None = None,
-           options: dict[str, Any] | None = None) -> IdentResult:
+           options: dict[str, Any] | None = None,
+           prior: tuple[Any, Any] | None = None) -> IdentResult:
     """Refine a global result with one :func:`local` run from ``result.x``.
 
     Parameters
     ----------
     result : IdentResult
         Output of :func:`jellyfish` or :func:`pso` (same search space).
-    residuals, lower, upper, jac_batch, max_nfev, options
+    residuals, lower, upper, jac_batch, max_nfev, options, prior
         As for :func:`local`.
 
     Returns
@@ -381,7 +420,7 @@ def polish(result: IdentResult, residuals: Callable[[np.ndarray], np.ndarray],
     lo, hi = check_bounds(lower, upper)
     x0 = np.clip(np.asarray(result.x, dtype=float), lo, hi)
     loc = local(residuals, lo, hi, x0=x0, starts=1, seed=result.seed,
-                max_nfev=max_nfev, jac_batch=jac_batch, options=options)
+                max_nfev=max_nfev, jac_batch=jac_batch, options=options, prior=prior)
     glob = {"method": result.method, "x": result.x, "fun": result.fun,
             "nfev": result.nfev, "nit": result.nit, "message": result.message,
             "extra": result.extra}

@@ -86,6 +86,17 @@ class Plant(abc.ABC):
 
     friction_names = ("Tc", "T0", "N m")
 
+    #: parameters settled at their lower bound where the data do not pin them (below)
+    settled_low: tuple = ()
+
+    @classmethod
+    def settling_point(cls, bounds: dict) -> dict:
+        """Where a fit's unpinned directions are settled (:mod:`labrig.identification.settle`):
+        each parameter's geometric middle of ``bounds`` ``{name: (lower, upper)}``, those
+        in :attr:`settled_low` at their lower bound."""
+        return {n: float(lo) if n in cls.settled_low else float(np.sqrt(lo * hi))
+                for n, (lo, hi) in bounds.items()}
+
 
 class VoltagePlant(Plant):
     """The voltage-driven DC servo: armature circuit, back-EMF, rotor, gear, sensors."""
@@ -98,6 +109,10 @@ class VoltagePlant(Plant):
               "B": (1e-9, 1e-1), "K": (1e-3, 2.0)}
     combinations = ("km", "tau_m_s", "tau_e_s")
     current_output = True
+    #: an electrical time constant the data do not resolve is settled at the shortest the
+    #: bounds allow: it claims no lag the data did not show (the middle of the bounds,
+    #: L 3 mH, would put a millisecond's lag into a 1 kHz record and worsen its fit)
+    settled_low = ("L",)
     toml_keys = {"R": "R_ohm", "L": "L_h", "J": "J_kgm2", "B": "B_nms_per_rad",
                  "K": "K_nm_per_a"}
 
