@@ -20,6 +20,8 @@ from conftest import ROOT
 pytestmark = pytest.mark.kernels
 
 SWEEP = ROOT / "data" / "sweep_default"
+#: the plant parameters settled (L is left where the fit put it: VoltagePlant.left_as_fitted)
+SETTLED = [n for n in VoltagePlant.names if n not in VoltagePlant.left_as_fitted]
 
 
 def _perturbed(runs, seed):
@@ -51,9 +53,9 @@ def fit(runs):
 def test_the_settled_fit_fits_as_well_and_keeps_what_the_data_fix(runs, fit):
     """Settling moves the fit along its family only: the misfit is no worse than the
     unsettled fit's (to a millionth), Km and tau_m are its own (to a tenth of their 95 %
-    intervals); the plant ends
-    near the settling point where the data leave it free (L at its smallest, B at the
-    middle of its bounds) and R J is what tau_m and Km make it."""
+    intervals); the plant ends near the settling point where the data leave it free (B at
+    the middle of its bounds), L stays where the fit put it (a pole far below the 5 ms
+    sample), and R J is what tau_m and Km make it."""
     raw = lr.identify(runs, "co", starts=2, seed=1, settle=False)
     settled = fit.result.extra["settled"]
     assert settled["directions"] == 3          # the symmetry, B against K, L below a sample
@@ -61,7 +63,7 @@ def test_the_settled_fit_fits_as_well_and_keeps_what_the_data_fix(runs, fit):
     for k, v in _ident(fit).items():
         half = 0.5 * np.diff(raw.identifiable[k]["interval95"])[0]
         assert abs(v - _ident(raw)[k]) < 0.1 * half, k
-    assert fit.params["L"] == pytest.approx(VoltagePlant.bounds["L"][0], rel=0.01)
+    assert fit.params["L"] / fit.params["R"] < 1e-5
     assert fit.params["B"] == pytest.approx(1e-5, rel=0.05)
     assert fit.params["R"] * fit.params["J"] == pytest.approx(raw.params["R"] * raw.params["J"],
                                                               rel=0.01)
@@ -69,11 +71,12 @@ def test_the_settled_fit_fits_as_well_and_keeps_what_the_data_fix(runs, fit):
 
 @pytest.mark.parametrize("seed", [1, 2])
 def test_inputs_perturbed_by_1e_12_give_the_same_fit(runs, fit, seed):
-    """The portable proxy for another machine's rounding: every raw parameter within
-    0.3 % (it was 27 % apart between two BLAS kernels before the fit was settled), Km and
-    tau_m within 1e-4."""
+    """The portable proxy for another machine's rounding: R, J, B, K within 0.3 % (R was
+    27 % apart between two BLAS kernels before the fit was settled), Km and tau_m within
+    1e-4; L, left where the fit put it, a pole far below a sample either way."""
     other = lr.identify(_perturbed(runs, seed), "co", starts=2, seed=1)
-    for k in VoltagePlant.names:
+    assert other.params["L"] / other.params["R"] < 1e-5
+    for k in SETTLED:
         assert other.params[k] == pytest.approx(fit.params[k], rel=3e-3), k
     for k, v in _ident(other).items():
         assert v == pytest.approx(_ident(fit)[k], rel=1e-4), k
@@ -90,13 +93,13 @@ def _identify_under(kernel, tmp_path):
 
 def test_three_blas_kernels_give_the_same_fit(tmp_path):
     """The README's CO fit under three OpenBLAS kernels (SSE3 without FMA, SSE4, AVX2):
-    every raw parameter within 0.3 %, the fitness within 1e-6."""
+    R, J, B, K within 0.3 %, the fitness within 1e-5."""
     got = {k: _identify_under(k, tmp_path) for k in ("Prescott", "Nehalem", "Haswell")}
     ref = got.pop("Haswell")
     for kernel, d in got.items():
-        for k in VoltagePlant.names:
+        for k in SETTLED:
             assert d["params"][k] == pytest.approx(ref["params"][k], rel=3e-3), (kernel, k)
-        assert d["fitness"] == pytest.approx(ref["fitness"], rel=1e-6), kernel
+        assert d["fitness"] == pytest.approx(ref["fitness"], rel=1e-5), kernel
 
 
 def test_unpinned_directions_of_a_jacobian():

@@ -254,6 +254,7 @@ int main(int argc, char **argv)
     struct timespec t0, tn;
     clock_gettime(CLOCK_MONOTONIC, &t0);
     uint64_t c0 = avr->cycle;
+    double behind_said = 0.0;   /* the largest lag behind real time reported so far, s */
     int state = cpu_Running;
     while (!stop_flag && state != cpu_Done && state != cpu_Crashed) {
         for (int k = 0; k < 2000 && state != cpu_Done && state != cpu_Crashed; k++)
@@ -265,6 +266,12 @@ int main(int argc, char **argv)
             if (ahead > 0.001) {
                 struct timespec ts = {(time_t)ahead, (long)((ahead - (time_t)ahead) * 1e9)};
                 nanosleep(&ts, NULL);
+            } else if (-ahead > behind_said + 0.010) {
+                /* a machine too busy for a real-time board: say by how much, so a test
+                 * that fails on timing can tell the host's load from the firmware */
+                behind_said = -ahead;
+                fprintf(stderr, "labrig-emu: behind real time by %.0f ms\n", 1e3 * behind_said);
+                fflush(stderr);
             }
         }
     }

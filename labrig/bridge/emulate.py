@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import fcntl
 import os
+import re
 import shutil
 import signal
 import subprocess
@@ -122,6 +123,12 @@ class Emulator:
     Ctrl-C meant for the host never reaches it; :meth:`stop` ends it by its PID.
     """
 
+    #: the largest lag behind real time of every emulator stopped in this process, in
+    #: seconds (:meth:`behind_s`; the tests report it beside a timing failure)
+    lags: list = []
+    #: the emulators of this process that are running
+    running: set = set()
+
     def __init__(self, board: str = "uno", rig: RigConfig | None = None, *, speed: float = 1.0,
                  dac_log=None, loop: str | None = None, extra_args: tuple = ()):
         self.board, self.speed = board, speed
@@ -158,6 +165,7 @@ class Emulator:
             self.stop()
             raise RigError(f"emulator did not start: {self.log_text()[-500:]}")
         self.pty = line
+        Emulator.running.add(self)
         return line
 
     def log_text(self) -> str:
@@ -167,11 +175,20 @@ class Emulator:
         except OSError:
             return ""
 
+    def behind_s(self) -> float:
+        """How far the simulation has fallen behind real time at most, in seconds (0 when
+        it kept up, or runs free): a machine too busy for a real-time board."""
+        said = re.findall(r"behind real time by (\d+) ms", self.log_text())
+        return max((int(v) for v in said), default=0) / 1e3
+
     def alive(self) -> bool:
         return self.proc is not None and self.proc.poll() is None
 
     def stop(self) -> None:
         """Stop the harness (SIGTERM, then SIGKILL after 3 s); never raises."""
+        if self._log is not None:
+            Emulator.lags.append(self.behind_s())
+        Emulator.running.discard(self)
         p, self.proc = self.proc, None
         if p is not None:
             try:

@@ -1,19 +1,19 @@
 """Settling what the data leave unpinned: the same fit on every machine.
 
 Speed and position alone fix a DC servo's gain Km and time constant tau_m, not R, L, J,
-B and K one by one (docs/physics.md, 'What the data do not pin'): a family of parameter
+B and K one by one (docs/physics.md, 'Identifiability'): a family of parameter
 sets fits exactly as well, and a least-squares fit stops along it wherever the machine's
 rounding leaves it (the same command ended at R 4.50, 4.01 or 3.54 ohm with only the
 BLAS's kernel changed). :func:`settle` ends every local fit by a stated rule instead:
 
 * the directions of the plant's parameters (log10) that the data leave free are found at
   the fit: unseen by the identifiability report's rule (a 95 % interval wider than a
-  factor 2), and a move to the settling point along them raises the misfit by less than
-  the noise's 95 % band (:func:`unpinned`);
+  factor 2) even were the fit at the noise floor, and a move to the settling point along
+  them raises the misfit by less than the noise's 95 % band (:func:`unpinned`);
 * the fit is run again from where it ended with a Gaussian prior along those directions
   only, :data:`WEIGHT` per decade, centred on the plant's settling point
   (:meth:`labrig.model.plants.Plant.settling_point`: the geometric middle of each
-  parameter's bounds, an inductance at its smallest);
+  parameter's bounds; an inductance where the fit put it);
 * the answer is the member of the family nearest that point. The prior has no component
   along a direction the data resolve, so the gain, the time constants and every effect's
   size stay the data's, and the settled fit is one the data cannot tell from the best.
@@ -56,7 +56,7 @@ def unpinned(jac: np.ndarray, columns: np.ndarray, toward: np.ndarray, s2: float
     toward : ndarray, shape (D,)
         The settling point minus the fit.
     s2 : float
-        The residuals' variance ``sum(r**2) / (m - n)``.
+        A residual's variance at the noise floor.
 
     Returns
     -------
@@ -105,13 +105,17 @@ def settle(result: IdentResult, objective, lower: np.ndarray, upper: np.ndarray)
                      and space.log[space.names.index(n)]], int)
     lo, hi = np.asarray(lower, float), np.asarray(upper, float)
     centre = np.array(result.x, float)
+    fitted = space.as_dict(space.to_physical(np.asarray(result.x, float)[None, :])[0])
     point = space.plant.settling_point({n: (space.lower[space.names.index(n)],
                                             space.upper[space.names.index(n)]) for n in free
-                                        if n in space.plant.names})
+                                        if n in space.plant.names}, fitted)
     for j in cols:
         centre[j] = np.log10(point[free[j]])
-    m, n = result.jac.shape
-    s2 = 2.0 * result.cost / (m - n) if m > n else np.nan
+    # measured against the sensors' noise, not the fit's misfit: a model that lacks an
+    # effect has a misfit far above the floor, and judged by it would let a direction go
+    # that the data resolve once the effect is in (each residual is divided by its noise
+    # floor and by the root of their number, so at the floor each has variance 1/m)
+    s2 = 1.0 / objective.m
     dirs = unpinned(result.jac, cols, centre - np.asarray(result.x, float), s2)
     if not len(dirs):
         return result

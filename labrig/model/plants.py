@@ -86,15 +86,15 @@ class Plant(abc.ABC):
 
     friction_names = ("Tc", "T0", "N m")
 
-    #: parameters settled at their lower bound where the data do not pin them (below)
-    settled_low: tuple = ()
+    #: parameters a settled fit leaves where the fit put them (below)
+    left_as_fitted: tuple = ()
 
     @classmethod
-    def settling_point(cls, bounds: dict) -> dict:
+    def settling_point(cls, bounds: dict, fitted: dict) -> dict:
         """Where a fit's unpinned directions are settled (:mod:`labrig.identification.settle`):
         each parameter's geometric middle of ``bounds`` ``{name: (lower, upper)}``, those
-        in :attr:`settled_low` at their lower bound."""
-        return {n: float(lo) if n in cls.settled_low else float(np.sqrt(lo * hi))
+        in :attr:`left_as_fitted` at their ``fitted`` value."""
+        return {n: float(fitted[n]) if n in cls.left_as_fitted else float(np.sqrt(lo * hi))
                 for n, (lo, hi) in bounds.items()}
 
 
@@ -109,10 +109,11 @@ class VoltagePlant(Plant):
               "B": (1e-9, 1e-1), "K": (1e-3, 2.0)}
     combinations = ("km", "tau_m_s", "tau_e_s")
     current_output = True
-    #: an electrical time constant the data do not resolve is settled at the shortest the
-    #: bounds allow: it claims no lag the data did not show (the middle of the bounds,
-    #: L 3 mH, would put a millisecond's lag into a 1 kHz record and worsen its fit)
-    settled_low = ("L",)
+    #: an electrical time constant the data do not resolve is left where the fit put it: the
+    #: middle of the bounds (L 3 mH) would put a millisecond's lag into a 1 kHz record and
+    #: worsen its fit, and the smallest L started the loop's later re-fits from no lag at
+    #: all, from where a hidden 12 ms delay was found as 10 ms beside a 3 ms pole
+    left_as_fitted = ("L",)
     toml_keys = {"R": "R_ohm", "L": "L_h", "J": "J_kgm2", "B": "B_nms_per_rad",
                  "K": "K_nm_per_a"}
 
