@@ -16,6 +16,9 @@ WORDS = r"""e => { const out = [];
 #: what the overlay's speed figure draws (its Bokeh models, by name): the time in view
 #: (start, end), the number of points drawn, the time between two of them and the sum
 #: of the model's drawn values
+#: whether that figure is in the page yet
+DRAWN_READY = r"""() => !!(window.Bokeh && Bokeh.documents.find(
+  d => d.get_model_by_name("run-view-speed") && d.get_model_by_name("run-view-time")))"""
 DRAWN = r"""() => { const doc = Bokeh.documents.find(d => d.get_model_by_name("run-view-speed"));
   const src = doc.get_model_by_name("run-view-speed"), x = doc.get_model_by_name("run-view-time");
   const col = k => src.data.get ? src.data.get(k) : src.data[k];

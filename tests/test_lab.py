@@ -18,7 +18,7 @@ from pathlib import Path
 import pytest
 
 from conftest import labrig
-from lab_page import DRAWN, WORDS, free_port
+from lab_page import DRAWN, DRAWN_READY, WORDS, free_port
 
 ROOT = Path(__file__).resolve().parent.parent
 ARTEFACTS = Path(__file__).resolve().parent / "artefacts"
@@ -242,6 +242,9 @@ def test_the_loop_by_hand_sliders_an_effect_tried_and_a_fit_from_there(browser, 
         assert fitted == page.number(".lab-rmse", r"rmse/noise ([\d.]+)")
         assert page.page.locator(".lab-param").count() == 5    # R, L, J, B, K
         handle = page.page.locator(".lab-param-J .noUi-handle").first
+        # the hand view's figure reaches the browser after its numbers: wait for it, not
+        # for a time (a loaded machine takes longer)
+        page.wait(lambda: page.page.evaluate(DRAWN_READY), 60, "the hand view's figure")
         curve = page.page.evaluate(DRAWN)[4]
         handle.focus()
         for _ in range(20):
