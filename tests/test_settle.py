@@ -63,7 +63,7 @@ def test_the_settled_fit_fits_as_well_and_keeps_what_the_data_fix(runs, fit):
     for k, v in _ident(fit).items():
         half = 0.5 * np.diff(raw.identifiable[k]["interval95"])[0]
         assert abs(v - _ident(raw)[k]) < 0.1 * half, k
-    assert fit.params["L"] / fit.params["R"] < 1e-5
+    assert fit.params["L"] / fit.params["R"] < 1e-4   # 50 times below the 5 ms sample
     assert fit.params["B"] == pytest.approx(1e-5, rel=0.05)
     assert fit.params["R"] * fit.params["J"] == pytest.approx(raw.params["R"] * raw.params["J"],
                                                               rel=0.01)
@@ -75,7 +75,7 @@ def test_inputs_perturbed_by_1e_12_give_the_same_fit(runs, fit, seed):
     27 % apart between two BLAS kernels before the fit was settled), Km and tau_m within
     1e-4; L, left where the fit put it, a pole far below a sample either way."""
     other = lr.identify(_perturbed(runs, seed), "co", starts=2, seed=1)
-    assert other.params["L"] / other.params["R"] < 1e-5
+    assert other.params["L"] / other.params["R"] < 1e-4   # 50 times below the 5 ms sample
     for k in SETTLED:
         assert other.params[k] == pytest.approx(fit.params[k], rel=3e-3), k
     for k, v in _ident(other).items():
