@@ -32,8 +32,7 @@ CASES = {
 def _fixed_by_data(c) -> dict:
     """What the data fix of a candidate: Km and tau_m, and its effect's resolved sizes."""
     sp = c.model.servo()
-    den = sp.B * sp.R + sp.K ** 2
-    out = {"km": sp.Ka * sp.K / den, "tau_m": sp.J * sp.R / den}
+    out = {"km": sp.km, "tau_m": sp.tau_m}
     if c.unresolved is None:
         out.update({k: v for k, v in c.params.items() if k.startswith(c.effect + ".")
                     and k not in c.at_bound and not any(k.endswith("." + b) for b in c.at_bound)})

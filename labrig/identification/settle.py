@@ -101,8 +101,8 @@ def settle(result: IdentResult, objective, lower: np.ndarray, upper: np.ndarray)
         return result
     space = objective.space
     free = space.free
-    cols = np.array([j for j, n in enumerate(free) if n in space.plant.names
-                     and space.log[space.names.index(n)]], int)
+    log = dict(zip(space.names, space.log))
+    cols = np.array([j for j, n in enumerate(free) if n in space.plant.names and log[n]], int)
     lo, hi = np.asarray(lower, float), np.asarray(upper, float)
     centre = np.array(result.x, float)
     fitted = space.as_dict(space.to_physical(np.asarray(result.x, float)[None, :])[0])
