@@ -46,6 +46,8 @@ def test_frame_vectors(case):
         first, words = P.parse_samples(f.body)
         assert first == case["fields"]["first_index"]
         assert words.tolist() == case["fields"]["rows"]
+        if "counts" in case["fields"]:   # an H-bridge board's signed 32-bit encoder count
+            assert P.encoder_counts(words).tolist() == case["fields"]["counts"]
     elif f.type in PARSERS:
         assert PARSERS[f.type](f.body) == case["fields"]
     if f.type == P.CONFIGURE:   # the builder reproduces the vector from its fields

@@ -13,7 +13,15 @@
  * channel B at mid-scale, so u = (wordA - wordB) * 10 V / 4096; sensors of +-10 V map onto
  * 0..5 V by (s + 10) / 4. A2 (input pot / reference) carries the bridge output u.
  * Closed loop: the harness snoops host->board CONFIGURE frames (the emulated patch panel)
- * for the loop mode and gains, unless --loop open|closed forces them. */
+ * for the loop mode and gains, unless --loop open|closed forces them.
+ *
+ * --rig hbridge: the H-bridge + encoder firmware (make RIG=hbridge) against motor.c. Every
+ * microsecond the plant reads the bridge's inputs as the chip drives them -- Timer1's own
+ * registers (mode, TOP, compare values, COM bits) and the PORTB bits of pins the timer does
+ * not drive -- and moves the encoder's A/B pins at the step where the shaft crosses an
+ * edge. --enc-log FILE records "T cycle" when the sample clock (Timer2) starts, "E cycle
+ * edge" at every encoder edge and "D cycle duty" whenever the commanded signed duty (in
+ * timer counts) changes. */
 #include <errno.h>
 #include <getopt.h>
 #include <math.h>
@@ -36,6 +44,7 @@
 #include "uart_pty.h"
 
 #include "plant.h"
+#include "motor.h"
 #include "lr_proto.h"
 
 static avr_t *avr;
@@ -124,6 +133,133 @@ static void uart_in(struct avr_irq_t *irq, uint32_t value, void *param)
     }
 }
 
+
+/* ---- the H-bridge rig ------------------------------------------------------------------ */
+static int rig_hbridge;
+static motor_t motor;
+static FILE *enc_log;
+static int pin_a_bit, pin_b_bit;            /* Timer1's OC1A/OC1B on PORTB */
+static char enc_port;
+static int enc_a_bit, enc_b_bit;
+static avr_cycle_count_t last_cycle;
+static int64_t edge_now;
+static int timer2_on;
+static long duty_logged = 0x7FFFFFFF;
+static uint64_t pwm_period;
+enum { R_TCCR1A = 0x80, R_TCCR1B = 0x81, R_ICR1 = 0x86, R_OCR1A = 0x88, R_TCCR2B = 0xB1,
+       R_PORTB = 0x25 };
+enum { LVL_LOW, LVL_HIGH, LVL_PWM, LVL_PWM_INV };
+
+static uint16_t reg16(int lo) { return (uint16_t)(avr->data[lo] | avr->data[lo + 1] << 8); }
+
+static int level_kind(int com, int port_bit)
+{
+    if (com == 2) return LVL_PWM;
+    if (com == 3) return LVL_PWM_INV;
+    return port_bit ? LVL_HIGH : LVL_LOW;
+}
+
+/* the level of a pin in the part of the period before (first = 1) or after the compare */
+static int level_in(int kind, int first)
+{
+    if (kind == LVL_PWM) return first;
+    if (kind == LVL_PWM_INV) return !first;
+    return kind == LVL_HIGH;
+}
+
+/* cycles c in [c0, c1) whose phase c mod P lies in [a, b) */
+static double window_cycles(uint64_t c0, uint64_t c1, uint64_t P, uint64_t a, uint64_t b)
+{
+    if (b <= a) return 0.0;
+    uint64_t w = b - a;
+#define F(x) ((double)((x) / P) * (double)w + (double)(((x) % P) > a ? ((((x) % P) - a) < w ? (((x) % P) - a) : w) : 0))
+    return F(c1) - F(c0);
+#undef F
+}
+
+/* the bridge over the cycles [c0, c1), from Timer1's registers and PORTB */
+static bridge_step_t bridge_inputs(uint64_t c0, uint64_t c1, long *duty_out)
+{
+    bridge_step_t st = {0.0, 1, 0};
+    uint8_t tccr1a = avr->data[R_TCCR1A], tccr1b = avr->data[R_TCCR1B], portb = avr->data[R_PORTB];
+    int running = (tccr1b & 7) != 0 && (tccr1b & 0x18) == 0x18 && (tccr1a & 3) == 2;  /* mode 14 */
+    uint64_t P = (uint64_t)reg16(R_ICR1) + 1;
+    /* fast PWM double-buffers the compare value: a write takes effect when the timer
+     * wraps at TOP, as on the chip (the phase of the wrap is taken from the cycle count) */
+    static uint64_t ocr_active;
+    if (c1 / P != c0 / P || P != pwm_period) ocr_active = reg16(R_OCR1A);
+    pwm_period = P;
+    uint64_t H = ocr_active + 1;
+    if (H > P) H = P;
+    int ka = level_kind(running ? (tccr1a >> 6) & 3 : 0, (portb >> pin_a_bit) & 1);
+    int kb = level_kind(running ? (tccr1a >> 4) & 3 : 0, (portb >> pin_b_bit) & 1);
+    /* two parts of the period: [0, H) before the compare, [H, P) after */
+    int drive[2], dir[2], brake[2];
+    for (int part = 0; part < 2; part++) {
+        int a = level_in(ka, part == 0), b = level_in(kb, part == 0);
+        if (!motor.p.in1_in2) {      /* PWM + DIR: EN = a, DIR = b (high: reverse) */
+            drive[part] = a; dir[part] = b ? -1 : 1; brake[part] = motor.p.brake;
+        } else {                     /* IN1/IN2: 10 forward, 01 reverse, 11 brake, 00 coast */
+            drive[part] = a != b; dir[part] = a ? 1 : -1; brake[part] = a && b;
+        }
+    }
+    uint64_t lo[2] = {0, H}, hi[2] = {H, P};
+    double driven = 0.0;
+    long duty = 0;
+    for (int part = 0; part < 2; part++) {
+        if (!drive[part] || hi[part] <= lo[part]) { st.brake = brake[part]; continue; }
+        st.dir = dir[part];
+        duty = dir[part] * (long)(hi[part] - lo[part]);
+        if (drive[!part] || hi[!part] <= lo[!part]) {   /* driven the whole period: no pulses */
+            driven = 1.0;
+            duty = dir[part] * (long)P;
+            break;
+        }
+        /* each pulse loses its first dead cycles: the bridge's turn-on delay */
+        double dead_v = dir[part] > 0 ? motor.p.dead_fwd : motor.p.dead_rev;
+        uint64_t dead = (uint64_t)llround(dead_v / motor.p.supply * (double)P);
+        driven = window_cycles(c0, c1, P, lo[part] + dead, hi[part]) / (double)(c1 - c0);
+    }
+    st.driven = driven;
+    *duty_out = duty;
+    return st;
+}
+
+static void encoder_pins(int64_t e)
+{
+    static const uint8_t gray[4] = {0, 2, 3, 1};   /* forward: A leads B */
+    uint8_t ab = gray[((e % 4) + 4) % 4];
+    avr_raise_irq(avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ(enc_port), enc_a_bit), (ab >> 1) & 1);
+    avr_raise_irq(avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ(enc_port), enc_b_bit), ab & 1);
+}
+
+/* every microsecond of simulated time: the bridge's inputs, the plant, the encoder */
+static avr_cycle_count_t motor_tick(avr_t *a, avr_cycle_count_t when, void *param)
+{
+    (void)param;
+    uint64_t now = a->cycle;
+    if (now > last_cycle) {
+        long duty;
+        bridge_step_t st = bridge_inputs(last_cycle, now, &duty);
+        motor_step(&motor, &st, (double)(now - last_cycle) / (double)a->frequency);
+        last_cycle = now;
+        if (enc_log && duty != duty_logged) {
+            fprintf(enc_log, "D %llu %ld\n", (unsigned long long)now, duty);
+            duty_logged = duty;
+        }
+    }
+    int64_t e = motor_edge(&motor);
+    while (e != edge_now) {            /* one pin change per edge, in order */
+        edge_now += e > edge_now ? 1 : -1;
+        encoder_pins(edge_now);
+        if (enc_log) fprintf(enc_log, "E %llu %lld\n", (unsigned long long)now, (long long)edge_now);
+    }
+    int t2 = (avr->data[R_TCCR2B] & 7) != 0;
+    if (t2 && !timer2_on && enc_log) fprintf(enc_log, "T %llu\n", (unsigned long long)now);
+    timer2_on = t2;
+    return when + 16;
+}
+
 static void on_signal(int sig) { (void)sig; stop_flag = 1; }
 
 static void usage(void)
@@ -133,7 +269,10 @@ static void usage(void)
         "  [--link PATH] [--loop auto|open|closed] [--kp G] [--kv G]\n"
         "  [--R ohm] [--L H] [--J kgm2] [--B Nms] [--K Nm/A] [--Ka V/V] [--Vmax V] [--N ratio]\n"
         "  [--Kt V/(rad/s)] [--Kpot V/rad] [--pos-offset V] [--noise-tacho V] [--noise-pos V]\n"
-        "  [--Tc Nm] [--seed N] [--parent-pid PID]\n");
+        "  [--Tc Nm] [--seed N] [--parent-pid PID]\n"
+        "  H-bridge rig: --rig hbridge [--supply V] [--drop V] [--dead-fwd V] [--dead-rev V]\n"
+        "  [--Ts Nm] [--backlash rad] [--encoder-on-output] [--lines N] [--in1-in2] [--brake]\n"
+        "  [--enc-log FILE]\n");
 }
 
 int main(int argc, char **argv)
@@ -150,6 +289,10 @@ int main(int argc, char **argv)
                         .Vmax = 13.0, .N = 30.0, .Kt = 0.026, .Kpot = 0.5, .pos_offset = -4.0,
                         .noise_tacho = 0.010, .noise_pos = 0.004, .Tc = 0.0, .closed = 0,
                         .kp = 10.0, .kv = 1.0, .seed = 1};
+    motor_params_t mp = {.supply = 12.0, .drop = 0.0, .dead_fwd = 0.0, .dead_rev = 0.0, .Ts = 0.0,
+                         .backlash = 0.0, .encoder_on_output = 0, .lines = 11.0, .in1_in2 = 0,
+                         .brake = 0};
+    const char *enc_log_path = NULL;
     const char *fw = NULL, *board = "uno", *dac_log_path = NULL, *link = NULL;
     double speed = 1.0;
     static struct option opts[] = {
@@ -159,6 +302,10 @@ int main(int argc, char **argv)
         {"Ka", 1, 0, 8}, {"Vmax", 1, 0, 9}, {"N", 1, 0, 10}, {"Kt", 1, 0, 11}, {"Kpot", 1, 0, 12},
         {"pos-offset", 1, 0, 13}, {"noise-tacho", 1, 0, 14}, {"noise-pos", 1, 0, 15},
         {"Tc", 1, 0, 16}, {"seed", 1, 0, 17}, {"parent-pid", 1, 0, 18}, {"help", 0, 0, 'h'},
+        {"rig", 1, 0, 30}, {"supply", 1, 0, 31}, {"drop", 1, 0, 32}, {"dead-fwd", 1, 0, 33},
+        {"dead-rev", 1, 0, 34}, {"Ts", 1, 0, 35}, {"backlash", 1, 0, 36},
+        {"encoder-on-output", 0, 0, 37}, {"lines", 1, 0, 38}, {"in1-in2", 0, 0, 39},
+        {"brake", 0, 0, 40}, {"enc-log", 1, 0, 41},
         {0, 0, 0, 0}};
     int c;
     while ((c = getopt_long_only(argc, argv, "", opts, NULL)) != -1) {
@@ -190,10 +337,26 @@ int main(int argc, char **argv)
         case 16: p.Tc = v; break;
         case 17: p.seed = (uint64_t)strtoull(optarg, NULL, 10); break;
         case 18: parent_pid = (pid_t)atol(optarg); break;
+        case 30:
+            if (!strcmp(optarg, "hbridge")) rig_hbridge = 1;
+            else if (strcmp(optarg, "ms150")) { usage(); return 2; }
+            break;
+        case 31: mp.supply = v; break;
+        case 32: mp.drop = v; break;
+        case 33: mp.dead_fwd = v; break;
+        case 34: mp.dead_rev = v; break;
+        case 35: mp.Ts = v; break;
+        case 36: mp.backlash = v; break;
+        case 37: mp.encoder_on_output = 1; break;
+        case 38: mp.lines = v; break;
+        case 39: mp.in1_in2 = 1; break;
+        case 40: mp.brake = 1; break;
+        case 41: enc_log_path = optarg; break;
         default: usage(); return 2;
         }
     }
-    if (!fw || (strcmp(board, "uno") && strcmp(board, "mega")) || p.L <= 0 || p.J <= 0 || p.N == 0) {
+    if (!fw || (strcmp(board, "uno") && strcmp(board, "nano") && strcmp(board, "mega")) || p.L <= 0 ||
+        p.J <= 0 || p.N == 0 || (rig_hbridge && (mp.supply <= 0 || mp.lines <= 0))) {
         usage();
         return 2;
     }
@@ -227,10 +390,28 @@ int main(int argc, char **argv)
         fprintf(stderr, "labrig-emu: cannot write %s: %s\n", dac_log_path, strerror(errno));
         return 1;
     }
-    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_ADC_GETIRQ, ADC_IRQ_OUT_TRIGGER), adc_trigger, NULL);
-    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_SPI_GETIRQ(0), SPI_IRQ_OUTPUT), spi_out, NULL);
-    int cs = !strcmp(board, "mega") ? 0 : 2;   /* Mega D53 = PB0, Uno D10 = PB2 */
-    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('B'), cs), cs_pin, NULL);
+    int mega = !strcmp(board, "mega");
+    if (rig_hbridge) {
+        if (enc_log_path && !(enc_log = fopen(enc_log_path, "w"))) {
+            fprintf(stderr, "labrig-emu: cannot write %s: %s\n", enc_log_path, strerror(errno));
+            return 1;
+        }
+        mp.R = p.R; mp.L = p.L; mp.J = p.J; mp.B = p.B; mp.K = p.K; mp.N = p.N; mp.Tc = p.Tc;
+        motor_init(&motor, &mp);
+        /* hal_hbridge.inc's pins: OC1A/OC1B, encoder A/B on INT0/INT1 (Mega INT4/INT5) */
+        pin_a_bit = mega ? 5 : 1;
+        pin_b_bit = mega ? 6 : 2;
+        enc_port = mega ? 'E' : 'D';
+        enc_a_bit = mega ? 4 : 2;
+        enc_b_bit = mega ? 5 : 3;
+        encoder_pins(0);
+        avr_cycle_timer_register(avr, 16, motor_tick, NULL);
+    } else {
+        avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_ADC_GETIRQ, ADC_IRQ_OUT_TRIGGER), adc_trigger, NULL);
+        avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_SPI_GETIRQ(0), SPI_IRQ_OUTPUT), spi_out, NULL);
+        int cs = mega ? 0 : 2;   /* Mega D53 = PB0, Uno D10 = PB2 */
+        avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('B'), cs), cs_pin, NULL);
+    }
     avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_INPUT), uart_in, NULL);
 
     uart_pty_init(avr, &pty);
@@ -278,6 +459,7 @@ int main(int argc, char **argv)
     if (state == cpu_Crashed) fprintf(stderr, "labrig-emu: firmware crashed\n");
     if (link) unlink(link);
     if (dac_log) fclose(dac_log);
+    if (enc_log) fclose(enc_log);
     fflush(stderr);
     _exit(state == cpu_Crashed ? 1 : 0);   /* uart_pty_stop() can hang: do not call it */
 }

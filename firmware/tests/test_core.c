@@ -7,6 +7,7 @@
 #include "lr_core.h"
 #include "lr_hal.h"
 #include "jsonmini.h"
+#include "lr_hbridge.h"
 
 static int passed, failed;
 #define CHECK(cond, ...) do { if (cond) passed++; else { failed++; \
@@ -507,6 +508,108 @@ static void test_fuzz(void)
           "fuzzed commands never drive the DAC past the firmware limit (%u..%u)", dac_min_seen, dac_max_seen);
 }
 
+
+/* ---------------- H-bridge rig: quadrature decoder and drive mapping ---------------- */
+static void test_quadrature(void)
+{
+    /* forward walks ab 0 -> 2 -> 3 -> 1 -> 0 (A leads B) */
+    static const uint8_t fwd[4] = {0, 2, 3, 1};
+    /* every one of the 16 transitions, at each decoding */
+    for (uint8_t dec = 1; dec <= 4; dec = (uint8_t)(dec * 2)) {
+        for (uint8_t from = 0; from < 4; from++) {
+            for (uint8_t to = 0; to < 4; to++) {
+                lr_quad_t q;
+                lr_quad_init(&q, dec, from & 2, from & 1);
+                lr_quad_feed(&q, to & 2, to & 1);
+                int pos_from = 0, pos_to = 0;
+                for (int k = 0; k < 4; k++) { if (fwd[k] == from) pos_from = k; if (fwd[k] == to) pos_to = k; }
+                int step = (pos_to - pos_from + 4) % 4;   /* 1 forward, 3 back, 2 illegal */
+                int want = step == 1 ? 1 : step == 3 ? -1 : 0;
+                int a_edge = ((from ^ to) & 2) != 0;
+                int x1_edge = (from | to) == 2 && from != to;
+                if (dec == 2 && !a_edge) want = 0;
+                if (dec == 1 && !x1_edge) want = 0;
+                CHECK(q.count == want, "x%u %u->%u: count %ld, want %d", dec, from, to, (long)q.count, want);
+                CHECK(q.illegal == (uint32_t)(step == 2), "x%u %u->%u: illegal %lu", dec, from, to,
+                      (unsigned long)q.illegal);
+                CHECK(q.state == to, "x%u %u->%u: state %u", dec, from, to, q.state);
+            }
+        }
+    }
+    /* whole cycles: 4, 2 and 1 counts per cycle, back again to 0; dithering on every edge
+     * never drifts */
+    for (uint8_t dec = 1; dec <= 4; dec = (uint8_t)(dec * 2)) {
+        lr_quad_t q;
+        lr_quad_init(&q, dec, 0, 0);
+        for (int k = 1; k <= 400; k++) lr_quad_feed(&q, fwd[k % 4] & 2, fwd[k % 4] & 1);
+        CHECK(q.count == 100 * dec, "x%u: 100 cycles forward gave %ld", dec, (long)q.count);
+        for (int k = 399; k >= 0; k--) lr_quad_feed(&q, fwd[k % 4] & 2, fwd[k % 4] & 1);
+        CHECK(q.count == 0, "x%u: and back gave %ld", dec, (long)q.count);
+        for (int k = 0; k < 4; k++) {   /* dither on each edge, then step over it */
+            int32_t before = q.count;
+            for (int r = 0; r < 50; r++) {
+                lr_quad_feed(&q, fwd[(k + 1) % 4] & 2, fwd[(k + 1) % 4] & 1);
+                lr_quad_feed(&q, fwd[k] & 2, fwd[k] & 1);
+            }
+            CHECK(q.count == before, "x%u: dithering on edge %d drifted by %ld", dec, k,
+                  (long)(q.count - before));
+            lr_quad_feed(&q, fwd[(k + 1) % 4] & 2, fwd[(k + 1) % 4] & 1);
+        }
+        CHECK(q.count == dec && q.illegal == 0, "x%u: one cycle after dithering gave %ld", dec,
+              (long)q.count);
+    }
+    /* a count past 2^16 and below zero keeps its 32 bits */
+    lr_quad_t q;
+    lr_quad_init(&q, 4, 0, 0);
+    for (long k = 1; k <= 200000; k++) lr_quad_feed(&q, fwd[(4 - k % 4) % 4] & 2, fwd[(4 - k % 4) % 4] & 1);
+    CHECK(q.count == -200000, "200000 counts back gave %ld", (long)q.count);
+}
+
+static void test_drive_map(void)
+{
+    const uint16_t zero = 256, top = 255;   /* 8-bit PWM, 9-bit word */
+    for (uint8_t mode = 0; mode < 2; mode++)
+        for (uint8_t brake = 0; brake < 2; brake++)
+            for (int d = -300; d <= 300; d++) {
+                int w = zero + d;
+                if (w < 0 || w > 511) continue;
+                lr_drive_t o = lr_drive_map((uint16_t)w, zero, top, mode, brake);
+                int n = d < 0 ? -d : d;
+                if (n > top + 1) n = top + 1;
+                /* duty = the share of the period the motor is driven, in counts of top + 1 */
+                int driven_a = o.pin_a == LR_PIN_PWM ? o.compare + 1 : o.pin_a == LR_PIN_PWM_INV ?
+                               top - o.compare : o.pin_a == LR_PIN_HIGH ? top + 1 : 0;
+                int driven_b = o.pin_b == LR_PIN_PWM ? o.compare + 1 : o.pin_b == LR_PIN_PWM_INV ?
+                               top - o.compare : o.pin_b == LR_PIN_HIGH ? top + 1 : 0;
+                int duty, sign;
+                if (mode == LR_DRIVE_PWM_DIR) {
+                    duty = driven_a;
+                    sign = o.pin_b == LR_PIN_HIGH ? -1 : 1;
+                    CHECK(o.pin_b == LR_PIN_HIGH || o.pin_b == LR_PIN_LOW, "DIR pin PWM'd at d %d", d);
+                } else {
+                    /* IN1/IN2: driven forward while IN1 high and IN2 low */
+                    int fwd = o.pin_a == LR_PIN_HIGH || o.pin_a == LR_PIN_PWM;
+                    int a_hi = fwd ? driven_a : driven_b, b_hi = fwd ? driven_b : driven_a;
+                    duty = a_hi - b_hi;   /* high-high (brake) and low-low (coast) drive nothing */
+                    sign = fwd ? 1 : -1;
+                    if (n == 0) { duty = 0; sign = 1; }
+                    CHECK(brake ? (o.pin_a != LR_PIN_PWM && o.pin_b != LR_PIN_PWM)
+                                : (o.pin_a != LR_PIN_PWM_INV && o.pin_b != LR_PIN_PWM_INV &&
+                                   o.pin_a != LR_PIN_HIGH && o.pin_b != LR_PIN_HIGH),
+                          "mode %u brake %u d %d: off phase pins %u %u", mode, brake, d, o.pin_a, o.pin_b);
+                }
+                CHECK(duty == n && (n == 0 || sign == (d < 0 ? -1 : 1)),
+                      "mode %u brake %u d %d: duty %d sign %d, want %d", mode, brake, d, duty, sign, n);
+            }
+    /* zero: coast (both low) or brake (both high); never a PWM at 0 V */
+    lr_drive_t o = lr_drive_map(zero, zero, top, LR_DRIVE_IN1_IN2, 1);
+    CHECK(o.pin_a == LR_PIN_HIGH && o.pin_b == LR_PIN_HIGH, "brake at zero");
+    o = lr_drive_map(zero, zero, top, LR_DRIVE_IN1_IN2, 0);
+    CHECK(o.pin_a == LR_PIN_LOW && o.pin_b == LR_PIN_LOW, "coast at zero");
+    o = lr_drive_map(zero, zero, top, LR_DRIVE_PWM_DIR, 0);
+    CHECK(o.pin_a == LR_PIN_LOW, "PWM pin low at zero");
+}
+
 int main(int argc, char **argv)
 {
     test_vectors(argc > 1 ? argv[1] : "test_vectors.json");
@@ -519,6 +622,8 @@ int main(int argc, char **argv)
     test_stop_and_garbage();
     test_start_retransmission();
     test_fuzz();
+    test_quadrature();
+    test_drive_map();
     printf("%d passed, %d failed\n", passed, failed);
     return failed ? 1 : 0;
 }

@@ -55,7 +55,15 @@ cfg_pwl = dict(loop="open", waveform="pwl", sample_rate_hz=1000, n_samples=1200,
 hello = (bytes([1, 1]) + (15).to_bytes(2, "little") + (4000).to_bytes(2, "little")
          + bytes([10, 12, 10, 3, 32]) + b"".join(v.to_bytes(2, "little") for v in (2048, 922, 3174, 500))
          + b"labrig-fw 1.0.0 uno")
+# protocol 2: the same 19 bytes, then the build's rig (an H-bridge board: 10 kHz clock,
+# IN1/IN2 + brake, x4, 8-bit PWM, 50 Hz least), then the id
+hello2 = (bytes([2, 3]) + (31).to_bytes(2, "little") + (2000).to_bytes(2, "little")
+          + bytes([10, 9, 10, 0, 32]) + b"".join(v.to_bytes(2, "little") for v in (256, 0, 512, 500))
+          + bytes([2]) + (10000).to_bytes(4, "little") + bytes([3, 4, 8]) + (50).to_bytes(2, "little")
+          + b"labrig-fw 2.0.0 nano hbridge")
 rows = [[2048 + i, 512 + i, 300 - i, 1023 - i] for i in range(10)]
+# an H-bridge board's samples: word, count (low, high half), current; count -70000
+count_rows = [[256 + i, (-70000 + i) & 0xFFFF, ((-70000 + i) >> 16) & 0xFFFF, 0] for i in range(3)]
 frames = [
     ("HELLO_REQ", p.HELLO_REQ, 0, b"", {}),
     ("CONFIGURE square", p.CONFIGURE, 1, p.configure_body(**cfg), p.parse_configure(p.configure_body(**cfg))),
@@ -70,6 +78,9 @@ frames = [
     ("ZERO", p.ZERO, 7, b"", {}),
     ("ACK", p.ACK, 0, bytes([p.START, 3]), {"type": p.START, "seq": 3}),
     ("HELLO", p.HELLO, 1, hello, p.parse_hello(hello)),
+    ("HELLO protocol 2 hbridge", p.HELLO, 2, hello2, p.parse_hello(hello2)),
+    ("SAMPLES hbridge counts", p.SAMPLES, 3, p.samples_body(0, count_rows),
+     {"first_index": 0, "rows": count_rows, "counts": [-70000, -69999, -69998]}),
     ("SAMPLES", p.SAMPLES, 2, p.samples_body(123456, rows), {"first_index": 123456, "rows": rows}),
     ("SAMPLES zeros", p.SAMPLES, 0, p.samples_body(0, [[0, 0, 0, 0]]), {"first_index": 0, "rows": [[0, 0, 0, 0]]}),
     ("STATUS", p.STATUS, 3, bytes.fromhex("a0860100" "05000000" "02000000" "01000000" "01000000"

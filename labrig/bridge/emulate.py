@@ -11,6 +11,7 @@ harness ``firmware/build/emulator/labrig-emu`` and exposes its pseudo-terminal a
 from __future__ import annotations
 
 import fcntl
+import math
 import os
 import re
 import shutil
@@ -20,13 +21,14 @@ import tempfile
 import time
 from pathlib import Path
 
+from labrig.bridge import hbridge
 from labrig.io.config import RigConfig
 from labrig.core.errors import RigError, UserError
 
 FIRMWARE_DIR = Path(os.environ.get("LABRIG_FIRMWARE_DIR",
                                    Path(__file__).resolve().parents[2] / "firmware"))
 APT_PACKAGES = "gcc-avr avr-libc arduino-core-avr simavr libsimavr-dev libsimavrparts1"
-BOARDS = ("uno", "mega")
+BOARDS = ("uno", "nano", "mega")
 
 def missing_tools() -> list[str]:
     """What is missing to build and run the emulator (empty when all is there)."""
@@ -53,8 +55,11 @@ def firmware_make(*targets: str, timeout: float | None = None) -> subprocess.Com
                                *targets], capture_output=True, text=True, timeout=timeout)
 
 
-def build(board: str = "uno") -> tuple[Path, Path]:
+def build(board: str = "uno", rig: RigConfig | None = None) -> tuple[Path, Path]:
     """Build (incrementally) the firmware for ``board`` and the harness.
+
+    The rig's ``[bridge] firmware`` picks the hardware layer (the MS150 bridge by default;
+    ``hbridge`` with its PWM bits, drive, off phase, decoding and current sense).
 
     Returns
     -------
@@ -67,16 +72,19 @@ def build(board: str = "uno") -> tuple[Path, Path]:
         the compiler output when the build fails.
     """
     if board not in BOARDS:
-        raise UserError(f"unknown board {board!r}: uno or mega")
+        raise UserError(f"unknown board {board!r}: uno, nano or mega")
     missing = missing_tools()
     if missing:
         raise RigError(f"cannot build the emulator: {', '.join(missing)} missing; install with: "
                        f"apt-get install -y --no-install-recommends {APT_PACKAGES}")
-    r = firmware_make(board, "emulator")
+    options = hbridge.make_options(rig) if rig is not None else []
+    r = firmware_make(board, "emulator", *options)
     if r.returncode != 0:
         tail = "\n".join((r.stdout + r.stderr).strip().splitlines()[-15:])
-        raise RigError(f"firmware build failed (make -C {FIRMWARE_DIR} {board} emulator):\n{tail}")
-    return (FIRMWARE_DIR / "build" / board / "labrig_bridge.elf",
+        raise RigError(f"firmware build failed (make -C {FIRMWARE_DIR} {board} emulator "
+                       f"{' '.join(options)}):\n{tail}")
+    folder = FIRMWARE_DIR / "build" / (hbridge.build_folder(rig) if rig is not None else "")
+    return (folder / board / "labrig_bridge.elf",
             FIRMWARE_DIR / "build" / "emulator" / "labrig-emu")
 
 
@@ -94,7 +102,42 @@ def plant_args(rig: RigConfig) -> list[str]:
          "noise-pos": noise.pos_v,
          # the catalogue gives friction in bridge volts, the harness a motor torque
          "Tc": tc_v * amp.gain * p.K / p.R, "seed": noise.seed}
+    if rig.bridge.firmware == "hbridge":
+        return _hbridge_args(rig, v)
     return [a for k, val in v.items() for a in (f"--{k}", str(int(val)) if k == "seed" else repr(val))]
+
+
+def _hbridge_args(rig: RigConfig, v: dict) -> list[str]:
+    """The harness options of an H-bridge rig: its motor, supply, bridge and encoder, and
+    the hidden effects the harness models physically -- the bridge's dead zone
+    (``deadband``, ``asymmetric_deadband``: a turn-on delay that swallows that share of every
+    pulse), Coulomb friction and stiction (torques at the motor), the gear's play
+    (``backlash``, with the encoder on the output shaft). Other catalogue effects are not
+    in the emulated plant."""
+    p, fx = rig.plant, rig.effects
+    to_torque = p.K / p.R   # a friction in bridge volts, as a torque (the bridge's gain is 1)
+    b = rig.bridge
+    dead_f = fx.get("deadband", {}).get("d_v", 0.0) or fx.get("asymmetric_deadband", {}).get("dpos_v", 0.0)
+    dead_r = fx.get("deadband", {}).get("d_v", 0.0) or fx.get("asymmetric_deadband", {}).get("dneg_v", 0.0)
+    tc_v = fx.get("coulomb_friction", {}).get("tc_v", 0.0) or fx.get("stiction", {}).get("tc_v", 0.0)
+    ts_v = tc_v * (1 + fx.get("stiction", {}).get("excess", 0.0)) if "stiction" in fx else 0.0
+    on_output = "backlash" in fx
+    per_turn = rig.sensors.encoder_counts_per_unit * 2 * math.pi / b.decoding
+    args = {"rig": "hbridge", "R": p.R, "L": p.L, "J": p.J, "B": p.B, "K": p.K, "N": v["N"],
+            "supply": float(b.dac_range_v[1]), "dead-fwd": dead_f, "dead-rev": dead_r,
+            "Tc": tc_v * to_torque, "Ts": ts_v * to_torque,
+            "backlash": 2 * fx.get("backlash", {}).get("a_rad", 0.0),
+            "lines": per_turn if on_output else per_turn / rig.gear_ratio, "seed": v["seed"]}
+    out = [a for k, val in args.items()
+           for a in (f"--{k}", val if isinstance(val, str) else
+                     str(int(val)) if k == "seed" else repr(float(val)))]
+    if on_output:
+        out.append("--encoder-on-output")
+    if b.drive_mode == "in1_in2":
+        out.append("--in1-in2")
+    elif b.off_phase == "brake":
+        out.append("--brake")   # a PWM + DIR driver that brakes between pulses
+    return out
 
 
 class Emulator:
@@ -111,7 +154,9 @@ class Emulator:
         bench); 0 runs as fast as the machine allows.
     dac_log : str or Path, optional
         File where the harness logs every change of the DAC output word
-        (``<simulated seconds> <word>`` per line).
+        (``<simulated seconds> <word>`` per line); on an H-bridge rig, ``T cycle`` when the
+        sample clock starts, ``E cycle edge`` at every encoder edge and ``D cycle duty``
+        at every change of the commanded signed duty (timer counts).
     loop : {"open", "closed"}, optional
         Force the plant's loop; by default it follows each CONFIGURE (the patch panel).
 
@@ -140,14 +185,15 @@ class Emulator:
         self._log = None
 
     def command(self) -> list[str]:
-        elf, harness = build(self.board)
+        elf, harness = build(self.board, self.rig)
         # --parent-pid: the harness exits when this process dies (PR_SET_PDEATHSIG), even by
         # SIGKILL, so no emulator outlives its owner and nothing needs killing by name
         cmd = [str(harness), "--fw", str(elf), "--board", self.board, "--speed", repr(self.speed),
                "--parent-pid", str(os.getpid())]
         cmd += plant_args(self.rig)
-        if self.dac_log:
-            cmd += ["--dac-log", self.dac_log]
+        if self.dac_log:   # an H-bridge board's log: sample clock, encoder edges, duty
+            cmd += ["--enc-log" if self.rig.bridge.firmware == "hbridge" else "--dac-log",
+                    self.dac_log]
         if self.loop:
             cmd += ["--loop", self.loop]
         return cmd + list(self.extra_args)

@@ -13,7 +13,11 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-PROTOCOL_VERSION = 1
+#: the version this host's firmware speaks; :data:`PROTOCOLS` are all it understands
+PROTOCOL_VERSION = 2
+#: 1: firmware 1.x (the MS150 bridge only); 2: HELLO names the build's rig, and an
+#: H-bridge board's SAMPLES carry a signed 32-bit encoder count
+PROTOCOLS = (1, 2)
 MAX_BODY = 200
 MAX_RAW = MAX_BODY + 4
 BATCH = 10
@@ -51,11 +55,16 @@ def pwl_words(levels: list[int], pieces: list[int], n: int) -> list[int]:
 WAVEFORMS = {"constant": 0, "square": 1, "step": 2, "staircase": 3, "pwl": 4}
 ERROR_CODES = {1: "BAD_FRAME", 2: "BAD_CONFIG", 3: "LIMIT", 4: "NOT_CONFIGURED",
                5: "BUSY", 6: "WATCHDOG", 7: "RATE"}
-BOARDS = {1: "uno", 2: "mega"}
+BOARDS = {1: "uno", 2: "mega", 3: "nano"}
+#: the hardware layer a firmware was built for (HELLO, protocol 2; protocol 1 is the MS150's)
+RIG_KINDS = {1: "ms150", 2: "hbridge"}
+#: HELLO rig flags of an H-bridge build
+FLAG_IN1_IN2, FLAG_BRAKE, FLAG_CURRENT = 0x01, 0x02, 0x04
 STATES = {0: "idle", 1: "configured", 2: "running", 3: "finishing"}
 
 _CONFIGURE_FIXED = struct.Struct("<BBHIIIHHHHHHB")  # 29 bytes, then n_levels x u16
 _HELLO_FIXED = struct.Struct("<BBHHBBBBBHHHH")      # 19 bytes, then the firmware id
+_HELLO_V2 = struct.Struct("<BIBBBH")                # protocol 2: 10 more bytes before the id
 _SAMPLES_HEAD = struct.Struct("<IB")
 _STATUS = struct.Struct("<IIIIIIBHH")               # the last u16 is reserved
 _DONE = struct.Struct("<II")
@@ -276,21 +285,38 @@ def parse_configure(body: bytes) -> dict:
 
 
 def parse_hello(body: bytes) -> dict:
-    """HELLO: protocol version, board, capabilities, limits, firmware id."""
+    """HELLO: protocol version, board, capabilities, limits, the build's rig (protocol 2),
+    firmware id. A protocol 1 board is an MS150 bridge with Timer1's 2 MHz clock."""
     (ver, board, caps, max_rate, batch, dac_bits, adc_bits, n_adc, max_levels, dac_zero,
      fw_min, fw_max, wd_ms) = _unpack(_HELLO_FIXED, body, "HELLO")
-    return {"protocol": ver, "board": BOARDS.get(board, str(board)), "capabilities": caps,
-            "max_rate_hz": max_rate, "batch": batch, "dac_bits": dac_bits,
-            "adc_bits": adc_bits, "n_adc": n_adc, "max_levels": max_levels,
-            "dac_zero": dac_zero, "fw_dac_min": fw_min, "fw_dac_max": fw_max,
-            "watchdog_ms_default": wd_ms,
-            "firmware": body[_HELLO_FIXED.size:].decode("ascii", "replace")}
+    d = {"protocol": ver, "board": BOARDS.get(board, str(board)), "capabilities": caps,
+         "max_rate_hz": max_rate, "batch": batch, "dac_bits": dac_bits,
+         "adc_bits": adc_bits, "n_adc": n_adc, "max_levels": max_levels,
+         "dac_zero": dac_zero, "fw_dac_min": fw_min, "fw_dac_max": fw_max,
+         "watchdog_ms_default": wd_ms, "rig": "ms150", "timer_hz": 2_000_000,
+         "rig_flags": 0, "decoding": 0, "pwm_bits": 0, "min_rate_hz": 50}
+    start = _HELLO_FIXED.size
+    if ver >= 2:
+        rig, timer_hz, flags, decoding, pwm_bits, min_rate = _unpack(
+            _HELLO_V2, body[start:], "HELLO (protocol 2)")
+        d.update(rig=RIG_KINDS.get(rig, str(rig)), timer_hz=timer_hz, rig_flags=flags,
+                 decoding=decoding, pwm_bits=pwm_bits, min_rate_hz=min_rate)
+        start += _HELLO_V2.size
+    d["firmware"] = body[start:].decode("ascii", "replace")
+    return d
 
 
 def samples_body(first_index: int, rows) -> bytes:
     """SAMPLES body from rows of (dac, tacho, pos, ref) words."""
     rows = np.asarray(rows, dtype="<u2").reshape(-1, 4)
     return struct.pack("<IB", first_index, len(rows)) + rows.tobytes()
+
+
+def encoder_counts(words: np.ndarray) -> np.ndarray:
+    """The signed 32-bit encoder counts of an H-bridge board's SAMPLES words (n, 4): the
+    count's low half in column 1, its high half in column 2."""
+    w = np.asarray(words, dtype=np.int64)
+    return ((w[:, 1] & 0xFFFF) | ((w[:, 2] & 0xFFFF) << 16)).astype(np.uint32).view(np.int32)
 
 
 def parse_samples(body: bytes) -> tuple[int, np.ndarray]:
@@ -350,11 +376,17 @@ def ack_body(type_: int, seq: int) -> bytes:
 def hello_body(*, protocol: int, board, capabilities: int, max_rate_hz: int, batch: int,
                dac_bits: int, adc_bits: int, n_adc: int, max_levels: int, dac_zero: int,
                fw_dac_min: int, fw_dac_max: int, watchdog_ms_default: int,
-               firmware: str) -> bytes:
-    """HELLO body from the fields :func:`parse_hello` returns (``board`` by name or code)."""
-    return _HELLO_FIXED.pack(protocol, _code_of(BOARDS, board), capabilities, max_rate_hz,
+               firmware: str, rig="ms150", timer_hz: int = 2_000_000, rig_flags: int = 0,
+               decoding: int = 0, pwm_bits: int = 0, min_rate_hz: int = 50) -> bytes:
+    """HELLO body from the fields :func:`parse_hello` returns (``board`` and ``rig`` by
+    name or code); the rig's fields are sent from protocol 2 on."""
+    head = _HELLO_FIXED.pack(protocol, _code_of(BOARDS, board), capabilities, max_rate_hz,
                              batch, dac_bits, adc_bits, n_adc, max_levels, dac_zero,
-                             fw_dac_min, fw_dac_max, watchdog_ms_default) + firmware.encode("ascii")
+                             fw_dac_min, fw_dac_max, watchdog_ms_default)
+    if protocol >= 2:
+        head += _HELLO_V2.pack(_code_of(RIG_KINDS, rig), timer_hz, rig_flags, decoding,
+                               pwm_bits, min_rate_hz)
+    return head + firmware.encode("ascii")
 
 
 def status_body(*, samples_sent: int, rx_frames_ok: int, rx_crc_errors: int, rx_overruns: int,

@@ -20,6 +20,7 @@ from labrig.bridge import protocol as P
 from labrig.bridge.base import Bridge, SampleBlock
 from labrig.io.experiment import Experiment
 from labrig.bridge.settings import TIMER_HZ, adc_counts_to_volts, bridge_settings, dac_word_to_volts, experiment_body, volts_to_dac_word
+from labrig.bridge.hbridge import check_board
 from labrig.bridge.transport import SerialTransport, Transport, link_hint
 from labrig.core.errors import LabrigError, RigError, UserError
 
@@ -84,6 +85,7 @@ class SerialBridge(Bridge):
             self.link = SerialTransport(port_or_transport, baudrate)
         self.port = self.link.name   # what messages and counters() call the link
         self.settings = bridge_settings(rig)
+        self._rig = rig
         self.hello_timeout = hello_timeout
         self.heartbeat_s = min(heartbeat_s, self.settings.watchdog_ms / 10000.0)
         self.tries, self.ack_timeout, self.tail_s = max(1, int(tries)), ack_timeout, tail_s
@@ -295,15 +297,28 @@ class SerialBridge(Bridge):
                 f = self._pending.popleft()
                 if f.type == P.HELLO:
                     self.hello = f.fields
-        if self.hello["protocol"] != P.PROTOCOL_VERSION:
+        if self.hello["protocol"] not in P.PROTOCOLS:
             self.close()
             raise RigError(f"board on {self.port} speaks protocol {self.hello['protocol']}, "
-                           f"labrig needs {P.PROTOCOL_VERSION}: reflash the firmware")
+                           f"labrig speaks {', '.join(map(str, P.PROTOCOLS))}: reflash the "
+                           "firmware (make -C firmware upload)")
+        try:   # the board was built for the rig the file describes, at its resolution
+            check_board(self._rig, self.hello, self.port)
+            if self.hello["dac_bits"] != self.settings.dac_bits:
+                raise RigError(
+                    f"the board on {self.port} has a {self.hello['dac_bits']}-bit output word, "
+                    f"the rig file {self.settings.dac_bits} bits ([bridge] dac_bits"
+                    f"{', pwm_bits' if self.settings.firmware == 'hbridge' else ''}): give the "
+                    "rig file of this board (--rig) or flash the firmware it describes")
+        except RigError:
+            self.close()
+            raise
         # stop whatever a previous host left running
         self._command(P.ZERO)
         self.board_status = self._fetch_status()   # the baseline of the first run's counters
         self._pending.clear()
         return {"firmware": self.hello["firmware"], "board": self.hello["board"],
+                "protocol": self.hello["protocol"], "rig": self.hello["rig"],
                 "capabilities": ["square", "step", "staircase", "constant"]
                 + (["pwl"] if self.hello["capabilities"] & P.CAP_PWL else []),
                 "max_rate_hz": self.hello["max_rate_hz"], "port": self.port}
@@ -365,13 +380,7 @@ class SerialBridge(Bridge):
                     self._next_index = first + len(w)
                     self.samples += len(w)
                     self._last_sample_t = time.monotonic()
-                    s = self.settings
-                    return SampleBlock(
-                        index=np.arange(first, first + len(w)),
-                        u=dac_word_to_volts(w[:, 0], s),
-                        tacho=adc_counts_to_volts(w[:, 1], "tacho", s),
-                        pos=adc_counts_to_volts(w[:, 2], "pos", s),
-                        ref=adc_counts_to_volts(w[:, 3], "ref", s))
+                    return self._block(first, w)
                 if f.type == P.DONE:
                     if f.fields["n_samples"] != self._n_samples:
                         self.stale_frames += 1   # not this run's DONE
@@ -397,6 +406,22 @@ class SerialBridge(Bridge):
                 raise RigError(f"no data from {self.port} for {timeout:.1f} s: {self._hint(since)}")
             self._heartbeat()
             self._poll(min(0.05, deadline - now))
+
+    def _block(self, first: int, w: np.ndarray) -> SampleBlock:
+        """A SAMPLES frame's words as a block: raw volts from the MS150 bridge; from an
+        H-bridge board the output in volts of the supply and the encoder's signed count
+        (the rig's ``pos`` unit is counts: ``sensors.encoder_counts_per_unit``)."""
+        s = self.settings
+        index = np.arange(first, first + len(w))
+        u = dac_word_to_volts(w[:, 0], s)
+        if s.firmware == "hbridge":
+            return SampleBlock(index=index, u=u, tacho=None,
+                               pos=P.encoder_counts(w).astype(float),
+                               # A0 against the board's own 5 V reference
+                               current=w[:, 3] * (5.0 / 1024) if s.current_sense else None)
+        return SampleBlock(index=index, u=u, tacho=adc_counts_to_volts(w[:, 1], "tacho", s),
+                           pos=adc_counts_to_volts(w[:, 2], "pos", s),
+                           ref=adc_counts_to_volts(w[:, 3], "ref", s))
 
     def stop(self) -> None:
         """Stop the experiment (the board returns to 0 V) and fetch the board's counters."""

@@ -39,6 +39,8 @@ class BridgeSettings:
     adc_bits: int
     adc_range_v: tuple[float, float]
     watchdog_ms: int
+    firmware: str = "ms150"
+    current_sense: bool = False
     dac_gain: float = 1.0
     dac_offset_v: float = 0.0
     tacho_gain: float = 1.0
@@ -69,7 +71,7 @@ def bridge_settings(rig: RigConfig) -> BridgeSettings:
         sample_rate_hz=float(b.sample_rate_hz), output_limit_v=float(b.output_limit_v),
         dac_bits=int(b.dac_bits), dac_range_v=tuple(float(v) for v in b.dac_range_v),
         adc_bits=int(b.adc_bits), adc_range_v=tuple(float(v) for v in b.adc_range_v),
-        watchdog_ms=int(b.watchdog_ms),
+        watchdog_ms=int(b.watchdog_ms), firmware=b.firmware, current_sense=bool(b.current_sense),
         **{f"{k}_gain": float(cal.get(f"{k}_gain", 1.0)) for k in CAL_CHANNELS},
         **{f"{k}_offset_v": float(cal.get(f"{k}_offset_v", 0.0)) for k in CAL_CHANNELS})
 
@@ -138,10 +140,14 @@ def experiment_body(exp: Experiment, s: BridgeSettings, hello: dict) -> bytes:
         raise UserError(f"experiment {exp.name!r}: loop must be 'open' or 'closed'")
     rate = int(round(exp.sample_rate_hz))
     max_rate = hello.get("max_rate_hz", 1000)
-    if abs(rate - exp.sample_rate_hz) > 1e-9 or TIMER_HZ % rate or not 50 <= rate <= max_rate:
+    min_rate = hello.get("min_rate_hz", 50)
+    clock = hello.get("timer_hz", TIMER_HZ)   # the board's sample clock: exact rates divide it
+    if abs(rate - exp.sample_rate_hz) > 1e-9 or clock % rate or not min_rate <= rate <= max_rate:
+        examples = ", ".join(str(r) for r in (100, 200, 250, 500, 1000, 2000)
+                             if min_rate <= r <= max_rate and clock % r == 0)
         raise UserError(f"experiment {exp.name!r}: sample rate {exp.sample_rate_hz:g} Hz is not "
-                        f"available; the board runs 50..{max_rate} Hz at divisors of 2 MHz "
-                        "(e.g. 500, 1000, 2000)")
+                        f"available; the board runs {min_rate}..{max_rate} Hz at divisors of "
+                        f"{clock:g} Hz (e.g. {examples})")
     levels_v = waveform_levels(exp)
     most = min(P.MAX_LEVELS, hello.get("max_levels", P.MAX_LEVELS))
     if len(levels_v) > most:

@@ -211,7 +211,20 @@ class CalibrationSection(_Closed):
     ref_offset_v: Num(-50.0, 50.0) = None
 
 
+def _lower(v):
+    """Keywords in any case ("Open", "SQUARE"), as names are on the command line."""
+    return v.lower() if isinstance(v, str) else v
+
+
 class BridgeSection(_Closed):
+    #: the firmware's hardware layer: the MS150 bridge (DAC + analog sensors) or an
+    #: H-bridge + encoder board (labrig.bridge.hbridge)
+    firmware: Annotated[Optional[Literal["ms150", "hbridge"]], BeforeValidator(_lower)] = None
+    pwm_bits: Annotated[int, Field(ge=1, le=16)] = None
+    drive_mode: Annotated[Optional[Literal["pwm_dir", "in1_in2"]], BeforeValidator(_lower)] = None
+    off_phase: Annotated[Optional[Literal["coast", "brake"]], BeforeValidator(_lower)] = None
+    decoding: Optional[Literal[1, 2, 4]] = None
+    current_sense: Optional[bool] = None
     sample_rate_hz: Num(1.0, 1e5) = None
     output_limit_v: Num(0.0, 50.0) = None
     dac_bits: Annotated[int, Field(ge=1, le=24)] = None
@@ -241,11 +254,6 @@ class RigFile(_Closed):
 
 
 # -- sweep plan -------------------------------------------------------------------------
-
-def _lower(v):
-    """Keywords in any case ("Open", "SQUARE"), as names are on the command line."""
-    return v.lower() if isinstance(v, str) else v
-
 
 class ExperimentSpec(_Closed):
     name: RunName = None

@@ -76,6 +76,17 @@ class Sensors:
 
 @dataclass
 class BridgeConfig:
+    #: the hardware layer the board's firmware is built for: "ms150" (DAC + analog
+    #: sensors) or "hbridge" (PWM into an H-bridge, a quadrature encoder)
+    firmware: str = "ms150"
+    #: H-bridge: PWM resolution (the output word is these bits and a sign), the bridge's
+    #: inputs (PWM + DIR, or IN1/IN2), what the off phase does, the encoder's decoding
+    #: (edges counted per quadrature cycle) and whether A0 senses the current
+    pwm_bits: int = 8
+    drive_mode: str = "pwm_dir"
+    off_phase: str = "coast"
+    decoding: int = 4
+    current_sense: bool = False
     sample_rate_hz: float = 1000.0
     output_limit_v: float = 2.5
     dac_bits: int = 12
@@ -189,6 +200,10 @@ def rig_from_dict(doc: dict, path: str = "<rig>") -> RigConfig:
             setattr(obj, _ATTRS.get(sec, {}).get(key, key), value)
     rig.effects = _check_effects(path, checked.effects, rig.bridge.output_limit_v)
     _check_plant(path, rig, checked)
+    if rig.bridge.firmware == "hbridge":
+        from labrig.bridge.hbridge import check_rig
+        check_rig(rig, path, given=checked.bridge.model_dump(exclude_unset=True)
+                  if checked.bridge else {})
     return rig
 
 

@@ -111,17 +111,22 @@ static void send_ack(uint8_t type, uint8_t seq)
 
 void lr_core_send_hello(void)
 {
-    uint8_t b[64];
+    uint8_t b[80];
     b[0] = LR_PROTOCOL_VERSION;
     b[1] = board;
     lr_put16(b + 2, 0x001F);          /* capabilities: square|step|staircase|constant|pwl */
     lr_put16(b + 4, max_rate);
-    b[6] = LR_BATCH; b[7] = 12; b[8] = 10; b[9] = 3; b[10] = LR_MAX_LEVELS;
+    b[6] = LR_BATCH; b[7] = LR_DAC_BITS; b[8] = 10; b[9] = LR_ADC_CHANNELS; b[10] = LR_MAX_LEVELS;
     lr_put16(b + 11, LR_DAC_ZERO);
     lr_put16(b + 13, lim_lo());
     lr_put16(b + 15, lim_hi());
     lr_put16(b + 17, LR_WATCHDOG_MS_DEFAULT);
-    uint16_t n = 19;
+    /* protocol 2: the build's rig */
+    b[19] = LR_RIG_KIND;
+    lr_put32(b + 20, LR_TIMER_HZ);
+    b[24] = LR_RIG_FLAGS; b[25] = LR_DECODING; b[26] = LR_PWM_BITS;
+    lr_put16(b + 27, LR_MIN_RATE_HZ);
+    uint16_t n = 29;
     for (const char *p = fw_name; *p && n < sizeof b; p++) b[n++] = (uint8_t)*p;
     send(LR_HELLO, b, n);
 }
@@ -183,7 +188,8 @@ static int configure(const uint8_t *b, uint16_t len)
     if ((c.waveform == LR_WAVE_SQUARE || c.waveform == LR_WAVE_STAIRCASE) && c.segment == 0)
         return LR_ERR_BAD_CONFIG;
     if (c.waveform == LR_WAVE_SQUARE && c.n_levels != 2) return LR_ERR_BAD_CONFIG;
-    if (c.rate_hz < LR_MIN_RATE_HZ || c.rate_hz > max_rate) return LR_ERR_RATE;
+    if (c.rate_hz < LR_MIN_RATE_HZ || c.rate_hz > max_rate || LR_TIMER_HZ % c.rate_hz)
+        return LR_ERR_RATE;
     if (c.dac_min > c.dac_max || c.dac_min < lim_lo() || c.dac_max > lim_hi() ||
         c.dac_zero < c.dac_min || c.dac_zero > c.dac_max)
         return LR_ERR_LIMIT;

@@ -22,6 +22,30 @@ extern "C" {
 #ifndef LR_WATCHDOG_MS_DEFAULT
 #define LR_WATCHDOG_MS_DEFAULT 500
 #endif
+/* What HELLO tells the host about the build (protocol 2): the rig's hardware layer, the
+ * clock whose divisors are the exact sample rates, the output word's bits, and for the
+ * H-bridge its drive flags, encoder decoding and PWM bits. The MS150 bridge's defaults. */
+#ifndef LR_RIG_KIND
+#define LR_RIG_KIND 1            /* 1 MS150 (MCP4822 + analog sensors), 2 H-bridge + encoder */
+#endif
+#ifndef LR_TIMER_HZ
+#define LR_TIMER_HZ 2000000UL    /* Timer1 at 16 MHz / 8 */
+#endif
+#ifndef LR_DAC_BITS
+#define LR_DAC_BITS 12
+#endif
+#ifndef LR_ADC_CHANNELS
+#define LR_ADC_CHANNELS 3
+#endif
+#ifndef LR_RIG_FLAGS
+#define LR_RIG_FLAGS 0           /* bit0 IN1/IN2 drive, bit1 brake off phase, bit2 current sense */
+#endif
+#ifndef LR_DECODING
+#define LR_DECODING 0            /* encoder decoding 1, 2 or 4; 0 no encoder */
+#endif
+#ifndef LR_PWM_BITS
+#define LR_PWM_BITS 0
+#endif
 #define LR_RING 32  /* samples buffered between the ADC ISR and the sender (power of 2) */
 #define LR_MIN_RATE_HZ 50
 

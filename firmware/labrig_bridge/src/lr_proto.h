@@ -10,7 +10,9 @@
 extern "C" {
 #endif
 
-#define LR_PROTOCOL_VERSION 1
+/* 2: HELLO names the build's rig (kind, sample clock, drive, decoding, PWM bits); an
+ * H-bridge board's SAMPLES carry the signed 32-bit encoder count in place of two ADC words */
+#define LR_PROTOCOL_VERSION 2
 /* decoded frame = type + seq + body + crc16; one limit for both directions */
 #define LR_MAX_BODY 200
 #define LR_MAX_RAW (LR_MAX_BODY + 4)
