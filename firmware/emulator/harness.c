@@ -146,7 +146,7 @@ static int64_t edge_now;
 static int timer2_on;
 static long duty_logged = 0x7FFFFFFF;
 static uint64_t pwm_period;
-enum { R_TCCR1A = 0x80, R_TCCR1B = 0x81, R_ICR1 = 0x86, R_OCR1A = 0x88, R_TCCR2B = 0xB1,
+enum { R_TCCR1A = 0x80, R_TCCR1B = 0x81, R_ICR1 = 0x86, R_OCR1A = 0x88, R_TCCR2A = 0xB0, R_TCCR2B = 0xB1,
        R_PORTB = 0x25 };
 enum { LVL_LOW, LVL_HIGH, LVL_PWM, LVL_PWM_INV };
 
@@ -227,7 +227,9 @@ static bridge_step_t bridge_inputs(uint64_t c0, uint64_t c1, long *duty_out)
 
 static void encoder_pins(int64_t e)
 {
-    static const uint8_t gray[4] = {0, 2, 3, 1};   /* forward: A leads B */
+    /* forward: A leads B. At the angle 0 both channels are high, the level an open-
+     * collector encoder's pull-ups give: the pins the chip reads at reset are the encoder's */
+    static const uint8_t gray[4] = {3, 1, 0, 2};
     uint8_t ab = gray[((e % 4) + 4) % 4];
     avr_raise_irq(avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ(enc_port), enc_a_bit), (ab >> 1) & 1);
     avr_raise_irq(avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ(enc_port), enc_b_bit), ab & 1);
@@ -254,7 +256,9 @@ static avr_cycle_count_t motor_tick(avr_t *a, avr_cycle_count_t when, void *para
         encoder_pins(edge_now);
         if (enc_log) fprintf(enc_log, "E %llu %lld\n", (unsigned long long)now, (long long)edge_now);
     }
-    int t2 = (avr->data[R_TCCR2B] & 7) != 0;
+    /* the sample clock: Timer2 in CTC at clk/8 (Arduino's own start-up set-up of Timer2
+     * for analogWrite is not it) */
+    int t2 = (avr->data[R_TCCR2B] & 7) == 2 && (avr->data[R_TCCR2A] & 3) == 2;
     if (t2 && !timer2_on && enc_log) fprintf(enc_log, "T %llu\n", (unsigned long long)now);
     timer2_on = t2;
     return when + 16;

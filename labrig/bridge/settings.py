@@ -88,7 +88,9 @@ def volts_to_dac_word(v: float, s: BridgeSettings) -> int:
     lo, hi = s.dac_range_v
     nominal = (v - s.dac_offset_v) / s.dac_gain
     w = int(round((nominal - lo) * 2 ** s.dac_bits / (hi - lo)))
-    return min(max(w, 0), 2 ** s.dac_bits - 1)
+    # an H-bridge word is a sign and the PWM's counts: the same most either way
+    least = 1 if s.firmware == "hbridge" else 0
+    return min(max(w, least), 2 ** s.dac_bits - 1)
 
 
 def adc_counts_to_volts(counts, channel: str, s: BridgeSettings) -> np.ndarray:

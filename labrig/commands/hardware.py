@@ -18,7 +18,8 @@ def cmd_emulate(args):
     emu = lr.emulator(lr.load_rig(args.rig), board=args.board, speed=args.speed)
     pty = emu.start()
     print(pty, flush=True)
-    print(f"labrig emulate: {args.board} firmware in simavr on {pty}; Ctrl-C to stop",
+    print(f"labrig emulate: {args.board} {emu.rig.bridge.firmware} firmware in simavr on {pty}; "
+          "Ctrl-C to stop",
           file=sys.stderr, flush=True)
     signal.signal(signal.SIGTERM, lambda *a: (_ for _ in ()).throw(KeyboardInterrupt()))
     try:
@@ -32,10 +33,12 @@ def cmd_emulate(args):
 
 
 def _configure(p):
-    p.add_argument("--board", default="uno", choices=["uno", "mega"],
-                   help="the firmware's board: uno (ATmega328P) or mega (ATmega2560) "
+    p.add_argument("--board", default="uno", choices=["uno", "nano", "mega"],
+                   help="the firmware's board: uno or nano (ATmega328P) or mega (ATmega2560) "
                         "(default uno)")
-    p.add_argument("--rig", help="rig file for the plant model (default configs/rig_default.toml)")
+    p.add_argument("--rig", help="rig file: its [bridge] firmware (ms150 or hbridge, with its "
+                                 "options) is built and played against a plant of its values "
+                                 "(default configs/rig_default.toml)")
     p.add_argument("--speed", type=float, default=1.0,
                    help="1 = real time (default, timeouts as on the bench); 0 = as fast as possible")
 

@@ -1,0 +1,174 @@
+"""The bench a lab owns: an Arduino, an H-bridge and an encoder gear motor, played live.
+
+The real H-bridge firmware (``make -C firmware RIG=hbridge``) runs under simavr against the
+harness's motor plant (``firmware/emulator/motor.c``: it reads Timer1's registers and PORTB
+as the chip drives them and moves the encoder's pins at the step the shaft crosses an
+edge; it shares no code with labrig's simulator). A sweep goes through ``labrig sweep
+--port`` over the emulator's pty; every sample is accounted for, the board's counts are
+the plant's angle within one count, the bridge's duty is what the plan commanded, and
+``diagnose --auto`` finds the plant's hidden dead zone and friction.
+"""
+from __future__ import annotations
+
+import json
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from labrig.bridge import hbridge
+from labrig.bridge.emulate import APT_PACKAGES, FIRMWARE_DIR, Emulator, firmware_make, missing_tools
+from labrig.io.config import load_rig
+
+_missing = missing_tools()
+pytestmark = [
+    pytest.mark.firmware,
+    pytest.mark.skipif(bool(_missing), reason=f"firmware toolchain missing ({', '.join(_missing)}): "
+                                              f"apt-get install {APT_PACKAGES}"),
+]
+
+ROOT = Path(__file__).resolve().parents[1]
+RIG_FILE = ROOT / "configs" / "rig_arduino_hbridge.toml"
+PLAN = ROOT / "configs" / "plan_arduino.toml"
+#: the hidden plant of the loop's test: a bridge dead zone wider in reverse and Coulomb
+#: friction at the motor (what the harness models physically; the rig file's own
+#: hidden effects are replaced)
+HIDDEN = {"asymmetric_deadband": {"dpos_v": 1.0, "dneg_v": 1.6}, "coulomb_friction": {"tc_v": 0.8}}
+
+
+def _labrig(*args, timeout=300):
+    return subprocess.run([sys.executable, "-m", "labrig", *map(str, args)], capture_output=True,
+                          text=True, timeout=timeout)
+
+
+def _rig_with(tmp_path: Path, effects: dict, **bridge) -> Path:
+    """The shipped H-bridge rig file with other hidden effects (and [bridge] keys)."""
+    text = RIG_FILE.read_text().split("[effects.")[0]
+    for key, value in bridge.items():
+        text = re.sub(rf"^{key} = .*$", f"{key} = {json.dumps(value)}", text, flags=re.M)
+    for name, params in effects.items():
+        text += f"[effects.{name}]\n" + "".join(f"{k} = {v}\n" for k, v in params.items()) + "\n"
+    path = tmp_path / "rig.toml"
+    path.write_text(text)
+    return path
+
+
+@pytest.mark.parametrize("board", ["uno", "nano", "mega"])
+def test_the_hbridge_firmware_builds_for_each_board(board):
+    r = firmware_make(board, *hbridge.make_options(load_rig(RIG_FILE)), timeout=600)
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert re.search(rf"{board}: flash \d+ of", r.stdout)
+    assert "warning" not in (r.stdout + r.stderr).lower()
+    assert (FIRMWARE_DIR / "build" / hbridge.build_folder(load_rig(RIG_FILE)) / board
+            / "labrig_bridge.hex").exists()
+
+
+def _edges(log: Path):
+    """The harness's log: sample-clock starts, encoder edges (cycle, edge), duty changes."""
+    starts, edge_c, edge_v, duty = [], [0], [0], []
+    for line in log.read_text().splitlines():
+        kind, *v = line.split()
+        if kind == "T":
+            starts.append(int(v[0]))
+        elif kind == "E":
+            edge_c.append(int(v[0]))
+            edge_v.append(int(v[1]))
+        elif kind == "D":
+            duty.append((int(v[0]), int(v[1])))
+    return starts, np.array(edge_c), np.array(edge_v), duty
+
+
+@pytest.fixture(scope="module")
+def played(tmp_path_factory):
+    """The shipped plan played through ``labrig sweep --port`` on the emulated board."""
+    tmp = tmp_path_factory.mktemp("hbridge")
+    rig_file = _rig_with(tmp, HIDDEN)
+    log = tmp / "emu.log"
+    with Emulator("uno", load_rig(rig_file), dac_log=log) as emu:
+        r = _labrig("sweep", "--port", emu.pty, "--rig", rig_file, "--plan", PLAN, "-o", tmp / "runs")
+        lag = emu.behind_s()
+    assert r.returncode == 0, r.stderr
+    return {"runs": tmp / "runs", "rig": rig_file, "log": log, "lag": lag}
+
+
+def test_a_sweep_plays_with_every_sample_counted_and_the_counts_of_the_shaft(played):
+    rig = load_rig(played["rig"])
+    starts, edge_c, edge_v, duty = _edges(played["log"])
+    names = sorted(played["runs"].glob("*.csv"), key=lambda p: float(p.stem[3:-1]))
+    assert len(names) == 5 and len(starts) == 5
+    for csv, start in zip(names, starts):
+        meta = json.loads(csv.with_suffix(".json").read_text())
+        d = pd.read_csv(csv)
+        assert "gap" not in d and meta["bridge"]["dropped_samples"] == 0
+        assert meta["bridge"]["board_sample_overruns"] == 0
+        assert meta["bridge"]["firmware"].endswith("uno hbridge")
+        assert meta["sensors"]["pos_kind"] == "encoder"
+        # sample k is read at the (k+1)-th division of the 10 kHz clock after START
+        # (1600 cycles of 16 MHz each); the plant's edge index then, against the board's count
+        div = hbridge.TIMER_HZ // int(rig.bridge.sample_rate_hz)
+        at = start + (np.arange(len(d)) + 1) * div * 1600
+        truth = edge_v[np.searchsorted(edge_c, at, side="right") - 1]
+        assert np.abs(d["pos"].to_numpy() - truth).max() <= 1, csv.name
+        assert np.ptp(d["pos"]) > 500   # the shaft really turned
+    # the bridge's duty, as the chip's registers set it, is the plan's: every duty held
+    # longer than one PWM period (256 cycles) is a level of some run, in timer counts
+    held = {v for (c0, v), (c1, _) in zip(duty, duty[1:]) if c1 - c0 > 256}
+    levels = set()
+    for csv in names:
+        levels |= {int(round(u / 12.0 * 256)) for u in pd.read_csv(csv)["u"].unique()}
+    assert held <= levels and len(held) >= 8, (held, levels)
+
+
+@pytest.fixture(scope="module")
+def diagnosed(played):
+    out = played["runs"].parent / "diagnosis"
+    r = _labrig("diagnose", "--auto", played["runs"], "--json", "-o", out)
+    assert r.returncode == 0, r.stderr
+    return {"json": json.loads(r.stdout), "model": out / "model.json"}
+
+
+def test_diagnose_auto_finds_the_hidden_dead_zone_and_friction(diagnosed):
+    final = diagnosed["json"]["final_model"]
+    assert set(final["effects"]) == {"asymmetric_deadband", "coulomb_friction"}
+    dz, fr = final["effect_params"]["asymmetric_deadband"], final["effect_params"]["coulomb_friction"]
+    # within 10 % of the hidden values (one PWM count is 47 mV; the data resolve a few of them)
+    assert dz["dpos_v"] == pytest.approx(1.0, rel=0.1)
+    assert dz["dneg_v"] == pytest.approx(1.6, rel=0.1)
+    assert fr["tc_v"] == pytest.approx(0.8, rel=0.1)
+    assert final["rmse_over_noise"]["overall"] < 2.0
+
+
+def test_a_proposed_experiment_plays_on_the_board(played, diagnosed, tmp_path):
+    plan = tmp_path / "proposed.toml"
+    r = _labrig("propose", played["runs"], "--model", diagnosed["model"], "--rig", played["rig"],
+                "-o", plan)
+    assert r.returncode == 0, r.stderr
+    with Emulator("uno", load_rig(played["rig"])) as emu:
+        r = _labrig("sweep", "--port", emu.pty, "--rig", played["rig"], "--plan", plan,
+                    "-o", tmp_path / "next")
+    assert r.returncode == 0, r.stderr
+    runs = sorted((tmp_path / "next").glob("*.json"))
+    assert runs
+    for run in runs:
+        meta = json.loads(run.read_text())
+        assert meta["bridge"]["dropped_samples"] == 0
+        assert meta["bridge"]["firmware"].endswith("hbridge")
+        assert meta["experiment"]["waveform"] == "pwl"
+        d = pd.read_csv(run.with_suffix(".csv"))
+        assert np.ptp(d["pos"]) > 100   # the ramp turned the shaft
+
+
+def test_a_board_flashed_for_the_other_rig_is_named_and_nothing_plays(tmp_path):
+    """The MS150 bridge's firmware on the port, an H-bridge rig file: exit 1, one line
+    that says which firmware the board runs and how to flash the right one."""
+    with Emulator("uno") as emu:
+        r = _labrig("sweep", "--port", emu.pty, "--rig", RIG_FILE, "--plan", PLAN, "-o", tmp_path / "r")
+    assert r.returncode == 1
+    line = r.stderr.strip()
+    assert len(line.splitlines()) == 1, line
+    assert "runs the ms150 firmware" in line and "RIG=hbridge" in line
+    assert not list((tmp_path / "r").glob("*.csv")) if (tmp_path / "r").exists() else True

@@ -1,0 +1,83 @@
+"""An H-bridge rig file against what the board can do: one line, exit 2, nothing played."""
+from __future__ import annotations
+
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from labrig.bridge import hbridge, protocol as P
+from labrig.bridge.settings import bridge_settings, dac_word_to_volts, volts_to_dac_word
+from labrig.io.config import load_rig
+
+ROOT = Path(__file__).resolve().parents[1]
+RIG_FILE = ROOT / "configs" / "rig_arduino_hbridge.toml"
+
+
+def _rig(tmp_path, **changes) -> Path:
+    text = RIG_FILE.read_text()
+    for key, value in changes.items():
+        if re.search(rf"^{key} = ", text, flags=re.M):
+            text = re.sub(rf"^{key} = .*$", f"{key} = {value}", text, flags=re.M)
+        else:
+            text = text.replace("[bridge]\n", f"[bridge]\n{key} = {value}\n")
+    path = tmp_path / "rig.toml"
+    path.write_text(text)
+    return path
+
+
+@pytest.mark.parametrize("changes, words", [
+    ({"pwm_bits": 12}, ["bridge.pwm_bits", "8 to 10 bits", "in hearing"]),
+    ({"encoder_counts_per_unit": 0}, ["sensors.encoder_counts_per_unit", "counts per rad"]),
+    ({"dac_range_v": "[-9.0, 9.0]"}, ["bridge.output_limit_v", "above the supply"]),
+    ({"dac_bits": 12}, ["bridge.dac_bits", "PWM bits and a sign (9)"]),
+    ({"sample_rate_hz": 300.0}, ["bridge.sample_rate_hz", "divisors of 10000"]),
+])
+def test_a_rig_file_the_board_cannot_play_is_refused_in_one_line(tmp_path, changes, words):
+    rig = _rig(tmp_path, **changes)
+    r = subprocess.run([sys.executable, "-m", "labrig", "sweep", "--sim", "--rig", str(rig),
+                        "-o", str(tmp_path / "runs")], capture_output=True, text=True)
+    assert r.returncode == 2, r.stderr
+    line = r.stderr.strip()
+    assert len(line.splitlines()) == 1 and "Traceback" not in line
+    assert str(rig) in line and all(w in line for w in words), line
+    assert not (tmp_path / "runs").exists()
+
+
+def test_a_plan_beyond_the_supply_is_refused_before_anything_moves(tmp_path):
+    plan = tmp_path / "plan.toml"
+    plan.write_text('[[experiment]]\nloop = "open"\nwaveform = "step"\namplitude_v = 15.0\n'
+                    'duration_s = 1.0\nsample_rate_hz = 200.0\n')
+    r = subprocess.run([sys.executable, "-m", "labrig", "sweep", "--sim", "--rig", str(RIG_FILE),
+                        "--plan", str(plan), "-o", str(tmp_path / "runs")],
+                       capture_output=True, text=True)
+    assert r.returncode == 2
+    assert "15 V" in r.stderr and "12 V" in r.stderr and len(r.stderr.strip().splitlines()) == 1
+
+
+def test_the_output_word_is_the_pwm_and_a_sign_the_same_most_either_way():
+    s = bridge_settings(load_rig(RIG_FILE))
+    assert s.dac_bits == 9 and s.firmware == "hbridge"
+    assert volts_to_dac_word(0.0, s) == 256
+    assert volts_to_dac_word(12.0, s) == 511 and volts_to_dac_word(-12.0, s) == 1
+    # a count is supply / 256 either way: 8-bit PWM of 12 V
+    assert dac_word_to_volts([257, 255], s).tolist() == pytest.approx([12 / 256, -12 / 256])
+    assert dac_word_to_volts([511, 1], s).tolist() == pytest.approx([12 * 255 / 256, -12 * 255 / 256])
+
+
+def test_the_board_is_checked_against_the_rig_file():
+    rig = load_rig(RIG_FILE)
+    hello = P.parse_hello(P.hello_body(
+        protocol=2, board="nano", capabilities=31, max_rate_hz=2000, batch=10, dac_bits=9,
+        adc_bits=10, n_adc=0, max_levels=32, dac_zero=256, fw_dac_min=1, fw_dac_max=511,
+        watchdog_ms_default=500, firmware="labrig-fw 2.0.0 nano hbridge", rig="hbridge",
+        timer_hz=10000, rig_flags=hbridge.rig_flags(rig), decoding=4, pwm_bits=8))
+    hbridge.check_board(rig, hello, "/dev/ttyUSB0")   # the right build: no complaint
+    from labrig.core.errors import RigError
+    with pytest.raises(RigError, match="other H-bridge options: decoding 2 .rig file: 4."):
+        hbridge.check_board(rig, {**hello, "decoding": 2}, "/dev/ttyUSB0")
+    v1 = {**hello, "rig": "ms150"}
+    with pytest.raises(RigError, match="runs the ms150 firmware.*RIG=hbridge PWM_BITS=8"):
+        hbridge.check_board(rig, v1, "/dev/ttyUSB0")
