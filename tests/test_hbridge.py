@@ -172,3 +172,32 @@ def test_a_board_flashed_for_the_other_rig_is_named_and_nothing_plays(tmp_path):
     assert len(line.splitlines()) == 1, line
     assert "runs the ms150 firmware" in line and "RIG=hbridge" in line
     assert not list((tmp_path / "r").glob("*.csv")) if (tmp_path / "r").exists() else True
+
+
+def test_the_lab_station_plays_and_fits_on_the_emulated_hbridge_board(tmp_path):
+    """``labrig lab --emulate --rig configs/rig_arduino_hbridge.toml``: the station builds the
+    H-bridge firmware, plays a run on it and fits the linear model to it."""
+    import time
+
+    from labrig.io.config import load_plan
+    from labrig.lab.serve import make_station
+
+    st = make_station(tmp_path, rig_path=RIG_FILE, emulate=True)
+    try:
+        st.start_sweep(load_plan(PLAN, st.rig)[2:3])   # the 6 V square wave
+        t0 = time.monotonic()
+        while not st.runs_on_disk() or st.busy():
+            assert time.monotonic() - t0 < 120, "the sweep did not finish"
+            st.poll()
+            time.sleep(0.05)
+        assert st.runs_on_disk() == ["sq_6.00V"]
+        meta = json.loads(next(tmp_path.rglob("sq_6.00V.json")).read_text())
+        assert meta["bridge"]["firmware"].endswith("hbridge") and meta["bridge"]["dropped_samples"] == 0
+        st.fit_linear()
+        while not st.rungs or st.busy():
+            assert time.monotonic() - t0 < 300, "the fit did not finish"
+            st.poll()
+            time.sleep(0.05)
+        assert st.rungs[0]["runs"] == ["sq_6.00V"]
+    finally:
+        st.close()
