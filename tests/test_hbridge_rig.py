@@ -81,3 +81,42 @@ def test_the_board_is_checked_against_the_rig_file():
     v1 = {**hello, "rig": "ms150"}
     with pytest.raises(RigError, match="runs the ms150 firmware.*RIG=hbridge PWM_BITS=8"):
         hbridge.check_board(rig, v1, "/dev/ttyUSB0")
+
+
+def _arduino_pins(variant: str) -> dict:
+    """Arduino pin name -> (port letter, bit), from the Arduino core's own variant tables."""
+    text = Path(f"/usr/share/arduino/hardware/arduino/avr/variants/{variant}/pins_arduino.h").read_text()
+
+    def table(name):
+        body = text.split(f"{name}[] = {{")[1].split("};")[0]
+        body = re.sub(r"/\*.*?\*/|//[^\n]*", "", body, flags=re.S)
+        return [t.strip() for t in body.split(",") if t.strip()]
+
+    ports = table("digital_pin_to_port_PGM")
+    bits = [int(re.fullmatch(r"_BV\(\s*(\d+)\s*\)", b).group(1)) for b in table("digital_pin_to_bit_mask_PGM")]
+    return {f"D{i}": (p[1], b) for i, (p, b) in enumerate(zip(ports, bits))}
+
+
+@pytest.mark.skipif(not Path("/usr/share/arduino/hardware/arduino/avr/variants").exists(),
+                    reason="arduino-core-avr not installed")
+@pytest.mark.parametrize("board, variant, mcu", [("uno", "standard", "328"), ("mega", "mega", "2560")])
+def test_the_pin_map_is_the_one_the_firmware_drives(board, variant, mcu):
+    """labrig.bridge.hbridge.PINS (what docs/hardware.md shows) against hal_hbridge.inc's
+    port bits, through the Arduino core's own table of which port bit each pin is."""
+    hal = (ROOT / "firmware" / "labrig_bridge" / "src" / "hal_hbridge.inc").read_text()
+    block = re.search(r"#if defined\(__AVR_ATmega2560__\)\n(#define PIN_A_BIT.*?)#endif", hal, re.S).group(1)
+    mega, other = block.split("#else")
+    defs = dict(re.findall(r"#define (\w+_BIT) P([A-Z]\d)", mega if board == "mega" else other))
+    pins = _arduino_pins(variant)
+    want = hbridge.PINS[board]
+    for key, define in (("pwm_in1", "PIN_A_BIT"), ("dir_in2", "PIN_B_BIT"), ("enc_a", "ENC_A_BIT"),
+                        ("enc_b", "ENC_B_BIT")):
+        port, bit = defs[define][0], int(defs[define][1])
+        assert pins[want[key]] == (port, bit), (board, key, want[key], defs[define])
+    doc = (ROOT / "docs" / "hardware.md").read_text()
+    rows = doc.split("## The H-bridge + encoder bench")[1]
+    col = 1 if board == "uno" else 2
+    for key, label in (("pwm_in1", "PWM / IN1"), ("dir_in2", "DIR / IN2"), ("enc_a", "encoder A"),
+                       ("enc_b", "encoder B")):
+        row = next(r for r in rows.splitlines() if r.startswith(f"| {label} |"))
+        assert row.split("|")[1 + col].strip().startswith(want[key] + " "), row

@@ -201,7 +201,7 @@ def rig_from_dict(doc: dict, path: str = "<rig>") -> RigConfig:
     rig.effects = _check_effects(path, checked.effects, rig.bridge.output_limit_v)
     _check_plant(path, rig, checked)
     if rig.bridge.firmware == "hbridge":
-        from labrig.bridge.hbridge import check_rig
+        from labrig.io.hbridge_rig import check_rig
         check_rig(rig, path, given=checked.bridge.model_dump(exclude_unset=True)
                   if checked.bridge else {})
     return rig
