@@ -6,6 +6,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from labrig.bridge import hbridge, protocol as P
@@ -120,3 +121,32 @@ def test_the_pin_map_is_the_one_the_firmware_drives(board, variant, mcu):
                        ("enc_b", "encoder B")):
         row = next(r for r in rows.splitlines() if r.startswith(f"| {label} |"))
         assert row.split("|")[1 + col].strip().startswith(want[key] + " "), row
+
+
+def test_the_ms150_output_stage_rises_with_channel_a_as_the_emulator_assumes():
+    """The output stage's netlist solved with an ideal op-amp: u = (R2/R1)(VA - VB), the
+    sign and (to the calibration's 0.5 %) the gain the emulator's bridge_out and the host's
+    word-to-volts conversion use; the old drawing's wiring (VOUTA to the inverting input)
+    gives the opposite sign."""
+    from labrig.bridge import circuits
+    from labrig.io.config import RigConfig
+
+    harness = (ROOT / "firmware" / "emulator" / "harness.c").read_text()
+    assert "return (va - vb) * (5.0 / 2.048);" in harness   # the emulator's stage
+    host = bridge_settings(RigConfig())
+    for word in (0, 1024, 3000, 4095):
+        u = circuits.output_for_word(word)
+        va, vb = word * 4.096 / 4096, 2048 * 4.096 / 4096
+        emulated = (va - vb) * (5.0 / 2.048)
+        nominal = float(dac_word_to_volts([word], host)[0])
+        if word != 2048:
+            assert np.sign(u) == np.sign(emulated) == np.sign(nominal)
+            assert u / emulated == pytest.approx(1.0, abs=0.006)
+            assert u / nominal == pytest.approx(1.0, abs=0.006)
+    assert circuits.output_for_word(4095) == pytest.approx(4.974, abs=0.001)
+    swapped = tuple((n, {"VOUTB": "VOUTA", "VOUTA": "VOUTB"}.get(a, a), b, r)
+                    for n, a, b, r in circuits.OUTPUT_STAGE)
+    assert circuits.output_for_word(4095, netlist=swapped) == pytest.approx(-4.974, abs=0.001)
+    # the page says what the netlist is
+    doc = (ROOT / "docs" / "hardware.md").read_text()
+    assert "R1 = 10.0 k (0.1 %) from VOUTB to the\ninverting input" in doc
