@@ -106,13 +106,43 @@ def run_command(argv: list[str], workdir: Path) -> tuple[subprocess.CompletedPro
     return proc, time.monotonic() - t0
 
 
-def check_quoted(docs: list[Path], workdir: Path, records: list[dict]) -> list[str]:
+#: a sheet line that plays on the emulated board ends with this comment: the firmware
+#: stage of the suite runs those lines (and the checks of what they write), the rest of
+#: the suite runs the others
+BOARD = "# emulated board"
+
+
+def _on_board(line: str) -> bool:
+    return line.rstrip().endswith(BOARD) or "--emulate" in shlex.split(line, comments=True)
+
+
+def _board_outputs(sheet: Path) -> set[str]:
+    """The folders the sheet's board lines write (``-o X``)."""
+    out = set()
+    for st in parse_sheet(sheet):
+        if st[0] == "run" and _on_board(st[4]) and "-o" in st[1]:
+            out.add(st[1][st[1].index("-o") + 1])
+    return out
+
+
+def _uses(argv: list[str], folders: set[str]) -> bool:
+    return any(a in folders or any(a.startswith(f + "/") for f in folders) for a in argv)
+
+
+def check_quoted(docs: list[Path], workdir: Path, records: list[dict], board: bool | None = None,
+                 board_outputs: set[str] = frozenset()) -> list[str]:
     """Run each ``check`` of ``docs`` in ``workdir`` (a line the sheet ran is not run again)
-    and list every quoted figure its command no longer gives."""
+    and list every quoted figure its command no longer gives. ``board`` False leaves out
+    the checks of the emulated board's runs (``board_outputs``), True keeps only those,
+    None keeps all."""
     ran = {" ".join(shlex.split(r["line"], comments=True)): r["stdout"] for r in records}
     problems = []
     for doc in docs:
         for c in quoted.parse(doc):
+            lines = [shlex.split(x) for x in c.after + [c.command]]
+            on_board = any(_uses(a, set(board_outputs)) or "--emulate" in a for a in lines)
+            if board is not None and on_board != board:
+                continue
             problems += quoted.problems_in_text(c)
             failed = None
             for line in c.after + [c.command]:
@@ -133,11 +163,15 @@ def check_quoted(docs: list[Path], workdir: Path, records: list[dict]) -> list[s
     return problems
 
 
-def run_sheet(sheet: Path, workdir: Path, echo: bool = False) -> list[dict]:
-    """Run every step of ``sheet`` in ``workdir``; returns one record per command."""
+def run_sheet(sheet: Path, workdir: Path, echo: bool = False, board: bool | None = None) -> list[dict]:
+    """Run the steps of ``sheet`` in ``workdir``; returns one record per command. ``board``
+    False leaves out the lines that play on the emulated board, True runs only those,
+    None runs all."""
     setup_workdir(workdir)
     records = []
     for step in parse_sheet(sheet):
+        if step[0] == "run" and board is not None and _on_board(step[4]) != board:
+            continue
         if step[0] == "file":
             _, name, text, _ = step
             (workdir / name).parent.mkdir(parents=True, exist_ok=True)
@@ -217,12 +251,32 @@ def test_readme_figures(tmp_path):
 def test_sheet_runs(sheet, tmp_path):
     """The sheet runs as written, and every figure it and its instructor notes quote is
     what the commands give now."""
-    records = run_sheet(sheet, tmp_path)
+    records = run_sheet(sheet, tmp_path, board=False)
     assert records
     for r in records:
         if r["expected"] != 0:  # a demonstrated error is one line, not a traceback
             assert "Traceback" not in r["stderr"] and r["stderr"].strip(), r["line"]
-    problems = check_quoted(_docs_of(sheet), tmp_path, records)
+    problems = check_quoted(_docs_of(sheet), tmp_path, records, board=False,
+                            board_outputs=_board_outputs(sheet))
+    assert not problems, "quoted figures out of date:\n" + "\n".join(problems)
+
+
+BOARD_SHEETS = [s for s in SHEETS if any(st[0] == "run" and _on_board(st[4]) for st in parse_sheet(s))]
+
+
+@pytest.mark.firmware
+@pytest.mark.parametrize("sheet", BOARD_SHEETS, ids=[s.stem for s in BOARD_SHEETS])
+def test_sheet_plays_live_on_the_emulated_board(sheet, tmp_path):
+    """The sheet's lines that play on the board run on the real firmware under simavr, and
+    the figures the notes quote from those runs hold."""
+    from labrig.bridge.emulate import missing_tools
+
+    if missing_tools():
+        pytest.skip(f"firmware toolchain missing: {', '.join(missing_tools())}")
+    records = run_sheet(sheet, tmp_path, board=True)
+    assert records
+    problems = check_quoted(_docs_of(sheet), tmp_path, records, board=True,
+                            board_outputs=_board_outputs(sheet))
     assert not problems, "quoted figures out of date:\n" + "\n".join(problems)
 
 

@@ -10,7 +10,7 @@ from labrig.core.errors import Terminated, UserError
 from labrig.commands.progress import Progress
 
 
-@command("sweep", "acquire a sweep on the board (--port) or the simulated rig (--sim)")
+@command("sweep", "acquire a sweep on the board (--port), the emulated board (--emulate) or the simulated rig (--sim)")
 def cmd_sweep(args):
     """Acquire a sweep: one run per experiment of the plan, each written atomically as it
     finishes. Interrupting (Ctrl-C, SIGTERM, SIGHUP) stops the board at 0 V and keeps every
@@ -19,17 +19,24 @@ def cmd_sweep(args):
     output_folder(args.output)
     rig = lr.load_rig(args.rig)
     plan = lr.load_plan(args.plan, rig)
-    if args.sim == bool(args.port):
-        raise UserError("give exactly one of --sim or --port DEV")
-    make, _, _ = lr.open_bridge(rig, port=args.port, seed=args.seed)
-    bridge = make()
-    if args.sim and args.realtime:
-        bridge = lr.live(bridge, realtime=True)
+    if sum(map(bool, (args.sim, args.port, args.emulate))) != 1:
+        raise UserError("give exactly one of --sim, --port DEV or --emulate")
     total = sum(e.n_samples for e in plan)
-    with _StopSignals(), Progress("sweep", total=total, unit="samples") as bar:
-        written = lr.play(bridge, plan, rig, args.output, resume=args.resume,
-                          progress=bar.hook,
-                          on_done=lambda e, r: bar.log(f"wrote {Path(args.output) / e.name}.csv"))
+    with _StopSignals():
+        # the emulated board (the real firmware the rig file names, in simavr) lives as
+        # long as this sweep; the board at --port or the simulated rig need no closing
+        make, _, close = lr.open_bridge(rig, port=args.port, emulate=args.emulate,
+                                        seed=args.seed)
+        try:
+            bridge = make()
+            if args.sim and args.realtime:
+                bridge = lr.live(bridge, realtime=True)
+            with Progress("sweep", total=total, unit="samples") as bar:
+                written = lr.play(bridge, plan, rig, args.output, resume=args.resume,
+                                  progress=bar.hook,
+                                  on_done=lambda e, r: bar.log(f"wrote {Path(args.output) / e.name}.csv"))
+        finally:
+            close()
     print(f"{len(written)} run(s) written to {args.output}"
           + (f" ({len(plan) - len(written)} already there)" if args.resume else ""))
     return 0
@@ -39,6 +46,9 @@ def _configure_sweep(p):
     src = p.add_mutually_exclusive_group()
     src.add_argument("--port", help="serial device of the bridge, e.g. /dev/ttyACM0")
     src.add_argument("--sim", action="store_true", help="use the simulated rig")
+    src.add_argument("--emulate", action="store_true",
+                     help="play it on the real firmware under simavr (the one --rig's [bridge] "
+                          "names), against a plant of the rig file's values")
     p.add_argument("--rig", help="rig file (TOML or mystery rig); default configs/rig_default.toml")
     p.add_argument("--plan", help="sweep plan (TOML); default configs/plan_default.toml")
     p.add_argument("-o", "--output", required=True, help="output folder for the runs")
