@@ -242,7 +242,19 @@ def test_readme_figures(tmp_path):
     setup_workdir(tmp_path)
     readme = ROOT / "README.md"
     problems = quoted.unchecked_figures(readme, README_MEASURED)
-    problems += check_quoted([readme], tmp_path, [])
+    problems += check_quoted([readme], tmp_path, [], board=False)
+    assert not problems, "README figures out of date:\n" + "\n".join(problems)
+
+
+@pytest.mark.firmware
+def test_readme_figures_of_the_emulated_board(tmp_path):
+    """The README's figures from runs played on the real firmware under simavr."""
+    from labrig.bridge.emulate import missing_tools
+
+    if missing_tools():
+        pytest.skip(f"firmware toolchain missing: {', '.join(missing_tools())}")
+    setup_workdir(tmp_path)
+    problems = check_quoted([ROOT / "README.md"], tmp_path, [], board=True)
     assert not problems, "README figures out of date:\n" + "\n".join(problems)
 
 
