@@ -201,3 +201,20 @@ def test_the_lab_station_plays_and_fits_on_the_emulated_hbridge_board(tmp_path):
         assert st.rungs[0]["runs"] == ["sq_6.00V"]
     finally:
         st.close()
+
+
+def test_diagnose_auto_finds_the_gears_play_seen_by_an_output_shaft_encoder(tmp_path):
+    """With the gear's play hidden, the emulated encoder sits on the output shaft (the
+    play is invisible to a motor-shaft encoder): the loop finds the dead zone and the play."""
+    rig_file = _rig_with(tmp_path, {"asymmetric_deadband": {"dpos_v": 1.0, "dneg_v": 1.6},
+                                    "backlash": {"a_rad": 0.03}})
+    r = _labrig("sweep", "--emulate", "--rig", rig_file, "--plan", PLAN, "-o", tmp_path / "runs")
+    assert r.returncode == 0, r.stderr
+    r = _labrig("diagnose", "--auto", tmp_path / "runs", "--json")
+    assert r.returncode == 0, r.stderr
+    final = json.loads(r.stdout)["final_model"]
+    assert set(final["effects"]) == {"asymmetric_deadband", "backlash"}
+    assert final["effect_params"]["backlash"]["a_rad"] == pytest.approx(0.03, rel=0.1)
+    dz = final["effect_params"]["asymmetric_deadband"]
+    assert (dz["dpos_v"], dz["dneg_v"]) == (pytest.approx(1.0, rel=0.1), pytest.approx(1.6, rel=0.1))
+    assert final["rmse_over_noise"]["overall"] < 2.0
