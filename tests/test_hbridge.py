@@ -218,3 +218,40 @@ def test_diagnose_auto_finds_the_gears_play_seen_by_an_output_shaft_encoder(tmp_
     dz = final["effect_params"]["asymmetric_deadband"]
     assert (dz["dpos_v"], dz["dneg_v"]) == (pytest.approx(1.0, rel=0.1), pytest.approx(1.6, rel=0.1))
     assert final["rmse_over_noise"]["overall"] < 2.0
+
+
+def test_a_closed_loop_plan_runs_the_boards_own_pd_and_the_plant_is_fitted_through_it(tmp_path):
+    """A position plan in closed loop: the board computes a PD on its count at every sample
+    with the plan's gains (kp V/rad, kd V per rad/s, in its Q8.8 units), and the output it
+    records is exactly that law applied to the recorded counts and references; the shaft
+    follows the reference; the plant is then fitted from the logged output."""
+    from labrig.bridge.settings import bridge_settings, pd_gain_words, pd_output
+    from labrig.io.config import load_plan
+
+    plan = tmp_path / "plan.toml"
+    plan.write_text('[[experiment]]\nname = "pd_3rad"\nloop = "closed"\nwaveform = "square"\n'
+                    'amplitude_v = 3.0\nfrequency_hz = 0.5\nperiods = 2\nsample_rate_hz = 200.0\n'
+                    'lead_in_s = 0.5\nposition_gain = 10.0\nvelocity_gain = 0.3\n')
+    r = _labrig("sweep", "--emulate", "--rig", RIG_FILE, "--plan", plan, "-o", tmp_path / "runs")
+    assert r.returncode == 0, r.stderr
+    rig = load_rig(RIG_FILE)
+    s = bridge_settings(rig)
+    d = pd.read_csv(tmp_path / "runs" / "pd_3rad.csv")
+    meta = json.loads((tmp_path / "runs" / "pd_3rad.json").read_text())
+    assert meta["experiment"]["controller"] == {"kind": "pd", "kp": 10.0, "kd": 0.3, "ki": 0.0,
+                                                "feedback": "position"}
+    kp_q, kd_q = pd_gain_words(load_plan(plan, rig)[0], s)
+    ref = np.round(d["u"].to_numpy() * s.counts_per_unit).astype(int)   # counts from the start
+    x = d["pos"].to_numpy().astype(int) - int(d["pos"][0])
+    law = np.clip(pd_output(kp_q, kd_q, ref, x), -255, 255) * 12.0 / 256
+    # to the file's digits: one output count is 47 mV
+    assert np.abs(d["drive"].to_numpy() - law).max() < 1e-4
+    # the shaft follows: within 15 counts (0.07 rad) of +-3 rad at the end of each half period
+    ends = np.nonzero(np.diff(ref) != 0)[0]
+    assert len(ends) >= 3
+    assert np.abs(x[ends[1:]] - ref[ends[1:]]).max() <= 15
+    r = _labrig("identify", tmp_path / "runs", "--effects", "asymmetric_deadband", "--json")
+    assert r.returncode == 0, r.stderr
+    fit = json.loads(r.stdout)
+    assert fit["effect_params"]["asymmetric_deadband"]["dpos_v"] == pytest.approx(1.5, rel=0.05)
+    assert fit["effect_params"]["asymmetric_deadband"]["dneg_v"] == pytest.approx(2.1, rel=0.05)

@@ -42,6 +42,7 @@ void hal_adc_start(void)
     if (adc_auto) lr_core_sample_done(adc_vals[0], adc_vals[1], adc_vals[2]);
     else adc_pending = 1;
 }
+int32_t hal_position(void) { return 0; }
 int hal_rx_read(void) { return rxtail < rxhead ? rxq[rxtail++] : -1; }
 uint16_t hal_tx_free(void) { return 1000; }
 void hal_tx_write(const uint8_t *d, uint16_t n)

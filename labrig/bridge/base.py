@@ -23,6 +23,8 @@ class SampleBlock:
     pos: np.ndarray
     ref: np.ndarray | None = None
     current: np.ndarray | None = None
+    #: a digital loop's output, applied by the board (then ``u`` is its reference)
+    drive: np.ndarray | None = None
 
 
 class Bridge(abc.ABC):

@@ -241,9 +241,12 @@ def configure_body(*, loop: str, waveform: str, sample_rate_hz: int, n_samples: 
                    lead_in_samples: int, segment_samples: int, dac_zero: int, dac_min: int,
                    dac_max: int, watchdog_ms: int, levels: list[int],
                    position_gain: float = 0.0, velocity_gain: float = 0.0,
-                   pieces: list[int] | None = None) -> bytes:
+                   pieces: list[int] | None = None,
+                   gain_words: tuple[int, int] | None = None) -> bytes:
     """Body of a CONFIGURE message; all levels and limits in DAC words. A ``pwl``
-    waveform's ``levels`` are its breakpoints and ``pieces`` the samples between them."""
+    waveform's ``levels`` are its breakpoints and ``pieces`` the samples between them.
+    ``gain_words`` are a digital loop's PD gains as the board takes them (Q8.8), in place
+    of the gains x 100 an MS150 run records."""
     if not 1 <= len(levels) <= MAX_LEVELS:
         raise ValueError(f"1..{MAX_LEVELS} levels, got {len(levels)}")
     pieces = list(pieces or [])
@@ -254,8 +257,10 @@ def configure_body(*, loop: str, waveform: str, sample_rate_hz: int, n_samples: 
     head = _CONFIGURE_FIXED.pack(
         LOOPS[loop], WAVEFORMS[waveform], int(sample_rate_hz), int(n_samples),
         int(lead_in_samples), int(segment_samples), int(dac_zero), int(dac_min), int(dac_max),
-        int(watchdog_ms), int(round(position_gain * 100)) & 0xFFFF,
-        int(round(velocity_gain * 100)) & 0xFFFF, len(levels))
+        int(watchdog_ms),
+        *(gain_words if gain_words is not None else
+          (int(round(position_gain * 100)) & 0xFFFF, int(round(velocity_gain * 100)) & 0xFFFF)),
+        len(levels))
     return (head + struct.pack(f"<{len(levels)}H", *[int(v) for v in levels])
             + struct.pack(f"<{len(pieces)}H", *[int(v) for v in pieces]))
 

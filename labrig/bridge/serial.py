@@ -19,7 +19,7 @@ import numpy as np
 from labrig.bridge import protocol as P
 from labrig.bridge.base import Bridge, SampleBlock
 from labrig.io.experiment import Experiment
-from labrig.bridge.settings import TIMER_HZ, adc_counts_to_volts, bridge_settings, dac_word_to_volts, experiment_body, volts_to_dac_word
+from labrig.bridge.settings import REF_ZERO, TIMER_HZ, adc_counts_to_volts, bridge_settings, dac_word_to_volts, experiment_body, volts_to_dac_word
 from labrig.bridge.hbridge import check_board
 from labrig.bridge.transport import SerialTransport, Transport, link_hint
 from labrig.core.errors import LabrigError, RigError, UserError
@@ -415,6 +415,12 @@ class SerialBridge(Bridge):
         index = np.arange(first, first + len(w))
         u = dac_word_to_volts(w[:, 0], s)
         if s.firmware == "hbridge":
+            closed = self._exp is not None and self._exp.loop == "closed"
+            if closed and not s.current_sense:
+                # the board's PD: the input is the reference it used (in the axis's unit),
+                # the output it applied is the loop's logged drive
+                return SampleBlock(index=index, u=(w[:, 3] - REF_ZERO) / s.counts_per_unit,
+                                   tacho=None, pos=P.encoder_counts(w).astype(float), drive=u)
             return SampleBlock(index=index, u=u, tacho=None,
                                pos=P.encoder_counts(w).astype(float),
                                # A0 against the board's own 5 V reference

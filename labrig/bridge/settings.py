@@ -41,6 +41,8 @@ class BridgeSettings:
     watchdog_ms: int
     firmware: str = "ms150"
     current_sense: bool = False
+    #: the encoder's counts per unit of the axis (an H-bridge rig's closed loop works in them)
+    counts_per_unit: float = 0.0
     dac_gain: float = 1.0
     dac_offset_v: float = 0.0
     tacho_gain: float = 1.0
@@ -72,6 +74,7 @@ def bridge_settings(rig: RigConfig) -> BridgeSettings:
         dac_bits=int(b.dac_bits), dac_range_v=tuple(float(v) for v in b.dac_range_v),
         adc_bits=int(b.adc_bits), adc_range_v=tuple(float(v) for v in b.adc_range_v),
         watchdog_ms=int(b.watchdog_ms), firmware=b.firmware, current_sense=bool(b.current_sense),
+        counts_per_unit=float(rig.sensors.encoder_counts_per_unit),
         **{f"{k}_gain": float(cal.get(f"{k}_gain", 1.0)) for k in CAL_CHANNELS},
         **{f"{k}_offset_v": float(cal.get(f"{k}_offset_v", 0.0)) for k in CAL_CHANNELS})
 
@@ -98,6 +101,41 @@ def adc_counts_to_volts(counts, channel: str, s: BridgeSettings) -> np.ndarray:
     lo, hi = s.adc_range_v
     nominal = lo + np.asarray(counts, dtype=float) * (hi - lo) / 2 ** s.adc_bits
     return getattr(s, f"{channel}_gain") * nominal + getattr(s, f"{channel}_offset_v")
+
+
+#: a digital loop's reference word for the run's starting count
+REF_ZERO = 32768
+
+
+def pd_gain_words(exp: Experiment, s: BridgeSettings) -> tuple[int, int]:
+    """An H-bridge board's PD gains in its own units: Q8.8 output counts per count of
+    error, and per count of change per sample. The board applies, at every sample,
+    ``out = floor((kp_q (ref - x) - kd_q (x - x_prev)) / 256)`` output counts (see
+    :func:`pd_output`).
+
+    Raises
+    ------
+    UserError
+        A gain the board's 16 bits cannot hold.
+    """
+    per_volt = 2 ** (s.dac_bits - 1) / s.dac_range_v[1]   # output counts per volt
+    kp_q = int(round(exp.position_gain * per_volt / s.counts_per_unit * 256))
+    kd_q = int(round(exp.velocity_gain * exp.sample_rate_hz * per_volt / s.counts_per_unit * 256))
+    if not (0 <= kp_q <= 0xFFFF and 0 <= kd_q <= 0xFFFF):
+        raise UserError(f"experiment {exp.name!r}: loop gains kp {exp.position_gain:g}, kd "
+                        f"{exp.velocity_gain:g} do not fit the board's PD (at most "
+                        f"{0xFFFF / 256 / per_volt * s.counts_per_unit:.3g} V/rad and "
+                        f"{0xFFFF / 256 / per_volt * s.counts_per_unit / exp.sample_rate_hz:.3g} "
+                        "V per rad/s, none negative)")
+    return kp_q, kd_q
+
+
+def pd_output(kp_q: int, kd_q: int, ref: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """What an H-bridge board's PD outputs (counts around zero, before the limits) for
+    references ``ref`` and counts ``x`` (both from the run's start), sample by sample."""
+    e = np.clip(np.asarray(ref, dtype=np.int64) - x, -32767, 32767)
+    v = np.clip(np.diff(np.asarray(x, dtype=np.int64), prepend=0), -32767, 32767)
+    return (kp_q * e - kd_q * v) >> 8
 
 
 def waveform_levels(exp: Experiment) -> list[float]:
@@ -167,12 +205,19 @@ def experiment_body(exp: Experiment, s: BridgeSettings, hello: dict) -> bytes:
         if not all(1 <= L <= P.MAX_PIECE for L in pieces):
             raise UserError(f"experiment {exp.name!r}: pwl breakpoints must lie 1 to "
                             f"{P.MAX_PIECE} samples apart at {rate} Hz")
-    levels = [volts_to_dac_word(v, s) for v in levels_v]
+    digital = s.firmware == "hbridge" and exp.loop == "closed"
+    if digital:   # the board's PD on the count: its references are counts
+        levels = [REF_ZERO + int(round(v * s.counts_per_unit)) for v in levels_v]
+        if any(not 0 <= w <= 0xFFFF for w in levels):
+            raise UserError(f"experiment {exp.name!r}: a reference beyond +-32767 counts "
+                            f"(+-{32767 / s.counts_per_unit:.3g} rad) of the run's start")
+    else:
+        levels = [volts_to_dac_word(v, s) for v in levels_v]
     zero = volts_to_dac_word(0.0, s)
     wmin, wmax = sorted((volts_to_dac_word(-limit, s), volts_to_dac_word(limit, s)))
     fw_min, fw_max = hello.get("fw_dac_min", 0), hello.get("fw_dac_max", 2 ** s.dac_bits - 1)
     wmin, wmax = max(wmin, fw_min), min(wmax, fw_max)
-    if any(not wmin <= w <= wmax for w in levels + [zero]):
+    if any(not wmin <= w <= wmax for w in ([] if digital else levels) + [zero]):
         lo_v, hi_v = dac_word_to_volts([fw_min, fw_max], s)
         raise UserError(f"experiment {exp.name!r} needs DAC words beyond the firmware limit "
                         f"({lo_v:.3g}..{hi_v:.3g} V with this calibration)")
@@ -183,7 +228,8 @@ def experiment_body(exp: Experiment, s: BridgeSettings, hello: dict) -> bytes:
     else:
         segment = 0
     closed = exp.loop == "closed"
-    return P.configure_body(
+    gain_words = pd_gain_words(exp, s) if digital else None
+    return P.configure_body(gain_words=gain_words,
         loop=exp.loop, waveform=exp.waveform, sample_rate_hz=rate, n_samples=int(exp.n_samples),
         lead_in_samples=int(round(exp.lead_in_s * rate)), segment_samples=segment,
         dac_zero=zero, dac_min=wmin, dac_max=wmax, watchdog_ms=s.watchdog_ms, levels=levels,

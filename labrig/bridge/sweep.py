@@ -52,7 +52,7 @@ def acquire(bridge: Bridge, exp: Experiment, rig, progress: Callable[[int], None
     keep = idx < n   # a bridge never sends more, but a record never grows past the plan
     idx = idx[keep]
     raw = {"u": np.concatenate([b.u for b in blocks])[keep]}
-    for ch in ("tacho", "pos", "ref", "current"):  # the channels this rig has
+    for ch in ("tacho", "pos", "ref", "current", "drive"):  # the channels this rig has
         if getattr(blocks[0], ch) is not None:
             raw[ch] = np.concatenate([getattr(b, ch) for b in blocks])[keep]
     full = np.arange(n)

@@ -9,6 +9,7 @@ typedef struct {
 
 typedef struct {
     uint8_t loop, waveform, n_levels;
+    uint16_t kp_q, kd_q;   /* digital loop: duty counts per count, and per count per sample, x256 */
     uint16_t rate_hz, dac_zero, dac_min, dac_max, watchdog_ms;
     uint32_t n_samples, lead_in, segment;
     uint16_t levels[LR_MAX_LEVELS];
@@ -39,6 +40,9 @@ static uint8_t level_idx;
 /* pwl: the piece being played, as a + trunc(d j / L) kept without division per tick
  * (Bresenham: q += step, and one more count whenever acc passes L) */
 static int16_t pwl_q, pwl_step, pwl_sign;
+/* the digital loop: the count at START (positions are the run's own) and the last one */
+static int32_t loop_origin, loop_prev;
+static uint16_t ref_now;
 static uint16_t pwl_j, pwl_acc, pwl_rem;
 
 static void pwl_piece(uint8_t i)
@@ -168,7 +172,10 @@ static int configure(const uint8_t *b, uint16_t len)
     c.dac_min = lr_get16(b + 18);
     c.dac_max = lr_get16(b + 20);
     c.watchdog_ms = lr_get16(b + 22);
-    /* b[24..27]: loop gains, for the record and the emulator's patch panel */
+    /* b[24..27]: loop gains: on a digital loop the PD's (Q8.8, duty counts per count and
+     * per count per sample); on the MS150, for the record and the emulator's patch panel */
+    c.kp_q = lr_get16(b + 24);
+    c.kd_q = lr_get16(b + 26);
     c.n_levels = b[28];
     /* pwl: the breakpoints' words, then the n-1 piece lengths in samples */
     uint16_t extra = c.waveform == LR_WAVE_PWL && c.n_levels ? 2u * (c.n_levels - 1u) : 0u;
@@ -195,7 +202,10 @@ static int configure(const uint8_t *b, uint16_t len)
         return LR_ERR_LIMIT;
     for (uint8_t i = 0; i < c.n_levels; i++) {
         c.levels[i] = lr_get16(b + LR_CONFIGURE_FIXED + 2 * i);
-        if (c.levels[i] < c.dac_min || c.levels[i] > c.dac_max) return LR_ERR_LIMIT;
+        /* a digital loop's levels are references in counts; its output is clamped below */
+        if (!(LR_DIGITAL_LOOP && c.loop == LR_LOOP_CLOSED) &&
+            (c.levels[i] < c.dac_min || c.levels[i] > c.dac_max))
+            return LR_ERR_LIMIT;
     }
     cfg = c;
     return 0;
@@ -244,6 +254,9 @@ static void handle(const lr_frame_t *f)
             uint8_t s = hal_lock();
             tick_index = 0; lead_left = cfg.lead_in; seg_left = cfg.segment; level_idx = 0;
             if (cfg.waveform == LR_WAVE_PWL) pwl_piece(0);
+            loop_origin = hal_position();
+            loop_prev = 0;
+            ref_now = LR_REF_ZERO;
             ring_head = ring_tail = 0; acquiring = 0;
             ctr.sample_overruns = ctr.ring_overflows = 0;
             state = LR_STATE_RUNNING;
@@ -290,6 +303,8 @@ void lr_core_tick(void)
         return;
     }
     uint16_t w;
+    uint8_t in_lead = lead_left != 0;
+    (void)in_lead;
     if (lead_left) {
         lead_left--;
         w = cfg.dac_zero;
@@ -303,6 +318,24 @@ void lr_core_tick(void)
             else if (cfg.waveform == LR_WAVE_STAIRCASE && level_idx + 1 < cfg.n_levels) level_idx++;
         }
     }
+#if LR_DIGITAL_LOOP
+    if (cfg.loop == LR_LOOP_CLOSED) {
+        /* the PD on the count, at this sample: out = kp (ref - x) - kd (x - x_prev), in duty
+         * counts (Q8.8 gains), applied now and clamped to the limits by dac_set; during the
+         * lead-in the reference is the run's start */
+        ref_now = in_lead ? LR_REF_ZERO : w;
+        int32_t x = hal_position() - loop_origin;
+        int32_t e = (int32_t)ref_now - LR_REF_ZERO - x, v = x - loop_prev;
+        loop_prev = x;
+        if (e > 32767) e = 32767;
+        if (e < -32767) e = -32767;
+        if (v > 32767) v = 32767;
+        if (v < -32767) v = -32767;
+        int32_t out = (int32_t)(((int64_t)cfg.kp_q * e - (int64_t)cfg.kd_q * v) >> 8);   /* floor */
+        int32_t word = (int32_t)cfg.dac_zero + out;
+        w = word < 0 ? 0 : word > 0xFFFF ? 0xFFFF : (uint16_t)word;
+    }
+#endif
     if (acquiring) {
         /* the previous conversions are still running: this period is lost (the host
          * sees a gap in the sample index); the waveform keeps its timing */
@@ -314,6 +347,7 @@ void lr_core_tick(void)
     dac_set(w);
     cur.index = tick_index++;
     cur.dac = dac_now;
+    cur.ref = ref_now;   /* a digital loop's reference word; the HAL may overwrite it */
     acquiring = 1;
     hal_adc_start();
 }
@@ -397,6 +431,7 @@ void lr_core_poll(void)
 }
 
 uint8_t lr_core_state(void) { return state; }
+uint16_t lr_core_reference(void) { return ref_now; }
 uint16_t lr_core_dac_word(void) { return dac_now; }
 const lr_counters_t *lr_core_counters(void) { return &ctr; }
 const lr_decoder_t *lr_core_decoder(void) { return &dec; }

@@ -46,6 +46,13 @@ extern "C" {
 #ifndef LR_PWM_BITS
 #define LR_PWM_BITS 0
 #endif
+/* 1: a closed-loop run is a PD on the encoder count computed here at every sample (the
+ * H-bridge rig); 0: the loop is analog, outside the board (the MS150's patch panel) */
+#ifndef LR_DIGITAL_LOOP
+#define LR_DIGITAL_LOOP 0
+#endif
+/* a digital loop's reference words are counts around this word */
+#define LR_REF_ZERO 32768
 #define LR_RING 32  /* samples buffered between the ADC ISR and the sender (power of 2) */
 #define LR_MIN_RATE_HZ 50
 
@@ -62,6 +69,7 @@ void lr_core_poll(void);                                    /* main loop */
 void lr_core_send_hello(void);
 void lr_core_rx_overrun(void);                              /* UART ISR saw DOR/FE */
 uint8_t lr_core_state(void);
+uint16_t lr_core_reference(void);                           /* digital loop: this sample's reference word */
 uint16_t lr_core_dac_word(void);                            /* last word written */
 const lr_counters_t *lr_core_counters(void);
 const lr_decoder_t *lr_core_decoder(void);

@@ -14,6 +14,9 @@ void hal_dac_write(uint16_t word);
 /* Start one acquisition (tacho, pos, ref); the HAL calls lr_core_sample_done() from
  * its ADC interrupt when all three conversions are in. Never blocks. */
 void hal_adc_start(void);
+/* The encoder's count now (a digital position loop's feedback; called from the sample
+ * interrupt, where the count cannot change under it). 0 on a rig without an encoder. */
+int32_t hal_position(void);
 /* Next received byte, or -1 if none waiting. */
 int hal_rx_read(void);
 /* Bytes of space in the transmit queue; hal_tx_write() blocks only beyond that. */
