@@ -1,4 +1,5 @@
-"""The H-bridge + quadrature-encoder rig: its rig-file rules, its firmware build and its pins.
+"""The H-bridge + quadrature-encoder rig: its firmware build, its greeting and its pins (the
+rig file's rules are labrig.io.hbridge_rig's).
 
 An Arduino drives the bridge with Timer1's PWM (8-10 bits, 15-62 kHz), counts the encoder
 in its pin interrupts and samples on Timer2 (``firmware/labrig_bridge/src/hal_hbridge.inc``).
@@ -9,7 +10,7 @@ The host sends the output as an offset-binary word of the PWM's bits and a sign,
 from __future__ import annotations
 
 from labrig.core.errors import RigError
-from labrig.io.hbridge_rig import MAX_RATE_HZ, MIN_RATE_HZ, PWM_HZ, TIMER_HZ, check_rig  # noqa: F401
+from labrig.io.hbridge_rig import TIMER_HZ  # noqa: F401  (the board's sample clock, for callers of this module)
 
 #: the one pin map of the H-bridge build, per board: Arduino pin names (the firmware's
 #: ``hal_hbridge.inc`` uses the same pins through their ports; tests/test_hbridge_rig.py

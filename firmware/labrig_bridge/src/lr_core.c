@@ -303,8 +303,9 @@ void lr_core_tick(void)
         return;
     }
     uint16_t w;
-    uint8_t in_lead = lead_left != 0;
-    (void)in_lead;
+#if LR_DIGITAL_LOOP
+    uint8_t in_lead = lead_left != 0;   /* this sample is the lead-in's (before the decrement) */
+#endif
     if (lead_left) {
         lead_left--;
         w = cfg.dac_zero;
