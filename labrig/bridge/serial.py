@@ -90,6 +90,7 @@ class SerialBridge(Bridge):
         self.heartbeat_s = min(heartbeat_s, self.settings.watchdog_ms / 10000.0)
         self.tries, self.ack_timeout, self.tail_s = max(1, int(tries)), ack_timeout, tail_s
         self._dec = P.StreamDecoder()
+        self._link_base = (0, 0)   # the link's frame counts at the last greeting
         self._seq = 0
         self._last_tx = 0.0
         self._pending: deque = deque()
@@ -163,8 +164,11 @@ class SerialBridge(Bridge):
                 "retries": self.retries}
 
     def _link_state(self) -> tuple[int, int]:
-        """(damaged, intact) frames received so far, to tell a garbling link from a dead one."""
-        return self._dec.crc_errors + self._dec.framing_errors + self.bad_frames, self._dec.frames_ok
+        """(damaged, intact) frames received since the last greeting, to tell a garbling
+        link from a dead one. Bytes before a greeting do not count: opening a port mid-frame
+        or across a board's reset leaves a fragment on any good link."""
+        damaged = self._dec.crc_errors + self._dec.framing_errors + self.bad_frames
+        return damaged - self._link_base[0], self._dec.frames_ok - self._link_base[1]
 
     def _tries(self) -> int:
         return self.tries * (2 if self._link_state()[0] else 1)
@@ -297,6 +301,8 @@ class SerialBridge(Bridge):
                 f = self._pending.popleft()
                 if f.type == P.HELLO:
                     self.hello = f.fields
+        self._link_base = (self._link_base[0] + self._link_state()[0],
+                           self._link_base[1] + self._link_state()[1])
         if self.hello["protocol"] not in P.PROTOCOLS:
             self.close()
             raise RigError(f"board on {self.port} speaks protocol {self.hello['protocol']}, "
