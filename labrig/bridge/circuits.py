@@ -53,3 +53,16 @@ def output_for_word(word: int, zero_word: int = 2048, netlist=OUTPUT_STAGE) -> f
     """The stage's output for channel A at ``word`` and channel B at ``zero_word``."""
     scale = DAC_GAIN * DAC_VREF / 2 ** DAC_BITS
     return stage_output(word * scale, zero_word * scale, netlist)
+
+
+#: each analog input's divider (+-10 V sensor -> 0..5 V at the ADC): R1 from the sensor,
+#: R2 to the 5 V reference, R3 to ground, all meeting at the ADC node
+DIVIDER = {"R1": 20.0e3, "R2": 10.0e3, "R3": 20.0e3}
+ADC_REF_V = 5.0
+
+
+def divider_node(sensor_v: float, divider=DIVIDER) -> float:
+    """The ADC node's voltage for a sensor at ``sensor_v``: the three resistors' currents
+    into the node sum to zero."""
+    g1, g2, g3 = (1 / divider[k] for k in ("R1", "R2", "R3"))
+    return (sensor_v * g1 + ADC_REF_V * g2) / (g1 + g2 + g3)

@@ -1,11 +1,12 @@
-"""``labrig emulate``: the real firmware under simavr, its UART on a pseudo-terminal."""
+"""``labrig emulate``: the real firmware under simavr, its UART on a pseudo-terminal;
+``labrig wiring``: how to wire a rig's bridge, drawn."""
 from __future__ import annotations
 
 import signal
 import sys
 import time
 
-from labrig.commands.registry import command
+from labrig.commands.registry import command, emit_json, refuse_existing
 import labrig.verbs as lr
 
 
@@ -44,3 +45,44 @@ def _configure(p):
 
 
 cmd_emulate.configure = _configure
+
+
+@command("wiring", "how to wire a rig's bridge: the table, the schematic and the parts")
+def cmd_wiring(args):
+    """Print the wiring table of the rig file's bridge on the board; with -o, write the
+    schematic (SVG and PNG), the table and the bill of materials (CSV) into a folder."""
+
+    w = lr.wiring(lr.load_rig(args.rig), board=args.board)
+    names = ("schematic.svg", "schematic.png", "wiring.csv", "bom.csv")
+    if args.output:
+        from pathlib import Path
+
+        refuse_existing([args.output] + [Path(args.output) / n for n in names],
+                        force=args.force, what="folder")
+    table, bom = w.to_pandas(), w.bom()
+    if args.json:
+        emit_json({"rig": w.rig_kind, "board": w.board, "options": w.options,
+                   "wiring": table.to_dict("records"), "bom": bom.to_dict("records")})
+    else:
+        print(f"{w.rig_kind} bridge on the {args.board}:")
+        print(table[["signal", "pin", "function", "to"]].to_string(index=False))
+        print("\nparts:")
+        print(bom.to_string(index=False))
+    if args.output:
+        for path in w.save(args.output).values():
+            print(f"wrote {path}", file=sys.stderr)
+    return 0
+
+
+def _configure_wiring(p):
+    p.add_argument("--rig", help="rig file: its [bridge] firmware (ms150 or hbridge) and "
+                                 "options say what is wired (default configs/rig_default.toml)")
+    p.add_argument("--board", default="uno", choices=["uno", "nano", "mega"],
+                   help="the Arduino (default uno)")
+    p.add_argument("-o", "--output", metavar="DIR",
+                   help="write schematic.svg, schematic.png, wiring.csv and bom.csv here")
+    p.add_argument("--force", action="store_true", help="replace those files in DIR")
+    p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+
+
+cmd_wiring.configure = _configure_wiring

@@ -90,3 +90,33 @@ def emulator(rig, *, board: str = "uno", speed: float = 1.0):
     from labrig.bridge.emulate import Emulator
 
     return Emulator(board=board, rig=rig, speed=speed)
+
+
+def wiring(rig, *, board: str = "uno"):
+    """How to wire ``rig``'s bridge to ``board``: the wires, the parts and the schematic.
+
+    Parameters
+    ----------
+    rig : labrig.io.config.RigConfig
+        A rig file's contents (:func:`load_rig`); its ``[bridge] firmware`` picks the
+        MS150 DAC stage or the H-bridge + encoder bench, and its H-bridge options (drive
+        mode, current sense) the wires.
+    board : {"uno", "nano", "mega"}
+        The Arduino the firmware is built for.
+
+    Returns
+    -------
+    labrig.bridge.wiring.Wiring
+        ``.to_pandas()`` the wiring table, ``.bom()`` the bill of materials,
+        ``.plot(ax)`` the schematic, ``.save(folder)`` all of them as files.
+
+    Examples
+    --------
+    >>> import labrig.verbs as lr
+    >>> w = lr.wiring(lr.load_rig("configs/rig_arduino_hbridge.toml"))
+    >>> w.to_pandas().loc[0, ["signal", "pin", "function"]].tolist()
+    ['PWM / IN1', 'D9', 'OC1A']
+    """
+    from labrig.bridge.wiring import wiring as _wiring
+
+    return _wiring(rig, board=board)
