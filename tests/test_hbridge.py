@@ -265,3 +265,40 @@ def test_a_closed_loop_plan_runs_the_boards_own_pd_and_the_plant_is_fitted_throu
     fit = json.loads(r.stdout)
     assert fit["effect_params"]["asymmetric_deadband"]["dpos_v"] == pytest.approx(1.5, rel=0.05)
     assert fit["effect_params"]["asymmetric_deadband"]["dneg_v"] == pytest.approx(2.1, rel=0.05)
+
+
+def test_the_current_sense_channel_reads_the_armature_current_at_each_sample(tmp_path):
+    """A board built with current sense samples A0 at each sample instant: the recorded
+    current, after the rig file's zero and V per A, is the emulated motor's armature current
+    at the instant the conversion started, within the ADC's step (5 V / 1024 / V-per-A and
+    simavr's 1 mV),
+    in both directions."""
+    text = RIG_FILE.read_text().split("[effects.")[0]
+    text = text.replace("pos_offset_v = 0.0\n", "pos_offset_v = 0.0\ncurrent_v_per_a = 0.4\n"
+                        "current_zero_v = 2.5\n", 1)
+    text = text.replace('firmware = "hbridge"', 'firmware = "hbridge"\ncurrent_sense = true', 1)
+    rig_file = tmp_path / "rig.toml"
+    rig_file.write_text(text)
+    plan = tmp_path / "plan.toml"
+    plan.write_text('[defaults]\nsample_rate_hz = 200.0\nlead_in_s = 0.2\n\n[[experiment]]\n'
+                    'loop = "open"\nwaveform = "square"\namplitudes_v = [6.0]\n'
+                    'frequency_hz = 1.0\nperiods = 2\n')
+    rig = load_rig(rig_file)
+    log = tmp_path / "emu.log"
+    with Emulator("uno", rig, dac_log=log) as emu:
+        r = _labrig("sweep", "--port", emu.pty, "--rig", rig_file, "--plan", plan, "-o",
+                    tmp_path / "runs")
+    assert r.returncode == 0, r.stderr
+    (csv,) = sorted((tmp_path / "runs").glob("*.csv"))
+    d = pd.read_csv(csv)
+    meta = json.loads(csv.with_suffix(".json").read_text())
+    assert "gap" not in d and meta["bridge"]["dropped_samples"] == 0
+    amps = d["current"].to_numpy() * meta["sensors"]["current_a_per_v"]
+    truth = np.array([float(line.split()[2]) for line in log.read_text().splitlines()
+                      if line.startswith("I ")])
+    assert len(truth) >= len(d)
+    truth = truth[:len(d)]   # conversions of this run, in order (a STOP may start one more)
+    # the ADC truncates (one step, 5 V / 1024) and simavr takes its input in whole mV
+    step = (5.0 / 1024 + 0.001) / 0.4
+    assert np.abs(amps - truth).max() <= step, np.abs(amps - truth).max()
+    assert amps.max() > 0.3 and amps.min() < -0.3   # the current was read both ways

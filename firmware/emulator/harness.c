@@ -264,6 +264,24 @@ static avr_cycle_count_t motor_tick(avr_t *a, avr_cycle_count_t when, void *para
     return when + 16;
 }
 
+/* the current-sense amplifier on A0: its output at zero current and its V per A, as a
+ * bidirectional sense amplifier (ACS712, INA240 at mid-supply) gives it; 0 V per A: none */
+static double sense_zero_v = 2.5, sense_v_per_a = 0.0;
+
+/* an H-bridge board's conversion of A0 started: the armature current of that instant */
+static void adc_trigger_current(struct avr_irq_t *irq, uint32_t value, void *param)
+{
+    (void)irq; (void)param;
+    union { avr_adc_mux_t mux; uint32_t v; } e = {.v = value};
+    if (e.mux.kind != ADC_MUX_SINGLE || e.mux.src != 0) return;
+    double vin = sense_zero_v + sense_v_per_a * motor.i;
+    if (vin < 0) vin = 0;
+    if (vin > 5.0) vin = 5.0;
+    if (enc_log) fprintf(enc_log, "I %llu %.9g\n", (unsigned long long)avr->cycle, motor.i);
+    uint32_t mv = (uint32_t)(vin * 1000.0 * 1024.0 / 1023.0 + 0.5);   /* see adc_trigger */
+    avr_raise_irq(avr_io_getirq(avr, AVR_IOCTL_ADC_GETIRQ, ADC_IRQ_ADC0), mv);
+}
+
 static void on_signal(int sig) { (void)sig; stop_flag = 1; }
 
 static void usage(void)
@@ -276,7 +294,7 @@ static void usage(void)
         "  [--Tc Nm] [--seed N] [--parent-pid PID]\n"
         "  H-bridge rig: --rig hbridge [--supply V] [--drop V] [--dead-fwd V] [--dead-rev V]\n"
         "  [--Ts Nm] [--backlash rad] [--encoder-on-output] [--lines N] [--in1-in2] [--brake]\n"
-        "  [--enc-log FILE]\n");
+        "  [--enc-log FILE] [--current-v-per-a V/A] [--current-zero V]\n");
 }
 
 int main(int argc, char **argv)
@@ -309,7 +327,8 @@ int main(int argc, char **argv)
         {"rig", 1, 0, 30}, {"supply", 1, 0, 31}, {"drop", 1, 0, 32}, {"dead-fwd", 1, 0, 33},
         {"dead-rev", 1, 0, 34}, {"Ts", 1, 0, 35}, {"backlash", 1, 0, 36},
         {"encoder-on-output", 0, 0, 37}, {"lines", 1, 0, 38}, {"in1-in2", 0, 0, 39},
-        {"brake", 0, 0, 40}, {"enc-log", 1, 0, 41},
+        {"brake", 0, 0, 40}, {"enc-log", 1, 0, 41}, {"current-v-per-a", 1, 0, 42},
+        {"current-zero", 1, 0, 43},
         {0, 0, 0, 0}};
     int c;
     while ((c = getopt_long_only(argc, argv, "", opts, NULL)) != -1) {
@@ -356,6 +375,8 @@ int main(int argc, char **argv)
         case 39: mp.in1_in2 = 1; break;
         case 40: mp.brake = 1; break;
         case 41: enc_log_path = optarg; break;
+        case 42: sense_v_per_a = v; break;
+        case 43: sense_zero_v = v; break;
         default: usage(); return 2;
         }
     }
@@ -410,6 +431,9 @@ int main(int argc, char **argv)
         enc_b_bit = mega ? 5 : 3;
         encoder_pins(0);
         avr_cycle_timer_register(avr, 16, motor_tick, NULL);
+        if (sense_v_per_a > 0)
+            avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_ADC_GETIRQ, ADC_IRQ_OUT_TRIGGER),
+                                    adc_trigger_current, NULL);
     } else {
         avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_ADC_GETIRQ, ADC_IRQ_OUT_TRIGGER), adc_trigger, NULL);
         avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_SPI_GETIRQ(0), SPI_IRQ_OUTPUT), spi_out, NULL);

@@ -133,6 +133,9 @@ def _hbridge_args(rig: RigConfig, v: dict) -> list[str]:
                      str(int(val)) if k == "seed" else repr(float(val)))]
     if on_output:
         out.append("--encoder-on-output")
+    if b.current_sense:   # the sense amplifier the rig file describes, on A0
+        out += ["--current-v-per-a", repr(float(rig.sensors.current_v_per_a)),
+                "--current-zero", repr(float(rig.sensors.current_zero_v))]
     if b.drive_mode == "in1_in2":
         out.append("--in1-in2")
     elif b.off_phase == "brake":

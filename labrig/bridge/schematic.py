@@ -89,12 +89,12 @@ def _hbridge(w) -> None:
 
     # the bridge, to the board's right
     if in12:
-        left, name = ["AIN1", "AIN2", None, None, "SENSE" if sense else None], "TB6612FNG"
+        left, name = ["AIN1", "AIN2", None, None, None], "TB6612FNG"
         note = "PWMA, STBY to +5V"
     else:
-        left, name = ["ENA", "IN1", None, "IN2", "SENSE A" if sense else None], "L298N"
+        left, name = ["ENA", "IN1", None, "IN2", None], "L298N"
         note = "ENA jumper removed"
-    pins = _pins(left, "L", ROWS, ["i1", "i2", None, "i3", "sense"])
+    pins = _pins(left, "L", ROWS, ["i1", "i2", None, "i3", None])
     pins += _pins(["OUT1", None, None, None, "OUT2"], "R", ROWS, ["o1", None, None, None, "o2"])
     pins += [elm.IcPin(name="VCC", side="T", anchorname="vcc", slot="1/2"),
              elm.IcPin(name="VM", side="T", anchorname="vm", slot="2/2"),
@@ -112,22 +112,31 @@ def _hbridge(w) -> None:
         elm.Line().down(2 * ROW).at(tap.center)
         logic.Not().right().label("74HC04", "bottom", fontsize=9)
         elm.Wire("-").to(drv.i3)
-    if sense:
+    if sense:   # the sense amplifier's output, filtered, to A0 (a net named VIOUT)
         elm.Resistor().at(board.absanchors[f"p_{a0}"]).right(2.5).label("1 k", fontsize=9)
         node = elm.Dot()
-        elm.Wire("-").to(drv.sense)
+        elm.Line().right(0.8)
+        elm.Label().label("VIOUT", loc="right", fontsize=10)
         elm.Capacitor().down(1.2).at(node.center).label("100 nF", "bottom", fontsize=9)
         elm.Ground()
     _power(drv.vcc)
     _power(drv.gnd, up=False)
     elm.Line().up(0.5).at(drv.vm)
     elm.Vdd().label(f"+{w.options['supply_v']:g} V")
-    # the motor across the outputs
+    # the motor across the outputs (through the current-sense amplifier, when there is one)
     elm.Line().right(1.2).at(drv.o1)
     top = elm.Dot()
-    elm.Motor().down().toy(drv.o2).label("M", "right")
-    elm.Line().left().tox(drv.o2)
-    elm.Label().at((top.center[0] + 0.9, top.center[1] - 2.0)).label(
+    if sense:
+        elm.Motor().down(2.0)
+        elm.MeterA().down(2.4).label("current-sense\namplifier,\nout: VIOUT", "bottom",
+                                     fontsize=9, ofst=0.3)
+        elm.Line().left().tox(drv.o2[0] + 0.6)
+        elm.Line().up().toy(drv.o2)
+        elm.Line().left().tox(drv.o2)
+    else:
+        elm.Motor().down().toy(drv.o2).label("M", "right")
+        elm.Line().left().tox(drv.o2)
+    elm.Label().at((top.center[0] + 0.7, top.center[1] - (1.0 if sense else 2.0))).label(
         "gear motor,\nencoder on\nits shaft", fontsize=9, loc="right")
 
 

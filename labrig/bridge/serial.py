@@ -430,7 +430,8 @@ class SerialBridge(Bridge):
             return SampleBlock(index=index, u=u, tacho=None,
                                pos=P.encoder_counts(w).astype(float),
                                # A0 against the board's own 5 V reference
-                               current=w[:, 3] * (5.0 / 1024) if s.current_sense else None)
+                               current=w[:, 3] * (5.0 / 1024) - s.current_zero_v
+                               if s.current_sense else None)
         return SampleBlock(index=index, u=u, tacho=adc_counts_to_volts(w[:, 1], "tacho", s),
                            pos=adc_counts_to_volts(w[:, 2], "pos", s),
                            ref=adc_counts_to_volts(w[:, 3], "ref", s))

@@ -41,6 +41,8 @@ class BridgeSettings:
     watchdog_ms: int
     firmware: str = "ms150"
     current_sense: bool = False
+    #: the current-sense output at zero current (V at the board's A0)
+    current_zero_v: float = 0.0
     #: the encoder's counts per unit of the axis (an H-bridge rig's closed loop works in them)
     counts_per_unit: float = 0.0
     dac_gain: float = 1.0
@@ -75,6 +77,7 @@ def bridge_settings(rig: RigConfig) -> BridgeSettings:
         adc_bits=int(b.adc_bits), adc_range_v=tuple(float(v) for v in b.adc_range_v),
         watchdog_ms=int(b.watchdog_ms), firmware=b.firmware, current_sense=bool(b.current_sense),
         counts_per_unit=float(rig.sensors.encoder_counts_per_unit),
+        current_zero_v=float(rig.sensors.current_zero_v),
         **{f"{k}_gain": float(cal.get(f"{k}_gain", 1.0)) for k in CAL_CHANNELS},
         **{f"{k}_offset_v": float(cal.get(f"{k}_offset_v", 0.0)) for k in CAL_CHANNELS})
 

@@ -172,9 +172,12 @@ def _hbridge(rig, board: str) -> Wiring:
         Wire("encoder B", p["enc_b"], "encoder channel B", "internal pull-up on"),
     ]
     if b.current_sense:
+        s = rig.sensors
         wires.append(Wire("current sense", p["current"],
-                          "the bridge's sense output through 1 k / 100 nF",
-                          "0..5 V; [sensors] current_v_per_a"))
+                          "VIOUT of the current-sense amplifier in the motor lead, through "
+                          "1 k / 100 nF", f"{s.current_zero_v:g} V at 0 A, "
+                          f"{s.current_v_per_a:g} V per A ([sensors] current_zero_v, "
+                          "current_v_per_a)"))
     wires += [Wire("5 V", "5V", "encoder VCC" + (", TB6612FNG VCC, STBY, PWMA" if in12
                                                  else ", L298N +5 V logic (jumper off)")),
               Wire("ground", "GND", "encoder GND, bridge logic GND, motor supply - (one point)")]
@@ -197,7 +200,12 @@ def _hbridge(rig, board: str) -> Wiring:
               Part(1, "electrolytic capacitor", "470 uF 25 V, low ESR",
                    "across the motor supply at the bridge")]
     if b.current_sense:
-        parts += [Part(1, "resistor", "1 k 1 % 0.25 W", "sense filter"),
+        s = rig.sensors
+        parts += [Part(1, "bidirectional current-sense amplifier",
+                       f"{s.current_v_per_a:g} V/A, {s.current_zero_v:g} V at 0 A "
+                       "(e.g. ACS712ELCTR-05B-T: 0.185 V/A, 2.5 V)",
+                       "in series with the motor; its output to A0"),
+                  Part(1, "resistor", "1 k 1 % 0.25 W", "sense filter"),
                   Part(1, "capacitor", "100 nF C0G/X7R", "sense filter")]
     return Wiring("hbridge", board, {"drive_mode": b.drive_mode, "off_phase": b.off_phase,
                                      "current_sense": b.current_sense, "supply_v": supply},

@@ -198,6 +198,7 @@ class SensorsSection(_Closed):
     pos_offset_v: Num(-100.0, 100.0) = None
     encoder_counts_per_unit: Num(0.0, 1e9) = None   # 0: a pot
     current_v_per_a: Num(0.0, 1e3) = None           # 0: no current sense
+    current_zero_v: Num(-100.0, 100.0) = None       # the sense output at zero current
 
 
 class CalibrationSection(_Closed):

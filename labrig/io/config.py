@@ -72,6 +72,9 @@ class Sensors:
     encoder_counts_per_unit: float = 0.0
     #: a current-sense channel (V per A of armature current); 0: none
     current_v_per_a: float = 0.0
+    #: the sense output at zero current: a bidirectional sense amplifier on a 0..5 V ADC
+    #: (ACS712, INA240 with its reference at mid-supply) sits at 2.5 V
+    current_zero_v: float = 0.0
 
 
 @dataclass

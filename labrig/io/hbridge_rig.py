@@ -65,3 +65,7 @@ def check_rig(rig, path, given: dict) -> None:
     if b.current_sense and s.current_v_per_a <= 0:
         raise ConfigError(f"{path}: key 'bridge.current_sense' is on but "
                           "'sensors.current_v_per_a' is 0; give the shunt amplifier's V per A")
+    if b.current_sense and not 0.0 <= s.current_zero_v <= 5.0:
+        raise ConfigError(f"{path}: key 'sensors.current_zero_v' = {s.current_zero_v:g}: the "
+                          "board reads the sense output on A0 from 0 to 5 V; give its output at "
+                          "zero current (2.5 V for a bidirectional sense amplifier at mid-supply)")
