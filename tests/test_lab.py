@@ -467,22 +467,25 @@ def test_ask_until_sure_from_the_page(browser, tmp_path):
 
 
 def test_a_closed_page_stops_the_rig(browser, tmp_path):
-    """The page that drives a sweep is closed mid-sweep: the server ends that session and
-    the sweep stops (STOP, ZERO), keeping the finished runs; no more runs appear."""
+    """The page that drives a sweep is closed mid-sweep: the server ends that session
+    within ~6 s (checked every 1 s, kept 5 s) and the sweep stops (STOP, ZERO), keeping the
+    finished runs; no more runs appear."""
+    from labrig.lab.serve import CHECK_UNUSED_MS, UNUSED_LIFETIME_MS
+
     folder = tmp_path / "left"
-    server = Server(folder)            # real time: six runs of 16.5 s would take 99 s
+    server = Server(folder)            # real time: six runs of 4.5 s would take 27 s
     try:
         page = Page(browser, server.url)
         page.page.locator(".lab-amplitudes input").fill("0.5, 0.7, 0.9, 1.1, 1.3, 1.5")
-        page.page.locator(".lab-periods input").first.fill("4")
+        page.page.locator(".lab-periods input").first.fill("1")
         page.click(".lab-start")
         page.wait(lambda: "running" in page.text(".lab-counters"), 60, "the sweep to start")
         page.close()
-        time.sleep(50)                 # Bokeh ends a closed page's session within ~35 s
+        time.sleep((CHECK_UNUSED_MS + UNUSED_LIFETIME_MS) / 1e3 + 2)   # the session ends
         first = sorted(p.name for p in folder.glob("*.csv"))
-        time.sleep(20)                 # a sweep still running would write a run meanwhile
+        time.sleep(9)                  # a sweep still running would write a run meanwhile
         assert sorted(p.name for p in folder.glob("*.csv")) == first
-        assert len(first) < 6 and not list(folder.glob("*.tmp"))
+        assert len(first) < 4 and not list(folder.glob("*.tmp"))
     finally:
         server.stop()
 

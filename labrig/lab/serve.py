@@ -13,6 +13,10 @@ import sys
 import labrig.verbs as lr
 from labrig.lab.station import Station
 
+#: how often the server looks for sessions without a connection, and how long it keeps one
+#: (a page reloaded or a connection back within this keeps its session and the rig)
+CHECK_UNUSED_MS, UNUSED_LIFETIME_MS = 1000, 5000
+
 
 def make_station(folder, *, rig_path=None, port=None, emulate=False, realtime=True) -> Station:
     """A station on the simulated rig (default), the board at ``port``, or the emulated
@@ -46,8 +50,12 @@ def serve(station: Station, *, host: str = "127.0.0.1", port: int = 5006,
         log(f"labrig lab: warning: listening on {host}: anyone on the network who can reach "
             "this machine can drive the rig")
     origins = [f"{h}:{port}" for h in ("127.0.0.1", "localhost", host)]
+    # a page closed or cut off loses its session (and the rig stops) within ~6 s, where
+    # Bokeh's defaults (checked every 17 s, kept 15 s) left a rig running for ~35 s
     server = pn.serve({"/": page}, port=port, address=host, websocket_origin=origins,
-                      show=False, start=False, title="labrig lab", verbose=False)
+                      show=False, start=False, title="labrig lab", verbose=False,
+                      check_unused_sessions_milliseconds=CHECK_UNUSED_MS,
+                      unused_session_lifetime_milliseconds=UNUSED_LIFETIME_MS)
     url = f"http://{'127.0.0.1' if host in ('0.0.0.0', '::') else host}:{port}/"
     log(f"labrig lab: {url} (Ctrl-C stops it; the rig is left at 0 V)")
     sys.stdout.flush()
