@@ -302,3 +302,41 @@ def test_the_current_sense_channel_reads_the_armature_current_at_each_sample(tmp
     step = (5.0 / 1024 + 0.001) / 0.4
     assert np.abs(amps - truth).max() <= step, np.abs(amps - truth).max()
     assert amps.max() > 0.3 and amps.min() < -0.3   # the current was read both ways
+
+
+def test_a_sweep_through_a_damaging_link_on_the_hbridge_board(tmp_path):
+    """Protocol 2's frames (the 32-bit count) through a link that flips or drops 1 byte in
+    1000 each way: `labrig sweep --port` exits 0, every row that is not a gap is what the
+    board sent -- its output word and its count, word for word -- and every lost sample
+    is a gap row, the ones the proxy kept from the host."""
+    from linkproxy import B2H, LinkProxy
+
+    from labrig.bridge import protocol as P
+    from labrig.bridge.settings import bridge_settings, volts_to_dac_word
+    from labrig.io.runs import read_dataset
+
+    rig_file = _rig_with(tmp_path, HIDDEN)
+    plan = tmp_path / "plan.toml"
+    plan.write_text('[defaults]\nsample_rate_hz = 500.0\nlead_in_s = 0.2\n\n[[experiment]]\n'
+                    'loop = "open"\nwaveform = "square"\namplitudes_v = [6.0, 9.0]\n'
+                    'frequency_hz = 1.0\nperiods = 2\n')
+    rig = load_rig(rig_file)
+    with Emulator("uno", rig) as emu:
+        with LinkProxy(emu.pty, b2h=(5e-4, 5e-4), h2b=(5e-4, 5e-4), seed=5) as proxy:
+            r = _labrig("sweep", "--port", proxy.path, "--rig", rig_file, "--plan", plan,
+                        "-o", tmp_path / "runs", timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert proxy.total(proxy.faults, B2H) > 5
+    s = bridge_settings(rig)
+    runs = sorted(read_dataset(tmp_path / "runs"), key=lambda run: run.name)
+    assert len(runs) == 2
+    for k, run in enumerate(runs, start=1):
+        gap = run.data["gap"].to_numpy() if "gap" in run.data else np.zeros(len(run), int)
+        ok = np.flatnonzero(gap == 0)
+        sent = np.array([proxy.sent[k][i] for i in ok])
+        counts = run.data["pos"].to_numpy()[ok].astype(int)
+        assert np.array_equal(counts, P.encoder_counts(sent).astype(int)), run.name
+        assert np.array_equal([volts_to_dac_word(v, s) for v in run.u[ok]], sent[:, 0])
+        delivered = {i for i in proxy.delivered[k] if i < len(run)}
+        assert run.meta["bridge"]["dropped_samples"] == gap.sum() == len(run) - len(delivered)
+        assert np.ptp(counts) > 100
