@@ -14,6 +14,7 @@ import json
 import re
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -340,3 +341,38 @@ def test_a_sweep_through_a_damaging_link_on_the_hbridge_board(tmp_path):
         delivered = {i for i in proxy.delivered[k] if i < len(run)}
         assert run.meta["bridge"]["dropped_samples"] == gap.sum() == len(run) - len(delivered)
         assert np.ptp(counts) > 100
+
+
+def test_a_silent_host_trips_the_hbridge_boards_watchdog_and_the_bridge_lets_go(tmp_path):
+    """The host starts a 4 s run and then says nothing: the board stops driving (duty 0,
+    the bridge released) one watchdog period after the last byte it heard, says WATCHDOG,
+    and counts the trip."""
+    from labrig.bridge.serial import SerialBridge
+    from labrig.core.errors import RigError
+    from labrig.io.experiment import Experiment
+
+    rig = load_rig(_rig_with(tmp_path, {}))
+    log = tmp_path / "emu.log"
+    with Emulator("uno", rig, dac_log=log) as emu:
+        bridge = SerialBridge(emu.pty, rig)
+        bridge.open()
+        bridge.configure(Experiment(name="a", amplitude_v=6.0, frequency_hz=0.25, periods=1.0,
+                                    lead_in_s=0.0, sample_rate_hz=200.0))
+        bridge.start()                      # ... and nothing more: no heartbeat, no read
+        time.sleep(1.5)
+        with pytest.raises(RigError, match="WATCHDOG"):
+            while bridge.read(timeout=1.0) is not None:
+                pass
+        bridge.stop()
+        counters = bridge.counters()
+        bridge.close()
+    starts, _, _, duty = _edges(log)
+    start = starts[-1]
+    driven = [c for c, d in duty if c > start and d != 0]
+    released = [c for c, d in duty if c > start and d == 0]
+    assert driven and released, duty
+    held_s = (released[0] - start) / 16e6
+    watchdog_s = rig.bridge.watchdog_ms / 1e3
+    print(f"driven {held_s:.3f} s after START (watchdog {watchdog_s:.3f} s)")
+    assert watchdog_s - 0.02 < held_s < watchdog_s + 0.15, held_s
+    assert counters["board_watchdog_trips"] == 1, counters
