@@ -376,3 +376,29 @@ def test_a_silent_host_trips_the_hbridge_boards_watchdog_and_the_bridge_lets_go(
     print(f"driven {held_s:.3f} s after START (watchdog {watchdog_s:.3f} s)")
     assert watchdog_s - 0.02 < held_s < watchdog_s + 0.15, held_s
     assert counters["board_watchdog_trips"] == 1, counters
+
+
+def test_diagnose_auto_finds_stiction_hidden_beside_the_dead_zone(tmp_path):
+    """Stiction (Coulomb 0.8 V, breakaway twice that) behind the bridge's dead zone
+    (1.0 V forward, 1.6 V reverse): the linear model bends its plant to mimic the friction
+    and the dead zone added first takes the friction's volts too; the loop still ends with
+    both effects, the steady-state thresholds each way (dead zone + friction) and the
+    breakaway where the plant has them, near the noise floor. How the square waves split
+    a threshold between the dead zone and the friction is what they pin least: the split
+    is not asserted."""
+    hidden = {"asymmetric_deadband": {"dpos_v": 1.0, "dneg_v": 1.6},
+              "stiction": {"tc_v": 0.8, "excess": 1.0}}
+    rig_file = _rig_with(tmp_path, hidden)
+    with Emulator("uno", load_rig(rig_file)) as emu:
+        r = _labrig("sweep", "--port", emu.pty, "--rig", rig_file, "--plan", PLAN, "-o",
+                    tmp_path / "runs")
+    assert r.returncode == 0, r.stderr
+    r = _labrig("diagnose", "--auto", tmp_path / "runs", "--json", "-o", tmp_path / "auto")
+    assert r.returncode == 0, r.stderr
+    final = json.loads(r.stdout)["final_model"]
+    assert set(final["effects"]) == {"asymmetric_deadband", "stiction"}, final["effects"]
+    dz, st = final["effect_params"]["asymmetric_deadband"], final["effect_params"]["stiction"]
+    assert dz["dpos_v"] + st["tc_v"] == pytest.approx(1.0 + 0.8, abs=0.15)
+    assert dz["dneg_v"] + st["tc_v"] == pytest.approx(1.6 + 0.8, abs=0.15)
+    assert st["tc_v"] * (1 + st["excess"]) == pytest.approx(1.6, rel=0.25)
+    assert final["rmse_over_noise"]["overall"] < 2.0

@@ -8,10 +8,18 @@ show at once:
 - **basins**: the linear model's electrical pole can absorb a transport delay
   (tau_e of 0.1 s for a 31 ms delay), and warm starts never leave that basin.
 
+- **absorbed thresholds**: a model without friction (or with a dead zone standing in
+  for it) bends its plant to mimic it -- a slow electrical pole, a slow tau_m, a low
+  gain -- and the friction added from there makes every point worse before it makes
+  any better.
+
 So every re-fit first *scans* the new effect's parameters over the range the data can
 see (:meth:`labrig.model.effects.Effect.scan_grid`, one population call of the fast
 simulator, in two basins: the current electrical pole and a structurally different
-one), then polishes the best point of each basin with CO and keeps the better fit.
+one; for a dead zone or friction also the plant the analyser measures from the steps'
+steady states and rise times, which a threshold does not bend, and shares of a dead
+zone the model holds handed to the friction, or back), then polishes the best point of
+the two best basins with CO and keeps the better fit.
 """
 from __future__ import annotations
 
@@ -30,6 +38,16 @@ from labrig.model.reach import Reach
 SUBSAMPLE = 16000
 #: a basin whose best scan point is this much worse than the other's is not polished
 BASIN_MARGIN = 1.5
+
+#: the effects whose thresholds are volts at the bridge input that the steady state cannot
+#: tell apart: a dead zone and a friction level of the same volts give the same line of
+#: speed against input. A model holding one has let it absorb the other; adding the other
+#: from there meets a valley (the sum is pinned, the split is not) that a local fit does
+#: not cross, so the scan also starts from shares of the threshold moved across.
+INPUT_THRESHOLDS = {"deadband": ("d_v",), "asymmetric_deadband": ("dpos_v", "dneg_v"),
+                    "coulomb_friction": ("tc_v",), "stiction": ("tc_v",)}
+#: the shares of the held threshold handed to the new effect
+SHARES = (0.5, 0.9)
 
 
 def fit(runs, effects, start: dict, fixed: dict, *, seed: int, weights: Weights,
@@ -78,9 +96,49 @@ def _swapped_poles(params: dict) -> dict | None:
     return {**params, "L": R * tau_m, "J": tau_e * (B * R + K * K) / R}
 
 
+def _analysed_plant(runs, params: dict, dt: float) -> dict | None:
+    """The voltage plant with the analyser's Km and tau_m (the slope of the steady states
+    beyond their intercept, the steps' rise), R and K kept and the electrical pole far
+    below the sample period; None when the plant has no electrical pole or the runs give
+    the analyser no open-loop step."""
+    if "L" not in params:
+        return None
+    measured = _analysis_of(runs)
+    if measured is None:
+        return None
+    km, tau = measured
+    servo = plant_of_runs(runs).servo(params, dataset_constants(runs))
+    R, K = params["R"], params["K"]
+    damping = servo.Ka * K / km                      # B R + K Ke at the measured gain
+    return {**params, "B": max((damping - K * servo.ke) / R, 1e-12),
+            "J": tau * damping / R, "L": R * 0.05 * dt}
+
+
+#: the analyser's (Km, tau_m) of the runs last seen: one analysis per set of runs, however
+#: many effects a round re-fits
+_ANALYSED: dict = {}
+
+
+def _analysis_of(runs) -> tuple[float, float] | None:
+    key = tuple((r.name, len(r), float(np.nansum(r.u))) for r in runs)
+    if key not in _ANALYSED:
+        from labrig.analysis.dataset import analyse
+        from labrig.core.errors import LabrigError
+
+        try:
+            res = analyse(list(runs))
+            ok = res.km and res.tau_s and np.isfinite(res.km) and np.isfinite(res.tau_s)
+            _ANALYSED.clear()
+            _ANALYSED[key] = (float(res.km), float(res.tau_s)) if ok and res.km > 0 else None
+        except (LabrigError, ValueError, ArithmeticError):
+            _ANALYSED[key] = None   # no open-loop steps to analyse: no such basin
+    return _ANALYSED[key]
+
+
 def starts_for(runs, base_params: dict, effects, new, reach, fixed: dict,
                weights: Weights) -> list[dict]:
-    """The best scanned start in each basin, best first (at most two)."""
+    """The best scanned start in each basin, best first (at most two), and the best start
+    that shares a held threshold with the new effect (:data:`INPUT_THRESHOLDS`)."""
     space = build_space(effects, None, fixed, reach=reach, plant=plant_of_runs(runs))
     obj = Objective(runs, effects, space, p=weights.p, q=weights.q)
     grid = new.scan_grid(reach) if new is not None else {}
@@ -89,30 +147,83 @@ def starts_for(runs, base_params: dict, effects, new, reach, fixed: dict,
     swapped = _swapped_poles(base_params) if not {"L", "J"} & set(fixed) else None
     if swapped is not None:
         basins = [swapped, base_params]
-    points = []
+    if getattr(new, "name", None) in INPUT_THRESHOLDS and not {"B", "J", "L"} & set(fixed):
+        analysed = _analysed_plant(runs, base_params, reach.dt)
+        if analysed is not None:
+            basins.append(analysed)
+    per_basin, shared_at = [], []
     for b in basins:
+        pts = []
         for k in range(npts):
             pt = dict(b)
             for name, values in grid.items():
                 pt[f"{new.name}.{name}"] = float(values[k])
-            points.append(pt)
+            pts.append(pt)
+        shared = _shared_threshold_starts(b, effects, new, grid)
+        shared_at.extend(range(sum(map(len, per_basin)) + len(pts),
+                               sum(map(len, per_basin)) + len(pts) + len(shared)))
+        pts += shared
+        per_basin.append(pts)
+    sizes = [len(p) for p in per_basin]
+    points = [pt for pts in per_basin for pt in pts]
     # parameters neither the base nor the grid sets (a user effect without a scan):
     # the identifiers' own starting point, once
     fill = initial_point(space, effects, runs, dataset_constants(runs), base_params)
     X = np.array([space.to_search({**fill, **pt}) for pt in points])
     f = obj.fitness_batch(X)
-    best = []
-    for j in range(len(basins)):
-        seg = f[j * npts:(j + 1) * npts]
+    best, at = [], 0
+    for size in sizes:
+        seg = f[at:at + size]
         k = int(np.argmin(seg))
-        best.append((float(seg[k]), points[j * npts + k]))
+        best.append((float(seg[k]), points[at + k]))
+        at += size
     if swapped is None:
         best.sort(key=lambda t: t[0])
+    else:   # the swapped and the base basin are polished, best first; then any better one
+        best = best[:2] + sorted(best[2:], key=lambda t: t[0])
+        if len(best) > 2 and best[2][0] < min(best[0][0], best[1][0]):
+            best = [best[2], best[0]]
     # (with swapped poles both are polished: the right way round is tried first)
     keep = [best[0][1]]
     if len(best) > 1 and (swapped is not None or best[1][0] <= BASIN_MARGIN * best[0][0]):
         keep.append(best[1][1])
+    if shared_at:   # the best share of a held threshold is always polished too: the scan
+        # cannot see that its valley leads down, only the fit can
+        k = min(shared_at, key=lambda i: f[i])
+        if not any(points[k] is q for q in keep):
+            keep.append(points[k])
     return keep
+
+
+def _shared_threshold_starts(params: dict, effects, new, grid: dict) -> list[dict]:
+    """Starts where ``new`` takes a share of an input threshold the model already holds
+    in another effect (:data:`INPUT_THRESHOLDS`), that effect keeping the rest; the new
+    effect's other parameters at each of their scanned values."""
+    mine = INPUT_THRESHOLDS.get(getattr(new, "name", None))
+    if not mine or not grid:
+        return []
+    out = []
+    for held in effects:
+        if held.name == new.name or held.name not in INPUT_THRESHOLDS:
+            continue
+        keys = [f"{held.name}.{k}" for k in INPUT_THRESHOLDS[held.name]]
+        if not all(k in params for k in keys):
+            continue
+        volts = float(np.mean([params[k] for k in keys]))
+        others = {n: sorted(set(map(float, v))) for n, v in grid.items() if n not in mine}
+        combos = [dict(zip(others, vals)) for vals in
+                  (np.array(np.meshgrid(*others.values())).T.reshape(-1, len(others))
+                   if others else [()])]
+        for share in SHARES:
+            for combo in combos:
+                pt = dict(params)
+                for k in keys:   # the held effect keeps the rest (never below its floor)
+                    pt[k] = max(params[k] * (1.0 - share), 1e-3)
+                for k in mine:
+                    pt[f"{new.name}.{k}"] = share * volts
+                pt.update({f"{new.name}.{n}": v for n, v in combo.items()})
+                out.append(pt)
+    return out
 
 
 def refit_with(runs, base: Model, effect, *, seed: int = 0, fixed: dict | None = None,

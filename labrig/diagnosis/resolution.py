@@ -12,7 +12,9 @@ offset):
    step of the input (:func:`input_quantum`: the bridge's DAC step its runs record, or
    an imported run's ``experiment.input_step_v``);
 2. **above a fraction of a sample**: a delay must be at least :data:`MIN_SAMPLES` of the
-   sample period;
+   sample period; **above the position's resolution**: a size in the axis's position
+   unit at the output (a gear's play) must span at least one count of an encoder
+   (``Run.pos_quantum``): a play inside one count moves no count;
 3. **resolved by the folds**: the size must exceed :data:`Z` standard errors from the
    grouped jackknife over the cross-validation folds (each fold's fit, on the data it
    saw), so an interval of ``Z`` standard errors excludes zero.
@@ -93,6 +95,10 @@ def unresolved(effect, params: dict, runs, fold_values=()) -> str | None:
     if q > 0 and volts < q:
         return (f"{effect.name}.{name} = {value:.3g} {unit} moves the input by "
                 f"{volts * 1e3:.3g} mV, below one step of the input ({q * 1e3:.3g} mV)")
+    pq = max((r.pos_quantum for r in runs), default=0.0)
+    if effect.stage == "output" and unit in ("rad", "m") and pq > 0 and 2 * abs(value) < pq:
+        return (f"{effect.name}.{name} = {value:.3g} {unit}: a play of {2 * abs(value):.3g} "
+                f"{unit}, inside one count of the encoder ({pq:.3g} {unit})")
     if effect.stage == "delay" and unit == "s" and abs(value) < MIN_SAMPLES * dt:
         return (f"{effect.name}.{name} = {value * 1e3:.3g} ms is below {MIN_SAMPLES:g} of a "
                 f"sample ({dt * 1e3:.3g} ms)")
