@@ -317,6 +317,8 @@ def test_a_sweep_through_a_damaging_link_on_the_hbridge_board(tmp_path):
     from labrig.io.runs import read_dataset
 
     rig_file = _rig_with(tmp_path, HIDDEN)
+    rig_file.write_text(rig_file.read_text().replace(   # losses are the point here
+        "[bridge]\n", "[bridge]\nmax_lost_fraction = 1.0\n", 1))
     plan = tmp_path / "plan.toml"
     plan.write_text('[defaults]\nsample_rate_hz = 500.0\nlead_in_s = 0.2\n\n[[experiment]]\n'
                     'loop = "open"\nwaveform = "square"\namplitudes_v = [6.0, 9.0]\n'

@@ -4,6 +4,7 @@ ACK/DONE, malformed bodies, the wording of link failures, and the acceptance tes
 a whole sweep through the CLI with random faults in both directions."""
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 import time
@@ -39,6 +40,9 @@ WATCHDOG_MS = 1000
 def rig():
     r = load_rig()
     r.bridge.watchdog_ms = WATCHDOG_MS
+    # these tests lose samples on purpose and look at the runs; the rig's loss tolerance
+    # (a sweep exits 1 above it) has a test of its own
+    r.bridge.max_lost_fraction = 1.0
     return r
 
 
@@ -280,7 +284,8 @@ def test_sweep_through_faults_in_both_directions(tmp_path, emulators, rig):
     rig_file = tmp_path / "rig.toml"   # the default rig, watchdog scaled to the emulator's speed
     text = (ROOT / "configs" / "rig_default.toml").read_text()
     assert "watchdog_ms = 500" in text
-    rig_file.write_text(text.replace("watchdog_ms = 500", f"watchdog_ms = {WATCHDOG_MS}"))
+    rig_file.write_text(text.replace("watchdog_ms = 500", f"watchdog_ms = {WATCHDOG_MS}\n"
+                                     "max_lost_fraction = 1.0"))   # losses are the point here
     emu = emulators("uno", rig, speed=SPEED)
     faults = (P_FAULT / 2, P_FAULT / 2)
     with LinkProxy(emu.pty, b2h=faults, h2b=faults, seed=SEED) as proxy:
@@ -327,3 +332,76 @@ def test_sweep_through_faults_in_both_directions(tmp_path, emulators, rig):
         report.append((exp.name, proxy.faults[B2H, k], proxy.faults[H2B, k], errs,
                        b["dropped_samples"], b["retries"]))
     print(f"\n{took:.1f} s; per run (name, faults b2h, faults h2b, errors, dropped, retries): {report}")
+
+
+# ---- one user per port ---------------------------------------------------------------
+
+def test_a_second_user_of_a_held_port_is_refused_and_the_first_loses_nothing(tmp_path, emulators):
+    """A sweep holds its port: a second sweep on it is refused at once in one line naming
+    the holder's PID and command (exit 1, nothing written), and the first completes with
+    every sample. A lab station (``open_bridge``) holds its board between runs too, until
+    it closes."""
+    import labrig.verbs as lr
+
+    emu = emulators("uno", load_rig())
+    first = subprocess.Popen([sys.executable, "-m", "labrig", "sweep", "--port", emu.pty,
+                              "-o", tmp_path / "a"], stdout=subprocess.PIPE,
+                             stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 60
+        while not list((tmp_path / "a").glob("*.csv")) and time.monotonic() < deadline:
+            time.sleep(0.2)   # the first run is written: the sweep is well under way
+        second = subprocess.run([sys.executable, "-m", "labrig", "sweep", "--port", emu.pty,
+                                 "-o", tmp_path / "b"], capture_output=True, text=True,
+                                timeout=60)
+        out, err = first.communicate(timeout=120)
+    finally:
+        if first.poll() is None:
+            first.kill()
+    assert second.returncode == 1, second.stderr
+    msg = second.stderr.strip()
+    assert len(msg.splitlines()) == 1 and "Traceback" not in msg
+    assert f"PID {first.pid} (" in msg and "labrig sweep --port" in msg, msg
+    assert not (tmp_path / "b").exists()
+    assert first.returncode == 0, err
+    runs = read_dataset(tmp_path / "a")
+    assert len(runs) == 6
+    assert all(r.meta["bridge"]["dropped_samples"] == 0 and "gap" not in r.data for r in runs)
+
+    make, _, close = lr.open_bridge(load_rig(), port=emu.pty)
+    try:
+        held = subprocess.run([sys.executable, "-m", "labrig", "sweep", "--port", emu.pty,
+                               "-o", tmp_path / "c"], capture_output=True, text=True, timeout=60)
+        assert held.returncode == 1 and f"PID {os.getpid()} (" in held.stderr, held.stderr
+    finally:
+        close()
+
+
+def test_a_run_that_lost_more_than_the_rig_allows_is_kept_and_the_sweep_exits_1(tmp_path, emulators):
+    """A link losing 1 sample frame in 20: every run is written with the lost samples
+    flagged as gaps, and `labrig sweep` exits 1 naming the runs and their losses, above
+    [bridge] max_lost_fraction (0.001)."""
+    rig_file = tmp_path / "rig.toml"
+    rig_file.write_text((ROOT / "configs" / "rig_default.toml").read_text())
+    plan = tmp_path / "plan.toml"
+    plan.write_text('[defaults]\nsample_rate_hz = 1000.0\nlead_in_s = 0.1\n\n[[experiment]]\n'
+                    'loop = "open"\nwaveform = "square"\namplitudes_v = [1.2, 2.0]\n'
+                    'frequency_hz = 2.0\nperiods = 2\n')
+
+    def policy(d, f, run, nth):
+        return "drop" if d == B2H and f.type == P.SAMPLES and nth % 20 == 7 else None
+
+    emu = emulators("uno", load_rig())
+    with LinkProxy(emu.pty, policy=policy) as proxy:
+        r = subprocess.run([sys.executable, "-m", "labrig", "sweep", "--port", proxy.path,
+                            "--rig", rig_file, "--plan", plan, "-o", tmp_path / "ds"],
+                           capture_output=True, text=True, timeout=120)
+    assert r.returncode == 1, r.stderr
+    msg = r.stderr.strip().splitlines()[-1]
+    assert "2 run(s)" in msg and "max_lost_fraction = 0.001" in msg and "gaps" in msg, msg
+    runs = read_dataset(tmp_path / "ds")
+    assert len(runs) == 2
+    for run in runs:
+        lost = int(run.data["gap"].sum())
+        assert lost == run.meta["bridge"]["dropped_samples"] > 0.001 * len(run)
+        assert f"{run.name} {lost} of {len(run)}" in msg

@@ -8,7 +8,7 @@ import time
 import numpy as np
 import pytest
 
-from labrig.bridge.sweep import sweep
+from labrig.bridge.sweep import LossError, sweep
 from labrig.bridge.sim import SimRig
 from labrig.io.runs import read_dataset, read_run
 from conftest import MY_COULOMB_PY, ROOT, labrig, make_rig, square_plan
@@ -117,8 +117,9 @@ def test_lost_tail_becomes_gap_rows_holding_the_last_value(tmp_path):
     received value and is flagged gap = 1, like the interpolated hole inside."""
     rig = make_rig()
     (exp,) = square_plan(amps=(1.5,), periods=0.5)   # 2500 samples
-    sweep(LosesTail(rig), [exp], rig, tmp_path / "ds")
-    r = read_run(tmp_path / "ds" / "sq_1.50V")
+    with pytest.raises(LossError, match="sq_1.50V 510 of 2500"):   # beyond the rig's 0.1 %
+        sweep(LosesTail(rig), [exp], rig, tmp_path / "ds")
+    r = read_run(tmp_path / "ds" / "sq_1.50V")   # ... and written all the same
     gap = r.data["gap"].to_numpy()
     assert len(r) == exp.n_samples == 2500
     assert np.allclose(r.t, np.arange(2500) / 1000.0)

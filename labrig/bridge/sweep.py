@@ -138,6 +138,7 @@ def sweep(bridge: Bridge, plan: list[Experiment], rig, outdir: Path | str, *,
         todo.append(exp)
     remove_stale_tmp(outdir, [exp.name for exp in plan])
     written: list[Path] = []
+    lossy = []
     try:
         bridge.open()
         for exp in todo:
@@ -145,6 +146,9 @@ def sweep(bridge: Bridge, plan: list[Experiment], rig, outdir: Path | str, *,
                 on_start(exp)
             run = acquire(bridge, exp, rig, progress=on_progress)
             written.append(write_run(run, outdir, overwrite=resume))
+            lost = int(run.data["gap"].sum()) if "gap" in run.data else 0
+            if lost > rig.bridge.max_lost_fraction * len(run):
+                lossy.append((exp.name, lost, len(run)))
             if on_done:
                 on_done(exp, run)
     finally:
@@ -155,4 +159,21 @@ def sweep(bridge: Bridge, plan: list[Experiment], rig, outdir: Path | str, *,
             pass
         bridge.zero()
         bridge.close()
+    if lossy:
+        raise LossError(lossy, rig.bridge.max_lost_fraction, outdir)
     return written
+
+
+class LossError(RigError):
+    """Runs that lost more of their samples on the link than the rig file allows: written
+    (the lost samples flagged as gaps, never fitted as measured), and the command exits 1."""
+
+    def __init__(self, lossy, tolerance: float, outdir):
+        self.lossy = lossy
+        worst = ", ".join(f"{name} {lost} of {n} ({100 * lost / n:.2g} %)"
+                          for name, lost, n in lossy[:3]) + (" ..." if len(lossy) > 3 else "")
+        super().__init__(
+            f"{len(lossy)} run(s) in {outdir} lost more samples on the link than [bridge] "
+            f"max_lost_fraction = {tolerance:g} allows: {worst}; they are written with the "
+            "lost samples flagged as gaps (never fitted as measured): use a shorter or "
+            "shielded USB cable, a lower sample rate, or --resume after removing them")

@@ -9,6 +9,7 @@ hardware or simavr.
 from __future__ import annotations
 
 import abc
+import os
 import time
 from collections.abc import Callable, Sequence
 
@@ -80,6 +81,83 @@ def link_hint(since: tuple[int, int], now: tuple[int, int]) -> str:
     return "is the board plugged in?"
 
 
+def port_holders(port: str) -> list[tuple[int, str]]:
+    """The processes holding ``port``'s lock: (pid, command line), from Linux's
+    ``/proc/locks`` (the flock pyserial's ``exclusive`` takes); empty elsewhere."""
+    try:
+        st = os.stat(port)
+        with open("/proc/locks") as fh:
+            locks = fh.read().splitlines()
+    except OSError:
+        return []
+    inode = f"{os.major(st.st_dev):02x}:{os.minor(st.st_dev):02x}:{st.st_ino}"
+    found = []
+    for line in locks:
+        f = line.split()
+        if len(f) > 5 and f[1] == "FLOCK" and f[5] == inode and f[4].isdigit():
+            pid = int(f[4])
+            try:
+                with open(f"/proc/{pid}/cmdline", "rb") as cl:
+                    argv = [a.decode(errors="replace") for a in cl.read().split(b"\0") if a]
+            except OSError:
+                argv = []
+            found.append((pid, " ".join(argv)[:120] or "?"))
+    return found
+
+
+#: ports this process holds: realpath -> (lock file's fd, holders in this process)
+_LEASES: dict = {}
+
+
+def _lock_file(port: str) -> str:
+    import tempfile
+
+    name = os.path.realpath(port).strip("/").replace("/", "_")
+    return os.path.join(tempfile.gettempdir(), f"labrig-{name}.lock")
+
+
+def lease(port: str) -> None:
+    """Hold ``port`` for this process until :func:`release`: a lab station holds its board
+    between runs, each sweep while it plays; another process asking for the port is
+    refused at once, naming the holder. Nested leases in one process share the hold.
+
+    Raises
+    ------
+    RigError
+        Another process holds the port.
+    """
+    import fcntl
+
+    key = os.path.realpath(port)
+    if key in _LEASES:
+        fd, n = _LEASES[key]
+        _LEASES[key] = (fd, n + 1)
+        return
+    path = _lock_file(port)
+    fd = os.open(path, os.O_RDONLY | os.O_CREAT, 0o666)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        os.close(fd)
+        held = ", ".join(f"PID {pid} ({cmd})" for pid, cmd in port_holders(path))
+        raise RigError(f"{port} is in use by {held or 'another labrig'}: one user per port; "
+                       "wait for it to finish, or stop it") from None
+    _LEASES[key] = (fd, 1)
+
+
+def release(port: str) -> None:
+    """End one :func:`lease` of ``port``; the last one lets the port go."""
+    key = os.path.realpath(port)
+    if key not in _LEASES:
+        return
+    fd, n = _LEASES[key]
+    if n > 1:
+        _LEASES[key] = (fd, n - 1)
+        return
+    del _LEASES[key]
+    os.close(fd)   # closing the descriptor drops the lock
+
+
 class SerialTransport(Transport):
     """A serial port through pyserial: the default transport of ``SerialBridge``.
 
@@ -112,14 +190,34 @@ class SerialTransport(Transport):
         return self._ser
 
     def open(self) -> None:
+        """Open the port for this process alone (pyserial's ``exclusive``: an OS lock, so a
+        second sweep, lab page or ask-the-rig on the same board is refused at once).
+
+        Raises
+        ------
+        RigError
+            The port is held (naming the holder), not ours to open (the dialout group), or
+            not there.
+        """
+        import errno
         import serial  # pyserial; imported here so the module loads without it
 
         ser = serial.Serial()
         ser.port, ser.baudrate = self.port, self.baudrate
         ser.timeout, ser.write_timeout = 0.05, self.write_timeout
+        ser.exclusive = True
+        lease(self.port)
         try:
             ser.open()   # pyserial ignores ENOTTY from DTR/RTS on a pty itself
         except Exception as e:
+            release(self.port)
+            if "exclusively lock" in str(e):
+                held = ", ".join(f"PID {pid} ({cmd})" for pid, cmd in port_holders(self.port))
+                raise RigError(f"{self.port} is in use by {held or 'another process'}: one user "
+                               "per port; wait for it to finish, or stop it") from None
+            if getattr(e, "errno", None) == errno.EACCES:
+                raise RigError(f"no permission to open {self.port}: add yourself to its group "
+                               "(sudo usermod -aG dialout $USER), then log out and in") from None
             raise RigError(f"cannot open {self.port} ({getattr(e, 'strerror', None) or e}): is the "
                            "board plugged in and is this its port? (ls /dev/ttyACM* /dev/ttyUSB*)") from e
         self._ser = ser
@@ -128,6 +226,7 @@ class SerialTransport(Transport):
         ser, self._ser = self._ser, None
         if ser is not None:
             ser.close()
+            release(self.port)
 
     def write(self, data: bytes) -> None:
         self._port().write(data)

@@ -232,7 +232,8 @@ class BridgeSection(_Closed):
     dac_range_v: RangeV = None
     adc_bits: Annotated[int, Field(ge=1, le=24)] = None
     adc_range_v: RangeV = None
-    watchdog_ms: Num(1.0, 60000.0) = None
+    watchdog_ms: Num(1.0, 2000.0) = None            # host silence: the board stops within it
+    max_lost_fraction: Num(0.0, 1.0) = None          # a run losing more exits 1
     calibration: CalibrationSection = None
 
 

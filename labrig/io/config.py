@@ -97,6 +97,9 @@ class BridgeConfig:
     adc_bits: int = 10
     adc_range_v: tuple = (-10.0, 10.0)
     watchdog_ms: float = 500.0
+    #: a run that lost more than this share of its samples on the link is kept (the lost
+    #: ones flagged as gaps) but the command exits 1 naming it
+    max_lost_fraction: float = 0.001
     calibration: dict = field(default_factory=dict)
 
     @property

@@ -42,16 +42,21 @@ def open_bridge(rig, *, port: str | None = None, emulate: bool = False, seed: in
     bridge for each sweep (the board at ``port``, the real firmware in simavr with
     ``emulate``, else the simulated rig with its noise ``seed``), ``name`` says which in
     words and ``close()`` ends what was started (the emulator)."""
-    if port:
+    if port:   # held from now until close(): no other process takes the board between runs
         from labrig.bridge.serial import SerialBridge
+        from labrig.bridge.transport import lease, release
 
-        return (lambda: SerialBridge(port, rig)), f"board at {port}", (lambda: None)
+        lease(port)
+        return (lambda: SerialBridge(port, rig)), f"board at {port}", (lambda: release(port))
     if emulate:
         from labrig.bridge.serial import SerialBridge
+        from labrig.bridge.transport import lease, release
 
         emu = emulator(rig)
         pty = emu.start()
-        return (lambda: SerialBridge(pty, rig)), f"emulated board ({pty})", emu.stop
+        lease(pty)
+        return ((lambda: SerialBridge(pty, rig)), f"emulated board ({pty})",
+                lambda: (release(pty), emu.stop()))
     from labrig.bridge.sim import SimRig
 
     return (lambda: SimRig(rig, seed=seed)), "simulated " + (rig.name or "MS150"), (lambda: None)
