@@ -19,8 +19,8 @@ def cmd_sweep(args):
     output_folder(args.output)
     rig = lr.load_rig(args.rig)
     plan = lr.load_plan(args.plan, rig)
-    if sum(map(bool, (args.sim, args.port, args.emulate))) != 1:
-        raise UserError("give exactly one of --sim, --port DEV or --emulate")
+    if not (args.sim or args.port or args.emulate):
+        args.port = lr.find_board()   # several or none: it says which
     total = sum(e.n_samples for e in plan)
     with _StopSignals():
         # the emulated board (the real firmware the rig file names, in simavr) lives as
@@ -44,7 +44,8 @@ def cmd_sweep(args):
 
 def _configure_sweep(p):
     src = p.add_mutually_exclusive_group()
-    src.add_argument("--port", help="serial device of the bridge, e.g. /dev/ttyACM0")
+    src.add_argument("--port", help="serial device of the bridge, e.g. /dev/ttyACM0 (default: "
+                                    "the one labrig board connected, see labrig ports)")
     src.add_argument("--sim", action="store_true", help="use the simulated rig")
     src.add_argument("--emulate", action="store_true",
                      help="play it on the real firmware under simavr (the one --rig's [bridge] "

@@ -86,3 +86,36 @@ def _configure_wiring(p):
 
 
 cmd_wiring.configure = _configure_wiring
+
+
+@command("ports", "list the serial ports and the labrig boards on them")
+def cmd_ports(args):
+    """List every serial port (device, USB VID:PID, description, serial number), greet the
+    Arduino-class ones (opening such a port resets the board) and mark the labrig bridges
+    (firmware, board, rig). --probe PATH greets a port no USB listing shows (an emulator's
+    pty) or one labrig does not know."""
+    ports = lr.ports(args.probe)
+    if args.json:
+        emit_json({"ports": [{"device": p.device, "usb_id": p.usb_id, "kind": p.kind,
+                              "description": p.description, "serial_number": p.serial_number,
+                              "labrig": p.hello or None, "note": p.note} for p in ports]})
+        return 0
+    if not ports:
+        print("no serial ports (plug the board in; on Linux it appears as /dev/ttyACM0 or "
+              "/dev/ttyUSB0)")
+    for p in ports:
+        what = (f"labrig {p.hello.get('firmware')} (protocol {p.hello.get('protocol')})"
+                if p.is_labrig else p.note)
+        print(f"{p.device:<16} {p.usb_id:<10} {(p.kind or p.description or '-')[:34]:<34} "
+              f"serial {p.serial_number or '-':<12} {what}")
+    return 0
+
+
+def _configure_ports(p):
+    p.add_argument("--probe", action="append", default=[], metavar="PATH",
+                   help="also greet this device (an emulator's pty, or a board behind an "
+                        "adapter labrig does not know); repeat for more")
+    p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+
+
+cmd_ports.configure = _configure_ports

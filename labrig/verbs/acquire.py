@@ -125,3 +125,34 @@ def wiring(rig, *, board: str = "uno"):
     from labrig.bridge.wiring import wiring as _wiring
 
     return _wiring(rig, board=board)
+
+
+def ports(probe=()):
+    """The serial ports, the Arduino-class ones greeted and the labrig bridges marked
+    (``labrig ports``).
+
+    Parameters
+    ----------
+    probe : sequence of str
+        Devices to greet whatever they are (an emulator's pty).
+
+    Returns
+    -------
+    list of labrig.bridge.ports.Port
+    """
+    from labrig.bridge.ports import list_ports
+
+    return list_ports(probe)
+
+
+def find_board() -> str:
+    """The device of the one labrig board connected (what ``--port`` defaults to).
+
+    Raises
+    ------
+    UserError
+        None is connected, or several are (naming them).
+    """
+    from labrig.bridge.ports import list_ports, the_board
+
+    return the_board(list_ports())
