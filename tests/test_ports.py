@@ -57,6 +57,14 @@ def test_the_one_board_is_taken_and_two_are_named():
         the_board([plain])
 
 
+def test_a_sweep_on_a_plain_file_is_refused_in_one_line(tmp_path):
+    plain = tmp_path / "notaport"
+    plain.write_text("hello\n")
+    r = _labrig("sweep", "--port", plain, "-o", tmp_path / "out")
+    assert r.returncode == 2 and "not a serial device" in r.stderr, r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1 and not (tmp_path / "out").exists()
+
+
 def test_a_plain_file_or_a_silent_device_is_no_board(tmp_path):
     """--probe of a plain file says it cannot be opened as a port; of a terminal nothing
     answers on, that no labrig greeting came."""
@@ -71,7 +79,7 @@ def test_a_plain_file_or_a_silent_device_is_no_board(tmp_path):
         os.close(slave)
     assert r.returncode == 0, r.stderr
     found = {p["device"]: p for p in json.loads(r.stdout)["ports"]}
-    assert "cannot open" in found[str(plain)]["note"] and not found[str(plain)]["labrig"]
+    assert "not a serial device" in found[str(plain)]["note"] and not found[str(plain)]["labrig"]
     assert "no labrig greeting" in found[silent]["note"] and not found[silent]["labrig"]
 
 

@@ -14,7 +14,7 @@ import time
 from collections.abc import Callable, Sequence
 
 from labrig.bridge import protocol as P
-from labrig.core.errors import RigError
+from labrig.core.errors import RigError, UserError
 
 
 class Transport(abc.ABC):
@@ -202,6 +202,9 @@ class SerialTransport(Transport):
         import errno
         import serial  # pyserial; imported here so the module loads without it
 
+        if os.path.isfile(self.port) or os.path.isdir(self.port):
+            raise UserError(f"port: {self.port} is a {'folder' if os.path.isdir(self.port) else 'file'}, "
+                            "not a serial device; give the board's (labrig ports lists them)")
         ser = serial.Serial()
         ser.port, ser.baudrate = self.port, self.baudrate
         ser.timeout, ser.write_timeout = 0.05, self.write_timeout
