@@ -231,8 +231,10 @@ def test_the_step_by_step_loop_ends_the_same_for_every_seed(linear_axis_runs, se
     n, f, recs = _end(linear_axis_runs, seed)
     assert n == names, (seed, recs)
     for k, v in flat.items():
-        if k.startswith("start["):   # an encoder's start within its count: to a tenth of one
-            assert f[k] == pytest.approx(v, abs=0.1 / 2e5), (seed, k)
+        if k.startswith("start["):   # an encoder's start within its count: to a quarter of
+            # one (a single reading places it within q/sqrt(12), 0.29 of a count; the seeds
+            # agreed to 0.10 of a count before the re-fits' shared-threshold starts, 0.103 since)
+            assert f[k] == pytest.approx(v, abs=0.25 / 2e5), (seed, k)
             continue
         assert f[k] == pytest.approx(v, rel=0.01), (seed, k)
 

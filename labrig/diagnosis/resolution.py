@@ -95,7 +95,7 @@ def unresolved(effect, params: dict, runs, fold_values=()) -> str | None:
     if q > 0 and volts < q:
         return (f"{effect.name}.{name} = {value:.3g} {unit} moves the input by "
                 f"{volts * 1e3:.3g} mV, below one step of the input ({q * 1e3:.3g} mV)")
-    pq = max((r.pos_quantum for r in runs), default=0.0)
+    pq = max((getattr(r, "pos_quantum", 0.0) for r in runs), default=0.0)
     if effect.stage == "output" and unit in ("rad", "m") and pq > 0 and 2 * abs(value) < pq:
         return (f"{effect.name}.{name} = {value:.3g} {unit}: a play of {2 * abs(value):.3g} "
                 f"{unit}, inside one count of the encoder ({pq:.3g} {unit})")
