@@ -427,6 +427,9 @@ def test_a_proposal_through_the_rigs_own_loop_from_the_page(browser, tmp_path):
     try:
         page.page.locator(".lab-loop button", has_text="through the loop").click()
         page.click(".lab-propose")
+        # the proposal's own text, not an idle status: on a machine 3x slower the job had
+        # not started when the status was first read (a throttled run of the suite)
+        page.wait(lambda: "position steps" in page.text(".lab-proposal"), 600, "the proposal")
         page.idle()
         text = page.text(".lab-proposal")
         assert "position steps" in text and "through the loop (kp 2)" in text, text
