@@ -46,6 +46,17 @@ def _labrig(*args, timeout=300):
                           text=True, timeout=timeout)
 
 
+def _swept(r) -> None:
+    """A sweep on the emulated board finished: exit 0, or exit 1 for samples lost on the
+    link beyond the rig's tolerance (a machine too busy for the real-time board: the runs
+    are written with the losses as gaps, which no fit takes as measured); said, not
+    silent."""
+    if r.returncode == 1 and "max_lost_fraction" in r.stderr:
+        print(f"\nlost on a busy machine (runs kept, gaps flagged): {r.stderr.splitlines()[-1]}")
+        return
+    assert r.returncode == 0, r.stderr
+
+
 def _rig_with(tmp_path: Path, effects: dict, **bridge) -> Path:
     """The shipped H-bridge rig file with other hidden effects (and [bridge] keys)."""
     text = RIG_FILE.read_text().split("[effects.")[0]
@@ -219,8 +230,8 @@ def test_diagnose_auto_finds_the_gears_play_seen_by_an_output_shaft_encoder(tmp_
     play is invisible to a motor-shaft encoder): the loop finds the dead zone and the play."""
     rig_file = _rig_with(tmp_path, {"asymmetric_deadband": {"dpos_v": 1.0, "dneg_v": 1.6},
                                     "backlash": {"a_rad": 0.03}})
-    r = _labrig("sweep", "--emulate", "--rig", rig_file, "--plan", PLAN, "-o", tmp_path / "runs")
-    assert r.returncode == 0, r.stderr
+    _swept(_labrig("sweep", "--emulate", "--rig", rig_file, "--plan", PLAN, "-o",
+                   tmp_path / "runs"))
     r = _labrig("diagnose", "--auto", tmp_path / "runs", "--json")
     assert r.returncode == 0, r.stderr
     final = json.loads(r.stdout)["final_model"]
@@ -392,9 +403,8 @@ def test_diagnose_auto_finds_stiction_hidden_beside_the_dead_zone(tmp_path):
               "stiction": {"tc_v": 0.8, "excess": 1.0}}
     rig_file = _rig_with(tmp_path, hidden)
     with Emulator("uno", load_rig(rig_file)) as emu:
-        r = _labrig("sweep", "--port", emu.pty, "--rig", rig_file, "--plan", PLAN, "-o",
-                    tmp_path / "runs")
-    assert r.returncode == 0, r.stderr
+        _swept(_labrig("sweep", "--port", emu.pty, "--rig", rig_file, "--plan", PLAN, "-o",
+                       tmp_path / "runs"))
     r = _labrig("diagnose", "--auto", tmp_path / "runs", "--json", "-o", tmp_path / "auto")
     assert r.returncode == 0, r.stderr
     final = json.loads(r.stdout)["final_model"]

@@ -202,6 +202,8 @@ class SerialTransport(Transport):
         import errno
         import serial  # pyserial; imported here so the module loads without it
 
+        if self.is_open:   # opened again (a second handshake): let go of the first hold
+            self.close()
         if os.path.isfile(self.port) or os.path.isdir(self.port):
             raise UserError(f"port: {self.port} is a {'folder' if os.path.isdir(self.port) else 'file'}, "
                             "not a serial device; give the board's (labrig ports lists them)")
