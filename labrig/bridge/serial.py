@@ -167,8 +167,12 @@ class SerialBridge(Bridge):
         """(damaged, intact) frames received since the last greeting, to tell a garbling
         link from a dead one. Bytes before a greeting do not count: opening a port mid-frame
         or across a board's reset leaves a fragment on any good link."""
-        damaged = self._dec.crc_errors + self._dec.framing_errors + self.bad_frames
-        return damaged - self._link_base[0], self._dec.frames_ok - self._link_base[1]
+        damaged, intact = self._link_counts()
+        return damaged - self._link_base[0], intact - self._link_base[1]
+
+    def _link_counts(self) -> tuple[int, int]:
+        """(damaged, intact) frames received since the port was opened."""
+        return self._dec.crc_errors + self._dec.framing_errors + self.bad_frames, self._dec.frames_ok
 
     def _tries(self) -> int:
         return self.tries * (2 if self._link_state()[0] else 1)
@@ -301,8 +305,7 @@ class SerialBridge(Bridge):
                 f = self._pending.popleft()
                 if f.type == P.HELLO:
                     self.hello = f.fields
-        self._link_base = (self._link_base[0] + self._link_state()[0],
-                           self._link_base[1] + self._link_state()[1])
+        self._link_base = self._link_counts()
         if self.hello["protocol"] not in P.PROTOCOLS:
             self.close()
             raise RigError(f"board on {self.port} speaks protocol {self.hello['protocol']}, "

@@ -23,6 +23,8 @@ the two best basins with CO and keeps the better fit.
 """
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 
 from labrig.core.errors import FitDiverged
@@ -151,21 +153,15 @@ def starts_for(runs, base_params: dict, effects, new, reach, fixed: dict,
         analysed = _analysed_plant(runs, base_params, reach.dt)
         if analysed is not None:
             basins.append(analysed)
-    per_basin, shared_at = [], []
+    points, sizes, shared_at = [], [], []
     for b in basins:
-        pts = []
-        for k in range(npts):
-            pt = dict(b)
-            for name, values in grid.items():
-                pt[f"{new.name}.{name}"] = float(values[k])
-            pts.append(pt)
+        pts = [{**b, **{f"{new.name}.{name}": float(values[k]) for name, values in grid.items()}}
+               for k in range(npts)]
         shared = _shared_threshold_starts(b, effects, new, grid)
-        shared_at.extend(range(sum(map(len, per_basin)) + len(pts),
-                               sum(map(len, per_basin)) + len(pts) + len(shared)))
-        pts += shared
-        per_basin.append(pts)
-    sizes = [len(p) for p in per_basin]
-    points = [pt for pts in per_basin for pt in pts]
+        at = len(points) + len(pts)
+        shared_at.extend(range(at, at + len(shared)))
+        points += pts + shared
+        sizes.append(len(pts) + len(shared))
     # parameters neither the base nor the grid sets (a user effect without a scan):
     # the identifiers' own starting point, once
     fill = initial_point(space, effects, runs, dataset_constants(runs), base_params)
@@ -211,9 +207,7 @@ def _shared_threshold_starts(params: dict, effects, new, grid: dict) -> list[dic
             continue
         volts = float(np.mean([params[k] for k in keys]))
         others = {n: sorted(set(map(float, v))) for n, v in grid.items() if n not in mine}
-        combos = [dict(zip(others, vals)) for vals in
-                  (np.array(np.meshgrid(*others.values())).T.reshape(-1, len(others))
-                   if others else [()])]
+        combos = [dict(zip(others, vals)) for vals in itertools.product(*others.values())]
         for share in SHARES:
             for combo in combos:
                 pt = dict(params)
