@@ -326,7 +326,7 @@ class ModelFile(_Closed):
     #: each run's fitted start (labrig.model.start): its motor speed at the first sample
     #: and its output shaft's offset
     starts: Annotated[dict[RunName,
-                           dict[Literal["w0", "i0", "dtheta"], Num(-1e9, 1e9)]],
+                           dict[Literal["w0", "i0", "dtheta", "gap0"], Num(-1e9, 1e9)]],
                       Field(max_length=10000)] = {}
     constants: Optional[ModelConstants] = None
     # what the fit reported: shown, never computed with; NaN is allowed (a failed fit)

@@ -197,7 +197,9 @@ class Objective:
         # space shared by several objectives keeps the starts it was given first
         space.add_starts(run_starts(self.runs, self.sigma_w if "speed" in self.floors else None,
                                     self.sigma_theta if "position" in self.floors else None,
-                                    start, self.sigma_i if self.use_i else None))
+                                    start, self.sigma_i if self.use_i else None,
+                                    play=any("a" in e.kernel_columns.values()
+                                             for e in self.effects)))
         self._start_cols = [{what: space.names.index(start_key(r.name, what)) for what in WHAT
                              if start_key(r.name, what) in space.names} for r in self.runs]
         self._started = any(self._start_cols)
@@ -232,8 +234,8 @@ class Objective:
         return phys[:, :self.n_plant], self.effects.split(phys, offset=self.n_plant)
 
     def run_starts(self, phys: np.ndarray) -> list | None:
-        """(P, D_all) physical -> per run None or ``{"w0": (P,), "i0": (P,), "dtheta": (P,)}``
-        (what is fitted of it)."""
+        """(P, D_all) physical -> per run None or ``{"w0": (P,), "i0": (P,), "dtheta": (P,),
+        "gap0": (P,)}`` (what is fitted of it)."""
         if not self._started:
             return None
         return [{what: phys[:, c] for what, c in cols.items()} or None

@@ -62,7 +62,8 @@ class Model:
     #: the fitted start of each run that does not start at rest (labrig.model.start):
     #: ``{run name: {"w0": motor speed at the first sample, "i0": the armature current
     #: there (a measured current only), "dtheta": the output shaft's offset from where its
-    #: first samples read}}``; a run not named starts at rest
+    #: first samples read, "gap0": where the motor sits in the gear's play (a model with
+    #: backlash)}}``; a run not named starts at rest
     starts: dict = field(default_factory=dict)
 
     def __post_init__(self):

@@ -30,9 +30,9 @@ import numpy as np
 from labrig.core.errors import UserError
 from labrig.model.effects import AsymmetricDeadband, Asymmetry, Deadband, Effect, Offset, Saturation, ordered
 from labrig.simulation.expm import loop_slot_fill, zoh_batch
-from labrig.simulation.layout import (C_A, C_ASYM, C_D, C_I0, C_KE, C_TC, C_TD, C_TH0, C_TS,
-                                 C_U0, C_VMAX, C_W0,
-                                 MAP_COLUMNS, N_SLOTS, S_FLAT, S_NEG, S_NEG_GAP, S_POS,
+from labrig.simulation.layout import (C_A, C_ASYM, C_D, C_GAP0, C_I0, C_KE, C_TC, C_TD, C_TH0,
+                                 C_TS, C_U0, C_VMAX, C_W0,
+                                 MAP_COLUMNS, N_COLS, N_SLOTS, S_FLAT, S_NEG, S_NEG_GAP, S_POS,
                                  S_POS_GAP, SLOT_W, T_OK)
 from labrig.simulation.kernels import run_kernels
 from labrig.model.start import initial_current
@@ -41,8 +41,7 @@ from labrig.simulation.warm import ready
 
 # kernel parameter columns: R, L, J, B, K (labrig.model.plants: every plant's kernel
 # form), then the effects' (C_D..C_TD), then the back-EMF constant Ke (0 for a
-# current-mode drive), then the run's initial state (C_I0, C_W0, C_TH0: labrig.model.start)
-N_COLS = 17
+# current-mode drive), then the run's initial state (C_I0, C_W0, C_TH0, C_GAP0: labrig.model.start)
 #: open-loop input and drive effects the kernel applies itself (their formulas are in
 #: labrig.simulation.candidate_kernel.input_map); a subclass or a user's effect takes the numpy path
 _MAPPED = (Offset, Asymmetry, Deadband, AsymmetricDeadband, Saturation)
@@ -56,7 +55,7 @@ KERNEL_COLUMNS = {"d": C_D, "u0": C_U0, "asym": C_ASYM, "vmax": C_VMAX, "tc": C_
 
 
 class _KernelTable:
-    """Named access to the (P, 17) parameter table for ``Effect.to_kernel``."""
+    """Named access to the (P, N_COLS) parameter table for ``Effect.to_kernel``."""
 
     def __init__(self, prm: np.ndarray):
         self.prm = prm
@@ -180,7 +179,7 @@ class Simulator:
                                 "simulated on open-loop runs; leave the closed-loop runs out")
 
     def _params(self, plant, effect_params):
-        """Candidate parameters -> the kernel's (P, 17) table, effect arrays, user outputs."""
+        """Candidate parameters -> the kernel's (P, N_COLS) table, effect arrays, user outputs."""
         plant = self.plant.kernel(np.asarray(plant, dtype=float))
         P = plant.shape[0]
         prm = np.zeros((P, N_COLS))
@@ -265,6 +264,7 @@ class Simulator:
         w0 = np.broadcast_to(np.asarray(start.get("w0", 0.0), float), (P,))
         out[:, C_W0] = w0
         out[:, C_TH0] = np.broadcast_to(np.asarray(start.get("dtheta", 0.0), float), (P,))
+        out[:, C_GAP0] = np.broadcast_to(np.asarray(start.get("gap0", 0.0), float), (P,))
         if "i0" in start:      # measured, and fitted (labrig.model.start)
             out[:, C_I0] = np.broadcast_to(np.asarray(start["i0"], float), (P,))
         elif np.any(w0 != 0.0):

@@ -21,14 +21,21 @@ So, per run and decided from the data (:func:`run_starts`):
 - **a position offset** (``dtheta``, at the output shaft, against the position the first
   samples read) is fitted when the run starts in motion (the first samples' mean is not
   where the shaft was at the first one) or the position is an encoder's count (its start
-  is unknown within a count).
+  is unknown within a count);
+- **where the motor sits in the gear's play** (``gap0``, a fraction of the half gap from
+  -1 to 1, the motor's angle less the output's) is fitted for every run with a position
+  when the model has backlash: a run starts wherever the one before left the teeth (the
+  last reversal's side, or anywhere in the gap after a coast), which the output's reading
+  cannot say. A model started with the gap centred is off by up to the half gap for the
+  whole run once the teeth meet (an emulated board's sweep on a busy machine, its runs
+  further apart, ended with rmse/noise 9 for this alone).
 
 A run that starts at rest is simulated from rest as before: nothing is fitted and the
 fused kernels run as they did. ``mode`` overrides the decision: ``"rest"`` fits nothing,
 ``"estimate"`` fits both for every run.
 
-The parameters ride in the optimiser's vector as ``start[RUN].w0``, ``start[RUN].i0`` and
-``start[RUN].dtheta`` (:func:`start_key`) within a range about the data's own estimate,
+The parameters ride in the optimiser's vector as ``start[RUN].w0``, ``start[RUN].i0``,
+``start[RUN].dtheta`` and ``start[RUN].gap0`` (:func:`start_key`) within a range about the data's own estimate,
 and a model records them per run (``Model.starts``).
 """
 from __future__ import annotations
@@ -45,10 +52,15 @@ MOVING_SIGMAS = 5.0
 #: the first samples looked at: this long, at least MIN_FIRST samples
 FIRST_S = 0.02
 MIN_FIRST = 4
+#: a position without a speed channel is looked at over the input's first level, up to
+#: this long: an encoder's shaft still coasting from the run before moves a count or two
+#: in FIRST_S, which its quantisation hides (an emulated board's sweep on a busy machine:
+#: 160 counts/s at the start, 5 standard errors over 4 samples, 20 over 20)
+FIRST_POS_S = 0.1
 #: how a run's start is decided (``--start``)
 MODES = ("auto", "rest", "estimate")
 #: the parameters of a run's start, in the order of the optimiser's vector
-WHAT = ("w0", "i0", "dtheta")
+WHAT = ("w0", "i0", "dtheta", "gap0")
 
 
 def start_key(run: str, what: str) -> str:
@@ -88,10 +100,13 @@ class RunStart:
     fit_i0: bool = False
     i0: float = 0.0
     i_span: float = 0.0
+    #: the motor's place in the gear's play (a fraction of the half gap), fitted over -1..1
+    fit_gap0: bool = False
+    gap0: float = 0.0
 
     @property
     def fitted(self) -> bool:
-        return self.fit_w0 or self.fit_dtheta
+        return self.fit_w0 or self.fit_dtheta or self.fit_gap0
 
     def params(self) -> list[tuple[str, float, float, float]]:
         """``(key, estimate, lower, upper)`` of each fitted parameter."""
@@ -105,22 +120,29 @@ class RunStart:
         if self.fit_dtheta:
             out.append((start_key(self.run, "dtheta"), self.dtheta, self.dtheta - self.th_span,
                         self.dtheta + self.th_span))
+        if self.fit_gap0:
+            out.append((start_key(self.run, "gap0"), self.gap0, -1.0, 1.0))
         return out
 
 
 def run_start(run, sigma_w: float | None, sigma_theta: float | None,
-              mode: str = "auto", sigma_i: float | None = None) -> RunStart:
+              mode: str = "auto", sigma_i: float | None = None, play: bool = False) -> RunStart:
     """Decide one run's start (a :class:`labrig.model.simulate.RunData`): ``mode`` "auto"
     follows the run file (``experiment.start``, labrig import --start) and else the data;
     "rest" and "estimate" override both. ``sigma_i``: the current's noise floor when the
-    model has the current as an output (None: the current is not fitted)."""
+    model has the current as an output (None: the current is not fitted). ``play``: the
+    model has backlash (the motor's place in the gap is fitted when the run has a position,
+    whatever ``mode``: no start is known to have the teeth centred)."""
     declared = getattr(run, "start", "auto")
     if mode == "auto" and declared in ("rest", "moving"):
         mode = "rest" if declared == "rest" else "estimate"
     n_first = max(MIN_FIRST, int(round(FIRST_S / run.dt)))
     idx = np.flatnonzero(run.keep())[:n_first]   # (a lost sample says nothing)
+    fit_gap = play and run.theta is not None
     if mode == "rest" or len(idx) < 2:
-        return RunStart(run.name, False, False, False, why="simulated from rest")
+        return RunStart(run.name, False, False, False, why="simulated from rest" + (
+            ", the motor's place in the gear's play fitted" if fit_gap else ""),
+            fit_gap0=fit_gap)
     motor = run.N if run.axis == "rotary" else 1.0   # the speed channel is the motor's
     w_est, moving, why = 0.0, False, ""
     if run.w is not None and sigma_w:
@@ -131,12 +153,27 @@ def run_start(run, sigma_w: float | None, sigma_theta: float | None,
         why = (f"the first {len(w)} samples' mean speed is {abs(np.mean(w)) / se:.0f} standard "
                "errors from zero")
     elif run.theta is not None and sigma_theta:
-        t = idx * run.dt
-        slope, _ = np.polyfit(t, run.theta[idx], 1)
-        se = sigma_theta * np.sqrt(12.0 / len(idx)) / max(t[-1] - t[0], run.dt)
-        w_est = float(slope) * motor
+        def slope_of(ix):   # the position's slope over samples ix, and its standard error
+            t = ix * run.dt
+            slope = float(np.polyfit(t, run.theta[ix], 1)[0])
+            return slope, sigma_theta * np.sqrt(12.0 / len(ix)) / max(t[-1] - t[0], run.dt)
+
+        slope, se = slope_of(idx)
+        w_est = slope * motor
         moving = abs(slope) > MOVING_SIGMAS * se
         why = f"first {len(idx)} samples' position slope ({abs(slope) / se:.0f} standard errors)"
+        held = np.flatnonzero(np.diff(run.u) != 0.0)   # the input's first level lasts this
+        n_pos = min(held[0] + 1 if len(held) else len(run.u), int(round(FIRST_POS_S / run.dt)))
+        if not moving and n_pos > len(idx):   # a slow coast, seen over the first level
+            ix = np.flatnonzero(run.keep())[:n_pos]
+            s_long, se_long = slope_of(ix)
+            if abs(s_long) > MOVING_SIGMAS * se_long:
+                moving = True
+                # the first samples' slope says where it starts (a coast slows), the longer
+                # one that it moves: the range covers both
+                w_est = (slope if abs(slope) > abs(s_long) else s_long) * motor
+                why = (f"first {len(ix)} samples' position slope, the input held "
+                       f"({abs(s_long) / se_long:.0f} standard errors)")
     if mode == "estimate":
         moving = True
     th = run.theta
@@ -162,17 +199,23 @@ def run_start(run, sigma_w: float | None, sigma_theta: float | None,
         text = "starts at rest; the encoder's start within a count fitted as a position offset"
     else:
         text = "starts at rest" + (f" ({why})" if why else "")
+    if fit_gap:
+        text += "; the motor's place in the gear's play fitted"
+    # a shaft in motion has the teeth pressed on its side (the motor leads the output)
+    gap = float(np.sign(w_est)) if moving and fit_gap else 0.0
     return RunStart(run.name, moving, moving, fit_th, w0=w_est if moving else 0.0,
                     w_span=w_span, dtheta=dth, th_span=th_span, why=text, fit_i0=fit_i,
-                    i0=i_est, i_span=i_span)
+                    i0=i_est, i_span=i_span, fit_gap0=fit_gap, gap0=gap)
 
 
 def run_starts(runs, sigma_w: float | None, sigma_theta: float | None,
-               mode: str = "auto", sigma_i: float | None = None) -> list[RunStart]:
-    """Every run's start (prepared runs, the channels' noise floors)."""
+               mode: str = "auto", sigma_i: float | None = None,
+               play: bool = False) -> list[RunStart]:
+    """Every run's start (prepared runs, the channels' noise floors; ``play``: the model
+    has backlash)."""
     if mode not in MODES:
         raise UserError(f"--start: unknown mode '{mode}'; choose {', '.join(MODES)}")
-    return [run_start(r, sigma_w, sigma_theta, mode, sigma_i) for r in runs]
+    return [run_start(r, sigma_w, sigma_theta, mode, sigma_i, play) for r in runs]
 
 
 def initial_current(v0, w0, prm_R, prm_Ke):

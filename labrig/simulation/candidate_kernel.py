@@ -14,7 +14,7 @@ import math
 
 import numba
 
-from labrig.simulation.layout import (C_A, C_ASYM, C_D, C_I0, C_TC, C_TH0, C_TS, C_U0, C_VMAX,
+from labrig.simulation.layout import (C_A, C_ASYM, C_D, C_GAP0, C_I0, C_TC, C_TH0, C_TS, C_U0, C_VMAX,
                                       C_W0, M_D, M_DN, M_DP, M_K, M_U0, M_VMAX, T_OK)
 from labrig.simulation.loop_kernel import (drive_piece, gap_side, loop_drive, loop_step,
                                            piece_level, piece_slot, piece_update, play_operator,
@@ -139,7 +139,7 @@ def _candidate(p, s, m, frac, Ad, g_old, g_new, gf, prm, closed, S, c, out_w, ou
     pr = prm[p]
     i = pr[C_I0]
     w = pr[C_W0]
-    th = (c[7] + pr[C_TH0]) * N
+    th = (c[7] + pr[C_TH0] + pr[C_GAP0] * pr[C_A]) * N
     play = c[7] + pr[C_TH0]
     tc, ts, a = pr[C_TC], pr[C_TS], pr[C_A]
     friction = tc > 0.0 or ts > 0.0
@@ -230,7 +230,7 @@ def _loop_candidate(p, s, m, frac, prm, S, c, out_w, out_th, out_i, store, wm, i
     acc = 0.0
     i = pr[C_I0]
     w = pr[C_W0]
-    th = (c[7] + pr[C_TH0]) * N
+    th = (c[7] + pr[C_TH0] + pr[C_GAP0] * pr[C_A]) * N
     play = c[7] + pr[C_TH0]
     x = th / N
     cur = -1  # the slot whose coefficients ``row`` holds

@@ -28,7 +28,7 @@ import numpy as np
 
 from labrig.simulation.candidate_kernel import (each_par, each_ser, friction_step, input_map,
                                           loop_sample_alone)
-from labrig.simulation.layout import (BLOCK, C_A, C_ASYM, C_D, C_I0, C_TC, C_TH0, C_TS, C_U0,
+from labrig.simulation.layout import (BLOCK, C_A, C_ASYM, C_D, C_GAP0, C_I0, C_TC, C_TH0, C_TS, C_U0,
                                  C_VMAX, C_W0, DELAY,
                                  FEEDBACK, FRICTION, MODES, MOVING, M_D, M_DN, M_DP, M_K, M_U0,
                                  M_VMAX, N_ROWS, N_ROWS_LOOP, PLAY, R_A00, R_A01, R_A02, R_A10,
@@ -194,7 +194,7 @@ def _block(p0, p1, s, m, frac, Ad, g_old, g_new, gf, prm, skip, closed, S, c, wm
                      (R_GN2, g_new[p, 2]), (R_GO0, g_old[p, 0]), (R_GO1, g_old[p, 1]),
                      (R_GO2, g_old[p, 2]), (R_GF0, gf[p, 0]), (R_GF1, gf[p, 1]),
                      (R_GF2, gf[p, 2]), (R_TC, prm[p, C_TC]), (R_GAP, prm[p, C_A]),
-                     (R_TH, (c[7] + prm[p, C_TH0]) * N), (R_PL, c[7] + prm[p, C_TH0]),
+                     (R_TH, (c[7] + prm[p, C_TH0] + prm[p, C_GAP0] * prm[p, C_A]) * N), (R_PL, c[7] + prm[p, C_TH0]),
                      (R_I, prm[p, C_I0]), (R_W, prm[p, C_W0]),
                      (R_RR, prm[p, 0]), (R_KK, prm[p, 4]),
                      (R_TS, prm[p, C_TS]),

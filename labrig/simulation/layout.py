@@ -7,9 +7,12 @@ module can import them without a cycle."""
 #: (labrig.model.simulate writes them)
 C_D, C_U0, C_ASYM, C_VMAX, C_TC, C_TS, C_A, C_TD, C_KE = range(5, 14)
 #: then the run's initial state per candidate (labrig.model.start): the current, the motor
-#: speed and the output shaft's offset from the position the first samples read (all 0:
-#: the run starts at rest where its first samples say)
-C_I0, C_W0, C_TH0 = range(14, 17)
+#: speed, the output shaft's offset from the position the first samples read, and where the
+#: motor sits in a backlash gap (a fraction of the half gap, -1..1, from the output) (all 0:
+#: the run starts at rest where its first samples say, the gap centred)
+C_I0, C_W0, C_TH0, C_GAP0 = range(14, 18)
+#: the parameter table's width
+N_COLS = 18
 
 #: the open-loop input map the population kernel applies itself, in this order (every
 #: simulator's order): offset, asymmetry, dead zone, asymmetric dead zone, the gain Ka,

@@ -93,8 +93,8 @@ def _workload() -> None:
     from labrig.simulation.expm import loop_slot_fill, zoh_batch
     from labrig.simulation.kernels import run_kernels
     from labrig.simulation.residual_rows import residual_rows
-    from labrig.simulation.layout import (C_A, C_ASYM, C_D, C_TC, C_TS, C_VMAX, MAP_COLUMNS, N_SLOTS,
-                                     SLOT_W)
+    from labrig.simulation.layout import (C_A, C_ASYM, C_D, C_TC, C_TS, C_VMAX, MAP_COLUMNS,
+                                     N_COLS, N_SLOTS, SLOT_W)
 
     n = 60
     u = np.where(np.arange(n) % 30 < 15, 1.5, -1.5)
@@ -114,7 +114,7 @@ def _workload() -> None:
                 (1, True, False, (C_D,)), (1, True, False, (C_ASYM,)),
                 (1, True, False, (C_D, C_TC)), (1, True, False, (C_A,)),
                 (1, True, False, (C_A, C_TC))):
-            prm = np.zeros((P, 17))
+            prm = np.zeros((P, N_COLS))
             prm[:, :5] = [8.0, 0.0085, 5.2e-5, 1.0e-5, 0.05]
             prm[:, C_VMAX] = np.inf
             for col in extra:
