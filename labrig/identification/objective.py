@@ -60,6 +60,8 @@ class Space:
             for key, est, a, b in st.params():
                 keys.append(key), lo.append(a), hi.append(b)
                 self.estimates[key] = est
+            for key, v in st.held().items():   # known from the data, not searched
+                self.fixed.setdefault(key, v)
         if keys:
             self.names = list(self.names) + keys
             self.lower = np.concatenate([self.lower, lo])

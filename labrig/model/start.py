@@ -23,12 +23,14 @@ So, per run and decided from the data (:func:`run_starts`):
   where the shaft was at the first one) or the position is an encoder's count (its start
   is unknown within a count);
 - **where the motor sits in the gear's play** (``gap0``, a fraction of the half gap from
-  -1 to 1, the motor's angle less the output's) is fitted for every run with a position
-  when the model has backlash: a run starts wherever the one before left the teeth (the
-  last reversal's side, or anywhere in the gap after a coast), which the output's reading
-  cannot say. A model started with the gap centred is off by up to the half gap for the
-  whole run once the teeth meet (an emulated board's sweep on a busy machine, its runs
-  further apart, ended with rmse/noise 9 for this alone).
+  -1 to 1, the motor's angle less the output's) when the model has backlash and the run
+  starts in motion: the motor leads, the teeth pressed on the side it moves to (``gap0``
+  = the sign of its speed; the model's play operator puts them there after any travel),
+  held at that value, not fitted. A model started with the gap centred is off by the half
+  gap for the whole run (an emulated board's sweep on a busy machine, each run starting
+  in the slow coast of the one before, ended with rmse/noise 9 for this alone). A run
+  that starts at rest starts centred: where the last reversal left the teeth is unknown,
+  and fitting it per run gave a model without backlash a way to absorb other errors.
 
 A run that starts at rest is simulated from rest as before: nothing is fitted and the
 fused kernels run as they did. ``mode`` overrides the decision: ``"rest"`` fits nothing,
@@ -100,13 +102,14 @@ class RunStart:
     fit_i0: bool = False
     i0: float = 0.0
     i_span: float = 0.0
-    #: the motor's place in the gear's play (a fraction of the half gap), fitted over -1..1
-    fit_gap0: bool = False
+    #: the motor's place in the gear's play (a fraction of the half gap): held at
+    #: ``gap0`` (in the space's names, fixed: :meth:`held`)
+    hold_gap0: bool = False
     gap0: float = 0.0
 
     @property
     def fitted(self) -> bool:
-        return self.fit_w0 or self.fit_dtheta or self.fit_gap0
+        return self.fit_w0 or self.fit_dtheta
 
     def params(self) -> list[tuple[str, float, float, float]]:
         """``(key, estimate, lower, upper)`` of each fitted parameter."""
@@ -120,9 +123,13 @@ class RunStart:
         if self.fit_dtheta:
             out.append((start_key(self.run, "dtheta"), self.dtheta, self.dtheta - self.th_span,
                         self.dtheta + self.th_span))
-        if self.fit_gap0:
+        if self.hold_gap0:
             out.append((start_key(self.run, "gap0"), self.gap0, -1.0, 1.0))
         return out
+
+    def held(self) -> dict:
+        """``{key: value}`` of the start parameters held at the data's value (fixed)."""
+        return {start_key(self.run, "gap0"): self.gap0} if self.hold_gap0 else {}
 
 
 def run_start(run, sigma_w: float | None, sigma_theta: float | None,
@@ -131,18 +138,14 @@ def run_start(run, sigma_w: float | None, sigma_theta: float | None,
     follows the run file (``experiment.start``, labrig import --start) and else the data;
     "rest" and "estimate" override both. ``sigma_i``: the current's noise floor when the
     model has the current as an output (None: the current is not fitted). ``play``: the
-    model has backlash (the motor's place in the gap is fitted when the run has a position,
-    whatever ``mode``: no start is known to have the teeth centred)."""
+    model has backlash (a run in motion starts with the teeth pressed on its side)."""
     declared = getattr(run, "start", "auto")
     if mode == "auto" and declared in ("rest", "moving"):
         mode = "rest" if declared == "rest" else "estimate"
     n_first = max(MIN_FIRST, int(round(FIRST_S / run.dt)))
     idx = np.flatnonzero(run.keep())[:n_first]   # (a lost sample says nothing)
-    fit_gap = play and run.theta is not None
     if mode == "rest" or len(idx) < 2:
-        return RunStart(run.name, False, False, False, why="simulated from rest" + (
-            ", the motor's place in the gear's play fitted" if fit_gap else ""),
-            fit_gap0=fit_gap)
+        return RunStart(run.name, False, False, False, why="simulated from rest")
     motor = run.N if run.axis == "rotary" else 1.0   # the speed channel is the motor's
     w_est, moving, why = 0.0, False, ""
     if run.w is not None and sigma_w:
@@ -199,13 +202,14 @@ def run_start(run, sigma_w: float | None, sigma_theta: float | None,
         text = "starts at rest; the encoder's start within a count fitted as a position offset"
     else:
         text = "starts at rest" + (f" ({why})" if why else "")
-    if fit_gap:
-        text += "; the motor's place in the gear's play fitted"
     # a shaft in motion has the teeth pressed on its side (the motor leads the output)
-    gap = float(np.sign(w_est)) if moving and fit_gap else 0.0
+    hold_gap = bool(play and moving and th is not None and w_est != 0.0)
+    if hold_gap:
+        text += "; the gear's teeth pressed on the side it moves to"
     return RunStart(run.name, moving, moving, fit_th, w0=w_est if moving else 0.0,
                     w_span=w_span, dtheta=dth, th_span=th_span, why=text, fit_i0=fit_i,
-                    i0=i_est, i_span=i_span, fit_gap0=fit_gap, gap0=gap)
+                    i0=i_est, i_span=i_span, hold_gap0=hold_gap,
+                    gap0=float(np.sign(w_est)) if hold_gap else 0.0)
 
 
 def run_starts(runs, sigma_w: float | None, sigma_theta: float | None,
