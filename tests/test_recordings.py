@@ -190,6 +190,31 @@ def test_an_encoders_start_within_a_count_is_not_physics(tmp_path, seed):
     assert res.ladder.steps[-1].rmse_over_noise["position"] <= 1.2
 
 
+@pytest.mark.slow
+def test_runs_played_back_to_back_start_with_the_gears_teeth_where_the_coast_left_them(tmp_path):
+    """Gear play (a = 0.03 rad at the output shaft, its encoder 4000 counts a turn) and a
+    0.4 V dead zone; three square waves played 0.15 s apart, as a sweep plays them: each
+    run after the first starts in the coast of the one before, the teeth pressed on that
+    side. Those runs start in motion with the gap closed the way they move, so the play is
+    found within 10 % and the model reaches the floor (started centred in the gap, they
+    were off by the half gap for the whole run: rmse/noise 9 on an emulated board's sweep)."""
+    from labrig.diagnosis.auto import auto_diagnose
+    from twin import Twin, back_to_back_squares
+
+    twin = Twin(gap_rad=0.03, deadzone_v=0.4, pot_noise_v=0.0, tacho_noise_v=0.0)
+    runs = _imported(back_to_back_squares(twin, tmp_path / "logger"), tmp_path / "runs",
+                     "--map", "t=t,u=u,pos=count", "--pos-unit", "counts:4000", "--gear-ratio",
+                     "30", "--amplifier-gain", "5", "--waveform", "square")
+    res = auto_diagnose(runs, seed=0)
+    assert set(res.model.names) == {"deadband", "backlash"}, [m.label for m in res.moves]
+    assert res.model.effect_params["backlash"]["a_rad"] == pytest.approx(0.03, rel=0.1)
+    later = [r.name for r in runs][1:]
+    for name in later:   # moving backwards at their start: the teeth on that side
+        st = res.model.starts[name]
+        assert st["w0"] < 0 and st["gap0"] == -1.0, (name, st)
+    assert res.ladder.steps[-1].rmse_over_noise["position"] <= 1.3
+
+
 # -- a measured torque: no amplifier in front of it, a threshold in it is friction ---------
 
 @pytest.mark.slow

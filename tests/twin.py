@@ -495,6 +495,33 @@ def encoder_squares(twin: "Twin", folder, *, cpr=4000, amps=(1.2, 1.5, 2.0, 2.5)
     return out
 
 
+def back_to_back_squares(twin: "Twin", folder, *, cpr=4000, amps=(1.5, 2.0, 2.5), freq=0.5,
+                         periods=2, lead=0.5, pause_s=0.15) -> list[Path]:
+    """Square waves played one after another with ``pause_s`` at 0 V between them, as a
+    sweep plays them on a bench: each run's lead-in starts while the shaft still coasts
+    from the run before (its last half period is negative), the gear's teeth where that
+    coast left them. Logged as a position-only encoder rig logs them (``t,u,count``, the
+    output shaft's count, ``cpr`` a turn, from the first run's start)."""
+    folder = _folder(folder)
+    q = 2 * math.pi / cpr
+    pieces, spans = [], []
+    for a in amps:
+        n0, n = int(lead * twin.fs), int((lead + periods / freq) * twin.fs)
+        t = (np.arange(n) - n0) / twin.fs
+        start = sum(len(p) for p in pieces)
+        pieces.append(np.where(t < 0, 0.0, np.where((t * freq) % 1.0 < 0.5, a, -a)))
+        spans.append((a, start, start + n))
+        pieces.append(np.zeros(int(pause_s * twin.fs)))
+    y = twin.play(np.concatenate(pieces))
+    count = np.floor(y["theta"] / q).astype(int)
+    out = []
+    for a, i, j in spans:
+        t = np.arange(j - i) / twin.fs
+        out.append(_write_csv(folder / f"sq_{a:.2f}V.csv", "t,u,count", "{:.4f},{:.4f},{}",
+                              t, y["u"][i:j], count[i:j] - count[i]))
+    return out
+
+
 # -- a torque drive logged with its measured current, friction larger one way -----------
 
 def measured_current_rig(folder, *, J=2e-4, B=2e-3, kt=0.05, forward=0.02, reverse=0.03,
