@@ -35,6 +35,10 @@ def _rig(tmp_path, **changes) -> Path:
     ({"dac_range_v": "[-9.0, 9.0]"}, ["bridge.output_limit_v", "above the supply"]),
     ({"dac_bits": 12}, ["bridge.dac_bits", "PWM bits and a sign (9)"]),
     ({"sample_rate_hz": 300.0}, ["bridge.sample_rate_hz", "divisors of 10000"]),
+    ({"pins": "{pwm_in1 = 10}"}, ["bridge.pins.pwm_in1", "an Uno uses D9", "OC1A"]),
+    ({"board": '"mega"'}, ["bridge.pins.pwm_in1", "a Mega 2560 uses D11", "OC1A"]),
+    ({"pins": "{enc_z = 4}"}, ["bridge.pins.enc_z", "no such signal", "enc_a"]),
+    ({"board": "false"}, ["bridge.board"]),
 ])
 def test_a_rig_file_the_board_cannot_play_is_refused_in_one_line(tmp_path, changes, words):
     rig = _rig(tmp_path, **changes)
@@ -75,13 +79,38 @@ def test_the_board_is_checked_against_the_rig_file():
         adc_bits=10, n_adc=0, max_levels=32, dac_zero=256, fw_dac_min=1, fw_dac_max=511,
         watchdog_ms_default=500, firmware="labrig-fw 2.0.0 nano hbridge", rig="hbridge",
         timer_hz=10000, rig_flags=hbridge.rig_flags(rig), decoding=4, pwm_bits=8))
-    hbridge.check_board(rig, hello, "/dev/ttyUSB0")   # the right build: no complaint
+    hbridge.check_board(rig, {**hello, "board": "uno"}, "/dev/ttyUSB0")   # the right build
     from labrig.core.errors import RigError
     with pytest.raises(RigError, match="other H-bridge options: decoding 2 .rig file: 4."):
-        hbridge.check_board(rig, {**hello, "decoding": 2}, "/dev/ttyUSB0")
+        hbridge.check_board(rig, {**hello, "board": "uno", "decoding": 2}, "/dev/ttyUSB0")
+    # the rig file's bench is an Uno: a Nano (the same chip, other pins on a shield) is not
+    with pytest.raises(RigError, match="is a Nano, but the rig file's bench is built on an Uno"):
+        hbridge.check_board(rig, {**hello, "board": "nano"}, "/dev/ttyUSB0")
     v1 = {**hello, "rig": "ms150"}
     with pytest.raises(RigError, match="runs the ms150 firmware.*RIG=hbridge PWM_BITS=8"):
         hbridge.check_board(rig, v1, "/dev/ttyUSB0")
+
+
+def test_the_rig_files_board_and_pins_are_the_wirings_and_the_emulators(tmp_path):
+    """A rig file that names its board: the wiring and the emulator are for that board
+    unless asked, and asked for another, the library says which argument and why."""
+    import labrig.verbs as lr
+    from labrig.core.errors import UserError
+    from labrig.io.board_pins import check_pins
+
+    rig = load_rig(RIG_FILE)
+    assert rig.bridge.board == "uno"
+    assert rig.bridge.pins == {"pwm_in1": "D9", "dir_in2": "D10", "enc_a": "D2", "enc_b": "D3"}
+    assert lr.wiring(rig).board == "uno"
+    with pytest.raises(UserError, match="board: 'mega', but the rig file .* on an Uno"):
+        lr.wiring(rig, board="mega")
+    assert lr.emulator(rig).board == "uno"
+    mega = load_rig(_rig(tmp_path, board='"mega"', pins='{pwm_in1 = 11, enc_a = "d2"}'))
+    assert mega.bridge.pins == {"pwm_in1": "D11", "enc_a": "D2"}
+    assert lr.wiring(mega).to_pandas().loc[0, "pin"] == "D11"
+    # the MS150 build's pins too
+    assert check_pins("ms150", "mega", {"dac_cs": 53, "tacho": "A0"}, "f") == {
+        "dac_cs": "D53", "tacho": "A0"}
 
 
 def _arduino_pins(variant: str) -> dict:

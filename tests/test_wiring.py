@@ -26,8 +26,10 @@ VARIANTS = Path("/usr/share/arduino/hardware/arduino/avr/variants")
 
 
 def _rig(path, **bridge):
+    """The rig file's rig with other ``[bridge]`` keys; its board left open (the shipped
+    H-bridge file names the Uno; these draw every board)."""
     rig = load_rig(path)
-    rig.bridge = dataclasses.replace(rig.bridge, **bridge)
+    rig.bridge = dataclasses.replace(rig.bridge, **{"board": "", "pins": {}, **bridge})
     return rig
 
 
@@ -141,11 +143,15 @@ def test_the_ms150_pins_are_the_ones_its_firmware_drives(board, variant):
 
 
 def test_wiring_cli_writes_the_four_files_and_refuses_to_overwrite(tmp_path):
-    """`labrig wiring -o DIR` writes the schematic (SVG, PNG), the table and the parts;
-    a second time refuses in one line (exit 2) unless --force."""
+    """`labrig wiring -o DIR` writes the schematic (SVG, PNG), the table and the parts
+    for the rig file's own board (the shipped H-bridge file names an Uno); a second time
+    refuses in one line (exit 2) unless --force; another board than the file's, too."""
     out = tmp_path / "wiring"
-    cmd = [sys.executable, "-m", "labrig", "wiring", "--rig", str(HBRIDGE), "--board", "nano",
-           "-o", str(out)]
+    other = subprocess.run([sys.executable, "-m", "labrig", "wiring", "--rig", str(HBRIDGE),
+                            "--board", "nano"], capture_output=True, text=True, timeout=120)
+    assert other.returncode == 2 and "bridge.board" in other.stderr
+    assert len(other.stderr.strip().splitlines()) == 1 and "Traceback" not in other.stderr
+    cmd = [sys.executable, "-m", "labrig", "wiring", "--rig", str(HBRIDGE), "-o", str(out)]
     r = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr
     assert "D9" in r.stdout and "OC1A" in r.stdout and "Pololu 713" in r.stdout
@@ -162,7 +168,7 @@ def test_wiring_cli_writes_the_four_files_and_refuses_to_overwrite(tmp_path):
     # a copy for a person to look at
     art = ROOT / "tests" / "artefacts"
     art.mkdir(exist_ok=True)
-    (art / "wiring_hbridge_nano.png").write_bytes(files["schematic.png"].read_bytes())
+    (art / "wiring_hbridge_uno.png").write_bytes(files["schematic.png"].read_bytes())
 
 
 @pytest.mark.parametrize("path, name", [(MS150, "wiring_ms150_uno.svg"),

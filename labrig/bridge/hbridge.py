@@ -10,16 +10,13 @@ The host sends the output as an offset-binary word of the PWM's bits and a sign,
 from __future__ import annotations
 
 from labrig.core.errors import RigError
+from labrig.io.board_pins import BOARD_NAMES, HBRIDGE_PINS
 from labrig.io.hbridge_rig import TIMER_HZ  # noqa: F401  (the board's sample clock, for callers of this module)
 
 #: the one pin map of the H-bridge build, per board: Arduino pin names (the firmware's
 #: ``hal_hbridge.inc`` uses the same pins through their ports; tests/test_hbridge_rig.py
 #: checks the two agree)
-PINS = {
-    "uno": {"pwm_in1": "D9", "dir_in2": "D10", "enc_a": "D2", "enc_b": "D3", "current": "A0"},
-    "nano": {"pwm_in1": "D9", "dir_in2": "D10", "enc_a": "D2", "enc_b": "D3", "current": "A0"},
-    "mega": {"pwm_in1": "D11", "dir_in2": "D12", "enc_a": "D2", "enc_b": "D3", "current": "A0"},
-}
+PINS = HBRIDGE_PINS
 
 
 def make_options(rig) -> list[str]:
@@ -58,8 +55,8 @@ def check_board(rig, hello: dict, port: str) -> None:
     Raises
     ------
     RigError
-        The board was flashed for the other rig, or with other H-bridge options; the
-        message says how to flash the right one.
+        The board was flashed for the other rig, or with other H-bridge options (the
+        message says how to flash the right one), or is not the board the rig file names.
     """
     b = rig.bridge
     want, have = b.firmware, hello.get("rig", "ms150")
@@ -69,6 +66,11 @@ def check_board(rig, hello: dict, port: str) -> None:
         raise RigError(f"the board on {port} runs the {have} firmware ({hello.get('firmware')}), "
                        f"but the rig file describes an {want} rig: {flash}, or give the "
                        "rig file that matches the board (--rig)")
+    if b.board and hello.get("board") not in (None, b.board):
+        raise RigError(f"the board on {port} is {BOARD_NAMES[hello['board']]}, but the rig file's bench is "
+                       f"built on {BOARD_NAMES[b.board]} (bridge.board): their pins differ (labrig wiring "
+                       f"--rig FILE --board {hello['board']}); connect the bench's own board, or "
+                       "change the rig file's board and its wiring")
     if want != "hbridge":
         return
     got = {"pwm_bits": hello.get("pwm_bits"), "decoding": hello.get("decoding"),

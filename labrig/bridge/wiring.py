@@ -20,8 +20,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from labrig.bridge import circuits
-from labrig.bridge.pins import BOARD_PARTS, BOARDS, HBRIDGE_PINS, MS150_PINS, PIN_FUNCTIONS
-from labrig.core.errors import UserError
+from labrig.bridge.pins import BOARD_PARTS, HBRIDGE_PINS, MS150_PINS, PIN_FUNCTIONS
+from labrig.io.board_pins import board_for
 
 @dataclass(frozen=True)
 class Wire:
@@ -126,7 +126,7 @@ class Wiring:
         return out
 
 
-def wiring(rig, board: str = "uno") -> Wiring:
+def wiring(rig, board: str | None = None) -> Wiring:
     """How to wire ``rig``'s bridge to ``board``: the wires, the parts, the schematic.
 
     Parameters
@@ -134,8 +134,9 @@ def wiring(rig, board: str = "uno") -> Wiring:
     rig : labrig.io.config.RigConfig
         The rig file's contents; its ``[bridge]`` says which firmware (MS150 DAC stage or
         H-bridge + encoder) and, for the H-bridge, the drive mode and current sense.
-    board : {"uno", "nano", "mega"}
-        The Arduino the firmware is built for.
+    board : {"uno", "nano", "mega"}, optional
+        The Arduino the firmware is built for (default: the rig file's ``bridge.board``,
+        else the Uno).
 
     Returns
     -------
@@ -146,10 +147,9 @@ def wiring(rig, board: str = "uno") -> Wiring:
     Raises
     ------
     UserError
-        ``board`` is not one of the three.
+        ``board`` is not one of the three, or not the one the rig file names.
     """
-    if board not in BOARDS:
-        raise UserError(f"board: '{board}' is not one of {', '.join(BOARDS)}")
+    board = board_for(rig, board)
     b = rig.bridge
     if b.firmware == "hbridge":
         return _hbridge(rig, board)

@@ -19,7 +19,7 @@ def cmd_emulate(args):
     emu = lr.emulator(lr.load_rig(args.rig), board=args.board, speed=args.speed)
     pty = emu.start()
     print(pty, flush=True)
-    print(f"labrig emulate: {args.board} {emu.rig.bridge.firmware} firmware in simavr on {pty}; "
+    print(f"labrig emulate: {emu.board} {emu.rig.bridge.firmware} firmware in simavr on {pty}; "
           "Ctrl-C to stop",
           file=sys.stderr, flush=True)
     signal.signal(signal.SIGTERM, lambda *a: (_ for _ in ()).throw(KeyboardInterrupt()))
@@ -34,9 +34,9 @@ def cmd_emulate(args):
 
 
 def _configure(p):
-    p.add_argument("--board", default="uno", choices=["uno", "nano", "mega"],
+    p.add_argument("--board", default=None, choices=["uno", "nano", "mega"],
                    help="the firmware's board: uno or nano (ATmega328P) or mega (ATmega2560) "
-                        "(default uno)")
+                        "(default: the rig file's bridge.board, else uno)")
     p.add_argument("--rig", help="rig file: its [bridge] firmware (ms150 or hbridge, with its "
                                  "options) is built and played against a plant of its values "
                                  "(default configs/rig_default.toml)")
@@ -64,7 +64,7 @@ def cmd_wiring(args):
         emit_json({"rig": w.rig_kind, "board": w.board, "options": w.options,
                    "wiring": table.to_dict("records"), "bom": bom.to_dict("records")})
     else:
-        print(f"{w.rig_kind} bridge on the {args.board}:")
+        print(f"{w.rig_kind} bridge on the {w.board}:")
         print(table[["signal", "pin", "function", "to"]].to_string(index=False))
         print("\nparts:")
         print(bom.to_string(index=False))
@@ -77,8 +77,8 @@ def cmd_wiring(args):
 def _configure_wiring(p):
     p.add_argument("--rig", help="rig file: its [bridge] firmware (ms150 or hbridge) and "
                                  "options say what is wired (default configs/rig_default.toml)")
-    p.add_argument("--board", default="uno", choices=["uno", "nano", "mega"],
-                   help="the Arduino (default uno)")
+    p.add_argument("--board", default=None, choices=["uno", "nano", "mega"],
+                   help="the Arduino (default: the rig file's bridge.board, else uno)")
     p.add_argument("-o", "--output", metavar="DIR",
                    help="write schematic.svg, schematic.png, wiring.csv and bom.csv here")
     p.add_argument("--force", action="store_true", help="replace those files in DIR")

@@ -17,7 +17,7 @@ import json
 import re
 import typing
 from pathlib import Path
-from typing import Annotated, Any, Literal, Optional
+from typing import Annotated, Any, Literal, Optional, Union
 
 from pydantic import (AfterValidator, BaseModel, BeforeValidator, ConfigDict, Field,
                       ValidationError, model_validator)
@@ -235,6 +235,12 @@ class BridgeSection(_Closed):
     watchdog_ms: Num(1.0, 2000.0) = None            # host silence: the board stops within it
     max_lost_fraction: Num(0.0, 1.0) = None          # a run losing more exits 1
     calibration: CalibrationSection = None
+    #: the board the bench is built on, and the pins it is wired to (checked against the
+    #: firmware's map: labrig.io.board_pins); a board that greets as another is refused
+    board: Annotated[Optional[Literal["uno", "nano", "mega"]], BeforeValidator(_lower)] = None
+    pins: Annotated[dict[Annotated[str, Field(max_length=16)],
+                         Union[int, Annotated[str, Field(max_length=8)]]],
+                    Field(max_length=16)] = None
 
 
 class NoiseSection(_Closed):

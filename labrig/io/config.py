@@ -11,6 +11,7 @@ import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from labrig.io.board_pins import check_pins
 from labrig.io.experiment import PWL_MAX_POINTS, Experiment
 from labrig.core.errors import ConfigError, UserError
 from labrig.core.fileio import size_within
@@ -101,6 +102,10 @@ class BridgeConfig:
     #: ones flagged as gaps) but the command exits 1 naming it
     max_lost_fraction: float = 0.001
     calibration: dict = field(default_factory=dict)
+    #: the board the bench is built on ("": not said) and the pins the rig file states it
+    #: is wired to, checked against the firmware's map (labrig.io.board_pins)
+    board: str = ""
+    pins: dict = field(default_factory=dict)
 
     @property
     def adc_quantum_v(self) -> float:
@@ -206,6 +211,7 @@ def rig_from_dict(doc: dict, path: str = "<rig>") -> RigConfig:
             setattr(obj, _ATTRS.get(sec, {}).get(key, key), value)
     rig.effects = _check_effects(path, checked.effects, rig.bridge.output_limit_v)
     _check_plant(path, rig, checked)
+    rig.bridge.pins = check_pins(rig.bridge.firmware, rig.bridge.board, rig.bridge.pins, path)
     if rig.bridge.firmware == "hbridge":
         from labrig.io.hbridge_rig import check_rig
         check_rig(rig, path, given=checked.bridge.model_dump(exclude_unset=True)

@@ -89,15 +89,17 @@ def play(bridge, plan, rig, output, *, resume: bool = False, on_start=None, on_p
                   on_progress=on_progress, on_done=on_done)
 
 
-def emulator(rig, *, board: str = "uno", speed: float = 1.0):
-    """The real firmware for ``board`` under simavr, fed by a plant model of ``rig``: an
+def emulator(rig, *, board: str | None = None, speed: float = 1.0):
+    """The real firmware for ``board`` (default: the rig file's ``bridge.board``, else the
+    Uno) under simavr, fed by a plant model of ``rig``: an
     :class:`~labrig.bridge.emulate.Emulator` (``start()`` gives its pty, ``stop()`` ends it)."""
     from labrig.bridge.emulate import Emulator
+    from labrig.io.board_pins import board_for
 
-    return Emulator(board=board, rig=rig, speed=speed)
+    return Emulator(board=board_for(rig, board), rig=rig, speed=speed)
 
 
-def wiring(rig, *, board: str = "uno"):
+def wiring(rig, *, board: str | None = None):
     """How to wire ``rig``'s bridge to ``board``: the wires, the parts and the schematic.
 
     Parameters
@@ -106,8 +108,9 @@ def wiring(rig, *, board: str = "uno"):
         A rig file's contents (:func:`load_rig`); its ``[bridge] firmware`` picks the
         MS150 DAC stage or the H-bridge + encoder bench, and its H-bridge options (drive
         mode, current sense) the wires.
-    board : {"uno", "nano", "mega"}
-        The Arduino the firmware is built for.
+    board : {"uno", "nano", "mega"}, optional
+        The Arduino the firmware is built for (default: the rig file's ``bridge.board``,
+        else the Uno).
 
     Returns
     -------
