@@ -189,6 +189,18 @@ def test_a_board_flashed_for_the_other_rig_is_named_and_nothing_plays(tmp_path):
     assert not list((tmp_path / "r").glob("*.csv")) if (tmp_path / "r").exists() else True
 
 
+def test_a_board_other_than_the_rig_files_is_named_and_nothing_plays(tmp_path):
+    """The H-bridge firmware on an emulated Mega, the shipped rig file's bench an Uno
+    (bridge.board): exit 1, one line naming both boards, no run written."""
+    with Emulator("mega", load_rig(RIG_FILE)) as emu:
+        r = _labrig("sweep", "--port", emu.pty, "--rig", RIG_FILE, "--plan", PLAN, "-o", tmp_path / "r")
+    assert r.returncode == 1, r.stderr
+    line = r.stderr.strip()
+    assert len(line.splitlines()) == 1, line
+    assert "is a Mega 2560" in line and "built on an Uno" in line, line
+    assert not (tmp_path / "r").exists() or not list((tmp_path / "r").glob("*.csv"))
+
+
 def test_the_lab_station_plays_and_fits_on_the_emulated_hbridge_board(tmp_path):
     """``labrig lab --emulate --rig configs/rig_arduino_hbridge.toml``: the station builds the
     H-bridge firmware, plays a run on it and fits the linear model to it."""
