@@ -252,7 +252,8 @@ def rig_to_doc(rig: RigConfig) -> dict:
         if sec == "plant":  # only the parameters of the rig's plant
             body = rig.plant.values(rig.drive)
         doc[sec] = {inverse.get(sec, {}).get(k, k): (list(v) if isinstance(v, tuple) else v)
-                    for k, v in body.items() if not (k == "calibration" and not v)}
+                    for k, v in body.items()
+                    if not (k in ("calibration", "board", "pins") and not v)}   # (not said)
     doc["effects"] = {k: dict(v) for k, v in rig.effects.items()}
     return doc
 
