@@ -141,6 +141,24 @@ def pd_output(kp_q: int, kd_q: int, ref: np.ndarray, x: np.ndarray) -> np.ndarra
     return (kp_q * e - kd_q * v) >> 8
 
 
+def sampled_pd(exp: Experiment, s: BridgeSettings, hello: dict | None = None) -> dict:
+    """How an H-bridge board runs ``exp``'s loop, for the run's sidecar
+    (``experiment.controller.sampled``): its Q8.8 gains, the counts per position unit, the
+    input volts of one output count and the output's limits in counts about zero (the
+    rig's output limit within the firmware's words), so that the model runs the board's
+    own law on its own count (:mod:`labrig.simulation.sampled_kernel`)."""
+    kp_q, kd_q = pd_gain_words(exp, s)
+    zero = volts_to_dac_word(0.0, s)
+    limit = s.output_limit_v
+    wmin, wmax = sorted((volts_to_dac_word(-limit, s), volts_to_dac_word(limit, s)))
+    hello = hello or {}
+    wmin = max(wmin, hello.get("fw_dac_min", 0))
+    wmax = min(wmax, hello.get("fw_dac_max", 2 ** s.dac_bits - 1))
+    return {"kp_q": kp_q, "kd_q": kd_q, "counts_per_unit": float(s.counts_per_unit),
+            "volts_per_count": float(s.dac_range_v[1] / 2 ** (s.dac_bits - 1)),
+            "limits": [int(wmin - zero), int(wmax - zero)]}
+
+
 def waveform_levels(exp: Experiment) -> list[float]:
     """The output levels (bridge volts) the board cycles through for ``exp``."""
     if exp.waveform == "square":

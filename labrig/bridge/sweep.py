@@ -70,6 +70,11 @@ def acquire(bridge: Bridge, exp: Experiment, rig, progress: Callable[[int], None
     experiment = exp.to_sidecar()
     controller = rig.controller_sidecar(exp)
     if controller is not None:
+        if bridge.source == "serial" and rig.bridge.firmware == "hbridge":
+            # the board's own loop: its law on its count, for the model to run the same
+            from labrig.bridge.settings import bridge_settings, sampled_pd
+            controller["sampled"] = sampled_pd(exp, bridge_settings(rig),
+                                               getattr(bridge, "hello", None))
         experiment["controller"] = controller
     meta = make_meta(sample_rate_hz=exp.sample_rate_hz, experiment=experiment,
                      sensors=rig.sensors_sidecar(), rig=rig.rig_sidecar(),

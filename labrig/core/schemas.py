@@ -80,6 +80,20 @@ class _Closed(BaseModel):
 
 # -- run sidecar ------------------------------------------------------------------------
 
+class SampledPD(_Closed):
+    """A board's own PD, sample by sample, as it computes it: ``out = floor((kp_q e - kd_q
+    v) / 256)`` output counts, ``e`` the reference less the count and ``v`` the count's
+    change over one sample (both in counts from the run's start), clamped to ``limits``,
+    held to the next sample; one output count is ``volts_per_count`` of input."""
+
+    kp_q: Annotated[int, Field(ge=0, le=0xFFFF)]
+    kd_q: Annotated[int, Field(ge=0, le=0xFFFF)]
+    counts_per_unit: Num(gt=0, le=1e9)
+    volts_per_count: Num(gt=0, le=1e3)
+    limits: Annotated[list[Annotated[int, Field(ge=-0xFFFF, le=0xFFFF)]],
+                      Field(min_length=2, max_length=2)]
+
+
 class Controller(_Closed):
     """The controller of a closed-loop run: ``drive = kp (ref - x) - kd x' + ki int(ref - x)``
     in input volts, x the fed-back position (derivative on the measurement)."""
@@ -90,6 +104,9 @@ class Controller(_Closed):
     ki: Num(0, 1e9) = 0.0
     feedback: Literal["position"] = "position"
     output_limit_v: Optional[Num(gt=0, le=1e4)] = None
+    #: the board's arithmetic, when the run was played by a board's loop (labrig sweep on
+    #: an H-bridge board): the model then runs that law, not a continuous PD
+    sampled: Optional[SampledPD] = None
 
 
 class SidecarExperiment(_Closed):

@@ -35,6 +35,8 @@ from labrig.simulation.layout import (C_A, C_ASYM, C_D, C_GAP0, C_I0, C_KE, C_TC
                                  MAP_COLUMNS, N_COLS, N_SLOTS, S_FLAT, S_NEG, S_NEG_GAP, S_POS,
                                  S_POS_GAP, SLOT_W, T_OK)
 from labrig.simulation.kernels import run_kernels
+from labrig.simulation.sampled_kernel import D_CPU, D_HI, D_KP, D_LO, D_VPC, run_sampled
+from labrig.model.sensors import windowed_speed
 from labrig.model.start import initial_current
 from labrig.model.plants import VoltagePlant
 from labrig.simulation.warm import ready
@@ -97,6 +99,10 @@ class RunData:
     speed_window: int = 0
     #: how the run starts as its file states it: "auto" (from the data), "rest", "moving"
     start: str = "auto"
+    #: a board's own loop (``experiment.controller.sampled``): its PD's constants as
+    #: :mod:`labrig.simulation.sampled_kernel` takes them (``u`` is then the reference in
+    #: position units); None: an open loop or a continuous one
+    pd: np.ndarray | None = None
 
     def keep(self) -> np.ndarray:
         """The samples that are measurements (every one unless the link lost some)."""
@@ -110,7 +116,11 @@ class RunData:
             if th is not None else None  # a lost sample says nothing of where it starts
         theta0 = float(np.mean(th[first])) if th is not None and len(first) else 0.0
         gains = run.gains or {"kp": 0.0, "kv": 0.0}  # open loop: no feedback
-        return cls(name=run.name, u=run.u.astype(float), dt=run.dt, loop=run.loop,
+        sampled = (run.controller or {}).get("sampled")
+        pd = None if not sampled else np.array(
+            [sampled["kp_q"], sampled["kd_q"], sampled["counts_per_unit"],
+             sampled["volts_per_count"], *sampled["limits"]], float)
+        return cls(name=run.name, u=run.u.astype(float), dt=run.dt, loop=run.loop, pd=pd,
                    kp=gains["kp"], kv=gains["kv"], **run.constants,
                    w=run.speed, theta=th, theta0=theta0, amplitude=run.amplitude,
                    current=run.current, pos_q=run.pos_quantum, axis=run.axis,
@@ -124,18 +134,6 @@ class _PlantView:
 
     def __init__(self, R, K, Ka):
         self.R, self.K, self.Ka = R, K, Ka
-
-
-def windowed_speed(w: np.ndarray, window: int, dt: float) -> np.ndarray:
-    """The speed a moving window of ``window`` samples reads: the travel over the last
-    ``window`` sample periods (the trapezoid integral of ``w``) over ``window * dt``, the
-    shaft at rest before the run. It reads half a window late, and smooth."""
-    w = np.asarray(w, float)
-    travel = np.zeros(w.shape)
-    travel[..., 1:] = np.cumsum(0.5 * (w[..., 1:] + w[..., :-1]), axis=-1) * dt
-    before = np.zeros(w.shape)
-    before[..., window:] = travel[..., :-window]
-    return (travel - before) / (window * dt)
 
 
 def prepare(runs) -> list[RunData]:
@@ -282,6 +280,11 @@ class Simulator:
         drive from the start state (the current settles within the electrical lag)."""
         P = prm.shape[0]
         u = np.full((1, P), float(run.u[0])) + self._bias(ep, P)[None, :]
+        if run.pd is not None:   # the board's first output: its count is 0, its change 0
+            e = round(float(run.u[0]) * run.pd[D_CPU])
+            o = min(max(np.floor(run.pd[D_KP] * e / 256.0), run.pd[D_LO]), run.pd[D_HI])
+            u = np.full((1, P), o * run.pd[D_VPC]) + self._bias(ep, P)[None, :]
+            return np.asarray(self._through_maps(u, ep, run.Ka), float)[0]
         if run.loop == "closed":
             th = (run.theta0 + prm[:, C_TH0])
             return run.Ka * (run.kp * (u[0] - run.Kpot * th) - run.kv * run.Kt * prm[:, C_W0])
@@ -300,6 +303,18 @@ class Simulator:
         return e
 
     # ------------------------------------------------------------------------------
+    def _map_table(self, ep, P):
+        """The built-in input and drive effects per candidate, as the kernels apply them
+        (:data:`MAP_COLUMNS`); a constant drive enters as an offset."""
+        imap = np.zeros((P, len(MAP_COLUMNS)))
+        imap[:, MAP_COLUMNS.index("vmax_v")] = np.inf
+        for e in self.effects:
+            if e.stage in ("input", "drive"):
+                for k, v in ep[e.name].items():
+                    imap[:, MAP_COLUMNS.index(k)] = v
+        imap[:, MAP_COLUMNS.index("u0_v")] += self._bias(ep, P)
+        return imap
+
     def _open_loop_input(self, run: RunData, ep, P):
         """The open-loop drive: the shared input and the candidates' input maps for the
         kernels to apply (built-in effects), or the mapped inputs laid out (samples,
@@ -309,17 +324,33 @@ class Simulator:
         if not staged and not self._biased:
             return np.ascontiguousarray(run.u[:, None] * run.Ka), _NO_MAP
         if all(type(e) in _MAPPED for e in staged):
-            imap = np.zeros((P, len(MAP_COLUMNS)))
-            imap[:, MAP_COLUMNS.index("vmax_v")] = np.inf
-            for e in staged:
-                for k, v in ep[e.name].items():
-                    imap[:, MAP_COLUMNS.index(k)] = v
-            imap[:, MAP_COLUMNS.index("u0_v")] += bias   # a constant drive enters as an offset
-            return np.ascontiguousarray(run.u[:, None], dtype=float), imap
+            return np.ascontiguousarray(run.u[:, None], dtype=float), self._map_table(ep, P)
         e = self._through_maps(run.u[:, None] + bias[None, :], ep, run.Ka)  # samples contiguous
         return np.ascontiguousarray(e, dtype=float), _NO_MAP
 
+    def _sampled_run(self, run: RunData, prm, ep, user_output, disc, weights=None):
+        """A run of a board's own loop (:mod:`labrig.simulation.sampled_kernel`): the
+        plant open loop between samples, driven by the board's law on the model's count."""
+        unmapped = user_output + [e for e in self.effects if e.stage in ("input", "drive")
+                                  and type(e) not in _MAPPED]
+        if unmapped:
+            raise UserError(f"effect '{unmapped[0].name}': a user-written effect is not simulated "
+                            f"inside a board's loop (run '{run.name}'); fit that run from its "
+                            "logged output (through='input')")
+        td = prm[:, C_TD]
+        m = np.floor(td / run.dt + 1e-9)
+        frac = td / run.dt - m
+        key = (run.dt, "open", run.Ka, run.N)
+        if key not in disc:   # the plant as an open loop shares the open-loop discretisation
+            disc[key] = _discretise(prm, run, frac)
+        Ad, g_old, g_new, gf = disc[key]
+        consts = np.array([run.dt, run.Ka, run.N, run.Kt, run.Kpot, 0.0, 0.0, run.theta0])
+        return run_sampled(run.u, run.pd, m.astype(np.int64), frac, Ad, g_old, g_new, gf, prm,
+                           self.substeps, consts, self._map_table(ep, prm.shape[0]), weights)
+
     def _simulate_run(self, run: RunData, prm, ep, user_output, disc, weights=None):
+        if run.pd is not None:
+            return self._sampled_run(run, prm, ep, user_output, disc, weights)
         P, n = prm.shape[0], len(run.u)
         closed = run.loop == "closed"
         td = prm[:, C_TD]
@@ -403,7 +434,7 @@ def _discretise(prm, run: RunData, frac):
     """
     A, bs, bf = _plant_matrices(prm)
     L = prm[:, 1]
-    if run.loop == "closed":
+    if run.loop == "closed" and run.pd is None:   # (a board's loop drives the plant open)
         # e = kp r - kv Kt w - kp Kpot theta_m / N ; v = Ka e
         A[:, 0, 1] -= run.Ka * run.kv * run.Kt / L
         A[:, 0, 2] -= run.Ka * run.kp * run.Kpot / run.N / L

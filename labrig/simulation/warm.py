@@ -21,18 +21,20 @@ _done = False
 
 
 def _dispatchers():
-    from labrig.simulation import candidate_kernel, expm, kernels, residual_rows
+    from labrig.simulation import candidate_kernel, expm, kernels, residual_rows, sampled_kernel
 
     return [kernels.population_par, candidate_kernel.each_par, candidate_kernel.each_ser,
-            expm.zoh_batch, expm.loop_slot_fill, residual_rows.residual_rows]
+            sampled_kernel.each_sampled, expm.zoh_batch, expm.loop_slot_fill,
+            residual_rows.residual_rows]
 
 
 def _sources() -> list[str]:
     """The kernels' source files: a driver inlines functions from all of them."""
-    from labrig.simulation import candidate_kernel, expm, kernels, layout, loop_kernel, residual_rows
+    from labrig.simulation import (candidate_kernel, expm, kernels, layout, loop_kernel,
+                                   residual_rows, sampled_kernel)
 
     return [m.__file__ for m in (candidate_kernel, expm, kernels, layout, loop_kernel,
-                                 residual_rows)]
+                                 residual_rows, sampled_kernel)]
 
 
 def _indexes(dispatchers=None) -> tuple[list[str], list[str]]:
@@ -92,6 +94,7 @@ def _workload() -> None:
     fitness, one candidate at a time and the population kernel (threads from 16)."""
     from labrig.simulation.expm import loop_slot_fill, zoh_batch
     from labrig.simulation.kernels import run_kernels
+    from labrig.simulation.sampled_kernel import each_sampled
     from labrig.simulation.residual_rows import residual_rows
     from labrig.simulation.layout import (C_A, C_ASYM, C_D, C_TC, C_TS, C_VMAX, MAP_COLUMNS,
                                      N_COLS, N_SLOTS, SLOT_W)
@@ -130,6 +133,14 @@ def _workload() -> None:
                             np.full(P, nonlinear, dtype=bool), closed, 4, consts, *out, store,
                             u * 0.0, 1.0, u * 0.0, 1.0, u * 0.0, 0.0, np.zeros(P), imap,
                             np.zeros((P if nonlinear else 0, N_SLOTS, SLOT_W)))
+        # a board's own loop (labrig.simulation.sampled_kernel), stored and summed
+        imap = np.zeros((P, len(MAP_COLUMNS)))
+        pd = np.array([2560.0, 256.0, 200.0, 0.05, -255.0, 255.0])
+        for store in (False, True):
+            out = (np.empty((P, n)),) * 4 if store else (np.empty((1, 1)),) * 4
+            each_sampled(np.round(u * 100.0), np.zeros(P, np.int64), np.zeros(P), Ad, g, g, g,
+                         prm, 4, consts, pd, *out, store, u * 0.0, 1.0, u * 0.0, 1.0, u * 0.0,
+                         0.0, np.zeros(P), imap)
 
 
 def warm() -> float:

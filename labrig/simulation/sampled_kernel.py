@@ -1,0 +1,152 @@
+"""A board's own position loop, sample by sample: the controller a microcontroller runs.
+
+An H-bridge board closes its loop on the encoder's count at each sample (the firmware's
+``lr_core_tick``): it reads the count, computes ``out = floor((kp_q e - kd_q v) / 256)``
+output counts (Q8.8 gains, ``e`` the reference less the count, ``v`` the count's change
+since the sample before, both from the run's start and clipped to 16 bits), clamps it to
+the output word and holds it to the next sample. Nothing of that is continuous: the
+position is seen a whole count at a time, the derivative is a one-sample difference, the
+drive is held and clamped. A continuous PD stands for it only while a count is small
+against the motion and the loop slow against the sample rate; here the model runs the
+same law on its own simulated count.
+
+Between samples the plant is driven open loop by the held output through the candidate's
+input map (dead zone, offset, rail...), so the update is the open-loop one of
+:func:`labrig.simulation.candidate_kernel._candidate`: the same lines, without its closed
+loop and with the controller in front. (That kernel is the population kernel's bit-for-bit
+reference and the identifiers' hot path: it is kept free of this branch.)
+"""
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+from labrig.simulation.candidate_kernel import friction_step, input_map, substeps
+from labrig.simulation.layout import (C_A, C_GAP0, C_I0, C_TC, C_TH0, C_TS, C_W0, M_D, M_DN,
+                                      M_DP, M_K, M_U0, M_VMAX)
+from labrig.simulation.loop_kernel import play_operator
+
+#: the controller's constants (``pd``): Q8.8 gains, counts per position unit, input volts
+#: per output count, the output's limits in counts (below and above zero)
+D_KP, D_KD, D_CPU, D_VPC, D_LO, D_HI = range(6)
+
+
+@numba.njit(cache=True, inline="always")
+def pd_counts(kq, dq, e, v, lo, hi):
+    """The board's PD output in counts: 16-bit clipped error and change, Q8.8 gains, the
+    floor of the shift, clamped to the output word's limits."""
+    e = min(max(e, -32767.0), 32767.0)
+    v = min(max(v, -32767.0), 32767.0)
+    o = math.floor((kq * e - dq * v) / 256.0)
+    return min(max(o, lo), hi)
+
+
+@numba.njit(cache=True)
+def _sampled_candidate(p, ref, m, frac, Ad, g_old, g_new, gf, prm, S, c, pd, out_w, out_th,
+                       out_i, out_u, store, wm, iw, tm, it, im, ii, sse, imap):
+    """Candidate ``p`` through one run of a board's loop: ``ref`` the reference in counts
+    from the run's start, ``pd`` the controller's constants; the plant's update as
+    :func:`~labrig.simulation.candidate_kernel._candidate`'s open loop. ``out_u`` (with
+    ``store``) receives the controller's output in input volts."""
+    n = ref.shape[0]
+    u0, mk, md, mdp, mdn, mvmax = (imap[p, M_U0], imap[p, M_K], imap[p, M_D],
+                                   imap[p, M_DP], imap[p, M_DN], imap[p, M_VMAX])
+    kq, dq, cpu, vpc, lo, hi = pd[D_KP], pd[D_KD], pd[D_CPU], pd[D_VPC], pd[D_LO], pd[D_HI]
+    Ka = c[1]
+    N = c[2]
+    acc = 0.0
+    pr = prm[p]
+    i = pr[C_I0]
+    w = pr[C_W0]
+    th = (c[7] + pr[C_TH0] + pr[C_GAP0] * pr[C_A]) * N
+    play = c[7] + pr[C_TH0]
+    tc, ts, a = pr[C_TC], pr[C_TS], pr[C_A]
+    friction = tc > 0.0 or ts > 0.0
+    mp = m[p]
+    A = Ad[p]
+    a00, a01, a10, a11, a20, a21 = A[0, 0], A[0, 1], A[1, 0], A[1, 1], A[2, 0], A[2, 1]
+    gn0, gn1, gn2 = g_new[p, 0], g_new[p, 1], g_new[p, 2]
+    go0, go1, go2 = g_old[p, 0], g_old[p, 1], g_old[p, 2]
+    gf0, gf1, gf2 = gf[p, 0], gf[p, 1], gf[p, 2]
+    delayed = go0 != 0.0 or go1 != 0.0 or go2 != 0.0
+    drive = np.zeros(n)   # the controller's output through the input map, per sample
+    x0 = math.floor((play if a > 0.0 else th / N) * cpu + 0.5)   # the board's count origin
+    xp = 0.0
+    for k in range(n):
+        yth = play if a > 0.0 else th / N
+        if store:
+            out_w[p, k] = w
+            out_th[p, k] = yth
+            out_i[p, k] = i
+        else:
+            acc += (iw * (wm[k] - w)) ** 2 + (it * (tm[k] - yth)) ** 2
+            if ii != 0.0:
+                acc += (ii * (im[k] - i)) ** 2
+        # the board reads its count and sets its output now, held to the next sample
+        x = math.floor(yth * cpu + 0.5) - x0
+        o = pd_counts(kq, dq, ref[k] - x, x - xp, lo, hi) * vpc
+        xp = x
+        if store:
+            out_u[p, k] = o
+        drive[k] = input_map(o, u0, mk, md, mdp, mdn, Ka, mvmax)
+        ko = k - mp - 1
+        kn = k - mp
+        s_old = drive[ko] if ko >= 0 else 0.0
+        s_new = drive[kn] if kn >= 0 else 0.0
+        if friction and w == 0.0:  # stuck rotor
+            i, w, th, play = friction_step(i, w, th, play, s_old, s_new, frac[p], pr, 0, S, c)
+            continue
+        ni = a00 * i + a01 * w + gn0 * s_new
+        nw = a10 * i + a11 * w + gn1 * s_new
+        nt = a20 * i + a21 * w + th + gn2 * s_new
+        if delayed:
+            ni += go0 * s_old
+            nw += go1 * s_old
+            nt += go2 * s_old
+        if friction and w != 0.0:
+            tf = math.copysign(tc, w)
+            ni += gf0 * tf
+            nw += gf1 * tf
+            nt += gf2 * tf
+        if friction and nw * w <= 0.0:
+            i, w, th, play = substeps(i, w, th, play, s_old, s_new, frac[p], pr, 0, S, c)
+            continue
+        i, w, th = ni, nw, nt
+        if a > 0.0:
+            play = play_operator(play, th / N, a)
+    sse[p] = acc
+
+
+@numba.njit(parallel=True, cache=True, nogil=True)
+def each_sampled(ref, m, frac, Ad, g_old, g_new, gf, prm, S, c, pd, out_w, out_th, out_i,
+                 out_u, store, wm, iw, tm, it, im, ii, sse, imap):
+    """Every candidate through one run of a board's loop (threads across candidates)."""
+    for p in numba.prange(prm.shape[0]):
+        _sampled_candidate(p, ref, m, frac, Ad, g_old, g_new, gf, prm, S, c, pd, out_w,
+                           out_th, out_i, out_u, store, wm, iw, tm, it, im, ii, sse, imap)
+
+
+def run_sampled(u, pd, m, frac, Ad, g_old, g_new, gf, prm, S, c, imap, weights=None):
+    """Every candidate through one run of a board's loop: ``u`` the reference in position
+    units, ``pd`` the controller's constants (:data:`D_KP`...), the open loop's
+    discretisation and input map per candidate. With ``weights`` (``(w, 1/sigma_w, theta,
+    1/sigma_theta, i, 1/sigma_i)``) the weighted sum of squared residuals per candidate;
+    else ``{"w", "theta", "i", "drive"}`` (P, n): the trajectories and the controller's
+    output in input volts."""
+    P, n = prm.shape[0], len(u)
+    ref = np.round(np.asarray(u, float) * pd[D_CPU])
+    if weights is not None:
+        wm, iw, tm, it, im, ii = (np.zeros(n) if x is None else
+                                  np.ascontiguousarray(x, dtype=float) if isinstance(
+                                      x, np.ndarray) else float(x) for x in weights)
+        out = np.zeros(P)
+        dummy = np.empty((1, 1))
+        each_sampled(ref, m, frac, Ad, g_old, g_new, gf, prm, S, c, pd, dummy, dummy, dummy,
+                     dummy, False, wm, iw, tm, it, im, ii, out, imap)
+        return out
+    w, th, cur, drive = (np.empty((P, n)) for _ in range(4))
+    each_sampled(ref, m, frac, Ad, g_old, g_new, gf, prm, S, c, pd, w, th, cur, drive, True,
+                 np.zeros(1), 0.0, np.zeros(1), 0.0, np.zeros(1), 0.0, np.zeros(P), imap)
+    return {"w": w, "theta": th, "i": cur, "drive": drive}
