@@ -15,6 +15,7 @@ import re
 import subprocess
 import sys
 import time
+import tomllib
 from pathlib import Path
 
 import numpy as np
@@ -295,7 +296,25 @@ def test_a_closed_loop_plan_runs_the_boards_own_pd_and_the_plant_is_fitted_throu
     assert fit["effect_params"]["asymmetric_deadband"]["dneg_v"] == pytest.approx(2.1, rel=0.05)
 
 
-def test_the_model_runs_the_boards_own_loop_on_its_own_count(tmp_path):
+@pytest.fixture(scope="module")
+def board_loop(tmp_path_factory):
+    """Two open-loop squares and a closed-loop run of the board's own PD (kp 10 V/rad, kd
+    0.3 V per rad/s at 200 Hz) on the emulated board, dead zone and friction hidden."""
+    tmp_path = tmp_path_factory.mktemp("board_loop")
+    rig_file = _rig_with(tmp_path, HIDDEN)
+    plan = tmp_path / "plan.toml"
+    plan.write_text('[defaults]\nsample_rate_hz = 200.0\nlead_in_s = 0.5\n\n'
+                    '[[experiment]]\nloop = "open"\nwaveform = "square"\namplitudes_v = [4.5, 9.0]\n'
+                    'frequency_hz = 0.5\nperiods = 2\n\n'
+                    '[[experiment]]\nname = "pd_3rad"\nloop = "closed"\nwaveform = "square"\n'
+                    'amplitude_v = 3.0\nfrequency_hz = 0.5\nperiods = 2\nposition_gain = 10.0\n'
+                    'velocity_gain = 0.3\n')
+    runs = tmp_path / "runs"
+    _swept(_labrig("sweep", "--emulate", "--rig", rig_file, "--plan", plan, "-o", runs))
+    return {"runs": runs, "rig": rig_file, "tmp": tmp_path}
+
+
+def test_the_model_runs_the_boards_own_loop_on_its_own_count(board_loop, tmp_path):
     """Two open-loop squares and a closed-loop run of the board's PD (kp 10 V/rad, kd 0.3
     V per rad/s at 200 Hz), dead zone and Coulomb friction hidden. The run's sidecar holds
     the board's law; the model runs it sample by sample on its own count (held output,
@@ -308,16 +327,7 @@ def test_the_model_runs_the_boards_own_loop_on_its_own_count(tmp_path):
       band is as sensitive as a real loop's: 4-9 counts rms against a band of 21), where a
       continuous PD with the same gains (the sidecar without its law) is off by 8 bands
       (179 counts rms, measured)."""
-    rig_file = _rig_with(tmp_path, HIDDEN)
-    plan = tmp_path / "plan.toml"
-    plan.write_text('[defaults]\nsample_rate_hz = 200.0\nlead_in_s = 0.5\n\n'
-                    '[[experiment]]\nloop = "open"\nwaveform = "square"\namplitudes_v = [4.5, 9.0]\n'
-                    'frequency_hz = 0.5\nperiods = 2\n\n'
-                    '[[experiment]]\nname = "pd_3rad"\nloop = "closed"\nwaveform = "square"\n'
-                    'amplitude_v = 3.0\nfrequency_hz = 0.5\nperiods = 2\nposition_gain = 10.0\n'
-                    'velocity_gain = 0.3\n')
-    runs = tmp_path / "runs"
-    _swept(_labrig("sweep", "--emulate", "--rig", rig_file, "--plan", plan, "-o", runs))
+    runs, rig_file = board_loop["runs"], board_loop["rig"]
     effects = ("--effects", "asymmetric_deadband,coulomb_friction")
     r = _labrig("identify", runs, *effects, "--through", "loop", "--json")
     assert r.returncode == 0, r.stderr
@@ -354,6 +364,34 @@ def test_the_model_runs_the_boards_own_loop_on_its_own_count(tmp_path):
             assert err < most, (err, most)
         else:
             assert err > 4 * band, err
+
+
+def test_a_proposal_through_the_boards_own_loop_plays_on_the_board(board_loop, tmp_path):
+    """With a closed-loop run of the board in the data, `propose --loop closed` plans
+    position steps through the board's loop (references in rad from the start, the run's
+    gains), simulated as the board runs them, to tell the hidden Coulomb friction from a
+    delay (through the loop friction brakes each step short, a delay shifts it); the plan
+    plays on the emulated board, its run records the same law, and the diagnosis that reads
+    it puts the Coulomb friction first. (Against stiction the answer depends on the sweep:
+    with no excess hidden, stiction at zero excess is the friction, and propose says so.)"""
+    runs, rig_file = board_loop["runs"], board_loop["rig"]
+    model = tmp_path / "m.json"
+    assert _labrig("identify", runs, "--effects", "asymmetric_deadband", "-o", model).returncode == 0
+    plan = tmp_path / "p.toml"
+    r = _labrig("propose", runs, "--model", model, "--between", "coulomb_friction,delay",
+                "--loop", "closed", "--budget-s", "20", "-o", plan)
+    assert r.returncode == 0, r.stderr
+    assert "through the board's loop (kp 10)" in r.stdout and " rad " in r.stdout
+    exp = tomllib.loads(plan.read_text())["experiment"][0]
+    assert (exp["loop"], exp["position_gain"], exp["velocity_gain"]) == ("closed", 10.0, 0.3)
+    _swept(_labrig("sweep", "--emulate", "--rig", rig_file, "--plan", plan, "-o", tmp_path / "new"))
+    played = json.loads((tmp_path / "new" / "proposed.json").read_text())["experiment"]
+    board = json.loads((runs / "pd_3rad.json").read_text())["experiment"]["controller"]
+    assert played["controller"]["sampled"] == board["sampled"]
+    r = _labrig("diagnose", runs, tmp_path / "new", "--model", model, "--json")
+    assert r.returncode == 0, r.stderr
+    ranked = json.loads(r.stdout)["ranking"]
+    assert ranked[0]["effect"] == "coulomb_friction" and ranked[0]["supported"], ranked[:2]
 
 
 def test_the_current_sense_channel_reads_the_armature_current_at_each_sample(tmp_path):

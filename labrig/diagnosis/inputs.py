@@ -186,6 +186,8 @@ def closed_candidates(*, threshold: float | None, amax: float, gains: dict, tau:
     is the loop's slowest time constant."""
     kp = float(gains["kp"])
     top = amax / kp
+    # the MS150's reference is in pot volts; a board's is in the axis's units from the start
+    unit, where = ("rad", "board's loop") if "board" in gains else ("V", "loop")
     edge = max(10 * dt, 0.01)
     settle = float(np.clip(4 * tau, 0.2, budget_s / 6))
     out: list[InputCandidate] = []
@@ -198,20 +200,30 @@ def closed_candidates(*, threshold: float | None, amax: float, gains: dict, tau:
         fill = 0.98 * budget_s / (2 * len(levels)) - 2 * edge
         for hold in _holds((settle, 2 * settle), fill):
             _admit(out, "position_steps", _pts(_from_rest(levels, hold, hold, edge)),
-                   f"position steps {levels[0]:.2f}-{levels[-1]:.2f} V through the loop "
-                   f"(kp {kp:g}), {hold:.2f} s each", amax=amax, budget_s=budget_s,
+                   f"position steps {levels[0]:.2f}-{levels[-1]:.2f} {unit} through the "
+                   f"{where} (kp {kp:g}), {hold:.2f} s each", amax=amax, budget_s=budget_s,
                    gains=dict(gains))
     return out
 
 
 def loop_gains(runs, rig) -> dict | None:
-    """The gains of the rig's analog position loop (the MS150's: amplifier input = kp (ref
-    - pot) - kv tacho), or None when neither the data nor the rig file show one: a
-    closed-loop run's own gains, else the standard loop of a rig file with a tacho and a
-    pot on a voltage drive. (A digital loop's PD on axis units is not proposed.)"""
+    """The gains of the rig's own position loop, or None when neither the data nor the
+    rig file show one: the MS150's analog loop (amplifier input = kp (ref - pot) - kv
+    tacho: a closed-loop run's own gains, else the standard loop of a rig file with a tacho
+    and a pot on a voltage drive), or a board's own PD on its count (a closed-loop run of
+    the board in the data: its gains, and ``board`` its law's constants, with which the
+    proposal's runs are simulated as the board plays them). A PD of a controller the rig
+    does not run itself (an imported record's) is not proposed."""
     for r in runs:
         if r.loop == "closed" and r.controller is None and r.drive == "voltage":
             return r.gains
+        # (a run fitted from its logged output was played through the loop all the same)
+        played = r.experiment.get("played_closed") or (r.experiment if r.loop == "closed"
+                                                       else {})
+        c = played.get("controller") or {}
+        if c.get("sampled"):
+            return {"kp": float(c["kp"]), "kv": float(c.get("kd", 0.0)),
+                    "board": dict(c["sampled"])}
     if rig is not None and rig.drive == "voltage" and not rig.digital_loop:
         return {"kp": LOOP_GAINS["position_gain"], "kv": LOOP_GAINS["velocity_gain"]}
     return None

@@ -204,6 +204,10 @@ class Proposal(Displayable):
         e = self.experiment(name)
         a, b = self.pair
         lim = self.limits
+        # a board's loop plays references in rad from the start, its output within the rig's
+        peak = (f"references within +-{lim['peak_v']:.2f} rad of the start, the board's output "
+                f"within +-{lim['amax_v']:.2f} V." if "board" in (self.chosen.candidate.gains or {})
+                else f"|u| <= {lim['peak_v']:.2f} V within +-{lim['amax_v']:.2f} V.")
         lines = [f"# Proposed by `labrig propose`: the experiment that best tells {a} and {b} "
                  "apart.", f"# {self.chosen.candidate.label}: {self.why}.",
                  f"# Predicted difference ({DIFFERENCE}): {self.chosen.naive:.0f} "
@@ -212,7 +216,7 @@ class Proposal(Displayable):
                  f"{self.chosen.worst:.2f} at worst (>= {DECISIVE:g} is decisive).",
                  f"# Limits respected: {lim['duration_s']:.2f} s of the {lim['budget_s']:g} s "
                  f"budget, {lim['points']} of at most {lim['max_points']} breakpoints, "
-                 f"|u| <= {lim['peak_v']:.2f} V within +-{lim['amax_v']:.2f} V.", "",
+                 + peak, "",
                  "[[experiment]]"]
         for k in ("name", "loop", "waveform", "lead_in_s", "sample_rate_hz", "position_gain",
                   "velocity_gain"):
@@ -336,11 +340,22 @@ class Proposal(Displayable):
         return plot_proposal(self, ax=ax)
 
 
-def _loop_keys(cand: InputCandidate) -> dict:
-    """A closed-loop input's gains, as a plan and a run's sidecar state them."""
+def _loop_keys(cand: InputCandidate, fs: float | None = None) -> dict:
+    """A closed-loop input's gains, as a plan states them; with ``fs`` (a run's sidecar)
+    a board's own loop adds its controller and law at that rate, as labrig sweep records
+    them (labrig.bridge.settings.sampled_pd)."""
     g = cand.gains
-    return {} if g is None else {"position_gain": float(g["kp"]),
-                                 "velocity_gain": float(g["kv"])}
+    if g is None:
+        return {}
+    out = {"position_gain": float(g["kp"]), "velocity_gain": float(g["kv"])}
+    if fs is not None and "board" in g:
+        b = g["board"]
+        per = 256.0 / (b["volts_per_count"] * b["counts_per_unit"])   # Q8.8 per V/unit
+        out["controller"] = {"kind": "pd", "kp": float(g["kp"]), "kd": float(g["kv"]),
+                             "ki": 0.0, "feedback": "position",
+                             "sampled": {**b, "kp_q": int(round(g["kp"] * per)),
+                                         "kd_q": int(round(g["kv"] * fs * per))}}
+    return out
 
 
 def synthetic_run(template: Run, cand: InputCandidate, name: str, sim: dict | None = None,
@@ -364,7 +379,7 @@ def synthetic_run(template: Run, cand: InputCandidate, name: str, sim: dict | No
         cols["pos"] = th * template.kpot + template.pos_offset
     meta = copy.deepcopy(template.meta)
     meta["experiment"] = {"loop": cand.loop, "waveform": "pwl", "lead_in_s": LEAD_IN_S,
-                          "points": cand.points, **_loop_keys(cand)}
+                          "points": cand.points, **_loop_keys(cand, fs)}
     if cand.gains is not None:   # the reference, as the bridge records it
         cols["ref"] = u
     return Run(name=name, data=pd.DataFrame(cols), meta=meta)

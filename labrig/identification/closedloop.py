@@ -44,7 +44,9 @@ def as_open_loop(run: Run) -> Run:
     data["u"] = data.pop("drive")
     exp = {k: v for k, v in run.experiment.items()
            if k not in ("controller", "position_gain", "velocity_gain")}
-    meta = {**run.meta, "experiment": {**exp, "loop": "open", "fitted_from": "controller output"}}
+    # (the loop it was played through stays known: a proposal may plan through it)
+    meta = {**run.meta, "experiment": {**exp, "loop": "open", "fitted_from": "controller output",
+                                       "played_closed": dict(run.experiment)}}
     return replace(run, data=data, meta=meta, _cache={})
 
 
