@@ -49,8 +49,11 @@ def plot_proposal(prop, ax=None):
         legend_outside(a, "right", title="predicted (band: +-1 noise)", title_fontsize=8)
     if ax is None:
         axes[-1].plot(t, run.u, color="0.25", lw=1.0)
-        # a closed-loop plan plays the position loop's reference, not the amplifier's input
-        axes[-1].set_ylabel("reference (V)" if run.loop == "closed" else "u (V)")
+        # a closed-loop plan plays the position loop's reference, not the amplifier's input:
+        # the MS150's in pot volts, a board's in the axis's units from the start
+        board = "board" in (prop.chosen.candidate.gains or {})
+        axes[-1].set_ylabel(f"reference ({units[0] if board else 'V'})" if run.loop == "closed"
+                            else "u (V)")
         axes[-1].set_xlabel("time (s)")
         axes[-1].grid(alpha=0.3)
         c = prop.chosen
