@@ -36,9 +36,10 @@ A run that starts at rest is simulated from rest as before: nothing is fitted an
 fused kernels run as they did. ``mode`` overrides the decision: ``"rest"`` fits nothing,
 ``"estimate"`` fits both for every run.
 
-The parameters ride in the optimiser's vector as ``start[RUN].w0``, ``start[RUN].i0``,
-``start[RUN].dtheta`` and ``start[RUN].gap0`` (:func:`start_key`) within a range about the data's own estimate,
-and a model records them per run (``Model.starts``).
+The parameters ride in the optimiser's vector as ``start[RUN].w0``, ``start[RUN].i0`` and
+``start[RUN].dtheta`` (:func:`start_key`) within a range about the data's own estimate,
+``start[RUN].gap0`` held at the data's value, and a model records them per run
+(``Model.starts``).
 """
 from __future__ import annotations
 
@@ -165,8 +166,9 @@ def run_start(run, sigma_w: float | None, sigma_theta: float | None,
         w_est = slope * motor
         moving = abs(slope) > MOVING_SIGMAS * se
         why = f"first {len(idx)} samples' position slope ({abs(slope) / se:.0f} standard errors)"
-        held = np.flatnonzero(np.diff(run.u) != 0.0)   # the input's first level lasts this
-        n_pos = min(held[0] + 1 if len(held) else len(run.u), int(round(FIRST_POS_S / run.dt)))
+        changes = np.flatnonzero(np.diff(run.u) != 0.0)   # the input's first level lasts this
+        n_pos = min(changes[0] + 1 if len(changes) else len(run.u),
+                    int(round(FIRST_POS_S / run.dt)))
         if not moving and n_pos > len(idx):   # a slow coast, seen over the first level
             ix = np.flatnonzero(run.keep())[:n_pos]
             s_long, se_long = slope_of(ix)
