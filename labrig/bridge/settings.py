@@ -141,6 +141,15 @@ def pd_output(kp_q: int, kd_q: int, ref: np.ndarray, x: np.ndarray) -> np.ndarra
     return (kp_q * e - kd_q * v) >> 8
 
 
+def output_words(s: BridgeSettings, hello: dict) -> tuple[int, int]:
+    """The output words a run may use: the rig's output limit either way, within the
+    firmware's own limits (HELLO's ``fw_dac_min``/``fw_dac_max``; missing: the DAC's)."""
+    limit = s.output_limit_v
+    wmin, wmax = sorted((volts_to_dac_word(-limit, s), volts_to_dac_word(limit, s)))
+    return (max(wmin, hello.get("fw_dac_min", 0)),
+            min(wmax, hello.get("fw_dac_max", 2 ** s.dac_bits - 1)))
+
+
 def sampled_pd(exp: Experiment, s: BridgeSettings, hello: dict | None = None) -> dict:
     """How an H-bridge board runs ``exp``'s loop, for the run's sidecar
     (``experiment.controller.sampled``): its Q8.8 gains, the counts per position unit, the
@@ -149,11 +158,7 @@ def sampled_pd(exp: Experiment, s: BridgeSettings, hello: dict | None = None) ->
     own law on its own count (:mod:`labrig.simulation.sampled_kernel`)."""
     kp_q, kd_q = pd_gain_words(exp, s)
     zero = volts_to_dac_word(0.0, s)
-    limit = s.output_limit_v
-    wmin, wmax = sorted((volts_to_dac_word(-limit, s), volts_to_dac_word(limit, s)))
-    hello = hello or {}
-    wmin = max(wmin, hello.get("fw_dac_min", 0))
-    wmax = min(wmax, hello.get("fw_dac_max", 2 ** s.dac_bits - 1))
+    wmin, wmax = output_words(s, hello or {})
     return {"kp_q": kp_q, "kd_q": kd_q, "counts_per_unit": float(s.counts_per_unit),
             "volts_per_count": float(s.dac_range_v[1] / 2 ** (s.dac_bits - 1)),
             "limits": [int(wmin - zero), int(wmax - zero)]}
@@ -235,11 +240,10 @@ def experiment_body(exp: Experiment, s: BridgeSettings, hello: dict) -> bytes:
     else:
         levels = [volts_to_dac_word(v, s) for v in levels_v]
     zero = volts_to_dac_word(0.0, s)
-    wmin, wmax = sorted((volts_to_dac_word(-limit, s), volts_to_dac_word(limit, s)))
-    fw_min, fw_max = hello.get("fw_dac_min", 0), hello.get("fw_dac_max", 2 ** s.dac_bits - 1)
-    wmin, wmax = max(wmin, fw_min), min(wmax, fw_max)
+    wmin, wmax = output_words(s, hello)
     if any(not wmin <= w <= wmax for w in ([] if digital else levels) + [zero]):
-        lo_v, hi_v = dac_word_to_volts([fw_min, fw_max], s)
+        lo_v, hi_v = dac_word_to_volts([hello.get("fw_dac_min", 0),
+                                        hello.get("fw_dac_max", 2 ** s.dac_bits - 1)], s)
         raise UserError(f"experiment {exp.name!r} needs DAC words beyond the firmware limit "
                         f"({lo_v:.3g}..{hi_v:.3g} V with this calibration)")
     if exp.waveform == "square":

@@ -35,7 +35,8 @@ from labrig.simulation.layout import (C_A, C_ASYM, C_D, C_GAP0, C_I0, C_KE, C_TC
                                  MAP_COLUMNS, N_COLS, N_SLOTS, S_FLAT, S_NEG, S_NEG_GAP, S_POS,
                                  S_POS_GAP, SLOT_W, T_OK)
 from labrig.simulation.kernels import run_kernels
-from labrig.simulation.sampled_kernel import D_CPU, D_HI, D_KP, D_LO, D_VPC, run_sampled
+from labrig.simulation.sampled_kernel import (D_CPU, D_HI, D_KD, D_KP, D_LO, D_VPC, pd_counts,
+                                              run_sampled)
 from labrig.model.sensors import windowed_speed
 from labrig.model.start import initial_current
 from labrig.model.plants import VoltagePlant
@@ -281,9 +282,10 @@ class Simulator:
         P = prm.shape[0]
         u = np.full((1, P), float(run.u[0])) + self._bias(ep, P)[None, :]
         if run.pd is not None:   # the board's first output: its count is 0, its change 0
-            e = round(float(run.u[0]) * run.pd[D_CPU])
-            o = min(max(np.floor(run.pd[D_KP] * e / 256.0), run.pd[D_LO]), run.pd[D_HI])
-            u = np.full((1, P), o * run.pd[D_VPC]) + self._bias(ep, P)[None, :]
+            pd = run.pd
+            o = pd_counts(pd[D_KP], pd[D_KD], round(float(run.u[0]) * pd[D_CPU]), 0.0,
+                          pd[D_LO], pd[D_HI])
+            u = np.full((1, P), o * pd[D_VPC]) + self._bias(ep, P)[None, :]
             return np.asarray(self._through_maps(u, ep, run.Ka), float)[0]
         if run.loop == "closed":
             th = (run.theta0 + prm[:, C_TH0])
@@ -346,7 +348,8 @@ class Simulator:
         Ad, g_old, g_new, gf = disc[key]
         consts = np.array([run.dt, run.Ka, run.N, run.Kt, run.Kpot, 0.0, 0.0, run.theta0])
         return run_sampled(run.u, run.pd, m.astype(np.int64), frac, Ad, g_old, g_new, gf, prm,
-                           self.substeps, consts, self._map_table(ep, prm.shape[0]), weights)
+                           self.substeps, consts, self._map_table(ep, prm.shape[0]),
+                           None if weights is None else _weights_of(weights, len(run.u)))
 
     def _simulate_run(self, run: RunData, prm, ep, user_output, disc, weights=None):
         if run.pd is not None:
@@ -381,17 +384,13 @@ class Simulator:
         consts = np.array([run.dt, run.Ka, run.N, run.Kt, run.Kpot, run.kp, run.kv, run.theta0])
         mi = m.astype(np.int64)
         if weights is not None:
-            wm, iw, tm, it, im, ii = weights
             out = np.zeros(P)
             dummy = np.empty((1, 1))
             run_kernels(s, mi, frac, Ad, g_old, g_new, gf, prm, nonlinear, 1 if closed else 0,
                         self.substeps, consts, dummy, dummy, dummy, False,
-                        _channel(wm, n), float(iw), _channel(tm, n), float(it),
-                        _channel(im, n), float(ii), out, imap, table)
+                        *_weights_of(weights, n), out, imap, table)
             return out
-        w = np.empty((P, n))
-        th = np.empty((P, n))
-        cur = np.empty((P, n))
+        w, th, cur = (np.empty((P, n)) for _ in range(3))
         run_kernels(s, mi, frac, Ad, g_old, g_new, gf, prm, nonlinear, 1 if closed else 0,
                     self.substeps, consts, w, th, cur, True, np.zeros(1), 0.0, np.zeros(1), 0.0,
                     np.zeros(1), 0.0, np.zeros(P), imap, table)
@@ -491,6 +490,11 @@ def _loop_table(prm, run: RunData, frac, substeps: int):
     return T
 
 
-def _channel(y, n):
-    """A measured channel as the kernels take it: contiguous float64 (zeros if missing)."""
-    return np.zeros(n) if y is None else np.ascontiguousarray(y, dtype=float)
+def _weights_of(weights, n):
+    """A run's ``(w, 1/sigma_w, theta, 1/sigma_theta, i, 1/sigma_i)`` as the kernels take
+    them: each measured channel contiguous float64 (zeros if missing)."""
+    def channel(y):
+        return np.zeros(n) if y is None else np.ascontiguousarray(y, dtype=float)
+
+    wm, iw, tm, it, im, ii = weights
+    return channel(wm), float(iw), channel(tm), float(it), channel(im), float(ii)

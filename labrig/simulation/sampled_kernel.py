@@ -137,10 +137,8 @@ def run_sampled(u, pd, m, frac, Ad, g_old, g_new, gf, prm, S, c, imap, weights=N
     output in input volts."""
     P, n = prm.shape[0], len(u)
     ref = np.round(np.asarray(u, float) * pd[D_CPU])
-    if weights is not None:
-        wm, iw, tm, it, im, ii = (np.zeros(n) if x is None else
-                                  np.ascontiguousarray(x, dtype=float) if isinstance(
-                                      x, np.ndarray) else float(x) for x in weights)
+    if weights is not None:   # (as the kernels take them: contiguous, zeros if missing)
+        wm, iw, tm, it, im, ii = weights
         out = np.zeros(P)
         dummy = np.empty((1, 1))
         each_sampled(ref, m, frac, Ad, g_old, g_new, gf, prm, S, c, pd, dummy, dummy, dummy,
