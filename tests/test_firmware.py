@@ -42,11 +42,25 @@ def test_core_unit_tests_pass():
 
 
 def test_both_boards_build_and_report_size():
+    """Both rigs' builds fit, and PROTOCOL.md quotes the Uno's static RAM use as they report it."""
+    import re
+
+    from labrig.bridge.hbridge import make_options
+    from labrig.io.config import load_rig
+
     r = _make("uno", "mega")
     assert r.returncode == 0, r.stdout + r.stderr
     for board in ("uno", "mega"):
         assert (FIRMWARE_DIR / "build" / board / "labrig_bridge.hex").exists()
         assert f"{board}: flash " in r.stdout and "RAM" in r.stdout
+    shipped = load_rig(Path(__file__).resolve().parents[1] / "configs" / "rig_arduino_hbridge.toml")
+    h = _make("uno", *make_options(shipped))
+    assert h.returncode == 0, h.stdout + h.stderr
+    ram = [float(re.search(r"uno: .*RAM \d+ of \d+ bytes \(([\d.]+)%\)", out).group(1))
+           for out in (r.stdout, h.stdout)]
+    doc = (FIRMWARE_DIR / "PROTOCOL.md").read_text()
+    assert (f"the build reports {ram[0]:.0f} % of RAM used statically, {ram[1]:.0f} % for the "
+            "H-bridge build") in doc, ram
 
 
 def _plan(exp, idx):

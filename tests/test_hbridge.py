@@ -62,7 +62,12 @@ def _rig_with(tmp_path: Path, effects: dict, **bridge) -> Path:
     """The shipped H-bridge rig file with other hidden effects (and [bridge] keys)."""
     text = RIG_FILE.read_text().split("[effects.")[0]
     for key, value in bridge.items():
-        text = re.sub(rf"^{key} = .*$", f"{key} = {json.dumps(value)}", text, flags=re.M)
+        toml = ("{" + ", ".join(f"{k} = {json.dumps(v)}" for k, v in value.items()) + "}"
+                if isinstance(value, dict) else json.dumps(value))
+        if re.search(rf"^{key} = ", text, flags=re.M):
+            text = re.sub(rf"^{key} = .*$", f"{key} = {toml}", text, flags=re.M)
+        else:
+            text = text.replace("[bridge]\n", f"[bridge]\n{key} = {toml}\n", 1)
     for name, params in effects.items():
         text += f"[effects.{name}]\n" + "".join(f"{k} = {v}\n" for k, v in params.items()) + "\n"
     path = tmp_path / "rig.toml"
@@ -529,3 +534,77 @@ def test_diagnose_auto_finds_stiction_hidden_beside_the_dead_zone(tmp_path):
     assert dz["dneg_v"] + st["tc_v"] == pytest.approx(1.6 + 0.8, abs=0.15)
     assert st["tc_v"] * (1 + st["excess"]) == pytest.approx(1.6, rel=0.25)
     assert final["rmse_over_noise"]["overall"] < 2.0
+
+
+def _square_plan(tmp_path: Path, volts: float = 6.0) -> Path:
+    plan = tmp_path / "plan.toml"
+    plan.write_text('[defaults]\nsample_rate_hz = 200.0\nlead_in_s = 0.2\n\n[[experiment]]\n'
+                    f'loop = "open"\nwaveform = "square"\namplitudes_v = [{volts}]\n'
+                    'frequency_hz = 1.0\nperiods = 2\n')
+    return plan
+
+
+def _index_events(log: Path) -> list[int]:
+    """The plant's encoder edge at each rise of its index pin (the harness's ``X`` lines)."""
+    return [int(line.split()[2]) for line in log.read_text().splitlines() if line.startswith("X ")]
+
+
+@pytest.mark.parametrize("board", ["uno", "mega"])
+def test_the_index_pulse_latches_the_count_of_its_mark_every_turn(board, tmp_path):
+    """An encoder with an index (11 lines on the motor shaft, x4: 44 counts a turn): every
+    pulse of a run is reported and lies a whole number of turns from the first (slip 0), the
+    first's count is the plant's edge where its index pin rose, and no edge went undecoded
+    -- on the Uno's pin-change interrupt (D4) and the Mega's INT2 (D19)."""
+    rig_file = _rig_with(tmp_path, HIDDEN, board=board, index_counts=44,
+                         pins={"pwm_in1": hbridge.PINS[board]["pwm_in1"],
+                               "dir_in2": hbridge.PINS[board]["dir_in2"],
+                               "enc_a": "D2", "enc_b": "D3", "index": hbridge.PINS[board]["index"]})
+    log = tmp_path / "emu.log"
+    with Emulator(board, load_rig(rig_file), dac_log=log) as emu:
+        r = _labrig("sweep", "--port", emu.pty, "--rig", rig_file, "--plan", _square_plan(tmp_path),
+                    "-o", tmp_path / "runs")
+    _swept(r)
+    (side,) = sorted((tmp_path / "runs").glob("*.json"))
+    enc = json.loads(side.read_text())["bridge"]["encoder"]
+    d = pd.read_csv(side.with_suffix(".csv"))
+    turns = np.ptp(d["pos"]) / 44
+    rises = _index_events(log)
+    assert turns > 20 and enc["index_pulses"] >= int(turns) - 1, (turns, enc)
+    assert len(rises) >= enc["index_pulses"]
+    assert enc["faults"] == 0 and enc["slip_counts"] == 0 and "problems" not in enc, enc
+    assert enc["index_count"] in rises and (enc["index_count"] - rises[0]) % 44 == 0
+
+
+def test_edges_the_board_could_not_decode_are_counted_and_the_sweep_says_so(tmp_path):
+    """A shaft that outruns the chip (the harness withholds every 400th edge's pin change,
+    so the next moves both channels at once): the board counts each undecodable jump, the
+    run is written with them in its sidecar and the sweep exits 1 naming the run."""
+    rig_file = _rig_with(tmp_path, HIDDEN, index_counts=44)
+    with Emulator("uno", load_rig(rig_file), extra_args=("--miss-edges", "400")) as emu:
+        r = _labrig("sweep", "--port", emu.pty, "--rig", rig_file, "--plan", _square_plan(tmp_path),
+                    "-o", tmp_path / "runs")
+    assert r.returncode == 1, r.stderr
+    assert "could not decode" in r.stderr and "bridge.encoder" in r.stderr
+    assert r.stderr.count("labrig: error:") == 1 and "Traceback" not in r.stderr
+    (side,) = sorted((tmp_path / "runs").glob("*.json"))
+    enc = json.loads(side.read_text())["bridge"]["encoder"]
+    d = pd.read_csv(side.with_suffix(".csv"))
+    # every 400th of the run's edges (4 a count): the jumps the board counted, to one
+    assert abs(enc["faults"] - np.abs(np.diff(d["pos"])).sum() / 400) <= 2 + 0.1 * enc["faults"]
+    assert enc["slip_counts"] > 0
+    # and no analysis takes its positions as the shaft's
+    a = _labrig("analyse", tmp_path / "runs", "-o", tmp_path / "an")
+    assert a.returncode == 2 and "its encoder lost counts" in a.stderr, a.stderr
+
+
+def test_an_index_the_rig_file_wires_but_that_never_pulses_is_named(tmp_path):
+    """The rig file says an index is wired; the bench's never pulses (the emulator drives no
+    index pin): the shaft turned many turns without one, and the sweep says to check it."""
+    rig_file = _rig_with(tmp_path, HIDDEN, index_counts=44)
+    plant = load_rig(rig_file)
+    plant.bridge.index_counts = 0
+    with Emulator("uno", plant) as emu:
+        r = _labrig("sweep", "--port", emu.pty, "--rig", rig_file, "--plan", _square_plan(tmp_path),
+                    "-o", tmp_path / "runs")
+    assert r.returncode == 1, r.stderr
+    assert "no index pulse while the shaft turned" in r.stderr and "is the index wired" in r.stderr

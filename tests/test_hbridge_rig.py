@@ -140,14 +140,14 @@ def test_the_pin_map_is_the_one_the_firmware_drives(board, variant, mcu):
     pins = _arduino_pins(variant)
     want = hbridge.PINS[board]
     for key, define in (("pwm_in1", "PIN_A_BIT"), ("dir_in2", "PIN_B_BIT"), ("enc_a", "ENC_A_BIT"),
-                        ("enc_b", "ENC_B_BIT")):
+                        ("enc_b", "ENC_B_BIT"), ("index", "IDX_BIT")):
         port, bit = defs[define][0], int(defs[define][1])
         assert pins[want[key]] == (port, bit), (board, key, want[key], defs[define])
     doc = (ROOT / "docs" / "hardware.md").read_text()
     rows = doc.split("## The H-bridge + encoder bench")[1]
     col = 1 if board == "uno" else 2
     for key, label in (("pwm_in1", "PWM / IN1"), ("dir_in2", "DIR / IN2"), ("enc_a", "encoder A"),
-                       ("enc_b", "encoder B")):
+                       ("enc_b", "encoder B"), ("index", "encoder index")):
         row = next(r for r in rows.splitlines() if r.startswith(f"| {label} |"))
         assert row.split("|")[1 + col].strip().startswith(want[key] + " "), row
 

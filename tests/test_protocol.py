@@ -33,7 +33,8 @@ def test_cobs_invalid(bad):
 
 
 PARSERS = {P.CONFIGURE: P.parse_configure, P.HELLO: P.parse_hello, P.STATUS: P.parse_status,
-           P.DONE: P.parse_done, P.ERROR: P.parse_error, P.ACK: P.parse_ack}
+           P.DONE: P.parse_done, P.ERROR: P.parse_error, P.ACK: P.parse_ack,
+           P.INDEX: P.parse_index}
 
 
 @pytest.mark.parametrize("case", VECTORS["frames"], ids=lambda c: c["name"])
@@ -145,8 +146,8 @@ def test_corrupted_stream_never_yields_a_wrong_frame(frames, seed, n_faults):
 
 # shortest valid body of each parser; the firmware sends exactly these lengths
 MIN_BODY = {P.parse_configure: 31, P.parse_hello: 19, P.parse_status: 29, P.parse_done: 8,
-            P.parse_error: 1, P.parse_ack: 2, P.parse_samples: 13}
-EXACT = {P.parse_status, P.parse_done, P.parse_ack}
+            P.parse_error: 1, P.parse_ack: 2, P.parse_samples: 13, P.parse_index: 10}
+EXACT = {P.parse_status, P.parse_done, P.parse_ack, P.parse_index}
 
 
 @pytest.mark.parametrize("parse", list(MIN_BODY), ids=lambda f: f.__name__)

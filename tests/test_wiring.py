@@ -35,7 +35,8 @@ def _rig(path, **bridge):
 
 CASES = [(MS150, board, {}) for board in ("uno", "nano", "mega")] + [
     (HBRIDGE, board, opts) for board in ("uno", "nano", "mega")
-    for opts in ({}, {"drive_mode": "pwm_dir", "off_phase": "coast"}, {"current_sense": True})]
+    for opts in ({}, {"drive_mode": "pwm_dir", "off_phase": "coast"}, {"current_sense": True},
+                 {"index_counts": 44})]
 
 
 def _texts(svg: bytes) -> list[str]:
@@ -52,7 +53,8 @@ def test_the_drawing_wires_the_pins_of_the_table(path, board, opts):
     pins = dict(zip(table.signal, table.pin))
     fw = hbridge.PINS[board] if w.rig_kind == "hbridge" else MS150_PINS[board]
     signal_pins = {p for p in pins.values() if p not in ("5V", "GND")}
-    assert signal_pins == {p for k, p in fw.items() if k != "current" or opts.get("current_sense")}
+    optional = {"current": opts.get("current_sense"), "index": opts.get("index_counts")}
+    assert signal_pins == {p for k, p in fw.items() if optional.get(k, True)}
 
     d = w.drawing("svg")
     texts = _texts(d.get_imagedata("svg"))

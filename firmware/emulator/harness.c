@@ -21,7 +21,11 @@
  * not drive -- and moves the encoder's A/B pins at the step where the shaft crosses an
  * edge. --enc-log FILE records "T cycle" when the sample clock (Timer2) starts, "E cycle
  * edge" at every encoder edge and "D cycle duty" whenever the commanded signed duty (in
- * timer counts) changes. */
+ * timer counts) changes. --index drives the encoder's index pin (Uno/Nano D4, Mega D19) high
+ * once a turn of the encoder's shaft, gated to one quadrature state (A = B = high, half a
+ * turn from where the shaft rests at reset), logged "X cycle edge" as it rises.
+ * --miss-edges N withholds every Nth edge's pin change, so the next edge moves both
+ * channels at once: a shaft outrunning the chip's interrupts, whose count it cannot decode. */
 #include <errno.h>
 #include <getopt.h>
 #include <math.h>
@@ -141,6 +145,10 @@ static FILE *enc_log;
 static int pin_a_bit, pin_b_bit;            /* Timer1's OC1A/OC1B on PORTB */
 static char enc_port;
 static int enc_a_bit, enc_b_bit;
+static int idx_on, idx_bit, idx_level;      /* the index: on PORTD (Uno PD4, Mega PD2) */
+static int64_t idx_per_turn, idx_at;        /* edges a turn, and the edge it marks */
+static long miss_every;                     /* withhold every Nth edge's pin change */
+static uint64_t edges_seen;
 static avr_cycle_count_t last_cycle;
 static int64_t edge_now;
 static int timer2_on;
@@ -253,8 +261,17 @@ static avr_cycle_count_t motor_tick(avr_t *a, avr_cycle_count_t when, void *para
     int64_t e = motor_edge(&motor);
     while (e != edge_now) {            /* one pin change per edge, in order */
         edge_now += e > edge_now ? 1 : -1;
-        encoder_pins(edge_now);
+        if (!miss_every || ++edges_seen % (uint64_t)miss_every) encoder_pins(edge_now);
         if (enc_log) fprintf(enc_log, "E %llu %lld\n", (unsigned long long)now, (long long)edge_now);
+        if (idx_on) {
+            int level = ((edge_now - idx_at) % idx_per_turn + idx_per_turn) % idx_per_turn == 0;
+            if (level != idx_level) {
+                avr_raise_irq(avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('D'), idx_bit), level);
+                idx_level = level;
+                if (level && enc_log)
+                    fprintf(enc_log, "X %llu %lld\n", (unsigned long long)now, (long long)edge_now);
+            }
+        }
     }
     /* the sample clock: Timer2 in CTC at clk/8 (Arduino's own start-up set-up of Timer2
      * for analogWrite is not it) */
@@ -294,7 +311,8 @@ static void usage(void)
         "  [--Tc Nm] [--seed N] [--parent-pid PID]\n"
         "  H-bridge rig: --rig hbridge [--supply V] [--drop V] [--dead-fwd V] [--dead-rev V]\n"
         "  [--Ts Nm] [--backlash rad] [--encoder-on-output] [--lines N] [--in1-in2] [--brake]\n"
-        "  [--enc-log FILE] [--current-v-per-a V/A] [--current-zero V]\n");
+        "  [--enc-log FILE] [--current-v-per-a V/A] [--current-zero V] [--index]\n"
+        "  [--miss-edges N]\n");
 }
 
 int main(int argc, char **argv)
@@ -328,7 +346,7 @@ int main(int argc, char **argv)
         {"dead-rev", 1, 0, 34}, {"Ts", 1, 0, 35}, {"backlash", 1, 0, 36},
         {"encoder-on-output", 0, 0, 37}, {"lines", 1, 0, 38}, {"in1-in2", 0, 0, 39},
         {"brake", 0, 0, 40}, {"enc-log", 1, 0, 41}, {"current-v-per-a", 1, 0, 42},
-        {"current-zero", 1, 0, 43},
+        {"current-zero", 1, 0, 43}, {"index", 0, 0, 44}, {"miss-edges", 1, 0, 45},
         {0, 0, 0, 0}};
     int c;
     while ((c = getopt_long_only(argc, argv, "", opts, NULL)) != -1) {
@@ -377,11 +395,13 @@ int main(int argc, char **argv)
         case 41: enc_log_path = optarg; break;
         case 42: sense_v_per_a = v; break;
         case 43: sense_zero_v = v; break;
+        case 44: idx_on = 1; break;
+        case 45: miss_every = atol(optarg); break;
         default: usage(); return 2;
         }
     }
     if (!fw || (strcmp(board, "uno") && strcmp(board, "nano") && strcmp(board, "mega")) || p.L <= 0 ||
-        p.J <= 0 || p.N == 0 || (rig_hbridge && (mp.supply <= 0 || mp.lines <= 0))) {
+        p.J <= 0 || p.N == 0 || (rig_hbridge && (mp.supply <= 0 || mp.lines <= 0)) || miss_every < 0) {
         usage();
         return 2;
     }
@@ -430,6 +450,12 @@ int main(int argc, char **argv)
         enc_a_bit = mega ? 4 : 2;
         enc_b_bit = mega ? 5 : 3;
         encoder_pins(0);
+        /* the index: a pin-change interrupt on the Uno (D4 = PD4), INT2 on the Mega
+         * (D19 = PD2); low at reset (the shaft rests half a turn from its mark) */
+        idx_bit = mega ? 2 : 4;
+        idx_per_turn = llround(4.0 * mp.lines);
+        idx_at = 4 * (idx_per_turn / 8);
+        if (idx_on) avr_raise_irq(avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('D'), idx_bit), 0);
         avr_cycle_timer_register(avr, 16, motor_tick, NULL);
         if (sense_v_per_a > 0)
             avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_ADC_GETIRQ, ADC_IRQ_OUT_TRIGGER),

@@ -12,7 +12,7 @@
 #include "src/lr_core.h"
 #include "src/lr_hal.h"
 
-#define FW_VERSION "2.0.0"
+#define FW_VERSION "2.1.0"
 #define BAUD 500000UL
 
 #if defined(__AVR_ATmega2560__)

@@ -55,6 +55,19 @@ void hal_timer_start(uint16_t r) { (void)r; timer_on = 1; }
 void hal_timer_stop(void) { timer_on = 0; }
 uint8_t hal_lock(void) { return 0; }
 void hal_unlock(uint8_t s) { (void)s; }
+/* the index latch as the H-bridge layer keeps it, fed by the tests */
+static lr_quad_t t_quad;
+static lr_index_t t_idx;
+static uint16_t t_faults;
+uint8_t hal_index_take(int32_t *count, uint32_t *sample, uint16_t *pulses)
+{
+    if (!t_idx.fresh) return 0;
+    *count = t_idx.count; *sample = t_idx.sample; *pulses = t_idx.pulses;
+    t_idx.fresh = 0;
+    return 1;
+}
+void hal_index_reset(void) { lr_index_reset(&t_idx, 0); }
+uint16_t hal_encoder_faults(void) { return t_faults; }
 
 static void host_send(uint8_t type, uint8_t seq, const uint8_t *body, size_t len)
 {
@@ -566,6 +579,98 @@ static void test_quadrature(void)
     CHECK(q.count == -200000, "200000 counts back gave %ld", (long)q.count);
 }
 
+/* The index latches the count of the state it marks (A = B = high at one place a turn),
+ * the same turning either way and whichever interrupt runs first: the index's own (the
+ * decoder fed the new A/B there) or the channels' (the index's then sees no change). */
+static void test_index_latch(void)
+{
+    static const uint8_t fwd[4] = {0, 2, 3, 1};   /* ab forward; state 3 (A = B = 1) at k % 4 == 2 */
+    const int per_turn = 40;                      /* edges a turn; the index at edge 42 + 40 m */
+    for (int order = 0; order < 2; order++)
+        for (int dir = -1; dir <= 1; dir += 2) {
+            lr_quad_t q;
+            lr_index_t x;
+            lr_quad_init(&q, 4, 0, 0);
+            lr_index_reset(&x, 0);
+            int ok = 1, n = 0;
+            for (int step = 1; step <= 400; step++) {
+                int k = dir > 0 ? step : -step;    /* the shaft's edge index */
+                uint8_t ab = fwd[((k % 4) + 4) % 4];
+                uint8_t idx = ((k - 42) % per_turn + per_turn) % per_turn == 0;
+                if (order == 0) lr_quad_feed(&q, ab & 2, ab & 1);   /* channels first */
+                lr_index_feed(&x, &q, ab & 2, ab & 1, idx, (uint32_t)step);
+                if (x.fresh) {
+                    x.fresh = 0;
+                    n++;
+                    /* the count there is the edge index itself (x4 from 0 at rest) */
+                    if (x.count != k) ok = 0;
+                    if (x.sample != (uint32_t)step) ok = 0;
+                }
+            }
+            CHECK(ok && n == 10 && x.pulses == 10 && q.illegal == 0,
+                  "index order %d dir %d: %d pulses, latched count %ld (last edge)", order, dir, n,
+                  (long)x.count);
+        }
+    /* a falling edge and a level held high latch nothing more */
+    lr_quad_t q;
+    lr_index_t x;
+    lr_quad_init(&q, 4, 0, 0);
+    lr_index_reset(&x, 0);
+    lr_index_feed(&x, &q, 0, 0, 1, 5);
+    lr_index_feed(&x, &q, 0, 0, 1, 6);
+    lr_index_feed(&x, &q, 0, 0, 0, 7);
+    CHECK(x.pulses == 1 && x.sample == 5, "one pulse per rising edge (%u)", x.pulses);
+    /* a bench without an index wired: the pull-up holds it high from reset, nothing latches */
+    lr_index_reset(&x, 1);
+    lr_index_feed(&x, &q, 0, 0, 1, 1);
+    CHECK(x.pulses == 0 && !x.fresh, "a pin high from reset is no pulse");
+}
+
+/* The board reports each index pulse of a run (INDEX: the sample it came before, the
+ * latched count, the pulse number), none before START; STATUS carries the decoder's faults */
+static void test_index_frames(void)
+{
+    uint8_t b[128];
+    uint16_t lv[1] = {2600};
+    lr_quad_init(&t_quad, 4, 0, 0);
+    lr_index_reset(&t_idx, 0);
+    lr_index_feed(&t_idx, &t_quad, 0, 0, 1, 0);   /* a pulse before the run: not its own */
+    lr_index_feed(&t_idx, &t_quad, 0, 0, 0, 0);
+    configure_and_start(b, 0, LR_WAVE_CONSTANT, 1000, 300, 0, 0, 1024, 3072, 500, lv, 1);
+    int32_t counts[3] = {-7, 125, 100000};
+    for (int i = 0; i < 3; i++) {
+        run_ticks(50, 1);
+        t_quad.count = counts[i];
+        lr_index_feed(&t_idx, &t_quad, 0, 0, 1, lr_core_sample_index());
+        lr_index_feed(&t_idx, &t_quad, 0, 0, 0, lr_core_sample_index());
+        if (i == 1) {   /* two pulses between two polls: the latest is reported, numbered */
+            t_quad.count = 130;
+            lr_index_feed(&t_idx, &t_quad, 0, 0, 1, lr_core_sample_index());
+            lr_index_feed(&t_idx, &t_quad, 0, 0, 0, lr_core_sample_index());
+            counts[1] = 130;
+        }
+    }
+    t_faults = 3;
+    run_ticks(300, 1);
+    host_send(LR_STATUS_REQ, 7, NULL, 0);
+    lr_core_poll();
+    collect();
+    int n = 0, ok = 1;
+    for (int i = 0; i < nmsgs; i++) {
+        if (msgs[i].type != LR_INDEX) continue;
+        ok &= msgs[i].len == 10 && n < 3;
+        if (!ok) break;
+        ok &= (int32_t)lr_get32(msgs[i].body + 4) == counts[n];
+        ok &= lr_get32(msgs[i].body) == 50u * (n + 1);
+        ok &= lr_get16(msgs[i].body + 8) == (n < 1 ? 1 : n + 2);
+        n++;
+    }
+    CHECK(ok && n == 3, "three INDEX frames with their samples, counts and numbers (%d)", n);
+    int k = find(LR_STATUS);
+    CHECK(k >= 0 && lr_get16(msgs[k].body + 27) == 3, "STATUS carries the encoder's faults");
+    t_faults = 0;
+}
+
 static void test_drive_map(void)
 {
     const uint16_t zero = 256, top = 255;   /* 8-bit PWM, 9-bit word */
@@ -624,6 +729,8 @@ int main(int argc, char **argv)
     test_start_retransmission();
     test_fuzz();
     test_quadrature();
+    test_index_latch();
+    test_index_frames();
     test_drive_map();
     printf("%d passed, %d failed\n", passed, failed);
     return failed ? 1 : 0;

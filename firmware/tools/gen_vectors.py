@@ -56,11 +56,11 @@ hello = (bytes([1, 1]) + (15).to_bytes(2, "little") + (4000).to_bytes(2, "little
          + bytes([10, 12, 10, 3, 32]) + b"".join(v.to_bytes(2, "little") for v in (2048, 922, 3174, 500))
          + b"labrig-fw 1.0.0 uno")
 # protocol 2: the same 19 bytes, then the build's rig (an H-bridge board: 10 kHz clock,
-# IN1/IN2 + brake, x4, 8-bit PWM, 50 Hz least), then the id
+# IN1/IN2 + brake + index, x4, 8-bit PWM, 50 Hz least), then the id
 hello2 = (bytes([2, 3]) + (31).to_bytes(2, "little") + (2000).to_bytes(2, "little")
           + bytes([10, 9, 10, 0, 32]) + b"".join(v.to_bytes(2, "little") for v in (256, 0, 512, 500))
-          + bytes([2]) + (10000).to_bytes(4, "little") + bytes([3, 4, 8]) + (50).to_bytes(2, "little")
-          + b"labrig-fw 2.0.0 nano hbridge")
+          + bytes([2]) + (10000).to_bytes(4, "little") + bytes([11, 4, 8]) + (50).to_bytes(2, "little")
+          + b"labrig-fw 2.1.0 nano hbridge")
 rows = [[2048 + i, 512 + i, 300 - i, 1023 - i] for i in range(10)]
 # an H-bridge board's samples: word, count (low, high half), current; count -70000
 count_rows = [[256 + i, (-70000 + i) & 0xFFFF, ((-70000 + i) >> 16) & 0xFFFF, 0] for i in range(3)]
@@ -85,6 +85,8 @@ frames = [
     ("SAMPLES zeros", p.SAMPLES, 0, p.samples_body(0, [[0, 0, 0, 0]]), {"first_index": 0, "rows": [[0, 0, 0, 0]]}),
     ("STATUS", p.STATUS, 3, bytes.fromhex("a0860100" "05000000" "02000000" "01000000" "01000000"
                                          "00000000" "02" "0008" "0000"), None),
+    ("INDEX", p.INDEX, 6, p.index_body(1234, -70000, 3),
+     {"sample": 1234, "count": -70000, "pulse": 3}),
     ("DONE", p.DONE, 4, bytes.fromhex("94110000" "00000000"), {"n_samples": 4500, "samples_lost": 0}),
     ("ERROR", p.ERROR, 5, bytes([6]) + b"host silent: output set to 0 V",
      {"code": 6, "name": "WATCHDOG", "text": "host silent: output set to 0 V"}),

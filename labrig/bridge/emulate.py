@@ -121,8 +121,11 @@ def _hbridge_args(rig: RigConfig, v: dict) -> list[str]:
     dead_r = fx.get("deadband", {}).get("d_v", 0.0) or fx.get("asymmetric_deadband", {}).get("dneg_v", 0.0)
     tc_v = fx.get("coulomb_friction", {}).get("tc_v", 0.0) or fx.get("stiction", {}).get("tc_v", 0.0)
     ts_v = tc_v * (1 + fx.get("stiction", {}).get("excess", 0.0)) if "stiction" in fx else 0.0
-    on_output = "backlash" in fx
     per_turn = rig.sensors.encoder_counts_per_unit * 2 * math.pi / b.decoding
+    # the encoder on the output shaft where the gear's play is to be seen, or where the
+    # rig file's index comes once an output turn
+    on_output = "backlash" in fx or (
+        b.index_counts > 0 and abs(b.index_counts - per_turn * b.decoding) <= 0.002 * b.index_counts)
     args = {"rig": "hbridge", "R": p.R, "L": p.L, "J": p.J, "B": p.B, "K": p.K, "N": v["N"],
             "supply": float(b.dac_range_v[1]), "dead-fwd": dead_f, "dead-rev": dead_r,
             "Tc": tc_v * to_torque, "Ts": ts_v * to_torque,
@@ -133,6 +136,8 @@ def _hbridge_args(rig: RigConfig, v: dict) -> list[str]:
                      str(int(val)) if k == "seed" else repr(float(val)))]
     if on_output:
         out.append("--encoder-on-output")
+    if b.index_counts:   # the index the rig file wires, once a turn of the encoder's shaft
+        out.append("--index")
     if b.current_sense:   # the sense amplifier the rig file describes, on A0
         out += ["--current-v-per-a", repr(float(rig.sensors.current_v_per_a)),
                 "--current-zero", repr(float(rig.sensors.current_zero_v))]

@@ -73,10 +73,87 @@ def check_board(rig, hello: dict, port: str) -> None:
                        "change the rig file's board and its wiring")
     if want != "hbridge":
         return
+    from labrig.bridge import protocol as P
+
+    flags = hello.get("rig_flags") or 0
     got = {"pwm_bits": hello.get("pwm_bits"), "decoding": hello.get("decoding"),
-           "flags": hello.get("rig_flags")}
+           "flags": flags & ~P.FLAG_INDEX}   # (every build since 2.1 reads an index)
     need = {"pwm_bits": b.pwm_bits, "decoding": b.decoding, "flags": rig_flags(rig)}
     if got != need:
         diff = ", ".join(f"{k} {got[k]} (rig file: {need[k]})" for k in need if got[k] != need[k])
         raise RigError(f"the board on {port} was built with other H-bridge options: {diff}; "
                        f"{flash}")
+    if b.index_counts and not flags & P.FLAG_INDEX:
+        raise RigError(f"the firmware on {port} ({hello.get('firmware')}) reads no index pulse, "
+                       "but the rig file wires one (bridge.index_counts); "
+                       f"{flash} (2.1 or later), or set index_counts = 0")
+
+
+def hbridge_block(index, w, u, s, closed: bool):
+    """An H-bridge board's SAMPLES words as a block: the output in volts of the supply
+    (``u``) and the encoder's signed count (the rig's ``pos`` unit is counts:
+    ``sensors.encoder_counts_per_unit``); in a closed loop the input is the reference the
+    board's PD used (in the axis's unit) and the output its logged drive; with current
+    sense, A0 against the board's own 5 V reference."""
+    from labrig.bridge import protocol as P
+    from labrig.bridge.base import SampleBlock
+    from labrig.bridge.settings import REF_ZERO
+
+    pos = P.encoder_counts(w).astype(float)
+    if closed and not s.current_sense:
+        return SampleBlock(index=index, u=(w[:, 3] - REF_ZERO) / s.counts_per_unit,
+                           tacho=None, pos=pos, drive=u)
+    return SampleBlock(index=index, u=u, tacho=None, pos=pos,
+                       current=w[:, 3] * (5.0 / 1024) - s.current_zero_v
+                       if s.current_sense else None)
+
+
+def encoder_record(events: list, faults, index_counts: int, decoding: int,
+                   travel_counts: float) -> dict:
+    """What a run's encoder says of its own counts, for the run's ``bridge.encoder`` block.
+
+    Parameters
+    ----------
+    events : list of dict
+        The run's INDEX messages (``sample``, ``count``, ``pulse``), in order.
+    faults : int or None
+        Edges the board's decoder could not decode during the run (None: its STATUS was lost).
+    index_counts : int
+        The rig file's ``bridge.index_counts`` (0: no index wired).
+    decoding : int
+        Counts a quadrature cycle (``bridge.decoding``): an index pulse's edge may sit
+        anywhere within one cycle, by how the encoder gates it and the way the shaft turns.
+    travel_counts : float
+        How far the count ran in the run (its largest minus its smallest).
+
+    Returns
+    -------
+    dict
+        ``faults``; with an index, ``index_pulses``, the first pulse's ``index_sample`` and
+        ``index_count``, and ``slip_counts`` (the largest distance of a pulse from a whole
+        number of turns after the first); ``problems``: one sentence each, when the counts
+        cannot be trusted.
+    """
+    rec = {"faults": faults}
+    problems = []
+    if faults:
+        problems.append(f"{faults} encoder edge(s) the board could not decode (both channels "
+                        "changed between two interrupts: the shaft outran the chip), each a "
+                        "count or two lost")
+    if index_counts:
+        rec["index_pulses"] = int(events[-1]["pulse"]) if events else 0
+        if events:
+            c0 = int(events[0]["count"])
+            half = index_counts // 2
+            slip = max(abs((int(e["count"]) - c0 + half) % index_counts - half) for e in events)
+            rec.update(index_sample=int(events[0]["sample"]), index_count=c0, slip_counts=slip)
+            if slip > decoding:
+                problems.append(f"an index pulse came {slip} counts off a whole number of turns "
+                                f"({index_counts} counts each, bridge.index_counts): counts were "
+                                "lost or gained between two pulses")
+        elif travel_counts > 1.5 * index_counts:
+            problems.append(f"no index pulse while the shaft turned {travel_counts / index_counts:.1f} "
+                            "turns of the encoder (bridge.index_counts): is the index wired?")
+    if problems:
+        rec["problems"] = problems
+    return rec

@@ -26,12 +26,13 @@ MAX_LEVELS = 32
 # host -> board
 HELLO_REQ, CONFIGURE, START, STOP, HEARTBEAT, STATUS_REQ, ZERO = 0x01, 0x02, 0x03, 0x04, 0x05, 0x06, 0x07
 # board -> host
-ACK, HELLO, SAMPLES, STATUS, DONE, ERROR = 0x80, 0x81, 0x82, 0x83, 0x84, 0x85
+ACK, HELLO, SAMPLES, STATUS, DONE, ERROR, INDEX = 0x80, 0x81, 0x82, 0x83, 0x84, 0x85, 0x86
 
 TYPE_NAMES = {
     HELLO_REQ: "HELLO_REQ", CONFIGURE: "CONFIGURE", START: "START", STOP: "STOP",
     HEARTBEAT: "HEARTBEAT", STATUS_REQ: "STATUS_REQ", ZERO: "ZERO", ACK: "ACK",
     HELLO: "HELLO", SAMPLES: "SAMPLES", STATUS: "STATUS", DONE: "DONE", ERROR: "ERROR",
+    INDEX: "INDEX",
 }
 LOOPS = {"open": 0, "closed": 1}
 #: HELLO capability bit of the pwl waveform (bits 0-3: constant, square, step, staircase)
@@ -59,14 +60,15 @@ BOARDS = {1: "uno", 2: "mega", 3: "nano"}
 #: the hardware layer a firmware was built for (HELLO, protocol 2; protocol 1 is the MS150's)
 RIG_KINDS = {1: "ms150", 2: "hbridge"}
 #: HELLO rig flags of an H-bridge build
-FLAG_IN1_IN2, FLAG_BRAKE, FLAG_CURRENT = 0x01, 0x02, 0x04
+FLAG_IN1_IN2, FLAG_BRAKE, FLAG_CURRENT, FLAG_INDEX = 0x01, 0x02, 0x04, 0x08
 STATES = {0: "idle", 1: "configured", 2: "running", 3: "finishing"}
 
 _CONFIGURE_FIXED = struct.Struct("<BBHIIIHHHHHHB")  # 29 bytes, then n_levels x u16
 _HELLO_FIXED = struct.Struct("<BBHHBBBBBHHHH")      # 19 bytes, then the firmware id
 _HELLO_V2 = struct.Struct("<BIBBBH")                # protocol 2: 10 more bytes before the id
 _SAMPLES_HEAD = struct.Struct("<IB")
-_STATUS = struct.Struct("<IIIIIIBHH")               # the last u16 is reserved
+_STATUS = struct.Struct("<IIIIIIBHH")               # the last u16: encoder faults (H-bridge)
+_INDEX = struct.Struct("<IiH")
 _DONE = struct.Struct("<II")
 _ACK = struct.Struct("<BB")
 
@@ -333,13 +335,23 @@ def parse_samples(body: bytes) -> tuple[int, np.ndarray]:
 
 
 def parse_status(body: bytes) -> dict:
-    """STATUS: the board's counters (cumulative except ``sample_overruns``), state, DAC word."""
-    vals = _unpack(_STATUS, body, "STATUS", exact=True)[:-1]
+    """STATUS: the board's counters (cumulative except ``sample_overruns``), state, DAC word,
+    and an H-bridge board's undecodable encoder jumps since reset (``encoder_faults``,
+    saturating at 65535; 0 on the MS150 bridge, whose word was reserved)."""
+    vals = _unpack(_STATUS, body, "STATUS", exact=True)
     keys = ("samples_sent", "rx_frames_ok", "rx_crc_errors", "rx_overruns",
-            "watchdog_trips", "sample_overruns", "state", "dac_word")
+            "watchdog_trips", "sample_overruns", "state", "dac_word", "encoder_faults")
     d = dict(zip(keys, vals))
     d["state"] = STATES.get(d["state"], str(d["state"]))
     return d
+
+
+def parse_index(body: bytes) -> dict:
+    """INDEX: an encoder index pulse of this run -- the sample it came before, the count
+    latched at its rising edge, and its number since START (a gap: pulses that came too close
+    together to be reported one by one)."""
+    sample, count, pulse = _unpack(_INDEX, body, "INDEX", exact=True)
+    return {"sample": sample, "count": count, "pulse": pulse}
 
 
 def parse_done(body: bytes) -> dict:
@@ -395,10 +407,16 @@ def hello_body(*, protocol: int, board, capabilities: int, max_rate_hz: int, bat
 
 
 def status_body(*, samples_sent: int, rx_frames_ok: int, rx_crc_errors: int, rx_overruns: int,
-                watchdog_trips: int, sample_overruns: int, state, dac_word: int) -> bytes:
+                watchdog_trips: int, sample_overruns: int, state, dac_word: int,
+                encoder_faults: int = 0) -> bytes:
     """STATUS body from the fields :func:`parse_status` returns (``state`` by name or code)."""
     return _STATUS.pack(samples_sent, rx_frames_ok, rx_crc_errors, rx_overruns, watchdog_trips,
-                        sample_overruns, _code_of(STATES, state), dac_word, 0)
+                        sample_overruns, _code_of(STATES, state), dac_word, encoder_faults)
+
+
+def index_body(sample: int, count: int, pulse: int) -> bytes:
+    """INDEX body from the fields :func:`parse_index` returns."""
+    return _INDEX.pack(sample, count, pulse)
 
 
 def done_body(n_samples: int, samples_lost: int = 0) -> bytes:
@@ -413,7 +431,7 @@ def error_body(code, text: str = "") -> bytes:
 
 #: the body parser of every board->host message type
 BOARD_PARSERS = {ACK: parse_ack, HELLO: parse_hello, SAMPLES: parse_samples, STATUS: parse_status,
-                 DONE: parse_done, ERROR: parse_error}
+                 DONE: parse_done, ERROR: parse_error, INDEX: parse_index}
 
 
 class Message(NamedTuple):

@@ -70,13 +70,16 @@ def _hbridge(w) -> None:
     sense = w.options["current_sense"]
     p = {k: w.pin(k) for k in ("pwm_in1", "dir_in2", "enc_a", "enc_b")}
     a0 = w.pin("current") if sense else None
+    index = w.options.get("index_counts", 0) > 0
+    enc_pins = [p["enc_a"], p["enc_b"]] + ([w.pin("index")] if index else [])
     board = _board(w, [p["pwm_in1"], p["dir_in2"], None, None, a0],
-                   left=[p["enc_a"], p["enc_b"]], rows=ROWS).right().anchor("center").at((0, 0))
+                   left=enc_pins, rows=ROWS).right().anchor("center").at((0, 0))
     _power(board.p_5V)
     _power(board.p_GND, up=False)
 
-    # the encoder, to the board's left: A and B on the interrupt pins
-    enc = elm.Ic(pins=_pins(["A", "B"], "R", ROWS, ["a", "b"])
+    # the encoder, to the board's left: A and B on the interrupt pins, its index on a third
+    names = ["A", "B"] + (["I"] if index else [])
+    enc = elm.Ic(pins=_pins(names, "R", ROWS, [n.lower() for n in names])
                  + [elm.IcPin(name="VCC", side="T", anchorname="vcc"),
                     elm.IcPin(name="GND", side="B", anchorname="gnd")],
                  size=(3.0, (ROWS + 1) * ROW), pinspacing=ROW, lblsize=11, pinlblsize=10
@@ -84,6 +87,8 @@ def _hbridge(w) -> None:
                                                                      "center")
     elm.Wire("-").at(board.absanchors[f"p_{p['enc_a']}"]).to(enc.a)
     elm.Wire("-").at(board.absanchors[f"p_{p['enc_b']}"]).to(enc.b)
+    if index:
+        elm.Wire("-").at(board.absanchors[f"p_{w.pin('index')}"]).to(enc.i)
     _power(enc.vcc)
     _power(enc.gnd, up=False)
 

@@ -19,8 +19,8 @@ import numpy as np
 from labrig.bridge import protocol as P
 from labrig.bridge.base import Bridge, SampleBlock
 from labrig.io.experiment import Experiment
-from labrig.bridge.settings import REF_ZERO, TIMER_HZ, adc_counts_to_volts, bridge_settings, dac_word_to_volts, experiment_body, volts_to_dac_word
-from labrig.bridge.hbridge import check_board
+from labrig.bridge.settings import TIMER_HZ, adc_counts_to_volts, bridge_settings, dac_word_to_volts, experiment_body, volts_to_dac_word
+from labrig.bridge.hbridge import check_board, encoder_record, hbridge_block
 from labrig.bridge.transport import SerialTransport, Transport, link_hint
 from labrig.core.errors import LabrigError, RigError, UserError
 
@@ -101,6 +101,8 @@ class SerialBridge(Bridge):
         self._streaming = False
         self._started = False
         self._finished = False
+        self._index_events: list[dict] = []   # the run's INDEX messages
+        self._count_range: tuple[int, int] | None = None   # its lowest and highest count
         self._t_end = self._last_sample_t = 0.0
         self._tail = tail_s
         self.samples = self.dropped_samples = self.stale_frames = self.bad_frames = 0
@@ -349,6 +351,7 @@ class SerialBridge(Bridge):
         self._pending.clear()
         self._next_index = 0
         self._finished = False
+        self._index_events, self._count_range = [], None
         t0 = time.monotonic()
         self._command(P.START)
         self._started = self._streaming = True
@@ -390,6 +393,10 @@ class SerialBridge(Bridge):
                     self.samples += len(w)
                     self._last_sample_t = time.monotonic()
                     return self._block(first, w)
+                if f.type == P.INDEX:
+                    if f.fields["sample"] <= self._n_samples:   # (a previous run's: dropped)
+                        self._index_events.append(f.fields)
+                    continue
                 if f.type == P.DONE:
                     if f.fields["n_samples"] != self._n_samples:
                         self.stale_frames += 1   # not this run's DONE
@@ -424,17 +431,10 @@ class SerialBridge(Bridge):
         index = np.arange(first, first + len(w))
         u = dac_word_to_volts(w[:, 0], s)
         if s.firmware == "hbridge":
-            closed = self._exp is not None and self._exp.loop == "closed"
-            if closed and not s.current_sense:
-                # the board's PD: the input is the reference it used (in the axis's unit),
-                # the output it applied is the loop's logged drive
-                return SampleBlock(index=index, u=(w[:, 3] - REF_ZERO) / s.counts_per_unit,
-                                   tacho=None, pos=P.encoder_counts(w).astype(float), drive=u)
-            return SampleBlock(index=index, u=u, tacho=None,
-                               pos=P.encoder_counts(w).astype(float),
-                               # A0 against the board's own 5 V reference
-                               current=w[:, 3] * (5.0 / 1024) - s.current_zero_v
-                               if s.current_sense else None)
+            blk = hbridge_block(index, w, u, s, self._exp is not None and self._exp.loop == "closed")
+            lo, hi, r = int(blk.pos.min()), int(blk.pos.max()), self._count_range
+            self._count_range = (lo, hi) if r is None else (min(r[0], lo), max(r[1], hi))
+            return blk
         return SampleBlock(index=index, u=u, tacho=adc_counts_to_volts(w[:, 1], "tacho", s),
                            pos=adc_counts_to_volts(w[:, 2], "pos", s),
                            ref=adc_counts_to_volts(w[:, 3], "ref", s))
@@ -478,6 +478,13 @@ class SerialBridge(Bridge):
             c["board_sample_overruns"] = int(st["sample_overruns"])   # reset by START
         if self.board_errors[self._errors_mark:]:
             c["board_errors"] = self.board_errors[self._errors_mark:]
+        if self.settings.firmware == "hbridge" and self._exp is not None:
+            faults = (int(st["encoder_faults"] - base["encoder_faults"])
+                      if st and base and "encoder_faults" in base else None)
+            r = self._count_range
+            c["encoder"] = encoder_record(self._index_events, faults,
+                                          self._rig.bridge.index_counts, self._rig.bridge.decoding,
+                                          r[1] - r[0] if r else 0)
         return c
 
     def close(self) -> None:

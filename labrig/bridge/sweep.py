@@ -143,7 +143,7 @@ def sweep(bridge: Bridge, plan: list[Experiment], rig, outdir: Path | str, *,
         todo.append(exp)
     remove_stale_tmp(outdir, [exp.name for exp in plan])
     written: list[Path] = []
-    lossy = []
+    lossy, slipped = [], []
     try:
         bridge.open()
         for exp in todo:
@@ -154,6 +154,9 @@ def sweep(bridge: Bridge, plan: list[Experiment], rig, outdir: Path | str, *,
             lost = int(run.data["gap"].sum()) if "gap" in run.data else 0
             if lost > rig.bridge.max_lost_fraction * len(run):
                 lossy.append((exp.name, lost, len(run)))
+            problems = ((run.meta.get("bridge") or {}).get("encoder") or {}).get("problems")
+            if problems:
+                slipped.append((exp.name, problems))
             if on_done:
                 on_done(exp, run)
     finally:
@@ -165,7 +168,10 @@ def sweep(bridge: Bridge, plan: list[Experiment], rig, outdir: Path | str, *,
         bridge.zero()
         bridge.close()
     if lossy:
-        raise LossError(lossy, rig.bridge.max_lost_fraction, outdir)
+        raise LossError(lossy, rig.bridge.max_lost_fraction, outdir,
+                        also=EncoderError(slipped, outdir) if slipped else None)
+    if slipped:
+        raise EncoderError(slipped, outdir)
     return written
 
 
@@ -173,7 +179,7 @@ class LossError(RigError):
     """Runs that lost more of their samples on the link than the rig file allows: written
     (the lost samples flagged as gaps, never fitted as measured), and the command exits 1."""
 
-    def __init__(self, lossy, tolerance: float, outdir):
+    def __init__(self, lossy, tolerance: float, outdir, also: RigError | None = None):
         self.lossy = lossy
         worst = ", ".join(f"{name} {lost} of {n} ({100 * lost / n:.2g} %)"
                           for name, lost, n in lossy[:3]) + (" ..." if len(lossy) > 3 else "")
@@ -181,4 +187,22 @@ class LossError(RigError):
             f"{len(lossy)} run(s) in {outdir} lost more samples on the link than [bridge] "
             f"max_lost_fraction = {tolerance:g} allows: {worst}; they are written with the "
             "lost samples flagged as gaps (never fitted as measured): use a shorter or "
-            "shielded USB cable, a lower sample rate, or --resume after removing them")
+            "shielded USB cable, a lower sample rate, or --resume after removing them"
+            + (f"; and {also}" if also else ""))
+
+
+class EncoderError(RigError):
+    """Runs whose encoder counts cannot be trusted (edges the board could not decode, an
+    index pulse off a whole turn, or no index where one is wired): written, with what the
+    encoder said in their sidecar's ``bridge.encoder`` block, and the command exits 1."""
+
+    def __init__(self, slipped, outdir):
+        self.slipped = slipped
+        name, problems = slipped[0]
+        more = f" (and {len(slipped) - 1} more run(s))" if len(slipped) > 1 else ""
+        super().__init__(
+            f"run {name} in {outdir}: {problems[0]}{more}; the runs are written with the "
+            "encoder's record in their sidecar (bridge.encoder), but a position after lost "
+            "counts is not the shaft's (labrig will not read them): check the encoder's "
+            "wiring and supply, lower the speed or the decoding (bridge.decoding), then remove them and play them again "
+            "(--resume keeps the others)")

@@ -56,7 +56,7 @@ class Wiring:
         ``"uno"``, ``"nano"`` or ``"mega"``.
     options : dict
         The rig file's options that change the wiring (H-bridge: drive mode, off phase,
-        current sense).
+        current sense, index).
     wires : tuple of Wire
     parts : tuple of Part
     """
@@ -171,6 +171,10 @@ def _hbridge(rig, board: str) -> Wiring:
         Wire("encoder A", p["enc_a"], "encoder channel A", "internal pull-up on"),
         Wire("encoder B", p["enc_b"], "encoder channel B", "internal pull-up on"),
     ]
+    if b.index_counts:
+        wires.append(Wire("encoder index", p["index"], "encoder index (Z, I)",
+                          f"internal pull-up on; once every {b.index_counts} counts "
+                          "([bridge] index_counts)"))
     if b.current_sense:
         s = rig.sensors
         wires.append(Wire("current sense", p["current"],
@@ -208,7 +212,8 @@ def _hbridge(rig, board: str) -> Wiring:
                   Part(1, "resistor", "1 k 1 % 0.25 W", "sense filter"),
                   Part(1, "capacitor", "100 nF C0G/X7R", "sense filter")]
     return Wiring("hbridge", board, {"drive_mode": b.drive_mode, "off_phase": b.off_phase,
-                                     "current_sense": b.current_sense, "supply_v": supply},
+                                     "current_sense": b.current_sense, "supply_v": supply,
+                                     "index_counts": b.index_counts},
                   tuple(wires), tuple(parts))
 
 

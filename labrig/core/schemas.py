@@ -243,6 +243,9 @@ class BridgeSection(_Closed):
     off_phase: Annotated[Optional[Literal["coast", "brake"]], BeforeValidator(_lower)] = None
     decoding: Optional[Literal[1, 2, 4]] = None
     current_sense: Optional[bool] = None
+    #: counts from one index pulse to the next (the encoder's counts a turn of the shaft it
+    #: sits on); 0 or left out: no index wired
+    index_counts: Annotated[int, Field(ge=0, le=10_000_000)] = None
     sample_rate_hz: Num(1.0, 1e5) = None
     output_limit_v: Num(0.0, 50.0) = None
     dac_bits: Annotated[int, Field(ge=1, le=24)] = None

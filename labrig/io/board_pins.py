@@ -17,11 +17,16 @@ from labrig.core.errors import ConfigError, UserError
 BOARDS = ("uno", "nano", "mega")
 
 #: the H-bridge build's pins, per board (``hal_hbridge.inc``: Timer1's two outputs, the
-#: two external interrupts, the current sense's analog input)
+#: two external interrupts, the index's interrupt -- a pin change on the Uno and Nano,
+#: whose two external interrupts the encoder takes, INT2 on the Mega -- and the current
+#: sense's analog input)
 HBRIDGE_PINS = {
-    "uno": {"pwm_in1": "D9", "dir_in2": "D10", "enc_a": "D2", "enc_b": "D3", "current": "A0"},
-    "nano": {"pwm_in1": "D9", "dir_in2": "D10", "enc_a": "D2", "enc_b": "D3", "current": "A0"},
-    "mega": {"pwm_in1": "D11", "dir_in2": "D12", "enc_a": "D2", "enc_b": "D3", "current": "A0"},
+    "uno": {"pwm_in1": "D9", "dir_in2": "D10", "enc_a": "D2", "enc_b": "D3", "index": "D4",
+            "current": "A0"},
+    "nano": {"pwm_in1": "D9", "dir_in2": "D10", "enc_a": "D2", "enc_b": "D3", "index": "D4",
+             "current": "A0"},
+    "mega": {"pwm_in1": "D11", "dir_in2": "D12", "enc_a": "D2", "enc_b": "D3", "index": "D19",
+             "current": "A0"},
 }
 
 #: the MS150 build's pins, per board (``hal_ms150.inc``: SPI to the DAC, the three analog
@@ -41,8 +46,8 @@ PINS = {"hbridge": HBRIDGE_PINS, "ms150": MS150_PINS}
 #: the alternate function that ties a pin to each rig's firmware (what a builder must not
 #: move): a timer's output, an external interrupt, the SPI
 PIN_FUNCTIONS = {
-    "hbridge": {"uno": {"D9": "OC1A", "D10": "OC1B", "D2": "INT0", "D3": "INT1"},
-                "mega": {"D11": "OC1A", "D12": "OC1B", "D2": "INT4", "D3": "INT5"}},
+    "hbridge": {"uno": {"D9": "OC1A", "D10": "OC1B", "D2": "INT0", "D3": "INT1", "D4": "PCINT20"},
+                "mega": {"D11": "OC1A", "D12": "OC1B", "D2": "INT4", "D3": "INT5", "D19": "INT2"}},
     "ms150": {"uno": {"D10": "SS", "D13": "SCK", "D11": "MOSI"},
               "mega": {"D53": "SS", "D52": "SCK", "D51": "MOSI"}},
 }

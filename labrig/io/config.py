@@ -91,6 +91,9 @@ class BridgeConfig:
     off_phase: str = "coast"
     decoding: int = 4
     current_sense: bool = False
+    #: H-bridge: the counts from one index pulse to the next (a turn of the encoder's own
+    #: shaft); 0: no index wired. Each run's pulses are checked against it (lost counts)
+    index_counts: int = 0
     sample_rate_hz: float = 1000.0
     output_limit_v: float = 2.5
     dac_bits: int = 12
@@ -212,6 +215,10 @@ def rig_from_dict(doc: dict, path: str = "<rig>") -> RigConfig:
     rig.effects = _check_effects(path, checked.effects, rig.bridge.output_limit_v)
     _check_plant(path, rig, checked)
     rig.bridge.pins = check_pins(rig.bridge.firmware, rig.bridge.board, rig.bridge.pins, path)
+    if rig.bridge.index_counts and rig.bridge.firmware != "hbridge":
+        raise ConfigError(f"{path}: key 'bridge.index_counts': the {rig.bridge.firmware} bridge "
+                          "reads no encoder (an index is the H-bridge board's, firmware = "
+                          "\"hbridge\"); remove the key")
     if rig.bridge.firmware == "hbridge":
         from labrig.io.hbridge_rig import check_rig
         check_rig(rig, path, given=checked.bridge.model_dump(exclude_unset=True)
@@ -253,7 +260,7 @@ def rig_to_doc(rig: RigConfig) -> dict:
             body = rig.plant.values(rig.drive)
         doc[sec] = {inverse.get(sec, {}).get(k, k): (list(v) if isinstance(v, tuple) else v)
                     for k, v in body.items()
-                    if not (k in ("calibration", "board", "pins") and not v)}   # (not said)
+                    if not (k in ("calibration", "board", "pins", "index_counts") and not v)}
     doc["effects"] = {k: dict(v) for k, v in rig.effects.items()}
     return doc
 

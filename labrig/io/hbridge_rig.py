@@ -5,6 +5,8 @@ board's greeting are :mod:`labrig.bridge.hbridge`'s.
 """
 from __future__ import annotations
 
+import math
+
 from labrig.core.errors import ConfigError
 
 #: the sample clock of the H-bridge build: Timer2 at 10 kHz, divided in software
@@ -69,3 +71,20 @@ def check_rig(rig, path, given: dict) -> None:
         raise ConfigError(f"{path}: key 'sensors.current_zero_v' = {s.current_zero_v:g}: the "
                           "board reads the sense output on A0 from 0 to 5 V; give its output at "
                           "zero current (2.5 V for a bidirectional sense amplifier at mid-supply)")
+    if b.index_counts:
+        _check_index(rig, path)
+
+
+def _check_index(rig, path) -> None:
+    """An index pulse comes once a turn of the shaft the encoder sits on: its counts are that
+    turn's counts by the file's own resolution and gear, on the motor or the output shaft."""
+    b, s = rig.bridge, rig.sensors
+    per_output_turn = s.encoder_counts_per_unit * 2 * math.pi
+    shafts = {"the output shaft": per_output_turn,
+              "the motor shaft": per_output_turn / rig.gear_ratio}
+    if not any(abs(b.index_counts - c) <= 0.002 * c for c in shafts.values()):
+        turns = " or ".join(f"{c:.6g} ({name})" for name, c in shafts.items())
+        raise ConfigError(f"{path}: key 'bridge.index_counts' = {b.index_counts}: an index "
+                          "pulse comes once a turn of the encoder's shaft, which by "
+                          "sensors.encoder_counts_per_unit and rig.gear_ratio is "
+                          f"{turns} counts; set the one the encoder sits on, or 0 for none")

@@ -279,6 +279,7 @@ def read_run(path: Path | str) -> Run:
     _check_against_sidecar(csv_path, json_path, data, meta)
     run = Run(name=csv_path.stem, data=data, meta=meta, path=csv_path)
     _check_gaps(run)
+    _check_encoder(run)
     return run
 
 
@@ -401,6 +402,19 @@ def _check_gaps(run: Run):
                            f"({100 * lost / n:.0f} %) were lost on the link (gap = 1); "
                            f"more than {MAX_GAP_SHARE:.0%} is not a measurement: record the "
                            "run again (check the cable, or lower the sample rate)")
+
+
+def _check_encoder(run: Run):
+    """A run whose board said its encoder lost counts (``bridge.encoder.problems``, written
+    by the sweep that played it) has positions off by the counts lost after the first: not
+    a measurement of the shaft."""
+    enc = (run.meta.get("bridge") or {}).get("encoder") or {}
+    problems = enc.get("problems") if isinstance(enc, dict) else None
+    if problems:
+        raise RunFileError(f"{run.path}: its encoder lost counts while it played "
+                           f"({problems[0]}; bridge.encoder in its sidecar): its positions are "
+                           "not the shaft's; play the run again (check the encoder's wiring, "
+                           "lower the speed or the decoding)")
 
 
 def _check_speed_column(csv_path, json_path, data, meta):

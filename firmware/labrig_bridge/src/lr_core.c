@@ -259,6 +259,7 @@ static void handle(const lr_frame_t *f)
             ref_now = LR_REF_ZERO;
             ring_head = ring_tail = 0; acquiring = 0;
             ctr.sample_overruns = ctr.ring_overflows = 0;
+            hal_index_reset();          /* a run's index pulses are its own */
             state = LR_STATE_RUNNING;
             hal_unlock(s);
         }
@@ -283,7 +284,7 @@ static void handle(const lr_frame_t *f)
         lr_put32(b + 20, ctr.sample_overruns + ctr.ring_overflows);
         b[24] = state;
         lr_put16(b + 25, dac_now);
-        lr_put16(b + 27, 0);
+        lr_put16(b + 27, hal_encoder_faults());
         send(LR_STATUS, b, 29);
         break;
     }
@@ -396,6 +397,22 @@ static void send_samples(uint8_t finishing)
     }
 }
 
+/* An index pulse of this run, as it came (the latest, if two came between two polls:
+ * the pulse number says how many) */
+static void send_index(void)
+{
+    if (hal_tx_free() < 4 + 10 + 3) return;   /* its worst case on the wire; next poll */
+    int32_t count;
+    uint32_t sample;
+    uint16_t pulses;
+    if (!hal_index_take(&count, &sample, &pulses)) return;
+    uint8_t b[10];
+    lr_put32(b, sample);
+    lr_put32(b + 4, (uint32_t)count);
+    lr_put16(b + 8, pulses);
+    send(LR_INDEX, b, 10);
+}
+
 void lr_core_poll(void)
 {
     int c;
@@ -408,6 +425,7 @@ void lr_core_poll(void)
         }
     }
     uint8_t st = state;
+    if (st == LR_STATE_RUNNING || st == LR_STATE_FINISHING) send_index();
     if (st == LR_STATE_RUNNING) {
         send_samples(0);
     } else if (st == LR_STATE_FINISHING && !acquiring) {
@@ -433,6 +451,7 @@ void lr_core_poll(void)
 
 uint8_t lr_core_state(void) { return state; }
 uint16_t lr_core_reference(void) { return ref_now; }
+uint32_t lr_core_sample_index(void) { return tick_index; }
 uint16_t lr_core_dac_word(void) { return dac_now; }
 const lr_counters_t *lr_core_counters(void) { return &ctr; }
 const lr_decoder_t *lr_core_decoder(void) { return &dec; }

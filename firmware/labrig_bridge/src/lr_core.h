@@ -38,7 +38,8 @@ extern "C" {
 #define LR_ADC_CHANNELS 3
 #endif
 #ifndef LR_RIG_FLAGS
-#define LR_RIG_FLAGS 0           /* bit0 IN1/IN2 drive, bit1 brake off phase, bit2 current sense */
+#define LR_RIG_FLAGS 0           /* bit0 IN1/IN2 drive, bit1 brake off phase, bit2 current sense,
+                                    bit3 index pulse input (INDEX messages) */
 #endif
 #ifndef LR_DECODING
 #define LR_DECODING 0            /* encoder decoding 1, 2 or 4; 0 no encoder */
@@ -69,7 +70,8 @@ void lr_core_poll(void);                                    /* main loop */
 void lr_core_send_hello(void);
 void lr_core_rx_overrun(void);                              /* UART ISR saw DOR/FE */
 uint8_t lr_core_state(void);
-uint16_t lr_core_reference(void);                           /* digital loop: this sample's reference word */
+uint16_t lr_core_reference(void);
+uint32_t lr_core_sample_index(void);                        /* the next sample's index (ISRs) */                           /* digital loop: this sample's reference word */
 uint16_t lr_core_dac_word(void);                            /* last word written */
 const lr_counters_t *lr_core_counters(void);
 const lr_decoder_t *lr_core_decoder(void);

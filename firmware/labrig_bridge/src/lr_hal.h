@@ -17,6 +17,14 @@ void hal_adc_start(void);
 /* The encoder's count now (a digital position loop's feedback; called from the sample
  * interrupt, where the count cannot change under it). 0 on a rig without an encoder. */
 int32_t hal_position(void);
+/* The index pulse (the H-bridge rig's encoder): 1 when a pulse came since the last call,
+ * with the count latched at its rising edge, the sample it came before and the pulses
+ * since hal_index_reset(); 0 when none came (always, on a rig without one). Main loop. */
+uint8_t hal_index_take(int32_t *count, uint32_t *sample, uint16_t *pulses);
+/* Forget the pulses so far (START, interrupts off). */
+void hal_index_reset(void);
+/* Undecodable encoder jumps since reset, saturating at 65535 (0 without an encoder). */
+uint16_t hal_encoder_faults(void);
 /* Next received byte, or -1 if none waiting. */
 int hal_rx_read(void);
 /* Bytes of space in the transmit queue; hal_tx_write() blocks only beyond that. */

@@ -53,6 +53,44 @@ static inline void lr_quad_feed(lr_quad_t *q, uint8_t a, uint8_t b)
     q->count += d;
 }
 
+/* ---- index pulse -----------------------------------------------------------------------
+ * Once a turn of the encoder's shaft the index channel goes high (most encoders gate it to
+ * one quadrature state, A = B = high). Its rising edge latches the count. The decoder is
+ * fed the A/B pins first, in the same interrupt: whichever of the index's and the
+ * channels' interrupts the chip serves first, the count latched is the count of the state
+ * the index marks, the same whichever way the shaft turns. `sample` is the index of the
+ * next sample the board takes (the pulse came between samples sample - 1 and sample). */
+typedef struct {
+    volatile int32_t count;     /* the count at the latest pulse */
+    volatile uint32_t sample;   /* the sample it came before */
+    volatile uint16_t pulses;   /* pulses since reset (wraps) */
+    volatile uint8_t fresh;     /* a pulse not yet taken */
+    uint8_t level;              /* the index pin's last level */
+} lr_index_t;
+
+static inline void lr_index_reset(lr_index_t *x, uint8_t level)
+{
+    x->count = 0;
+    x->sample = 0;
+    x->pulses = 0;
+    x->fresh = 0;
+    x->level = level ? 1 : 0;
+}
+
+/* The pins now read a, b and idx (any nonzero = high); called from the index's interrupt. */
+static inline void lr_index_feed(lr_index_t *x, lr_quad_t *q, uint8_t a, uint8_t b, uint8_t idx,
+                                 uint32_t sample)
+{
+    lr_quad_feed(q, a, b);
+    if (idx && !x->level) {
+        x->count = q->count;
+        x->sample = sample;
+        x->pulses++;
+        x->fresh = 1;
+    }
+    x->level = idx ? 1 : 0;
+}
+
 /* ---- drive word -> bridge inputs -----------------------------------------------------
  * The host sends offset-binary words: word = zero + d, d in [-(top+1), top], where the
  * PWM counts 0..top (top = 2^bits - 1, fast PWM: a compare value c keeps the output high

@@ -30,7 +30,7 @@ enum {
 /* board -> host */
 enum {
     LR_ACK = 0x80, LR_HELLO = 0x81, LR_SAMPLES = 0x82, LR_STATUS = 0x83,
-    LR_DONE = 0x84, LR_ERROR = 0x85
+    LR_DONE = 0x84, LR_ERROR = 0x85, LR_INDEX = 0x86
 };
 enum { LR_LOOP_OPEN = 0, LR_LOOP_CLOSED = 1 };
 enum { LR_WAVE_CONSTANT = 0, LR_WAVE_SQUARE = 1, LR_WAVE_STEP = 2, LR_WAVE_STAIRCASE = 3,
