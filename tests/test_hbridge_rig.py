@@ -39,6 +39,10 @@ def _rig(tmp_path, **changes) -> Path:
     ({"board": '"mega"'}, ["bridge.pins.pwm_in1", "a Mega 2560 uses D11", "OC1A"]),
     ({"pins": "{enc_z = 4}"}, ["bridge.pins.enc_z", "no such signal", "enc_a"]),
     ({"board": "false"}, ["bridge.board"]),
+    ({"index_counts": 100}, ["bridge.index_counts", "1320 (the output shaft) or 44 (the motor shaft)"]),
+    ({"index_counts": -1}, ["bridge.index_counts"]),
+    ({"firmware": '"ms150"', "pins": "{}", "index_counts": 44},
+     ["bridge.index_counts", "reads no encoder"]),
 ])
 def test_a_rig_file_the_board_cannot_play_is_refused_in_one_line(tmp_path, changes, words):
     rig = _rig(tmp_path, **changes)
@@ -89,6 +93,15 @@ def test_the_board_is_checked_against_the_rig_file():
     v1 = {**hello, "rig": "ms150"}
     with pytest.raises(RigError, match="runs the ms150 firmware.*RIG=hbridge PWM_BITS=8"):
         hbridge.check_board(rig, v1, "/dev/ttyUSB0")
+    # a 2.0 build reads no index: a rig file that wires one is told to reflash; 2.1 reads it
+    # (and a rig file without one takes either)
+    indexed = load_rig(RIG_FILE)
+    indexed.bridge.index_counts = 44
+    with pytest.raises(RigError, match="reads no index pulse.*index_counts = 0"):
+        hbridge.check_board(indexed, {**hello, "board": "uno"}, "/dev/ttyUSB0")
+    v21 = {**hello, "board": "uno", "rig_flags": hello["rig_flags"] | P.FLAG_INDEX}
+    hbridge.check_board(indexed, v21, "/dev/ttyUSB0")
+    hbridge.check_board(rig, v21, "/dev/ttyUSB0")
 
 
 def test_the_rig_files_board_and_pins_are_the_wirings_and_the_emulators(tmp_path):
@@ -179,3 +192,21 @@ def test_the_ms150_output_stage_rises_with_channel_a_as_the_emulator_assumes():
     # the page says what the netlist is
     doc = (ROOT / "docs" / "hardware.md").read_text()
     assert "R1 = 10.0 k (0.1 %) from VOUTB to the\ninverting input" in doc
+
+
+def test_the_encoders_record_judges_a_runs_counts():
+    """Pulses a whole number of turns apart (either way, below zero too) are clean; one
+    within an encoder cycle of it is an ungated index met from the other side, not a slip;
+    beyond it, and undecodable edges, and a wired index that never pulsed, are named."""
+    ev = lambda *counts: [{"sample": 10 * k, "count": c, "pulse": k + 1} for k, c in enumerate(counts)]
+    clean = hbridge.encoder_record(ev(-70, -26, 18, -114), 0, 44, 4, 300)
+    assert clean == {"faults": 0, "index_pulses": 4, "index_sample": 0, "index_count": -70,
+                     "slip_counts": 0}
+    assert hbridge.encoder_record(ev(20, 67), 0, 44, 4, 100)["slip_counts"] == 3
+    assert "problems" not in hbridge.encoder_record(ev(20, 67), 0, 44, 4, 100)
+    slipped = hbridge.encoder_record(ev(20, 70), None, 44, 4, 100)
+    assert slipped["slip_counts"] == 6 and slipped["faults"] is None
+    assert "6 counts off a whole number of turns" in slipped["problems"][0]
+    assert "could not decode" in hbridge.encoder_record([], 3, 0, 4, 1000)["problems"][0]
+    assert "problems" not in hbridge.encoder_record([], 0, 44, 4, 60)   # not a turn and a half
+    assert "is the index wired" in hbridge.encoder_record([], 0, 44, 4, 70)["problems"][0]
