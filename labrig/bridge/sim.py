@@ -78,7 +78,8 @@ class SimRig(Bridge):
         self._count["samples"] += s.stop - s.start
         self._count["run_samples"] += s.stop - s.start
         self._output_v = float(d["u"][s.stop - 1])
-        part = {k: (d[k][s] if d[k] is not None else None) for k in ("tacho", "ref", "current")}
+        part = {k: (d[k][s] if d[k] is not None else None)
+                for k in ("tacho", "ref", "current", "drive")}
         return SampleBlock(index=np.arange(s.start, s.stop), u=d["u"][s], pos=d["pos"][s], **part)
 
     def stop(self) -> None:
@@ -103,11 +104,17 @@ class SimRig(Bridge):
         rig, br = self.rig, self.rig.bridge
         dt = 1.0 / exp.sample_rate_hz
         t = np.arange(exp.n_samples) * dt
-        u = quantise(exp.waveform_at(t), br.dac_bits, *br.dac_range_v)
+        sampled = board_law(exp, rig)
+        if sampled:   # the board's reference: whole counts, not a DAC's volts
+            cpu = sampled["counts_per_unit"]
+            u = np.round(exp.waveform_at(t) * cpu) / cpu
+        else:
+            u = quantise(exp.waveform_at(t), br.dac_bits, *br.dac_range_v)
         sim = simulate_truth(self.params, u, dt, effects=self.effects,
                              effect_params=self._effect_params, loop=exp.loop,
                              kp=exp.position_gain, kv=exp.velocity_gain,
-                             substeps=self.substeps, rail_v=rig.amplifier.output_limit_v)
+                             substeps=self.substeps, rail_v=rig.amplifier.output_limit_v,
+                             sampled=sampled)
         # one stream per experiment name: adding an experiment never changes the others
         rng = np.random.default_rng([self.seed, zlib.crc32(exp.name.encode())])
         s = rig.sensors
@@ -128,6 +135,17 @@ class SimRig(Bridge):
         if s.current_v_per_a > 0:
             n_cur = rng.normal(0, rig.noise.current_v, len(t))
             current = quantise(s.current_v_per_a * sim["i"] + n_cur, br.adc_bits, lo, hi)
-        ref = quantise(u, br.adc_bits, lo, hi) if exp.loop == "closed" else None
+        ref = quantise(u, br.adc_bits, lo, hi) if exp.loop == "closed" and not sampled else None
         return {"t": t, "u": u, "tacho": tacho, "pos": pos, "ref": ref, "current": current,
-                "truth": sim}
+                "drive": sim.get("drive"), "truth": sim}
+
+
+def board_law(exp: Experiment, rig) -> dict | None:
+    """The law an H-bridge board runs ``exp``'s closed loop by (its sidecar's
+    ``experiment.controller.sampled``), or None: an open-loop run, or a rig whose loop is
+    not the board's."""
+    if exp.loop != "closed" or rig.bridge.firmware != "hbridge":
+        return None
+    from labrig.bridge.settings import bridge_settings, sampled_pd
+
+    return sampled_pd(exp, bridge_settings(rig))

@@ -70,8 +70,9 @@ def acquire(bridge: Bridge, exp: Experiment, rig, progress: Callable[[int], None
     experiment = exp.to_sidecar()
     controller = rig.controller_sidecar(exp)
     if controller is not None:
-        if bridge.source == "serial" and rig.bridge.firmware == "hbridge":
-            # the board's own loop: its law on its count, for the model to run the same
+        if rig.bridge.firmware == "hbridge" and bridge.source in ("serial", "sim"):
+            # the board's own loop (played, or simulated as the board plays it): its law on
+            # its count, for the model to run the same
             from labrig.bridge.settings import bridge_settings, sampled_pd
             controller["sampled"] = sampled_pd(exp, bridge_settings(rig),
                                                getattr(bridge, "hello", None))

@@ -11,16 +11,20 @@ sample k is applied; the output is held until t_{k+1} (zero-order hold).
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from labrig.model.effects import Effect, ordered
+from labrig.simulation.sampled_kernel import pd_counts
 from labrig.model.servo import ServoParams
 
 
 def simulate_truth(p: ServoParams, u: np.ndarray, dt: float, *, effects=(),
                    effect_params: dict | None = None, loop: str = "open",
                    kp: float | None = None, kv: float | None = None, substeps: int = 20,
-                   x0=(0.0, 0.0, 0.0), rail_v: float = np.inf) -> dict:
+                   x0=(0.0, 0.0, 0.0), rail_v: float = np.inf,
+                   sampled: dict | None = None) -> dict:
     """Simulate one run.
 
     Parameters
@@ -39,11 +43,18 @@ def simulate_truth(p: ServoParams, u: np.ndarray, dt: float, *, effects=(),
         Integration steps per sample.
     rail_v : float
         The amplifier's supply rail (V): physics, not an optional effect.
+    sampled : dict, optional
+        A closed loop run by a board on its encoder count (an H-bridge board's law:
+        ``kp_q``, ``kd_q``, ``counts_per_unit``, ``volts_per_count``, ``limits``, as
+        :func:`labrig.bridge.settings.sampled_pd` gives it): at each sample the count of
+        the output shaft (rounded, as the simulated rig records it) from the run's start
+        against ``u`` in counts, its change over one sample, the output held to the next.
 
     Returns
     -------
     dict with ``w`` (motor rad/s), ``theta`` (output rad, after backlash),
-    ``theta_m`` (motor rad), ``i`` (A), all sampled at t_k.
+    ``theta_m`` (motor rad), ``i`` (A), all sampled at t_k; with ``sampled``, ``drive``
+    (the board's output, V).
     """
     effect_params = effect_params or {}
     if loop == "closed" and (kp is None or kv is None):
@@ -67,15 +78,28 @@ def simulate_truth(p: ServoParams, u: np.ndarray, dt: float, *, effects=(),
     i, w, th = map(float, x0)
     play = th / p.N
     out_w, out_th, out_thm, out_i = (np.empty(n) for _ in range(4))
+    drive = np.zeros(n) if sampled else None
+    if sampled:
+        kq, dq = float(sampled["kp_q"]), float(sampled["kd_q"])
+        cpu, vpc = float(sampled["counts_per_unit"]), float(sampled["volts_per_count"])
+        lo, hi = (float(v) for v in sampled["limits"])
+        ref = np.round(u * cpu)   # the board's reference words: counts from the run's start
+        c0, x_prev = None, 0
     for k in range(n):
         # sample first (the ADC reads at t_k)
         out_w[k], out_thm[k], out_i[k] = w, th, i
         out_th[k] = play if outp else th / p.N
+        if sampled:   # the board's law at this tick, on this sample's count
+            count = math.floor(out_th[k] * cpu + 0.5)
+            c0 = count if c0 is None else c0
+            x = count - c0
+            drive[k] = vpc * pd_counts(kq, dq, ref[k] - x, x - x_prev, lo, hi)
+            x_prev = x
         for s in range(substeps):
             tau = k * dt + s * h - td
             kk = int(np.floor(tau / dt + 1e-9))
-            r = u[kk] if kk >= 0 else 0.0
-            if loop == "closed":
+            r = (drive if sampled else u)[kk] if kk >= 0 else 0.0
+            if loop == "closed" and not sampled:
                 # the pot on the output shaft closes the loop: it sees the backlash
                 v = kp * (r - p.Kpot * (play if outp else th / p.N)) - kv * p.Kt * w
             else:
@@ -102,7 +126,10 @@ def simulate_truth(p: ServoParams, u: np.ndarray, dt: float, *, effects=(),
             th = th + h * w
             for e, ep in outp:  # the play operator is rate-independent: track every sub-step
                 play, _ = e.output(play, th / p.N, **ep)
-    return {"w": out_w, "theta": out_th, "theta_m": out_thm, "i": out_i}
+    out = {"w": out_w, "theta": out_th, "theta_m": out_thm, "i": out_i}
+    if sampled:
+        out["drive"] = drive
+    return out
 
 
 def _karnopp_step(w: float, tnf: float, tc: float, ts: float, h_over_j: float) -> float:
