@@ -61,6 +61,15 @@ def fit(runs, effects, start: dict, fixed: dict, *, seed: int, weights: Weights,
                     masks=masks, reach=reach, subsample=SUBSAMPLE, stop=stop)
 
 
+def fresh_fit(runs, effects, *, seed: int, fixed: dict, weights: Weights, reach=None):
+    """``effects`` fitted from the identification's own starts (its initial point and its
+    multi-starts), not from a model fitted before: where the data put the plant without
+    the compromise a simpler model made. A linear model absorbs a friction into a slow
+    time constant, and a pair of effects added to it can stay in that basin."""
+    return identify(runs, "co", effects, seed=seed, fixed=fixed, identifiability=False,
+                    p=weights.p, q=weights.q, reach=reach)
+
+
 def thinned_fitness(runs, model: Model, fixed: dict, weights: Weights, reach) -> float:
     """``model``'s fitness on the residuals a re-fit sees (every k-th, :data:`SUBSAMPLE`):
     what a re-fit's own history is compared with (the screen,

@@ -36,7 +36,7 @@ from labrig.core.parallel import each
 from labrig.model.effects import CATALOGUE, get_effect
 from labrig.model.model import Model, param_keys
 from labrig.model.reach import Reach
-from labrig.diagnosis.refit import refit, refit_with, without
+from labrig.diagnosis.refit import fresh_fit, refit, refit_with, without
 from labrig.diagnosis.resolution import unresolved
 
 #: the catalogue's effects that set how much drive it takes to move (``Effect.pair_rank``,
@@ -159,6 +159,15 @@ class _Judge:
         return refit_with(self.runs, model, get_effect(name), seed=self.seed, fixed=self.fixed,
                           weights=self.weights, carried=carried).model()
 
+    def or_fresh(self, model, ev):
+        """``model`` (evaluated ``ev``) or the same effects fitted from the identification's
+        own starts, whichever fits better, with its evaluation: a pair warm-started from one
+        of its members can stay in the basin that member's fit left it in."""
+        other = fresh_fit(self.runs, model.effects, seed=self.seed, fixed=self.fixed,
+                          weights=self.weights, reach=Reach.of(self.runs, model)).model()
+        ev2 = self.evaluate(other)
+        return (other, ev2) if ev2.fitness < ev.fitness else (model, ev)
+
 
 def _pool(ranking) -> list:
     """The leading candidates, one per family: the simplest member unless a richer one
@@ -203,8 +212,9 @@ def _pair(judge: _Judge, diag, log) -> Step | None:
                 best = (m, ev, [a.effect, b.effect])
     if best is None:
         return None
+    m, ev = judge.or_fresh(best[0], best[1])
     _say(log, f"  trying the pair {' + '.join(best[2])} (no single effect is near the floor)")
-    return Step("pair", best[2], best[0], best[1], judge.cv(best[0]))
+    return Step("pair", best[2], m, ev, judge.cv(m))
 
 
 def _threshold_pair(judge: _Judge, model, cv_now: float, log) -> Step | None:
