@@ -612,3 +612,41 @@ def test_an_index_the_rig_file_wires_but_that_never_pulses_is_named(tmp_path):
                     "-o", tmp_path / "runs")
     assert r.returncode == 1, r.stderr
     assert "no index pulse while the shaft turned" in r.stderr and "is the index wired" in r.stderr
+
+
+def test_asking_the_board_itself_and_the_runs_together_find_the_dead_zone(tmp_path):
+    """One 4 V square of a motor whose bridge hides a 1.0/1.6 V dead zone: the square alone
+    cannot tell a dead zone from a gain asymmetry (the loop took the asymmetry, at 0.88 of
+    the noise, on two sweeps of this plant). `diagnose --auto --ask-rig --port` greets the
+    board, plays the proposed ramp on it (the real firmware, its run beside the others in
+    asked/), and the decision says that neither explains it; all the runs together then
+    name the asymmetric dead zone, each way within 5 %. (Should a sweep's square alone
+    already name the dead zone, nothing is asked and that is checked instead.)"""
+    rig_file = _rig_with(tmp_path, {"asymmetric_deadband": {"dpos_v": 1.0, "dneg_v": 1.6}})
+    runs = tmp_path / "runs"
+    with Emulator("uno", load_rig(rig_file)) as emu:
+        _swept(_labrig("sweep", "--port", emu.pty, "--rig", rig_file, "--plan",
+                       _square_plan(tmp_path, 4.0), "-o", runs))
+        r = _labrig("diagnose", runs, "--auto", "--ask-rig", "--port", emu.pty, "--rig", rig_file,
+                    "--json", timeout=900)
+    assert r.returncode == 0, r.stderr
+    d = json.loads(r.stdout)
+    asked = d.get("asked") or {}
+    if not asked.get("decision"):
+        final = d["final_model"]
+        print(f"\nthe square alone named {final['effects']}: {asked.get('text')}")
+        assert final["effects"] == ["asymmetric_deadband"], (final, asked.get("text"))
+        return
+    (played,) = sorted((runs / "asked").glob("*.json"))
+    meta = json.loads(played.read_text())
+    assert meta["bridge"]["firmware"].endswith("uno hbridge") and meta["bridge"]["dropped_samples"] == 0
+    assert set(meta["experiment"]["between"]) == set(asked["pair"])
+    assert asked["decision"]["neither"], asked["text"]
+    assert "Neither explains them" in asked["text"]
+    r = _labrig("diagnose", runs, runs / "asked", "--auto", "--json", timeout=900)
+    assert r.returncode == 0, r.stderr
+    final = json.loads(r.stdout)["final_model"]
+    assert final["effects"] == ["asymmetric_deadband"], final
+    dz = final["effect_params"]["asymmetric_deadband"]
+    assert dz["dpos_v"] == pytest.approx(1.0, rel=0.05) and dz["dneg_v"] == pytest.approx(1.6, rel=0.05)
+    assert final["rmse_over_noise"]["overall"] < 1.5

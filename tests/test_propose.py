@@ -627,3 +627,21 @@ def test_the_decision_does_not_hang_on_the_last_digits_of_the_noise_floor(tmp_pa
     assert d.leader == "stiction", d.to_text()
     assert d.after["stiction"] <= 1.1, d.to_text()            # at the floor, not stalled
     assert Decision.separation(d.after) >= 3.0, d.to_text()
+
+
+def test_a_decision_says_when_neither_explains_the_proposed_runs():
+    """On the emulated H-bridge board (a 1.0/1.6 V dead zone hidden, one 4 V square), the
+    loop asked between a dead zone and a gain asymmetry; the 20 s ramp played showed both
+    wrong (rmse/noise 1081 and 690 with it, against 0.88 for the asymmetry before): that
+    is no decision for the asymmetry, and the text says neither explains the new run. A
+    leader near its floor after the runs is a decision, as before."""
+    from labrig.diagnosis.decide import Decision
+
+    d = Decision(("deadband", "asymmetry"), {"deadband": 275.6, "asymmetry": 0.88},
+                 {"deadband": 1080.9, "asymmetry": 690.4}, ["proposed"])
+    assert d.neither and d.to_json()["neither"] is True
+    assert "Neither explains them" in d.to_text() and "explains the data better" not in d.to_text()
+    assert "neither explains" in d.headline()
+    ok = Decision(("deadband", "coulomb_friction"), {"deadband": 1.1, "coulomb_friction": 1.12},
+                  {"deadband": 1.05, "coulomb_friction": 3.4}, ["proposed"])
+    assert not ok.neither and "deadband explains the data better" in ok.to_text()

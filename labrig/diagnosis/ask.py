@@ -69,7 +69,7 @@ class Asking(Displayable):
     @property
     def sure(self) -> bool:
         d = self.decision
-        return d is not None and Decision.separation(d.after) >= DECISIVE
+        return d is not None and not d.neither and Decision.separation(d.after) >= DECISIVE
 
     @property
     def leader(self) -> str | None:
@@ -195,6 +195,11 @@ def ask_until_sure(runs, model: Model, between: str, play, *, budget_s: float = 
         say(f"step {k}: separation {Decision.separation(d.after):.2f}, {d.leader} ahead")
         if out.sure:
             out.stopped = "decided"
+            break
+        if d.neither:
+            out.stopped = (f"neither explains step {k}'s run (rmse/noise "
+                           f"{d.after[d.leader]:.2f} for the better, {d.leader}): what it shows "
+                           "is another effect than these two")
             break
         if len(out.steps) >= FUTILE_STEPS and all(
                 Decision.separation(st.decision.after) < FUTILE for st in out.steps[-FUTILE_STEPS:]):

@@ -17,6 +17,12 @@ from labrig.model.model import Model
 from labrig.diagnosis.diagnose import linear_model
 
 
+#: after the proposed runs, a leader more than this many times the noise floor, and more
+#: than twice what it reached before them, explains them no better than the other: what
+#: the new runs show is neither of the two
+NEITHER = 3.0
+
+
 @dataclass(repr=False)
 class Decision(Displayable):
     """How well each of a pair explains the data before and after the proposed runs."""
@@ -40,13 +46,24 @@ class Decision(Displayable):
     def leader(self) -> str:
         return min(self.after, key=self.after.get)
 
+    @property
+    def neither(self) -> bool:
+        """Neither explanation fits the proposed runs: the better one is far above the noise
+        floor after them (:data:`NEITHER`) where it was not before."""
+        best = self.after[self.leader]
+        return best > NEITHER and best > 2.0 * min(self.before.values())
+
     def to_json(self) -> dict:
         return {"between": list(self.pair), "new_runs": self.new_runs,
                 "rmse_over_noise_before": self.before, "rmse_over_noise_after": self.after,
                 "separation_before": self.separation(self.before),
-                "separation_after": self.separation(self.after), "leader": self.leader}
+                "separation_after": self.separation(self.after), "leader": self.leader,
+                "neither": self.neither}
 
     def headline(self) -> str:
+        if self.neither:
+            return (f"Decision between {self.pair[0]} and {self.pair[1]}: neither explains "
+                    "the new runs")
         return f"Decision between {self.pair[0]} and {self.pair[1]}: {self.leader} explains better"
 
     def table_rows(self) -> Table:
@@ -66,10 +83,17 @@ class Decision(Displayable):
         sb, sa = self.separation(self.before), self.separation(self.after)
         other = b if self.leader == a else a
         grew = f", {sa / sb:.1f} times" if sb > 0.01 else ""
-        return (f"the run(s) proposed to tell {a} and {b} apart ({', '.join(self.new_runs)}): "
+        head = (f"the run(s) proposed to tell {a} and {b} apart ({', '.join(self.new_runs)}): "
                 f"separation {sb:.3f} before, {sa:.3f} after (worse rmse/noise over better, "
-                f"minus one{grew}). {self.leader} explains the data better (rmse/noise "
-                f"{self.after[self.leader]:.2f} against {self.after[other]:.2f}).")
+                f"minus one{grew}). ")
+        if self.neither:
+            return head + (f"Neither explains them: {a} at rmse/noise {self.after[a]:.2f} and "
+                           f"{b} at {self.after[b]:.2f} with them, against "
+                           f"{self.before[self.leader]:.2f} for {self.leader} before; what "
+                           "they show is another effect than these two: diagnose all the runs "
+                           "together (--auto) to find it.")
+        return head + (f"{self.leader} explains the data better (rmse/noise "
+                       f"{self.after[self.leader]:.2f} against {self.after[other]:.2f}).")
 
 
 def _best_fit_with(runs, base: Model, effect: str, seed: int, start: Model | None):
