@@ -32,7 +32,7 @@ def _board(w, right, left=(), rows=None):
     fn = lambda pin: PIN_FUNCTIONS[w.rig_kind][w.board].get(pin)
     pins = _pins(right, "R", rows, [f"p_{p}" if p else None for p in right],
                  [fn(p) for p in right])
-    pins += _pins(left, "L", rows, [f"p_{p}" for p in left], [fn(p) for p in left])
+    pins += _pins(left, "L", rows, [f"p_{p}" if p else None for p in left], [fn(p) for p in left])
     pins += [elm.IcPin(name="5V", side="T", anchorname="p_5V"),
              elm.IcPin(name="GND", side="B", anchorname="p_GND")]
     name = BOARD_PARTS[w.board][0].replace("Arduino ", "Arduino\n").replace(" Rev3", "")
@@ -71,15 +71,16 @@ def _hbridge(w) -> None:
     p = {k: w.pin(k) for k in ("pwm_in1", "dir_in2", "enc_a", "enc_b")}
     a0 = w.pin("current") if sense else None
     index = w.options.get("index_counts", 0) > 0
-    enc_pins = [p["enc_a"], p["enc_b"]] + ([w.pin("index")] if index else [])
+    # (the middle row is the blocks' names: the index goes below it)
+    enc_pins = [p["enc_a"], p["enc_b"]] + ([None, w.pin("index")] if index else [])
     board = _board(w, [p["pwm_in1"], p["dir_in2"], None, None, a0],
                    left=enc_pins, rows=ROWS).right().anchor("center").at((0, 0))
     _power(board.p_5V)
     _power(board.p_GND, up=False)
 
     # the encoder, to the board's left: A and B on the interrupt pins, its index on a third
-    names = ["A", "B"] + (["I"] if index else [])
-    enc = elm.Ic(pins=_pins(names, "R", ROWS, [n.lower() for n in names])
+    names = ["A", "B"] + ([None, "I"] if index else [])
+    enc = elm.Ic(pins=_pins(names, "R", ROWS, [n.lower() if n else None for n in names])
                  + [elm.IcPin(name="VCC", side="T", anchorname="vcc"),
                     elm.IcPin(name="GND", side="B", anchorname="gnd")],
                  size=(3.0, (ROWS + 1) * ROW), pinspacing=ROW, lblsize=11, pinlblsize=10
