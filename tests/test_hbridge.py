@@ -25,6 +25,7 @@ import pytest
 from labrig.bridge import hbridge
 from labrig.bridge.emulate import APT_PACKAGES, FIRMWARE_DIR, Emulator, firmware_make, missing_tools
 from labrig.io.config import load_rig
+from test_hbridge_rig import board_loop_plan
 
 _missing = missing_tools()
 pytestmark = [
@@ -307,13 +308,7 @@ def board_loop(tmp_path_factory):
     0.3 V per rad/s at 200 Hz) on the emulated board, dead zone and friction hidden."""
     tmp_path = tmp_path_factory.mktemp("board_loop")
     rig_file = _rig_with(tmp_path, HIDDEN)
-    plan = tmp_path / "plan.toml"
-    plan.write_text('[defaults]\nsample_rate_hz = 200.0\nlead_in_s = 0.5\n\n'
-                    '[[experiment]]\nloop = "open"\nwaveform = "square"\namplitudes_v = [4.5, 9.0]\n'
-                    'frequency_hz = 0.5\nperiods = 2\n\n'
-                    '[[experiment]]\nname = "pd_3rad"\nloop = "closed"\nwaveform = "square"\n'
-                    'amplitude_v = 3.0\nfrequency_hz = 0.5\nperiods = 2\nposition_gain = 10.0\n'
-                    'velocity_gain = 0.3\n')
+    plan = board_loop_plan(tmp_path)
     runs = tmp_path / "runs"
     _swept(_labrig("sweep", "--emulate", "--rig", rig_file, "--plan", plan, "-o", runs))
     return {"runs": runs, "rig": rig_file, "tmp": tmp_path}

@@ -212,6 +212,19 @@ def test_the_encoders_record_judges_a_runs_counts():
     assert "is the index wired" in hbridge.encoder_record([], 0, 44, 4, 70)["problems"][0]
 
 
+def board_loop_plan(folder: Path) -> Path:
+    """Two open-loop squares and a closed-loop run of the board's own PD (kp 10 V/rad, kd
+    0.3 V per rad/s at 200 Hz): ``folder/plan.toml``."""
+    plan = folder / "plan.toml"
+    plan.write_text('[defaults]\nsample_rate_hz = 200.0\nlead_in_s = 0.5\n\n'
+                    '[[experiment]]\nloop = "open"\nwaveform = "square"\namplitudes_v = [4.5, 9.0]\n'
+                    'frequency_hz = 0.5\nperiods = 2\n\n'
+                    '[[experiment]]\nname = "pd_3rad"\nloop = "closed"\nwaveform = "square"\n'
+                    'amplitude_v = 3.0\nfrequency_hz = 0.5\nperiods = 2\nposition_gain = 10.0\n'
+                    'velocity_gain = 0.3\n')
+    return plan
+
+
 def test_the_simulated_rig_runs_an_hbridge_boards_own_loop(tmp_path):
     """`sweep --sim` on an H-bridge rig closes a position loop as its board does: the run
     carries the board's law (experiment.controller.sampled), and every logged drive is that
@@ -223,13 +236,7 @@ def test_the_simulated_rig_runs_an_hbridge_boards_own_loop(tmp_path):
     import pandas as pd
 
     rig_file = _rig(tmp_path)
-    plan = tmp_path / "plan.toml"
-    plan.write_text('[defaults]\nsample_rate_hz = 200.0\nlead_in_s = 0.5\n\n'
-                    '[[experiment]]\nloop = "open"\nwaveform = "square"\namplitudes_v = [4.5, 9.0]\n'
-                    'frequency_hz = 0.5\nperiods = 2\n\n'
-                    '[[experiment]]\nname = "pd_3rad"\nloop = "closed"\nwaveform = "square"\n'
-                    'amplitude_v = 3.0\nfrequency_hz = 0.5\nperiods = 2\nposition_gain = 10.0\n'
-                    'velocity_gain = 0.3\n')
+    plan = board_loop_plan(tmp_path)
     runs = tmp_path / "runs"
     r = subprocess.run([sys.executable, "-m", "labrig", "sweep", "--sim", "--rig", str(rig_file),
                         "--plan", str(plan), "-o", str(runs)], capture_output=True, text=True)
