@@ -264,3 +264,23 @@ def test_the_simulated_rig_runs_an_hbridge_boards_own_loop(tmp_path):
     assert res["per_run"]["pd_3rad"]["position"] < 1.5, res["per_run"]
     dz = res["effect_params"]["asymmetric_deadband"]
     assert dz["dpos_v"] == pytest.approx(1.5, rel=0.03) and dz["dneg_v"] == pytest.approx(2.1, rel=0.03)
+
+
+@pytest.mark.parametrize("encoder", [{"problems": 5}, "junk", {"problems": [3]}])
+def test_a_sidecars_malformed_encoder_record_is_one_line(tmp_path, encoder):
+    """A sidecar whose ``bridge.encoder`` is not what a sweep writes: one line naming the
+    file and the key, exit 2, no traceback."""
+    import json
+    import shutil
+
+    runs = tmp_path / "runs"
+    shutil.copytree(ROOT / "data" / "emulated_hbridge", runs)
+    side = runs / "sq_3.00V.json"
+    meta = json.loads(side.read_text())
+    meta["bridge"]["encoder"] = encoder
+    side.write_text(json.dumps(meta))
+    r = subprocess.run([sys.executable, "-m", "labrig", "analyse", str(runs), "-o",
+                        str(tmp_path / "an")], capture_output=True, text=True)
+    assert r.returncode == 2, r.stderr
+    assert r.stderr.count("\n") == 1 and "Traceback" not in r.stderr
+    assert str(side) in r.stderr and "bridge.encoder" in r.stderr

@@ -410,6 +410,11 @@ def _check_encoder(run: Run):
     a measurement of the shaft."""
     enc = (run.meta.get("bridge") or {}).get("encoder") or {}
     problems = enc.get("problems") if isinstance(enc, dict) else None
+    if not isinstance(enc, dict) or not (problems is None or isinstance(problems, list)
+                                         and all(isinstance(p, str) for p in problems)):
+        raise RunFileError(f"{run.path.with_suffix('.json')}: key 'bridge.encoder' must be an "
+                           "object whose 'problems' is a list of sentences, as a sweep writes "
+                           "it; restore the sidecar the sweep wrote, or remove the key")
     if problems:
         raise RunFileError(f"{run.path}: its encoder lost counts while it played "
                            f"({problems[0]}; bridge.encoder in its sidecar): its positions are "
