@@ -164,6 +164,14 @@ def sampled_pd(exp: Experiment, s: BridgeSettings, hello: dict | None = None) ->
             "limits": [int(wmin - zero), int(wmax - zero)]}
 
 
+def board_law(exp: Experiment, rig, hello: dict | None = None) -> dict | None:
+    """The law an H-bridge board closes ``exp``'s loop by (:func:`sampled_pd` of the rig's
+    settings), or None: an open-loop run, or a rig whose loop is not the board's."""
+    if exp.loop != "closed" or rig.bridge.firmware != "hbridge":
+        return None
+    return sampled_pd(exp, bridge_settings(rig), hello)
+
+
 def waveform_levels(exp: Experiment) -> list[float]:
     """The output levels (bridge volts) the board cycles through for ``exp``."""
     if exp.waveform == "square":

@@ -16,6 +16,7 @@ from labrig.model.effects import get_effect
 from labrig.model.servo import ServoParams
 from labrig.model.truth import simulate_truth
 from labrig.bridge.base import Bridge, SampleBlock
+from labrig.bridge.settings import board_law
 from labrig.io.experiment import Experiment
 
 
@@ -139,13 +140,3 @@ class SimRig(Bridge):
         return {"t": t, "u": u, "tacho": tacho, "pos": pos, "ref": ref, "current": current,
                 "drive": sim.get("drive"), "truth": sim}
 
-
-def board_law(exp: Experiment, rig) -> dict | None:
-    """The law an H-bridge board runs ``exp``'s closed loop by (its sidecar's
-    ``experiment.controller.sampled``), or None: an open-loop run, or a rig whose loop is
-    not the board's."""
-    if exp.loop != "closed" or rig.bridge.firmware != "hbridge":
-        return None
-    from labrig.bridge.settings import bridge_settings, sampled_pd
-
-    return sampled_pd(exp, bridge_settings(rig))

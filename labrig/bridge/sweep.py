@@ -16,7 +16,8 @@ import pandas as pd
 from labrig.bridge.base import Bridge
 from labrig.io.experiment import Experiment
 from labrig.core.errors import RigError, UserError
-from labrig.io.runs import Run, make_meta, run_exists, write_run
+from labrig.bridge.settings import board_law
+from labrig.io.runs import Run, encoder_problems, make_meta, run_exists, write_run
 
 
 def acquire(bridge: Bridge, exp: Experiment, rig, progress: Callable[[int], None] | None = None,
@@ -70,12 +71,12 @@ def acquire(bridge: Bridge, exp: Experiment, rig, progress: Callable[[int], None
     experiment = exp.to_sidecar()
     controller = rig.controller_sidecar(exp)
     if controller is not None:
-        if rig.bridge.firmware == "hbridge" and bridge.source in ("serial", "sim"):
-            # the board's own loop (played, or simulated as the board plays it): its law on
-            # its count, for the model to run the same
-            from labrig.bridge.settings import bridge_settings, sampled_pd
-            controller["sampled"] = sampled_pd(exp, bridge_settings(rig),
-                                               getattr(bridge, "hello", None))
+        # the board's own loop (played, or simulated as the board plays it): its law on its
+        # count, for the model to run the same
+        law = board_law(exp, rig, getattr(bridge, "hello", None)) \
+            if bridge.source in ("serial", "sim") else None
+        if law is not None:
+            controller["sampled"] = law
         experiment["controller"] = controller
     meta = make_meta(sample_rate_hz=exp.sample_rate_hz, experiment=experiment,
                      sensors=rig.sensors_sidecar(), rig=rig.rig_sidecar(),
@@ -155,7 +156,7 @@ def sweep(bridge: Bridge, plan: list[Experiment], rig, outdir: Path | str, *,
             lost = int(run.data["gap"].sum()) if "gap" in run.data else 0
             if lost > rig.bridge.max_lost_fraction * len(run):
                 lossy.append((exp.name, lost, len(run)))
-            problems = ((run.meta.get("bridge") or {}).get("encoder") or {}).get("problems")
+            problems = encoder_problems(run.meta)
             if problems:
                 slipped.append((exp.name, problems))
             if on_done:

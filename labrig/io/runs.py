@@ -404,17 +404,27 @@ def _check_gaps(run: Run):
                            "run again (check the cable, or lower the sample rate)")
 
 
+def encoder_problems(meta: dict) -> list | None:
+    """The sentences a run's ``bridge.encoder`` record gives against its counts (None: no
+    record, or no problem); ``ValueError`` when the record is not what a sweep writes."""
+    enc = (meta.get("bridge") or {}).get("encoder") or {}
+    problems = enc.get("problems") if isinstance(enc, dict) else None
+    if not isinstance(enc, dict) or not (problems is None or isinstance(problems, list)
+                                         and all(isinstance(p, str) for p in problems)):
+        raise ValueError("not an object whose 'problems' is a list of sentences")
+    return problems or None
+
+
 def _check_encoder(run: Run):
     """A run whose board said its encoder lost counts (``bridge.encoder.problems``, written
     by the sweep that played it) has positions off by the counts lost after the first: not
     a measurement of the shaft."""
-    enc = (run.meta.get("bridge") or {}).get("encoder") or {}
-    problems = enc.get("problems") if isinstance(enc, dict) else None
-    if not isinstance(enc, dict) or not (problems is None or isinstance(problems, list)
-                                         and all(isinstance(p, str) for p in problems)):
+    try:
+        problems = encoder_problems(run.meta)
+    except ValueError:
         raise RunFileError(f"{run.path.with_suffix('.json')}: key 'bridge.encoder' must be an "
                            "object whose 'problems' is a list of sentences, as a sweep writes "
-                           "it; restore the sidecar the sweep wrote, or remove the key")
+                           "it; restore the sidecar the sweep wrote, or remove the key") from None
     if problems:
         raise RunFileError(f"{run.path}: its encoder lost counts while it played "
                            f"({problems[0]}; bridge.encoder in its sidecar): its positions are "

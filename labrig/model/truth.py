@@ -85,6 +85,7 @@ def simulate_truth(p: ServoParams, u: np.ndarray, dt: float, *, effects=(),
         lo, hi = (float(v) for v in sampled["limits"])
         ref = np.round(u * cpu)   # the board's reference words: counts from the run's start
         c0, x_prev = None, 0
+    held = drive if sampled else u   # what the amplifier input follows, sample by sample
     for k in range(n):
         # sample first (the ADC reads at t_k)
         out_w[k], out_thm[k], out_i[k] = w, th, i
@@ -98,7 +99,7 @@ def simulate_truth(p: ServoParams, u: np.ndarray, dt: float, *, effects=(),
         for s in range(substeps):
             tau = k * dt + s * h - td
             kk = int(np.floor(tau / dt + 1e-9))
-            r = (drive if sampled else u)[kk] if kk >= 0 else 0.0
+            r = held[kk] if kk >= 0 else 0.0
             if loop == "closed" and not sampled:
                 # the pot on the output shaft closes the loop: it sees the backlash
                 v = kp * (r - p.Kpot * (play if outp else th / p.N)) - kv * p.Kt * w
