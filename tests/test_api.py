@@ -114,13 +114,16 @@ def test_one_progress_hook_for_every_verb(tmp_path):
     assert its[-1].data == pytest.approx(fit.fitness, rel=1e-9)
     events.clear()
     diag = lr.diagnose(DATA, fit, candidates=["deadband"], progress=events.append)
-    # the ranking as it forms: the re-fit started, done, then its held-out error known
-    assert [(e.verb, e.kind) for e in events] == [("diagnose", "candidate"),
-                                                  ("diagnose", "fitted"),
-                                                  ("diagnose", "validated")]
-    assert events[0].data == "deadband" and events[1].data.effect == "deadband"
-    assert events[2].done == pytest.approx(diag.ranking[0].cross_validated["with_effect"],
-                                           rel=1e-9)
+    # the ranking as it forms: the re-fit started, done, then its held-out error known (a
+    # base of 5 JFO iterations is not converged: the candidate's re-fit finds it better
+    # values of its own, and the round starts again from them, re-fitting the candidate)
+    kinds = [(e.verb, e.kind) for e in events]
+    pairs = (len(kinds) - 1) // 2
+    assert pairs >= 1 and kinds == [("diagnose", "candidate"), ("diagnose", "fitted")] * pairs \
+        + [("diagnose", "validated")], kinds
+    assert events[0].data == "deadband" and events[-2].data.effect == "deadband"
+    assert events[-1].done == pytest.approx(diag.ranking[0].cross_validated["with_effect"],
+                                            rel=1e-9)
     events.clear()
     lr.sweep(tmp_path / "runs", plan=ROOT / "configs" / "plan_two_steps.toml",
              progress=events.append)

@@ -176,9 +176,11 @@ class Round:
         return ranking, diverged
 
     def stale(self, ranking) -> Candidate | None:
-        """A candidate whose gain comes from re-fitting the rest of the model, not from
-        its effect (the base was not converged), the best such; None when there is none."""
-        stale = [c for c in ranking if c.carried is not None and c.carried < MIN_GAIN
+        """A candidate whose re-fit, with its effect switched off, explains the runs better
+        than the base: the base was not converged (its own parameters have better values,
+        whether or not the effect carries a gain of its own), the best such; None when
+        there is none."""
+        stale = [c for c in ranking if c.off_fitness is not None
                  and c.off_fitness < (1 - REFINE) * self.f0]
         return min(stale, key=lambda c: c.off_fitness) if stale else None
 

@@ -316,6 +316,19 @@ def search(runs, model: Model | None = None, *, max_rounds: int = 3, seed: int =
                         folds=judge.folds, revise=False, screen=screen,
                         baseline_cv=judge.known(model), on_candidate=on_candidate)
         rounds.append(diag)
+        if diag.base is not model:
+            # the round's candidates found better values of the model's own parameters (a
+            # run's start, a threshold's split): the same effects, better placed, are the
+            # rung the next round climbs from and the answer if nothing more is added
+            model, cv_now = diag.base, diag.cv_baseline.rmse
+            _say(log, f"  {' + '.join(model.names) or 'the model'} re-fitted where the "
+                      f"candidates' fits found better values: held-out rmse/noise "
+                      f"{ladder.steps[-1].cross_validated:.2f} -> {cv_now:.2f}")
+            ladder.steps[-1] = LadderStep.of(ladder.steps[-1].label, model, diag.evaluation,
+                                             cv=cv_now)
+            judge.remember(model, diag.cv_baseline)
+            if on_step:
+                on_step(len(ladder.steps) - 1, model)
     return SearchResult(rounds=rounds, ladder=ladder, model=model, moves=moves)
 
 
