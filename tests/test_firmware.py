@@ -384,3 +384,38 @@ def test_a_proposed_plan_plays_through_sweep_port(tmp_path):
     assert run.meta["source"] == "serial" and run.experiment["between"] == exp.between
     assert np.max(np.abs(run.u - exp.waveform_at(run.t))) <= 1.5 * LSB
     assert json.loads(run.path.with_suffix(".json").read_text())["experiment"]["points"]
+
+
+def test_the_ms150_board_trips_on_its_tacho_within_one_sample(tmp_path):
+    """A speed limit of 150 rad/s and a 2 V step the motor takes past it: the board ends
+    the run at the first sample whose tacho word passes the limit's (the host reads it as
+    a trip, the samples up to it kept), and the DAC -- the MCP4822's own latched word --
+    is back at 0 V within one sample period of that sample's tick."""
+    from dataclasses import replace
+
+    from labrig.bridge import trips
+
+    rig = RigConfig()
+    rig.bridge = replace(rig.bridge, trip_speed=150.0)
+    log = tmp_path / "dac.log"
+    exp = Experiment(name="step", waveform="constant", amplitude_v=2.0, lead_in_s=0.1,
+                     duration_s=3.0)
+    with Emulator("uno", rig, dac_log=log) as emu, SerialBridge(emu.pty, rig) as bridge:
+        idx, u, blocks = _run(bridge, exp)
+        trip = bridge.trip
+        counters = bridge.counters()
+    assert trip is not None and trip["fault"] == "TRIP" and trip["text"] == "over-speed", trip
+    k = trip["after_sample"]
+    assert idx[-1] == k and counters["trip"] == trip
+    s = bridge_settings(rig)
+    _, lo, hi, _, _ = trips.limits(exp, rig, s)
+    tacho = trips.adc_words(np.concatenate([b.tacho for b in blocks]), "tacho", s)
+    assert not lo <= tacho[-1] <= hi and ((tacho[:-1] >= lo) & (tacho[:-1] <= hi)).all()
+    # the DAC log: (seconds, word) at each change of the latched word
+    events = [(float(a), int(b)) for a, b in (line.split() for line in log.read_text().splitlines())]
+    step_on = next(t for t, w in events if w == volts_to_dac_word(2.0, s))
+    lead = int(round(exp.lead_in_s * exp.sample_rate_hz))
+    tick_k = step_on + (k - lead) / exp.sample_rate_hz
+    back = [t for t, w in events if t > step_on and w == 2048]
+    assert back and tick_k - 1e-4 <= back[0] <= tick_k + 1.0 / exp.sample_rate_hz, (back[:1], tick_k)
+    assert events[-1][1] == 2048

@@ -266,3 +266,28 @@ def test_a_signal_in_the_first_moments_of_a_sweep(tmp_path, sig, code):
             break
     assert early, f"{name} was never caught before the sweep's imports were done"
     assert early[0] < 5.0
+
+
+def test_the_simulated_board_trips_as_the_board_does_and_the_run_stops_there(tmp_path):
+    """A speed limit below what the 2 V square reaches: the simulated bridge ends that run
+    at the first sample whose tacho reading passes it (the board's own check, on the same
+    words), the sweep writes it up to there, plays nothing after it and exits 1 in one
+    line; the run reads back as the samples taken, nothing after the trip."""
+    rig_file = tmp_path / "rig.toml"
+    rig_file.write_text((ROOT / "configs" / "rig_default.toml").read_text()
+                        .replace("[bridge]\n", "[bridge]\ntrip_speed = 150.0\n", 1))
+    p = labrig("sweep", "--sim", "--rig", rig_file, "-o", tmp_path / "ds")
+    assert p.returncode == 1 and "run 'sq_2.00V': the board tripped" in p.stderr, p.stderr
+    assert "over-speed" in p.stderr and "Traceback" not in p.stderr
+    assert sorted(q.stem for q in (tmp_path / "ds").glob("*.csv")) == [
+        "sq_1.20V", "sq_1.50V", "sq_2.00V"]
+    run = read_run(tmp_path / "ds" / "sq_2.00V.csv")
+    trip = run.meta["bridge"]["trip"]
+    assert trip["fault"] == "TRIP" and len(run.data) == trip["after_sample"] + 1
+    assert run.meta["bridge"]["dropped_samples"] == 8500 - len(run.data)
+    speed = np.abs(run.data["tacho"].to_numpy()) / run.meta["sensors"]["tacho_v_per_rad_s"]
+    quantum = 20.0 / 1024 / run.meta["sensors"]["tacho_v_per_rad_s"]   # one ADC word
+    assert speed[-1] > 150.0 - quantum and speed[:-1].max() < 150.0 + quantum
+    assert "gap" not in run.data or run.data["gap"].sum() == 0   # nothing after the trip
+    # the runs before it are whole
+    assert len(read_run(tmp_path / "ds" / "sq_1.50V.csv").data) == 8500

@@ -9,10 +9,11 @@
 #include <avr/io.h>
 #include <avr/interrupt.h>
 #include <util/atomic.h>
+#include <avr/wdt.h>
 #include "src/lr_core.h"
 #include "src/lr_hal.h"
 
-#define FW_VERSION "2.1.0"
+#define FW_VERSION "2.2.0"
 #define BAUD 500000UL
 
 #if defined(__AVR_ATmega2560__)
@@ -90,9 +91,21 @@ extern "C" uint32_t hal_millis(void) { return millis(); }
 extern "C" uint8_t hal_lock(void) { uint8_t s = SREG; cli(); return s; }
 extern "C" void hal_unlock(uint8_t s) { SREG = s; }
 
+// The AVR's own watchdog: a main loop that stops polling (a hang, a runaway write)
+// resets the chip within this, and a reset puts the output at 0 V (setup's first act).
+// Off for a Nano with the old bootloader (make BOARD=nano HW_WATCHDOG=0): it does not
+// clear the watchdog after the reset and loops in its own start-up.
+#ifndef LR_HW_WATCHDOG
+#define LR_HW_WATCHDOG 1
+#endif
+
 void setup()
 {
     rig_setup();   // the output at 0 V first
+#if LR_HW_WATCHDOG
+    MCUSR = 0;     // a watchdog reset leaves the watchdog on at 16 ms: off until set up
+    wdt_disable();
+#endif
 
     UCSR0A = _BV(U2X0);
     UBRR0 = (uint16_t)(F_CPU / 8UL / BAUD - 1);            // 3: exact 500 kbaud at 16 MHz
@@ -102,9 +115,15 @@ void setup()
     lr_core_init(BOARD_ID, "labrig-fw " FW_VERSION " " BOARD_NAME " " RIG_NAME, LR_MAX_RATE_HZ);
     sei();
     lr_core_send_hello();   // unsolicited; a host that opened late asks with HELLO_REQ
+#if LR_HW_WATCHDOG
+    wdt_enable(WDTO_250MS);
+#endif
 }
 
 void loop()
 {
     lr_core_poll();
+#if LR_HW_WATCHDOG
+    wdt_reset();
+#endif
 }

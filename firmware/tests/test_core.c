@@ -716,6 +716,87 @@ static void test_drive_map(void)
     CHECK(o.pin_a == LR_PIN_LOW, "PWM pin low at zero");
 }
 
+
+static size_t limits_body(uint8_t *b, uint8_t flags, int32_t s_lo, int32_t s_hi, int32_t p_lo,
+                          int32_t p_hi)
+{
+    b[0] = flags;
+    lr_put32(b + 1, (uint32_t)s_lo); lr_put32(b + 5, (uint32_t)s_hi);
+    lr_put32(b + 9, (uint32_t)p_lo); lr_put32(b + 13, (uint32_t)p_hi);
+    return LR_LIMITS_LEN;
+}
+
+/* the last sample index the board sent, -1 if none */
+static int64_t last_sample(void)
+{
+    int64_t last = -1;
+    for (int i = 0; i < nmsgs; i++)
+        if (msgs[i].type == LR_SAMPLES)
+            last = (int64_t)lr_get32(msgs[i].body) + msgs[i].body[4] - 1;
+    return last;
+}
+
+static void test_trips(void)
+{
+    uint8_t b[128], lb[LR_LIMITS_LEN];
+    uint16_t lv[1] = {2600};
+    const uint8_t whys[2] = {LR_TRIP_SPEED, LR_TRIP_POSITION};
+    for (int w = 0; w < 2; w++) {
+        reset_all();
+        adc_vals[0] = 100; adc_vals[1] = 200;
+        size_t n = cfg_body(b, 1, LR_WAVE_CONSTANT, 1000, 100000, 0, 0, 1024, 3072, 500, lv, 1);
+        host_send(LR_CONFIGURE, 1, b, n);
+        host_send(LR_LIMITS, 2, lb, limits_body(lb, LR_TRIP_SPEED | LR_TRIP_POSITION, 50, 150, 150, 250));
+        host_send(LR_START, 3, NULL, 0);
+        lr_core_poll();
+        run_ticks(100, 1);
+        CHECK(dac_hw == 2600 && timer_on, "running inside the limits");
+        if (whys[w] == LR_TRIP_SPEED) adc_vals[0] = 151; else adc_vals[1] = 149;
+        uint32_t at = lr_core_sample_index();
+        lr_core_tick();   /* the sample past the limit */
+        CHECK(dac_hw == 2048 && !timer_on, "trip %u: 0 V at the sample past the limit (word %u)",
+              whys[w], dac_hw);
+        run_ticks(50, 1);
+        collect();
+        int k = find(LR_ERROR);
+        CHECK(k >= 0 && msgs[k].body[0] == LR_ERR_TRIP, "trip %u: TRIP reported", whys[w]);
+        CHECK(last_sample() == (int64_t)at && find(LR_DONE) < 0,
+              "trip %u: the run ends at the sample that tripped (last %lld), no DONE",
+              whys[w], (long long)last_sample());
+        CHECK(lr_core_state() == LR_STATE_CONFIGURED, "trip %u: configured again", whys[w]);
+    }
+    adc_vals[0] = 100; adc_vals[1] = 200;
+
+    /* a CONFIGURE clears the limits: the next run without LIMITS does not trip */
+    reset_all();
+    size_t n = cfg_body(b, 1, LR_WAVE_CONSTANT, 1000, 200, 0, 0, 1024, 3072, 500, lv, 1);
+    host_send(LR_CONFIGURE, 1, b, n);
+    host_send(LR_LIMITS, 2, lb, limits_body(lb, LR_TRIP_SPEED, 0, 10, 0, 0));
+    host_send(LR_CONFIGURE, 3, b, n);
+    host_send(LR_START, 4, NULL, 0);
+    lr_core_poll();
+    run_ticks(300, 1);
+    collect();
+    CHECK(find(LR_DONE) >= 0 && find(LR_ERROR) < 0, "limits cleared by CONFIGURE");
+
+    /* refused: a window upside down, a short body, limits while running */
+    reset_all();
+    host_send(LR_CONFIGURE, 1, b, n);
+    host_send(LR_LIMITS, 2, lb, limits_body(lb, LR_TRIP_SPEED, 10, 0, 0, 0));
+    host_send(LR_LIMITS, 3, lb, 5);
+    host_send(LR_START, 4, NULL, 0);
+    host_send(LR_LIMITS, 5, lb, limits_body(lb, LR_TRIP_SPEED, 0, 10, 0, 0));
+    for (int i = 0; i < 8; i++) lr_core_poll();   /* (a poll reads at most 64 bytes) */
+    collect();
+    int codes[3] = {0, 0, 0}, m = 0;
+    for (int i = 0; i < nmsgs && m < 3; i++) if (msgs[i].type == LR_ERROR) codes[m++] = msgs[i].body[0];
+    CHECK(codes[0] == LR_ERR_BAD_CONFIG && codes[1] == LR_ERR_BAD_FRAME && codes[2] == LR_ERR_BUSY,
+          "bad limits refused (%d %d %d)", codes[0], codes[1], codes[2]);
+    run_ticks(300, 1);
+    collect();
+    CHECK(find(LR_DONE) >= 0, "the run plays on without limits");
+}
+
 int main(int argc, char **argv)
 {
     test_vectors(argc > 1 ? argv[1] : "test_vectors.json");
@@ -732,6 +813,7 @@ int main(int argc, char **argv)
     test_index_latch();
     test_index_frames();
     test_drive_map();
+    test_trips();
     printf("%d passed, %d failed\n", passed, failed);
     return failed ? 1 : 0;
 }

@@ -49,6 +49,15 @@ def rig_flags(rig) -> int:
             | (P.FLAG_CURRENT if b.current_sense else 0))
 
 
+def firmware_version(hello: dict) -> tuple[int, ...]:
+    """The version a board's HELLO names ("labrig-fw 2.2.0 uno ms150" -> (2, 2, 0));
+    (0,) when it names none."""
+    import re
+
+    m = re.search(r"\b(\d+)\.(\d+)\.(\d+)\b", str(hello.get("firmware", "")))
+    return tuple(int(g) for g in m.groups()) if m else (0,)
+
+
 def check_board(rig, hello: dict, port: str) -> None:
     """The board on ``port`` runs the firmware this rig file describes.
 
@@ -66,11 +75,23 @@ def check_board(rig, hello: dict, port: str) -> None:
         raise RigError(f"the board on {port} runs the {have} firmware ({hello.get('firmware')}), "
                        f"but the rig file describes an {want} rig: {flash}, or give the "
                        "rig file that matches the board (--rig)")
+    from labrig.bridge.trips import FIRST_VERSION
+
+    if (b.trip_speed or b.trip_position) and firmware_version(hello) < FIRST_VERSION:
+        raise RigError(f"the firmware on {port} ({hello.get('firmware')}) enforces no trips, "
+                       "but the rig file sets them (bridge.trip_speed, trip_position); "
+                       f"{flash} ({'.'.join(map(str, FIRST_VERSION))} or later), or remove "
+                       "the keys")
     if b.board and hello.get("board") not in (None, b.board):
         raise RigError(f"the board on {port} is {BOARD_NAMES[hello['board']]}, but the rig file's bench is "
                        f"built on {BOARD_NAMES[b.board]} (bridge.board): their pins differ (labrig wiring "
                        f"--rig FILE --board {hello['board']}); connect the bench's own board, or "
                        "change the rig file's board and its wiring")
+    if hello.get("dac_bits") not in (None, int(b.dac_bits)):
+        raise RigError(
+            f"the board on {port} has a {hello['dac_bits']}-bit output word, the rig file "
+            f"{int(b.dac_bits)} bits ([bridge] dac_bits{', pwm_bits' if want == 'hbridge' else ''}): "
+            "give the rig file of this board (--rig) or flash the firmware it describes")
     if want != "hbridge":
         return
     from labrig.bridge import protocol as P
@@ -87,6 +108,25 @@ def check_board(rig, hello: dict, port: str) -> None:
         raise RigError(f"the firmware on {port} ({hello.get('firmware')}) reads no index pulse, "
                        "but the rig file wires one (bridge.index_counts); "
                        f"{flash} (2.1 or later), or set index_counts = 0")
+
+
+def words_block(first: int, w, s, closed: bool):
+    """A SAMPLES frame's words (``w``, n x 4, from sample ``first``) as a block: raw volts
+    from the MS150 bridge; from an H-bridge board (:func:`hbridge_block`) the output in
+    volts of the supply and the encoder's signed count. ``s``: the bridge settings;
+    ``closed``: the run is a closed loop."""
+    import numpy as np
+
+    from labrig.bridge.base import SampleBlock
+    from labrig.bridge.settings import adc_counts_to_volts, dac_word_to_volts
+
+    index = np.arange(first, first + len(w))
+    u = dac_word_to_volts(w[:, 0], s)
+    if s.firmware == "hbridge":
+        return hbridge_block(index, w, u, s, closed)
+    return SampleBlock(index=index, u=u, tacho=adc_counts_to_volts(w[:, 1], "tacho", s),
+                       pos=adc_counts_to_volts(w[:, 2], "pos", s),
+                       ref=adc_counts_to_volts(w[:, 3], "ref", s))
 
 
 def hbridge_block(index, w, u, s, closed: bool):

@@ -25,12 +25,14 @@ MAX_LEVELS = 32
 
 # host -> board
 HELLO_REQ, CONFIGURE, START, STOP, HEARTBEAT, STATUS_REQ, ZERO = 0x01, 0x02, 0x03, 0x04, 0x05, 0x06, 0x07
+#: the run's trip limits (firmware 2.2: labrig.bridge.trips), after its CONFIGURE
+LIMITS = 0x08
 # board -> host
 ACK, HELLO, SAMPLES, STATUS, DONE, ERROR, INDEX = 0x80, 0x81, 0x82, 0x83, 0x84, 0x85, 0x86
 
 TYPE_NAMES = {
     HELLO_REQ: "HELLO_REQ", CONFIGURE: "CONFIGURE", START: "START", STOP: "STOP",
-    HEARTBEAT: "HEARTBEAT", STATUS_REQ: "STATUS_REQ", ZERO: "ZERO", ACK: "ACK",
+    HEARTBEAT: "HEARTBEAT", STATUS_REQ: "STATUS_REQ", ZERO: "ZERO", LIMITS: "LIMITS", ACK: "ACK",
     HELLO: "HELLO", SAMPLES: "SAMPLES", STATUS: "STATUS", DONE: "DONE", ERROR: "ERROR",
     INDEX: "INDEX",
 }
@@ -55,7 +57,7 @@ def pwl_words(levels: list[int], pieces: list[int], n: int) -> list[int]:
 
 WAVEFORMS = {"constant": 0, "square": 1, "step": 2, "staircase": 3, "pwl": 4}
 ERROR_CODES = {1: "BAD_FRAME", 2: "BAD_CONFIG", 3: "LIMIT", 4: "NOT_CONFIGURED",
-               5: "BUSY", 6: "WATCHDOG", 7: "RATE"}
+               5: "BUSY", 6: "WATCHDOG", 7: "RATE", 8: "TRIP"}
 BOARDS = {1: "uno", 2: "mega", 3: "nano"}
 #: the hardware layer a firmware was built for (HELLO, protocol 2; protocol 1 is the MS150's)
 RIG_KINDS = {1: "ms150", 2: "hbridge"}

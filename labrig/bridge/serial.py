@@ -20,8 +20,9 @@ from labrig.bridge import protocol as P
 from labrig.bridge.base import Bridge, SampleBlock
 from labrig.io.experiment import Experiment
 from labrig.bridge.settings import TIMER_HZ, adc_counts_to_volts, bridge_settings, dac_word_to_volts, experiment_body, volts_to_dac_word
-from labrig.bridge.hbridge import check_board, encoder_record, hbridge_block
-from labrig.bridge.transport import SerialTransport, Transport, link_hint
+from labrig.bridge.hbridge import check_board, encoder_record, words_block
+from labrig.bridge.trips import limits as trip_limits, limits_body
+from labrig.bridge.transport import SerialTransport, Transport, link_faults, link_hint
 from labrig.core.errors import LabrigError, RigError, UserError
 
 if TYPE_CHECKING:   # annotation only: labrig.io.config imports the bridge package
@@ -102,6 +103,8 @@ class SerialBridge(Bridge):
         self._started = False
         self._finished = False
         self._index_events: list[dict] = []   # the run's INDEX messages
+        #: how the board ended the run on its own (a trip, a reset), None: it did not
+        self.trip: dict | None = None
         self._count_range: tuple[int, int] | None = None   # its lowest and highest count
         self._t_end = self._last_sample_t = 0.0
         self._tail = tail_s
@@ -128,28 +131,19 @@ class SerialBridge(Bridge):
     def _write(self, data: bytes) -> None:
         if not self.link.is_open:
             raise RigError(f"{self.port} is not open")
-        try:
+        with link_faults(self.port, " while writing"):
             self.link.write(data)
-        except LabrigError:
-            raise   # e.g. Terminated from a signal handler: not a link fault
-        except Exception as e:  # pyserial raises SerialException/OSError subclasses
-            raise RigError(f"lost {self.port} while writing: {e}") from e
         self._last_tx = time.monotonic()
 
     def _poll(self, wait: float) -> None:
         """Read what is there (waiting up to ``wait`` s for a first byte) into the queue."""
-        try:
+        with link_faults(self.port):
             data = self.link.read(max(1, self.link.in_waiting), wait)
             if data and self.link.in_waiting:
                 data += self.link.read(self.link.in_waiting, wait)
-        except LabrigError:
-            raise   # e.g. Terminated from a signal handler: not a link fault
-        except Exception as e:
-            raise RigError(f"lost {self.port}: {e}") from e
         if data:
             for f in self._dec.feed(data):
-                # every body is checked once, on arrival: one that does not parse is counted
-                # and dropped here, so no consumer can trip over it
+                # checked once, on arrival: a body that does not parse is counted, dropped
                 try:
                     self._pending.append(P.parse_message(f))
                 except P.BodyError:
@@ -315,12 +309,6 @@ class SerialBridge(Bridge):
                            "firmware (make -C firmware upload)")
         try:   # the board was built for the rig the file describes, at its resolution
             check_board(self._rig, self.hello, self.port)
-            if self.hello["dac_bits"] != self.settings.dac_bits:
-                raise RigError(
-                    f"the board on {self.port} has a {self.hello['dac_bits']}-bit output word, "
-                    f"the rig file {self.settings.dac_bits} bits ([bridge] dac_bits"
-                    f"{', pwm_bits' if self.settings.firmware == 'hbridge' else ''}): give the "
-                    "rig file of this board (--rig) or flash the firmware it describes")
         except RigError:
             self.close()
             raise
@@ -343,6 +331,9 @@ class SerialBridge(Bridge):
         self._started = self._finished = False
         self._command(P.CONFIGURE, body)
         self._exp, self._n_samples = exp, int(exp.n_samples)
+        self.trip, bounds = None, trip_limits(exp, self._rig, self.settings)
+        if bounds is not None:   # (a CONFIGURE clears the board's limits: each run sends its own)
+            self._command(P.LIMITS, limits_body(bounds))
 
     def start(self) -> None:
         """Start the configured experiment; samples follow from index 0."""
@@ -359,6 +350,21 @@ class SerialBridge(Bridge):
         self._t_end = t0 + self._n_samples / rate
         self._last_sample_t = t0
         self._tail = self.tail_s + 3 * P.BATCH / rate   # a few frame intervals at any rate
+
+    def _ended_on_its_own(self, f) -> bool:
+        """Whether frame ``f`` says the board ended the run itself: a trip on a limit (ERROR
+        TRIP) or a reset (an unasked HELLO mid-run; a reset starts at 0 V). Recorded; the
+        samples it never took are the run's lost tail."""
+        if f.type == P.ERROR and f.fields["name"] == "TRIP":
+            fault, text = "TRIP", f.fields["text"]
+        elif f.type == P.HELLO and self._next_index > 0:
+            fault, text = "RESET", "the board restarted mid-run (its watchdog or its supply)"
+        else:
+            return False
+        self.trip = {"fault": fault, "text": text, "after_sample": self._next_index - 1}
+        self.board_errors.append(f"board on {self.port} reported {fault}: {text}")
+        self._finish()
+        return True
 
     def _finish(self) -> None:
         """End the run: whatever did not arrive up to the planned length is dropped."""
@@ -403,6 +409,8 @@ class SerialBridge(Bridge):
                         continue
                     self._finish()
                     return None
+                if self._ended_on_its_own(f):
+                    return None
                 if f.type == P.ERROR:
                     err = f.fields
                     if err["name"] == "BAD_FRAME":   # a heartbeat arrived damaged: harmless
@@ -427,17 +435,12 @@ class SerialBridge(Bridge):
         """A SAMPLES frame's words as a block: raw volts from the MS150 bridge; from an
         H-bridge board the output in volts of the supply and the encoder's signed count
         (the rig's ``pos`` unit is counts: ``sensors.encoder_counts_per_unit``)."""
-        s = self.settings
-        index = np.arange(first, first + len(w))
-        u = dac_word_to_volts(w[:, 0], s)
-        if s.firmware == "hbridge":
-            blk = hbridge_block(index, w, u, s, self._exp is not None and self._exp.loop == "closed")
+        blk = words_block(first, w, self.settings,
+                          self._exp is not None and self._exp.loop == "closed")
+        if self.settings.firmware == "hbridge":   # the run's lowest and highest count
             lo, hi, r = int(blk.pos.min()), int(blk.pos.max()), self._count_range
             self._count_range = (lo, hi) if r is None else (min(r[0], lo), max(r[1], hi))
-            return blk
-        return SampleBlock(index=index, u=u, tacho=adc_counts_to_volts(w[:, 1], "tacho", s),
-                           pos=adc_counts_to_volts(w[:, 2], "pos", s),
-                           ref=adc_counts_to_volts(w[:, 3], "ref", s))
+        return blk
 
     def stop(self) -> None:
         """Stop the experiment (the board returns to 0 V) and fetch the board's counters."""
@@ -478,6 +481,8 @@ class SerialBridge(Bridge):
             c["board_sample_overruns"] = int(st["sample_overruns"])   # reset by START
         if self.board_errors[self._errors_mark:]:
             c["board_errors"] = self.board_errors[self._errors_mark:]
+        if self.trip is not None:
+            c["trip"] = dict(self.trip)
         if self.settings.firmware == "hbridge" and self._exp is not None:
             faults = (int(st["encoder_faults"] - base["encoder_faults"])
                       if st and base and "encoder_faults" in base else None)

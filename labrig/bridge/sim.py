@@ -48,6 +48,8 @@ class SimRig(Bridge):
         self._pos = 0
         self._output_v = 0.0
         self._count = {"samples": 0, "experiments": 0, "run_samples": 0}
+        #: how the simulated board ended the run on its own (a trip), None: it did not
+        self.trip: dict | None = None
 
     def open(self) -> dict:
         return {"firmware": "labrig-sim", "capabilities": ["open", "closed", "square", "step",
@@ -66,6 +68,7 @@ class SimRig(Bridge):
             raise UserError("start() before configure()")
         self._data = self._acquire(self._exp)
         self._pos = 0
+        self.trip = self._tripped(self._exp, self._data)
         self._count["experiments"] += 1
         self._count["run_samples"] = 0   # the sidecar counts this run only
 
@@ -96,9 +99,40 @@ class SimRig(Bridge):
         return self._output_v
 
     def counters(self) -> dict:
-        """The current run's counters (a simulated link loses nothing)."""
-        return {"firmware": "labrig-sim", "dropped_samples": 0, "crc_errors": 0,
-                "samples": self._count["run_samples"]}
+        """The current run's counters (a simulated link loses nothing; a tripped run's
+        samples never taken are its lost tail)."""
+        c = {"firmware": "labrig-sim", "dropped_samples": 0, "crc_errors": 0,
+             "samples": self._count["run_samples"]}
+        if self.trip is not None and self._exp is not None:
+            c["dropped_samples"] = int(self._exp.n_samples) - (self.trip["after_sample"] + 1)
+            c["trip"] = dict(self.trip)
+        return c
+
+    def _tripped(self, exp: Experiment, d: dict) -> dict | None:
+        """The rig file's trips, checked on the simulated samples as the board checks its
+        own (labrig.bridge.trips): the run is cut after the first sample past a limit."""
+        from labrig.bridge import trips
+        from labrig.bridge.settings import bridge_settings
+
+        s = bridge_settings(self.rig)
+        bounds = trips.limits(exp, self.rig, s)
+        if bounds is None:
+            return None
+        if s.firmware == "hbridge":
+            counts = d["pos"]
+            speed = np.concatenate([[0.0], np.diff(counts)])
+            position = counts
+        else:
+            speed = trips.adc_words(d["tacho"], "tacho", s) if d["tacho"] is not None else None
+            position = trips.adc_words(d["pos"], "pos", s)
+        hit = trips.first_trip(bounds, speed, position)
+        if hit is None:
+            return None
+        k, why = hit
+        for key in ("t", "u", "tacho", "pos", "ref", "current", "drive"):
+            if d.get(key) is not None:
+                d[key] = d[key][:k + 1]
+        return {"fault": "TRIP", "text": trips.TEXTS[why], "after_sample": k}
 
     # -- the physics behind it ----------------------------------------------------
     def _acquire(self, exp: Experiment) -> dict:

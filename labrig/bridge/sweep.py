@@ -17,7 +17,8 @@ from labrig.bridge.base import Bridge
 from labrig.io.experiment import Experiment
 from labrig.core.errors import RigError, UserError
 from labrig.bridge.settings import board_law
-from labrig.io.runs import Run, encoder_problems, make_meta, run_exists, write_run
+from labrig.io.bridge_record import encoder_problems
+from labrig.io.runs import Run, make_meta, run_exists, write_run
 
 
 def acquire(bridge: Bridge, exp: Experiment, rig, progress: Callable[[int], None] | None = None,
@@ -93,12 +94,16 @@ def dac_step_v(rig) -> float:
 
 
 def check_plan(plan: list[Experiment], rig) -> None:
-    """Refuse a plan beyond the configured output limit before anything moves."""
+    """Refuse a plan beyond the configured output limit, or trips the sensors cannot
+    show, before anything moves."""
+    from labrig.bridge import trips
+
     limit = rig.bridge.output_limit_v
     for exp in plan:
         if exp.peak_v() > limit + 1e-9:
             raise UserError(f"plan experiment '{exp.name}': peak {exp.peak_v():.3g} V exceeds "
                             f"the output limit {limit:g} V (rig bridge.output_limit_v)")
+    trips.check(rig, plan)
 
 
 def remove_stale_tmp(outdir: Path | str, names) -> list[Path]:
@@ -153,6 +158,11 @@ def sweep(bridge: Bridge, plan: list[Experiment], rig, outdir: Path | str, *,
                 on_start(exp)
             run = acquire(bridge, exp, rig, progress=on_progress)
             written.append(write_run(run, outdir, overwrite=resume))
+            trip = run.meta.get("bridge", {}).get("trip")
+            if trip:   # the board stopped the rig: nothing more is played on it
+                if on_done:
+                    on_done(exp, run)
+                raise TripError(exp.name, trip, outdir)
             lost = int(run.data["gap"].sum()) if "gap" in run.data else 0
             if lost > rig.bridge.max_lost_fraction * len(run):
                 lossy.append((exp.name, lost, len(run)))
@@ -175,6 +185,21 @@ def sweep(bridge: Bridge, plan: list[Experiment], rig, outdir: Path | str, *,
     if slipped:
         raise EncoderError(slipped, outdir)
     return written
+
+
+class TripError(RigError):
+    """The board ended a run on its own (a trip on a limit of the rig file, or a reset):
+    the run is written up to that sample (the rest are gaps, never fitted), and the sweep
+    stops there with exit 1."""
+
+    def __init__(self, name: str, trip: dict, outdir):
+        why = {"TRIP": "the board tripped", "RESET": "the board restarted"}.get(
+            trip.get("fault"), "the board stopped")
+        super().__init__(
+            f"run '{name}': {why} after sample {trip.get('after_sample')} ({trip.get('text')}); "
+            f"the run is kept in {outdir} up to there and the sweep stopped. Check the rig "
+            "before going on (a trip on [bridge] trip_speed or trip_position means the motor "
+            "went where the rig file forbids), then continue with --resume")
 
 
 class LossError(RigError):

@@ -9,12 +9,13 @@ hardware or simavr.
 from __future__ import annotations
 
 import abc
+from contextlib import contextmanager
 import os
 import time
 from collections.abc import Callable, Sequence
 
 from labrig.bridge import protocol as P
-from labrig.core.errors import RigError, UserError
+from labrig.core.errors import LabrigError, RigError, UserError
 
 
 class Transport(abc.ABC):
@@ -56,6 +57,19 @@ class Transport(abc.ABC):
 
     def flush(self) -> None:
         """Wait until written bytes are on their way (default: nothing is buffered)."""
+
+
+@contextmanager
+def link_faults(port: str, doing: str = ""):
+    """A link that fails inside the block (pyserial raises SerialException and OSError
+    subclasses) is a :class:`RigError` naming ``port``; labrig's own errors pass as they
+    are (e.g. Terminated from a signal handler: not a link fault)."""
+    try:
+        yield
+    except LabrigError:
+        raise
+    except Exception as e:
+        raise RigError(f"lost {port}{doing}: {e}") from e
 
 
 def link_hint(since: tuple[int, int], now: tuple[int, int]) -> str:

@@ -62,12 +62,13 @@ def _nonzero_gain(v: float) -> float:
 
 def _range_pair(v: list) -> list:
     if len(v) != 2 or not v[0] < v[1]:
-        raise ValueError("must be [low, high] volts with low < high")
+        raise ValueError("must be [low, high] with low < high")
     return v
 
 
 Gain = Annotated[float, Field(allow_inf_nan=False), AfterValidator(_nonzero_gain)]
 RangeV = Annotated[list[Num(-1e3, 1e3)], AfterValidator(_range_pair)]
+
 RunName = Annotated[str, AfterValidator(_safe_name)]
 Int32 = Annotated[int, Field(ge=0, le=2 ** 32 - 1)]
 
@@ -254,6 +255,12 @@ class BridgeSection(_Closed):
     adc_range_v: RangeV = None
     watchdog_ms: Num(1.0, 2000.0) = None            # host silence: the board stops within it
     max_lost_fraction: Num(0.0, 1.0) = None          # a run losing more exits 1
+    #: the board ends a run at 0 V when the speed it samples passes this (the motor's, rad/s,
+    #: or the carriage's, m/s); 0 or left out: no speed trip
+    trip_speed: Num(0.0, 1e6) = None
+    #: closed-loop runs: the position window [low, high] (the output's, rad or m; an
+    #: encoder's from the run's start) outside which the board ends the run at 0 V
+    trip_position: RangeV = None
     calibration: CalibrationSection = None
     #: the board the bench is built on, and the pins it is wired to (checked against the
     #: firmware's map: labrig.io.board_pins); a board that greets as another is refused

@@ -104,6 +104,10 @@ class BridgeConfig:
     #: a run that lost more than this share of its samples on the link is kept (the lost
     #: ones flagged as gaps) but the command exits 1 naming it
     max_lost_fraction: float = 0.001
+    #: trips the board enforces (labrig.bridge.trips): the motor's speed beyond which it
+    #: ends a run at 0 V (0: none), and a closed-loop run's position window (None: none)
+    trip_speed: float = 0.0
+    trip_position: tuple | None = None
     calibration: dict = field(default_factory=dict)
     #: the board the bench is built on ("": not said) and the pins the rig file states it
     #: is wired to, checked against the firmware's map (labrig.io.board_pins)
@@ -209,7 +213,7 @@ def rig_from_dict(doc: dict, path: str = "<rig>") -> RigConfig:
         if body is None:
             continue
         for key, value in body.model_dump(exclude_unset=True).items():
-            if key.endswith("range_v"):
+            if key.endswith("range_v") or key == "trip_position":
                 value = (float(value[0]), float(value[1]))
             setattr(obj, _ATTRS.get(sec, {}).get(key, key), value)
     rig.effects = _check_effects(path, checked.effects, rig.bridge.output_limit_v)
@@ -219,11 +223,25 @@ def rig_from_dict(doc: dict, path: str = "<rig>") -> RigConfig:
         raise ConfigError(f"{path}: key 'bridge.index_counts': the {rig.bridge.firmware} bridge "
                           "reads no encoder (an index is the H-bridge board's, firmware = "
                           "\"hbridge\"); remove the key")
+    _check_rail(path, rig)
     if rig.bridge.firmware == "hbridge":
         from labrig.io.hbridge_rig import check_rig
         check_rig(rig, path, given=checked.bridge.model_dump(exclude_unset=True)
                   if checked.bridge else {})
     return rig
+
+
+def _check_rail(path, rig: RigConfig) -> None:
+    """The bridge's output limit times the amplifier's gain stays at or below the
+    amplifier's rail (an H-bridge's: its supply): a plan at the limit never asks the
+    amplifier for more than it can give, where it would clip unseen."""
+    b, a = rig.bridge, rig.amplifier
+    if b.output_limit_v * a.gain > a.output_limit_v * (1 + 1e-9):
+        raise ConfigError(
+            f"{path}: key 'bridge.output_limit_v' = {b.output_limit_v:g} V: times the "
+            f"amplifier's gain {a.gain:g} it asks {b.output_limit_v * a.gain:g} V of an "
+            f"amplifier whose rail is {a.output_limit_v:g} V (amplifier.output_limit_v); set "
+            f"it at or below {a.output_limit_v / a.gain:.4g} V")
 
 
 def _check_plant(path, rig: RigConfig, checked) -> None:
@@ -260,7 +278,8 @@ def rig_to_doc(rig: RigConfig) -> dict:
             body = rig.plant.values(rig.drive)
         doc[sec] = {inverse.get(sec, {}).get(k, k): (list(v) if isinstance(v, tuple) else v)
                     for k, v in body.items()
-                    if not (k in ("calibration", "board", "pins", "index_counts") and not v)}
+                    if not (k in ("calibration", "board", "pins", "index_counts", "trip_speed",
+                                  "trip_position") and not v)}
     doc["effects"] = {k: dict(v) for k, v in rig.effects.items()}
     return doc
 

@@ -20,6 +20,7 @@ import numpy as np
 import pandas as pd
 
 from labrig.core.errors import AnalysisError, RunFileError, UserError
+from labrig.io.bridge_record import check_encoder, check_gaps, cut_at_trip
 from labrig.io.csvfile import SENSOR_COLUMNS, read_run_csv
 from labrig.core.fileio import atomic_write, json_default, not_regular
 from labrig.model.plants import AXES, check_axis
@@ -278,8 +279,9 @@ def read_run(path: Path | str) -> Run:
     data = read_run_csv(csv_path, float(meta["sample_rate_hz"]))
     _check_against_sidecar(csv_path, json_path, data, meta)
     run = Run(name=csv_path.stem, data=data, meta=meta, path=csv_path)
-    _check_gaps(run)
-    _check_encoder(run)
+    run = cut_at_trip(run)
+    check_gaps(run)
+    check_encoder(run)
     return run
 
 
@@ -387,49 +389,6 @@ def _check_against_sidecar(csv_path, json_path, data, meta):
         if sensors.get(key) is None:
             raise RunFileError(f"{json_path}: key 'sensors.{key}' missing; it must be a "
                                f"nonzero number (the run has a '{col}' column to convert)")
-
-
-#: a run of which more than this share was lost on the link is not data
-MAX_GAP_SHARE = 0.5
-
-
-def _check_gaps(run: Run):
-    """Lost samples are interpolated to keep the time base; a run that is mostly
-    interpolation has too little measurement left to stand for the experiment."""
-    lost, n = run.n_gaps, len(run)
-    if lost > MAX_GAP_SHARE * n:
-        raise RunFileError(f"{run.path}: {lost} of {n} samples "
-                           f"({100 * lost / n:.0f} %) were lost on the link (gap = 1); "
-                           f"more than {MAX_GAP_SHARE:.0%} is not a measurement: record the "
-                           "run again (check the cable, or lower the sample rate)")
-
-
-def encoder_problems(meta: dict) -> list | None:
-    """The sentences a run's ``bridge.encoder`` record gives against its counts (None: no
-    record, or no problem); ``ValueError`` when the record is not what a sweep writes."""
-    enc = (meta.get("bridge") or {}).get("encoder") or {}
-    problems = enc.get("problems") if isinstance(enc, dict) else None
-    if not isinstance(enc, dict) or not (problems is None or isinstance(problems, list)
-                                         and all(isinstance(p, str) for p in problems)):
-        raise ValueError("not an object whose 'problems' is a list of sentences")
-    return problems or None
-
-
-def _check_encoder(run: Run):
-    """A run whose board said its encoder lost counts (``bridge.encoder.problems``, written
-    by the sweep that played it) has positions off by the counts lost after the first: not
-    a measurement of the shaft."""
-    try:
-        problems = encoder_problems(run.meta)
-    except ValueError:
-        raise RunFileError(f"{run.path.with_suffix('.json')}: key 'bridge.encoder' must be an "
-                           "object whose 'problems' is a list of sentences, as a sweep writes "
-                           "it; restore the sidecar the sweep wrote, or remove the key") from None
-    if problems:
-        raise RunFileError(f"{run.path}: its encoder lost counts while it played "
-                           f"({problems[0]}; bridge.encoder in its sidecar): its positions are "
-                           "not the shaft's; play the run again (check the encoder's wiring, "
-                           "lower the speed or the decoding)")
 
 
 def _check_speed_column(csv_path, json_path, data, meta):

@@ -44,6 +44,16 @@ static int16_t pwl_q, pwl_step, pwl_sign;
 static int32_t loop_origin, loop_prev;
 static uint16_t ref_now;
 static uint16_t pwl_j, pwl_acc, pwl_rem;
+/* trips (LIMITS): what is checked at each sample, the allowed ranges, and why the run
+ * ended (0: it did not trip); the H-bridge's speed is the count's change per sample */
+static uint8_t trip_flags;
+static volatile uint8_t tripped;
+static int32_t trip_s_lo, trip_s_hi, trip_p_lo, trip_p_hi;
+#if LR_DECODING
+static int32_t trip_prev;
+static uint32_t trip_prev_index;
+static uint8_t trip_primed;
+#endif
 
 static void pwl_piece(uint8_t i)
 {
@@ -235,9 +245,34 @@ static void handle(const lr_frame_t *f)
             uint8_t s = hal_lock();
             dac_set(cfg.dac_zero);
             hal_unlock(s);
+            trip_flags = 0;   /* a run's limits come after its CONFIGURE */
             state = LR_STATE_CONFIGURED;
             send_ack(f->type, f->seq);
         }
+        break;
+    case LR_LIMITS:
+        if (state == LR_STATE_RUNNING || state == LR_STATE_FINISHING) {
+            send_error(LR_ERR_BUSY, "already running");
+            break;
+        }
+        if (f->body_len != LR_LIMITS_LEN) {
+            send_error(LR_ERR_BAD_FRAME, "bad limits");
+            break;
+        }
+        {
+            int32_t s_lo = (int32_t)lr_get32(f->body + 1), s_hi = (int32_t)lr_get32(f->body + 5);
+            int32_t p_lo = (int32_t)lr_get32(f->body + 9), p_hi = (int32_t)lr_get32(f->body + 13);
+            if ((f->body[0] & (uint8_t)~(LR_TRIP_SPEED | LR_TRIP_POSITION)) || s_lo > s_hi ||
+                p_lo > p_hi) {
+                send_error(LR_ERR_BAD_CONFIG, "bad limits");
+                break;
+            }
+            uint8_t s = hal_lock();
+            trip_flags = f->body[0];
+            trip_s_lo = s_lo; trip_s_hi = s_hi; trip_p_lo = p_lo; trip_p_hi = p_hi;
+            hal_unlock(s);
+        }
+        send_ack(f->type, f->seq);
         break;
     case LR_START:
         if (start_seq_valid && f->seq == start_seq) {
@@ -259,6 +294,10 @@ static void handle(const lr_frame_t *f)
             ref_now = LR_REF_ZERO;
             ring_head = ring_tail = 0; acquiring = 0;
             ctr.sample_overruns = ctr.ring_overflows = 0;
+            tripped = 0;
+#if LR_DECODING
+            trip_primed = 0;
+#endif
             hal_index_reset();          /* a run's index pulses are its own */
             state = LR_STATE_RUNNING;
             hal_unlock(s);
@@ -354,16 +393,50 @@ void lr_core_tick(void)
     hal_adc_start();
 }
 
+/* A limit crossed (ISR): 0 V at once, the run over; the main loop sends the fault once
+ * the samples before it are out */
+static void trip(uint8_t why)
+{
+    hal_timer_stop();
+    dac_set(cfg.dac_zero);
+    tripped = why;
+    state = LR_STATE_FINISHING;
+}
+
+/* The sample's speed and position against the run's limits (ISR). */
+static void check_limits(uint16_t tacho, uint16_t pos)
+{
+    uint8_t why = 0;
+#if LR_DECODING
+    /* the count, as the HAL splits it over the tacho and pos words */
+    int32_t x = (int32_t)((uint32_t)tacho | ((uint32_t)pos << 16)) - loop_origin;
+    if (trip_primed && cur.index == trip_prev_index + 1) {
+        int32_t v = x - trip_prev;
+        if ((trip_flags & LR_TRIP_SPEED) && (v < trip_s_lo || v > trip_s_hi)) why = LR_TRIP_SPEED;
+    }
+    trip_prev = x; trip_prev_index = cur.index; trip_primed = 1;
+#else
+    int32_t v = tacho, x = pos;
+    if ((trip_flags & LR_TRIP_SPEED) && (v < trip_s_lo || v > trip_s_hi)) why = LR_TRIP_SPEED;
+#endif
+    if (!why && (trip_flags & LR_TRIP_POSITION) && (x < trip_p_lo || x > trip_p_hi))
+        why = LR_TRIP_POSITION;
+    if (why) trip(why);
+}
+
 /* ADC ISR: the three channels of the current sample are in. */
 void lr_core_sample_done(uint16_t tacho, uint16_t pos, uint16_t ref)
 {
     if (!acquiring) return;
     acquiring = 0;
     uint8_t next = (uint8_t)((ring_head + 1) & (LR_RING - 1));
-    if (next == ring_tail) { ctr.ring_overflows++; return; }
-    cur.tacho = tacho; cur.pos = pos; cur.ref = ref;
-    ring[ring_head] = cur;
-    ring_head = next;
+    if (next == ring_tail) ctr.ring_overflows++;
+    else {
+        cur.tacho = tacho; cur.pos = pos; cur.ref = ref;
+        ring[ring_head] = cur;   /* the sample that trips is the run's last */
+        ring_head = next;
+    }
+    if (trip_flags && state == LR_STATE_RUNNING) check_limits(tacho, pos);
 }
 
 void lr_core_rx_overrun(void) { ctr.rx_overruns++; }
@@ -431,10 +504,15 @@ void lr_core_poll(void)
     } else if (st == LR_STATE_FINISHING && !acquiring) {
         send_samples(1);
         if (ring_head == ring_tail) {
-            uint8_t b[8];
-            lr_put32(b, cfg.n_samples);
-            lr_put32(b + 4, ctr.sample_overruns + ctr.ring_overflows);
-            send(LR_DONE, b, 8);
+            if (tripped) {
+                /* (short texts: every string sits in the Uno's 2 kB of RAM) */
+                send_error(LR_ERR_TRIP, tripped == LR_TRIP_SPEED ? "over-speed" : "position limit");
+            } else {
+                uint8_t b[8];
+                lr_put32(b, cfg.n_samples);
+                lr_put32(b + 4, ctr.sample_overruns + ctr.ring_overflows);
+                send(LR_DONE, b, 8);
+            }
             state = LR_STATE_CONFIGURED;
         }
     }

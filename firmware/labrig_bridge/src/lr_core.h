@@ -13,11 +13,12 @@ extern "C" {
 #ifndef LR_DAC_ZERO
 #define LR_DAC_ZERO 2048
 #endif
-/* Firmware hard limit, counts either side of LR_DAC_ZERO: 1126 = +-2.75 V on the
- * +-5 V stage, 10 % above the default rig's 2.5 V host limit so a calibration gain
- * of a few percent still fits, but nowhere near the amplifier's full input range. */
+/* Firmware hard limit, counts either side of LR_DAC_ZERO: 1064 = +-2.598 V on the
+ * +-5 V stage: times the SA150D's gain of 5 it stays inside the amplifier's 13 V rail
+ * (12.99 V), 4 % above the default rig's 2.5 V host limit so a calibration gain of a few
+ * percent still fits. */
 #ifndef LR_FW_LIMIT_COUNTS
-#define LR_FW_LIMIT_COUNTS 1126
+#define LR_FW_LIMIT_COUNTS 1064
 #endif
 #ifndef LR_WATCHDOG_MS_DEFAULT
 #define LR_WATCHDOG_MS_DEFAULT 500

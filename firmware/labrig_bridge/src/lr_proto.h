@@ -25,7 +25,7 @@ extern "C" {
 /* host -> board */
 enum {
     LR_HELLO_REQ = 0x01, LR_CONFIGURE = 0x02, LR_START = 0x03, LR_STOP = 0x04,
-    LR_HEARTBEAT = 0x05, LR_STATUS_REQ = 0x06, LR_ZERO = 0x07
+    LR_HEARTBEAT = 0x05, LR_STATUS_REQ = 0x06, LR_ZERO = 0x07, LR_LIMITS = 0x08
 };
 /* board -> host */
 enum {
@@ -37,8 +37,13 @@ enum { LR_WAVE_CONSTANT = 0, LR_WAVE_SQUARE = 1, LR_WAVE_STEP = 2, LR_WAVE_STAIR
        LR_WAVE_PWL = 4 };
 enum {
     LR_ERR_BAD_FRAME = 1, LR_ERR_BAD_CONFIG = 2, LR_ERR_LIMIT = 3, LR_ERR_NOT_CONFIGURED = 4,
-    LR_ERR_BUSY = 5, LR_ERR_WATCHDOG = 6, LR_ERR_RATE = 7
+    LR_ERR_BUSY = 5, LR_ERR_WATCHDOG = 6, LR_ERR_RATE = 7, LR_ERR_TRIP = 8
 };
+/* LIMITS body: flags (bit0 speed, bit1 position), then the speed's and the position's
+ * allowed ranges as i32 pairs (MS150: tacho and pot ADC words; H-bridge: counts per
+ * sample, and counts from the run's start). A CONFIGURE clears them. */
+#define LR_LIMITS_LEN 17
+enum { LR_TRIP_SPEED = 1, LR_TRIP_POSITION = 2 };
 /* CONFIGURE body without the levels */
 #define LR_CONFIGURE_FIXED 29
 
