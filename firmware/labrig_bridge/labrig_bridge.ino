@@ -112,7 +112,8 @@ void setup()
     UCSR0C = _BV(UCSZ01) | _BV(UCSZ00);                    // 8N1
     UCSR0B = _BV(RXEN0) | _BV(TXEN0) | _BV(RXCIE0);
 
-    lr_core_init(BOARD_ID, "labrig-fw " FW_VERSION " " BOARD_NAME " " RIG_NAME, LR_MAX_RATE_HZ);
+    // the id in flash, read by the core with pgm_read_byte (LR_TEXT)
+    lr_core_init(BOARD_ID, PSTR("labrig-fw " FW_VERSION " " BOARD_NAME " " RIG_NAME), LR_MAX_RATE_HZ);
     sei();
     lr_core_send_hello();   // unsolicited; a host that opened late asks with HELLO_REQ
 #if LR_HW_WATCHDOG

@@ -2,6 +2,17 @@
 #include "lr_core.h"
 #include "lr_hal.h"
 
+/* Texts live in flash on the AVR (the Uno's 2 kB of RAM is the stack's too): LR_TEXT
+ * marks one, LR_TEXT_BYTE reads it */
+#ifdef __AVR__
+#include <avr/pgmspace.h>
+#define LR_TEXT(s) PSTR(s)
+#define LR_TEXT_BYTE(p) pgm_read_byte(p)
+#else
+#define LR_TEXT(s) (s)
+#define LR_TEXT_BYTE(p) (*(p))
+#endif
+
 typedef struct {
     uint32_t index;
     uint16_t dac, tacho, pos, ref;
@@ -113,7 +124,8 @@ static void send_error(uint8_t code, const char *text)
     uint8_t b[48];
     uint16_t n = 1;
     b[0] = code;
-    while (*text && n < sizeof b) b[n++] = (uint8_t)*text++;
+    char c;
+    while ((c = (char)LR_TEXT_BYTE(text)) && n < sizeof b) { b[n++] = (uint8_t)c; text++; }
     send(LR_ERROR, b, n);
 }
 
@@ -141,7 +153,8 @@ void lr_core_send_hello(void)
     b[24] = LR_RIG_FLAGS; b[25] = LR_DECODING; b[26] = LR_PWM_BITS;
     lr_put16(b + 27, LR_MIN_RATE_HZ);
     uint16_t n = 29;
-    for (const char *p = fw_name; *p && n < sizeof b; p++) b[n++] = (uint8_t)*p;
+    char c;
+    for (const char *p = fw_name; (c = (char)LR_TEXT_BYTE(p)) && n < sizeof b; p++) b[n++] = (uint8_t)c;
     send(LR_HELLO, b, n);
 }
 
@@ -233,14 +246,14 @@ static void handle(const lr_frame_t *f)
     case LR_CONFIGURE:
         start_seq_valid = 0;
         if (state == LR_STATE_RUNNING || state == LR_STATE_FINISHING) {
-            send_error(LR_ERR_BUSY, "configure while running");
+            send_error(LR_ERR_BUSY, LR_TEXT("configure while running"));
             break;
         }
         err = configure(f->body, f->body_len);
         if (err) {
             state = LR_STATE_IDLE;
-            send_error((uint8_t)err, err == LR_ERR_LIMIT ? "level beyond output limit" :
-                       err == LR_ERR_RATE ? "sample rate out of range" : "bad configure");
+            send_error((uint8_t)err, err == LR_ERR_LIMIT ? LR_TEXT("level beyond output limit") :
+                       err == LR_ERR_RATE ? LR_TEXT("sample rate out of range") : LR_TEXT("bad configure"));
         } else {
             uint8_t s = hal_lock();
             dac_set(cfg.dac_zero);
@@ -252,11 +265,11 @@ static void handle(const lr_frame_t *f)
         break;
     case LR_LIMITS:
         if (state == LR_STATE_RUNNING || state == LR_STATE_FINISHING) {
-            send_error(LR_ERR_BUSY, "already running");
+            send_error(LR_ERR_BUSY, LR_TEXT("already running"));
             break;
         }
         if (f->body_len != LR_LIMITS_LEN) {
-            send_error(LR_ERR_BAD_FRAME, "bad limits");
+            send_error(LR_ERR_BAD_FRAME, LR_TEXT("bad limits"));
             break;
         }
         {
@@ -264,7 +277,7 @@ static void handle(const lr_frame_t *f)
             int32_t p_lo = (int32_t)lr_get32(f->body + 9), p_hi = (int32_t)lr_get32(f->body + 13);
             if ((f->body[0] & (uint8_t)~(LR_TRIP_SPEED | LR_TRIP_POSITION)) || s_lo > s_hi ||
                 p_lo > p_hi) {
-                send_error(LR_ERR_BAD_CONFIG, "bad limits");
+                send_error(LR_ERR_BAD_CONFIG, LR_TEXT("bad limits"));
                 break;
             }
             uint8_t s = hal_lock();
@@ -282,7 +295,7 @@ static void handle(const lr_frame_t *f)
         }
         if (state != LR_STATE_CONFIGURED) {
             send_error(state == LR_STATE_IDLE ? LR_ERR_NOT_CONFIGURED : LR_ERR_BUSY,
-                       state == LR_STATE_IDLE ? "start before configure" : "already running");
+                       state == LR_STATE_IDLE ? LR_TEXT("start before configure") : LR_TEXT("already running"));
             break;
         }
         {
@@ -328,7 +341,7 @@ static void handle(const lr_frame_t *f)
         break;
     }
     default:
-        send_error(LR_ERR_BAD_FRAME, "unknown message type");
+        send_error(LR_ERR_BAD_FRAME, LR_TEXT("unknown message type"));
     }
 }
 
@@ -506,7 +519,7 @@ void lr_core_poll(void)
         if (ring_head == ring_tail) {
             if (tripped) {
                 /* (short texts: every string sits in the Uno's 2 kB of RAM) */
-                send_error(LR_ERR_TRIP, tripped == LR_TRIP_SPEED ? "over-speed" : "position limit");
+                send_error(LR_ERR_TRIP, tripped == LR_TRIP_SPEED ? LR_TEXT("over-speed") : LR_TEXT("position limit"));
             } else {
                 uint8_t b[8];
                 lr_put32(b, cfg.n_samples);
@@ -523,7 +536,7 @@ void lr_core_poll(void)
         stop_and_zero();
         ctr.watchdog_trips++;
         last_rx_ms = hal_millis();
-        send_error(LR_ERR_WATCHDOG, "host silent: output set to 0 V");
+        send_error(LR_ERR_WATCHDOG, LR_TEXT("host silent: output set to 0 V"));
     }
 }
 

@@ -64,6 +64,7 @@ typedef struct {
     uint32_t samples_sent, rx_overruns, watchdog_trips, sample_overruns, ring_overflows;
 } lr_counters_t;
 
+/* fw_id: in flash on the AVR (PSTR), in memory elsewhere */
 void lr_core_init(uint8_t board_id, const char *fw_id, uint16_t max_rate_hz);
 void lr_core_tick(void);                                    /* timer ISR */
 void lr_core_sample_done(uint16_t tacho, uint16_t pos, uint16_t ref); /* ADC ISR */
