@@ -688,3 +688,31 @@ def test_the_board_trips_on_over_speed_at_once_and_the_sweep_keeps_the_run(tmp_p
     # the tripped run is read with its tail as gaps; the fit never sees them
     a = _labrig("analyse", runs, "--json")
     assert a.returncode == 0, a.stderr
+
+
+def test_the_estop_stops_the_run_at_once_and_latches(tmp_path):
+    """An E-stop wired to D7 (normally closed to GND), opened 2.5 s into the emulated
+    sweep: the board drives nothing from the next sample on, the run is kept up to there
+    and recorded as an E-stop, the sweep exits 1 saying so; another sweep while the switch
+    stays open is refused by the board before anything plays."""
+    rig_file = _rig_with(tmp_path, HIDDEN, estop=True)
+    rig = load_rig(rig_file)
+    log = tmp_path / "emu.log"
+    with Emulator("uno", rig, dac_log=log, extra_args=("--estop-at", "2.5")) as emu:
+        r = _labrig("sweep", "--port", emu.pty, "--rig", rig_file, "--plan", PLAN, "-o",
+                    tmp_path / "runs")
+        again = _labrig("sweep", "--port", emu.pty, "--rig", rig_file, "--plan", PLAN, "-o",
+                        tmp_path / "again")
+    assert r.returncode == 1 and "(E-stop)" in r.stderr and "pressed the E-stop" in r.stderr, r.stderr
+    tripped = [p for p in (tmp_path / "runs").glob("*.json")
+               if "trip" in json.loads(p.read_text())["bridge"]]
+    assert len(tripped) == 1, tripped
+    trip = json.loads(tripped[0].read_text())["bridge"]["trip"]
+    assert trip["fault"] == "TRIP" and trip["text"] == "E-stop"
+    starts, _, _, duty = _edges(log)
+    pressed = 2.5 * 16e6
+    period = 16e6 / 200.0
+    assert all(v == 0 for c, v in duty if c > pressed + period), "driven after the E-stop"
+    assert [v for c, v in duty if c <= pressed][-1] != 0     # it was driving when pressed
+    assert again.returncode == 1 and "E-stop latched" in again.stderr, again.stderr
+    assert not (tmp_path / "again").exists() or not list((tmp_path / "again").glob("*.csv"))

@@ -247,6 +247,7 @@ RIG_CASES = {
     "trip speed past the tacho": ("[bridge]\ntrip_speed = 1000.0\n", "bridge.trip_speed"),
     "trip speed without tacho": ("[sensors]\ntacho_v_per_rad_s = 0.0\n[bridge]\ntrip_speed = 9.0\n",
                                  "bridge.trip_speed"),
+    "estop text": ("[bridge]\nestop = \"yes\"\n", "bridge.estop"),
     "trip window reversed": ("[bridge]\ntrip_position = [1.0, -1.0]\n", "bridge.trip_position"),
     "trip window past the pot": ("[bridge]\ntrip_position = [-100.0, 100.0]\n",
                                  "bridge.trip_position"),

@@ -67,6 +67,28 @@ static const double DT = 10e-6;
 
 static double now_s(void) { return (double)avr->cycle / (double)avr->frequency; }
 
+/* the E-stop (--estop-at S): a normally-closed switch holding D7 low (Uno PD7, Mega PH4),
+ * opened at S seconds of chip time */
+static double estop_at = -1.0;
+static char estop_port;
+static int estop_bit;
+
+/* every 1 ms: the switch's level on the pin (held, so that the firmware setting up its
+ * pull-up cannot raise it), low until estop_at, then high */
+static avr_cycle_count_t estop_hold(struct avr_t *a, avr_cycle_count_t when, void *param)
+{
+    (void)a; (void)param;
+    int open = now_s() >= estop_at;
+    static int said;
+    avr_raise_irq(avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ(estop_port), estop_bit), open);
+    if (open && !said) {
+        said = 1;
+        fprintf(stderr, "labrig-emu: E-stop pressed at %.6f s\n", now_s());
+        fflush(stderr);
+    }
+    return when + 16000;
+}
+
 static void advance(void)
 {
     double t = now_s();
@@ -312,6 +334,7 @@ static void usage(void)
         "  H-bridge rig: --rig hbridge [--supply V] [--drop V] [--dead-fwd V] [--dead-rev V]\n"
         "  [--Ts Nm] [--backlash rad] [--encoder-on-output] [--lines N] [--in1-in2] [--brake]\n"
         "  [--enc-log FILE] [--current-v-per-a V/A] [--current-zero V] [--index]\n"
+        "  [--estop-at S]   (an E-stop on D7, closed, opened at S s of chip time)\n"
         "  [--miss-edges N]\n");
 }
 
@@ -347,6 +370,7 @@ int main(int argc, char **argv)
         {"encoder-on-output", 0, 0, 37}, {"lines", 1, 0, 38}, {"in1-in2", 0, 0, 39},
         {"brake", 0, 0, 40}, {"enc-log", 1, 0, 41}, {"current-v-per-a", 1, 0, 42},
         {"current-zero", 1, 0, 43}, {"index", 0, 0, 44}, {"miss-edges", 1, 0, 45},
+        {"estop-at", 1, 0, 46},
         {0, 0, 0, 0}};
     int c;
     while ((c = getopt_long_only(argc, argv, "", opts, NULL)) != -1) {
@@ -397,6 +421,7 @@ int main(int argc, char **argv)
         case 43: sense_zero_v = v; break;
         case 44: idx_on = 1; break;
         case 45: miss_every = atol(optarg); break;
+        case 46: estop_at = atof(optarg); break;
         default: usage(); return 2;
         }
     }
@@ -467,6 +492,12 @@ int main(int argc, char **argv)
         avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('B'), cs), cs_pin, NULL);
     }
     avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_INPUT), uart_in, NULL);
+    if (estop_at >= 0.0) {
+        estop_port = mega ? 'H' : 'D';
+        estop_bit = mega ? 4 : 7;
+        avr_raise_irq(avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ(estop_port), estop_bit), 0);
+        avr_cycle_timer_register(avr, 16000, estop_hold, NULL);
+    }
 
     uart_pty_init(avr, &pty);
     uart_pty_connect(&pty, '0');

@@ -87,6 +87,21 @@ extern "C" void hal_tx_write(const uint8_t *d, uint16_t n)
 #include "src/hal_ms150.inc"
 #endif
 
+// The E-stop input, on both rigs: D7 (Uno/Nano PD7, Mega PH4), pulled up; a normally-
+// closed switch to GND holds it low, and pressing it or breaking its wire lets it rise.
+#if defined(__AVR_ATmega2560__)
+#define ESTOP_DDR DDRH
+#define ESTOP_PORT PORTH
+#define ESTOP_PIN PINH
+#define ESTOP_BIT 4
+#else
+#define ESTOP_DDR DDRD
+#define ESTOP_PORT PORTD
+#define ESTOP_PIN PIND
+#define ESTOP_BIT 7
+#endif
+extern "C" uint8_t hal_estop(void) { return (ESTOP_PIN & _BV(ESTOP_BIT)) ? 1 : 0; }
+
 extern "C" uint32_t hal_millis(void) { return millis(); }
 extern "C" uint8_t hal_lock(void) { uint8_t s = SREG; cli(); return s; }
 extern "C" void hal_unlock(uint8_t s) { SREG = s; }
@@ -106,6 +121,8 @@ void setup()
     MCUSR = 0;     // a watchdog reset leaves the watchdog on at 16 ms: off until set up
     wdt_disable();
 #endif
+    ESTOP_DDR &= (uint8_t)~_BV(ESTOP_BIT);   // the E-stop: input, pulled up
+    ESTOP_PORT |= _BV(ESTOP_BIT);
 
     UCSR0A = _BV(U2X0);
     UBRR0 = (uint16_t)(F_CPU / 8UL / BAUD - 1);            // 3: exact 500 kbaud at 16 MHz

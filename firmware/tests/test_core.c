@@ -68,6 +68,8 @@ uint8_t hal_index_take(int32_t *count, uint32_t *sample, uint16_t *pulses)
 }
 void hal_index_reset(void) { lr_index_reset(&t_idx, 0); }
 uint16_t hal_encoder_faults(void) { return t_faults; }
+static uint8_t t_estop;
+uint8_t hal_estop(void) { return t_estop; }
 
 static void host_send(uint8_t type, uint8_t seq, const uint8_t *body, size_t len)
 {
@@ -797,6 +799,46 @@ static void test_trips(void)
     CHECK(find(LR_DONE) >= 0, "the run plays on without limits");
 }
 
+static void test_estop(void)
+{
+    uint8_t b[128], lb[LR_LIMITS_LEN];
+    uint16_t lv[1] = {2600};
+    reset_all();
+    t_estop = 0;
+    size_t n = cfg_body(b, 0, LR_WAVE_CONSTANT, 1000, 100000, 0, 0, 1024, 3072, 500, lv, 1);
+    host_send(LR_CONFIGURE, 1, b, n);
+    host_send(LR_LIMITS, 2, lb, limits_body(lb, LR_TRIP_ESTOP, 0, 0, 0, 0));
+    host_send(LR_START, 3, NULL, 0);
+    for (int i = 0; i < 4; i++) lr_core_poll();
+    run_ticks(50, 1);
+    CHECK(dac_hw == 2600 && timer_on, "E-stop closed: the run plays");
+    t_estop = 1;                       /* pressed */
+    lr_core_tick();
+    CHECK(dac_hw == 2048 && !timer_on, "E-stop: 0 V at the next tick (word %u)", dac_hw);
+    run_ticks(20, 1);
+    collect();
+    int k = find(LR_ERROR);
+    CHECK(k >= 0 && msgs[k].body[0] == LR_ERR_TRIP, "E-stop reported as a trip");
+    /* latched: a new run is refused while pressed, and after release until a ZERO */
+    nmsgs = 0;
+    host_send(LR_CONFIGURE, 4, b, n);
+    host_send(LR_START, 5, NULL, 0);
+    for (int i = 0; i < 4; i++) lr_core_poll();
+    t_estop = 0;
+    host_send(LR_START, 6, NULL, 0);
+    for (int i = 0; i < 4; i++) lr_core_poll();
+    collect();
+    int errs = 0;
+    for (int i = 0; i < nmsgs; i++) if (msgs[i].type == LR_ERROR && msgs[i].body[0] == LR_ERR_TRIP) errs++;
+    CHECK(errs == 2 && !timer_on, "latched: both STARTs refused (%d)", errs);
+    host_send(LR_ZERO, 7, NULL, 0);
+    host_send(LR_CONFIGURE, 8, b, n);
+    host_send(LR_START, 9, NULL, 0);
+    for (int i = 0; i < 6; i++) lr_core_poll();
+    run_ticks(5, 1);
+    CHECK(timer_on && dac_hw == 2600, "released and ZERO: the next run plays");
+}
+
 int main(int argc, char **argv)
 {
     test_vectors(argc > 1 ? argv[1] : "test_vectors.json");
@@ -814,6 +856,7 @@ int main(int argc, char **argv)
     test_index_frames();
     test_drive_map();
     test_trips();
+    test_estop();
     printf("%d passed, %d failed\n", passed, failed);
     return failed ? 1 : 0;
 }

@@ -77,9 +77,9 @@ def check_board(rig, hello: dict, port: str) -> None:
                        "rig file that matches the board (--rig)")
     from labrig.bridge.trips import FIRST_VERSION
 
-    if (b.trip_speed or b.trip_position) and firmware_version(hello) < FIRST_VERSION:
+    if (b.trip_speed or b.trip_position or b.estop) and firmware_version(hello) < FIRST_VERSION:
         raise RigError(f"the firmware on {port} ({hello.get('firmware')}) enforces no trips, "
-                       "but the rig file sets them (bridge.trip_speed, trip_position); "
+                       "but the rig file sets them (bridge.trip_speed, trip_position, estop); "
                        f"{flash} ({'.'.join(map(str, FIRST_VERSION))} or later), or remove "
                        "the keys")
     if b.board and hello.get("board") not in (None, b.board):

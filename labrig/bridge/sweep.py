@@ -195,11 +195,14 @@ class TripError(RigError):
     def __init__(self, name: str, trip: dict, outdir):
         why = {"TRIP": "the board tripped", "RESET": "the board restarted"}.get(
             trip.get("fault"), "the board stopped")
+        text = str(trip.get("text"))
+        check = ("someone pressed the E-stop, or its wire broke: close it" if text == "E-stop"
+                 else "the motor went where [bridge] trip_speed or trip_position forbids"
+                 if trip.get("fault") == "TRIP" else "its supply, its cable, its watchdog")
         super().__init__(
-            f"run '{name}': {why} after sample {trip.get('after_sample')} ({trip.get('text')}); "
-            f"the run is kept in {outdir} up to there and the sweep stopped. Check the rig "
-            "before going on (a trip on [bridge] trip_speed or trip_position means the motor "
-            "went where the rig file forbids), then continue with --resume")
+            f"run '{name}': {why} after sample {trip.get('after_sample')} ({text}); the run "
+            f"is kept in {outdir} up to there and the sweep stopped. Check the rig before "
+            f"going on ({check}), then continue with --resume")
 
 
 class LossError(RigError):

@@ -15,6 +15,10 @@ never took are gaps, never fitted.
 - **Position** (``[bridge] trip_position = [low, high]``, closed-loop runs only: an open
   loop may spin the shaft past a pot's wrap): the pot's word inside the words of the
   window; an encoder's count, from the run's start, inside the window's counts.
+- **E-stop** (``[bridge] estop = true``): a normally-closed switch from D7 to GND; the pin
+  rising (pressed, or its wire broken) stops the run before the next sample's output, and
+  the board refuses to start another until the host's ZERO finds it closed again (every
+  sweep greets the board with one).
 """
 from __future__ import annotations
 
@@ -23,8 +27,8 @@ import struct
 
 from labrig.core.errors import ConfigError
 
-#: LIMITS flags (the firmware's LR_TRIP_SPEED, LR_TRIP_POSITION)
-SPEED, POSITION = 0x01, 0x02
+#: LIMITS flags (the firmware's LR_TRIP_SPEED, LR_TRIP_POSITION, LR_TRIP_ESTOP)
+SPEED, POSITION, ESTOP = 0x01, 0x02, 0x04
 #: the LIMITS body: flags, then the speed's and the position's i32 windows
 _LIMITS = struct.Struct("<Biiii")
 #: the firmware that enforces trips (LIMITS, ERROR TRIP)
@@ -86,6 +90,8 @@ def limits(exp, rig, s) -> tuple[int, int, int, int, int] | None:
         else:
             k, off = rig.sensors.pos_v_per_rad, rig.sensors.pos_offset_v
             pos = _words(k * lo + off, k * hi + off, "pos", s, "trip_position", path)
+    if b.estop:
+        flags |= ESTOP
     return (flags, *speed, *pos) if flags else None
 
 
@@ -113,7 +119,7 @@ def check(rig, plan=None) -> None:
 
 
 #: the board's words for each trip (its ERROR TRIP text)
-TEXTS = {SPEED: "over-speed", POSITION: "position limit"}
+TEXTS = {SPEED: "over-speed", POSITION: "position limit", ESTOP: "E-stop"}
 
 
 def first_trip(bounds, speed=None, position=None) -> tuple[int, int] | None:

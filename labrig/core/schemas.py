@@ -261,6 +261,8 @@ class BridgeSection(_Closed):
     #: closed-loop runs: the position window [low, high] (the output's, rad or m; an
     #: encoder's from the run's start) outside which the board ends the run at 0 V
     trip_position: RangeV = None
+    #: an E-stop wired to D7 (normally closed to GND; firmware 2.2): open, the board stops
+    estop: Optional[bool] = None
     calibration: CalibrationSection = None
     #: the board the bench is built on, and the pins it is wired to (checked against the
     #: firmware's map: labrig.io.board_pins); a board that greets as another is refused

@@ -108,6 +108,7 @@ class BridgeConfig:
     #: ends a run at 0 V (0: none), and a closed-loop run's position window (None: none)
     trip_speed: float = 0.0
     trip_position: tuple | None = None
+    estop: bool = False
     calibration: dict = field(default_factory=dict)
     #: the board the bench is built on ("": not said) and the pins the rig file states it
     #: is wired to, checked against the firmware's map (labrig.io.board_pins)
@@ -279,7 +280,7 @@ def rig_to_doc(rig: RigConfig) -> dict:
         doc[sec] = {inverse.get(sec, {}).get(k, k): (list(v) if isinstance(v, tuple) else v)
                     for k, v in body.items()
                     if not (k in ("calibration", "board", "pins", "index_counts", "trip_speed",
-                                  "trip_position") and not v)}
+                                  "trip_position", "estop") and not v)}
     doc["effects"] = {k: dict(v) for k, v in rig.effects.items()}
     return doc
 

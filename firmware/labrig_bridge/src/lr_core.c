@@ -59,6 +59,8 @@ static uint16_t pwl_j, pwl_acc, pwl_rem;
  * ended (0: it did not trip); the H-bridge's speed is the count's change per sample */
 static uint8_t trip_flags;
 static volatile uint8_t tripped;
+/* an E-stop seen: no run starts until a ZERO finds the switch closed again */
+static volatile uint8_t estop_latched;
 static int32_t trip_s_lo, trip_s_hi, trip_p_lo, trip_p_hi;
 #if LR_DECODING
 static int32_t trip_prev;
@@ -275,7 +277,7 @@ static void handle(const lr_frame_t *f)
         {
             int32_t s_lo = (int32_t)lr_get32(f->body + 1), s_hi = (int32_t)lr_get32(f->body + 5);
             int32_t p_lo = (int32_t)lr_get32(f->body + 9), p_hi = (int32_t)lr_get32(f->body + 13);
-            if ((f->body[0] & (uint8_t)~(LR_TRIP_SPEED | LR_TRIP_POSITION)) || s_lo > s_hi ||
+            if ((f->body[0] & (uint8_t)~(LR_TRIP_SPEED | LR_TRIP_POSITION | LR_TRIP_ESTOP)) || s_lo > s_hi ||
                 p_lo > p_hi) {
                 send_error(LR_ERR_BAD_CONFIG, LR_TEXT("bad limits"));
                 break;
@@ -291,6 +293,11 @@ static void handle(const lr_frame_t *f)
         if (start_seq_valid && f->seq == start_seq) {
             /* a retransmission: acknowledge again, never restart (even after DONE) */
             send_ack(f->type, f->seq);
+            break;
+        }
+        if (estop_latched || ((trip_flags & LR_TRIP_ESTOP) && hal_estop())) {
+            estop_latched = 1;
+            send_error(LR_ERR_TRIP, LR_TEXT("E-stop latched: close it, then start again"));
             break;
         }
         if (state != LR_STATE_CONFIGURED) {
@@ -324,6 +331,7 @@ static void handle(const lr_frame_t *f)
     case LR_ZERO:
         start_seq_valid = 0;
         stop_and_zero();
+        if (f->type == LR_ZERO && !hal_estop()) estop_latched = 0;   /* closed again */
         send_ack(f->type, f->seq);
         break;
     case LR_STATUS_REQ: {
@@ -345,10 +353,25 @@ static void handle(const lr_frame_t *f)
     }
 }
 
+/* A limit crossed (ISR): 0 V at once, the run over; the main loop sends the fault once
+ * the samples before it are out */
+static void trip(uint8_t why)
+{
+    hal_timer_stop();
+    dac_set(cfg.dac_zero);
+    tripped = why;
+    state = LR_STATE_FINISHING;
+}
+
 /* Timer ISR: one sample period. */
 void lr_core_tick(void)
 {
     if (state != LR_STATE_RUNNING) return;
+    if ((trip_flags & LR_TRIP_ESTOP) && hal_estop()) {   /* before this sample's output */
+        estop_latched = 1;
+        trip(LR_TRIP_ESTOP);
+        return;
+    }
     if (tick_index >= cfg.n_samples) {
         hal_timer_stop();
         dac_set(cfg.dac_zero);      /* end of experiment: back to 0 V */
@@ -404,16 +427,6 @@ void lr_core_tick(void)
     cur.ref = ref_now;   /* a digital loop's reference word; the HAL may overwrite it */
     acquiring = 1;
     hal_adc_start();
-}
-
-/* A limit crossed (ISR): 0 V at once, the run over; the main loop sends the fault once
- * the samples before it are out */
-static void trip(uint8_t why)
-{
-    hal_timer_stop();
-    dac_set(cfg.dac_zero);
-    tripped = why;
-    state = LR_STATE_FINISHING;
 }
 
 /* The sample's speed and position against the run's limits (ISR). */
@@ -519,7 +532,9 @@ void lr_core_poll(void)
         if (ring_head == ring_tail) {
             if (tripped) {
                 /* (short texts: every string sits in the Uno's 2 kB of RAM) */
-                send_error(LR_ERR_TRIP, tripped == LR_TRIP_SPEED ? LR_TEXT("over-speed") : LR_TEXT("position limit"));
+                send_error(LR_ERR_TRIP, tripped == LR_TRIP_SPEED ? LR_TEXT("over-speed")
+                           : tripped == LR_TRIP_ESTOP ? LR_TEXT("E-stop")
+                           : LR_TEXT("position limit"));
             } else {
                 uint8_t b[8];
                 lr_put32(b, cfg.n_samples);

@@ -25,6 +25,9 @@ uint8_t hal_index_take(int32_t *count, uint32_t *sample, uint16_t *pulses);
 void hal_index_reset(void);
 /* Undecodable encoder jumps since reset, saturating at 65535 (0 without an encoder). */
 uint16_t hal_encoder_faults(void);
+/* The E-stop input (Uno/Nano D7, Mega D7, pulled up): 1 when it reads high (the
+ * normally-closed switch open: pressed, or its wire broken). ISR-safe. */
+uint8_t hal_estop(void);
 /* Next received byte, or -1 if none waiting. */
 int hal_rx_read(void);
 /* Bytes of space in the transmit queue; hal_tx_write() blocks only beyond that. */

@@ -43,7 +43,10 @@ enum {
  * allowed ranges as i32 pairs (MS150: tacho and pot ADC words; H-bridge: counts per
  * sample, and counts from the run's start). A CONFIGURE clears them. */
 #define LR_LIMITS_LEN 17
-enum { LR_TRIP_SPEED = 1, LR_TRIP_POSITION = 2 };
+/* bit2: an E-stop is wired (a normally-closed switch from the E-stop pin to GND: the
+ * pin high, pressed or its wire broken, stops the run and latches until a ZERO finds it
+ * released) */
+enum { LR_TRIP_SPEED = 1, LR_TRIP_POSITION = 2, LR_TRIP_ESTOP = 4 };
 /* CONFIGURE body without the levels */
 #define LR_CONFIGURE_FIXED 29
 
