@@ -25,7 +25,7 @@ import pytest
 from labrig.bridge import hbridge
 from labrig.bridge.emulate import APT_PACKAGES, FIRMWARE_DIR, Emulator, firmware_make, missing_tools
 from labrig.io.config import load_rig
-from test_hbridge_rig import board_loop_plan
+from test_hbridge_rig import board_loop_plan, position_window_trip
 
 _missing = missing_tools()
 pytestmark = [
@@ -716,3 +716,17 @@ def test_the_estop_stops_the_run_at_once_and_latches(tmp_path):
     assert [v for c, v in duty if c <= pressed][-1] != 0     # it was driving when pressed
     assert again.returncode == 1 and "E-stop latched" in again.stderr, again.stderr
     assert not (tmp_path / "again").exists() or not list((tmp_path / "again").glob("*.csv"))
+
+
+def test_the_board_trips_at_its_position_window_in_a_closed_loop(tmp_path):
+    """A closed-loop square of +-3 rad against a window of +-2 rad from the run's start:
+    the emulated board's own PD drives the shaft out of it and the board trips there; the
+    open-loop runs, where the window does not apply, play whole. The simulated rig trips
+    at the same place on the same law (test_hbridge_rig)."""
+    rig_file = _rig_with(tmp_path, HIDDEN, trip_position=[-2.0, 2.0])
+    rig = load_rig(rig_file)
+    with Emulator("uno", rig) as emu:
+        r = _labrig("sweep", "--port", emu.pty, "--rig", rig_file, "--plan",
+                    board_loop_plan(tmp_path), "-o", tmp_path / "runs")
+    assert r.returncode == 1, r.stderr
+    position_window_trip(tmp_path / "runs", rig, r.stderr, 2.0)

@@ -1,12 +1,14 @@
 """An H-bridge rig file against what the board can do: one line, exit 2, nothing played."""
 from __future__ import annotations
 
+import json
 import re
 import subprocess
 import sys
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from labrig.bridge import hbridge, protocol as P
@@ -284,3 +286,34 @@ def test_a_sidecars_malformed_encoder_record_is_one_line(tmp_path, encoder):
     assert r.returncode == 2, r.stderr
     assert r.stderr.count("\n") == 1 and "Traceback" not in r.stderr
     assert str(side) in r.stderr and "bridge.encoder" in r.stderr
+
+
+def position_window_trip(runs: Path, rig, stderr: str, window: float) -> None:
+    """The sweep stopped at the closed-loop run, which tripped at the first sample whose
+    count from the run's start left the window; the open-loop runs before it, which may
+    turn far past it, played whole."""
+    assert "run 'pd_3rad': the board tripped" in stderr and "(position limit)" in stderr, stderr
+    for name in ("sq_4.50V", "sq_9.00V"):
+        meta = json.loads((runs / f"{name}.json").read_text())
+        assert "trip" not in meta["bridge"]
+        assert np.ptp(pd.read_csv(runs / f"{name}.csv")["pos"]) > 2 * window * \
+            rig.sensors.encoder_counts_per_unit
+    meta = json.loads((runs / "pd_3rad.json").read_text())
+    k = meta["bridge"]["trip"]["after_sample"]
+    counts = pd.read_csv(runs / "pd_3rad.csv")["pos"].to_numpy()[:k + 1]
+    edge = np.floor(window * rig.sensors.encoder_counts_per_unit)
+    travel = counts - counts[0]
+    assert np.abs(travel[-1]) > edge - 1 and (np.abs(travel[:-1]) <= edge + 1).all(), (travel[-3:], edge)
+
+
+
+def test_the_simulated_rig_trips_at_the_position_window_as_the_board_does(tmp_path):
+    """`sweep --sim` with a +-2 rad window and the board's own loop driving a +-3 rad square:
+    the run ends at the first sample out of the window, recorded as the board records it;
+    the open-loop runs, where the window does not apply, play whole."""
+    rig_file = _rig(tmp_path, trip_position="[-2.0, 2.0]")
+    r = subprocess.run([sys.executable, "-m", "labrig", "sweep", "--sim", "--rig", rig_file,
+                        "--plan", board_loop_plan(tmp_path), "-o", tmp_path / "runs"],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 1, r.stderr
+    position_window_trip(tmp_path / "runs", load_rig(rig_file), r.stderr, 2.0)
