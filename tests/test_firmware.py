@@ -419,3 +419,36 @@ def test_the_ms150_board_trips_on_its_tacho_within_one_sample(tmp_path):
     back = [t for t, w in events if t > step_on and w == 2048]
     assert back and tick_k - 1e-4 <= back[0] <= tick_k + 1.0 / exp.sample_rate_hz, (back[:1], tick_k)
     assert events[-1][1] == 2048
+
+
+def test_a_hung_main_loop_is_reset_by_the_avrs_watchdog_to_0_v(tmp_path):
+    """The test build's hang (message 0x7E: the main loop stops, the interrupts run on, so
+    the output holds and no host-silence check runs): the AVR's own watchdog resets the
+    chip within its 250 ms, the reset starts at 0 V, and the host takes the board's unasked
+    greeting as the end of the run (recorded as a reset, the samples before it kept)."""
+    from labrig.bridge import protocol as P
+
+    log = tmp_path / "dac.log"
+    exp = Experiment(name="hold", waveform="constant", amplitude_v=1.0, lead_in_s=0.0,
+                     duration_s=10.0)
+    s = bridge_settings(RIG)
+    with Emulator("uno", RIG, dac_log=log, test_hooks=True) as emu, \
+            SerialBridge(emu.pty, RIG) as bridge:
+        bridge.configure(exp)
+        bridge.start()
+        for _ in range(5):
+            assert bridge.read() is not None
+        bridge.link.write(b"\x00" + P.encode_frame(0x7E, 0x55))
+        while bridge.read(timeout=3.0) is not None:
+            pass
+        trip = bridge.trip
+    assert trip is not None and trip["fault"] == "RESET", trip
+    events = [(float(a), int(b)) for a, b in (line.split() for line in log.read_text().splitlines())]
+    on = [t for t, w in events if w == volts_to_dac_word(1.0, s)]
+    off = [t for t, w in events if on and t > on[0] and w == 2048]
+    assert on and off, events
+    # the last sample the host got came before the hang; the output went to 0 V within the
+    # watchdog's 250 ms (its oscillator runs 10 % either way on a real chip) of it
+    last = on[0] + (trip["after_sample"] + 1) / exp.sample_rate_hz
+    print(f"0 V {1e3 * (off[0] - last):.0f} ms after the last sample the host got")
+    assert off[0] - last < 0.25 * 1.1 + 0.05, (off[0], last)

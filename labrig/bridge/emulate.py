@@ -55,7 +55,8 @@ def firmware_make(*targets: str, timeout: float | None = None) -> subprocess.Com
                                *targets], capture_output=True, text=True, timeout=timeout)
 
 
-def build(board: str = "uno", rig: RigConfig | None = None) -> tuple[Path, Path]:
+def build(board: str = "uno", rig: RigConfig | None = None,
+          test_hooks: bool = False) -> tuple[Path, Path]:
     """Build (incrementally) the firmware for ``board`` and the harness.
 
     The rig's ``[bridge] firmware`` picks the hardware layer (the MS150 bridge by default;
@@ -77,13 +78,16 @@ def build(board: str = "uno", rig: RigConfig | None = None) -> tuple[Path, Path]
     if missing:
         raise RigError(f"cannot build the emulator: {', '.join(missing)} missing; install with: "
                        f"apt-get install -y --no-install-recommends {APT_PACKAGES}")
-    options = hbridge.make_options(rig) if rig is not None else []
+    options = (hbridge.make_options(rig) if rig is not None else []) + \
+        (["TEST_HOOKS=1"] if test_hooks else [])
     r = firmware_make(board, "emulator", *options)
     if r.returncode != 0:
         tail = "\n".join((r.stdout + r.stderr).strip().splitlines()[-15:])
         raise RigError(f"firmware build failed (make -C {FIRMWARE_DIR} {board} emulator "
                        f"{' '.join(options)}):\n{tail}")
     folder = FIRMWARE_DIR / "build" / (hbridge.build_folder(rig) if rig is not None else "")
+    if test_hooks:
+        folder = folder / "testhooks"
     return (folder / board / "labrig_bridge.elf",
             FIRMWARE_DIR / "build" / "emulator" / "labrig-emu")
 
@@ -167,6 +171,11 @@ class Emulator:
         at every change of the commanded signed duty (timer counts).
     loop : {"open", "closed"}, optional
         Force the plant's loop; by default it follows each CONFIGURE (the patch panel).
+    extra_args : tuple of str
+        More harness options (``--estop-at S``, ``--index``, ...).
+    test_hooks : bool
+        Run the test build (``make TEST_HOOKS=1``), in which message 0x7E stops the
+        firmware's main loop as a hang would (the hardware watchdog's test); never flashed.
 
     Notes
     -----
@@ -183,17 +192,19 @@ class Emulator:
     running: set = set()
 
     def __init__(self, board: str = "uno", rig: RigConfig | None = None, *, speed: float = 1.0,
-                 dac_log=None, loop: str | None = None, extra_args: tuple = ()):
+                 dac_log=None, loop: str | None = None, extra_args: tuple = (),
+                 test_hooks: bool = False):
         self.board, self.speed = board, speed
         self.rig = rig if rig is not None else RigConfig()
         self.dac_log = str(dac_log) if dac_log else None
         self.loop, self.extra_args = loop, tuple(extra_args)
+        self.test_hooks = test_hooks   # the test build (firmware/Makefile TEST_HOOKS=1)
         self.proc: subprocess.Popen | None = None
         self.pty: str | None = None
         self._log = None
 
     def command(self) -> list[str]:
-        elf, harness = build(self.board, self.rig)
+        elf, harness = build(self.board, self.rig, self.test_hooks)
         # --parent-pid: the harness exits when this process dies (PR_SET_PDEATHSIG), even by
         # SIGKILL, so no emulator outlives its owner and nothing needs killing by name
         cmd = [str(harness), "--fw", str(elf), "--board", self.board, "--speed", repr(self.speed),

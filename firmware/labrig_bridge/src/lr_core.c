@@ -348,6 +348,11 @@ static void handle(const lr_frame_t *f)
         send(LR_STATUS, b, 29);
         break;
     }
+#ifdef LR_TEST_HOOKS
+    case 0x7E:   /* test builds only: the main loop stops, as a hang would (ISRs run on) */
+        send_ack(f->type, f->seq);
+        for (;;) { }
+#endif
     default:
         send_error(LR_ERR_BAD_FRAME, LR_TEXT("unknown message type"));
     }
