@@ -39,8 +39,8 @@ from labrig.model.start import is_start_key
 
 #: the loop's re-fits see about this many residuals (every k-th)
 SUBSAMPLE = 16000
-#: the re-fit from the start the data show: the whole model moves with the starts, and
-#: 60 evaluations stop it short (an emulated sweep: 0.92 of the noise after 60, 0.50 after 200)
+#: the evaluations of the re-fit from the start the data show: the whole model moves with
+#: the starts, so it gets more room than a polish from a scanned start
 MOVING_START_NFEV = 200
 #: a basin whose best scan point is this much worse than the other's is not polished
 BASIN_MARGIN = 1.5
