@@ -255,13 +255,10 @@ class BridgeSection(_Closed):
     adc_range_v: RangeV = None
     watchdog_ms: Num(1.0, 2000.0) = None            # host silence: the board stops within it
     max_lost_fraction: Num(0.0, 1.0) = None          # a run losing more exits 1
-    #: the board ends a run at 0 V when the speed it samples passes this (the motor's, rad/s,
-    #: or the carriage's, m/s); 0 or left out: no speed trip
+    #: trips the board enforces (labrig.bridge.trips): the motor's speed (0: none), a
+    #: closed-loop run's position window, an E-stop wired to D7
     trip_speed: Num(0.0, 1e6) = None
-    #: closed-loop runs: the position window [low, high] (the output's, rad or m; an
-    #: encoder's from the run's start) outside which the board ends the run at 0 V
     trip_position: RangeV = None
-    #: an E-stop wired to D7 (normally closed to GND; firmware 2.2): open, the board stops
     estop: Optional[bool] = None
     calibration: CalibrationSection = None
     #: the board the bench is built on, and the pins it is wired to (checked against the
