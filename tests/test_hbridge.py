@@ -59,6 +59,13 @@ def _swept(r) -> None:
     assert r.returncode == 0, r.stderr
 
 
+def _sweep_on_board(rig_file, plan, out, *, board="uno", plant=None, **emulator_kw):
+    """``labrig sweep --port`` of ``plan`` on the emulated ``board`` whose plant is the rig
+    file's (or ``plant``); ``emulator_kw`` goes to :class:`Emulator`."""
+    with Emulator(board, plant if plant is not None else load_rig(rig_file), **emulator_kw) as emu:
+        return _labrig("sweep", "--port", emu.pty, "--rig", rig_file, "--plan", plan, "-o", out)
+
+
 def _rig_with(tmp_path: Path, effects: dict, **bridge) -> Path:
     """The shipped H-bridge rig file with other hidden effects (and [bridge] keys)."""
     text = RIG_FILE.read_text().split("[effects.")[0]
@@ -199,8 +206,7 @@ def test_a_board_flashed_for_the_other_rig_is_named_and_nothing_plays(tmp_path):
 def test_a_board_other_than_the_rig_files_is_named_and_nothing_plays(tmp_path):
     """The H-bridge firmware on an emulated Mega, the shipped rig file's bench an Uno
     (bridge.board): exit 1, one line naming both boards, no run written."""
-    with Emulator("mega", load_rig(RIG_FILE)) as emu:
-        r = _labrig("sweep", "--port", emu.pty, "--rig", RIG_FILE, "--plan", PLAN, "-o", tmp_path / "r")
+    r = _sweep_on_board(RIG_FILE, PLAN, tmp_path / "r", board="mega")
     assert r.returncode == 1, r.stderr
     line = r.stderr.strip()
     assert len(line.splitlines()) == 1, line
@@ -412,9 +418,7 @@ def test_the_current_sense_channel_reads_the_armature_current_at_each_sample(tmp
                     'frequency_hz = 1.0\nperiods = 2\n')
     rig = load_rig(rig_file)
     log = tmp_path / "emu.log"
-    with Emulator("uno", rig, dac_log=log) as emu:
-        r = _labrig("sweep", "--port", emu.pty, "--rig", rig_file, "--plan", plan, "-o",
-                    tmp_path / "runs")
+    r = _sweep_on_board(rig_file, plan, tmp_path / "runs", plant=rig, dac_log=log)
     assert r.returncode == 0, r.stderr
     (csv,) = sorted((tmp_path / "runs").glob("*.csv"))
     d = pd.read_csv(csv)
@@ -517,9 +521,7 @@ def test_diagnose_auto_finds_stiction_hidden_beside_the_dead_zone(tmp_path):
     hidden = {"asymmetric_deadband": {"dpos_v": 1.0, "dneg_v": 1.6},
               "stiction": {"tc_v": 0.8, "excess": 1.0}}
     rig_file = _rig_with(tmp_path, hidden)
-    with Emulator("uno", load_rig(rig_file)) as emu:
-        _swept(_labrig("sweep", "--port", emu.pty, "--rig", rig_file, "--plan", PLAN, "-o",
-                       tmp_path / "runs"))
+    _swept(_sweep_on_board(rig_file, PLAN, tmp_path / "runs"))
     r = _labrig("diagnose", "--auto", tmp_path / "runs", "--json", "-o", tmp_path / "auto")
     assert r.returncode == 0, r.stderr
     final = json.loads(r.stdout)["final_model"]
@@ -559,9 +561,8 @@ def test_the_index_pulse_latches_the_count_of_its_mark_every_turn(board, tmp_pat
                                "dir_in2": hbridge.PINS[board]["dir_in2"],
                                "enc_a": "D2", "enc_b": "D3", "index": hbridge.PINS[board]["index"]})
     log = tmp_path / "emu.log"
-    with Emulator(board, load_rig(rig_file), dac_log=log) as emu:
-        r = _labrig("sweep", "--port", emu.pty, "--rig", rig_file, "--plan", _square_plan(tmp_path),
-                    "-o", tmp_path / "runs")
+    r = _sweep_on_board(rig_file, _square_plan(tmp_path), tmp_path / "runs", board=board,
+                        dac_log=log)
     _swept(r)
     (side,) = sorted((tmp_path / "runs").glob("*.json"))
     enc = json.loads(side.read_text())["bridge"]["encoder"]
@@ -579,9 +580,8 @@ def test_edges_the_board_could_not_decode_are_counted_and_the_sweep_says_so(tmp_
     so the next moves both channels at once): the board counts each undecodable jump, the
     run is written with them in its sidecar and the sweep exits 1 naming the run."""
     rig_file = _rig_with(tmp_path, HIDDEN, index_counts=44)
-    with Emulator("uno", load_rig(rig_file), extra_args=("--miss-edges", "400")) as emu:
-        r = _labrig("sweep", "--port", emu.pty, "--rig", rig_file, "--plan", _square_plan(tmp_path),
-                    "-o", tmp_path / "runs")
+    r = _sweep_on_board(rig_file, _square_plan(tmp_path), tmp_path / "runs",
+                        extra_args=("--miss-edges", "400"))
     assert r.returncode == 1, r.stderr
     assert "could not decode" in r.stderr and "bridge.encoder" in r.stderr
     assert r.stderr.count("labrig: error:") == 1 and "Traceback" not in r.stderr
@@ -602,9 +602,7 @@ def test_an_index_the_rig_file_wires_but_that_never_pulses_is_named(tmp_path):
     rig_file = _rig_with(tmp_path, HIDDEN, index_counts=44)
     plant = load_rig(rig_file)
     plant.bridge.index_counts = 0
-    with Emulator("uno", plant) as emu:
-        r = _labrig("sweep", "--port", emu.pty, "--rig", rig_file, "--plan", _square_plan(tmp_path),
-                    "-o", tmp_path / "runs")
+    r = _sweep_on_board(rig_file, _square_plan(tmp_path), tmp_path / "runs", plant=plant)
     assert r.returncode == 1, r.stderr
     assert "no index pulse while the shaft turned" in r.stderr and "is the index wired" in r.stderr
 
@@ -655,9 +653,7 @@ def test_the_board_trips_on_over_speed_at_once_and_the_sweep_keeps_the_run(tmp_p
     rig_file = _rig_with(tmp_path, HIDDEN, trip_speed=450.0)
     rig = load_rig(rig_file)
     log = tmp_path / "emu.log"
-    with Emulator("uno", rig, dac_log=log) as emu:
-        r = _labrig("sweep", "--port", emu.pty, "--rig", rig_file, "--plan", PLAN, "-o",
-                    tmp_path / "runs")
+    r = _sweep_on_board(rig_file, PLAN, tmp_path / "runs", plant=rig, dac_log=log)
     assert r.returncode == 1, r.stderr
     assert "run 'sq_9.00V': the board tripped" in r.stderr and "over-speed" in r.stderr, r.stderr
     assert [line for line in r.stderr.splitlines() if not line.startswith("wrote ")] == [
@@ -725,8 +721,6 @@ def test_the_board_trips_at_its_position_window_in_a_closed_loop(tmp_path):
     at the same place on the same law (test_hbridge_rig)."""
     rig_file = _rig_with(tmp_path, HIDDEN, trip_position=[-2.0, 2.0])
     rig = load_rig(rig_file)
-    with Emulator("uno", rig) as emu:
-        r = _labrig("sweep", "--port", emu.pty, "--rig", rig_file, "--plan",
-                    board_loop_plan(tmp_path), "-o", tmp_path / "runs")
+    r = _sweep_on_board(rig_file, board_loop_plan(tmp_path), tmp_path / "runs", plant=rig)
     assert r.returncode == 1, r.stderr
     position_window_trip(tmp_path / "runs", rig, r.stderr, 2.0)

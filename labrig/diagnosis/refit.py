@@ -166,7 +166,7 @@ def starts_for(runs, base_params: dict, effects, new, reach, fixed: dict,
         analysed = _analysed_plant(runs, base_params, reach.dt)
         if analysed is not None:
             basins.append(analysed)
-    if any(is_start_key(k) and k.endswith(".w0") for k in base_params):
+    if _starts_in_motion(base_params):
         # the same plant from the start the data show (see _best_of_starts)
         basins.append({k: v for k, v in base_params.items() if not is_start_key(k)})
     points, sizes, shared_at = [], [], []
@@ -267,7 +267,7 @@ def _best_of_starts(runs, effects, new, params, *, reach, fixed, seed, weights, 
     what = f"the re-fit with {new.name}" if new is not None else "the re-fit"
     best = best_fit(each(lambda s: fit(runs, effects, s, fixed, seed=seed, weights=weights,
                                        reach=reach, stop=stop), starts), what)
-    if not any(is_start_key(k) and k.endswith(".w0") for k in params):
+    if not _starts_in_motion(params):
         return best
     # a run that starts in motion had its start fitted by the model before, bent to that
     # model's compromise (a linear model's coast is too slow: its start speed runs to its
@@ -277,6 +277,11 @@ def _best_of_starts(runs, effects, new, params, *, reach, fixed, seed, weights, 
     again = fit(runs, effects, own, fixed, seed=seed, weights=weights, reach=reach,
                 max_nfev=MOVING_START_NFEV)
     return best_fit([best, again], what)
+
+
+def _starts_in_motion(params) -> bool:
+    """Whether ``params`` hold a fitted start speed (a run that starts in motion)."""
+    return any(is_start_key(k) and k.endswith(".w0") for k in params)
 
 
 def best_fit(fits, what: str = "the re-fit"):
