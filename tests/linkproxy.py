@@ -14,6 +14,7 @@ import os
 import random
 import select
 import threading
+import termios
 import tty
 from collections import defaultdict
 
@@ -63,6 +64,10 @@ class LinkProxy:
                  policy=None):
         self.board = os.open(board_pty, os.O_RDWR | os.O_NOCTTY)
         tty.setraw(self.board)
+        # the board's line speed (the emulator garbles bytes at any other, as a UART would)
+        mode = termios.tcgetattr(self.board)
+        mode[4] = mode[5] = termios.B500000
+        termios.tcsetattr(self.board, termios.TCSANOW, mode)
         self.master, self.slave = os.openpty()
         tty.setraw(self.slave)   # keep a slave fd open so the master never sees EIO
         self.path = os.ttyname(self.slave)

@@ -25,7 +25,12 @@
  * once a turn of the encoder's shaft, gated to one quadrature state (A = B = high, half a
  * turn from where the shaft rests at reset), logged "X cycle edge" as it rises.
  * --miss-edges N withholds every Nth edge's pin change, so the next edge moves both
- * channels at once: a shaft outrunning the chip's interrupts, whose count it cannot decode. */
+ * channels at once: a shaft outrunning the chip's interrupts, whose count it cannot decode.
+ *
+ * --bootloader FILE.hex loads a bootloader into its section and starts there, as the
+ * BOOTRST fuse does (without --fw the application flash is erased): avrdude then uploads
+ * through it over the pty as on the bench (labrig flash's test), and the bootloader starts
+ * what it wrote. */
 #include <errno.h>
 #include <getopt.h>
 #include <math.h>
@@ -34,11 +39,13 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/prctl.h>
+#include <termios.h>
 #include <time.h>
 #include <unistd.h>
 
 #include "sim_avr.h"
 #include "sim_elf.h"
+#include "sim_hex.h"
 #include "sim_irq.h"
 #include "sim_io.h"
 #include "avr_adc.h"
@@ -143,6 +150,57 @@ static void cs_pin(struct avr_irq_t *irq, uint32_t value, void *param)
         plant.u = bridge_out();
     }
     spi_n = 0;
+}
+
+/* ---- the serial line's speed. A pty carries bytes whatever speed either end sets; a USB
+ * serial line does not: a UART receiving at another baud rate than the sender's reads
+ * framing errors and garbage. So each byte crosses only when the speed the host set on the
+ * pty (its termios, shared by master and slave) is within 4 % of the chip's own UART rate
+ * (UBRR0 and U2X0), else it arrives as garbage, both ways: a wrong --baud or a board flashed
+ * for another fails as on the bench. */
+static long pty_baud(void)
+{
+    struct termios t;
+    if (tcgetattr(pty.pty.s, &t) != 0) return 0;
+    switch (cfgetospeed(&t)) {
+    case B9600: return 9600;
+    case B19200: return 19200;
+    case B38400: return 38400;
+    case B57600: return 57600;
+    case B115200: return 115200;
+    case B230400: return 230400;
+    case B460800: return 460800;
+    case B500000: return 500000;
+    case B921600: return 921600;
+    case B1000000: return 1000000;
+    default: return 0;   /* another speed (BOTHER): not judged */
+    }
+}
+
+static int line_garbles(void)
+{
+    /* UCSR0A 0xC0 (U2X0 bit 1), UBRR0L 0xC4, UBRR0H 0xC5: the same on the 328P and 2560 */
+    long host = pty_baud();
+    if (!host) return 0;
+    double ubrr = ((avr->data[0xC5] << 8) | avr->data[0xC4]) & 0x0FFF;
+    double chip = 16e6 / ((avr->data[0xC0] & 0x02 ? 8.0 : 16.0) * (ubrr + 1.0));
+    double r = host / chip;
+    return r < 0.96 || r > 1.04;
+}
+
+static uint8_t garbage(uint32_t b) { return (uint8_t)(b * 167u + 13u); }
+
+static void chip_to_host(struct avr_irq_t *irq, uint32_t value, void *param)
+{
+    (void)irq; (void)param;
+    avr_raise_irq(pty.irq + IRQ_UART_PTY_BYTE_IN, line_garbles() ? garbage(value) : value);
+}
+
+static void host_to_chip(struct avr_irq_t *irq, uint32_t value, void *param)
+{
+    (void)irq; (void)param;
+    avr_raise_irq(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_INPUT),
+                  line_garbles() ? garbage(value) : value);
 }
 
 /* host -> board bytes: the patch panel follows the loop mode of each CONFIGURE */
@@ -326,7 +384,8 @@ static void on_signal(int sig) { (void)sig; stop_flag = 1; }
 static void usage(void)
 {
     fprintf(stderr,
-        "usage: labrig-emu --fw FILE.elf [--board uno|mega] [--speed X] [--dac-log FILE]\n"
+        "usage: labrig-emu --fw FILE.elf [--board uno|nano|mega] [--speed X] [--dac-log FILE]\n"
+        "  [--bootloader FILE.hex]  (run it from reset; without --fw, the flash is erased)\n"
         "  [--link PATH] [--loop auto|open|closed] [--kp G] [--kv G]\n"
         "  [--R ohm] [--L H] [--J kgm2] [--B Nms] [--K Nm/A] [--Ka V/V] [--Vmax V] [--N ratio]\n"
         "  [--Kt V/(rad/s)] [--Kpot V/rad] [--pos-offset V] [--noise-tacho V] [--noise-pos V]\n"
@@ -356,7 +415,7 @@ int main(int argc, char **argv)
                          .backlash = 0.0, .encoder_on_output = 0, .lines = 11.0, .in1_in2 = 0,
                          .brake = 0};
     const char *enc_log_path = NULL;
-    const char *fw = NULL, *board = "uno", *dac_log_path = NULL, *link = NULL;
+    const char *fw = NULL, *board = "uno", *dac_log_path = NULL, *link = NULL, *boot = NULL;
     double speed = 1.0;
     static struct option opts[] = {
         {"fw", 1, 0, 'f'}, {"board", 1, 0, 'b'}, {"speed", 1, 0, 's'}, {"dac-log", 1, 0, 'd'},
@@ -370,7 +429,7 @@ int main(int argc, char **argv)
         {"encoder-on-output", 0, 0, 37}, {"lines", 1, 0, 38}, {"in1-in2", 0, 0, 39},
         {"brake", 0, 0, 40}, {"enc-log", 1, 0, 41}, {"current-v-per-a", 1, 0, 42},
         {"current-zero", 1, 0, 43}, {"index", 0, 0, 44}, {"miss-edges", 1, 0, 45},
-        {"estop-at", 1, 0, 46},
+        {"estop-at", 1, 0, 46}, {"bootloader", 1, 0, 47},
         {0, 0, 0, 0}};
     int c;
     while ((c = getopt_long_only(argc, argv, "", opts, NULL)) != -1) {
@@ -422,10 +481,11 @@ int main(int argc, char **argv)
         case 44: idx_on = 1; break;
         case 45: miss_every = atol(optarg); break;
         case 46: estop_at = atof(optarg); break;
+        case 47: boot = optarg; break;
         default: usage(); return 2;
         }
     }
-    if (!fw || (strcmp(board, "uno") && strcmp(board, "nano") && strcmp(board, "mega")) || p.L <= 0 ||
+    if ((!fw && !boot) || (strcmp(board, "uno") && strcmp(board, "nano") && strcmp(board, "mega")) || p.L <= 0 ||
         p.J <= 0 || p.N == 0 || (rig_hbridge && (mp.supply <= 0 || mp.lines <= 0)) || miss_every < 0) {
         usage();
         return 2;
@@ -442,7 +502,7 @@ int main(int argc, char **argv)
 
     elf_firmware_t f;
     memset(&f, 0, sizeof f);
-    if (elf_read_firmware(fw, &f) != 0) {
+    if (fw && elf_read_firmware(fw, &f) != 0) {
         fprintf(stderr, "labrig-emu: cannot read firmware %s\n", fw);
         return 1;
     }
@@ -451,7 +511,21 @@ int main(int argc, char **argv)
     if (!avr) { fprintf(stderr, "labrig-emu: simavr has no %s\n", mcu); return 1; }
     avr_init(avr);
     f.frequency = 16000000;
-    avr_load_firmware(avr, &f);
+    if (fw) avr_load_firmware(avr, &f);
+    if (boot) {
+        /* a bootloader in its section, run from reset as the BOOTRST fuse does: avrdude
+         * writes the application through it (SPM) over the pty, as on the bench */
+        uint32_t size = 0, base = 0;
+        uint8_t *img = read_ihex_file(boot, &size, &base);
+        if (!img || base + size > avr->flashend + 1) {
+            fprintf(stderr, "labrig-emu: cannot read bootloader %s\n", boot);
+            return 1;
+        }
+        memcpy(avr->flash + base, img, size);
+        free(img);
+        avr->pc = base;
+        avr->codeend = avr->flashend;
+    }
     avr->frequency = 16000000;
     avr->vcc = avr->avcc = avr->aref = 5000;   /* mV: the ADC scales by them */
     avr->log = LOG_ERROR;
@@ -501,6 +575,14 @@ int main(int argc, char **argv)
 
     uart_pty_init(avr, &pty);
     uart_pty_connect(&pty, '0');
+    {   /* the line between them judges the speed (line_garbles) */
+        avr_irq_t *src = avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUTPUT);
+        avr_irq_t *dst = avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_INPUT);
+        avr_unconnect_irq(src, pty.irq + IRQ_UART_PTY_BYTE_IN);
+        avr_unconnect_irq(pty.irq + IRQ_UART_PTY_BYTE_OUT, dst);
+        avr_irq_register_notify(src, chip_to_host, NULL);
+        avr_irq_register_notify(pty.irq + IRQ_UART_PTY_BYTE_OUT, host_to_chip, NULL);
+    }
     if (link) {
         unlink(link);
         if (symlink(pty.pty.slavename, link) != 0)

@@ -157,7 +157,7 @@ class Emulator:
 
     Parameters
     ----------
-    board : {"uno", "mega"}
+    board : {"uno", "nano", "mega"}
     rig : labrig.io.config.RigConfig, optional
         Rig whose plant the harness simulates; ``RigConfig()`` (the default rig's values,
         without its hidden friction) when not given.
@@ -176,6 +176,10 @@ class Emulator:
     test_hooks : bool
         Run the test build (``make TEST_HOOKS=1``), in which message 0x7E stops the
         firmware's main loop as a hang would (the hardware watchdog's test); never flashed.
+    bootloader : str or Path, optional
+        A board as it comes from the box: this bootloader (Intel hex) in its section, run
+        from reset, the application flash erased; avrdude uploads through it over the pty
+        (``labrig flash``), and the bootloader then starts what was written.
 
     Notes
     -----
@@ -193,8 +197,9 @@ class Emulator:
 
     def __init__(self, board: str = "uno", rig: RigConfig | None = None, *, speed: float = 1.0,
                  dac_log=None, loop: str | None = None, extra_args: tuple = (),
-                 test_hooks: bool = False):
+                 test_hooks: bool = False, bootloader=None):
         self.board, self.speed = board, speed
+        self.bootloader = str(bootloader) if bootloader else None
         self.rig = rig if rig is not None else RigConfig()
         self.dac_log = str(dac_log) if dac_log else None
         self.loop, self.extra_args = loop, tuple(extra_args)
@@ -207,7 +212,8 @@ class Emulator:
         elf, harness = build(self.board, self.rig, self.test_hooks)
         # --parent-pid: the harness exits when this process dies (PR_SET_PDEATHSIG), even by
         # SIGKILL, so no emulator outlives its owner and nothing needs killing by name
-        cmd = [str(harness), "--fw", str(elf), "--board", self.board, "--speed", repr(self.speed),
+        image = ["--bootloader", self.bootloader] if self.bootloader else ["--fw", str(elf)]
+        cmd = [str(harness), *image, "--board", self.board, "--speed", repr(self.speed),
                "--parent-pid", str(os.getpid())]
         cmd += plant_args(self.rig)
         if self.dac_log:   # an H-bridge board's log: sample clock, encoder edges, duty

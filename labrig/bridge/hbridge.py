@@ -69,8 +69,7 @@ def check_board(rig, hello: dict, port: str) -> None:
     """
     b = rig.bridge
     want, have = b.firmware, hello.get("rig", "ms150")
-    flash = (f"flash it with `make -C firmware upload BOARD={hello.get('board', 'uno')} "
-             f"PORT={port} {' '.join(make_options(rig))}`".replace("  ", " "))
+    flash = f"flash it with `labrig flash --board {hello.get('board', 'uno')} --rig FILE --port {port}`"
     if want != have:
         raise RigError(f"the board on {port} runs the {have} firmware ({hello.get('firmware')}), "
                        f"but the rig file describes an {want} rig: {flash}, or give the "

@@ -306,7 +306,7 @@ class SerialBridge(Bridge):
             self.close()
             raise RigError(f"board on {self.port} speaks protocol {self.hello['protocol']}, "
                            f"labrig speaks {', '.join(map(str, P.PROTOCOLS))}: reflash the "
-                           "firmware (make -C firmware upload)")
+                           "firmware (labrig flash --board BOARD)")
         try:   # the board was built for the rig the file describes, at its resolution
             check_board(self._rig, self.hello, self.port)
         except RigError:

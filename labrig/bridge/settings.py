@@ -233,7 +233,7 @@ def experiment_body(exp: Experiment, s: BridgeSettings, hello: dict) -> bytes:
     if exp.waveform == "pwl":
         if not hello.get("capabilities", P.CAP_PWL) & P.CAP_PWL:
             raise UserError(f"experiment {exp.name!r}: this board's firmware does not play pwl "
-                            "waveforms; update it (`make -C firmware upload`)")
+                            "waveforms; update it (`labrig flash --board BOARD`)")
         ks = [int(round(t * rate)) for t, _ in exp.points]
         pieces = [b - a for a, b in zip(ks, ks[1:])]
         if not all(1 <= L <= P.MAX_PIECE for L in pieces):

@@ -1,5 +1,6 @@
 """``labrig emulate``: the real firmware under simavr, its UART on a pseudo-terminal;
-``labrig wiring``: how to wire a rig's bridge, drawn."""
+``labrig wiring``: how to wire a rig's bridge, drawn; ``labrig ports`` and ``labrig flash``:
+finding the board and putting the firmware on it."""
 from __future__ import annotations
 
 import signal
@@ -119,3 +120,41 @@ def _configure_ports(p):
 
 
 cmd_ports.configure = _configure_ports
+
+
+@command("flash", "upload the bridge firmware to the board (avrdude) and greet it")
+def cmd_flash(args):
+    """Upload the labrig firmware for the board and the rig file's bridge through avrdude:
+    built from firmware/ when the AVR toolchain is installed, else the image shipped in the
+    package; then greet the board and check it runs what was written. The port defaults to
+    the one Arduino-class USB port connected."""
+    res = lr.flash(args.board, lr.load_rig(args.rig) if args.rig else None, port=args.port,
+                   programmer=args.programmer,
+                   build={"auto": None, "yes": True, "no": False}[args.build])
+    print(f"{' '.join(res.command)}", file=sys.stderr)
+    image = f"{res.image} ({'built from firmware/' if res.source == 'built' else 'packaged'})"
+    if res.hello:
+        print(f"flashed {image}; the board greets: {res.hello.get('firmware')} "
+              f"(protocol {res.hello.get('protocol')})")
+    else:
+        print(f"flashed {image}")
+    return 0
+
+
+def _configure_flash(p):
+    p.add_argument("--board", required=True, choices=["uno", "nano", "nano-old", "mega"],
+                   help="the Arduino: uno, nano (new bootloader, 115200 baud), nano-old (the "
+                        "old 57600-baud bootloader of many clones; built without the AVR "
+                        "watchdog) or mega")
+    p.add_argument("--rig", help="rig file whose [bridge] firmware is written (ms150 or "
+                                 "hbridge with its options; default the MS150 bridge)")
+    p.add_argument("--port", help="the board's serial device (default: the one Arduino-class "
+                                  "USB port connected, see labrig ports)")
+    p.add_argument("--programmer", metavar="NAME",
+                   help="an avrdude programmer instead of the bootloader (e.g. usbasp)")
+    p.add_argument("--build", choices=["auto", "yes", "no"], default="auto",
+                   help="build the image from firmware/ (yes), take the packaged one (no), "
+                        "or build when the AVR toolchain is installed (auto, default)")
+
+
+cmd_flash.configure = _configure_flash

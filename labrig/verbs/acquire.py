@@ -159,3 +159,34 @@ def find_board() -> str:
     from labrig.bridge.ports import list_ports, the_board
 
     return the_board(list_ports())
+
+
+def flash(board: str, rig=None, *, port: str | None = None, programmer: str | None = None,
+          build: bool | None = None):
+    """Upload the bridge firmware for ``board`` and the rig through avrdude, then greet the
+    board (``labrig flash``).
+
+    Parameters
+    ----------
+    board : {"uno", "nano", "nano-old", "mega"}
+        The Arduino (``nano-old``: a Nano with the old 57600-baud bootloader).
+    rig : RigConfig or path, optional
+        The rig whose firmware (its ``[bridge]``); default the MS150 bridge.
+    port : str, optional
+        The board's serial device; default the one Arduino-class USB port connected.
+    programmer : str, optional
+        An avrdude programmer instead of the bootloader (``usbasp``...).
+    build : bool, optional
+        Build the image from ``firmware/`` (True) or take the packaged one (False); default
+        build when the AVR toolchain is installed.
+
+    Returns
+    -------
+    labrig.bridge.flash.FlashResult
+    """
+    from labrig.bridge.flash import flash as _flash
+    from labrig.verbs.data import load_rig
+
+    if rig is not None and not hasattr(rig, "bridge"):
+        rig = load_rig(rig)
+    return _flash(board, rig, port, programmer=programmer, build=build)
