@@ -99,3 +99,37 @@ def test_ports_greets_the_emulated_board(emulators):
     assert hello["protocol"] == 2 and hello["rig"] == "ms150"
     text = _labrig("ports", "--probe", emu.pty)
     assert f"{emu.pty}" in text.stdout and "labrig labrig-fw" in text.stdout
+
+
+@pytest.mark.firmware
+@pytest.mark.skipif(bool(missing_tools()), reason=f"apt-get install {APT_PACKAGES}")
+def test_a_board_keeps_the_id_a_sweep_gave_it_and_a_station_bound_to_another_refuses_it(
+        emulators, tmp_path):
+    """A board new to labrig has no id; the first sweep gives it one, which the board
+    keeps in its EEPROM (the emulator keeps the EEPROM in a file, as the chip does, across a
+    power cycle) and every run records; a station bound to another id refuses the board
+    before anything plays; the id finds the board among the probed ports."""
+    from labrig.io.config import load_rig
+
+    rig, plan = load_rig(), "configs/plan_two_steps.toml"
+    eeprom = tmp_path / "board.eeprom"
+    emu = emulators("uno", rig, eeprom=eeprom)
+    (first,) = [p for p in json.loads(_labrig("ports", "--probe", emu.pty, "--json").stdout)["ports"]
+                if p["device"] == emu.pty]
+    assert first["labrig"]["board_id"] == "-"          # a listing only reads
+    r = _labrig("sweep", "--port", emu.pty, "--plan", plan, "-o", tmp_path / "a")
+    assert r.returncode == 0, r.stderr
+    ids = {json.loads(p.read_text())["bridge"]["board_id"] for p in (tmp_path / "a").glob("*.json")}
+    (given,) = ids
+    assert len(given) == 8 and int(given, 16) != 0
+    emu.stop()                                           # a power cycle
+    emu = emulators("uno", rig, eeprom=eeprom)
+    assert the_board(list_ports([emu.pty], greet_boards=False), int(given, 16)) == emu.pty
+    other = f"{int(given, 16) ^ 0xFFFFFFFF:08X}"
+    r = _labrig("sweep", "--port", emu.pty, "--plan", plan, "--board-id", other, "-o", tmp_path / "b")
+    assert r.returncode == 1 and f"is {given}, not {other} (--board-id)" in r.stderr, r.stderr
+    assert not (tmp_path / "b").exists() or not list((tmp_path / "b").glob("*.csv"))
+    r = _labrig("sweep", "--port", emu.pty, "--plan", plan, "--board-id", given, "-o", tmp_path / "c")
+    assert r.returncode == 0, r.stderr
+    r = _labrig("sweep", "--port", emu.pty, "--plan", plan, "--board-id", "nothex", "-o", tmp_path / "d")
+    assert r.returncode == 2 and "is not a board id" in r.stderr, r.stderr

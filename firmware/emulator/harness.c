@@ -30,7 +30,10 @@
  * --bootloader FILE.hex loads a bootloader into its section and starts there, as the
  * BOOTRST fuse does (without --fw the application flash is erased): avrdude then uploads
  * through it over the pty as on the bench (labrig flash's test), and the bootloader starts
- * what it wrote. */
+ * what it wrote.
+ *
+ * --eeprom FILE keeps the chip's EEPROM (the board's id) in FILE across runs: read at start
+ * (a missing file: erased), written back when the harness ends. */
 #include <errno.h>
 #include <getopt.h>
 #include <math.h>
@@ -49,6 +52,7 @@
 #include "sim_irq.h"
 #include "sim_io.h"
 #include "avr_adc.h"
+#include "avr_eeprom.h"
 #include "avr_spi.h"
 #include "avr_ioport.h"
 #include "avr_uart.h"
@@ -386,6 +390,7 @@ static void usage(void)
     fprintf(stderr,
         "usage: labrig-emu --fw FILE.elf [--board uno|nano|mega] [--speed X] [--dac-log FILE]\n"
         "  [--bootloader FILE.hex]  (run it from reset; without --fw, the flash is erased)\n"
+        "  [--eeprom FILE]  (the EEPROM read from FILE at start, written back at exit)\n"
         "  [--link PATH] [--loop auto|open|closed] [--kp G] [--kv G]\n"
         "  [--R ohm] [--L H] [--J kgm2] [--B Nms] [--K Nm/A] [--Ka V/V] [--Vmax V] [--N ratio]\n"
         "  [--Kt V/(rad/s)] [--Kpot V/rad] [--pos-offset V] [--noise-tacho V] [--noise-pos V]\n"
@@ -416,6 +421,7 @@ int main(int argc, char **argv)
                          .brake = 0};
     const char *enc_log_path = NULL;
     const char *fw = NULL, *board = "uno", *dac_log_path = NULL, *link = NULL, *boot = NULL;
+    const char *eeprom_path = NULL;
     double speed = 1.0;
     static struct option opts[] = {
         {"fw", 1, 0, 'f'}, {"board", 1, 0, 'b'}, {"speed", 1, 0, 's'}, {"dac-log", 1, 0, 'd'},
@@ -430,6 +436,7 @@ int main(int argc, char **argv)
         {"brake", 0, 0, 40}, {"enc-log", 1, 0, 41}, {"current-v-per-a", 1, 0, 42},
         {"current-zero", 1, 0, 43}, {"index", 0, 0, 44}, {"miss-edges", 1, 0, 45},
         {"estop-at", 1, 0, 46}, {"bootloader", 1, 0, 47},
+        {"eeprom", 1, 0, 48},
         {0, 0, 0, 0}};
     int c;
     while ((c = getopt_long_only(argc, argv, "", opts, NULL)) != -1) {
@@ -482,6 +489,7 @@ int main(int argc, char **argv)
         case 45: miss_every = atol(optarg); break;
         case 46: estop_at = atof(optarg); break;
         case 47: boot = optarg; break;
+        case 48: eeprom_path = optarg; break;
         default: usage(); return 2;
         }
     }
@@ -512,6 +520,22 @@ int main(int argc, char **argv)
     avr_init(avr);
     f.frequency = 16000000;
     if (fw) avr_load_firmware(avr, &f);
+    uint8_t *eeprom = NULL;   /* the chip's EEPROM bytes (simavr's own buffer) */
+    size_t eeprom_size = !strcmp(board, "mega") ? 4096 : 1024;
+    if (eeprom_path) {   /* the EEPROM as the board kept it (erased when the file is new) */
+        /* size 0 and no buffer: simavr hands out its own (its ioctl returns -1 either way,
+         * and some versions refuse a copy of the whole EEPROM) */
+        avr_eeprom_desc_t d = {.ee = NULL, .offset = 0, .size = 0};
+        avr_ioctl(avr, AVR_IOCTL_EEPROM_GET, &d);
+        eeprom = d.ee;
+        FILE *fe = eeprom ? fopen(eeprom_path, "rb") : NULL;
+        if (fe) {
+            if (fread(eeprom, 1, eeprom_size, fe) == 0 && ferror(fe))
+                fprintf(stderr, "labrig-emu: cannot read %s\n", eeprom_path);
+            fclose(fe);
+        }
+        if (!eeprom) fprintf(stderr, "labrig-emu: simavr gives no EEPROM: --eeprom ignored\n");
+    }
     if (boot) {
         /* a bootloader in its section, run from reset as the BOOTRST fuse does: avrdude
          * writes the application through it (SPM) over the pty, as on the bench */
@@ -624,6 +648,12 @@ int main(int argc, char **argv)
         }
     }
     if (state == cpu_Crashed) fprintf(stderr, "labrig-emu: firmware crashed\n");
+    if (eeprom) {   /* kept for the next start, as the chip keeps it */
+        FILE *fe = fopen(eeprom_path, "wb");
+        if (!fe || fwrite(eeprom, 1, eeprom_size, fe) != eeprom_size)
+            fprintf(stderr, "labrig-emu: cannot keep the EEPROM in %s\n", eeprom_path);
+        if (fe) fclose(fe);
+    }
     if (link) unlink(link);
     if (dac_log) fclose(dac_log);
     if (enc_log) fclose(enc_log);

@@ -9,11 +9,12 @@
 #include <avr/io.h>
 #include <avr/interrupt.h>
 #include <util/atomic.h>
+#include <avr/eeprom.h>
 #include <avr/wdt.h>
 #include "src/lr_core.h"
 #include "src/lr_hal.h"
 
-#define FW_VERSION "2.2.0"
+#define FW_VERSION "2.3.0"
 #define BAUD 500000UL
 
 #if defined(__AVR_ATmega2560__)
@@ -101,6 +102,21 @@ extern "C" void hal_tx_write(const uint8_t *d, uint16_t n)
 #define ESTOP_BIT 7
 #endif
 extern "C" uint8_t hal_estop(void) { return (ESTOP_PIN & _BV(ESTOP_BIT)) ? 1 : 0; }
+
+// the board's id: EEPROM bytes 0-1 "LR", 2-5 the id (u32 LE); anything else: none yet
+extern "C" uint32_t hal_id_read(void)
+{
+    if (eeprom_read_byte((const uint8_t *)0) != 'L' || eeprom_read_byte((const uint8_t *)1) != 'R')
+        return 0;
+    return eeprom_read_dword((const uint32_t *)2);
+}
+
+extern "C" void hal_id_write(uint32_t id)
+{
+    eeprom_update_dword((uint32_t *)2, id);
+    eeprom_update_byte((uint8_t *)0, 'L');   // the mark last: a reset mid-write leaves none
+    eeprom_update_byte((uint8_t *)1, 'R');
+}
 
 extern "C" uint32_t hal_millis(void) { return millis(); }
 extern "C" uint8_t hal_lock(void) { uint8_t s = SREG; cli(); return s; }

@@ -70,6 +70,9 @@ void hal_index_reset(void) { lr_index_reset(&t_idx, 0); }
 uint16_t hal_encoder_faults(void) { return t_faults; }
 static uint8_t t_estop;
 uint8_t hal_estop(void) { return t_estop; }
+static uint32_t t_id, t_id_writes;   /* the EEPROM's id */
+uint32_t hal_id_read(void) { return t_id; }
+void hal_id_write(uint32_t id) { t_id = id; t_id_writes++; }
 
 static void host_send(uint8_t type, uint8_t seq, const uint8_t *body, size_t len)
 {
@@ -839,6 +842,39 @@ static void test_estop(void)
     CHECK(timer_on && dac_hw == 2600, "released and ZERO: the next run plays");
 }
 
+static void test_board_id(void)
+{
+    uint8_t b[4];
+    reset_all();
+    t_id = 0; t_id_writes = 0;
+    host_send(LR_BOARD_ID, 1, NULL, 0);
+    for (int i = 0; i < 3; i++) lr_core_poll();
+    collect();
+    int k = find(LR_ID);
+    CHECK(k >= 0 && msgs[k].len == 4 && lr_get32(msgs[k].body) == 0, "no id yet: 0");
+    nmsgs = 0;
+    lr_put32(b, 0x3F2A91C0u);
+    host_send(LR_BOARD_ID, 2, b, 4);
+    for (int i = 0; i < 3; i++) lr_core_poll();
+    collect();
+    k = find(LR_ID);
+    CHECK(k >= 0 && lr_get32(msgs[k].body) == 0x3F2A91C0u && t_id_writes == 1, "an id given is kept");
+    nmsgs = 0;
+    lr_put32(b, 0x11111111u);
+    host_send(LR_BOARD_ID, 3, b, 4);
+    for (int i = 0; i < 3; i++) lr_core_poll();
+    collect();
+    k = find(LR_ID);
+    CHECK(k >= 0 && lr_get32(msgs[k].body) == 0x3F2A91C0u && t_id_writes == 1,
+          "a given id is never replaced");
+    nmsgs = 0;
+    host_send(LR_BOARD_ID, 4, b, 3);
+    for (int i = 0; i < 3; i++) lr_core_poll();
+    collect();
+    k = find(LR_ERROR);
+    CHECK(k >= 0 && msgs[k].body[0] == LR_ERR_BAD_FRAME, "a 3-byte id is a bad frame");
+}
+
 int main(int argc, char **argv)
 {
     test_vectors(argc > 1 ? argv[1] : "test_vectors.json");
@@ -857,6 +893,7 @@ int main(int argc, char **argv)
     test_drive_map();
     test_trips();
     test_estop();
+    test_board_id();
     printf("%d passed, %d failed\n", passed, failed);
     return failed ? 1 : 0;
 }

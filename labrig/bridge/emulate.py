@@ -180,6 +180,9 @@ class Emulator:
         A board as it comes from the box: this bootloader (Intel hex) in its section, run
         from reset, the application flash erased; avrdude uploads through it over the pty
         (``labrig flash``), and the bootloader then starts what was written.
+    eeprom : str or Path, optional
+        The chip's EEPROM (the board's id) kept in this file across runs: read at start
+        (a missing file: erased), written back when the emulator stops.
 
     Notes
     -----
@@ -197,9 +200,10 @@ class Emulator:
 
     def __init__(self, board: str = "uno", rig: RigConfig | None = None, *, speed: float = 1.0,
                  dac_log=None, loop: str | None = None, extra_args: tuple = (),
-                 test_hooks: bool = False, bootloader=None):
+                 test_hooks: bool = False, bootloader=None, eeprom=None):
         self.board, self.speed = board, speed
         self.bootloader = str(bootloader) if bootloader else None
+        self.eeprom = str(eeprom) if eeprom else None
         self.rig = rig if rig is not None else RigConfig()
         self.dac_log = str(dac_log) if dac_log else None
         self.loop, self.extra_args = loop, tuple(extra_args)
@@ -221,6 +225,8 @@ class Emulator:
                     self.dac_log]
         if self.loop:
             cmd += ["--loop", self.loop]
+        if self.eeprom:
+            cmd += ["--eeprom", self.eeprom]
         return cmd + list(self.extra_args)
 
     def start(self, timeout: float = 10.0) -> str:

@@ -20,7 +20,7 @@ from labrig.bridge import hbridge
 from labrig.core.errors import RigError, UserError
 
 #: the firmware this package's host code speaks to (the sketch's FW_VERSION; a test checks)
-FIRMWARE_VERSION = "2.2.0"
+FIRMWARE_VERSION = "2.3.0"
 #: the prebuilt images shipped in the package, one folder per rig build
 IMAGES = Path(__file__).with_name("images")
 AVRDUDE_APT = "apt-get install -y avrdude"
@@ -301,7 +301,7 @@ def confirm(port: str, spec: Board, rig=None, *, timeout: float = 6.0) -> dict:
     """
     from labrig.bridge.ports import greet
 
-    hello = greet(port, timeout=timeout)
+    hello = greet(port, timeout=timeout, assign=True)   # a board new to labrig gets its id
     if not hello:
         raise RigError(f"the upload ended, but the board on {port} does not greet as labrig "
                        "firmware: press its reset button and try labrig ports; a Nano clone "

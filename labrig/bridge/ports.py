@@ -65,11 +65,12 @@ def board_kind(vid: int | None, pid: int | None) -> str:
     return USB_SERIAL.get((vid, pid), "")
 
 
-def greet(device: str, *, timeout: float = 2.5) -> dict:
-    """The HELLO of the labrig firmware at ``device`` ({} when nothing labrig answers).
+def greet(device: str, *, timeout: float = 2.5, assign: bool = False) -> dict:
+    """The HELLO of the labrig firmware at ``device`` ({} when nothing labrig answers),
+    with the board's id (``board_id``; None from a firmware before 2.3).
 
     Asks every 0.5 s for ``timeout`` seconds: an Uno resets when its port opens and
-    answers after its bootloader (~1-2 s).
+    answers after its bootloader (~1-2 s). ``assign`` gives a board without an id one.
 
     Raises
     ------
@@ -90,12 +91,36 @@ def greet(device: str, *, timeout: float = 2.5) -> dict:
             for f in dec.feed(link.read(256, 0.05)):
                 if f.type == P.HELLO:
                     try:
-                        return P.parse_message(f).fields
+                        hello = P.parse_message(f).fields
                     except P.BodyError:
                         continue
+                    hello["board_id"] = _read_id(link, dec, hello, assign)
+                    return hello
         return {}
     finally:
         link.close()
+
+
+def _read_id(link, dec, hello: dict, assign: bool = False) -> int | None:
+    """The board's id (given one first when it has none and ``assign``); None from a
+    firmware that keeps none, or no answer. A listing only reads: a sweep gives ids."""
+    from labrig.bridge.hbridge import firmware_version
+    from labrig.bridge.identity import settle
+
+    def ask(body: bytes, timeout: float = 0.6):
+        link.write(b"\x00" + P.encode_frame(P.BOARD_ID, 2, body))
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            for f in dec.feed(link.read(256, 0.05)):
+                if f.type == P.ID:
+                    try:
+                        return P.parse_message(f).fields["board_id"]
+                    except P.BodyError:
+                        return None
+        return None
+
+    return settle(ask if assign else (lambda body: ask(b"") if not body else 0),
+                  firmware_version(hello))
 
 
 def list_ports(probe=(), *, greet_boards: bool = True, lister=None) -> list[Port]:
@@ -137,8 +162,8 @@ def list_ports(probe=(), *, greet_boards: bool = True, lister=None) -> list[Port
     return ports
 
 
-def the_board(ports: list[Port]) -> str:
-    """The one labrig board's device among ``ports``.
+def the_board(ports: list[Port], board_id: int | None = None) -> str:
+    """The one labrig board's device among ``ports`` (the one whose id is ``board_id``).
 
     Raises
     ------
@@ -146,12 +171,21 @@ def the_board(ports: list[Port]) -> str:
         None is connected, or several are (listing them and how to choose).
     """
     boards = [p for p in ports if p.is_labrig]
+    if board_id is not None:
+        mine = [p for p in boards if p.hello.get("board_id") == board_id]
+        if len(mine) == 1:
+            return mine[0].device
+        seen = ", ".join(f"{p.device} {P.format_board_id(p.hello.get('board_id'))}"
+                         for p in boards) or "none"
+        raise UserError(f"board_id: no labrig board {P.format_board_id(board_id)} is connected "
+                        f"(labrig boards: {seen}); plug it in, or check the id with labrig ports")
     if len(boards) == 1:
         return boards[0].device
     if not boards:
         raise UserError("port: no labrig board found (labrig ports lists what is connected); "
                         "plug it in and flash it, or give --port")
-    listed = "; ".join(f"{p.device} ({p.hello.get('firmware')}, serial {p.serial_number or '-'})"
+    listed = "; ".join(f"{p.device} ({p.hello.get('firmware')}, id "
+                       f"{P.format_board_id(p.hello.get('board_id'))}, serial {p.serial_number or '-'})"
                        for p in boards)
     raise UserError(f"port: {len(boards)} labrig boards are connected ({listed}); choose one "
-                    "with --port")
+                    "with --port or --board-id")

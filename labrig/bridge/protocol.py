@@ -27,12 +27,17 @@ MAX_LEVELS = 32
 HELLO_REQ, CONFIGURE, START, STOP, HEARTBEAT, STATUS_REQ, ZERO = 0x01, 0x02, 0x03, 0x04, 0x05, 0x06, 0x07
 #: the run's trip limits (firmware 2.2: labrig.bridge.trips), after its CONFIGURE
 LIMITS = 0x08
+#: ask the board's id (empty), or give it one it keeps in EEPROM (u32; firmware 2.3)
+BOARD_ID = 0x09
 # board -> host
 ACK, HELLO, SAMPLES, STATUS, DONE, ERROR, INDEX = 0x80, 0x81, 0x82, 0x83, 0x84, 0x85, 0x86
+#: the board's id (u32; 0: none given yet), the answer to BOARD_ID
+ID = 0x87
 
 TYPE_NAMES = {
     HELLO_REQ: "HELLO_REQ", CONFIGURE: "CONFIGURE", START: "START", STOP: "STOP",
-    HEARTBEAT: "HEARTBEAT", STATUS_REQ: "STATUS_REQ", ZERO: "ZERO", LIMITS: "LIMITS", ACK: "ACK",
+    HEARTBEAT: "HEARTBEAT", STATUS_REQ: "STATUS_REQ", ZERO: "ZERO", LIMITS: "LIMITS",
+    BOARD_ID: "BOARD_ID", ID: "ID", ACK: "ACK",
     HELLO: "HELLO", SAMPLES: "SAMPLES", STATUS: "STATUS", DONE: "DONE", ERROR: "ERROR",
     INDEX: "INDEX",
 }
@@ -71,6 +76,7 @@ _HELLO_V2 = struct.Struct("<BIBBBH")                # protocol 2: 10 more bytes 
 _SAMPLES_HEAD = struct.Struct("<IB")
 _STATUS = struct.Struct("<IIIIIIBHH")               # the last u16: encoder faults (H-bridge)
 _INDEX = struct.Struct("<IiH")
+_ID = struct.Struct("<I")
 _DONE = struct.Struct("<II")
 _ACK = struct.Struct("<BB")
 
@@ -356,6 +362,17 @@ def parse_index(body: bytes) -> dict:
     return {"sample": sample, "count": count, "pulse": pulse}
 
 
+def parse_id(body: bytes) -> dict:
+    """ID: the id a host gave the board (0: none yet)."""
+    (board_id,) = _unpack(_ID, body, "ID", exact=True)
+    return {"board_id": board_id}
+
+
+def format_board_id(board_id: int | None) -> str:
+    """A board id as labrig shows it (8 hex digits), or ``"-"`` for none."""
+    return f"{board_id:08X}" if board_id else "-"
+
+
 def parse_done(body: bytes) -> dict:
     """DONE: planned samples and the samples the board itself lost in this run."""
     n, lost = _unpack(_DONE, body, "DONE", exact=True)
@@ -421,6 +438,11 @@ def index_body(sample: int, count: int, pulse: int) -> bytes:
     return _INDEX.pack(sample, count, pulse)
 
 
+def id_body(board_id: int) -> bytes:
+    """ID body (and BOARD_ID's when giving an id)."""
+    return _ID.pack(board_id)
+
+
 def done_body(n_samples: int, samples_lost: int = 0) -> bytes:
     """DONE body: the run's planned samples and those the board lost."""
     return _DONE.pack(n_samples, samples_lost)
@@ -433,7 +455,7 @@ def error_body(code, text: str = "") -> bytes:
 
 #: the body parser of every board->host message type
 BOARD_PARSERS = {ACK: parse_ack, HELLO: parse_hello, SAMPLES: parse_samples, STATUS: parse_status,
-                 DONE: parse_done, ERROR: parse_error, INDEX: parse_index}
+                 DONE: parse_done, ERROR: parse_error, INDEX: parse_index, ID: parse_id}
 
 
 class Message(NamedTuple):

@@ -14,13 +14,13 @@ from collections import deque
 from os import PathLike
 from typing import TYPE_CHECKING
 
-import numpy as np
-
 from labrig.bridge import protocol as P
 from labrig.bridge.base import Bridge, SampleBlock
+from labrig.bridge.serial_record import RunRecord
 from labrig.io.experiment import Experiment
-from labrig.bridge.settings import TIMER_HZ, adc_counts_to_volts, bridge_settings, dac_word_to_volts, experiment_body, volts_to_dac_word
-from labrig.bridge.hbridge import check_board, encoder_record, words_block
+from labrig.bridge.settings import bridge_settings, experiment_body, volts_to_dac_word  # noqa: F401 (tests import volts_to_dac_word from here)
+from labrig.bridge import identity
+from labrig.bridge.hbridge import check_board, firmware_version
 from labrig.bridge.trips import limits as trip_limits, limits_body
 from labrig.bridge.transport import SerialTransport, Transport, link_faults, link_hint
 from labrig.core.errors import LabrigError, RigError, UserError
@@ -33,10 +33,9 @@ __all__ = ["SerialBridge", "SerialTransport", "TIMER_HZ", "Transport", "adc_coun
            "bridge_settings", "dac_word_to_volts", "volts_to_dac_word"]
 
 #: board STATUS counters that count since the board's reset; reported per run as differences
-_BOARD_CUMULATIVE = ("samples_sent", "rx_crc_errors", "rx_overruns", "watchdog_trips")
 
 
-class SerialBridge(Bridge):
+class SerialBridge(RunRecord, Bridge):
     """The labrig board on a serial port (USB ``/dev/ttyACM0`` or an emulator's pty).
 
     Parameters
@@ -79,7 +78,8 @@ class SerialBridge(Bridge):
 
     def __init__(self, port_or_transport: str | PathLike | Transport, rig: RigConfig, *,
                  baudrate: int = 500000, hello_timeout: float = 3.0, heartbeat_s: float = 0.05,
-                 tries: int = 4, ack_timeout: float = 0.3, tail_s: float = 0.5):
+                 tries: int = 4, ack_timeout: float = 0.3, tail_s: float = 0.5,
+                 board_id: int | None = None):
         if isinstance(port_or_transport, Transport):
             self.link = port_or_transport
         else:
@@ -96,6 +96,9 @@ class SerialBridge(Bridge):
         self._last_tx = 0.0
         self._pending: deque = deque()
         self.hello: dict = {}
+        #: the board's id (labrig.bridge.identity), and the one the station is bound to
+        self.board_id: int | None = None
+        self.expected_board_id = board_id
         self._exp: Experiment | None = None
         self._n_samples = 0
         self._next_index = 0
@@ -252,7 +255,13 @@ class SerialBridge(Bridge):
 
     def _fetch_status(self) -> dict:
         """Ask for STATUS (a few tries); {} when no answer came."""
-        wire = b"\x00" + P.encode_frame(P.STATUS_REQ, self._next_seq())
+        return self._ask(P.STATUS_REQ, P.STATUS) or {}
+
+    def _ask(self, type_: int, answer: int, body: bytes = b"", *,
+             refusable: bool = False) -> dict | None:
+        """Send ``type_`` (a few tries) and return the fields of the first ``answer``; None
+        when none came (or, ``refusable``, the board answered ERROR: an older firmware)."""
+        wire = b"\x00" + P.encode_frame(type_, self._next_seq(), body)
         for attempt in range(self._tries()):
             if attempt:
                 self.retries += 1
@@ -262,10 +271,12 @@ class SerialBridge(Bridge):
                 self._poll(0.05)
                 while self._pending:
                     f = self._pending.popleft()
-                    if f.type == P.STATUS:
+                    if f.type == answer:
                         self._pending.clear()
                         return f.fields
-        return {}
+                    if refusable and f.type == P.ERROR:
+                        return None
+        return None
 
     # ---- Bridge interface ------------------------------------------------------------
     def open(self) -> dict:
@@ -309,6 +320,9 @@ class SerialBridge(Bridge):
                            "firmware (labrig flash --board BOARD)")
         try:   # the board was built for the rig the file describes, at its resolution
             check_board(self._rig, self.hello, self.port)
+            self.board_id = identity.settle(
+                lambda body: (self._ask(P.BOARD_ID, P.ID, body, refusable=True) or {}).get("board_id"),
+                firmware_version(self.hello), expected=self.expected_board_id, port=self.port)
         except RigError:
             self.close()
             raise
@@ -320,7 +334,8 @@ class SerialBridge(Bridge):
                 "protocol": self.hello["protocol"], "rig": self.hello["rig"],
                 "capabilities": ["square", "step", "staircase", "constant"]
                 + (["pwl"] if self.hello["capabilities"] & P.CAP_PWL else []),
-                "max_rate_hz": self.hello["max_rate_hz"], "port": self.port}
+                "max_rate_hz": self.hello["max_rate_hz"], "port": self.port,
+                "board_id": P.format_board_id(self.board_id)}
 
     def configure(self, exp: Experiment) -> None:
         """Check the experiment against the limits and load it into the board."""
@@ -431,17 +446,6 @@ class SerialBridge(Bridge):
             self._heartbeat()
             self._poll(min(0.05, deadline - now))
 
-    def _block(self, first: int, w: np.ndarray) -> SampleBlock:
-        """A SAMPLES frame's words as a block: raw volts from the MS150 bridge; from an
-        H-bridge board the output in volts of the supply and the encoder's signed count
-        (the rig's ``pos`` unit is counts: ``sensors.encoder_counts_per_unit``)."""
-        blk = words_block(first, w, self.settings,
-                          self._exp is not None and self._exp.loop == "closed")
-        if self.settings.firmware == "hbridge":   # the run's lowest and highest count
-            lo, hi, r = int(blk.pos.min()), int(blk.pos.max()), self._count_range
-            self._count_range = (lo, hi) if r is None else (min(r[0], lo), max(r[1], hi))
-        return blk
-
     def stop(self) -> None:
         """Stop the experiment (the board returns to 0 V) and fetch the board's counters."""
         self._streaming = False
@@ -462,35 +466,6 @@ class SerialBridge(Bridge):
                 self.link.flush()
         except Exception:
             pass
-
-    def counters(self) -> dict:
-        """Link and board counters of the current run, for the run's ``bridge`` metadata.
-
-        Every count is this run's own (since :meth:`configure`), so ``dropped_samples``
-        equals the run's gap rows. Board counters are differences of the STATUS fetched
-        before the run and at :meth:`stop`; they are left out when either STATUS was lost.
-        """
-        c = {"firmware": self.hello.get("firmware", "unknown"), "board": self.hello.get("board"),
-             "port": self.port}
-        c.update({k: int(v - self._mark[k]) for k, v in self._totals().items()})
-        st, base = self.board_status, self._board_mark
-        if st:
-            if base:
-                for k in _BOARD_CUMULATIVE:
-                    c[f"board_{k}"] = int(st[k] - base[k])
-            c["board_sample_overruns"] = int(st["sample_overruns"])   # reset by START
-        if self.board_errors[self._errors_mark:]:
-            c["board_errors"] = self.board_errors[self._errors_mark:]
-        if self.trip is not None:
-            c["trip"] = dict(self.trip)
-        if self.settings.firmware == "hbridge" and self._exp is not None:
-            faults = (int(st["encoder_faults"] - base["encoder_faults"])
-                      if st and base and "encoder_faults" in base else None)
-            r = self._count_range
-            c["encoder"] = encoder_record(self._index_events, faults,
-                                          self._rig.bridge.index_counts, self._rig.bridge.decoding,
-                                          r[1] - r[0] if r else 0)
-        return c
 
     def close(self) -> None:
         """Close the link (never raises)."""

@@ -19,14 +19,15 @@ def cmd_sweep(args):
     output_folder(args.output)
     rig = lr.load_rig(args.rig)
     plan = lr.load_plan(args.plan, rig)
+    board_id = lr.board_id(args.board_id) if args.board_id else None
     if not (args.sim or args.port or args.emulate):
-        args.port = lr.find_board()   # several or none: it says which
+        args.port = lr.find_board(board_id)   # several or none: it says which
     total = sum(e.n_samples for e in plan)
     with _StopSignals():
         # the emulated board (the real firmware the rig file names, in simavr) lives as
         # long as this sweep; the board at --port or the simulated rig need no closing
         make, _, close = lr.open_bridge(rig, port=args.port, emulate=args.emulate,
-                                        seed=args.seed)
+                                        seed=args.seed, board_id=board_id)
         try:
             bridge = make()
             if args.sim and args.realtime:
@@ -56,6 +57,9 @@ def _configure_sweep(p):
     p.add_argument("--resume", action="store_true", help="skip runs already complete in -o")
     p.add_argument("--seed", type=int, help="noise seed of the simulated rig (default: rig file)")
     p.add_argument("--realtime", action="store_true", help="pace the simulated rig to real time")
+    p.add_argument("--board-id", metavar="ID",
+                   help="this bench's board (its id, as labrig ports shows it): found on "
+                        "whatever port it is, and any other board refused")
 
 
 cmd_sweep.configure = _configure_sweep

@@ -17,7 +17,8 @@ def cmd_emulate(args):
     by a plant model of the rig. Prints the pty path as the first line of stdout, then
     serves until interrupted: `labrig sweep --port <pty> -o DIR` runs the whole lab on it."""
 
-    emu = lr.emulator(lr.load_rig(args.rig), board=args.board, speed=args.speed)
+    emu = lr.emulator(lr.load_rig(args.rig), board=args.board, speed=args.speed,
+                      eeprom=args.eeprom)
     pty = emu.start()
     print(pty, flush=True)
     print(f"labrig emulate: {emu.board} {emu.rig.bridge.firmware} firmware in simavr on {pty}; "
@@ -43,6 +44,9 @@ def _configure(p):
                                  "(default configs/rig_default.toml)")
     p.add_argument("--speed", type=float, default=1.0,
                    help="1 = real time (default, timeouts as on the bench); 0 = as fast as possible")
+    p.add_argument("--eeprom", metavar="FILE",
+                   help="keep the chip's EEPROM (the board's id) in FILE across runs, as a "
+                        "board keeps it (default: erased at each start)")
 
 
 cmd_emulate.configure = _configure
@@ -99,14 +103,16 @@ def cmd_ports(args):
     if args.json:
         emit_json({"ports": [{"device": p.device, "usb_id": p.usb_id, "kind": p.kind,
                               "description": p.description, "serial_number": p.serial_number,
-                              "labrig": p.hello or None, "note": p.note} for p in ports]})
+                              "labrig": ({**p.hello, "board_id": lr.format_board_id(p.hello.get("board_id"))}
+                                         if p.hello else None),
+                              "note": p.note} for p in ports]})
         return 0
     if not ports:
         print("no serial ports (plug the board in; on Linux it appears as /dev/ttyACM0 or "
               "/dev/ttyUSB0)")
     for p in ports:
-        what = (f"labrig {p.hello.get('firmware')} (protocol {p.hello.get('protocol')})"
-                if p.is_labrig else p.note)
+        what = (f"labrig {p.hello.get('firmware')} (protocol {p.hello.get('protocol')}), "
+                f"id {lr.format_board_id(p.hello.get('board_id'))}" if p.is_labrig else p.note)
         print(f"{p.device:<16} {p.usb_id:<10} {(p.kind or p.description or '-')[:34]:<34} "
               f"serial {p.serial_number or '-':<12} {what}")
     return 0

@@ -37,17 +37,20 @@ def sweep(output, plan=None, rig=None, *, port: str | None = None, seed: int | N
     return runs_of([str(p) for p in written]) if written else runs_of(output)
 
 
-def open_bridge(rig, *, port: str | None = None, emulate: bool = False, seed: int | None = None):
+def open_bridge(rig, *, port: str | None = None, emulate: bool = False, seed: int | None = None,
+                board_id: int | None = None):
     """How to reach the rig: ``(make, name, close)``, where ``make()`` gives a fresh
     bridge for each sweep (the board at ``port``, the real firmware in simavr with
     ``emulate``, else the simulated rig with its noise ``seed``), ``name`` says which in
-    words and ``close()`` ends what was started (the emulator)."""
+    words and ``close()`` ends what was started (the emulator). ``board_id`` binds the
+    station to one board: another board on ``port`` is refused when it greets."""
     if port:   # held from now until close(): no other process takes the board between runs
         from labrig.bridge.serial import SerialBridge
         from labrig.bridge.transport import lease, release
 
         lease(port)
-        return (lambda: SerialBridge(port, rig)), f"board at {port}", (lambda: release(port))
+        return ((lambda: SerialBridge(port, rig, board_id=board_id)), f"board at {port}",
+                (lambda: release(port)))
     if emulate:
         from labrig.bridge.serial import SerialBridge
         from labrig.bridge.transport import lease, release
@@ -89,14 +92,15 @@ def play(bridge, plan, rig, output, *, resume: bool = False, on_start=None, on_p
                   on_progress=on_progress, on_done=on_done)
 
 
-def emulator(rig, *, board: str | None = None, speed: float = 1.0):
+def emulator(rig, *, board: str | None = None, speed: float = 1.0, eeprom=None):
     """The real firmware for ``board`` (default: the rig file's ``bridge.board``, else the
     Uno) under simavr, fed by a plant model of ``rig``: an
-    :class:`~labrig.bridge.emulate.Emulator` (``start()`` gives its pty, ``stop()`` ends it)."""
+    :class:`~labrig.bridge.emulate.Emulator` (``start()`` gives its pty, ``stop()`` ends it).
+    ``eeprom``: a file keeping the chip's EEPROM (the board's id) across runs."""
     from labrig.bridge.emulate import Emulator
     from labrig.io.board_pins import board_for
 
-    return Emulator(board=board_for(rig, board), rig=rig, speed=speed)
+    return Emulator(board=board_for(rig, board), rig=rig, speed=speed, eeprom=eeprom)
 
 
 def wiring(rig, *, board: str | None = None):
@@ -148,17 +152,51 @@ def ports(probe=()):
     return list_ports(probe)
 
 
-def find_board() -> str:
-    """The device of the one labrig board connected (what ``--port`` defaults to).
+def find_board(board_id=None) -> str:
+    """The device of the one labrig board connected, or of the board whose id is
+    ``board_id`` (what ``--port`` defaults to).
+
+    Parameters
+    ----------
+    board_id : int or str, optional
+        The board's id (8 hex digits, as ``labrig ports`` shows it).
 
     Raises
     ------
     UserError
-        None is connected, or several are (naming them).
+        None is connected, or several are (naming them), or none has that id.
     """
+    from labrig.bridge.identity import parse_board_id
     from labrig.bridge.ports import list_ports, the_board
 
-    return the_board(list_ports())
+    if isinstance(board_id, str):
+        board_id = parse_board_id(board_id)
+    return the_board(list_ports(), board_id)
+
+
+def format_board_id(board_id) -> str:
+    """A board id as labrig shows it (8 hex digits; ``"-"`` for none)."""
+    from labrig.bridge.protocol import format_board_id as fmt
+
+    return fmt(board_id)
+
+
+def board_id(text) -> int:
+    """A board id as a number, from its 8 hex digits (as ``labrig ports`` shows it).
+
+    Raises
+    ------
+    UserError
+        Not a board id.
+
+    Examples
+    --------
+    >>> hex(board_id("3F2A91C0"))
+    '0x3f2a91c0'
+    """
+    from labrig.bridge.identity import parse_board_id
+
+    return text if isinstance(text, int) else parse_board_id(text)
 
 
 def flash(board: str, rig=None, *, port: str | None = None, programmer: str | None = None,

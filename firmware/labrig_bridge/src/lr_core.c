@@ -289,6 +289,26 @@ static void handle(const lr_frame_t *f)
         }
         send_ack(f->type, f->seq);
         break;
+    case LR_BOARD_ID:
+        /* the id a host gave this board once (kept across resets and flashes that keep
+         * the EEPROM): a given id is never replaced, so a bench's board keeps its name */
+        if (f->body_len != 0 && f->body_len != 4) {
+            send_error(LR_ERR_BAD_FRAME, LR_TEXT("bad board id"));
+            break;
+        }
+        if (f->body_len == 4 && hal_id_read() == 0 && lr_get32(f->body) != 0) {
+            if (state == LR_STATE_RUNNING || state == LR_STATE_FINISHING) {
+                send_error(LR_ERR_BUSY, LR_TEXT("already running"));
+                break;
+            }
+            hal_id_write(lr_get32(f->body));
+        }
+        {
+            uint8_t b[4];
+            lr_put32(b, hal_id_read());
+            send(LR_ID, b, 4);
+        }
+        break;
     case LR_START:
         if (start_seq_valid && f->seq == start_seq) {
             /* a retransmission: acknowledge again, never restart (even after DONE) */

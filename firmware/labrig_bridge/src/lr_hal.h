@@ -28,6 +28,10 @@ uint16_t hal_encoder_faults(void);
 /* The E-stop input (Uno/Nano D7, Mega D7, pulled up): 1 when it reads high (the
  * normally-closed switch open: pressed, or its wire broken). ISR-safe. */
 uint8_t hal_estop(void);
+/* The board's id in non-volatile memory (the AVR's EEPROM), 0 when none was given; and
+ * keep one (main loop, not while a run plays: an EEPROM write blocks for ~20 ms). */
+uint32_t hal_id_read(void);
+void hal_id_write(uint32_t id);
 /* Next received byte, or -1 if none waiting. */
 int hal_rx_read(void);
 /* Bytes of space in the transmit queue; hal_tx_write() blocks only beyond that. */

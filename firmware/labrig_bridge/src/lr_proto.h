@@ -25,12 +25,14 @@ extern "C" {
 /* host -> board */
 enum {
     LR_HELLO_REQ = 0x01, LR_CONFIGURE = 0x02, LR_START = 0x03, LR_STOP = 0x04,
-    LR_HEARTBEAT = 0x05, LR_STATUS_REQ = 0x06, LR_ZERO = 0x07, LR_LIMITS = 0x08
+    LR_HEARTBEAT = 0x05, LR_STATUS_REQ = 0x06, LR_ZERO = 0x07, LR_LIMITS = 0x08,
+    LR_BOARD_ID = 0x09   /* empty: ask the board's id; 4 bytes: give it one, if it has none */
 };
 /* board -> host */
 enum {
     LR_ACK = 0x80, LR_HELLO = 0x81, LR_SAMPLES = 0x82, LR_STATUS = 0x83,
-    LR_DONE = 0x84, LR_ERROR = 0x85, LR_INDEX = 0x86
+    LR_DONE = 0x84, LR_ERROR = 0x85, LR_INDEX = 0x86,
+    LR_ID = 0x87         /* the board's id: u32 LE, kept in EEPROM; 0 = none given yet */
 };
 enum { LR_LOOP_OPEN = 0, LR_LOOP_CLOSED = 1 };
 enum { LR_WAVE_CONSTANT = 0, LR_WAVE_SQUARE = 1, LR_WAVE_STEP = 2, LR_WAVE_STAIRCASE = 3,
