@@ -67,6 +67,7 @@ static uart_pty_t pty;
 static plant_t plant;
 static volatile sig_atomic_t stop_flag;
 static double sim_t;                 /* plant time, s */
+static int stuck_adc = -1;           /* --stuck-adc N: this analog input reads 5 V */
 static uint16_t word_a = 0, word_b = 0;  /* MCP4822 powers up shut down: 0 V on both */
 static int on_a = 0, on_b = 0;
 static uint8_t spi_bytes[4];
@@ -124,6 +125,7 @@ static void adc_trigger(struct avr_irq_t *irq, uint32_t value, void *param)
     double vin = (s + 10.0) / 4.0;
     if (vin < 0) vin = 0;
     if (vin > 5.0) vin = 5.0;
+    if (e.mux.src == stuck_adc) vin = 5.0;   /* a broken wire: the pin at its rail */
     /* simavr scales by 1023/Vref where the chip uses 1024/Vref: compensate */
     uint32_t mv = (uint32_t)(vin * 1000.0 * 1024.0 / 1023.0 + 0.5);
     avr_raise_irq(avr_io_getirq(avr, AVR_IOCTL_ADC_GETIRQ, ADC_IRQ_ADC0 + e.mux.src), mv);
@@ -391,6 +393,7 @@ static void usage(void)
         "usage: labrig-emu --fw FILE.elf [--board uno|nano|mega] [--speed X] [--dac-log FILE]\n"
         "  [--bootloader FILE.hex]  (run it from reset; without --fw, the flash is erased)\n"
         "  [--eeprom FILE]  (the EEPROM read from FILE at start, written back at exit)\n"
+        "  [--stuck-adc N]  (MS150: analog input N (0 tacho, 1 pot, 2 ref) stuck at 5 V)\n"
         "  [--link PATH] [--loop auto|open|closed] [--kp G] [--kv G]\n"
         "  [--R ohm] [--L H] [--J kgm2] [--B Nms] [--K Nm/A] [--Ka V/V] [--Vmax V] [--N ratio]\n"
         "  [--Kt V/(rad/s)] [--Kpot V/rad] [--pos-offset V] [--noise-tacho V] [--noise-pos V]\n"
@@ -436,7 +439,7 @@ int main(int argc, char **argv)
         {"brake", 0, 0, 40}, {"enc-log", 1, 0, 41}, {"current-v-per-a", 1, 0, 42},
         {"current-zero", 1, 0, 43}, {"index", 0, 0, 44}, {"miss-edges", 1, 0, 45},
         {"estop-at", 1, 0, 46}, {"bootloader", 1, 0, 47},
-        {"eeprom", 1, 0, 48},
+        {"eeprom", 1, 0, 48}, {"stuck-adc", 1, 0, 49},
         {0, 0, 0, 0}};
     int c;
     while ((c = getopt_long_only(argc, argv, "", opts, NULL)) != -1) {
@@ -490,6 +493,7 @@ int main(int argc, char **argv)
         case 46: estop_at = atof(optarg); break;
         case 47: boot = optarg; break;
         case 48: eeprom_path = optarg; break;
+        case 49: stuck_adc = atoi(optarg); break;
         default: usage(); return 2;
         }
     }

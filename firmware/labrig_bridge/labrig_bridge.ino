@@ -15,7 +15,9 @@
 #include "src/lr_hal.h"
 
 #define FW_VERSION "2.3.0"
-#define BAUD 500000UL
+#ifndef BAUD
+#define BAUD 500000UL   // make BAUD=250000 builds another (the host's --baud must match)
+#endif
 
 #if defined(__AVR_ATmega2560__)
 #define BOARD_ID 2

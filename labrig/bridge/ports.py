@@ -65,12 +65,14 @@ def board_kind(vid: int | None, pid: int | None) -> str:
     return USB_SERIAL.get((vid, pid), "")
 
 
-def greet(device: str, *, timeout: float = 2.5, assign: bool = False) -> dict:
+def greet(device: str, *, timeout: float = 2.5, assign: bool = False,
+          baud: int = 500000) -> dict:
     """The HELLO of the labrig firmware at ``device`` ({} when nothing labrig answers),
     with the board's id (``board_id``; None from a firmware before 2.3).
 
     Asks every 0.5 s for ``timeout`` seconds: an Uno resets when its port opens and
-    answers after its bootloader (~1-2 s). ``assign`` gives a board without an id one.
+    answers after its bootloader (~1-2 s). ``assign`` gives a board without an id one;
+    ``baud``: the speed its firmware was built for.
 
     Raises
     ------
@@ -79,7 +81,7 @@ def greet(device: str, *, timeout: float = 2.5, assign: bool = False) -> dict:
     """
     from labrig.bridge.transport import SerialTransport
 
-    link = SerialTransport(device)
+    link = SerialTransport(device, baud)
     link.open()
     try:
         dec = P.StreamDecoder()

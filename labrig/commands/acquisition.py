@@ -27,7 +27,7 @@ def cmd_sweep(args):
         # the emulated board (the real firmware the rig file names, in simavr) lives as
         # long as this sweep; the board at --port or the simulated rig need no closing
         make, _, close = lr.open_bridge(rig, port=args.port, emulate=args.emulate,
-                                        seed=args.seed, board_id=board_id)
+                                        seed=args.seed, board_id=board_id, baud=args.baud)
         try:
             bridge = make()
             if args.sim and args.realtime:
@@ -57,6 +57,9 @@ def _configure_sweep(p):
     p.add_argument("--resume", action="store_true", help="skip runs already complete in -o")
     p.add_argument("--seed", type=int, help="noise seed of the simulated rig (default: rig file)")
     p.add_argument("--realtime", action="store_true", help="pace the simulated rig to real time")
+    p.add_argument("--baud", type=int, default=500000,
+                   help="the serial speed the board's firmware was built for (make -C firmware "
+                        "BAUD=...; default 500000)")
     p.add_argument("--board-id", metavar="ID",
                    help="this bench's board (its id, as labrig ports shows it): found on "
                         "whatever port it is, and any other board refused")

@@ -164,3 +164,34 @@ def _configure_flash(p):
 
 
 cmd_flash.configure = _configure_flash
+
+
+@command("doctor", "check the chain to the board: port, permissions, greeting, firmware, sensors")
+def cmd_doctor(args):
+    """Check the chain from this PC to the rig's sensors, a line per check: the port and
+    its permissions, who holds it, the greeting and its baud rate, the firmware against
+    this labrig, the board against the rig file, the board's id, 0 V out with every sensor
+    at rest in its range, and the sample rate over 2 s at 0 V. Exit 0 when every check
+    passes, 1 when one fails (it says what to do)."""
+    report = lr.doctor(args.port, lr.load_rig(args.rig) if args.rig else None, baud=args.baud,
+                       board_id=lr.board_id(args.board_id) if args.board_id else None)
+    if args.json:
+        emit_json(report.to_json())
+    else:
+        print(report)
+    return 0 if report.ok else 1
+
+
+def _configure_doctor(p):
+    p.add_argument("--port", help="the board's serial device (default: the one labrig board "
+                                  "connected, see labrig ports)")
+    p.add_argument("--rig", help="the rig file the board should match (default "
+                                 "configs/rig_default.toml)")
+    p.add_argument("--baud", type=int, default=500000,
+                   help="the serial speed the firmware was built for (make -C firmware "
+                        "BAUD=...; default 500000)")
+    p.add_argument("--board-id", metavar="ID", help="the board this bench is bound to")
+    p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+
+
+cmd_doctor.configure = _configure_doctor

@@ -30,8 +30,8 @@ cores), ``import labrig.verbs`` takes 0.02 s and the library's modules eagerly 0
 (numba, scipy, matplotlib), which every ``labrig --help`` and every ``import labrig`` in
 a notebook would pay.
 """
-from labrig.verbs.acquire import (board_id, emulator, find_board, flash, format_board_id, live,
-                                  open_bridge, play, ports, sweep, wiring)
+from labrig.verbs.acquire import (board_id, doctor, emulator, find_board, flash, format_board_id,
+                                  live, open_bridge, play, ports, sweep, wiring)
 from labrig.verbs.data import (check_plan, drive_units, effect, effects, import_run,
                                load_identify_config,
                                load_model, load_plan, load_rig, model_from_json, model_of,
@@ -51,7 +51,7 @@ __all__ = [
     "check_plan", "load_identify_config", "drive_units",
     # acquisition
     "sweep", "open_bridge", "live", "play", "emulator", "wiring", "ports", "find_board", "flash",
-    "board_id", "format_board_id",
+    "board_id", "format_board_id", "doctor",
     # fits
     "analyse", "identify", "add_effect", "remove_effect", "try_effect", "set_by_hand", "compare",
     "ladder",

@@ -38,18 +38,20 @@ def sweep(output, plan=None, rig=None, *, port: str | None = None, seed: int | N
 
 
 def open_bridge(rig, *, port: str | None = None, emulate: bool = False, seed: int | None = None,
-                board_id: int | None = None):
+                board_id: int | None = None, baud: int = 500000):
     """How to reach the rig: ``(make, name, close)``, where ``make()`` gives a fresh
     bridge for each sweep (the board at ``port``, the real firmware in simavr with
     ``emulate``, else the simulated rig with its noise ``seed``), ``name`` says which in
     words and ``close()`` ends what was started (the emulator). ``board_id`` binds the
-    station to one board: another board on ``port`` is refused when it greets."""
+    station to one board: another board on ``port`` is refused when it greets; ``baud`` is
+    the serial speed of the board's firmware."""
     if port:   # held from now until close(): no other process takes the board between runs
         from labrig.bridge.serial import SerialBridge
         from labrig.bridge.transport import lease, release
 
         lease(port)
-        return ((lambda: SerialBridge(port, rig, board_id=board_id)), f"board at {port}",
+        return ((lambda: SerialBridge(port, rig, board_id=board_id, baudrate=baud)),
+                f"board at {port}",
                 (lambda: release(port)))
     if emulate:
         from labrig.bridge.serial import SerialBridge
@@ -228,3 +230,39 @@ def flash(board: str, rig=None, *, port: str | None = None, programmer: str | No
     if rig is not None and not hasattr(rig, "bridge"):
         rig = load_rig(rig)
     return _flash(board, rig, port, programmer=programmer, build=build)
+
+
+def doctor(port: str | None = None, rig=None, *, baud: int = 500000, board_id=None,
+           seconds: float = 2.0):
+    """Check the chain from this PC to the rig's sensors, one link at a time
+    (``labrig doctor``): the port and its permissions, who holds it, the greeting and its
+    baud rate, the firmware, the board against the rig file, the board's id, 0 V out with
+    every sensor at rest, and the sample rate over a run of ``seconds`` at 0 V.
+
+    Parameters
+    ----------
+    port : str, optional
+        The board's serial device; default the one labrig board connected.
+    rig : RigConfig or path, optional
+        The rig file the board should match (default the MS150 rig).
+    baud : int
+        The serial speed (the firmware's build-time BAUD).
+    board_id : int or str, optional
+        The board the station is bound to.
+    seconds : float
+        The run at 0 V.
+
+    Returns
+    -------
+    labrig.bridge.doctor.ChainReport
+        ``str(report)``: a line per check; ``report.ok``: all passed.
+    """
+    from labrig.bridge.doctor import check_chain
+    from labrig.bridge.identity import parse_board_id
+    from labrig.verbs.data import load_rig
+
+    if rig is not None and not hasattr(rig, "bridge"):
+        rig = load_rig(rig)
+    if isinstance(board_id, str):
+        board_id = parse_board_id(board_id)
+    return check_chain(port, rig, baud=baud, board_id=board_id, seconds=seconds)
