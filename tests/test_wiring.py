@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 from labrig.bridge import circuits, hbridge
-from labrig.bridge.pins import MS150_PINS
+from labrig.bridge.pins import ESTOP_PINS, MS150_PINS
 from labrig.bridge.wiring import wiring
 from labrig.io.config import load_rig
 
@@ -33,10 +33,11 @@ def _rig(path, **bridge):
     return rig
 
 
-CASES = [(MS150, board, {}) for board in ("uno", "nano", "mega")] + [
+CASES = [(MS150, board, opts) for board in ("uno", "nano", "mega")
+         for opts in ({}, {"estop": True})] + [
     (HBRIDGE, board, opts) for board in ("uno", "nano", "mega")
     for opts in ({}, {"drive_mode": "pwm_dir", "off_phase": "coast"}, {"current_sense": True},
-                 {"index_counts": 44})]
+                 {"index_counts": 44}, {"index_counts": 44, "estop": True})]
 
 
 def _texts(svg: bytes) -> list[str]:
@@ -54,7 +55,8 @@ def test_the_drawing_wires_the_pins_of_the_table(path, board, opts):
     fw = hbridge.PINS[board] if w.rig_kind == "hbridge" else MS150_PINS[board]
     signal_pins = {p for p in pins.values() if p not in ("5V", "GND")}
     optional = {"current": opts.get("current_sense"), "index": opts.get("index_counts")}
-    assert signal_pins == {p for k, p in fw.items() if optional.get(k, True)}
+    assert signal_pins == {p for k, p in fw.items() if optional.get(k, True)} | (
+        {ESTOP_PINS[board]} if opts.get("estop") else set())
 
     d = w.drawing("svg")
     texts = _texts(d.get_imagedata("svg"))
@@ -142,6 +144,26 @@ def test_the_ms150_pins_are_the_ones_its_firmware_drives(board, variant):
     pins = _arduino_pins(variant)
     for key, define in (("dac_cs", "CS_BIT"), ("dac_sck", "SCK_BIT"), ("dac_sdi", "MOSI_BIT")):
         assert pins[MS150_PINS[board][key]] == (defs[define][0], int(defs[define][1])), key
+
+
+@pytest.mark.skipif(not VARIANTS.exists(), reason="arduino-core-avr not installed")
+@pytest.mark.parametrize("board, variant", [("uno", "standard"), ("nano", "standard"),
+                                            ("mega", "mega")])
+def test_the_estop_pin_is_the_one_the_firmware_reads(board, variant):
+    """ESTOP_PINS against the sketch's ESTOP_PIN port and bit, through the Arduino core's
+    table; and the wiring table names the switch only when the rig file has one."""
+    ino = (ROOT / "firmware" / "labrig_bridge" / "labrig_bridge.ino").read_text()
+    mega, other = re.search(r"#if defined\(__AVR_ATmega2560__\)\n(.*?)#endif",
+                            ino[ino.index("ESTOP") - 200:], re.S).group(1).split("#else")
+    text = mega if board == "mega" else other
+    port = re.search(r"#define ESTOP_PIN PIN([A-Z])", text).group(1)
+    bit = int(re.search(r"#define ESTOP_BIT (\d)", text).group(1))
+    assert _arduino_pins(variant)[ESTOP_PINS[board]] == (port, bit)
+    for path in (MS150, HBRIDGE):
+        assert "E-stop" not in wiring(_rig(path), board).to_pandas().signal.tolist()
+        w = wiring(_rig(path, estop=True), board)
+        assert w.pin("estop") == "D7" and "E-stop" in w.to_pandas().signal.tolist()
+        assert any("emergency-stop" in p for p in w.bom().part)
 
 
 def test_wiring_cli_writes_the_four_files_and_refuses_to_overwrite(tmp_path):

@@ -7,9 +7,9 @@ the tests.
 """
 from __future__ import annotations
 
-from labrig.io.board_pins import BOARDS, HBRIDGE_PINS, MS150_PINS, PIN_FUNCTIONS
+from labrig.io.board_pins import BOARDS, ESTOP_PINS, HBRIDGE_PINS, MS150_PINS, PIN_FUNCTIONS
 
 BOARD_PARTS = {"uno": ("Arduino Uno R3", "A000066"), "nano": ("Arduino Nano", "A000005"),
                "mega": ("Arduino Mega 2560 Rev3", "A000067")}
 
-__all__ = ["BOARDS", "HBRIDGE_PINS", "MS150_PINS", "PIN_FUNCTIONS", "BOARD_PARTS"]
+__all__ = ["BOARDS", "ESTOP_PINS", "HBRIDGE_PINS", "MS150_PINS", "PIN_FUNCTIONS", "BOARD_PARTS"]

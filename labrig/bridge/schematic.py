@@ -40,6 +40,16 @@ def _board(w, right, left=(), rows=None):
                   pinlblsize=10).label(name, "center")
 
 
+def _estop(w, board) -> None:
+    """The E-stop, when the rig has one: a normally-closed push button from its pin (the
+    board's left side, bottom row) to GND."""
+    if not w.options.get("estop"):
+        return
+    elm.Line().left(1.2).at(board.absanchors[f"p_{w.pin('estop')}"])
+    elm.Button(nc=True).down(1.5).label("E-stop\n(NC)", "top", fontsize=9, ofst=0.2)
+    elm.Ground()
+
+
 def _power(at, up=True, name="+5V"):
     if up:
         elm.Line().up(0.5).at(at)
@@ -72,11 +82,13 @@ def _hbridge(w) -> None:
     a0 = w.pin("current") if sense else None
     index = w.options.get("index_counts", 0) > 0
     # (the middle row is the blocks' names: the index goes below it)
-    enc_pins = [p["enc_a"], p["enc_b"]] + ([None, w.pin("index")] if index else [])
+    enc_pins = [p["enc_a"], p["enc_b"]] + ([None, w.pin("index")] if index else [None, None])
+    enc_pins += [w.pin("estop")] if w.options.get("estop") else []
     board = _board(w, [p["pwm_in1"], p["dir_in2"], None, None, a0],
                    left=enc_pins, rows=ROWS).right().anchor("center").at((0, 0))
     _power(board.p_5V)
     _power(board.p_GND, up=False)
+    _estop(w, board)
 
     # the encoder, to the board's left: A and B on the interrupt pins, its index on a third
     names = ["A", "B"] + ([None, "I"] if index else [])
@@ -149,10 +161,12 @@ def _hbridge(w) -> None:
 def _ms150(w) -> None:
     p = {k: w.pin(k) for k in ("dac_cs", "dac_sck", "dac_sdi", "tacho", "out_pot", "in_pot")}
     board = _board(w, [p["dac_cs"], p["dac_sck"], None, p["dac_sdi"]],
-                   left=[p["tacho"], p["out_pot"], None, p["in_pot"]], rows=ROWS
+                   left=[p["tacho"], p["out_pot"], None, p["in_pot"]]
+                   + ([w.pin("estop")] if w.options.get("estop") else []), rows=ROWS
                    ).right().anchor("center").at((0, 0))
     _power(board.p_5V)
     _power(board.p_GND, up=False)
+    _estop(w, board)
 
     # the MCP4822: function inside, package pin outside
     dac = elm.Ic(pins=_pins(["CS", "SCK", None, "SDI", "LDAC"], "L", ROWS,
@@ -197,7 +211,7 @@ def _ms150(w) -> None:
                                                 fontsize=9)
         elm.Line().left(0.6)
         elm.Label().label(f"{name} (+-10 V)", loc="left", fontsize=10)
-    elm.Label().at((-1.8 - 4.6, -2.6)).label(
+    elm.Label().at((-1.8 - 4.6 - (2.6 if w.options.get("estop") else 0), -2.6)).label(
         f"each input also: R2 {circuits.DIVIDER['R2'] / 1e3:.3g} k to 5 V,\n"
         f"R3 {circuits.DIVIDER['R3'] / 1e3:.3g} k and 100 nF to GND:\n"
         "(s + 10 V) / 4 at the pin, 0..5 V", fontsize=9)

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from labrig.bridge import circuits
-from labrig.bridge.pins import BOARD_PARTS, HBRIDGE_PINS, MS150_PINS, PIN_FUNCTIONS
+from labrig.bridge.pins import BOARD_PARTS, ESTOP_PINS, HBRIDGE_PINS, MS150_PINS, PIN_FUNCTIONS
 from labrig.io.board_pins import board_for
 
 @dataclass(frozen=True)
@@ -68,7 +68,9 @@ class Wiring:
     parts: tuple
 
     def pin(self, signal: str) -> str:
-        """The board pin of ``signal`` (a key of the firmware's pin map)."""
+        """The board pin of ``signal`` (a key of the firmware's pin map, or ``estop``)."""
+        if signal == "estop":
+            return ESTOP_PINS[self.board]
         pins = HBRIDGE_PINS if self.rig_kind == "hbridge" else MS150_PINS
         return pins[self.board][signal]
 
@@ -151,9 +153,18 @@ def wiring(rig, board: str | None = None) -> Wiring:
     """
     board = board_for(rig, board)
     b = rig.bridge
-    if b.firmware == "hbridge":
-        return _hbridge(rig, board)
-    return _ms150(board)
+    w = _hbridge(rig, board) if b.firmware == "hbridge" else _ms150(board)
+    if not b.estop:
+        return w
+    # the E-stop: a normally-closed switch from D7 to GND (the pin pulled up inside): pressed,
+    # or its wire broken, the pin rises and the board stops
+    wires = list(w.wires)
+    wires.insert(len(wires) - 2, Wire("E-stop", ESTOP_PINS[board], "E-stop switch (NC), other "
+                                      "side to GND", "internal pull-up on; open = stop "
+                                      "([bridge] estop)"))
+    parts = w.parts + (Part(1, "emergency-stop push button", "22 mm, latching, 1 NC contact "
+                            "(e.g. Schneider XB5AS8442)", "the E-stop, D7 to GND"),)
+    return Wiring(w.rig_kind, board, {**w.options, "estop": True}, tuple(wires), parts)
 
 
 def _hbridge(rig, board: str) -> Wiring:

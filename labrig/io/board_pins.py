@@ -40,6 +40,10 @@ MS150_PINS = {
              "tacho": "A0", "out_pot": "A1", "in_pot": "A2"},
 }
 
+#: the E-stop input of every build (``labrig_bridge.ino``: Uno/Nano PD7, Mega PH4 -- D7 on
+#: each), pulled up; a normally-closed switch to GND (``[bridge] estop = true``)
+ESTOP_PINS = {"uno": "D7", "nano": "D7", "mega": "D7"}
+
 #: each rig's pin map, by the firmware's name
 PINS = {"hbridge": HBRIDGE_PINS, "ms150": MS150_PINS}
 
