@@ -4,6 +4,7 @@ watchdog, a vanishing board). Needs gcc-avr, avr-libc, arduino-core-avr, simavr,
 libsimavr-dev, libsimavrparts1."""
 from __future__ import annotations
 
+import copy
 import os
 import subprocess
 import time
@@ -135,7 +136,9 @@ def test_a_closed_loop_pwl_plays_through_the_boards_loop():
     rig hides no friction: no error band)."""
     exp = Experiment(name="proposed", loop="closed", waveform="pwl", lead_in_s=0.2,
                      points=[[0, 0.0], [0.01, 0.5], [1.5, 0.5], [1.51, 0.0], [3.0, 0.0]])
-    with Emulator("uno", RIG) as emu, SerialBridge(emu.pty, RIG) as bridge:
+    rig = copy.deepcopy(RIG)   # the patch panel's knobs at the gains the run is made for
+    rig.bridge.loop_kp, rig.bridge.loop_kv = exp.position_gain, exp.velocity_gain
+    with Emulator("uno", rig) as emu, SerialBridge(emu.pty, rig) as bridge:
         idx, u, blocks = _run(bridge, exp)
         c = bridge.counters()
     assert c["dropped_samples"] == 0 and np.array_equal(idx, np.arange(exp.n_samples))

@@ -199,7 +199,7 @@ def test_a_board_flashed_for_the_other_rig_is_named_and_nothing_plays(tmp_path):
     assert r.returncode == 1
     line = r.stderr.strip()
     assert len(line.splitlines()) == 1, line
-    assert "runs the ms150 firmware" in line and "RIG=hbridge" in line
+    assert "runs the ms150 firmware" in line and f"labrig flash --board uno --rig {RIG_FILE}" in line
     assert not list((tmp_path / "r").glob("*.csv")) if (tmp_path / "r").exists() else True
 
 
@@ -687,14 +687,14 @@ def test_the_board_trips_on_over_speed_at_once_and_the_sweep_keeps_the_run(tmp_p
 
 
 def test_the_estop_stops_the_run_at_once_and_latches(tmp_path):
-    """An E-stop wired to D7 (normally closed to GND), opened 2.5 s into the emulated
-    sweep: the board drives nothing from the next sample on, the run is kept up to there
+    """An E-stop wired to D7 (normally closed to GND), opened 0.5 s after the emulated
+    sweep first drives the motor: the board drives nothing from the next sample on, the run is kept up to there
     and recorded as an E-stop, the sweep exits 1 saying so; another sweep while the switch
     stays open is refused by the board before anything plays."""
     rig_file = _rig_with(tmp_path, HIDDEN, estop=True)
     rig = load_rig(rig_file)
     log = tmp_path / "emu.log"
-    with Emulator("uno", rig, dac_log=log, extra_args=("--estop-at", "2.5")) as emu:
+    with Emulator("uno", rig, dac_log=log, extra_args=("--estop-at", "0.5")) as emu:
         r = _labrig("sweep", "--port", emu.pty, "--rig", rig_file, "--plan", PLAN, "-o",
                     tmp_path / "runs")
         again = _labrig("sweep", "--port", emu.pty, "--rig", rig_file, "--plan", PLAN, "-o",
@@ -706,7 +706,7 @@ def test_the_estop_stops_the_run_at_once_and_latches(tmp_path):
     trip = json.loads(tripped[0].read_text())["bridge"]["trip"]
     assert trip["fault"] == "TRIP" and trip["text"] == "E-stop"
     starts, _, _, duty = _edges(log)
-    pressed = 2.5 * 16e6
+    pressed = next(c for c, v in duty if v != 0) + 0.5 * 16e6   # 0.5 s into the driving
     period = 16e6 / 200.0
     assert all(v == 0 for c, v in duty if c > pressed + period), "driven after the E-stop"
     assert [v for c, v in duty if c <= pressed][-1] != 0     # it was driving when pressed

@@ -258,13 +258,10 @@ frequency_hz = 1.0
 periods = 1.3
 
 [[experiment]]
-loop = "closed"
-waveform = "square"
-amplitudes_v = [0.5]
-frequency_hz = 1.0
-periods = 1.3
-position_gain = 2.0
-velocity_gain = 0.15
+loop = "open"
+waveform = "step"
+amplitudes_v = [-1.5]
+duration_s = 1.3
 """
 P_FAULT = 1e-3   # per byte, each direction: half bit flips, half drops
 # seed whose host->board fault stream hits within the first few hundred bytes, so both

@@ -12,8 +12,9 @@
  * Analog front end as in docs/hardware.md: bridge output u = (VA - VB) * 2.4414 with
  * channel B at mid-scale, so u = (wordA - wordB) * 10 V / 4096; sensors of +-10 V map onto
  * 0..5 V by (s + 10) / 4. A2 (input pot / reference) carries the bridge output u.
- * Closed loop: the harness snoops host->board CONFIGURE frames (the emulated patch panel)
- * for the loop mode and gains, unless --loop open|closed forces them.
+ * Closed loop: the harness snoops host->board CONFIGURE frames for the loop mode (the
+ * emulated patch panel, re-patched as each run says) unless --loop open|closed forces it;
+ * the analog loop's gains are --kp and --kv (the rig file's patched knobs).
  *
  * --rig hbridge: the H-bridge + encoder firmware (make RIG=hbridge) against motor.c. Every
  * microsecond the plant reads the bridge's inputs as the chip drives them -- Timer1's own
@@ -80,8 +81,10 @@ static const double DT = 10e-6;
 static double now_s(void) { return (double)avr->cycle / (double)avr->frequency; }
 
 /* the E-stop (--estop-at S): a normally-closed switch holding D7 low (Uno PD7, Mega PH4),
- * opened at S seconds of chip time */
+ * opened S seconds of chip time after the bridge first drives the motor (a host that starts
+ * slowly on a busy machine moves the run, not the test's moment within it) */
 static double estop_at = -1.0;
+static double first_drive_s = -1.0;   /* when the output first left 0 V */
 static char estop_port;
 static int estop_bit;
 
@@ -90,12 +93,13 @@ static int estop_bit;
 static avr_cycle_count_t estop_hold(struct avr_t *a, avr_cycle_count_t when, void *param)
 {
     (void)a; (void)param;
-    int open = now_s() >= estop_at;
+    int open = first_drive_s >= 0.0 && now_s() >= first_drive_s + estop_at;
     static int said;
     avr_raise_irq(avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ(estop_port), estop_bit), open);
     if (open && !said) {
         said = 1;
-        fprintf(stderr, "labrig-emu: E-stop pressed at %.6f s\n", now_s());
+        fprintf(stderr, "labrig-emu: E-stop pressed at %.6f s (driving since %.6f s)\n", now_s(),
+                first_drive_s);
         fflush(stderr);
     }
     return when + 16000;
@@ -148,6 +152,7 @@ static void cs_pin(struct avr_irq_t *irq, uint32_t value, void *param)
         advance();
         if (ch == 0) {
             int changed = (w != word_a) || (active != on_a);
+            if (w != 2048 && active && first_drive_s < 0.0) first_drive_s = now_s();
             word_a = w; on_a = active;
             if (changed && dac_log) { fprintf(dac_log, "%.6f %u\n", now_s(), w); fflush(dac_log); }
         } else {
@@ -209,7 +214,9 @@ static void host_to_chip(struct avr_irq_t *irq, uint32_t value, void *param)
                   line_garbles() ? garbage(value) : value);
 }
 
-/* host -> board bytes: the patch panel follows the loop mode of each CONFIGURE */
+/* host -> board bytes: the patch panel is patched open or closed as each CONFIGURE's loop
+ * mode says (a student re-patching between runs); its gains are the knobs' (--kp, --kv,
+ * from the rig file), never the gains a plan sends the board, which no patch panel reads */
 static void uart_in(struct avr_irq_t *irq, uint32_t value, void *param)
 {
     (void)irq; (void)param;
@@ -218,8 +225,6 @@ static void uart_in(struct avr_irq_t *irq, uint32_t value, void *param)
         f.body_len >= LR_CONFIGURE_FIXED && loop_forced < 0) {
         advance();
         plant.p.closed = f.body[0] == LR_LOOP_CLOSED;
-        plant.p.kp = lr_get16(f.body + 24) / 100.0;
-        plant.p.kv = lr_get16(f.body + 26) / 100.0;
     }
 }
 
@@ -339,6 +344,7 @@ static avr_cycle_count_t motor_tick(avr_t *a, avr_cycle_count_t when, void *para
         bridge_step_t st = bridge_inputs(last_cycle, now, &duty);
         motor_step(&motor, &st, (double)(now - last_cycle) / (double)a->frequency);
         last_cycle = now;
+        if (duty != 0 && first_drive_s < 0.0) first_drive_s = now_s();
         if (enc_log && duty != duty_logged) {
             fprintf(enc_log, "D %llu %ld\n", (unsigned long long)now, duty);
             duty_logged = duty;
@@ -401,7 +407,7 @@ static void usage(void)
         "  H-bridge rig: --rig hbridge [--supply V] [--drop V] [--dead-fwd V] [--dead-rev V]\n"
         "  [--Ts Nm] [--backlash rad] [--encoder-on-output] [--lines N] [--in1-in2] [--brake]\n"
         "  [--enc-log FILE] [--current-v-per-a V/A] [--current-zero V] [--index]\n"
-        "  [--estop-at S]   (an E-stop on D7, closed, opened at S s of chip time)\n"
+        "  [--estop-at S]   (an E-stop on D7, closed, opened S s after the output first moves)\n"
         "  [--miss-edges N]\n");
 }
 

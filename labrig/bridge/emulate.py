@@ -96,7 +96,9 @@ def plant_args(rig: RigConfig) -> list[str]:
     """Harness command-line options for the plant of ``rig``.
 
     The rig's hidden Coulomb friction (``[effects.coulomb_friction]``) is the one effect the
-    harness models; without it the plant has none.
+    harness models; without it the plant has none. The MS150's analog loop gets the gains the
+    rig file says are patched (``[bridge] loop_kp, loop_kv``), as a patch panel would: the
+    plan's gains never reach it.
     """
     p, amp, sen, noise = rig.plant, rig.amplifier, rig.sensors, rig.noise
     tc_v = rig.effects.get("coulomb_friction", {}).get("tc_v", 0.0)
@@ -108,6 +110,8 @@ def plant_args(rig: RigConfig) -> list[str]:
          "Tc": tc_v * amp.gain * p.K / p.R, "seed": noise.seed}
     if rig.bridge.firmware == "hbridge":
         return _hbridge_args(rig, v)
+    if rig.bridge.loop_kp is not None:   # the patch panel's knobs, as the rig file says
+        v.update(kp=float(rig.bridge.loop_kp), kv=float(rig.bridge.loop_kv))
     return [a for k, val in v.items() for a in (f"--{k}", str(int(val)) if k == "seed" else repr(val))]
 
 
@@ -170,7 +174,8 @@ class Emulator:
         sample clock starts, ``E cycle edge`` at every encoder edge and ``D cycle duty``
         at every change of the commanded signed duty (timer counts).
     loop : {"open", "closed"}, optional
-        Force the plant's loop; by default it follows each CONFIGURE (the patch panel).
+        Force the plant's loop; by default the patch panel is re-patched to each CONFIGURE's
+        loop mode, as the student does between runs (its gains stay the rig file's).
     extra_args : tuple of str
         More harness options (``--estop-at S``, ``--index``, ...).
     test_hooks : bool

@@ -69,7 +69,9 @@ def check_board(rig, hello: dict, port: str) -> None:
     """
     b = rig.bridge
     want, have = b.firmware, hello.get("rig", "ms150")
-    flash = f"flash it with `labrig flash --board {hello.get('board', 'uno')} --rig FILE --port {port}`"
+    rig_file = getattr(rig, "source", "") or "FILE"
+    flash = (f"flash it with `labrig flash --board {hello.get('board', 'uno')} --rig {rig_file} "
+             f"--port {port}`")
     if want != have:
         raise RigError(f"the board on {port} runs the {have} firmware ({hello.get('firmware')}), "
                        f"but the rig file describes an {want} rig: {flash}, or give the "

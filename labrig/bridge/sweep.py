@@ -30,6 +30,8 @@ def acquire(bridge: Bridge, exp: Experiment, rig, progress: Callable[[int], None
     value held at the end, the first one before the first received sample) and flagged
     with ``gap = 1``; the ``gap`` column exists only when something was lost.
     """
+    if bridge.source == "serial":
+        check_gains_applied(exp, rig)
     bridge.configure(exp)
     bridge.start()
     blocks = []
@@ -86,6 +88,36 @@ def acquire(bridge: Bridge, exp: Experiment, rig, progress: Callable[[int], None
     return Run(name=exp.name, data=pd.DataFrame(cols), meta=meta)
 
 
+def check_gains_applied(exp: Experiment, rig) -> None:
+    """A closed-loop run on the MS150 board is closed by the rig's patch panel, not by the
+    board: its gains must be the ones the rig file says are patched.
+
+    Raises
+    ------
+    UserError
+        The rig file says nothing of its patched loop, or the experiment asks for other
+        gains than it says are patched.
+    """
+    from labrig.io.config import patched_gains
+
+    if exp.loop != "closed" or rig.bridge.firmware != "ms150":
+        return
+    gains = patched_gains(rig)
+    if gains is None:
+        raise UserError(
+            f"plan experiment '{exp.name}': a closed-loop run on the MS150 is closed by the "
+            "rig's patch panel, and the board does not apply a plan's gains: write the gains "
+            "as patched in the rig file ([bridge] loop_kp and loop_kv; docs/hardware.md, "
+            "'The MS150 loop, patched on the rig')")
+    asked = (float(exp.position_gain), float(exp.velocity_gain))
+    if max(abs(a - g) for a, g in zip(asked, gains)) > 1e-9:
+        raise UserError(
+            f"plan experiment '{exp.name}': asks Kp {asked[0]:g}, Kv {asked[1]:g}, but the rig's "
+            f"loop is patched at Kp {gains[0]:g}, Kv {gains[1]:g} ([bridge] loop_kp, loop_kv): "
+            "the board does not apply a plan's gains; re-patch and say so in the rig file, "
+            "or play the experiment at the patched gains")
+
+
 def dac_step_v(rig) -> float:
     """One step of the bridge's output (V): the smallest change of the input it can make,
     recorded with each run (``diagnose`` calls no threshold smaller than it resolved)."""
@@ -93,10 +125,21 @@ def dac_step_v(rig) -> float:
     return abs(float(hi) - float(lo)) / 2 ** int(rig.bridge.dac_bits)
 
 
-def check_plan(plan: list[Experiment], rig) -> None:
-    """Refuse a plan beyond the configured output limit, or trips the sensors cannot
-    show, before anything moves."""
+def check_plan(plan: list[Experiment], rig, *, board: bool = False) -> None:
+    """Refuse a plan beyond the configured output limit, trips the sensors cannot show,
+    or (on a ``board``) loop gains nothing would apply, before anything moves."""
     from labrig.bridge import trips
+
+    for exp in plan:
+        if board:
+            check_gains_applied(exp, rig)
+    loops = {e.loop for e in plan}
+    if board and rig.bridge.firmware == "ms150" and len(loops) > 1:
+        raise UserError(
+            "plan: it mixes open- and closed-loop runs, but on the MS150 the loop is closed "
+            "by patching (the bridge drives the amplifier, or the summing junction's "
+            "reference): play the open-loop runs and the closed-loop runs as two plans and "
+            "re-patch between them (both may write into the same folder)")
 
     limit = rig.bridge.output_limit_v
     for exp in plan:
@@ -138,7 +181,7 @@ def sweep(bridge: Bridge, plan: list[Experiment], rig, outdir: Path | str, *,
     an existing run is an error (nothing is overwritten silently). Temporary files a
     killed write left for the plan's runs are removed first (:func:`remove_stale_tmp`).
     """
-    check_plan(plan, rig)
+    check_plan(plan, rig, board=bridge.source == "serial")
     outdir = Path(outdir)
     todo = []
     for exp in plan:

@@ -236,16 +236,14 @@ def _lower(v):
 
 
 class BridgeSection(_Closed):
-    #: the firmware's hardware layer: the MS150 bridge (DAC + analog sensors) or an
-    #: H-bridge + encoder board (labrig.bridge.hbridge)
+    #: the hardware layer: the MS150 bridge or an H-bridge board (labrig.bridge.hbridge)
     firmware: Annotated[Optional[Literal["ms150", "hbridge"]], BeforeValidator(_lower)] = None
     pwm_bits: Annotated[int, Field(ge=1, le=16)] = None
     drive_mode: Annotated[Optional[Literal["pwm_dir", "in1_in2"]], BeforeValidator(_lower)] = None
     off_phase: Annotated[Optional[Literal["coast", "brake"]], BeforeValidator(_lower)] = None
     decoding: Optional[Literal[1, 2, 4]] = None
     current_sense: Optional[bool] = None
-    #: counts from one index pulse to the next (the encoder's counts a turn of the shaft it
-    #: sits on); 0 or left out: no index wired
+    #: counts from one index pulse to the next (a turn of its shaft); 0 or left out: none
     index_counts: Annotated[int, Field(ge=0, le=10_000_000)] = None
     sample_rate_hz: Num(1.0, 1e5) = None
     output_limit_v: Num(0.0, 50.0) = None
@@ -260,6 +258,8 @@ class BridgeSection(_Closed):
     trip_speed: Num(0.0, 1e6) = None
     trip_position: RangeV = None
     estop: Optional[bool] = None
+    loop_kp: Num(0.0, 1e4) = None   # the MS150's analog loop as patched (labrig.io.config)
+    loop_kv: Num(0.0, 1e4) = None
     calibration: CalibrationSection = None
     #: the board the bench is built on, and the pins it is wired to (checked against the
     #: firmware's map: labrig.io.board_pins); a board that greets as another is refused

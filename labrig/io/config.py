@@ -109,6 +109,11 @@ class BridgeConfig:
     trip_speed: float = 0.0
     trip_position: tuple | None = None
     estop: bool = False
+    #: the MS150's analog position loop as patched on the rig (the Kp and Kv attenuator
+    #: settings): a closed-loop run's gains are these, whatever bridge plays it (None: not
+    #: said; a board then refuses closed-loop runs, the simulated rig takes the plan's)
+    loop_kp: float | None = None
+    loop_kv: float | None = None
     calibration: dict = field(default_factory=dict)
     #: the board the bench is built on ("": not said) and the pins the rig file states it
     #: is wired to, checked against the firmware's map (labrig.io.board_pins)
@@ -225,6 +230,7 @@ def rig_from_dict(doc: dict, path: str = "<rig>") -> RigConfig:
                           "reads no encoder (an index is the H-bridge board's, firmware = "
                           "\"hbridge\"); remove the key")
     _check_rail(path, rig)
+    _check_patched_loop(path, rig)
     if rig.bridge.firmware == "hbridge":
         from labrig.io.hbridge_rig import check_rig
         check_rig(rig, path, given=checked.bridge.model_dump(exclude_unset=True)
@@ -243,6 +249,44 @@ def _check_rail(path, rig: RigConfig) -> None:
             f"amplifier's gain {a.gain:g} it asks {b.output_limit_v * a.gain:g} V of an "
             f"amplifier whose rail is {a.output_limit_v:g} V (amplifier.output_limit_v); set "
             f"it at or below {a.output_limit_v / a.gain:.4g} V")
+
+
+def _check_patched_loop(path, rig: RigConfig) -> None:
+    """The analog loop's gains: the MS150's only (an H-bridge board closes its loop from the
+    plan's gains), both or neither."""
+    b = rig.bridge
+    given = [k for k in ("loop_kp", "loop_kv") if getattr(b, k) is not None]
+    if given and b.firmware != "ms150":
+        raise ConfigError(f"{path}: key 'bridge.{given[0]}': the {b.firmware} board closes its "
+                          "loop itself, from the plan's position_gain and velocity_gain; "
+                          "remove the key")
+    if len(given) == 1:
+        missing = ({"loop_kp", "loop_kv"} - set(given)).pop()
+        raise ConfigError(f"{path}: key 'bridge.{given[0]}' without 'bridge.{missing}': the "
+                          "patched loop has both gains; add it")
+
+
+def patched_gains(rig: RigConfig) -> tuple[float, float] | None:
+    """The MS150's analog loop gains as patched (``[bridge] loop_kp, loop_kv``), or None."""
+    b = rig.bridge
+    return None if b.loop_kp is None else (float(b.loop_kp), float(b.loop_kv))
+
+
+def _patched_plan(where: str, e: dict, rig: RigConfig | None) -> None:
+    """A closed-loop experiment on a rig whose loop is patched takes the patch's gains; a
+    plan that asks for others is refused: nothing on the rig would apply them."""
+    gains = patched_gains(rig) if rig is not None else None
+    if gains is None or e.get("loop") != "closed":
+        return
+    for key, patched, knob in (("position_gain", gains[0], "loop_kp"),
+                               ("velocity_gain", gains[1], "loop_kv")):
+        if key in e and abs(float(e[key]) - patched) > 1e-9:
+            raise ConfigError(
+                f"{where}: {key} = {float(e[key]):g}, but the rig's loop is patched at "
+                f"{patched:g} ([bridge] {knob} in the rig file): the board does not apply a "
+                f"plan's gains; turn the patch panel's knob and write {knob} = "
+                f"{float(e[key]):g} in the rig file, or leave {key} out of the plan")
+        e[key] = patched
 
 
 def _check_plant(path, rig: RigConfig, checked) -> None:
@@ -280,7 +324,7 @@ def rig_to_doc(rig: RigConfig) -> dict:
         doc[sec] = {inverse.get(sec, {}).get(k, k): (list(v) if isinstance(v, tuple) else v)
                     for k, v in body.items()
                     if not (k in ("calibration", "board", "pins", "index_counts", "trip_speed",
-                                  "trip_position", "estop") and not v)}
+                                  "trip_position", "estop", "loop_kp", "loop_kv") and not v)}
     doc["effects"] = {k: dict(v) for k, v in rig.effects.items()}
     return doc
 
@@ -363,6 +407,7 @@ def load_plan(path: Path | str | None = None, rig: RigConfig | None = None) -> l
                 stem = _STEMS[e.get("waveform", "square")]
                 prefix = "cl_" if e.get("loop") == "closed" else ""
                 e["name"] = f"{prefix}{stem}_{amp:+.2f}V".replace("+", "")
+            _patched_plan(f"{path}: experiment {k} ({e['name']})", e, rig)
             out.append(_check_experiment(path, k, e))
     names = [e.name for e in out]
     dup = {n for n in names if names.count(n) > 1}

@@ -198,7 +198,8 @@ static int configure(const uint8_t *b, uint16_t len)
     c.dac_max = lr_get16(b + 20);
     c.watchdog_ms = lr_get16(b + 22);
     /* b[24..27]: loop gains: on a digital loop the PD's (Q8.8, duty counts per count and
-     * per count per sample); on the MS150, for the record and the emulator's patch panel */
+     * per count per sample); on the MS150, for the record only (the rig's patch panel
+     * closes its loop, at the gains the rig file states) */
     c.kp_q = lr_get16(b + 24);
     c.kd_q = lr_get16(b + 26);
     c.n_levels = b[28];

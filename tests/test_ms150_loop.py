@@ -1,0 +1,151 @@
+"""The MS150's loop is the rig's patch panel, not the board: a closed-loop run means on the
+emulated board what it means on the rig. The gains are the rig file's patched knobs
+(`[bridge] loop_kp, loop_kv`), which the emulator's patch panel takes as a real one has
+them; a plan's gains nothing applies are refused, never recorded as applied; exercise 4's
+gain change changes the run as the sheet says."""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from labrig.bridge.emulate import APT_PACKAGES, missing_tools
+
+ROOT = Path(__file__).resolve().parents[1]
+pytestmark = [pytest.mark.firmware,
+              pytest.mark.skipif(bool(missing_tools()), reason=f"apt-get install {APT_PACKAGES}")]
+
+#: exercise 4's gain step (its cl_gain.toml), without gains: the rig's patch gives them
+CL_PLAN = """[defaults]
+sample_rate_hz = 200.0
+lead_in_s = 0.5
+
+[[experiment]]
+loop = "closed"
+waveform = "square"
+amplitudes_v = [0.3]
+frequency_hz = 0.25
+periods = 1
+"""
+
+
+def _labrig(*args):
+    return subprocess.run([sys.executable, "-m", "labrig", *map(str, args)], capture_output=True,
+                          text=True, timeout=300)
+
+
+def _rig(tmp_path, name, **bridge) -> Path:
+    text = (ROOT / "configs" / "rig_default.toml").read_text()
+    keys = "".join(f"{k} = {v}\n" for k, v in bridge.items())
+    path = tmp_path / name
+    path.write_text(text.replace("[bridge]\n", "[bridge]\n" + keys, 1))
+    return path
+
+
+def _error(csv: Path, rig_file: Path) -> tuple[float, float]:
+    """The first step's steady-state error (pot volts short of the reference, last 0.5 s of
+    the half period) and its 10-90 % rise time, from the recorded run."""
+    from labrig.io.config import load_rig
+
+    d = pd.read_csv(csv)
+    s = load_rig(rig_file).sensors
+    pos = (d["pos"] - s.pos_offset_v).to_numpy()
+    t, ref = d["t"].to_numpy(), d["u"].to_numpy()
+    first = (t > 0.5) & (t < 2.5)
+    start = pos[(t > 0.3) & (t < 0.5)].mean()
+    final = pos[first & (t > 2.0)].mean()
+    step = ref[first][-1] - ref[t < 0.5][-1]
+    move = (pos[first] - start) / (final - start)
+    rise = t[first][np.argmax(move >= 0.9)] - t[first][np.argmax(move >= 0.1)]
+    return abs(step - (final - start)) / abs(step), rise
+
+
+def test_a_gain_change_on_the_patch_panel_changes_the_run_on_the_board(tmp_path):
+    """Exercise 4, section 4, on the emulated board: the Kp knob at 2, then at 4 (the rig
+    file says so each time); the plan is the same. At Kp 4 the loop is faster and the
+    friction's error band narrower, as the sheet says; each run records the gains it was
+    played at."""
+    from labrig.bridge.emulate import Emulator
+    from labrig.io.config import load_rig
+
+    plan = tmp_path / "cl.toml"
+    plan.write_text(CL_PLAN)
+    out = {}
+    for kp in (2.0, 4.0):
+        rig_file = _rig(tmp_path, f"rig_kp{kp:g}.toml", loop_kp=kp, loop_kv=0.15)
+        with Emulator("uno", load_rig(rig_file)) as emu:
+            r = _labrig("sweep", "--port", emu.pty, "--rig", rig_file, "--plan", plan,
+                        "-o", tmp_path / f"kp{kp:g}")
+        assert r.returncode == 0, r.stderr
+        side = json.loads((tmp_path / f"kp{kp:g}" / "cl_sq_0.30V.json").read_text())
+        assert (side["experiment"]["position_gain"], side["experiment"]["velocity_gain"]) == (kp, 0.15)
+        out[kp] = _error(tmp_path / f"kp{kp:g}" / "cl_sq_0.30V.csv", rig_file)
+    (e2, rise2), (e4, rise4) = out[2.0], out[4.0]
+    print(f"\nKp 2: error {100 * e2:.1f} %, rise {rise2:.3f} s; Kp 4: error {100 * e4:.1f} %, "
+          f"rise {rise4:.3f} s")
+    assert e4 < 0.6 * e2            # the band is tc_v / Kp: at least halved, as the sheet says
+    assert rise4 < 0.8 * rise2      # and the loop is faster
+
+
+def test_gains_nothing_applies_are_refused_before_anything_plays(tmp_path):
+    """On the board: a closed-loop plan with a rig file that says nothing of its patch, a
+    plan whose gains differ from the patched ones, a plan mixing open and closed runs (the
+    patch differs): each one line, exit 2, no run written."""
+    from labrig.bridge.emulate import Emulator
+    from labrig.io.config import load_rig
+
+    plan = tmp_path / "cl.toml"
+    plan.write_text(CL_PLAN)
+    asks4 = tmp_path / "kp4.toml"
+    asks4.write_text(CL_PLAN + "position_gain = 4.0\nvelocity_gain = 0.15\n")
+    mixed = tmp_path / "mixed.toml"
+    mixed.write_text(CL_PLAN + '\n[[experiment]]\nloop = "open"\nwaveform = "step"\n'
+                     'amplitudes_v = [1.0]\nduration_s = 1.0\n')
+    patched = _rig(tmp_path, "rig_kp2.toml", loop_kp=2.0, loop_kv=0.15)
+    default = ROOT / "configs" / "rig_default.toml"
+    cases = [(default, plan, "write the gains as patched in the rig file"),
+             (patched, asks4, "position_gain = 4, but the rig's loop is patched at 2"),
+             (patched, mixed, "mixes open- and closed-loop runs")]
+    with Emulator("uno", load_rig(patched)) as emu:
+        for k, (rig_file, plan_file, words) in enumerate(cases):
+            r = _labrig("sweep", "--port", emu.pty, "--rig", rig_file, "--plan", plan_file,
+                        "-o", tmp_path / f"out{k}")
+            assert r.returncode == 2 and words in r.stderr, r.stderr
+            assert len(r.stderr.strip().splitlines()) == 1 and "Traceback" not in r.stderr
+            assert not list((tmp_path / f"out{k}").glob("*.csv"))
+
+
+def test_the_simulated_rig_takes_the_patched_gains_too(tmp_path):
+    """The same rig file on the simulated rig: a plan without gains plays at the patch's,
+    one asking for others is refused as on the board."""
+    patched = _rig(tmp_path, "rig_kp4.toml", loop_kp=4.0, loop_kv=0.15)
+    plan = tmp_path / "cl.toml"
+    plan.write_text(CL_PLAN)
+    r = _labrig("sweep", "--sim", "--rig", patched, "--plan", plan, "-o", tmp_path / "sim")
+    assert r.returncode == 0, r.stderr
+    side = json.loads((tmp_path / "sim" / "cl_sq_0.30V.json").read_text())
+    assert side["experiment"]["position_gain"] == 4.0
+    asks2 = tmp_path / "kp2.toml"
+    asks2.write_text(CL_PLAN + "position_gain = 2.0\n")
+    r = _labrig("sweep", "--sim", "--rig", patched, "--plan", asks2, "-o", tmp_path / "sim2")
+    assert r.returncode == 2 and "patched at 4" in r.stderr, r.stderr
+
+
+@pytest.mark.parametrize("base, keys, words", [
+    ("rig_arduino_hbridge.toml", {"loop_kp": 2.0, "loop_kv": 0.1},
+     "key 'bridge.loop_kp': the hbridge board closes its loop itself"),
+    ("rig_default.toml", {"loop_kp": 2.0}, "key 'bridge.loop_kp' without 'bridge.loop_kv'"),
+    ("rig_default.toml", {"loop_kp": -1.0, "loop_kv": 0.1}, "loop_kp"),
+])
+def test_a_patched_loop_the_rig_cannot_have_is_refused(tmp_path, base, keys, words):
+    text = (ROOT / "configs" / base).read_text()
+    rig = tmp_path / "rig.toml"
+    rig.write_text(text.replace("[bridge]\n", "[bridge]\n" + "".join(
+        f"{k} = {v}\n" for k, v in keys.items()), 1))
+    r = _labrig("sweep", "--sim", "--rig", rig, "-o", tmp_path / "x")
+    assert r.returncode == 2 and words in r.stderr and "Traceback" not in r.stderr, r.stderr
