@@ -93,7 +93,7 @@ def test_the_board_is_checked_against_the_rig_file():
     with pytest.raises(RigError, match="is a Nano, but the rig file's bench is built on an Uno"):
         hbridge.check_board(rig, {**hello, "board": "nano"}, "/dev/ttyUSB0")
     v1 = {**hello, "rig": "ms150"}
-    with pytest.raises(RigError, match="runs the ms150 firmware.*RIG=hbridge PWM_BITS=8"):
+    with pytest.raises(RigError, match="runs the ms150 firmware.*labrig flash --board nano --rig .*rig_arduino_hbridge.toml"):
         hbridge.check_board(rig, v1, "/dev/ttyUSB0")
     # a 2.0 build reads no index: a rig file that wires one is told to reflash; 2.1 reads it
     # (and a rig file without one takes either)

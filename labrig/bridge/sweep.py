@@ -107,8 +107,8 @@ def check_gains_applied(exp: Experiment, rig) -> None:
         raise UserError(
             f"plan experiment '{exp.name}': a closed-loop run on the MS150 is closed by the "
             "rig's patch panel, and the board does not apply a plan's gains: write the gains "
-            "as patched in the rig file ([bridge] loop_kp and loop_kv; docs/hardware.md, "
-            "'The MS150 loop, patched on the rig')")
+            "as patched in the rig file ([bridge] loop_kp and loop_kv; see "
+            "docs/hardware.md, 'The MS150 loop, patched on the rig')")
     asked = (float(exp.position_gain), float(exp.velocity_gain))
     if max(abs(a - g) for a, g in zip(asked, gains)) > 1e-9:
         raise UserError(
@@ -181,7 +181,7 @@ def sweep(bridge: Bridge, plan: list[Experiment], rig, outdir: Path | str, *,
     an existing run is an error (nothing is overwritten silently). Temporary files a
     killed write left for the plan's runs are removed first (:func:`remove_stale_tmp`).
     """
-    check_plan(plan, rig, board=bridge.source == "serial")
+    check_plan(plan, rig)
     outdir = Path(outdir)
     todo = []
     for exp in plan:
@@ -196,6 +196,8 @@ def sweep(bridge: Bridge, plan: list[Experiment], rig, outdir: Path | str, *,
     lossy, slipped = [], []
     try:
         bridge.open()
+        if bridge.source == "serial":   # the board is there: what it cannot apply, refused now
+            check_plan(plan, rig, board=True)
         for exp in todo:
             if on_start:
                 on_start(exp)
