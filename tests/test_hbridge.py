@@ -378,8 +378,8 @@ def test_a_proposal_through_the_boards_own_loop_plays_on_the_board(board_loop, t
     gains), simulated as the board runs them, to tell the hidden Coulomb friction from a
     delay (through the loop friction brakes each step short, a delay shifts it); the plan
     plays on the emulated board, its run records the same law, and the diagnosis that reads
-    it puts the Coulomb friction first. (Against stiction the answer depends on the sweep:
-    with no excess hidden, stiction at zero excess is the friction, and propose says so.)"""
+    it puts the friction ahead of the delay. (Against stiction the order depends on the
+    sweep: with no excess hidden, stiction at zero excess is the friction.)"""
     runs, rig_file = board_loop["runs"], board_loop["rig"]
     model = tmp_path / "m.json"
     assert _labrig("identify", runs, "--effects", "asymmetric_deadband", "-o", model).returncode == 0
@@ -397,7 +397,17 @@ def test_a_proposal_through_the_boards_own_loop_plays_on_the_board(board_loop, t
     r = _labrig("diagnose", runs, tmp_path / "new", "--model", model, "--json")
     assert r.returncode == 0, r.stderr
     ranked = json.loads(r.stdout)["ranking"]
-    assert ranked[0]["effect"] == "coulomb_friction" and ranked[0]["supported"], ranked[:2]
+    # the pair the run was proposed for is told apart: the friction, not the delay; between
+    # Coulomb friction and stiction at no excess (the same physics here) the order is a near
+    # tie that moves between sweeps (0.96 against 1.00 rmse/noise on one, the other way on
+    # another): the Coulomb level stays within 10 % of the first
+    rank = {c["effect"]: c for c in ranked}
+    assert ranked[0]["effect"] in ("coulomb_friction", "stiction") and ranked[0]["supported"], \
+        ranked[:2]
+    coulomb = rank["coulomb_friction"]
+    assert coulomb["rmse_over_noise"] <= 1.10 * ranked[0]["rmse_over_noise"], ranked[:3]
+    if "delay" in rank:
+        assert coulomb["rmse_over_noise"] < rank["delay"]["rmse_over_noise"], ranked
 
 
 def test_the_current_sense_channel_reads_the_armature_current_at_each_sample(tmp_path):
