@@ -103,7 +103,7 @@ def _greeting(report: ChainReport, port: str, baud: int) -> dict:
     from labrig.bridge.ports import greet
 
     try:
-        hello = greet(port, baud=baud, assign=True)
+        hello = greet(port, baud=baud)   # reads the id only: the bridge below gives one
     except LabrigError as e:
         report.add("greeting", False, str(e))
         return {}
@@ -152,11 +152,12 @@ def _firmware(report: ChainReport, hello: dict, port: str, rig) -> bool:
 
 def _rails(lo: float, hi: float, q: float, values: np.ndarray, what: str) -> str:
     """What is wrong with a sensor's readings at rest (empty: nothing)."""
-    if values.size and (np.median(values) >= hi - 1.5 * q or np.median(values) <= lo + 1.5 * q):
-        edge = "top" if np.median(values) >= hi - 1.5 * q else "bottom"
-        return (f"{what} reads the {edge} of its range ({np.median(values):+.2f} V) at rest: a "
-                "broken wire or a sensor at its rail; check its wiring (labrig wiring)")
-    return ""
+    if not values.size:
+        return ""
+    at = float(np.median(values))
+    edge = "top" if at >= hi - 1.5 * q else "bottom" if at <= lo + 1.5 * q else ""
+    return (f"{what} reads the {edge} of its range ({at:+.2f} V) at rest: a broken wire or a "
+            "sensor at its rail; check its wiring (labrig wiring)") if edge else ""
 
 
 def _at_rest(report: ChainReport, bridge, rig, seconds: float) -> None:
@@ -177,9 +178,8 @@ def _at_rest(report: ChainReport, bridge, rig, seconds: float) -> None:
     got = run.measured
     n, lost = exp.n_samples, int((~got).sum())
     u = run.u[got]
-    zero_v = 0.0
     step = (s.dac_range_v[1] - s.dac_range_v[0]) / 2 ** s.dac_bits
-    if np.all(np.abs(u - zero_v) <= step):
+    if np.all(np.abs(u) <= step):
         report.add("0 V out", True, f"every sample's output word at 0 V (word "
                                     f"{volts_to_dac_word(0.0, s)})")
     else:

@@ -30,16 +30,46 @@ FIRMWARE_DIR = Path(os.environ.get("LABRIG_FIRMWARE_DIR",
 APT_PACKAGES = "gcc-avr avr-libc arduino-core-avr simavr libsimavr-dev libsimavrparts1"
 BOARDS = ("uno", "nano", "mega")
 
-def missing_tools() -> list[str]:
-    """What is missing to build and run the emulator (empty when all is there)."""
-    missing = [t for t in ("make", "gcc", "avr-gcc", "avr-objcopy", "avr-size") if not shutil.which(t)]
+def missing_build_tools() -> list[str]:
+    """What is missing to build the firmware for the boards (empty when all is there)."""
+    missing = [t for t in ("make", "avr-gcc", "avr-objcopy", "avr-size") if not shutil.which(t)]
     if not Path("/usr/share/arduino/hardware/arduino/avr/cores/arduino/Arduino.h").exists():
         missing.append("arduino-core-avr")
-    if not Path("/usr/include/simavr/sim_avr.h").exists():
-        missing.append("libsimavr-dev")
     if not Path("/usr/lib/avr/include/avr/io.h").exists():
         missing.append("avr-libc")
     return missing
+
+
+def missing_tools() -> list[str]:
+    """What is missing to build and run the emulator (empty when all is there)."""
+    missing = missing_build_tools() + ([] if shutil.which("gcc") else ["gcc"])
+    if not Path("/usr/include/simavr/sim_avr.h").exists():
+        missing.append("libsimavr-dev")
+    return missing
+
+
+def build_firmware(board: str, rig: RigConfig | None = None, *extra: str,
+                   watchdog: bool = True, test_hooks: bool = False) -> Path:
+    """Build (incrementally) the firmware for ``board`` (``make -C firmware``), the rig's
+    ``[bridge]`` build, with ``extra`` targets; return the folder of its ``labrig_bridge``
+    ELF and hex.
+
+    Raises
+    ------
+    RigError
+        The tail of the compiler output when the build fails.
+    """
+    options = ((hbridge.make_options(rig) if rig is not None else [])
+               + ([] if watchdog else ["HW_WATCHDOG=0"]) + (["TEST_HOOKS=1"] if test_hooks else []))
+    r = firmware_make(board, *extra, *options)
+    if r.returncode != 0:
+        tail = "\n".join((r.stdout + r.stderr).strip().splitlines()[-15:])
+        raise RigError(f"firmware build failed (make -C {FIRMWARE_DIR} {board} "
+                       f"{' '.join([*extra, *options])}):\n{tail}")
+    # the Makefile's folders: the rig's build, then nowdt/ and testhooks/ below it
+    folder = FIRMWARE_DIR / "build" / (hbridge.build_folder(rig) if rig is not None else "")
+    folder = folder / ("" if watchdog else "nowdt") / ("testhooks" if test_hooks else "")
+    return folder / board
 
 
 def firmware_make(*targets: str, timeout: float | None = None) -> subprocess.CompletedProcess:
@@ -78,18 +108,8 @@ def build(board: str = "uno", rig: RigConfig | None = None,
     if missing:
         raise RigError(f"cannot build the emulator: {', '.join(missing)} missing; install with: "
                        f"apt-get install -y --no-install-recommends {APT_PACKAGES}")
-    options = (hbridge.make_options(rig) if rig is not None else []) + \
-        (["TEST_HOOKS=1"] if test_hooks else [])
-    r = firmware_make(board, "emulator", *options)
-    if r.returncode != 0:
-        tail = "\n".join((r.stdout + r.stderr).strip().splitlines()[-15:])
-        raise RigError(f"firmware build failed (make -C {FIRMWARE_DIR} {board} emulator "
-                       f"{' '.join(options)}):\n{tail}")
-    folder = FIRMWARE_DIR / "build" / (hbridge.build_folder(rig) if rig is not None else "")
-    if test_hooks:
-        folder = folder / "testhooks"
-    return (folder / board / "labrig_bridge.elf",
-            FIRMWARE_DIR / "build" / "emulator" / "labrig-emu")
+    folder = build_firmware(board, rig, "emulator", test_hooks=test_hooks)
+    return folder / "labrig_bridge.elf", FIRMWARE_DIR / "build" / "emulator" / "labrig-emu"
 
 
 def plant_args(rig: RigConfig) -> list[str]:

@@ -114,11 +114,9 @@ def rig_build(rig) -> str:
 
 def can_build() -> bool:
     """Whether the AVR toolchain and the firmware's sources are here to build an image."""
-    from labrig.bridge.emulate import FIRMWARE_DIR
+    from labrig.bridge.emulate import FIRMWARE_DIR, missing_build_tools
 
-    tools = all(shutil.which(t) for t in ("make", "avr-gcc", "avr-objcopy", "avr-size"))
-    core = Path("/usr/share/arduino/hardware/arduino/avr/cores/arduino/Arduino.h").exists()
-    return tools and core and (FIRMWARE_DIR / "Makefile").exists()
+    return not missing_build_tools() and (FIRMWARE_DIR / "Makefile").exists()
 
 
 def firmware_image(board: str, rig=None, *, build: bool | None = None) -> tuple[Path, str]:
@@ -150,19 +148,10 @@ def firmware_image(board: str, rig=None, *, build: bool | None = None) -> tuple[
     if build is None:
         build = can_build()
     if build:
-        from labrig.bridge.emulate import FIRMWARE_DIR, firmware_make
+        from labrig.bridge.emulate import build_firmware
 
-        options = (hbridge.make_options(rig) if rig is not None else []) + \
-            ([] if spec.watchdog else ["HW_WATCHDOG=0"])
-        r = firmware_make(spec.build, *options)
-        if r.returncode != 0:
-            tail = "\n".join((r.stdout + r.stderr).strip().splitlines()[-15:])
-            raise RigError(f"firmware build failed (make -C {FIRMWARE_DIR} {spec.build} "
-                           f"{' '.join(options)}):\n{tail}")
-        folder = FIRMWARE_DIR / "build" / (hbridge.build_folder(rig) if rig is not None else "")
-        if not spec.watchdog:
-            folder = folder / "nowdt"
-        return folder / spec.build / "labrig_bridge.hex", "built"
+        folder = build_firmware(spec.build, rig, watchdog=spec.watchdog)
+        return folder / "labrig_bridge.hex", "built"
     image = IMAGES / rig_build(rig) / f"{spec.name}.hex"
     if not image.is_file():
         shipped = ", ".join(sorted(p.name for p in IMAGES.iterdir() if p.is_dir()))

@@ -36,8 +36,9 @@ def new_board_id() -> int:
     return secrets.randbits(32) or 1
 
 
-def settle(ask, version: tuple, *, expected: int | None = None, port: str = "") -> int | None:
-    """The board's id, giving it one when it has none.
+def settle(ask, version: tuple, *, expected: int | None = None, port: str = "",
+           assign: bool = True) -> int | None:
+    """The board's id, giving it one when it has none (and ``assign``).
 
     Parameters
     ----------
@@ -50,6 +51,8 @@ def settle(ask, version: tuple, *, expected: int | None = None, port: str = "") 
         The id the station is bound to.
     port : str
         For messages.
+    assign : bool
+        Give a board without an id one (a listing only reads).
 
     Returns
     -------
@@ -64,7 +67,7 @@ def settle(ask, version: tuple, *, expected: int | None = None, port: str = "") 
     from labrig.bridge.protocol import format_board_id, id_body
 
     have = ask(b"") if version >= FIRST_VERSION else None
-    if have == 0:
+    if have == 0 and assign:
         have = ask(id_body(new_board_id()))
     if expected is not None and have != expected:
         if have is None:

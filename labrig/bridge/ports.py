@@ -121,8 +121,7 @@ def _read_id(link, dec, hello: dict, assign: bool = False) -> int | None:
                         return None
         return None
 
-    return settle(ask if assign else (lambda body: ask(b"") if not body else 0),
-                  firmware_version(hello))
+    return settle(ask, firmware_version(hello), assign=assign)
 
 
 def list_ports(probe=(), *, greet_boards: bool = True, lister=None) -> list[Port]:

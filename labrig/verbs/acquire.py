@@ -168,12 +168,9 @@ def find_board(board_id=None) -> str:
     UserError
         None is connected, or several are (naming them), or none has that id.
     """
-    from labrig.bridge.identity import parse_board_id
     from labrig.bridge.ports import list_ports, the_board
 
-    if isinstance(board_id, str):
-        board_id = parse_board_id(board_id)
-    return the_board(list_ports(), board_id)
+    return the_board(list_ports(), _as_board_id(board_id))
 
 
 def format_board_id(board_id) -> str:
@@ -196,9 +193,14 @@ def board_id(text) -> int:
     >>> hex(board_id("3F2A91C0"))
     '0x3f2a91c0'
     """
+    return _as_board_id(text)
+
+
+def _as_board_id(value) -> int | None:
+    """``value`` (None, an int or 8 hex digits) as a board id (the verbs take either)."""
     from labrig.bridge.identity import parse_board_id
 
-    return text if isinstance(text, int) else parse_board_id(text)
+    return value if value is None or isinstance(value, int) else parse_board_id(value)
 
 
 def flash(board: str, rig=None, *, port: str | None = None, programmer: str | None = None,
@@ -258,11 +260,9 @@ def doctor(port: str | None = None, rig=None, *, baud: int = 500000, board_id=No
         ``str(report)``: a line per check; ``report.ok``: all passed.
     """
     from labrig.bridge.doctor import check_chain
-    from labrig.bridge.identity import parse_board_id
     from labrig.verbs.data import load_rig
 
     if rig is not None and not hasattr(rig, "bridge"):
         rig = load_rig(rig)
-    if isinstance(board_id, str):
-        board_id = parse_board_id(board_id)
+    board_id = _as_board_id(board_id)
     return check_chain(port, rig, baud=baud, board_id=board_id, seconds=seconds)
