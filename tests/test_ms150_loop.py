@@ -1,8 +1,10 @@
-"""The MS150's loop is the rig's patch panel, not the board: a closed-loop run means on the
-emulated board what it means on the rig. The gains are the rig file's patched knobs
-(`[bridge] loop_kp, loop_kv`), which the emulator's patch panel takes as a real one has
-them; a plan's gains nothing applies are refused, never recorded as applied; exercise 4's
-gain change changes the run as the sheet says."""
+"""The MS150's loop, closed by the board or by the rig's patch panel: a closed-loop run means
+on the emulated board what it means on the rig. The board closes it itself at each sample
+from the pot and tacho its ADC reads (`closed_by = "board"`, the plan's gains); the analog
+loop's gains are the rig file's patched knobs (`[bridge] loop_kp, loop_kv`), which the
+emulator's patch panel takes as a real one has them; a plan's gains nothing applies are
+refused, never recorded as applied; exercise 4's gain change changes the run as the sheet
+says, either way."""
 from __future__ import annotations
 
 import json
@@ -49,13 +51,15 @@ def _rig(tmp_path, name, **bridge) -> Path:
 
 def _error(csv: Path, rig_file: Path) -> tuple[float, float]:
     """The first step's steady-state error (pot volts short of the reference, last 0.5 s of
-    the half period) and its 10-90 % rise time, from the recorded run."""
+    the half period) and its 10-90 % rise time, from the recorded run (a loop the board
+    closed records its reference in rad: times the pot's volts per rad)."""
     from labrig.io.config import load_rig
 
     d = pd.read_csv(csv)
     s = load_rig(rig_file).sensors
     pos = (d["pos"] - s.pos_offset_v).to_numpy()
-    t, ref = d["t"].to_numpy(), d["u"].to_numpy()
+    board = "drive" in d
+    t, ref = d["t"].to_numpy(), d["u"].to_numpy() * (s.pos_v_per_rad if board else 1.0)
     first = (t > 0.5) & (t < 2.5)
     start = pos[(t > 0.3) & (t < 0.5)].mean()
     final = pos[first & (t > 2.0)].mean()
@@ -92,6 +96,43 @@ def test_a_gain_change_on_the_patch_panel_changes_the_run_on_the_board(tmp_path)
     assert rise4 < 0.8 * rise2      # and the loop is faster
 
 
+def test_the_board_closes_the_loop_itself_and_a_gain_change_shows(tmp_path):
+    """Exercise 4, section 4, closed by the board: the plan's Kp 2, then 4, on the default
+    rig (no patch: the emulator's patch panel stays open, so the only loop is the board's,
+    on the words its ADC reads from the plant's pins). At Kp 4 the loop is faster and the
+    friction's band narrower, as on the patch panel; each run records the law the board
+    ran; and the simulated rig plays the same plan to within a pot word."""
+    from labrig.bridge.emulate import Emulator
+    from labrig.io.config import load_rig
+
+    rig_file = ROOT / "configs" / "rig_default.toml"
+    out = {}
+    for kp in (2.0, 4.0):
+        plan = tmp_path / f"board_kp{kp:g}.toml"
+        plan.write_text(CL_PLAN + f'closed_by = "board"\nposition_gain = {kp}\n'
+                        "velocity_gain = 0.15\n")
+        with Emulator("uno", load_rig(rig_file)) as emu:
+            r = _labrig("sweep", "--port", emu.pty, "--rig", rig_file, "--plan", plan,
+                        "-o", tmp_path / f"kp{kp:g}")
+        assert r.returncode == 0, r.stderr
+        side = json.loads((tmp_path / f"kp{kp:g}" / "cl_sq_0.30V.json").read_text())
+        law = side["experiment"]["controller"]["sampled"]
+        assert law["feedback"] == "sensors" and law["kp_q"] == int(2048 * kp)
+        out[kp] = _error(tmp_path / f"kp{kp:g}" / "cl_sq_0.30V.csv", rig_file)
+        if kp == 2.0:
+            r = _labrig("sweep", "--sim", "--rig", rig_file, "--plan", plan, "-o", tmp_path / "sim")
+            assert r.returncode == 0, r.stderr
+            board, sim = (pd.read_csv(d / "cl_sq_0.30V.csv") for d in (tmp_path / "kp2", tmp_path / "sim"))
+            gap = np.sqrt(np.mean((board["pos"] - sim["pos"]) ** 2))
+            print(f"\nboard against simulated rig: pot rms {1000 * gap:.1f} mV (a word is 19.5 mV)")
+            assert gap < 0.0195
+    (e2, rise2), (e4, rise4) = out[2.0], out[4.0]
+    print(f"board's loop: Kp 2: error {100 * e2:.1f} %, rise {rise2:.3f} s; Kp 4: error "
+          f"{100 * e4:.1f} %, rise {rise4:.3f} s")
+    assert e4 < 0.6 * e2
+    assert rise4 < 0.8 * rise2
+
+
 def test_gains_nothing_applies_are_refused_before_anything_plays(tmp_path):
     """On the board: a closed-loop plan with a rig file that says nothing of its patch, a
     plan whose gains differ from the patched ones, a plan mixing open and closed runs (the
@@ -108,9 +149,9 @@ def test_gains_nothing_applies_are_refused_before_anything_plays(tmp_path):
                      'amplitudes_v = [1.0]\nduration_s = 1.0\n')
     patched = _rig(tmp_path, "rig_kp2.toml", loop_kp=2.0, loop_kv=0.15)
     default = ROOT / "configs" / "rig_default.toml"
-    cases = [(default, plan, "write the gains as patched in the rig file"),
+    cases = [(default, plan, 'write closed_by = "board" in the plan, or the gains as patched'),
              (patched, asks4, "position_gain = 4, but the rig's loop is patched at 2"),
-             (patched, mixed, "mixes open- and closed-loop runs")]
+             (patched, mixed, "mixes runs through the rig's analog loop")]
     with Emulator("uno", load_rig(patched)) as emu:
         for k, (rig_file, plan_file, words) in enumerate(cases):
             r = _labrig("sweep", "--port", emu.pty, "--rig", rig_file, "--plan", plan_file,

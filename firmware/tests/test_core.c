@@ -875,6 +875,92 @@ static void test_board_id(void)
     CHECK(k >= 0 && msgs[k].body[0] == LR_ERR_BAD_FRAME, "a 3-byte id is a bad frame");
 }
 
+/* the board's own loop on its sensors (the MS150 build, loop 2): at each sample, once its
+ * words are in, out = dac_zero + floor((kp_q (ref - pos) - kd_q (tacho - tacho at rest))
+ * / 256), clamped; the lead-in's reference is the host's; the sample records that output
+ * and the reference */
+static void test_board_loop(void)
+{
+    uint8_t b[128], lb[LR_LIMITS_LEN];
+    uint16_t lv[1] = {600};
+    reset_all();
+    host_send(LR_HELLO_REQ, 9, NULL, 0);
+    lr_core_poll(); collect();
+    int k = find(LR_HELLO);
+    CHECK(k >= 0 && (lr_get16(msgs[k].body + 2) & LR_CAP_BOARD_LOOP), "HELLO offers the board's loop");
+
+    /* kp_q 1000, kd_q 100 (cfg_body's gains), lead-in 2 samples at word 512, tacho zero 512 */
+    size_t n = cfg_body(b, LR_LOOP_BOARD, LR_WAVE_CONSTANT, 1000, 10, 2, 0, 1024, 3072, 500, lv, 1);
+    lr_put16(b + n, 512); lr_put16(b + n + 2, 512);
+    host_send(LR_CONFIGURE, 1, b, n);   /* without its tail: refused */
+    host_send(LR_CONFIGURE, 2, b, n + 4);
+    host_send(LR_START, 3, NULL, 0);
+    for (int i = 0; i < 4; i++) lr_core_poll();
+    collect();
+    k = find(LR_ERROR);
+    CHECK(k >= 0 && msgs[k].body[0] == LR_ERR_BAD_FRAME && lr_core_state() == LR_STATE_RUNNING,
+          "loop 2 without its tail refused, with it running");
+    adc_vals[0] = 520; adc_vals[1] = 500;
+    lr_core_tick();   /* lead-in: e = 512 - 500, v = 8: (12000 - 800) >> 8 = 43 */
+    CHECK(dac_hw == 2048 + 43, "lead-in: the loop holds the lead-in reference (word %u)", dac_hw);
+    lr_core_tick();
+    lr_core_tick();   /* e = 600 - 500: (100000 - 800) >> 8 = 387 */
+    CHECK(dac_hw == 2048 + 387, "the PD on the sensors' words (word %u)", dac_hw);
+    adc_vals[1] = 700;
+    lr_core_tick();   /* e = -100: floor(-100800 / 256) = -394 */
+    CHECK(dac_hw == 2048 - 394, "floor below zero (word %u)", dac_hw);
+    adc_vals[1] = 0;
+    lr_core_tick();   /* e = 600: far beyond the limit */
+    CHECK(dac_hw == 3072, "clamped to dac_max (word %u)", dac_hw);
+    adc_auto = 0;
+    lr_core_tick();   /* conversions started, not in: the output holds */
+    lr_core_tick();   /* overrun: nothing new read, nothing new written */
+    CHECK(dac_hw == 3072, "an overrun holds the output (word %u)", dac_hw);
+    adc_auto = 1; adc_pending = 0;
+    lr_core_sample_done(520, 500, 0);
+    CHECK(dac_hw == 2048 + 387, "the late sample's output (word %u)", dac_hw);
+    for (int i = 0; i < 6; i++) { lr_core_tick(); now_ms++; lr_core_poll(); }
+    collect();
+    CHECK(dac_hw == 2048 && find(LR_DONE) >= 0, "0 V at the end (word %u)", dac_hw);
+    uint32_t seen = 0, ok = 0;
+    for (int i = 0; i < nmsgs; i++) {
+        if (msgs[i].type != LR_SAMPLES) continue;
+        for (int j = 0; j < msgs[i].body[4]; j++) {
+            const uint8_t *p = msgs[i].body + 5 + j * LR_SAMPLE_BYTES;
+            uint32_t idx = lr_get32(msgs[i].body) + (uint32_t)j;
+            uint16_t want_ref = idx < 2 ? 512 : 600;
+            uint16_t want_dac = idx < 2 ? 2048 + 43 : idx == 2 ? 2048 + 387 : idx == 3 ? 2048 - 394 : 0;
+            seen++;
+            if (lr_get16(p + 6) == want_ref && (!want_dac || lr_get16(p) == want_dac)) ok++;
+        }
+    }
+    CHECK(seen >= 8 && ok == seen, "samples record the loop's output and reference (%u of %u)", ok, seen);
+
+    /* a trip: the tripping sample's output is 0 V, not the PD's */
+    reset_all();
+    adc_vals[0] = 520; adc_vals[1] = 500;
+    n = cfg_body(b, LR_LOOP_BOARD, LR_WAVE_CONSTANT, 1000, 1000, 0, 0, 1024, 3072, 500, lv, 1);
+    lr_put16(b + n, 512); lr_put16(b + n + 2, 512);
+    host_send(LR_CONFIGURE, 1, b, n + 4);
+    host_send(LR_LIMITS, 2, lb, limits_body(lb, LR_TRIP_SPEED, 0, 600, 0, 0));
+    host_send(LR_START, 3, NULL, 0);
+    for (int i = 0; i < 3; i++) lr_core_poll();
+    lr_core_tick();
+    CHECK(dac_hw == 2048 + 387, "inside the limits: the PD's output");
+    adc_vals[0] = 601;
+    lr_core_tick();
+    CHECK(dac_hw == 2048 && !timer_on, "over-speed under the board's loop: 0 V (word %u)", dac_hw);
+    adc_vals[0] = 100; adc_vals[1] = 200;
+
+    /* loop 2 is the MS150 build's: beyond it, a bad configure */
+    reset_all();
+    n = cfg_body(b, 3, LR_WAVE_CONSTANT, 1000, 10, 0, 0, 1024, 3072, 500, lv, 1);
+    host_send(LR_CONFIGURE, 1, b, n);
+    lr_core_poll(); collect();
+    k = find(LR_ERROR);
+    CHECK(k >= 0 && msgs[k].body[0] == LR_ERR_BAD_CONFIG, "an unknown loop refused");
+}
+
 int main(int argc, char **argv)
 {
     test_vectors(argc > 1 ? argv[1] : "test_vectors.json");
@@ -894,6 +980,7 @@ int main(int argc, char **argv)
     test_trips();
     test_estop();
     test_board_id();
+    test_board_loop();
     printf("%d passed, %d failed\n", passed, failed);
     return failed ? 1 : 0;
 }

@@ -111,11 +111,13 @@ def check_board(rig, hello: dict, port: str) -> None:
                        f"{flash} (2.1 or later), or set index_counts = 0")
 
 
-def words_block(first: int, w, s, closed: bool):
+def words_block(first: int, w, s, closed: bool, board: bool = False):
     """A SAMPLES frame's words (``w``, n x 4, from sample ``first``) as a block: raw volts
     from the MS150 bridge; from an H-bridge board (:func:`hbridge_block`) the output in
     volts of the supply and the encoder's signed count. ``s``: the bridge settings;
-    ``closed``: the run is a closed loop."""
+    ``closed``: the run is a closed loop; ``board``: one the MS150 board closed itself,
+    whose input is then the reference it aimed at (in the axis's unit, from its pot word)
+    and whose output its drive."""
     import numpy as np
 
     from labrig.bridge.base import SampleBlock
@@ -125,6 +127,13 @@ def words_block(first: int, w, s, closed: bool):
     u = dac_word_to_volts(w[:, 0], s)
     if s.firmware == "hbridge":
         return hbridge_block(index, w, u, s, closed)
+    if board:
+        from labrig.bridge.settings import sensor_words
+
+        sw = sensor_words(s)
+        return SampleBlock(index=index, u=(w[:, 3] - sw["pos_zero"]) / sw["counts_per_unit"],
+                           tacho=adc_counts_to_volts(w[:, 1], "tacho", s),
+                           pos=adc_counts_to_volts(w[:, 2], "pos", s), drive=u)
     return SampleBlock(index=index, u=u, tacho=adc_counts_to_volts(w[:, 1], "tacho", s),
                        pos=adc_counts_to_volts(w[:, 2], "pos", s),
                        ref=adc_counts_to_volts(w[:, 3], "ref", s))

@@ -41,9 +41,14 @@ TYPE_NAMES = {
     HELLO: "HELLO", SAMPLES: "SAMPLES", STATUS: "STATUS", DONE: "DONE", ERROR: "ERROR",
     INDEX: "INDEX",
 }
-LOOPS = {"open": 0, "closed": 1}
+#: ``board``: the MS150 build closes the position loop itself on the pot and tacho words
+#: it samples (firmware 2.4); ``closed`` on the MS150 is the rig's analog loop, on the
+#: H-bridge the board's PD on its count
+LOOPS = {"open": 0, "closed": 1, "board": 2}
 #: HELLO capability bit of the pwl waveform (bits 0-3: constant, square, step, staircase)
 CAP_PWL = 0x10
+#: HELLO capability bit of the board's own loop on its sensors (loop ``board``)
+CAP_BOARD_LOOP = 0x20
 #: the longest pwl piece the firmware plays (samples between two breakpoints)
 MAX_PIECE = 0x7FFF
 
@@ -252,11 +257,13 @@ def configure_body(*, loop: str, waveform: str, sample_rate_hz: int, n_samples: 
                    dac_max: int, watchdog_ms: int, levels: list[int],
                    position_gain: float = 0.0, velocity_gain: float = 0.0,
                    pieces: list[int] | None = None,
-                   gain_words: tuple[int, int] | None = None) -> bytes:
+                   gain_words: tuple[int, int] | None = None,
+                   board_loop: tuple[int, int] | None = None) -> bytes:
     """Body of a CONFIGURE message; all levels and limits in DAC words. A ``pwl``
     waveform's ``levels`` are its breakpoints and ``pieces`` the samples between them.
     ``gain_words`` are a digital loop's PD gains as the board takes them (Q8.8), in place
-    of the gains x 100 an MS150 run records."""
+    of the gains x 100 an MS150 run records. A ``board`` loop's levels are pot words and
+    ``board_loop`` its tail: the lead-in's reference word and the tacho's word at rest."""
     if not 1 <= len(levels) <= MAX_LEVELS:
         raise ValueError(f"1..{MAX_LEVELS} levels, got {len(levels)}")
     pieces = list(pieces or [])
@@ -271,8 +278,11 @@ def configure_body(*, loop: str, waveform: str, sample_rate_hz: int, n_samples: 
         *(gain_words if gain_words is not None else
           (int(round(position_gain * 100)) & 0xFFFF, int(round(velocity_gain * 100)) & 0xFFFF)),
         len(levels))
+    if (loop == "board") != (board_loop is not None):
+        raise ValueError("a board loop, and only it, ends with its lead-in and tacho words")
+    tail = struct.pack("<2H", *board_loop) if board_loop is not None else b""
     return (head + struct.pack(f"<{len(levels)}H", *[int(v) for v in levels])
-            + struct.pack(f"<{len(pieces)}H", *[int(v) for v in pieces]))
+            + struct.pack(f"<{len(pieces)}H", *[int(v) for v in pieces]) + tail)
 
 
 def parse_configure(body: bytes) -> dict:
@@ -291,11 +301,14 @@ def parse_configure(body: bytes) -> dict:
     d["velocity_gain"] /= 100.0
     n = d.pop("n_levels")
     k = n - 1 if d["waveform"] == "pwl" and n else 0
-    if not 1 <= n <= MAX_LEVELS or len(body) != _CONFIGURE_FIXED.size + 2 * n + 2 * k:
+    tail = 4 if d["loop"] == "board" else 0
+    if not 1 <= n <= MAX_LEVELS or len(body) != _CONFIGURE_FIXED.size + 2 * n + 2 * k + tail:
         raise BodyError(f"CONFIGURE of {len(body)} bytes does not match its level count {n}")
     d["levels"] = list(struct.unpack_from(f"<{n}H", body, _CONFIGURE_FIXED.size))
     if d["waveform"] == "pwl":
         d["pieces"] = list(struct.unpack_from(f"<{k}H", body, _CONFIGURE_FIXED.size + 2 * n))
+    if tail:
+        d["ref_lead"], d["tacho_zero"] = struct.unpack_from("<2H", body, len(body) - 4)
     return d
 
 

@@ -8,6 +8,7 @@ import numpy as np
 from labrig.bridge import protocol as P
 from labrig.bridge.base import SampleBlock
 from labrig.bridge.hbridge import encoder_record, words_block
+from labrig.bridge.settings import is_board_loop
 
 #: STATUS counters that add up over a session (a run's are differences)
 _BOARD_CUMULATIVE = ("samples_sent", "rx_crc_errors", "rx_overruns", "watchdog_trips")
@@ -21,8 +22,9 @@ class RunRecord:
         """A SAMPLES frame's words as a block: raw volts from the MS150 bridge; from an
         H-bridge board the output in volts of the supply and the encoder's signed count
         (the rig's ``pos`` unit is counts: ``sensors.encoder_counts_per_unit``)."""
-        blk = words_block(first, w, self.settings,
-                          self._exp is not None and self._exp.loop == "closed")
+        exp = self._exp
+        blk = words_block(first, w, self.settings, exp is not None and exp.loop == "closed",
+                          exp is not None and is_board_loop(exp, self.settings))
         if self.settings.firmware == "hbridge":   # the run's lowest and highest count
             lo, hi, r = int(blk.pos.min()), int(blk.pos.max()), self._count_range
             self._count_range = (lo, hi) if r is None else (min(r[0], lo), max(r[1], hi))

@@ -45,6 +45,11 @@ class BridgeSettings:
     current_zero_v: float = 0.0
     #: the encoder's counts per unit of the axis (an H-bridge rig's closed loop works in them)
     counts_per_unit: float = 0.0
+    #: the sensors the MS150 board's own loop reads: the pot's volts per unit of the axis
+    #: and at 0, the tacho's volts per unit/s of the motor (the rig's ``[sensors]``)
+    pos_v_per_unit: float = 0.0
+    pos_zero_v: float = 0.0
+    tacho_v_per_unit_s: float = 0.0
     dac_gain: float = 1.0
     dac_offset_v: float = 0.0
     tacho_gain: float = 1.0
@@ -77,6 +82,8 @@ def bridge_settings(rig: RigConfig) -> BridgeSettings:
         adc_bits=int(b.adc_bits), adc_range_v=tuple(float(v) for v in b.adc_range_v),
         watchdog_ms=int(b.watchdog_ms), firmware=b.firmware, current_sense=bool(b.current_sense),
         counts_per_unit=float(rig.sensors.encoder_counts_per_unit),
+        pos_v_per_unit=float(rig.sensors.pos_v_per_rad), pos_zero_v=float(rig.sensors.pos_offset_v),
+        tacho_v_per_unit_s=float(rig.sensors.tacho_v_per_rad_s),
         current_zero_v=float(rig.sensors.current_zero_v),
         **{f"{k}_gain": float(cal.get(f"{k}_gain", 1.0)) for k in CAL_CHANNELS},
         **{f"{k}_offset_v": float(cal.get(f"{k}_offset_v", 0.0)) for k in CAL_CHANNELS})
@@ -141,6 +148,76 @@ def pd_output(kp_q: int, kd_q: int, ref: np.ndarray, x: np.ndarray) -> np.ndarra
     return (kp_q * e - kd_q * v) >> 8
 
 
+def is_board_loop(exp: Experiment, s: BridgeSettings) -> bool:
+    """``exp`` is a closed loop the MS150 board closes itself (``closed_by = "board"``)."""
+    return exp.loop == "closed" and exp.closed_by == "board" and s.firmware == "ms150"
+
+
+def sensor_words(s: BridgeSettings) -> dict:
+    """The MS150 board's sensors as its ADC sees them: the pot's words per unit of the axis
+    (``counts_per_unit``) and its word at 0 (``pos_zero``), the tacho's words per unit/s of
+    the motor and its word at rest (``tacho_zero``, and the whole word the board subtracts,
+    ``tacho_zero_word``), the largest word; fractional words where the physics puts them
+    (a word is ``round`` of them, as the ADC codes a voltage)."""
+    lo, hi = s.adc_range_v
+    per_v = 2 ** s.adc_bits / (hi - lo)   # words per volt at the ADC's range
+    tz = ((0.0 - s.tacho_offset_v) / s.tacho_gain - lo) * per_v
+    return {"counts_per_unit": s.pos_v_per_unit / s.pos_gain * per_v,
+            "pos_zero": ((s.pos_zero_v - s.pos_offset_v) / s.pos_gain - lo) * per_v,
+            "tacho_counts_per_unit_s": s.tacho_v_per_unit_s / s.tacho_gain * per_v,
+            "tacho_zero": tz, "tacho_zero_word": int(round(tz)), "word_max": 2 ** s.adc_bits - 1}
+
+
+def sensor_gain_words(exp: Experiment, s: BridgeSettings) -> tuple[int, int]:
+    """The MS150 board's loop gains in its own units: Q8.8 DAC counts per pot word of
+    error and per tacho word, so that its output is ``position_gain (ref - pot) -
+    velocity_gain tacho`` in sensor volts, as the analog loop's is.
+
+    Raises
+    ------
+    UserError
+        A gain the board's 16 bits cannot hold.
+    """
+    lo, hi = s.adc_range_v
+    volts_per_word = (hi - lo) / 2 ** s.adc_bits
+    per_volt = 2 ** s.dac_bits / (s.dac_range_v[1] - s.dac_range_v[0]) / s.dac_gain
+    kp_q = int(round(exp.position_gain * s.pos_gain * volts_per_word * per_volt * 256))
+    kd_q = int(round(exp.velocity_gain * s.tacho_gain * volts_per_word * per_volt * 256))
+    if not (0 <= kp_q <= 0xFFFF and 0 <= kd_q <= 0xFFFF):
+        top = 0xFFFF / 256 / (volts_per_word * per_volt)
+        raise UserError(f"experiment {exp.name!r}: loop gains position_gain "
+                        f"{exp.position_gain:g}, velocity_gain {exp.velocity_gain:g} do not fit "
+                        f"the board's loop (at most {top / s.pos_gain:.3g} and "
+                        f"{top / s.tacho_gain:.3g} V per V, none negative)")
+    return kp_q, kd_q
+
+
+def board_reference_words(exp: Experiment, s: BridgeSettings, levels_v) -> list[int]:
+    """The pot words the MS150 board's loop aims at for reference ``levels_v`` (volts of
+    the pot about its 0, as the analog loop reads them)."""
+    w = sensor_words(s)
+    words = [int(round(v / s.pos_v_per_unit * w["counts_per_unit"] + w["pos_zero"]))
+             for v in levels_v]
+    if any(not 0 <= x <= w["word_max"] for x in words):
+        raise UserError(f"experiment {exp.name!r}: a reference beyond the pot's range (the "
+                        "board's loop aims at a pot word its ADC can read)")
+    return words
+
+
+def sensor_pd(exp: Experiment, s: BridgeSettings, hello: dict | None = None) -> dict:
+    """How the MS150 board closes ``exp``'s loop, for the run's sidecar
+    (``experiment.controller.sampled``, ``feedback = "sensors"``): its Q8.8 gains, its
+    sensors' words (:func:`sensor_words`), the input volts of one DAC count and the
+    output's limits in counts about zero, so that the model runs the board's own law."""
+    kp_q, kd_q = sensor_gain_words(exp, s)
+    zero = volts_to_dac_word(0.0, s)
+    wmin, wmax = output_words(s, hello or {})
+    return {"kp_q": kp_q, "kd_q": kd_q, "feedback": "sensors", **sensor_words(s),
+            "volts_per_count": float((s.dac_range_v[1] - s.dac_range_v[0]) / 2 ** s.dac_bits
+                                     * s.dac_gain),
+            "limits": [int(wmin - zero), int(wmax - zero)]}
+
+
 def output_words(s: BridgeSettings, hello: dict) -> tuple[int, int]:
     """The output words a run may use: the rig's output limit either way, within the
     firmware's own limits (HELLO's ``fw_dac_min``/``fw_dac_max``; missing: the DAC's)."""
@@ -165,11 +242,15 @@ def sampled_pd(exp: Experiment, s: BridgeSettings, hello: dict | None = None) ->
 
 
 def board_law(exp: Experiment, rig, hello: dict | None = None) -> dict | None:
-    """The law an H-bridge board closes ``exp``'s loop by (:func:`sampled_pd` of the rig's
-    settings), or None: an open-loop run, or a rig whose loop is not the board's."""
-    if exp.loop != "closed" or rig.bridge.firmware != "hbridge":
+    """The law a board closes ``exp``'s loop by (an H-bridge board's :func:`sampled_pd`, the
+    MS150 board's own loop's :func:`sensor_pd`), or None: an open-loop run, or a loop that
+    is not the board's."""
+    if exp.loop != "closed":
         return None
-    return sampled_pd(exp, bridge_settings(rig), hello)
+    s = bridge_settings(rig)
+    if is_board_loop(exp, s) and not rig.digital_loop:
+        return sensor_pd(exp, s, hello)
+    return sampled_pd(exp, s, hello) if rig.bridge.firmware == "hbridge" else None
 
 
 def waveform_levels(exp: Experiment) -> list[float]:
@@ -240,7 +321,14 @@ def experiment_body(exp: Experiment, s: BridgeSettings, hello: dict) -> bytes:
             raise UserError(f"experiment {exp.name!r}: pwl breakpoints must lie 1 to "
                             f"{P.MAX_PIECE} samples apart at {rate} Hz")
     digital = s.firmware == "hbridge" and exp.loop == "closed"
-    if digital:   # the board's PD on the count: its references are counts
+    board = is_board_loop(exp, s)
+    if board and not hello.get("capabilities", 0) & P.CAP_BOARD_LOOP:
+        raise UserError(f"experiment {exp.name!r}: this board's firmware does not close the "
+                        "loop itself (closed_by = \"board\"); update it (`labrig flash "
+                        "--board BOARD`)")
+    if board:   # the board's loop on its sensors: its references are pot words
+        levels = board_reference_words(exp, s, levels_v)
+    elif digital:   # the board's PD on the count: its references are counts
         levels = [REF_ZERO + int(round(v * s.counts_per_unit)) for v in levels_v]
         if any(not 0 <= w <= 0xFFFF for w in levels):
             raise UserError(f"experiment {exp.name!r}: a reference beyond +-32767 counts "
@@ -249,7 +337,7 @@ def experiment_body(exp: Experiment, s: BridgeSettings, hello: dict) -> bytes:
         levels = [volts_to_dac_word(v, s) for v in levels_v]
     zero = volts_to_dac_word(0.0, s)
     wmin, wmax = output_words(s, hello)
-    if any(not wmin <= w <= wmax for w in ([] if digital else levels) + [zero]):
+    if any(not wmin <= w <= wmax for w in ([] if digital or board else levels) + [zero]):
         lo_v, hi_v = dac_word_to_volts([hello.get("fw_dac_min", 0),
                                         hello.get("fw_dac_max", 2 ** s.dac_bits - 1)], s)
         raise UserError(f"experiment {exp.name!r} needs DAC words beyond the firmware limit "
@@ -261,9 +349,13 @@ def experiment_body(exp: Experiment, s: BridgeSettings, hello: dict) -> bytes:
     else:
         segment = 0
     closed = exp.loop == "closed"
-    gain_words = pd_gain_words(exp, s) if digital else None
-    return P.configure_body(gain_words=gain_words,
-        loop=exp.loop, waveform=exp.waveform, sample_rate_hz=rate, n_samples=int(exp.n_samples),
+    gain_words = pd_gain_words(exp, s) if digital else sensor_gain_words(exp, s) if board else None
+    tail = None
+    if board:   # the lead-in holds the shaft at the pot's 0, as the analog loop's 0 V does
+        w = sensor_words(s)
+        tail = (int(round(w["pos_zero"])), w["tacho_zero_word"])
+    return P.configure_body(gain_words=gain_words, board_loop=tail,
+        loop="board" if board else exp.loop, waveform=exp.waveform, sample_rate_hz=rate, n_samples=int(exp.n_samples),
         lead_in_samples=int(round(exp.lead_in_s * rate)), segment_samples=segment,
         dac_zero=zero, dac_min=wmin, dac_max=wmax, watchdog_ms=s.watchdog_ms, levels=levels,
         position_gain=exp.position_gain if closed else 0.0,

@@ -140,32 +140,39 @@ class SimRig(Bridge):
         dt = 1.0 / exp.sample_rate_hz
         t = np.arange(exp.n_samples) * dt
         sampled = board_law(exp, rig)
-        if sampled:   # the board's reference: whole counts, not a DAC's volts
+        sensors = bool(sampled) and sampled.get("feedback") == "sensors"
+        s = rig.sensors
+        if sensors:   # the MS150 board's reference: a pot word, as output rad
+            cpu, pz = sampled["counts_per_unit"], sampled["pos_zero"]
+            u = (np.round(exp.waveform_at(t) / s.pos_v_per_rad * cpu + pz) - pz) / cpu
+        elif sampled:   # the board's reference: whole counts, not a DAC's volts
             cpu = sampled["counts_per_unit"]
             u = np.round(exp.waveform_at(t) * cpu) / cpu
         else:
             u = quantise(exp.waveform_at(t), br.dac_bits, *br.dac_range_v)
-        sim = simulate_truth(self.params, u, dt, effects=self.effects,
-                             effect_params=self._effect_params, loop=exp.loop,
-                             kp=exp.position_gain, kv=exp.velocity_gain,
-                             substeps=self.substeps, rail_v=rig.amplifier.output_limit_v,
-                             sampled=sampled)
         # one stream per experiment name: adding an experiment never changes the others
         rng = np.random.default_rng([self.seed, zlib.crc32(exp.name.encode())])
-        s = rig.sensors
         lo, hi = br.adc_range_v
         # the noise streams are drawn in the same order whatever the rig has, so adding
         # a channel never changes the others
         n_tacho = rng.normal(0, rig.noise.tacho_v, len(t))
         n_pos = rng.normal(0, rig.noise.pos_v, len(t))
+        q = (hi - lo) / 2 ** br.adc_bits
+        sim = simulate_truth(self.params, u, dt, effects=self.effects,
+                             effect_params=self._effect_params, loop=exp.loop,
+                             kp=exp.position_gain, kv=exp.velocity_gain,
+                             substeps=self.substeps, rail_v=rig.amplifier.output_limit_v,
+                             sampled=sampled, sensor_noise=(n_tacho / q, n_pos / q))
         tacho = None
-        if s.tacho_v_per_rad_s > 0:
-            tacho = quantise(s.tacho_v_per_rad_s * sim["w"] + n_tacho, br.adc_bits, lo, hi)
-        if s.encoder_counts_per_unit > 0:  # counts: exact edges, no analog noise
+        if sensors:   # the words the board's loop read are the run's
+            tacho, pos = lo + sim["tacho_word"] * q, lo + sim["pos_word"] * q
+        elif s.encoder_counts_per_unit > 0:  # counts: exact edges, no analog noise
             pos = np.floor(sim["theta"] * s.encoder_counts_per_unit + 0.5)
         else:
             pos = quantise(s.pos_v_per_rad * sim["theta"] + s.pos_offset_v + n_pos,
                            br.adc_bits, lo, hi)
+        if s.tacho_v_per_rad_s > 0 and not sensors:
+            tacho = quantise(s.tacho_v_per_rad_s * sim["w"] + n_tacho, br.adc_bits, lo, hi)
         current = None
         if s.current_v_per_a > 0:
             n_cur = rng.normal(0, rig.noise.current_v, len(t))

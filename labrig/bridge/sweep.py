@@ -89,25 +89,27 @@ def acquire(bridge: Bridge, exp: Experiment, rig, progress: Callable[[int], None
 
 
 def check_gains_applied(exp: Experiment, rig) -> None:
-    """A closed-loop run on the MS150 board is closed by the rig's patch panel, not by the
-    board: its gains must be the ones the rig file says are patched.
+    """A closed-loop run on the MS150 board is closed by the board itself (``closed_by =
+    "board"``: the plan's gains, applied by the board) or by the rig's patch panel: its
+    gains must then be the ones the rig file says are patched.
 
     Raises
     ------
     UserError
-        The rig file says nothing of its patched loop, or the experiment asks for other
+        An analog loop whose rig file says nothing of its patch, or that asks for other
         gains than it says are patched.
     """
     from labrig.io.config import patched_gains
 
-    if exp.loop != "closed" or rig.bridge.firmware != "ms150":
+    if exp.loop != "closed" or rig.bridge.firmware != "ms150" or exp.closed_by == "board":
         return
     gains = patched_gains(rig)
     if gains is None:
         raise UserError(
             f"plan experiment '{exp.name}': a closed-loop run on the MS150 is closed by the "
-            "rig's patch panel, and the board does not apply a plan's gains: write the gains "
-            "as patched in the rig file ([bridge] loop_kp and loop_kv; see "
+            "rig's patch panel unless the board closes it, and the board does not apply a plan's "
+            "gains to a loop it does not close: write closed_by = \"board\" in the plan, or the "
+            "gains as patched in the rig file ([bridge] loop_kp and loop_kv; see "
             "docs/hardware.md, 'The MS150 loop, patched on the rig')")
     asked = (float(exp.position_gain), float(exp.velocity_gain))
     if max(abs(a - g) for a, g in zip(asked, gains)) > 1e-9:
@@ -133,13 +135,15 @@ def check_plan(plan: list[Experiment], rig, *, board: bool = False) -> None:
     for exp in plan:
         if board:
             check_gains_applied(exp, rig)
-    loops = {e.loop for e in plan}
-    if board and rig.bridge.firmware == "ms150" and len(loops) > 1:
+    # patched for the analog loop, or open (the bridge drives the amplifier: open-loop runs
+    # and the loops the board closes itself)
+    analog = {e.loop == "closed" and e.closed_by != "board" for e in plan}
+    if board and rig.bridge.firmware == "ms150" and len(analog) > 1:
         raise UserError(
-            "plan: it mixes open- and closed-loop runs, but on the MS150 the loop is closed "
-            "by patching (the bridge drives the amplifier, or the summing junction's "
-            "reference): play the open-loop runs and the closed-loop runs as two plans and "
-            "re-patch between them (both may write into the same folder)")
+            "plan: it mixes runs through the rig's analog loop with runs where the bridge drives "
+            "the amplifier (open loops, and loops the board closes itself), but on the MS150 "
+            "the analog loop is closed by patching: play them as two plans and re-patch between "
+            "them (both may write into the same folder), or write closed_by = \"board\"")
 
     limit = rig.bridge.output_limit_v
     for exp in plan:

@@ -101,7 +101,9 @@ class Evaluation(Displayable):
         out = []
         for rr in self.per_run:
             ch = rr["channels"]
-            st = sorted((s for c in ch.values() for s in c["stretches"]), key=lambda s: -s["rms"])
+            # (an evaluation without detail has no stretches)
+            st = sorted((s for c in ch.values() for s in c.get("stretches", ())),
+                        key=lambda s: -s["rms"])
             out.append({"run": rr["name"],
                         "fit_percent": {k: c["fit_percent"] for k, c in ch.items()},
                         "rmse_over_noise": {k: c["rmse_over_noise"] for k, c in ch.items()},

@@ -158,12 +158,22 @@ class RigConfig:
         encoder or no tacho), not the MS150's analog loop on sensor volts."""
         return self.sensors.encoder_counts_per_unit > 0 or self.sensors.tacho_v_per_rad_s == 0
 
+    def board_loop(self, exp) -> bool:
+        """``exp`` is a closed loop the MS150 board closes itself, on its pot and tacho."""
+        return exp.loop == "closed" and exp.closed_by == "board" and \
+            self.bridge.firmware == "ms150" and not self.digital_loop
+
     def controller_sidecar(self, exp) -> dict | None:
-        """The ``experiment.controller`` of a closed-loop run on a digital loop."""
-        if exp.loop != "closed" or not self.digital_loop:
+        """The ``experiment.controller`` of a closed-loop run on a digital loop: in the axis's
+        units (the MS150 board's loop, on sensor volts, as ``kp Kpot`` V per rad and ``kv Kt
+        N`` V per rad/s of the axis)."""
+        if exp.loop != "closed" or not (self.digital_loop or self.board_loop(exp)):
             return None
-        return {"kind": "pd", "kp": float(exp.position_gain), "kd": float(exp.velocity_gain),
-                "ki": 0.0, "feedback": "position"}
+        kp, kd = float(exp.position_gain), float(exp.velocity_gain)
+        if self.board_loop(exp):
+            s = self.sensors
+            kp, kd = kp * s.pos_v_per_rad, kd * s.tacho_v_per_rad_s * self.gear_ratio
+        return {"kind": "pd", "kp": kp, "kd": kd, "ki": 0.0, "feedback": "position"}
 
     def sensors_sidecar(self) -> dict:
         s = self.sensors
@@ -274,9 +284,17 @@ def patched_gains(rig: RigConfig) -> tuple[float, float] | None:
 
 def _patched_plan(where: str, e: dict, rig: RigConfig | None) -> None:
     """A closed-loop experiment on a rig whose loop is patched takes the patch's gains; a
-    plan that asks for others is refused: nothing on the rig would apply them."""
+    plan that asks for others is refused: nothing on the rig would apply them. A loop the
+    board closes takes the plan's; ``closed_by`` is the MS150's choice."""
+    by = e.get("closed_by")
+    if by is not None and e.get("loop") != "closed":
+        raise ConfigError(f"{where}: closed_by = {by!r} belongs to a closed-loop experiment "
+                          "(loop = \"closed\"); remove it")
+    if by == "analog" and rig is not None and rig.bridge.firmware != "ms150":
+        raise ConfigError(f"{where}: closed_by = \"analog\", but the {rig.bridge.firmware} "
+                          "board closes its loop itself; remove the key or write \"board\"")
     gains = patched_gains(rig) if rig is not None else None
-    if gains is None or e.get("loop") != "closed":
+    if gains is None or e.get("loop") != "closed" or by == "board":
         return
     for key, patched, knob in (("position_gain", gains[0], "loop_kp"),
                                ("velocity_gain", gains[1], "loop_kv")):
@@ -396,7 +414,10 @@ def load_plan(path: Path | str | None = None, rig: RigConfig | None = None) -> l
     rate = rig.bridge.sample_rate_hz if rig else 1000.0
     out: list[Experiment] = []
     for k, spec in enumerate(plan.experiment, 1):
-        raw = {**defaults, **spec.model_dump(exclude_unset=True)}
+        own = spec.model_dump(exclude_unset=True)
+        raw = {**defaults, **own}
+        if raw.get("loop") != "closed" and "closed_by" not in own:
+            raw.pop("closed_by", None)   # a default for the plan's closed loops
         amps = raw.pop("amplitudes_v", None)
         raw.setdefault("sample_rate_hz", rate)
         for amp in (amps if amps is not None else [raw.get("amplitude_v", 1.5)]):

@@ -32,7 +32,8 @@ class Experiment:
     """One experiment of a sweep plan, in bridge volts and seconds.
 
     ``loop`` is ``"open"`` (the bridge drives the amplifier input) or ``"closed"``
-    (the bridge drives the reference of a position loop with tacho feedback).
+    (a position loop with tacho feedback: the bridge drives its reference, or, with
+    ``closed_by = "board"``, the board closes it on the sensors it samples).
     ``waveform`` is ``square`` (+-amplitude about offset, starting positive),
     ``step`` (0 -> amplitude after the lead-in), ``staircase`` (``levels`` in turn,
     each held for ``step_s``), ``constant`` or ``pwl`` (piecewise linear through
@@ -57,6 +58,11 @@ class Experiment:
     points: list = field(default_factory=list)
     #: the two effects this experiment was proposed to tell apart (``labrig propose``)
     between: list = field(default_factory=list)
+    #: who closes an MS150's loop: ``"analog"`` its patch panel (gains as patched, the
+    #: output the reference) or ``"board"`` the board itself, at each sample from the pot
+    #: and tacho it reads (the plan's gains, the output the amplifier's input); None: the
+    #: rig's way (the MS150's analog loop; an H-bridge board always closes its own)
+    closed_by: str | None = None
 
     @property
     def total_s(self) -> float:
@@ -121,6 +127,8 @@ class Experiment:
             d.pop("points")
         if not self.between:
             d.pop("between")
+        if d.get("closed_by") is None:
+            d.pop("closed_by")
         if d.get("duration_s") is None:
             d.pop("duration_s")
         return d

@@ -26,7 +26,8 @@ import pandas as pd
 
 from labrig.core.errors import RunFileError, UserError
 from labrig.model.plants import AXES, check_axis
-from labrig.core.schemas import RUN_NAME_MAX, Controller, Sidecar, check_run_name, validate
+from labrig.core.schemas import RUN_NAME_MAX, check_run_name, validate
+from labrig.core.sidecar_schema import Controller, Sidecar
 from labrig.io.exportfile import CsvLayout, read_export
 from labrig.io.runs import Run, make_meta, read_run, write_run
 from labrig.io.matfile import read_mat_columns

@@ -318,7 +318,8 @@ def natural_key(name: str) -> tuple:
 def _read_sidecar(json_path: Path, csv_path: Path) -> dict:
     # core.schemas brings pydantic (~0.07 s more to import): not for a module that only
     # needs Run (analysis, the sweep), only once a run is read
-    from labrig.core.schemas import Sidecar, read_json, validate
+    from labrig.core.schemas import read_json, validate
+    from labrig.core.sidecar_schema import Sidecar
 
     if not json_path.exists():
         raise RunFileError(f"{json_path}: sidecar missing for {csv_path.name}; every run "

@@ -35,8 +35,7 @@ from labrig.simulation.layout import (C_A, C_ASYM, C_D, C_GAP0, C_I0, C_KE, C_TC
                                  MAP_COLUMNS, N_COLS, N_SLOTS, S_FLAT, S_NEG, S_NEG_GAP, S_POS,
                                  S_POS_GAP, SLOT_W, T_OK)
 from labrig.simulation.kernels import run_kernels
-from labrig.simulation.sampled_kernel import (D_CPU, D_HI, D_KD, D_KP, D_LO, D_VPC, pd_counts,
-                                              run_sampled)
+from labrig.simulation.sampled_kernel import first_output, pd_constants, run_sampled
 from labrig.model.sensors import windowed_speed
 from labrig.model.start import initial_current
 from labrig.model.plants import VoltagePlant
@@ -118,9 +117,7 @@ class RunData:
         theta0 = float(np.mean(th[first])) if th is not None and len(first) else 0.0
         gains = run.gains or {"kp": 0.0, "kv": 0.0}  # open loop: no feedback
         sampled = (run.controller or {}).get("sampled")
-        pd = None if not sampled else np.array(
-            [sampled["kp_q"], sampled["kd_q"], sampled["counts_per_unit"],
-             sampled["volts_per_count"], *sampled["limits"]], float)
+        pd = None if not sampled else pd_constants(sampled)
         return cls(name=run.name, u=run.u.astype(float), dt=run.dt, loop=run.loop, pd=pd,
                    kp=gains["kp"], kv=gains["kv"], **run.constants,
                    w=run.speed, theta=th, theta0=theta0, amplitude=run.amplitude,
@@ -281,11 +278,9 @@ class Simulator:
         drive from the start state (the current settles within the electrical lag)."""
         P = prm.shape[0]
         u = np.full((1, P), float(run.u[0])) + self._bias(ep, P)[None, :]
-        if run.pd is not None:   # the board's first output: its count is 0, its change 0
-            pd = run.pd
-            o = pd_counts(pd[D_KP], pd[D_KD], round(float(run.u[0]) * pd[D_CPU]), 0.0,
-                          pd[D_LO], pd[D_HI])
-            u = np.full((1, P), o * pd[D_VPC]) + self._bias(ep, P)[None, :]
+        if run.pd is not None:   # the board's first output, on its count or its sensors
+            o = first_output(run.pd, float(run.u[0]), run.theta0 + prm[:, C_TH0], prm[:, C_W0])
+            u = o[None, :] + self._bias(ep, P)[None, :]
             return np.asarray(self._through_maps(u, ep, run.Ka), float)[0]
         if run.loop == "closed":
             th = (run.theta0 + prm[:, C_TH0])

@@ -24,7 +24,7 @@ def simulate_truth(p: ServoParams, u: np.ndarray, dt: float, *, effects=(),
                    effect_params: dict | None = None, loop: str = "open",
                    kp: float | None = None, kv: float | None = None, substeps: int = 20,
                    x0=(0.0, 0.0, 0.0), rail_v: float = np.inf,
-                   sampled: dict | None = None) -> dict:
+                   sampled: dict | None = None, sensor_noise=None) -> dict:
     """Simulate one run.
 
     Parameters
@@ -49,12 +49,19 @@ def simulate_truth(p: ServoParams, u: np.ndarray, dt: float, *, effects=(),
         :func:`labrig.bridge.settings.sampled_pd` gives it): at each sample the count of
         the output shaft (rounded, as the simulated rig records it) from the run's start
         against ``u`` in counts, its change over one sample, the output held to the next.
+        With ``feedback = "sensors"`` the MS150 board's own loop
+        (:func:`labrig.bridge.settings.sensor_pd`): the pot's and the tacho's ADC words,
+        ``u`` the reference in output rad.
+    sensor_noise : (array, array), optional
+        The tacho's and the pot's noise in ADC words, sample by sample: what the board's loop
+        on its sensors reads with them (the run records the same words).
 
     Returns
     -------
     dict with ``w`` (motor rad/s), ``theta`` (output rad, after backlash),
     ``theta_m`` (motor rad), ``i`` (A), all sampled at t_k; with ``sampled``, ``drive``
-    (the board's output, V).
+    (the board's output, V), and on sensors the words it read (``tacho_word``,
+    ``pos_word``).
     """
     effect_params = effect_params or {}
     if loop == "closed" and (kp is None or kv is None):
@@ -83,14 +90,28 @@ def simulate_truth(p: ServoParams, u: np.ndarray, dt: float, *, effects=(),
         kq, dq = float(sampled["kp_q"]), float(sampled["kd_q"])
         cpu, vpc = float(sampled["counts_per_unit"]), float(sampled["volts_per_count"])
         lo, hi = (float(v) for v in sampled["limits"])
-        ref = np.round(u * cpu)   # the board's reference words: counts from the run's start
+        sensors = sampled.get("feedback") == "sensors"
+        if sensors:   # pot and tacho words, as the board's ADC codes them
+            pz, tpu = float(sampled["pos_zero"]), float(sampled["tacho_counts_per_unit_s"])
+            tz, tzw = float(sampled["tacho_zero"]), int(sampled["tacho_zero_word"])
+            wmax = float(sampled["word_max"])
+            n_tw, n_pw = (np.zeros(n), np.zeros(n)) if sensor_noise is None else sensor_noise
+            words = {"tacho_word": np.zeros(n), "pos_word": np.zeros(n)}
+            ref = np.round(u * cpu + pz)
+        else:
+            ref = np.round(u * cpu)   # the board's reference words: counts from the run's start
         c0, x_prev = None, 0
     held = drive if sampled else u   # what the amplifier input follows, sample by sample
     for k in range(n):
         # sample first (the ADC reads at t_k)
         out_w[k], out_thm[k], out_i[k] = w, th, i
         out_th[k] = play if outp else th / p.N
-        if sampled:   # the board's law at this tick, on this sample's count
+        if sampled and sensors:   # the board's law on this sample's pot and tacho words
+            x = min(max(math.floor(out_th[k] * cpu + pz + n_pw[k] + 0.5), 0.0), wmax)
+            t = min(max(math.floor(w * tpu + tz + n_tw[k] + 0.5), 0.0), wmax)
+            words["pos_word"][k], words["tacho_word"][k] = x, t
+            drive[k] = vpc * pd_counts(kq, dq, ref[k] - x, t - tzw, lo, hi)
+        elif sampled:   # the board's law at this tick, on this sample's count
             count = math.floor(out_th[k] * cpu + 0.5)
             c0 = count if c0 is None else c0
             x = count - c0
@@ -130,6 +151,8 @@ def simulate_truth(p: ServoParams, u: np.ndarray, dt: float, *, effects=(),
     out = {"w": out_w, "theta": out_th, "theta_m": out_thm, "i": out_i}
     if sampled:
         out["drive"] = drive
+        if sensors:
+            out.update(words)
     return out
 
 

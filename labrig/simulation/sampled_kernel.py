@@ -29,8 +29,44 @@ from labrig.simulation.layout import (C_A, C_GAP0, C_I0, C_TC, C_TH0, C_TS, C_W0
 from labrig.simulation.loop_kernel import play_operator
 
 #: the controller's constants (``pd``): Q8.8 gains, counts per position unit, input volts
-#: per output count, the output's limits in counts (below and above zero)
-D_KP, D_KD, D_CPU, D_VPC, D_LO, D_HI = range(6)
+#: per output count, the output's limits in counts (below and above zero); then what the
+#: MS150 board's loop on its sensors needs (``D_SENSORS`` 1): the pot's word at 0, the
+#: tacho's words per unit/s of the motor, its word at rest and the whole word the board
+#: takes for it, the largest word
+D_KP, D_KD, D_CPU, D_VPC, D_LO, D_HI, D_SENSORS, D_PZ, D_TPU, D_TZ, D_TZW, D_WMAX = range(12)
+
+
+def pd_constants(sampled: dict) -> np.ndarray:
+    """A run's ``experiment.controller.sampled`` as the kernel's constants."""
+    sensors = sampled.get("feedback") == "sensors"
+    return np.array([sampled["kp_q"], sampled["kd_q"], sampled["counts_per_unit"],
+                     sampled["volts_per_count"], *sampled["limits"], float(sensors),
+                     sampled.get("pos_zero", 0.0), sampled.get("tacho_counts_per_unit_s", 0.0),
+                     sampled.get("tacho_zero", 0.0), sampled.get("tacho_zero_word", 0),
+                     sampled.get("word_max", 0xFFFF)], float)
+
+
+def first_output(pd: np.ndarray, u0: float, theta: np.ndarray, w0: np.ndarray) -> np.ndarray:
+    """The board's first output (input volts) per candidate: on its count, 0 at the start
+    and unchanged; on its sensors, the pot's word at ``theta`` (output units) against the
+    reference ``u0`` and the tacho's at ``w0`` (motor)."""
+    theta, w0 = np.broadcast_arrays(np.asarray(theta, float), np.asarray(w0, float))
+    ref = np.round(u0 * pd[D_CPU] + pd[D_PZ])
+    if pd[D_SENSORS]:
+        word = lambda v: np.clip(np.floor(v + 0.5), 0.0, pd[D_WMAX])   # noqa: E731 (an ADC)
+        e = ref - word(theta * pd[D_CPU] + pd[D_PZ])
+        v = word(w0 * pd[D_TPU] + pd[D_TZ]) - pd[D_TZW]
+    else:
+        e, v = np.full(theta.shape, ref), np.zeros(theta.shape)
+    o = np.floor((pd[D_KP] * np.clip(e, -32767, 32767) - pd[D_KD] * np.clip(v, -32767, 32767))
+                 / 256.0)
+    return np.clip(o, pd[D_LO], pd[D_HI]) * pd[D_VPC]
+
+
+@numba.njit(cache=True, inline="always")
+def adc_word(v, wmax):
+    """The word an ADC codes for ``v`` (in words): the nearest code, within its range."""
+    return min(max(math.floor(v + 0.5), 0.0), wmax)
 
 
 @numba.njit(cache=True, inline="always")
@@ -72,7 +108,9 @@ def _sampled_candidate(p, ref, m, frac, Ad, g_old, g_new, gf, prm, S, c, pd, out
     gf0, gf1, gf2 = gf[p, 0], gf[p, 1], gf[p, 2]
     delayed = go0 != 0.0 or go1 != 0.0 or go2 != 0.0
     drive = np.zeros(n)   # the controller's output through the input map, per sample
-    x0 = math.floor((play if a > 0.0 else th / N) * cpu + 0.5)   # the board's count origin
+    sensors = pd[D_SENSORS] != 0.0
+    pz, tpu, tz, tzw, wmax = pd[D_PZ], pd[D_TPU], pd[D_TZ], pd[D_TZW], pd[D_WMAX]
+    x0 = 0.0 if sensors else math.floor((play if a > 0.0 else th / N) * cpu + 0.5)   # origin
     xp = 0.0
     for k in range(n):
         yth = play if a > 0.0 else th / N
@@ -84,9 +122,14 @@ def _sampled_candidate(p, ref, m, frac, Ad, g_old, g_new, gf, prm, S, c, pd, out
             acc += (iw * (wm[k] - w)) ** 2 + (it * (tm[k] - yth)) ** 2
             if ii != 0.0:
                 acc += (ii * (im[k] - i)) ** 2
-        # the board reads its count and sets its output now, held to the next sample
-        x = math.floor(yth * cpu + 0.5) - x0
-        o = pd_counts(kq, dq, ref[k] - x, x - xp, lo, hi) * vpc
+        # the board reads its count (or its pot and tacho) and sets its output now, held to
+        # the next sample
+        if sensors:
+            x = adc_word(yth * cpu + pz, wmax)
+            o = pd_counts(kq, dq, ref[k] - x, adc_word(w * tpu + tz, wmax) - tzw, lo, hi) * vpc
+        else:
+            x = math.floor(yth * cpu + 0.5) - x0
+            o = pd_counts(kq, dq, ref[k] - x, x - xp, lo, hi) * vpc
         xp = x
         if store:
             out_u[p, k] = o
@@ -136,7 +179,7 @@ def run_sampled(u, pd, m, frac, Ad, g_old, g_new, gf, prm, S, c, imap, weights=N
     else ``{"w", "theta", "i", "drive"}`` (P, n): the trajectories and the controller's
     output in input volts."""
     P, n = prm.shape[0], len(u)
-    ref = np.round(np.asarray(u, float) * pd[D_CPU])
+    ref = np.round(np.asarray(u, float) * pd[D_CPU] + pd[D_PZ])   # the board's words
     if weights is not None:   # (as the kernels take them: contiguous, zeros if missing)
         wm, iw, tm, it, im, ii = weights
         out = np.zeros(P)

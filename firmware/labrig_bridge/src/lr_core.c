@@ -20,7 +20,10 @@ typedef struct {
 
 typedef struct {
     uint8_t loop, waveform, n_levels;
-    uint16_t kp_q, kd_q;   /* digital loop: duty counts per count, and per count per sample, x256 */
+    uint16_t kp_q, kd_q;   /* digital loop: duty counts per count, and per count per sample, x256;
+                              the board's loop on sensors: DAC counts per pot word, and per
+                              tacho word, x256 */
+    uint16_t ref_lead, tacho_zero;   /* the board's loop on sensors: lead-in reference, tacho at rest */
     uint16_t rate_hz, dac_zero, dac_min, dac_max, watchdog_ms;
     uint32_t n_samples, lead_in, segment;
     uint16_t levels[LR_MAX_LEVELS];
@@ -142,7 +145,8 @@ void lr_core_send_hello(void)
     uint8_t b[80];
     b[0] = LR_PROTOCOL_VERSION;
     b[1] = board;
-    lr_put16(b + 2, 0x001F);          /* capabilities: square|step|staircase|constant|pwl */
+    /* capabilities: square|step|staircase|constant|pwl, and on the MS150 its own loop */
+    lr_put16(b + 2, LR_RIG_KIND == 1 ? 0x001F | LR_CAP_BOARD_LOOP : 0x001F);
     lr_put16(b + 4, max_rate);
     b[6] = LR_BATCH; b[7] = LR_DAC_BITS; b[8] = 10; b[9] = LR_ADC_CHANNELS; b[10] = LR_MAX_LEVELS;
     lr_put16(b + 11, LR_DAC_ZERO);
@@ -205,12 +209,20 @@ static int configure(const uint8_t *b, uint16_t len)
     c.n_levels = b[28];
     /* pwl: the breakpoints' words, then the n-1 piece lengths in samples */
     uint16_t extra = c.waveform == LR_WAVE_PWL && c.n_levels ? 2u * (c.n_levels - 1u) : 0u;
+    uint16_t tail = c.loop == LR_LOOP_BOARD ? LR_BOARD_LOOP_TAIL : 0u;
     if (c.n_levels < 1 || c.n_levels > LR_MAX_LEVELS ||
-        len != LR_CONFIGURE_FIXED + 2u * c.n_levels + extra)
+        len != LR_CONFIGURE_FIXED + 2u * c.n_levels + extra + tail)
         return LR_ERR_BAD_FRAME;
-    if (c.loop > LR_LOOP_CLOSED || c.waveform > LR_WAVE_PWL || c.n_samples == 0 ||
-        c.watchdog_ms < 50)
+    /* the board's own loop on its sensors: the MS150 build (the H-bridge's closed loop is
+     * always its own, on the count) */
+    if (c.loop > (LR_RIG_KIND == 1 ? LR_LOOP_BOARD : LR_LOOP_CLOSED) ||
+        c.waveform > LR_WAVE_PWL || c.n_samples == 0 || c.watchdog_ms < 50)
         return LR_ERR_BAD_CONFIG;
+    c.ref_lead = c.tacho_zero = 0;
+    if (tail) {
+        c.ref_lead = lr_get16(b + len - 4);
+        c.tacho_zero = lr_get16(b + len - 2);
+    }
     if (c.waveform == LR_WAVE_PWL) {
         if (c.n_levels < 2) return LR_ERR_BAD_CONFIG;
         for (uint8_t i = 0; i + 1 < c.n_levels; i++) {
@@ -228,8 +240,9 @@ static int configure(const uint8_t *b, uint16_t len)
         return LR_ERR_LIMIT;
     for (uint8_t i = 0; i < c.n_levels; i++) {
         c.levels[i] = lr_get16(b + LR_CONFIGURE_FIXED + 2 * i);
-        /* a digital loop's levels are references in counts; its output is clamped below */
-        if (!(LR_DIGITAL_LOOP && c.loop == LR_LOOP_CLOSED) &&
+        /* a digital loop's levels are references in counts, the board's loop on sensors'
+         * pot words; their output is clamped below */
+        if (!(LR_DIGITAL_LOOP && c.loop == LR_LOOP_CLOSED) && c.loop != LR_LOOP_BOARD &&
             (c.levels[i] < c.dac_min || c.levels[i] > c.dac_max))
             return LR_ERR_LIMIT;
     }
@@ -405,9 +418,7 @@ void lr_core_tick(void)
         return;
     }
     uint16_t w;
-#if LR_DIGITAL_LOOP
     uint8_t in_lead = lead_left != 0;   /* this sample is the lead-in's (before the decrement) */
-#endif
     if (lead_left) {
         lead_left--;
         w = cfg.dac_zero;
@@ -439,15 +450,22 @@ void lr_core_tick(void)
         w = word < 0 ? 0 : word > 0xFFFF ? 0xFFFF : (uint16_t)word;
     }
 #endif
+    uint8_t board_loop = cfg.loop == LR_LOOP_BOARD;
+    if (board_loop) {
+        /* the board's loop on its sensors: this tick sets the reference (the lead-in's is
+         * the one the host gave); the output follows when this sample's words are in */
+        ref_now = in_lead ? cfg.ref_lead : w;
+    }
     if (acquiring) {
         /* the previous conversions are still running: this period is lost (the host
-         * sees a gap in the sample index); the waveform keeps its timing */
+         * sees a gap in the sample index); the waveform keeps its timing (a board's loop
+         * holds its output: nothing new was read) */
         ctr.sample_overruns++;
-        dac_set(w);
+        if (!board_loop) dac_set(w);
         tick_index++;
         return;
     }
-    dac_set(w);
+    if (!board_loop) dac_set(w);
     cur.index = tick_index++;
     cur.dac = dac_now;
     cur.ref = ref_now;   /* a digital loop's reference word; the HAL may overwrite it */
@@ -481,14 +499,30 @@ void lr_core_sample_done(uint16_t tacho, uint16_t pos, uint16_t ref)
 {
     if (!acquiring) return;
     acquiring = 0;
+    /* a limit first: the sample that trips is the run's last, its output 0 V */
+    if (trip_flags && state == LR_STATE_RUNNING) check_limits(tacho, pos);
+    if (cfg.loop == LR_LOOP_BOARD) {
+        if (state == LR_STATE_RUNNING) {
+            /* the board's loop on its sensors, on this sample's words, applied now (the
+             * conversions' ~0.2 ms after the tick) and held to the next sample:
+             * out = kp_q (ref - pos) - kd_q (tacho - tacho at rest), Q8.8 DAC counts; words
+             * are 10 bits, so 32 bits hold it */
+            int32_t e = (int32_t)ref_now - (int32_t)pos;
+            int32_t v = (int32_t)tacho - (int32_t)cfg.tacho_zero;
+            int32_t out = ((int32_t)cfg.kp_q * e - (int32_t)cfg.kd_q * v) >> 8;   /* floor */
+            int32_t word = (int32_t)cfg.dac_zero + out;
+            dac_set(word < 0 ? 0 : word > 0xFFFF ? 0xFFFF : (uint16_t)word);
+        }
+        cur.dac = dac_now;
+        ref = ref_now;   /* the reference it used, not the A2 input */
+    }
     uint8_t next = (uint8_t)((ring_head + 1) & (LR_RING - 1));
     if (next == ring_tail) ctr.ring_overflows++;
     else {
         cur.tacho = tacho; cur.pos = pos; cur.ref = ref;
-        ring[ring_head] = cur;   /* the sample that trips is the run's last */
+        ring[ring_head] = cur;
         ring_head = next;
     }
-    if (trip_flags && state == LR_STATE_RUNNING) check_limits(tacho, pos);
 }
 
 void lr_core_rx_overrun(void) { ctr.rx_overruns++; }

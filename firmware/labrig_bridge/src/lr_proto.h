@@ -34,7 +34,14 @@ enum {
     LR_DONE = 0x84, LR_ERROR = 0x85, LR_INDEX = 0x86,
     LR_ID = 0x87         /* the board's id: u32 LE, kept in EEPROM; 0 = none given yet */
 };
-enum { LR_LOOP_OPEN = 0, LR_LOOP_CLOSED = 1 };
+/* 2 (the MS150 build, firmware 2.4): the board closes the position loop itself, from the
+ * pot and tacho words it samples; the CONFIGURE body then ends with LR_BOARD_LOOP_TAIL
+ * bytes: u16 the lead-in's reference word, u16 the tacho's word at rest */
+enum { LR_LOOP_OPEN = 0, LR_LOOP_CLOSED = 1, LR_LOOP_BOARD = 2 };
+#define LR_BOARD_LOOP_TAIL 4
+/* HELLO capability bits: waveforms square|step|staircase|constant|pwl (0x1F), and the
+ * board's own loop on its sensors (LR_LOOP_BOARD) */
+#define LR_CAP_BOARD_LOOP 0x20
 enum { LR_WAVE_CONSTANT = 0, LR_WAVE_SQUARE = 1, LR_WAVE_STEP = 2, LR_WAVE_STAIRCASE = 3,
        LR_WAVE_PWL = 4 };
 enum {
