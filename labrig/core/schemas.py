@@ -73,7 +73,7 @@ RunName = Annotated[str, AfterValidator(_safe_name)]
 Int32 = Annotated[int, Field(ge=0, le=2 ** 32 - 1)]
 
 
-class _Closed(BaseModel):
+class ClosedModel(BaseModel):
     """Every key declared: a misspelt key is an error, never a silent default."""
 
     model_config = ConfigDict(extra="forbid", strict=True)
@@ -83,14 +83,14 @@ class _Closed(BaseModel):
 # Sections only declare what may be written; the defaults live in labrig.io.config's
 # dataclasses (one place), and a key left out keeps its default there.
 
-class RigSection(_Closed):
+class RigSection(ClosedModel):
     name: Optional[str] = None
     drive: Optional[Literal["voltage", "torque", "force"]] = None
     axis: Optional[Literal["rotary", "linear"]] = None
     gear_ratio: Num(0.01, 1e4) = None
 
 
-class PlantSection(_Closed):
+class PlantSection(ClosedModel):
     R_ohm: Num(1e-3, 1e4) = None
     L_h: Num(1e-7, 10.0) = None
     J_kgm2: Num(1e-10, 10.0) = None
@@ -100,12 +100,12 @@ class PlantSection(_Closed):
     Fv_ns_per_m: Num(0.0, 1e6) = None
 
 
-class AmplifierSection(_Closed):
+class AmplifierSection(ClosedModel):
     gain: Num(1e-3, 1e3) = None
     output_limit_v: Num(0.01, 1e3) = None
 
 
-class SensorsSection(_Closed):
+class SensorsSection(ClosedModel):
     tacho_v_per_rad_s: Num(0.0, 100.0) = None      # 0: no tacho
     pos_v_per_rad: Num(1e-6, 1e3) = None
     pos_offset_v: Num(-100.0, 100.0) = None
@@ -114,7 +114,7 @@ class SensorsSection(_Closed):
     current_zero_v: Num(-100.0, 100.0) = None       # the sense output at zero current
 
 
-class CalibrationSection(_Closed):
+class CalibrationSection(ClosedModel):
     dac_gain: Num(0.01, 100.0) = None
     dac_offset_v: Num(-50.0, 50.0) = None
     tacho_gain: Num(0.01, 100.0) = None
@@ -130,7 +130,7 @@ def _lower(v):
     return v.lower() if isinstance(v, str) else v
 
 
-class BridgeSection(_Closed):
+class BridgeSection(ClosedModel):
     #: the hardware layer: the MS150 bridge or an H-bridge board (labrig.bridge.hbridge)
     firmware: Annotated[Optional[Literal["ms150", "hbridge"]], BeforeValidator(_lower)] = None
     pwm_bits: Annotated[int, Field(ge=1, le=16)] = None
@@ -164,14 +164,14 @@ class BridgeSection(_Closed):
                     Field(max_length=16)] = None
 
 
-class NoiseSection(_Closed):
+class NoiseSection(ClosedModel):
     tacho_v: Num(0.0, 10.0) = None
     pos_v: Num(0.0, 10.0) = None
     current_v: Num(0.0, 10.0) = None
     seed: Int32 = None
 
 
-class RigFile(_Closed):
+class RigFile(ClosedModel):
     rig: Optional[RigSection] = None
     plant: Optional[PlantSection] = None
     amplifier: Optional[AmplifierSection] = None
@@ -184,7 +184,7 @@ class RigFile(_Closed):
 
 # -- sweep plan -------------------------------------------------------------------------
 
-class ExperimentSpec(_Closed):
+class ExperimentSpec(ClosedModel):
     name: RunName = None
     loop: Annotated[Optional[Literal["open", "closed"]], BeforeValidator(_lower)] = None
     #: who closes an MS150's loop: its analog loop as patched, or the board on its sensors
@@ -211,14 +211,14 @@ class ExperimentSpec(_Closed):
                       Field(max_length=1000)] = None
 
 
-class PlanFile(_Closed):
+class PlanFile(ClosedModel):
     defaults: Optional[ExperimentSpec] = None
     experiment: Annotated[list[ExperimentSpec], Field(min_length=1, max_length=1000)]
 
 
 # -- model JSON -------------------------------------------------------------------------
 
-class PlantParams(_Closed):
+class PlantParams(ClosedModel):
     """Every plant's parameters; which are required depends on the model's structure."""
 
     R: Num(gt=0, le=1e6) = None
@@ -230,7 +230,7 @@ class PlantParams(_Closed):
     Fv: Num(gt=0, le=1e7) = None
 
 
-class ModelConstants(_Closed):
+class ModelConstants(ClosedModel):
     Ka: Num(gt=0, le=1e5) = None
     N: Num(gt=0, le=1e5) = None
     Kt: Gain = None
@@ -242,7 +242,7 @@ class ModelConstants(_Closed):
 EffectName = Annotated[str, Field(min_length=1, max_length=300)]
 
 
-class ModelFile(_Closed):
+class ModelFile(ClosedModel):
     """A model file: every key declared (a misspelt ``efects`` is an error, not a model
     without effects)."""
 
@@ -279,7 +279,7 @@ class ModelFile(_Closed):
         return self
 
 
-class IdentifyConfig(_Closed):
+class IdentifyConfig(ClosedModel):
     bounds: dict[str, Annotated[list[Num(-1e9, 1e9)], AfterValidator(_range_pair)]] = {}
     fixed: dict[str, Num(-1e9, 1e9)] = {}
     effects: Annotated[list[EffectName], Field(max_length=50)] = []

@@ -6,9 +6,9 @@ from typing import Annotated, Any, Literal, Optional
 
 from pydantic import Field
 
-from labrig.core.schemas import Gain, Num, _Closed
+from labrig.core.schemas import Gain, Num, ClosedModel
 
-class SampledPD(_Closed):
+class SampledPD(ClosedModel):
     """A board's own PD, sample by sample, as it computes it: ``out = floor((kp_q e - kd_q
     v) / 256)`` output counts, clamped to ``limits``, held to the next sample; one output
     count is ``volts_per_count`` of input. ``feedback = "count"`` (an H-bridge board): ``e``
@@ -33,7 +33,7 @@ class SampledPD(_Closed):
     word_max: Annotated[int, Field(ge=1, le=0xFFFF)] = 0xFFFF
 
 
-class Controller(_Closed):
+class Controller(ClosedModel):
     """The controller of a closed-loop run: ``drive = kp (ref - x) - kd x' + ki int(ref - x)``
     in input volts, x the fed-back position (derivative on the measurement)."""
 
@@ -48,7 +48,7 @@ class Controller(_Closed):
     sampled: Optional[SampledPD] = None
 
 
-class SidecarExperiment(_Closed):
+class SidecarExperiment(ClosedModel):
     loop: Literal["open", "closed"]
     #: the MS150's closed loop: its analog loop (the patch panel) or the board's own
     closed_by: Optional[Literal["analog", "board"]] = None
@@ -74,7 +74,7 @@ class SidecarExperiment(_Closed):
     start: Optional[Literal["rest", "moving"]] = None
 
 
-class SidecarSensors(_Closed):
+class SidecarSensors(ClosedModel):
     tacho_v_per_rad_s: Gain = None
     #: the unit of a ``speed`` column (physical speed, no tacho): the axis's SI unit
     speed_unit: Optional[Literal["rad/s", "m/s"]] = None
@@ -89,7 +89,7 @@ class SidecarSensors(_Closed):
     speed_window_s: Num(gt=0, le=10.0) = None
 
 
-class SidecarRig(_Closed):
+class SidecarRig(ClosedModel):
     gear_ratio: Num(gt=0, le=1e5) = None
     amplifier_gain: Num(gt=0, le=1e5) = None
     #: the plant (labrig.model.plants) and the axis it moves
@@ -104,7 +104,7 @@ class SidecarRig(_Closed):
     name: Optional[str] = None
 
 
-class Sidecar(_Closed):
+class Sidecar(ClosedModel):
     """A run's sidecar: every key declared, so a misspelt one (``brige``,
     ``experiment.amplitud_v``) is an error that names the labrig spelling, never a
     silently missing value."""
