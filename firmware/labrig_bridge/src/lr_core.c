@@ -450,7 +450,12 @@ void lr_core_tick(void)
         w = word < 0 ? 0 : word > 0xFFFF ? 0xFFFF : (uint16_t)word;
     }
 #endif
+#if LR_RIG_KIND == 1
     uint8_t board_loop = cfg.loop == LR_LOOP_BOARD;
+#else
+    const uint8_t board_loop = 0;   /* (the H-bridge's closed loop is its PD above) */
+    (void)in_lead;
+#endif
     if (board_loop) {
         /* the board's loop on its sensors: this tick sets the reference (the lead-in's is
          * the one the host gave); the output follows when this sample's words are in */
@@ -501,6 +506,7 @@ void lr_core_sample_done(uint16_t tacho, uint16_t pos, uint16_t ref)
     acquiring = 0;
     /* a limit first: the sample that trips is the run's last, its output 0 V */
     if (trip_flags && state == LR_STATE_RUNNING) check_limits(tacho, pos);
+#if LR_RIG_KIND == 1
     if (cfg.loop == LR_LOOP_BOARD) {
         if (state == LR_STATE_RUNNING) {
             /* the board's loop on its sensors, on this sample's words, applied now (the
@@ -516,6 +522,7 @@ void lr_core_sample_done(uint16_t tacho, uint16_t pos, uint16_t ref)
         cur.dac = dac_now;
         ref = ref_now;   /* the reference it used, not the A2 input */
     }
+#endif
     uint8_t next = (uint8_t)((ring_head + 1) & (LR_RING - 1));
     if (next == ring_tail) ctr.ring_overflows++;
     else {
