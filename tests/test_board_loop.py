@@ -49,8 +49,11 @@ def test_a_board_loop_is_refused_by_firmware_that_cannot_close_it():
     s = bridge_settings(load_rig(None))
     with pytest.raises(UserError, match="does not close the loop itself.*labrig flash"):
         experiment_body(_exp(), s, dict(HELLO, capabilities=0x1F))
-    with pytest.raises(UserError, match="do not fit the board's loop"):
-        experiment_body(_exp(kp=80.0), s, HELLO)
+    # docs/hardware.md: at the default rig's scales Kp and Kv below 32 V/V each
+    experiment_body(_exp(kp=31.99, kv=31.99), s, HELLO)
+    for kp, kv in ((32.01, 0.1), (2.0, 32.01)):
+        with pytest.raises(UserError, match="do not fit the board's loop"):
+            experiment_body(_exp(kp=kp, kv=kv), s, HELLO)
 
 
 @pytest.mark.parametrize("rig_file, experiment, words", [

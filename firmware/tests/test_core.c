@@ -194,6 +194,28 @@ static void test_pwl(jnode_t *v)
           seen, total, bad);
 }
 
+/* The MS150 board's own loop outputs, sample by sample, the word labrig's model computes
+ * for the same pot and tacho words (the vector's, from the model's law) */
+static void test_board_loop_vector(jnode_t *v)
+{
+    static uint8_t body[256];
+    reset_all();
+    size_t n = unhex(json_get(v, "configure_body")->str, body, sizeof body);
+    int total = (int)json_get(v, "n_samples")->num, bad = 0, k = 0;
+    host_send(LR_CONFIGURE, 1, body, n);
+    host_send(LR_START, 2, NULL, 0);
+    for (int i = 0; i < 3; i++) lr_core_poll();
+    jnode_t *p = json_get(v, "pot")->child, *t = json_get(v, "tacho")->child, *w = json_get(v, "words")->child;
+    for (; k < total && p && t && w; k++, p = p->next, t = t->next, w = w->next) {
+        adc_vals[0] = (uint16_t)t->num; adc_vals[1] = (uint16_t)p->num;
+        lr_core_tick();
+        if (dac_hw != (uint16_t)w->num) bad++;
+    }
+    CHECK(k == total && bad == 0 && lr_core_state() == LR_STATE_RUNNING,
+          "the board's loop outputs the model's words (%d of %d differ)", bad, k);
+    adc_vals[0] = 100; adc_vals[1] = 200;
+}
+
 static void test_vectors(const char *path)
 {
     FILE *fp = fopen(path, "rb");
@@ -275,6 +297,7 @@ static void test_vectors(const char *path)
               "stream error counts %u %u", d.crc_errors, d.framing_errors);
     }
     test_pwl(json_get(root, "pwl"));
+    test_board_loop_vector(json_get(root, "board_loop"));
     json_free(root);
     free(text);
 }

@@ -143,6 +143,29 @@ out["pwl"] = {"configure_body": H(p.configure_body(**cfg_pwl)),
                   cfg_pwl["levels"], cfg_pwl["pieces"],
                   cfg_pwl["n_samples"] - cfg_pwl["lead_in_samples"])))}
 
+# the MS150 board's own loop (loop 2), sample by sample: the pot and tacho words it reads
+# and the DAC word the model's law gives for them (labrig.simulation.sampled_kernel's
+# pd_counts, the law labrig fits with), clamps and negative floors included
+from labrig.simulation.sampled_kernel import pd_counts  # noqa: E402
+
+cfg_board = dict(loop="board", waveform="square", sample_rate_hz=1000, n_samples=60,
+                 lead_in_samples=5, segment_samples=20, dac_zero=2048, dac_min=1024,
+                 dac_max=3072, watchdog_ms=500, levels=[333, 282], gain_words=(4096, 307),
+                 board_loop=(307, 512))
+steps = [(k * 37) % 61 - 30 for k in range(cfg_board["n_samples"])]   # a fixed scramble
+pot = [300 + 2 * d for d in steps]
+tacho = [512 + d // 2 for d in steps]
+board_words = []
+for k in range(cfg_board["n_samples"]):
+    lead = cfg_board["lead_in_samples"]
+    ref = 307 if k < lead else cfg_board["levels"][((k - lead) // cfg_board["segment_samples"]) % 2]
+    o = pd_counts(4096.0, 307.0, float(ref - pot[k]), float(tacho[k] - 512), 1024.0 - 2048.0,
+                  3072.0 - 2048.0)
+    board_words.append(int(2048 + o))
+out["board_loop"] = {"configure_body": H(p.configure_body(**cfg_board)),
+                     "n_samples": cfg_board["n_samples"],
+                     "pot": pot, "tacho": tacho, "words": board_words}
+
 path = pathlib.Path(__file__).resolve().parents[1] / "test_vectors.json"
 path.write_text(json.dumps(out, indent=1) + "\n")
 print(f"wrote {path}")
