@@ -144,11 +144,39 @@ def test_the_model_runs_the_boards_law_on_its_runs(sweeps, tmp_path):
     assert got.tau_m == pytest.approx(truth.tau_m, rel=0.05)
 
 
+def _sweep(*args):
+    return subprocess.run([sys.executable, "-m", "labrig", "sweep", "--sim", *map(str, args)],
+                          capture_output=True, text=True, timeout=300)
+
+
+BOARD_STEP = ('[[experiment]]\nloop = "closed"\nclosed_by = "board"\nwaveform = "square"\n'
+              "amplitude_v = 0.4\nfrequency_hz = 0.5\nperiods = 1\n")
+
+
 def test_a_board_loop_sweep_on_the_command_line(tmp_path):
     plan = tmp_path / "plan.toml"
-    plan.write_text('[[experiment]]\nloop = "closed"\nclosed_by = "board"\nwaveform = "square"\n'
-                    "amplitude_v = 0.4\nfrequency_hz = 0.5\nperiods = 1\n")
-    r = subprocess.run([sys.executable, "-m", "labrig", "sweep", "--sim", "--plan", plan,
-                        "-o", tmp_path / "out"], capture_output=True, text=True, timeout=300)
+    plan.write_text(BOARD_STEP)
+    r = _sweep("--plan", plan, "-o", tmp_path / "out")
     assert r.returncode == 0, r.stderr
     assert len(list((tmp_path / "out").glob("*.csv"))) == 1
+
+
+@pytest.mark.parametrize("second, rig_keys, words", [
+    ("position_gain = 40.0\n", "", "do not fit the board's loop"),
+    ("", "tacho_v_per_rad_s = 0.0\n", "closes its loop on the pot and the tacho"),
+])
+def test_a_board_loop_it_cannot_play_is_refused_before_anything_plays(tmp_path, second, rig_keys,
+                                                                     words):
+    """Its gains beyond the board's words, or a rig without the tacho it reads: the plan's
+    later experiment refused before the first plays (a sensor wired the other way round,
+    a negative gain, is the rig file's error already)."""
+    plan = tmp_path / "plan.toml"
+    plan.write_text(BOARD_STEP + "\n" + BOARD_STEP.replace("0.4", "0.3") + second)
+    text = packaged_config("rig_default.toml").read_text()
+    rig = tmp_path / "rig.toml"
+    rig.write_text(text.replace("tacho_v_per_rad_s = 0.026", rig_keys.strip() or
+                                "tacho_v_per_rad_s = 0.026"))
+    r = _sweep("--rig", rig, "--plan", plan, "-o", tmp_path / "out")
+    assert r.returncode == 2 and words in r.stderr, r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1 and "Traceback" not in r.stderr
+    assert not list((tmp_path / "out").glob("*.csv"))

@@ -176,8 +176,14 @@ def sensor_gain_words(exp: Experiment, s: BridgeSettings) -> tuple[int, int]:
     Raises
     ------
     UserError
-        A gain the board's 16 bits cannot hold.
+        A gain the board's 16 bits cannot hold, or a sensor whose sign would turn the
+        board's loop into positive feedback.
     """
+    if s.pos_v_per_unit <= 0 or s.tacho_v_per_unit_s <= 0:
+        raise UserError(f"experiment {exp.name!r}: the board closes its loop on the pot and "
+                        "the tacho, and needs both to rise with the forward drive (the rig "
+                        "file's sensors.pos_v_per_rad and sensors.tacho_v_per_rad_s above 0; "
+                        "a negative one is a sensor wired the other way round: swap its wires)")
     lo, hi = s.adc_range_v
     volts_per_word = (hi - lo) / 2 ** s.adc_bits
     per_volt = 2 ** s.dac_bits / (s.dac_range_v[1] - s.dac_range_v[0]) / s.dac_gain

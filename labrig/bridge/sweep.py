@@ -145,6 +145,14 @@ def check_plan(plan: list[Experiment], rig, *, board: bool = False) -> None:
             "the analog loop is closed by patching: play them as two plans and re-patch between "
             "them (both may write into the same folder), or write closed_by = \"board\"")
 
+    from labrig.bridge.settings import (board_reference_words, bridge_settings, is_board_loop,
+                                        sensor_gain_words, waveform_levels)
+
+    s = bridge_settings(rig)
+    for exp in plan:   # a loop the board closes: gains and references in its words
+        if is_board_loop(exp, s):
+            sensor_gain_words(exp, s)
+            board_reference_words(exp, s, waveform_levels(exp))
     limit = rig.bridge.output_limit_v
     for exp in plan:
         if exp.peak_v() > limit + 1e-9:
