@@ -371,6 +371,16 @@ static void test_staircase(void)
     CHECK(total == 2000 && bad == 0, "staircase holds the last level (total %u, bad %u)", total, bad);
 }
 
+/* a fresh board's answer to one CONFIGURE of body b: the ERROR code, -1 if none came */
+static int configure_error(const uint8_t *b, size_t n)
+{
+    reset_all();
+    host_send(LR_CONFIGURE, 1, b, n);
+    lr_core_poll(); collect();
+    int k = find(LR_ERROR);
+    return k >= 0 ? msgs[k].body[0] : -1;
+}
+
 static void test_limits(void)
 {
     uint8_t b[128];
@@ -383,20 +393,11 @@ static void test_limits(void)
           "START after a refused CONFIGURE refused");
     CHECK(!timer_on && dac_hw == 2048, "output stays at 0 V");
 
-    reset_all();
     uint16_t lv2[2] = {2100, 2000};
     n = cfg_body(b, 0, LR_WAVE_SQUARE, 1000, 100, 0, 10, 0, 4095, 500, lv2, 2);  /* limits beyond firmware's */
-    host_send(LR_CONFIGURE, 1, b, n);
-    lr_core_poll(); collect();
-    k = find(LR_ERROR);
-    CHECK(k >= 0 && msgs[k].body[0] == LR_ERR_LIMIT, "limits wider than the firmware's refused");
-
-    reset_all();
+    CHECK(configure_error(b, n) == LR_ERR_LIMIT, "limits wider than the firmware's refused");
     n = cfg_body(b, 0, LR_WAVE_SQUARE, 9000, 100, 0, 10, 1024, 3072, 500, lv2, 2);
-    host_send(LR_CONFIGURE, 1, b, n);
-    lr_core_poll(); collect();
-    k = find(LR_ERROR);
-    CHECK(k >= 0 && msgs[k].body[0] == LR_ERR_RATE, "rate above max refused");
+    CHECK(configure_error(b, n) == LR_ERR_RATE, "rate above max refused");
 }
 
 static void test_watchdog(void)
@@ -976,12 +977,8 @@ static void test_board_loop(void)
     adc_vals[0] = 100; adc_vals[1] = 200;
 
     /* loop 2 is the MS150 build's: beyond it, a bad configure */
-    reset_all();
     n = cfg_body(b, 3, LR_WAVE_CONSTANT, 1000, 10, 0, 0, 1024, 3072, 500, lv, 1);
-    host_send(LR_CONFIGURE, 1, b, n);
-    lr_core_poll(); collect();
-    k = find(LR_ERROR);
-    CHECK(k >= 0 && msgs[k].body[0] == LR_ERR_BAD_CONFIG, "an unknown loop refused");
+    CHECK(configure_error(b, n) == LR_ERR_BAD_CONFIG, "an unknown loop refused");
 }
 
 int main(int argc, char **argv)

@@ -254,7 +254,7 @@ def board_law(exp: Experiment, rig, hello: dict | None = None) -> dict | None:
     if exp.loop != "closed":
         return None
     s = bridge_settings(rig)
-    if is_board_loop(exp, s) and not rig.digital_loop:
+    if rig.board_loop(exp):
         return sensor_pd(exp, s, hello)
     return sampled_pd(exp, s, hello) if rig.bridge.firmware == "hbridge" else None
 

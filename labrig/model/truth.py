@@ -16,7 +16,7 @@ import math
 import numpy as np
 
 from labrig.model.effects import Effect, ordered
-from labrig.simulation.sampled_kernel import pd_counts
+from labrig.simulation.sampled_kernel import adc_word, pd_counts
 from labrig.model.servo import ServoParams
 
 
@@ -107,8 +107,8 @@ def simulate_truth(p: ServoParams, u: np.ndarray, dt: float, *, effects=(),
         out_w[k], out_thm[k], out_i[k] = w, th, i
         out_th[k] = play if outp else th / p.N
         if sampled and sensors:   # the board's law on this sample's pot and tacho words
-            x = min(max(math.floor(out_th[k] * cpu + pz + n_pw[k] + 0.5), 0.0), wmax)
-            t = min(max(math.floor(w * tpu + tz + n_tw[k] + 0.5), 0.0), wmax)
+            x = adc_word(out_th[k] * cpu + pz + n_pw[k], wmax)
+            t = adc_word(w * tpu + tz + n_tw[k], wmax)
             words["pos_word"][k], words["tacho_word"][k] = x, t
             drive[k] = vpc * pd_counts(kq, dq, ref[k] - x, t - tzw, lo, hi)
         elif sampled:   # the board's law at this tick, on this sample's count

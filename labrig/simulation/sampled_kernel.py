@@ -51,16 +51,14 @@ def first_output(pd: np.ndarray, u0: float, theta: np.ndarray, w0: np.ndarray) -
     and unchanged; on its sensors, the pot's word at ``theta`` (output units) against the
     reference ``u0`` and the tacho's at ``w0`` (motor)."""
     theta, w0 = np.broadcast_arrays(np.asarray(theta, float), np.asarray(w0, float))
-    ref = np.round(u0 * pd[D_CPU] + pd[D_PZ])
+    ref = float(np.round(u0 * pd[D_CPU] + pd[D_PZ]))
     if pd[D_SENSORS]:
-        word = lambda v: np.clip(np.floor(v + 0.5), 0.0, pd[D_WMAX])   # noqa: E731 (an ADC)
-        e = ref - word(theta * pd[D_CPU] + pd[D_PZ])
-        v = word(w0 * pd[D_TPU] + pd[D_TZ]) - pd[D_TZW]
+        e = [ref - adc_word(th * pd[D_CPU] + pd[D_PZ], pd[D_WMAX]) for th in theta]
+        v = [adc_word(w * pd[D_TPU] + pd[D_TZ], pd[D_WMAX]) - pd[D_TZW] for w in w0]
     else:
-        e, v = np.full(theta.shape, ref), np.zeros(theta.shape)
-    o = np.floor((pd[D_KP] * np.clip(e, -32767, 32767) - pd[D_KD] * np.clip(v, -32767, 32767))
-                 / 256.0)
-    return np.clip(o, pd[D_LO], pd[D_HI]) * pd[D_VPC]
+        e, v = [ref] * len(theta), [0.0] * len(theta)
+    return np.array([pd_counts(pd[D_KP], pd[D_KD], a, b, pd[D_LO], pd[D_HI]) * pd[D_VPC]
+                     for a, b in zip(e, v)])
 
 
 @numba.njit(cache=True, inline="always")
