@@ -259,6 +259,25 @@ def refit_with(runs, base: Model, effect, *, seed: int = 0, fixed: dict | None =
                            weights=weights, extra=extra, stop=stop)
 
 
+def refit_as_member(runs, base: Model, effect, other: Model, name: str, *, seed: int = 0,
+                    fixed: dict | None = None, weights: Weights = Weights(), reach=None):
+    """``base`` plus ``effect`` fitted from ``other`` (``base`` plus ``name``, a member of
+    ``effect``'s family, fitted): the plant and the rest where ``other`` put them,
+    ``effect`` standing where ``name`` stood (``Effect.as_member``). Two nested effects
+    fitted each from its own scan can end in different basins, and then the seed, not the
+    data, says which explains the runs better. None when ``effect`` cannot stand for it."""
+    starts = effect.as_member(name, other.effect_params[name])
+    if not starts:
+        return None
+    reach = reach or Reach.of(runs, base)
+    fixed = dict(fixed or {})
+    rest = {**without(other, name).flat(), **fixed}
+    effects = base.effects_with([effect])
+    points = [{**rest, **{f"{effect.name}.{k}": float(v) for k, v in s.items()}} for s in starts]
+    return best_fit(each(lambda s: fit(runs, effects, s, fixed, seed=seed, weights=weights,
+                                       reach=reach), points), f"the re-fit with {effect.name}")
+
+
 def _best_of_starts(runs, effects, new, params, *, reach, fixed, seed, weights, extra=(),
                     stop=None):
     """Fit ``effects`` from each scanned start (and each of ``extra``), side by side, and

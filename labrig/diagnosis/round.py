@@ -25,7 +25,8 @@ from labrig.diagnosis.crossval import CrossValidation, Folds, cross_validate, fo
 from labrig.diagnosis.evaluation import Evaluation, evaluate
 from labrig.diagnosis.explain import context as explain_context, explain, round_verdict
 from labrig.diagnosis.ranking import Candidate, Diagnosis
-from labrig.diagnosis.refit import refit, refit_with, thinned_fitness, without
+from labrig.diagnosis.refit import (refit, refit_as_member, refit_with, thinned_fitness,
+                                    without)
 from labrig.diagnosis.residuals import worst_regime
 from labrig.diagnosis.resolution import unresolved
 from labrig.identification.engine import dataset_constants
@@ -35,6 +36,10 @@ from labrig.model.model import Model, param_keys
 from labrig.model.reach import Reach
 from labrig.analysis.ripple import ripple_line
 from labrig.model.simulate import prepare
+
+#: a nested pair's simpler member this much worse (fitness) than the richer one is fitted
+#: from the richer one's result too (:meth:`Round.nested`)
+NESTED_MARGIN = 0.02
 
 
 @dataclass
@@ -166,7 +171,7 @@ class Round:
 
         tried = each(one, enumerate(candidate_names(self.base, names, self.runs, self.ev0)))
         diverged = [c for c in tried if isinstance(c, str)]
-        ranking = [c for c in tried if not isinstance(c, str)]
+        ranking = self.nested([c for c in tried if not isinstance(c, str)])
         if diverged and not ranking:
             raise FitDiverged(
                 f"every candidate's re-fit diverged ({', '.join(diverged)}: the simulation "
@@ -174,6 +179,41 @@ class Round:
                 "identify DATA -o m0.json, then --model m0.json) or narrow the plant's range "
                 "with --bounds")
         return ranking, diverged
+
+    def nested(self, ranking: list[Candidate]) -> list[Candidate]:
+        """``ranking`` with each nested pair (an effect and its :attr:`simpler` family
+        member, stiction and Coulomb friction, say) fitted each from the other's result
+        too (:func:`~labrig.diagnosis.refit.refit_as_member`), the better kept: the richer
+        when it explains the runs worse than the one it contains, the simpler when it is
+        more than :data:`NESTED_MARGIN` worse than the richer. Each fitted from its own
+        scan alone, the two can end in different basins, and the seed would decide between
+        near equals."""
+        by = {c.effect: c for c in ranking}
+        jobs = []
+        for rich in list(by):
+            simple = get_effect(rich).simpler
+            if simple not in by:
+                continue
+            fr, fs = by[rich].evaluation.fitness, by[simple].evaluation.fitness
+            if fr > fs:
+                jobs.append((rich, simple))
+            elif fs > (1.0 + NESTED_MARGIN) * fr:
+                jobs.append((simple, rich))
+
+        def one(job):
+            name, other = job
+            try:
+                ident = refit_as_member(self.runs, self.base, get_effect(name), by[other].model,
+                                        other, seed=self.seed, fixed=self.fixed,
+                                        weights=self.weights, reach=self.reach)
+            except FitDiverged:
+                return None
+            return None if ident is None else self.entry(ident, name)
+
+        for (name, _), c in zip(jobs, each(one, jobs)):
+            if c is not None and c.evaluation.fitness < by[name].evaluation.fitness:
+                by[name] = c
+        return [by[c.effect] for c in ranking]
 
     def stale(self, ranking) -> Candidate | None:
         """A candidate whose re-fit, with its effect switched off, explains the runs better

@@ -106,6 +106,15 @@ class Effect(abc.ABC):
         add some of what this effect adds; empty: it cannot, or not on these ``runs``."""
         return []
 
+    def as_member(self, name: str, params: dict) -> list[dict]:
+        """Starts for this effect's parameters standing where a fitted member of its family
+        (``name``, its :attr:`simpler` or one whose simpler it is) stood with ``params``:
+        the first reproduces it as closely as this effect can. ``diagnose`` fits each of a
+        nested pair from the other's result too, so the richer one never explains the runs
+        worse than the one it contains, and neither is left in a basin the other left.
+        Empty: not a member it can stand for."""
+        return []
+
     def inert(self) -> dict:
         """Parameter values that switch the effect off (``diagnose`` checks that the
         effect itself carries a candidate's gain); empty: unknown."""

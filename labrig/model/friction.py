@@ -98,6 +98,14 @@ class CoulombFriction(FrictionEffect):
     def initial_guess(self, runs, plant):
         return {"tc_v": 0.05 * float(np.min(run_amplitudes(runs)))}
 
+    def as_member(self, name, params):
+        """Stiction's Coulomb level (its breakaway dropped); a friction curve's mean level."""
+        if name == "stiction":
+            return [{"tc_v": params["tc_v"]}]
+        if name == "friction_curve":
+            return [{"tc_v": 0.5 * (params["tcp_v"] + params["tcn_v"])}]
+        return []
+
 
 class Stiction(FrictionEffect):
     """Coulomb friction plus a higher breakaway torque (Karnopp): ``ts = tc*(1 + s)``."""
@@ -149,6 +157,14 @@ class Stiction(FrictionEffect):
         g = CoulombFriction().initial_guess(runs, plant)
         return {"tc_v": g["tc_v"], "excess": 0.5}
 
+    def as_member(self, name, params):
+        """Coulomb friction as stiction with the smallest breakaway excess, then with one
+        a fifth above the level (the error is flat in the excess near zero: a breakaway
+        changes the fit only where it holds a rotor the simpler law lets move)."""
+        if name != "coulomb_friction":
+            return []
+        return [{"tc_v": params["tc_v"], "excess": e} for e in (0.01, 0.2)]
+
 
 #: the steady speed residual's common shift (noise floors) from which friction is larger one
 #: way (the open-ended friction curve is offered)
@@ -193,6 +209,12 @@ class FrictionCurve(FrictionEffect):
 
     def inert(self) -> dict:
         return {"tcp_v": 0.0, "tcn_v": 0.0}
+
+    def as_member(self, name, params):
+        """Coulomb friction as the same level each way."""
+        if name != "coulomb_friction":
+            return []
+        return [{"tcp_v": params["tc_v"], "tcn_v": params["tc_v"]}]
 
     def friction(self, plant, tcp_v, tcn_v):
         t = 0.5 * (np.asarray(tcp_v) + np.asarray(tcn_v)) * plant.Ka * plant.K / plant.R
