@@ -176,7 +176,7 @@ def test_zero_order_hold_is_the_matrix_exponential():
     from scipy.linalg import expm
 
     from labrig.simulation.expm import zoh_batch
-    from labrig.model.simulate import _plant_matrices
+    from labrig.simulation.discretise import plant_matrices
 
     rng = np.random.default_rng(3)
     P, h = 12, 1e-3
@@ -184,7 +184,7 @@ def test_zero_order_hold_is_the_matrix_exponential():
     prm[:, :5] = np.array([8.0, 0.0085, 5.2245e-5, 1.0e-5, 0.05]) * 10.0 ** rng.uniform(
         -0.5, 0.5, (P, 5))
     prm[:, 13] = prm[:, 4]
-    A, bs, bf = _plant_matrices(prm)
+    A, bs, bf = plant_matrices(prm)
     A[:, 0, 2] -= 4.0 / 30.0 / prm[:, 1]  # a closed loop's position feedback
     frac = np.where(np.arange(P) % 2 == 0, 0.0, rng.uniform(0.05, 0.95, P))
     Ad, g_old, g_new, gf = zoh_batch(A, bs, bf, frac, h)

@@ -639,3 +639,50 @@ def running_with_current(folder, *, R=2.0, L=0.04, K=0.05, J=1e-4, B=1e-4, fs=10
         out.append(_write_csv(folder / f"run{j}.csv", "t,u,speed,current",
                               "{:.5f},{:.6g},{:.6g},{:.6g}", t, u, speed, current))
     return out
+
+
+# -- a small gearmotor whose friction is large against its drive, logged at 20 Hz -------
+
+def stiction_gearmotor(folder, *, km=3.0, tau=0.04, tc_v=0.7, ts_v=3.2, fs=20.0, cpr=600,
+                       sub=400, seed=5) -> list[Path]:
+    """A small gearmotor with strong stiction, logged as its sketch logs it (``t,u,speed``,
+    ``fs`` Hz): the speed is the encoder's counts (``cpr`` a turn of the output shaft) over
+    the sample before, in rad/s. Motor ``tau w' = km (v - f) - w``, friction in volts at
+    the input: Karnopp's law, stuck while ``|w|`` is within a stick band and ``|v|`` below
+    the breakaway ``ts_v``, ``tc_v sign(w)`` while it turns. Integrated with ``sub`` Euler
+    steps a sample (semi-implicit in the viscous term). Two records: a slow triangle
+    (+-6 V, 16 s a period, two periods), where motion starts near ``ts_v`` and stops near
+    ``tc_v``, and square waves of 2, 4 and 5 V (0.25 Hz, 2 periods each), played back to
+    back, the 2 V one below the breakaway."""
+    folder = _folder(folder)
+    rng = np.random.default_rng(seed)
+    dt = 1.0 / fs
+    t_tri = np.arange(int(32.0 * fs)) * dt
+    phase = (t_tri / 16.0) % 1.0
+    tri = 6.0 * np.where(phase < 0.25, 4 * phase, np.where(phase < 0.75, 2 - 4 * phase,
+                                                            4 * phase - 4))
+    sq = np.concatenate([np.where((np.arange(int(8.0 * fs)) * dt * 0.25) % 1.0 < 0.5, a, -a)
+                         for a in (2.0, 4.0, 5.0)])
+    h = dt / sub
+    band = 1e-3 * km   # rad/s: the stick band
+    out = []
+    for name, u in (("triangle", tri), ("squares", sq)):
+        w, angle = 0.0, 0.0
+        angles = np.empty(len(u) + 1)
+        angles[0] = 0.0
+        for k, v in enumerate(u):
+            for _ in range(sub):
+                if abs(w) < band and abs(v) <= ts_v:
+                    w = 0.0
+                    continue
+                f = tc_v * (np.sign(w) if abs(w) >= band else np.sign(v))
+                w = (w + h / tau * km * (v - f)) / (1.0 + h / tau)
+                angle += h * w
+            angles[k + 1] = angle
+        angles += rng.uniform(0.0, 2 * math.pi / cpr)
+        counts = np.floor(angles * cpr / (2 * math.pi))
+        speed = np.concatenate([[0.0], np.diff(counts)[:-1]]) * 2 * math.pi / cpr / dt
+        t = np.arange(len(u)) * dt
+        out.append(_write_csv(folder / f"{name}.csv", "t,u,speed", "{:.3f},{:.4f},{:.5f}",
+                              t, u, speed))
+    return out

@@ -144,7 +144,7 @@ def channel_agreement(runs, sigma_w: float, sigma_pos: float, unit: str = "rad",
         # the speed's noise, integrated: a random walk of sigma_w dt / N per sample
         expect.append(((sigma_w * rd.dt / rd.N) ** 2 * k)[keep])
         acc.append((np.gradient(np.asarray(rd.w, float), rd.dt), rd.dt, keep))
-        declared.append(0.5 * rd.speed_window * rd.dt if rd.speed_window > 1 else 0.0)
+        declared.append(0.5 * rd.speed_window * rd.dt if rd.speed_window >= 1 else 0.0)
     if not ds:
         return None
     d, v, rw = np.concatenate(ds), np.concatenate(ws), np.concatenate(expect)

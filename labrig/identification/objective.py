@@ -171,7 +171,7 @@ class Objective:
     """Population-vectorised residuals and fitness of a model on a data set."""
 
     def __init__(self, runs, effects: list[Effect], space: Space, p: float = 1.0,
-                 q: float = 1.0, substeps: int = 16, masks=None, c: float = 1.0,
+                 q: float = 1.0, substeps: int | None = None, masks=None, c: float = 1.0,
                  start: str = "auto"):
         if not runs:
             raise UserError("the data set is empty: give a folder with at least one run")

@@ -110,11 +110,8 @@ class Deadband(InputEffect):
     def initial_guess(self, runs, plant):
         return {"d_v": 0.05 * float(np.min(_run_amplitudes(runs)))}
 
-    def as_member(self, name, params):
-        """An asymmetric dead zone's mean width."""
-        if name != "asymmetric_deadband":
-            return []
-        return [{"d_v": 0.5 * (params["dpos_v"] + params["dneg_v"])}]
+    def as_member(self, name, params):   # an asymmetric dead zone: its mean width
+        return [{"d_v": 0.5 * (params["dpos_v"] + params["dneg_v"])}] * (name == "asymmetric_deadband")
 
 
 class Saturation(DriveEffect):
@@ -335,11 +332,8 @@ class AsymmetricDeadband(InputEffect):
     def inert(self):
         return {"dpos_v": 0.0, "dneg_v": 0.0}
 
-    def as_member(self, name, params):
-        """A symmetric dead zone as the same width each way."""
-        if name != "deadband":
-            return []
-        return [{"dpos_v": params["d_v"], "dneg_v": params["d_v"]}]
+    def as_member(self, name, params):   # a symmetric dead zone: the same width each way
+        return [{"dpos_v": params["d_v"], "dneg_v": params["d_v"]}] * (name == "deadband")
 
     params = (Param("dpos_v", "V", 1e-3, 2.0, "dead zone for positive inputs"),
               Param("dneg_v", "V", 1e-3, 2.0, "dead zone for negative inputs"))

@@ -134,7 +134,7 @@ class Stiction(FrictionEffect):
     stage = "friction"
     family = "friction law"
     params = (Param("tc_v", "V", 1e-3, 5.0, "Coulomb friction as a bridge voltage (see coulomb_friction)"),
-              Param("excess", "-", 0.01, 3.0, "breakaway excess: Ts = Tc (1 + excess)"))
+              Param("excess", "-", 0.01, 8.0, "breakaway excess: Ts = Tc (1 + excess)"))
     summary = "static friction: starting from rest needs more torque than keeping moving"
     signature = "a delay before each start from rest, near the breakaway voltage only"
     experiment = "a very slow ramp from rest: the motor jumps into motion at breakaway"

@@ -29,7 +29,8 @@ import numpy as np
 
 from labrig.core.errors import UserError
 from labrig.model.effects import AsymmetricDeadband, Asymmetry, Deadband, Effect, Offset, Saturation, ordered
-from labrig.simulation.expm import loop_slot_fill, zoh_batch
+from labrig.simulation.discretise import discretise, plant_matrices
+from labrig.simulation.expm import loop_slot_fill
 from labrig.simulation.layout import (C_A, C_ASYM, C_D, C_GAP0, C_I0, C_KE, C_TC, C_TD, C_TH0,
                                  C_TS, C_U0, C_VMAX, C_W0,
                                  MAP_COLUMNS, N_COLS, N_SLOTS, S_FLAT, S_NEG, S_NEG_GAP, S_POS,
@@ -138,6 +139,19 @@ def prepare(runs) -> list[RunData]:
     return [r if isinstance(r, RunData) else RunData.from_run(r) for r in runs]
 
 
+#: sub-steps a sample at least, and the longest sub-step (s): a small motor's time constant
+#: (tens of ms) is shorter than a slow logger's sample, and a friction sub-stepped coarsely
+#: against it reads as a slower motor (16 sub-steps of a 20 Hz sample: tau_m 12 % long)
+MIN_SUBSTEPS, MAX_SUBSTEP_S = 16, 1e-3
+
+
+def substeps_for(runs) -> int:
+    """Sub-steps per sample for ``runs``: :data:`MIN_SUBSTEPS`, more where a sample is
+    longer than :data:`MAX_SUBSTEP_S` that many times."""
+    dt = max((float(r.dt) for r in runs), default=0.0)
+    return max(MIN_SUBSTEPS, int(np.ceil(dt / MAX_SUBSTEP_S - 1e-9)))
+
+
 class Simulator:
     """Simulate P candidates on every run at once.
 
@@ -146,22 +160,23 @@ class Simulator:
     runs : list of Run or RunData
     effects : list of Effect
         The effects in the model (built-in or user-written).
-    substeps : int
+    substeps : int, optional
         Sub-steps per sample where the ZOH cannot be exact (zero-speed crossings,
-        stuck rotor, nonlinear closed loops).
+        stuck rotor, nonlinear closed loops); default :func:`substeps_for` the runs.
     plant : Plant class, optional
         The kind of plant (:mod:`labrig.model.plants`); default the voltage-driven servo.
     """
 
-    def __init__(self, runs, effects=(), substeps: int = 16, plant=None):
+    def __init__(self, runs, effects=(), substeps: int | None = None, plant=None):
         ready()  # a cold numba cache is compiled now, with a message, not inside a timing
 
         self.plant = plant or VoltagePlant
         self.runs = prepare(runs)
         #: a run whose speed is a sensor's window needs the trajectories (sse)
-        self._windowed = any(r.speed_window > 1 for r in self.runs)
+        self._windowed = any(r.speed_window >= 1 for r in self.runs)
         self.effects = ordered(list(effects))
-        self.substeps = int(substeps)
+        self._output_mapped = any(e.stage == "output" for e in self.effects)
+        self.substeps = int(substeps) if substeps else substeps_for(self.runs)
         # an effect that acts inside a closed loop's drive or on the pot's shaft (or adds a
         # constant drive: a friction larger one way, labrig.model.friction.FrictionCurve)
         self._in_loop = any(e.stage in ("input", "drive") or "a_rad" in e.kernel_columns
@@ -222,8 +237,10 @@ class Simulator:
         sims = [self._simulate_run(run, self._started(run, prm, ep, st), ep, user_output, disc)
                 for run, st in zip(self.runs, starts)]
         for run, sim in zip(self.runs, sims):
-            if run.speed_window > 1:   # the speed as the sensor reads it
-                sim["w"] = windowed_speed(sim["w"], run.speed_window, run.dt)
+            if run.speed_window >= 1:   # the speed as the sensor reads it
+                # (the motor's own angle where no output map bends the pot's shaft)
+                exact = None if self._output_mapped else sim["theta"] * run.N
+                sim["w"] = windowed_speed(sim["w"], run.speed_window, run.dt, exact)
         return sims
 
     def sse(self, plant, effect_params, weights, starts: list | None = None) -> np.ndarray:
@@ -339,7 +356,7 @@ class Simulator:
         frac = td / run.dt - m
         key = (run.dt, "open", run.Ka, run.N)
         if key not in disc:   # the plant as an open loop shares the open-loop discretisation
-            disc[key] = _discretise(prm, run, frac)
+            disc[key] = discretise(prm, run, frac)
         Ad, g_old, g_new, gf = disc[key]
         consts = np.array([run.dt, run.Ka, run.N, run.Kt, run.Kpot, 0.0, 0.0, run.theta0])
         return run_sampled(run.u, run.pd, m.astype(np.int64), frac, Ad, g_old, g_new, gf, prm,
@@ -361,7 +378,7 @@ class Simulator:
         # linear loop's discretisation is then not used
         mapped = closed and self._in_loop
         if key not in disc:  # runs with the same rate and loop share one discretisation
-            disc[key] = _discretise(prm, run, frac) if not mapped else (
+            disc[key] = discretise(prm, run, frac) if not mapped else (
                 np.zeros((P, 3, 3)), np.zeros((P, 3)), np.zeros((P, 3)), np.zeros((P, 3)))
         Ad, g_old, g_new, gf = disc[key]
         imap = _NO_MAP
@@ -397,45 +414,6 @@ class Simulator:
         return {"w": w, "theta": th, "i": cur}
 
 
-def _plant_matrices(prm):
-    """The open-loop state matrix of every candidate, the voltage's and the friction
-    torque's input columns (states i, w, theta)."""
-    P = prm.shape[0]
-    R, L, J, B, K = (prm[:, i] for i in range(5))
-    A = np.zeros((P, 3, 3))
-    A[:, 0, 0], A[:, 0, 1] = -R / L, -prm[:, C_KE] / L
-    A[:, 1, 0], A[:, 1, 1] = K / J, -B / J
-    A[:, 2, 1] = 1.0
-    bs = np.zeros((P, 3))
-    bs[:, 0] = 1.0 / L
-    bf = np.zeros((P, 3))
-    bf[:, 1] = -1.0 / J
-    return A, bs, bf
-
-
-def _zoh(A, bs, bf, frac, h):
-    """Exact ZOH of x' = A x + bs s + bf Tf over one sample whose input switches from
-    s_old to s_new at ``frac`` of it (a fractional delay): Ad, g_old, g_new, g_f."""
-    return zoh_batch(np.ascontiguousarray(A), np.ascontiguousarray(bs),
-                     np.ascontiguousarray(bf), np.ascontiguousarray(frac, dtype=float), float(h))
-
-
-def _discretise(prm, run: RunData, frac):
-    """Exact ZOH of the linear part per candidate, with the delay's split sample.
-
-    Inputs of the continuous model: s (armature volts in open loop, reference volts
-    in closed loop) and the friction torque Tf.
-    """
-    A, bs, bf = _plant_matrices(prm)
-    L = prm[:, 1]
-    if run.loop == "closed" and run.pd is None:   # (a board's loop drives the plant open)
-        # e = kp r - kv Kt w - kp Kpot theta_m / N ; v = Ka e
-        A[:, 0, 1] -= run.Ka * run.kv * run.Kt / L
-        A[:, 0, 2] -= run.Ka * run.kp * run.Kpot / run.N / L
-        bs = bs * run.Ka * run.kp
-    return _zoh(A, bs, bf, frac, run.dt)
-
-
 def _loop_table(prm, run: RunData, frac, substeps: int):
     """The loop table of a closed loop with its input map inside (P, N_SLOTS, SLOT_W): in
     each affine piece of the drive ``v = c - Ka g (kp Kpot theta/N + kv Kt w)`` (g the
@@ -453,7 +431,7 @@ def _loop_table(prm, run: RunData, frac, substeps: int):
     friction). A voltage drive's fitted armature as fast (an electrical pole the data do
     not resolve) takes the pieces: its rig is not stiff (docs/physics.md)."""
     P = prm.shape[0]
-    A0, bs, bf = _plant_matrices(prm)
+    A0, bs, bf = plant_matrices(prm)
     R, L = prm[:, 0], prm[:, 1]
     full = ~((L / R < run.dt / substeps / 10.0) & (prm[:, C_KE] == 0.0))
     T = np.zeros((P, N_SLOTS, SLOT_W))
