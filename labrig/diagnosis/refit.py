@@ -44,6 +44,10 @@ SUBSAMPLE = 16000
 MOVING_START_NFEV = 200
 #: a basin whose best scan point is this much worse than the other's is not polished
 BASIN_MARGIN = 1.5
+#: a friction law's re-fit still this far above the noise (its fitness, in noise units)
+#: is polished once more without gradients (:func:`simplex_polish`), within this many
+#: residuals' worth of simulation
+POLISH_ABOVE, POLISH_BUDGET = 1.5, 3.0e6
 
 #: the effects whose thresholds are volts at the bridge input that the steady state cannot
 #: tell apart: a dead zone and a friction level of the same volts give the same line of
@@ -286,6 +290,13 @@ def _best_of_starts(runs, effects, new, params, *, reach, fixed, seed, weights, 
     what = f"the re-fit with {new.name}" if new is not None else "the re-fit"
     best = best_fit(each(lambda s: fit(runs, effects, s, fixed, seed=seed, weights=weights,
                                        reach=reach, stop=stop), starts), what)
+    if getattr(new, "stage", None) == "friction" and not best.stopped \
+            and best.fitness > POLISH_ABOVE:
+        polished = simplex_polish(runs, effects, {**best.model().flat(), **fixed}, fixed,
+                                  weights, reach)
+        if polished is not None:   # (a short gradient fit from there: the result's form)
+            best = best_fit([best, fit(runs, effects, polished, fixed, seed=seed,
+                                       weights=weights, reach=reach, max_nfev=20)], what)
     if not _starts_in_motion(params):
         return best
     # a run that starts in motion had its start fitted by the model before, bent to that
@@ -296,6 +307,35 @@ def _best_of_starts(runs, effects, new, params, *, reach, fixed, seed, weights, 
     again = fit(runs, effects, own, fixed, seed=seed, weights=weights, reach=reach,
                 max_nfev=MOVING_START_NFEV)
     return best_fit([best, again], what)
+
+
+def simplex_polish(runs, effects, start: dict, fixed: dict, weights: Weights,
+                   reach) -> dict | None:
+    """``start`` polished by a simplex (Nelder-Mead) over every free parameter: the
+    parameters where it ended, or None when it found nothing better.
+
+    A friction law makes the error piecewise constant in its levels: the rotor breaks
+    loose at the first held input above the breakaway, stops at the first sub-step its
+    speed crosses zero, so a finite difference sees either nothing or a jump, and a
+    gradient fit stops wherever its start left the thresholds (a rig whose friction is
+    large against its drive keeps the linear model's slow time constant). A simplex
+    compares whole values and walks across. Its evaluations are capped at
+    :data:`POLISH_BUDGET` residuals' worth of simulation."""
+    from scipy.optimize import minimize
+
+    space = build_space(effects, None, fixed, reach=reach, plant=plant_of_runs(runs))
+    obj = Objective(runs, effects, space, p=weights.p, q=weights.q)
+    lo, hi = space.search_bounds()
+    x0 = space.to_search({**start, **fixed})
+    f0 = float(obj.fitness_batch(x0[None, :])[0])
+    n = sum(len(r.u) for r in runs)
+    res = minimize(lambda x: float(obj.fitness_batch(np.clip(x, lo, hi)[None, :])[0]), x0,
+                   method="Nelder-Mead",
+                   options=dict(maxfev=int(np.clip(POLISH_BUDGET / max(n, 1), 100, 2000)),
+                                xatol=1e-7, fatol=1e-10, adaptive=True))
+    if not np.isfinite(res.fun) or res.fun >= f0:
+        return None
+    return space.as_dict(space.to_physical(np.clip(res.x, lo, hi))[0])
 
 
 def _starts_in_motion(params) -> bool:
