@@ -188,3 +188,38 @@ def test_friction_large_against_the_drive_leaves_the_linear_basin(gearmotor):
     assert rms_ours <= 1.05 * rms_theirs
     assert km == pytest.approx(x[0], rel=0.10) and tau == pytest.approx(x[1], rel=0.10)
     assert st["tc_v"] == pytest.approx(x[2], rel=0.10)
+    assert res.ladder.steps[-1].rmse_over_noise["speed"] <= 1.15   # at the counting floor
+
+
+def test_a_count_over_a_window_has_the_counting_noise_as_its_floor(gearmotor):
+    """The gearmotor's speed is whole counts over each 50 ms (600 counts a turn): one count
+    reads 2 pi / 600 / 0.05 = 0.2094 rad/s. Its floor is the counting noise a perfect
+    model leaves -- q/sqrt(6) while moving (two truncated counts), exactly 0 at rest where
+    the count stands still -- not the block scatter of a record too slow for its steps
+    (0.169 moving, 0.065 at rest before), and the quantum is said in rad/s."""
+    from labrig.analysis.noise import channel_floors
+    from labrig.model.simulate import prepare
+
+    floor = channel_floors(prepare(gearmotor))["speed"]
+    q = 2 * math.pi / 600 / 0.05
+    assert floor.counted and floor.q == pytest.approx(q, rel=1e-4)
+    assert floor.moving == pytest.approx(q / math.sqrt(6), rel=1e-4) and floor.rest == 0.0
+    speeds = np.concatenate([r.speed for r in gearmotor])
+    assert floor.share_moving == pytest.approx(np.mean(speeds != 0), abs=1e-9)
+    assert "one count reads 0.2094 rad/s" in floor.describe()
+
+
+def test_a_jittered_count_is_found_and_a_tacho_is_not_a_count():
+    """Counts over a window whose length jitters by 1 % (a logger's millis()): the quantum
+    within 0.5 %; the default rig's tacho through its ADC (a regular step too, zero at rest)
+    is a count only where a run says so, and none of the shipped sweep does."""
+    from labrig.analysis.noise import channel_floors, count_quantum
+    from labrig.model.simulate import prepare
+
+    rng = np.random.default_rng(0)
+    k = rng.integers(-40, 40, 3000)
+    k[:500] = 0
+    y = k * 10.47 / (1 + 0.01 * rng.standard_normal(3000))
+    assert count_quantum(y) == pytest.approx(10.47, rel=0.005)
+    floor = channel_floors(prepare(read_dataset(ROOT / "data" / "sweep_default")))["speed"]
+    assert not floor.counted and floor.rest > 0

@@ -74,6 +74,10 @@ class NoiseFloor:
         Share of samples in moving blocks.
     q : float
         Quantisation step (0 if none seen); ``q/sqrt(12)`` is the lowest floor allowed.
+        For a count over a window, the speed one count reads.
+    counted : bool
+        The channel is a count over a window (:func:`count_quantum`): its floor while
+        moving is the counting noise ``q/sqrt(6)``, at rest what the still count shows.
     blocks : int
         Blocks used.
     """
@@ -86,6 +90,7 @@ class NoiseFloor:
     share_moving: float
     q: float
     blocks: int
+    counted: bool = False
 
     @property
     def quantisation(self) -> float:
@@ -99,6 +104,11 @@ class NoiseFloor:
             parts.append(f"at rest {self.rest:.3g}")
         qtxt = (f"; quantisation step {self.q:.3g}, q/sqrt(12) = {self.quantisation:.3g}"
                 if self.q > 0 else "")
+        if self.counted:
+            return (f"{self.channel}: {self.sigma:.3g} {self.unit} rms, a count over a window "
+                    f"(one count reads {self.q:.4g} {self.unit}): moving, the counting noise "
+                    f"q/sqrt(6) = {self.moving:.3g}; at rest the count stands still (0); "
+                    f"{100 * self.share_moving:.0f} % of the readings moving")
         return (f"{self.channel}: {self.sigma:.3g} {self.unit} rms ({', '.join(parts)}; "
                 f"{100 * self.share_moving:.0f} % of the time moving; {self.blocks} blocks of "
                 f"{BLOCK} samples detrended by a {WINDOW}-sample quadratic{qtxt})")
@@ -106,7 +116,7 @@ class NoiseFloor:
     def to_json(self) -> dict:
         return {"channel": self.channel, "unit": self.unit, "sigma": self.sigma,
                 "moving": self.moving, "rest": self.rest, "share_moving": self.share_moving,
-                "quantisation_step": self.q, "blocks": self.blocks,
+                "quantisation_step": self.q, "blocks": self.blocks, "counted": self.counted,
                 "method": self.describe()}
 
 
@@ -121,6 +131,29 @@ def quantisation_step(y: np.ndarray) -> float:
     q = float(np.percentile(steps, 5))
     # an unquantised noisy signal has gaps far below its spread: no quantisation step
     return q if q > 1e-6 * max(np.ptp(levels), 1e-300) else 0.0
+
+
+def count_quantum(y: np.ndarray) -> float:
+    """The speed one encoder count over the window reads, when ``y`` is such a speed (a
+    count over a window: every reading a whole number of quanta, exactly 0 at rest, the
+    window's own length jittering each a little); 0 otherwise.
+
+    The slowest readings are a few counts; the quantum is the largest divisor of them
+    that leaves every reading within a tenth of a quantum (and 2 % of itself, the
+    window's jitter) of a whole number of quanta."""
+    y = np.asarray(y, float)
+    y = y[np.isfinite(y)]
+    z = np.abs(y[y != 0.0])
+    if len(z) < 10 or np.count_nonzero(y == 0.0) < 3:
+        return 0.0
+    low = float(np.percentile(z, 2))
+    for m in range(1, 9):
+        q = low / m
+        k = np.maximum(np.round(z / q), 1.0)
+        if np.mean(np.abs(z - k * q) <= 0.1 * q + 0.02 * z) >= 0.98:
+            few = k <= 4   # where the window's jitter is smallest
+            return float(np.median(z[few] / k[few])) if few.any() else q
+    return 0.0
 
 
 def _residual_filter(window: int) -> np.ndarray:
@@ -186,7 +219,7 @@ def _class_variance(ms: np.ndarray, lag1: np.ndarray, window: int,
 
 
 def noise_floor(signals, speeds, channel: str = "speed", unit: str = "rad/s",
-                quantum: float = 0.0, measured=None) -> NoiseFloor:
+                quantum: float = 0.0, measured=None, counts: bool = False) -> NoiseFloor:
     """The noise floor of one channel over several runs.
 
     Parameters
@@ -200,11 +233,16 @@ def noise_floor(signals, speeds, channel: str = "speed", unit: str = "rad/s",
         the data is used when larger (an ADC's code on top).
     measured : list of bool arrays or None, optional
         Per run, False where the link lost the sample; blocks holding one are left out.
+    counts : bool, optional
+        The channel is declared a count over a window (a speed's ``speed_window_s``):
+        where its readings are whole counts (:func:`count_quantum`), its floor is the
+        counting noise (:attr:`NoiseFloor.counted`).
     """
     signals = [np.asarray(y, float) for y in signals]
     measured = measured or [None] * len(signals)
-    q = max([quantisation_step(y if m is None else y[np.asarray(m, bool)])
-             for y, m in zip(signals, measured)] + [float(quantum)])
+    counted = count_quantum(np.concatenate(signals)) if counts and signals else 0.0
+    q = counted or max([quantisation_step(y if m is None else y[np.asarray(m, bool)])
+                        for y, m in zip(signals, measured)] + [float(quantum)])
     floor = q * q / 12.0
     window = WINDOW
     parts = [_block_variances(y, np.asarray(s, float), window, m)
@@ -214,6 +252,17 @@ def noise_floor(signals, speeds, channel: str = "speed", unit: str = "rad/s",
     mov = np.concatenate([p[2] for p in parts]) if parts else np.empty(0, bool)
     vm, km = _class_variance(ms[mov], l1[mov], window, floor)
     vr, kr = _class_variance(ms[~mov], l1[~mov], window, floor)
+    if counted:
+        # a count over a window, moving: the difference of two truncated counts, each off
+        # by a uniform part of a count, scatters by q^2/6 -- what a perfect model leaves
+        # (the blocks' own scatter holds steps a slow record cannot resolve); at rest the
+        # count stands still, and a reading of zero is exact
+        kept = [y if m is None else y[np.asarray(m, bool)] for y, m in zip(signals, measured)]
+        share = float(np.mean(np.concatenate(kept) != 0.0))
+        return NoiseFloor(channel=channel, unit=unit,
+                          sigma=float(max(np.sqrt(share * 2.0 * floor), 1e-12)),
+                          moving=float(np.sqrt(2.0 * floor)), rest=0.0, share_moving=share,
+                          q=q, blocks=km + kr, counted=True)
     share = float(mov.mean()) if len(mov) else 0.0
     if vm is None and vr is None:  # too short to block: all of it, detrended once
         y = np.concatenate(signals)
@@ -244,7 +293,8 @@ _FLOORS_LOCK = threading.Lock()   # fits in threads (labrig.core.parallel) share
 def _digest(runs, units) -> bytes:
     h = hashlib.blake2b(repr(units).encode(), digest_size=20)
     for r in runs:
-        h.update(repr((r.dt, r.N, getattr(r, "pos_q", 0.0))).encode())
+        h.update(repr((r.dt, r.N, getattr(r, "pos_q", 0.0),
+                       getattr(r, "speed_window", 0))).encode())
         for a in (r.w, r.theta, getattr(r, "current", None), getattr(r, "measured", None)):
             h.update(b"-" if a is None else np.ascontiguousarray(a).view(np.uint8).data)
     return h.digest()
@@ -276,6 +326,7 @@ def _channel_floors(runs, units) -> dict:
         if pairs:
             known = max((getattr(r, "pos_q", 0.0) for r in runs), default=0.0) \
                 if ch == "position" else 0.0
+            counts = ch == "speed" and any(getattr(r, "speed_window", 0) >= 1 for r in runs)
             out[ch] = noise_floor([p[0] for p in pairs], [p[1] for p in pairs], ch, unit,
-                                  quantum=known, measured=[p[2] for p in pairs])
+                                  quantum=known, measured=[p[2] for p in pairs], counts=counts)
     return out
