@@ -686,3 +686,36 @@ def stiction_gearmotor(folder, *, km=3.0, tau=0.04, tc_v=0.7, ts_v=3.2, fs=20.0,
         out.append(_write_csv(folder / f"{name}.csv", "t,u,speed", "{:.3f},{:.4f},{:.5f}",
                               t, u, speed))
     return out
+
+
+def shield_long_record(folder, *, R=2.0, K=0.01, J=2e-6, B=1e-7, supply=12.0, power=0.55,
+                       offset_v=0.25, fs=50.0, cpr=400, seconds=96.0, hold_s=1.5,
+                       seed=31) -> Path:
+    """One long record of the motor shield of :func:`shield_steps` (its concave PWM
+    mapping, ``supply (|u + offset_v| / 5)^power`` with the sign of ``u + offset_v``: a
+    bridge whose zero sits off the command's), ``seconds`` at ``fs`` Hz: the command held
+    ``hold_s`` at each of a random sequence of levels in +-4.6 V and at 0 V between, the
+    speed the encoder's counts (``cpr`` a turn) over the sample before, ``t,u,speed``."""
+    folder = _folder(folder)
+    rng = np.random.default_rng(seed)
+    dt, sub = 1.0 / fs, 20
+    h = dt / sub
+    hold = int(hold_s * fs)
+    u = np.zeros(int(seconds * fs))
+    for k in range(0, len(u), 2 * hold):
+        u[k:k + hold] = rng.choice([-1.0, 1.0]) * rng.uniform(1.0, 4.6)
+    w, ang = 0.0, rng.uniform(0, 2 * math.pi / cpr)
+    angle = np.empty(len(u) + 1)
+    angle[0] = ang
+    for k, uk in enumerate(u):
+        c = uk + offset_v
+        v = math.copysign(supply * min(abs(c) / 5.0, 1.0) ** power, c)
+        for _ in range(sub):
+            dw = h * (K * (v - K * w) / R - B * w) / J
+            ang += h * (w + 0.5 * dw)
+            w += dw
+        angle[k + 1] = ang
+    counts = np.floor(angle * cpr / (2 * math.pi))
+    speed = np.concatenate([[0.0], np.diff(counts)[:-1]]) * 2 * math.pi / cpr / dt
+    t = np.arange(len(u)) * dt
+    return _write_csv(folder / "long.csv", "t,u,speed", "{:.3f},{:.3f},{:.4f}", t, u, speed)
