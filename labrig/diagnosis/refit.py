@@ -47,7 +47,9 @@ BASIN_MARGIN = 1.5
 #: a friction law's re-fit still this far above the noise (its fitness, in noise units)
 #: is polished once more without gradients (:func:`simplex_polish`), within this many
 #: residuals' worth of simulation
-POLISH_ABOVE, POLISH_BUDGET = 1.5, 3.0e6
+POLISH_ABOVE, POLISH_BUDGET = 1.2, 3.0e6
+#: simplex passes at most, each from where the last ended while it gains a per cent
+POLISH_RESTARTS = 3
 
 #: the effects whose thresholds are volts at the bridge input that the steady state cannot
 #: tell apart: a dead zone and a friction level of the same volts give the same line of
@@ -329,13 +331,22 @@ def simplex_polish(runs, effects, start: dict, fixed: dict, weights: Weights,
     x0 = space.to_search({**start, **fixed})
     f0 = float(obj.fitness_batch(x0[None, :])[0])
     n = sum(len(r.u) for r in runs)
-    res = minimize(lambda x: float(obj.fitness_batch(np.clip(x, lo, hi)[None, :])[0]), x0,
-                   method="Nelder-Mead",
-                   options=dict(maxfev=int(np.clip(POLISH_BUDGET / max(n, 1), 100, 2000)),
-                                xatol=1e-7, fatol=1e-10, adaptive=True))
-    if not np.isfinite(res.fun) or res.fun >= f0:
+    x, f = x0, f0
+    for _ in range(POLISH_RESTARTS):
+        # a simplex collapses along the valley it found: a fresh one from where it ended
+        # walks on while a pass still gains (a restarted Nelder-Mead)
+        res = minimize(lambda v: float(obj.fitness_batch(np.clip(v, lo, hi)[None, :])[0]), x,
+                       method="Nelder-Mead",
+                       options=dict(maxfev=int(np.clip(POLISH_BUDGET / max(n, 1), 100, 2000)),
+                                    xatol=1e-7, fatol=1e-10, adaptive=True))
+        if not np.isfinite(res.fun) or res.fun >= f:
+            break
+        gained, x, f = 1.0 - res.fun / f, np.clip(res.x, lo, hi), float(res.fun)
+        if gained < 0.01:
+            break
+    if f >= f0:
         return None
-    return space.as_dict(space.to_physical(np.clip(res.x, lo, hi))[0])
+    return space.as_dict(space.to_physical(x)[0])
 
 
 def _starts_in_motion(params) -> bool:
