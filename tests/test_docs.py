@@ -173,3 +173,9 @@ def test_readme_quotes_the_recorded_click_benchmark():
     """The loop's speed targets (a round, --auto, closed against open loops) are what
     benchmarks/bench_click.py writes from benchmarks/results_click.json, misses included."""
     assert _markdown("bench_click.py") in (ROOT / "README.md").read_text()
+
+
+def test_readme_quotes_the_recorded_long_record_benchmark():
+    """`--auto` on long recordings against the README's default round is what
+    benchmarks/bench_long.py writes from benchmarks/results_long.json, misses included."""
+    assert _markdown("bench_long.py") in (ROOT / "README.md").read_text()

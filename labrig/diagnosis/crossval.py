@@ -80,11 +80,11 @@ def segments(run) -> list[tuple[int, int, float]]:
     return [(k0, k1, float(np.median(u[k0 + (k1 - k0) // 2:k1]))) for k0, k1 in out]
 
 
-def pieces(u, k0: int, k1: int, most: int) -> list[tuple[int, int, float]]:
-    """The stretch ``u[k0:k1]`` cut into pieces of at most ``most`` samples: where its input
-    ramps (a triangle, a slow sine: no edge anywhere), wherever it has moved a tenth of the
-    run's span since the piece began, so each piece has a level of its own; then evenly in
-    time. ``(first, end, level)`` each."""
+def pieces(u, k0: int, k1: int) -> list[tuple[int, int, float]]:
+    """The stretch ``u[k0:k1]`` cut where its input ramps (a triangle, a slow sine: no edge
+    anywhere), wherever it has moved a tenth of the run's span since the piece began, so
+    each piece has a level of its own; ``(first, end, level)`` each. A stretch held at one
+    level stays whole (a data set of one or two such steps is cut into blocks instead)."""
     u = np.asarray(u, float)
     band = RAMP_BAND * max(float(np.ptp(u)), 1e-9)
     cuts, at = [k0], k0
@@ -93,20 +93,15 @@ def pieces(u, k0: int, k1: int, most: int) -> list[tuple[int, int, float]]:
             cuts.append(j)
             at = j
     cuts.append(k1)
-    out = []
-    for a, b in zip(cuts[:-1], cuts[1:]):
-        m = -(-(b - a) // most)   # pieces of this band, each at most `most` long
-        edges = [a + (b - a) * j // m for j in range(m + 1)]
-        out += [(p, q, float(np.median(u[p:q]))) for p, q in zip(edges[:-1], edges[1:])]
-    return out
+    return [(a, b, float(np.median(u[a:b]))) for a, b in zip(cuts[:-1], cuts[1:])]
 
 
 def make_folds(runs, max_folds: int = MAX_FOLDS, blocks: int = BLOCKS) -> Folds:
     """Segments interleaved across amplitude and direction; contiguous blocks when the
     input has too few segments for every fold to leave each direction in training. A
-    stretch holding more than a ``1 / (2 max_folds)`` share of all samples is cut
-    (:func:`pieces`): held out whole, it would be most of its fold, and its one prediction
-    would outvote every other segment."""
+    ramping stretch holding more than a ``1 / (2 max_folds)`` share of all samples is cut
+    by level (:func:`pieces`): held out whole, it would be most of its fold, and its one
+    prediction would outvote every other segment."""
     n = [len(r.u) for r in runs]
     k = max_folds
     most = max(sum(n) // (2 * k), 1)
@@ -114,7 +109,7 @@ def make_folds(runs, max_folds: int = MAX_FOLDS, blocks: int = BLOCKS) -> Folds:
     for i, r in enumerate(runs):
         scale = max(float(np.max(np.abs(r.u))) if n[i] else 0.0, 1e-9)
         cut = [p for k0, k1, level in segments(r)
-               for p in ([(k0, k1, level)] if k1 - k0 <= most else pieces(r.u, k0, k1, most))]
+               for p in ([(k0, k1, level)] if k1 - k0 <= most else pieces(r.u, k0, k1))]
         for k0, k1, level in cut:
             sign = 0 if abs(level) < 0.02 * scale else int(np.sign(level))
             strata.setdefault((r.loop, sign), []).append((abs(level), i, k0, k1))

@@ -53,6 +53,10 @@ LEADERS = 5
 PER_KIND = 2
 #: variants of a hypothesis: the threshold fixed at these shares of its data bound
 VARIANT_SHARES = (0.1, 0.3, 0.6)
+#: ... of a range no wider than this where the data leave a size open: a breakaway excess
+#: may be fitted up to 8 (a small gearmotor's stiction breaks loose at 4.6 times its
+#: kinetic level), but the variants judged as truths stand for the common breakaways
+VARIANT_RANGE = {"excess": 3.0}
 #: a variant is plausible while its fit is within this factor of the best; a hypothesis
 #: this much worse than its rival is not designed for
 PLAUSIBLE = 1.10
@@ -149,8 +153,9 @@ def variants(runs, hyp: Hypothesis, reach, *, seed: int, weights: Weights,
     # (the lower end) or a size the data cannot hold (the upper end)
     hyp.degenerate = best <= 1.5 * lo or best >= 0.95 * hi
     hyp.members = [(best, hyp.model)]
+    top = min(hi, VARIANT_RANGE.get(key, hi))
     for share in VARIANT_SHARES:
-        v = share * hi
+        v = share * top
         if abs(v / best - 1.0) < 0.3:
             continue   # the best fit already stands for it
         res = fit(runs, hyp.model.effects, hyp.model.flat(), {f"{hyp.effect}.{key}": v},
