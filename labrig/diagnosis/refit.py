@@ -19,7 +19,9 @@ simulator, in two basins: the current electrical pole and a structurally differe
 one; for a dead zone or friction also the plant the analyser measures from the steps'
 steady states and rise times, which a threshold does not bend, and shares of a dead
 zone the model holds handed to the friction, or back), then polishes the best point of
-the two best basins with CO and keeps the better fit.
+the two best basins with CO and keeps the better fit. A friction law's fit that stays
+well above the noise is polished once more by a simplex: its error is piecewise constant
+in the friction's levels, and a gradient stops wherever the start left them.
 """
 from __future__ import annotations
 
@@ -321,8 +323,9 @@ def simplex_polish(runs, effects, start: dict, fixed: dict, weights: Weights,
     speed crosses zero, so a finite difference sees either nothing or a jump, and a
     gradient fit stops wherever its start left the thresholds (a rig whose friction is
     large against its drive keeps the linear model's slow time constant). A simplex
-    compares whole values and walks across. Its evaluations are capped at
-    :data:`POLISH_BUDGET` residuals' worth of simulation."""
+    compares whole values and walks across; restarted from where it ended while a pass
+    gains a per cent (:data:`POLISH_RESTARTS` passes at most), each pass's evaluations
+    capped at :data:`POLISH_BUDGET` residuals' worth of simulation."""
     from scipy.optimize import minimize
 
     space = build_space(effects, None, fixed, reach=reach, plant=plant_of_runs(runs))
