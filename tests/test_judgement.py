@@ -222,6 +222,11 @@ def test_a_jittered_count_is_found_and_a_tacho_is_not_a_count():
     k[:500] = 0
     y = k * 10.47 / (1 + 0.01 * rng.standard_normal(3000))
     assert count_quantum(y) == pytest.approx(10.47, rel=0.005)
+    # a motor that never runs slowly: hundreds of counts each, logged to 4 decimals
+    q = 2 * math.pi / 400 / 0.02
+    assert count_quantum(np.round(rng.integers(230, 1400, 2000) * q, 4)) == \
+        pytest.approx(q, rel=1e-4)
+    assert count_quantum(rng.normal(500.0, 50.0, 2000)) == 0.0   # no lattice at all
     floor = channel_floors(prepare(read_dataset(ROOT / "data" / "sweep_default")))["speed"]
     assert not floor.counted and floor.rest > 0
 

@@ -37,6 +37,8 @@ WINDOW = 7
 OUTLIER = 5.0
 #: a block is moving when its median |speed| exceeds this share of the largest speed
 MOVING = 0.05
+#: how much a logger's counting window may jitter (a share of its length)
+JITTER = 0.02
 
 
 @dataclass(frozen=True)
@@ -135,24 +137,36 @@ def quantisation_step(y: np.ndarray) -> float:
 
 def count_quantum(y: np.ndarray) -> float:
     """The speed one encoder count over the window reads, when ``y`` is such a speed (a
-    count over a window: every reading a whole number of quanta, exactly 0 at rest, the
-    window's own length jittering each a little); 0 otherwise.
+    count over a window: every reading a whole number of quanta, the window's own length
+    jittering each a little); 0 otherwise.
 
-    The slowest readings are a few counts; the quantum is the largest divisor of them
-    that leaves every reading within a tenth of a quantum (and 2 % of itself, the
-    window's jitter) of a whole number of quanta."""
+    Candidates: divisors of the slowest readings (a few counts), then the smallest regular
+    gap between levels (:func:`quantisation_step`: a motor that never runs slowly reads
+    hundreds of counts). A candidate holds where 98 % of the readings of under 15 counts
+    lie within a tenth of a quantum of a whole number of them, and 2 % of themselves (a
+    logger's window jitters: at 15 counts that is 0.3 of one, still short of the half a
+    random reading would pass); with fewer than 10 such readings, where every reading lies
+    within a tenth of a quantum of one."""
     y = np.asarray(y, float)
     y = y[np.isfinite(y)]
     z = np.abs(y[y != 0.0])
-    if len(z) < 10 or np.count_nonzero(y == 0.0) < 3:
+    if len(z) < 10:
         return 0.0
     low = float(np.percentile(z, 2))
-    for m in range(1, 9):
-        q = low / m
+    for q in [low / m for m in range(1, 9)] + [quantisation_step(y)]:
+        if q <= 0.0:
+            continue
         k = np.maximum(np.round(z / q), 1.0)
-        if np.mean(np.abs(z - k * q) <= 0.1 * q + 0.02 * z) >= 0.98:
-            few = k <= 4   # where the window's jitter is smallest
-            return float(np.median(z[few] / k[few])) if few.any() else q
+        off = np.abs(z - k * q)
+        few = k < 15
+        if few.sum() >= 10:
+            holds = np.mean(off[few] <= 0.1 * q + JITTER * z[few]) >= 0.98
+            use = few
+        else:
+            holds = np.mean(off <= 0.1 * q) >= 0.98
+            use = np.ones(len(z), bool)
+        if holds:
+            return float(np.median(z[use] / k[use]))
     return 0.0
 
 
