@@ -570,6 +570,24 @@ def measured_current_rig(folder, *, J=2e-4, B=2e-3, kt=0.05, forward=0.02, rever
 
 # -- a hobby shield whose drive is a concave function of the command --------------------
 
+def _shield_speed(volts, ang, *, R, K, J, B, dt, sub, cpr) -> np.ndarray:
+    """The shield's motor driven by ``volts`` (held a sample each) from rest at angle
+    ``ang``: ``J w' = K (v - K w)/R - B w`` in ``sub`` steps a sample; the encoder's counts
+    (``cpr`` a turn) over the sample before each sample, in rad/s."""
+    h = dt / sub
+    w = 0.0
+    angle = np.empty(len(volts) + 1)
+    angle[0] = ang
+    for k, v in enumerate(volts):
+        for _ in range(sub):
+            dw = h * (K * (v - K * w) / R - B * w) / J
+            ang += h * (w + 0.5 * dw)
+            w += dw
+        angle[k + 1] = ang
+    counts = np.floor(angle * cpr / (2 * math.pi))
+    return np.concatenate([[0.0], np.diff(counts)[:-1]]) * 2 * math.pi / cpr / dt
+
+
 def shield_steps(folder, *, R=2.0, K=0.01, J=2e-6, B=1e-7, supply=12.0, power=0.55, fs=100.0,
                  cpr=400, levels=(1.2, 1.8, 2.4, 2.9, 3.4, 3.8, 4.2, 4.6), seed=29) -> list[Path]:
     """An Arduino motor shield stepped from rest to each command (0-5 V) and back, logged
@@ -580,23 +598,13 @@ def shield_steps(folder, *, R=2.0, K=0.01, J=2e-6, B=1e-7, supply=12.0, power=0.
     folder = _folder(folder)
     rng = np.random.default_rng(seed)
     dt, sub = 1.0 / fs, 20
-    h = dt / sub
     out = []
     for lv in levels:
         n0, n1, n2 = int(0.3 * fs), int(1.5 * fs), int(1.0 * fs)
         u = np.concatenate([np.zeros(n0), np.full(n1, lv), np.zeros(n2)])
-        w, ang = 0.0, rng.uniform(0, 2 * math.pi / cpr)
-        angle = np.empty(len(u) + 1)
-        angle[0] = ang
-        for k, uk in enumerate(u):
-            v = supply * (uk / 5.0) ** power if uk > 0 else 0.0
-            for _ in range(sub):
-                dw = h * (K * (v - K * w) / R - B * w) / J
-                ang += h * (w + 0.5 * dw)
-                w += dw
-            angle[k + 1] = ang
-        counts = np.floor(angle * cpr / (2 * math.pi))
-        speed = np.concatenate([[0.0], np.diff(counts)[:-1]]) * 2 * math.pi / cpr / dt
+        volts = [supply * (uk / 5.0) ** power if uk > 0 else 0.0 for uk in u]
+        speed = _shield_speed(volts, rng.uniform(0, 2 * math.pi / cpr), R=R, K=K, J=J, B=B,
+                              dt=dt, sub=sub, cpr=cpr)
         t = np.arange(len(u)) * dt
         out.append(_write_csv(folder / f"step_{lv:.1f}V.csv", "t,u,speed", "{:.3f},{:.3f},{:.4f}",
                               t, u, speed))
@@ -699,23 +707,13 @@ def shield_long_record(folder, *, R=2.0, K=0.01, J=2e-6, B=1e-7, supply=12.0, po
     folder = _folder(folder)
     rng = np.random.default_rng(seed)
     dt, sub = 1.0 / fs, 20
-    h = dt / sub
     hold = int(hold_s * fs)
     u = np.zeros(int(seconds * fs))
     for k in range(0, len(u), 2 * hold):
         u[k:k + hold] = rng.choice([-1.0, 1.0]) * rng.uniform(1.0, 4.6)
-    w, ang = 0.0, rng.uniform(0, 2 * math.pi / cpr)
-    angle = np.empty(len(u) + 1)
-    angle[0] = ang
-    for k, uk in enumerate(u):
-        c = uk + offset_v
-        v = math.copysign(supply * min(abs(c) / 5.0, 1.0) ** power, c)
-        for _ in range(sub):
-            dw = h * (K * (v - K * w) / R - B * w) / J
-            ang += h * (w + 0.5 * dw)
-            w += dw
-        angle[k + 1] = ang
-    counts = np.floor(angle * cpr / (2 * math.pi))
-    speed = np.concatenate([[0.0], np.diff(counts)[:-1]]) * 2 * math.pi / cpr / dt
+    volts = [math.copysign(supply * min(abs(uk + offset_v) / 5.0, 1.0) ** power, uk + offset_v)
+             for uk in u]
+    speed = _shield_speed(volts, rng.uniform(0, 2 * math.pi / cpr), R=R, K=K, J=J, B=B, dt=dt,
+                          sub=sub, cpr=cpr)
     t = np.arange(len(u)) * dt
     return _write_csv(folder / "long.csv", "t,u,speed", "{:.3f},{:.3f},{:.4f}", t, u, speed)
