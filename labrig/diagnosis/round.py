@@ -40,6 +40,8 @@ from labrig.model.simulate import prepare
 #: a nested pair's simpler member this much worse (fitness) than the richer one is fitted
 #: from the richer one's result too (:meth:`Round.nested`)
 NESTED_MARGIN = 0.02
+#: turns of fitting a nested pair's members each from the other, while a turn gains
+NESTED_TURNS = 3
 
 
 @dataclass
@@ -189,16 +191,6 @@ class Round:
         scan alone, the two can end in different basins, and the seed would decide between
         near equals."""
         by = {c.effect: c for c in ranking}
-        jobs = []
-        for rich in list(by):
-            simple = get_effect(rich).simpler
-            if simple not in by:
-                continue
-            fr, fs = by[rich].evaluation.fitness, by[simple].evaluation.fitness
-            if fr > fs:
-                jobs.append((rich, simple))
-            elif fs > (1.0 + NESTED_MARGIN) * fr:
-                jobs.append((simple, rich))
 
         def one(job):
             name, other = job
@@ -210,9 +202,25 @@ class Round:
                 return None
             return None if ident is None else self.entry(ident, name)
 
-        for (name, _), c in zip(jobs, each(one, jobs)):
-            if c is not None and c.evaluation.fitness < by[name].evaluation.fitness:
-                by[name] = c
+        # in turns while one gains: a richer member fitted from the simpler can end well
+        # below it, and then the simpler is fitted from the richer's new result
+        for _ in range(NESTED_TURNS):
+            changed = False
+            jobs = []
+            for rich in list(by):
+                simple = get_effect(rich).simpler
+                if simple not in by:
+                    continue
+                fr, fs = by[rich].evaluation.fitness, by[simple].evaluation.fitness
+                if fr > fs:
+                    jobs.append((rich, simple))
+                elif fs > (1.0 + NESTED_MARGIN) * fr:
+                    jobs.append((simple, rich))
+            for (name, _), c in zip(jobs, each(one, jobs)):
+                if c is not None and c.evaluation.fitness < by[name].evaluation.fitness:
+                    by[name], changed = c, True
+            if not changed:
+                break
         return [by[c.effect] for c in ranking]
 
     def stale(self, ranking) -> Candidate | None:
