@@ -179,3 +179,10 @@ def test_readme_quotes_the_recorded_long_record_benchmark():
     """`--auto` on long recordings against the README's default round is what
     benchmarks/bench_long.py writes from benchmarks/results_long.json, misses included."""
     assert _markdown("bench_long.py") in (ROOT / "README.md").read_text()
+
+
+def test_readme_quotes_the_recorded_seed_benchmark():
+    """The loop's answer on the long axis records against the seed and the BLAS kernel is
+    what benchmarks/bench_seeds.py writes from benchmarks/results_seeds.json, misses
+    included."""
+    assert _markdown("bench_seeds.py") in (ROOT / "README.md").read_text()
