@@ -194,3 +194,62 @@ def test_the_ladder_and_the_ranking_as_interactive_figures():
     lad = lr.ladder(runs, [m0, diag.recommended_model()])
     src = lad.view().renderers[0].data_source.data
     assert list(src["overall"]) == [s.rmse_over_noise["overall"] for s in lad.steps]
+
+
+#: the public verbs (the functions `import labrig as lr` gives)
+VERBS = ("sweep", "read_runs", "analyse", "identify", "add_effect", "remove_effect",
+         "diagnose", "auto", "propose", "decide", "compare", "ladder", "effects",
+         "load_model")
+
+
+@pytest.mark.parametrize("name", VERBS)
+def test_every_verb_is_documented_as_an_api(name):
+    """Each public verb's docstring has numpydoc Parameters (when it takes any), Returns
+    and Examples sections, each naming every parameter it takes."""
+    import inspect
+
+    fn = getattr(lr, name)
+    doc = inspect.getdoc(fn)
+    sections = {s for s in ("Parameters", "Returns", "Raises", "Examples")
+                if re.search(rf"^{s}\n-+$", doc, re.M)}
+    takes = [p for p in inspect.signature(fn).parameters.values()
+             if p.kind is not p.VAR_KEYWORD]
+    assert {"Returns", "Examples"} <= sections, (name, sections)
+    if takes:
+        assert "Parameters" in sections, name
+        params = doc.split("Parameters\n")[1].split("\nReturns\n")[0]
+        for p in takes:
+            assert re.search(rf"\b{p.name}\b", params), f"{name}: {p.name} is not described"
+
+
+def test_the_verbs_examples_run_as_written(monkeypatch):
+    """The verbs' examples that are cheap to run (reading runs, the analyser, the
+    catalogue) give what they show, from the repository's folder; the others (fits of
+    several seconds) are marked as not run."""
+    import doctest
+
+    import labrig.verbs.acquire
+    import labrig.verbs.data
+    import labrig.verbs.fit
+    import labrig.verbs.loop
+
+    monkeypatch.chdir(ROOT)
+    ran = 0
+    for mod in (labrig.verbs.acquire, labrig.verbs.data, labrig.verbs.fit, labrig.verbs.loop):
+        res = doctest.testmod(mod, optionflags=doctest.ELLIPSIS)
+        assert res.failed == 0, mod.__name__
+        ran += res.attempted
+    assert ran >= 6
+
+
+def test_removing_an_effect_the_model_lacks_names_the_argument():
+    """``remove_effect`` validates at entry, naming its parameter and the model's effects
+    (it used to hand back the model unchanged)."""
+    from labrig.model.effectset import EffectSet
+
+    m = lr.Model(params={"R": 8.0, "L": 0.01, "K": 0.05, "J": 1e-4, "B": 1e-5},
+                 effects=EffectSet.parse(["deadband"]), effect_params={"deadband": {"d_v": 0.3}})
+    assert lr.remove_effect(m, "deadband").names == []
+    with pytest.raises(lr.UserError, match=r"^name: 'stiction' is not an effect of the "
+                                           r"model; its effects: deadband$"):
+        lr.remove_effect(m, "stiction")

@@ -8,6 +8,7 @@ cycle or a call back up the layers.
 from __future__ import annotations
 
 import ast
+import re
 from pathlib import Path
 
 PKG = Path(__file__).resolve().parent.parent / "labrig"
@@ -182,3 +183,15 @@ def test_front_ends_reach_the_library_through_the_verbs():
                   for d in deps
                   if _part(d) not in DOOR + (_part(m),) + FRONT_ENDS[_part(m)])
     assert past == []
+
+
+def test_no_benchmark_history_in_the_code():
+    """Timings go stale where they are written: they live in benchmarks/ and the README's
+    records, and the code's docstrings and comments say why, not how fast it was once
+    ("2.4 s against 1.7 s", "3.5 times slower")."""
+    stale = re.compile(r"\d ?m?s against \d|\d(\.\d+)? times (slower|faster)|\dx (slower|faster)"
+                       r"|one run each")
+    found = [f"{p.relative_to(PKG.parent)}:{k}: {line.strip()}"
+             for p in sorted(PKG.rglob("*.py"))
+             for k, line in enumerate(p.read_text().splitlines(), 1) if stale.search(line)]
+    assert not found, "\n".join(found)

@@ -10,9 +10,8 @@ time, in the kernel (benchmarks/README.md, 'Where the time goes', has the measur
 
 :func:`keep_freed_memory` asks glibc (``mallopt(M_TOP_PAD)``) for that padding. The
 command line calls it once at start, and so does ``import labrig`` (a notebook's diagnose
-round took 2.35 s without it against 1.7 s, measured on 2 cores: its fits are the command
-line's); the heap then keeps up to 64 MB free at its top. Elsewhere (macOS, musl) it does
-nothing.
+round is the command line's fits, and was as much slower without it); the heap then keeps
+up to 64 MB free at its top. Elsewhere (macOS, musl) it does nothing.
 """
 from __future__ import annotations
 

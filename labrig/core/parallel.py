@@ -48,7 +48,7 @@ def one_blas_thread() -> None:
     """Hold numpy's BLAS to one thread, unless the user has set it. labrig's matrices are
     small (a fit's few-by-few SVDs and Gram matrices, norms of one run), so BLAS threads
     never pay; OpenBLAS's idle threads spin for a while after every call, on the core a
-    second fit needs (a diagnose round 2.4 s against 1.7 s on 2 cores, measured), and a
+    second fit needs (a diagnose round markedly slower on 2 cores), and a
     threaded norm sums in an order that depends on the machine's core count (the last
     digits of a fit percentage moved with it). Before numpy loads its BLAS the
     environment does it (the command line calls this first); once it has loaded (a

@@ -346,10 +346,9 @@ class LabPage:
                 self.run_pick.value = r["worst"]
             self._show_overlay()
             # a new rung: the sliders start from its fit, once its chain of jobs (the
-            # diagnosis, the ladder) is done: built beside the diagnosis (0.7 s of this
-            # process, and the browser's drawing) they took a core from it (2.5 s against
-            # 1.6 s alone, traced); the rung's number and its curve on the worst run are
-            # shown at once
+            # diagnosis, the ladder) is done: built beside the diagnosis (this process's
+            # work and the browser's drawing) they took a core from it and slowed it; the
+            # rung's number and its curve on the worst run are shown at once
             if self._hand_view_behind():
                 self._explored = r
                 self.rm_pick.options = list(r["effects"])

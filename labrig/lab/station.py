@@ -202,12 +202,12 @@ class Station:
 
     def warm(self) -> None:
         """Load the simulator's kernels into this process, once, in the background: the
-        hand view simulates here (its first comparison took 0.57 s, 0.03 s warm). Called
-        by the first job sent (the page waits for it) or by :meth:`poll` once the station
-        has been idle a while. Loaded when its rung arrived, they ran beside the worker's
-        diagnosis; at the server's start they slowed the page's first load (3.45 s against
-        2.98 s, one run each); at the page's load they delayed a sweep started at once
-        (its live view 1.0 s behind, not 0.5). The worker warms its own."""
+        hand view simulates here (a cold first comparison is many times a warm one).
+        Called by the first job sent (the page waits for it) or by :meth:`poll` once the
+        station has been idle a while: loaded when its rung arrived, they ran beside the
+        worker's diagnosis; at the server's start they slowed the page's first load; at
+        the page's load they delayed a sweep started at once (its live view fell behind).
+        The worker warms its own."""
         if self._warming is None:
             self._warming = threading.Thread(target=lr.warm_up, name="labrig-warm",
                                              daemon=True)

@@ -241,7 +241,7 @@ def _loop_candidate(p, s, m, frac, prm, S, c, out_w, out_th, out_i, store, wm, i
     for k in range(n):
         yth = play if gap else x
         # (as _candidate writes it: the same lines as one inline function made this kernel
-        # 3.5 times slower, measured)
+        # several times slower)
         if store:
             out_w[p, k] = w
             out_th[p, k] = yth

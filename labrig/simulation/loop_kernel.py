@@ -369,8 +369,8 @@ _FRICTION, _FRICTION_ST = DELAY | FRICTION, DELAY | FRICTION | STEADY
 @numba.njit(cache=True, inline="always")
 def loop_sample(X, q, N, iw, it, wmk, tmk, c, delay, friction, play, steady, no_kink):
     """:func:`_sweep_loop` with the build for the terms the block needs. Five builds for the
-    terms: the compiler did not vectorise the others (measured: a build with friction but
-    without the delay's terms came out scalar, 5x slower). An asymmetry needs no build of
+    terms: the compiler did not vectorise the others (a build with friction but without
+    the delay's terms came out scalar, several times slower). An asymmetry needs no build of
     its own (its slot's coefficients are the lane's, as every slot's). ``steady``: the
     input did not change and no lane was redone in the sample before (builds without the
     piece's search, STEADY); ``no_kink``: no lane of the block has a dead zone or an

@@ -25,10 +25,10 @@ plan files), :mod:`~labrig.verbs.acquire` (bridges and sweeps), :mod:`~labrig.ve
 :mod:`~labrig.verbs.mystery` (mystery rigs for a class); :mod:`~labrig.verbs.figures`
 and :mod:`~labrig.verbs.types` give the front ends the figures and types of results.
 
-Each verb imports the library inside itself, on first use: measured on this machine (2
-cores), ``import labrig.verbs`` takes 0.02 s and the library's modules eagerly 0.56 s
-(numba, scipy, matplotlib), which every ``labrig --help`` and every ``import labrig`` in
-a notebook would pay.
+Each verb imports the library inside itself, on first use: imported eagerly, the
+library's modules (numba, scipy, matplotlib) would cost every ``labrig --help`` and every
+``import labrig`` in a notebook half a second or more (benchmarks/bench_startup.py
+records it).
 """
 from labrig.verbs.acquire import (board_id, doctor, emulator, find_board, flash, format_board_id,
                                   live, open_bridge, play, ports, sweep, wiring)

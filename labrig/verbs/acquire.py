@@ -26,6 +26,26 @@ def sweep(output, plan=None, rig=None, *, port: str | None = None, seed: int | N
         Called as samples arrive.
     progress : callable(Event), optional
         Hears each experiment start, its samples arrive and its run written (:func:`play`).
+
+    Returns
+    -------
+    list of Run
+        The runs written, read back.
+
+    Raises
+    ------
+    UserError
+        A plan or rig file that does not validate, or a run already in ``output``.
+    RigError
+        The board failed mid-run (the finished runs are kept, the output left at 0 V).
+    Interrupted
+        Ctrl-C: the finished runs are kept and the output left at 0 V.
+
+    Examples
+    --------
+    >>> import labrig as lr
+    >>> runs = lr.sweep("runs")  # doctest: +SKIP
+    >>> [r.name for r in runs][:2]  # doctest: +SKIP
     """
     from labrig.verbs.data import load_plan, load_rig
 

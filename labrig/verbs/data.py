@@ -24,6 +24,18 @@ def read_runs(source, *, through: str | None = "auto"):
     -------
     list of Run
         Sorted by name, as ``labrig`` commands read them.
+
+    Raises
+    ------
+    UserError
+        An empty ``source``, something that is not a folder, run file or Run, or a run
+        file that cannot be read (the message names the file and the row).
+
+    Examples
+    --------
+    >>> import labrig as lr
+    >>> [r.name for r in lr.read_runs("data/sweep_default")]
+    ['cl_sq_0.50V', 'cl_sq_0.60V', 'sq_1.20V', 'sq_1.50V', 'sq_2.00V', 'sq_2.50V']
     """
     from labrig.identification.closedloop import choose_way
 
@@ -69,8 +81,20 @@ def model_of(model):
 
 def effects():
     """The effect catalogue: each effect's parameters, its physics, where it shows in the
-    residuals and the experiment that confirms it. Returns a
-    :class:`~labrig.model.catalogue.Catalogue`."""
+    residuals and the experiment that confirms it.
+
+    Returns
+    -------
+    Catalogue
+        Iterates over the effects' names; ``to_pandas()`` is the table, and a notebook
+        shows it.
+
+    Examples
+    --------
+    >>> import labrig as lr
+    >>> list(lr.effects())[:3]
+    ['deadband', 'coulomb_friction', 'saturation']
+    """
     from labrig.model.catalogue import Catalogue
 
     return Catalogue.builtin()
@@ -95,7 +119,30 @@ def parse_effects(names, origin: str | None = None):
 
 
 def load_model(path):
-    """A model file (``identify -o``, ``diagnose -o``) as a :class:`~labrig.model.model.Model`."""
+    """A model file (``identify -o``, ``diagnose -o``) as a Model.
+
+    Parameters
+    ----------
+    path : str or Path
+        The model's JSON file.
+
+    Returns
+    -------
+    Model
+
+    Raises
+    ------
+    UserError
+        A file that is not a labrig model (the message names the file and the key), or
+        one naming user effects from code not trusted (``trust_code``).
+
+    Examples
+    --------
+    >>> import labrig as lr
+    >>> m = lr.load_model("m1.json")  # doctest: +SKIP
+    >>> m.names  # doctest: +SKIP
+    ['deadband']
+    """
     from labrig.model.model import Model
 
     return Model.load(path)

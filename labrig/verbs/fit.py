@@ -10,8 +10,33 @@ from labrig.verbs.data import model_of, read_runs
 def analyse(source, *, tolerance: float | None = None):
     """Deadband, Km and tau_m from open-loop runs (``labrig analyse``).
 
-    ``source`` as in :func:`read_runs`, or a steady-state table CSV (like the seed
-    paper's Table 1). Returns an :class:`~labrig.analysis.result.AnalysisResult`.
+    Parameters
+    ----------
+    source : str, Path, Run, or a list of them
+        Runs as :func:`read_runs` reads them, or a steady-state table CSV (a column of
+        input volts and one of steady speeds, like the seed paper's Table 1).
+    tolerance : float, optional
+        How far (relative) the gain of each amplitude may stray from the others' before
+        the result calls the gain amplitude-dependent; default the analyser's own.
+
+    Returns
+    -------
+    AnalysisResult
+        ``km``, ``deadband_v``, ``tau_s`` and the per-amplitude ``levels``; ``plot()``
+        draws the steady speeds against the input, ``to_pandas()`` the table.
+
+    Raises
+    ------
+    UserError
+        A source that cannot be read, or runs with no step to analyse (the message
+        names the file and what to give instead).
+
+    Examples
+    --------
+    >>> import labrig as lr
+    >>> res = lr.analyse("data/sweep_default")
+    >>> round(res.km)
+    97
     """
     from labrig.analysis.dataset import analyse as _analyse
     from labrig.analysis.result import GAIN_TOLERANCE
@@ -40,6 +65,8 @@ def identify(source, method: str = METHOD, effects=(), *, model=None, seed: int 
         fresh seed, recorded in the result (``result.seed``) to repeat it.
     fixed, bounds : dict, optional
         ``{"R": 8.2}`` and ``{"R": (1, 20)}``, as ``--fix`` and ``--bounds``.
+    through : {"auto", "loop", "input"} or None
+        Closed-loop runs, as :func:`read_runs`'s.
     progress : callable(Event), optional
         Hears each iteration (JFO, PSO) or start (CO) with the best fitness so far
         (:class:`labrig.core.progress.Event`, kind ``iteration``).
@@ -50,7 +77,23 @@ def identify(source, method: str = METHOD, effects=(), *, model=None, seed: int 
     Returns
     -------
     Identification
-        ``.model()`` is the fitted :class:`~labrig.model.model.Model`.
+        ``.model()`` is the fitted :class:`~labrig.model.model.Model`; ``fitness``, the
+        parameters with their intervals where the data resolve them, and the bounds a
+        parameter ended at.
+
+    Raises
+    ------
+    UserError
+        An unknown method or effect name, a source that cannot be read, bounds outside
+        a parameter's range (the message names the argument).
+    FitDiverged
+        Every start's simulation overflowed: start from a model nearer the data.
+
+    Examples
+    --------
+    >>> import labrig as lr
+    >>> fit = lr.identify("data/sweep_default", effects=["deadband"])  # doctest: +SKIP
+    >>> fit.model().effect_params["deadband"]["d_v"]  # doctest: +SKIP
     """
     from labrig.identification.engine import identify as _identify
     from labrig.model.effectset import EffectSet
@@ -71,11 +114,37 @@ def identify(source, method: str = METHOD, effects=(), *, model=None, seed: int 
 
 def add_effect(source, model, effect, *, method: str = "co", seed: int | None = SEED,
                through: str | None = "auto", progress=None, **options):
-    """``model`` with ``effect`` (a catalogue name, or several) added, fitted from where
-    ``model`` was fitted: the warm-started add of the loop (``labrig identify --model M
-    --effects E``; the demo, the report and the lab page add this way). ``options`` as
-    :func:`identify` (``starts=1``: one start, from the model). Returns an
-    :class:`~labrig.identification.engine.Identification`."""
+    """``model`` with ``effect`` added, fitted from where ``model`` was fitted: the
+    warm-started add of the loop (``labrig identify --model M --effects E``; the demo,
+    the report and the lab page add this way).
+
+    Parameters
+    ----------
+    source : str, Path, Run, or a list of them
+        The runs, as :func:`read_runs` reads them.
+    model : Model, model file or Identification
+        The model to add to; its effects are kept.
+    effect : str or list of str
+        A catalogue name (``lr.effects()`` lists them), or several.
+    method, seed, through, progress, **options
+        As :func:`identify`'s (``starts=1``: one start, from the model).
+
+    Returns
+    -------
+    Identification
+        The fit with the effect; ``.model()`` is the new model.
+
+    Raises
+    ------
+    UserError
+        An unknown effect name, or one the model holds already.
+
+    Examples
+    --------
+    >>> import labrig as lr
+    >>> m0 = lr.identify("data/sweep_default").model()  # doctest: +SKIP
+    >>> m1 = lr.add_effect("data/sweep_default", m0, "deadband").model()  # doctest: +SKIP
+    """
     names = [effect] if isinstance(effect, str) else list(effect)
     return identify(source, method, names, model=model, seed=seed, through=through,
                     progress=progress, **options)
@@ -126,18 +195,65 @@ def set_by_hand(source, model, values: dict):
 
 
 def remove_effect(model, name: str):
-    """``model`` without its effect ``name`` (its other values kept, nothing re-fitted)."""
+    """``model`` without its effect ``name``, its other values kept, nothing re-fitted.
+
+    Parameters
+    ----------
+    model : Model, model file or Identification
+    name : str
+        The effect to take out.
+
+    Returns
+    -------
+    Model
+
+    Raises
+    ------
+    UserError
+        ``name`` is not one of the model's effects.
+
+    Examples
+    --------
+    >>> import labrig as lr
+    >>> m1 = lr.identify("data/sweep_default", effects=["deadband"]).model()  # doctest: +SKIP
+    >>> lr.remove_effect(m1, "deadband").names  # doctest: +SKIP
+    []
+    """
     from labrig.diagnosis.refit import without
 
-    return without(model_of(model), name)
+    m = model_of(model)
+    if name not in m.names:
+        raise UserError(f"name: {name!r} is not an effect of the model; its effects: "
+                        + (", ".join(m.names) or "none"))
+    return without(m, name)
 
 
 def compare(source, model, *, through: str | None = "auto", detail: bool = True):
-    """The model simulated on the runs: fit %, rmse/noise by run and regime, residuals
-    (``labrig compare``). Returns an :class:`~labrig.diagnosis.evaluation.Evaluation`; its
-    ``plot()`` overlays model and measurement with the residual and its noise band.
-    ``detail=False``: the residuals, fit % and rmse/noise only, the same numbers in a
-    third of the time (no regimes, stretches or correlations: what a slider redraws)."""
+    """The model simulated on the runs, against the measurements (``labrig compare``).
+
+    Parameters
+    ----------
+    source : str, Path, Run, or a list of them
+        The runs, as :func:`read_runs` reads them.
+    model : Model, model file or Identification
+    through : {"auto", "loop", "input"} or None
+        Closed-loop runs, as :func:`read_runs`'s.
+    detail : bool
+        False: the residuals, fit % and rmse/noise only, the same numbers without the
+        regimes, stretches and correlations (what a slider redraws).
+
+    Returns
+    -------
+    Evaluation
+        Fit %, rmse/noise by run and regime, the residuals; ``plot()`` overlays model
+        and measurement with the residual and its noise band.
+
+    Examples
+    --------
+    >>> import labrig as lr
+    >>> m = lr.identify("data/sweep_default").model()  # doctest: +SKIP
+    >>> lr.compare("data/sweep_default", m).rmse_over_noise  # doctest: +SKIP
+    """
     from labrig.diagnosis.evaluation import evaluate
 
     return evaluate(read_runs(source, through=through), model_of(model), detail=detail)
@@ -146,8 +262,24 @@ def compare(source, model, *, through: str | None = "auto", detail: bool = True)
 def ladder(source, models, *, through: str | None = "auto"):
     """The error after each added effect, against the noise floor (``labrig ladder``).
 
-    ``models``: a list of Models, model files or fits, simplest first (a file's rung
-    names it). Returns a :class:`~labrig.diagnosis.ladder.Ladder`.
+    Parameters
+    ----------
+    source : str, Path, Run, or a list of them
+        The runs, as :func:`read_runs` reads them.
+    models : list of Model, model file or Identification
+        Simplest first; a file's rung is named after it.
+    through : {"auto", "loop", "input"} or None
+        Closed-loop runs, as :func:`read_runs`'s.
+
+    Returns
+    -------
+    Ladder
+        One rung a model: in-sample and held-out rmse/noise; ``plot()`` draws the ladder.
+
+    Examples
+    --------
+    >>> import labrig as lr
+    >>> lr.ladder("data/sweep_default", ["m0.json", "m1.json"])  # doctest: +SKIP
     """
     from os import PathLike
 

@@ -13,15 +13,50 @@ def diagnose(source, model=None, *, candidates=None, seed: int = SEED,
              progress=None, screen: bool = True):
     """Where the model fails and which catalogue effect is missing (``labrig diagnose``).
 
-    ``model`` (a Model, a model file or an Identification) defaults to the linear model
-    fitted here; ``weights`` (:func:`channel_weights`) default to balanced on it;
-    ``progress(event)`` hears each candidate's re-fit start (kind ``candidate``), each
-    re-fit done (``fitted``) and each held-out error known (``validated``): the ranking
-    as it forms. ``screen=False`` re-fits every candidate to the end (``--full``: by
-    default a re-fit that stalls without gaining is ended early,
-    :func:`labrig.diagnosis.criteria.screen`). Returns a
-    :class:`~labrig.diagnosis.ranking.Diagnosis`; its ``recommended_model()`` is the
-    re-fitted model with the recommended effect.
+    Parameters
+    ----------
+    source : str, Path, Run, or a list of them
+        The runs, as :func:`read_runs` reads them.
+    model : Model, model file or Identification, optional
+        The model to diagnose; default the linear model, fitted here.
+    candidates : list of str, optional
+        The catalogue effects to try; default every one the model can take.
+    seed : int
+        Default 0: the same runs give the same ranking.
+    fixed : dict, optional
+        Parameters held at a value (``{"R": 8.2}``), as ``--fix``.
+    weights : Weights, optional
+        Of position and speed (:func:`channel_weights`); default balanced on the model.
+    through : {"auto", "loop", "input"} or None
+        Closed-loop runs, as :func:`read_runs`'s.
+    progress : callable(Event), optional
+        Hears each candidate's re-fit start (kind ``candidate``), each re-fit done
+        (``fitted``) and each held-out error known (``validated``): the ranking as it
+        forms.
+    screen : bool
+        False re-fits every candidate to the end (``--full``); by default a re-fit that
+        stalls without gaining is ended early (:func:`labrig.diagnosis.criteria.screen`).
+
+    Returns
+    -------
+    Diagnosis
+        The candidates ranked with their evidence (in-sample, held out, by regime) and
+        the words for each; ``recommended_model()`` is the re-fitted model with the
+        recommended effect, ``plot()`` the residuals by regime.
+
+    Raises
+    ------
+    UserError
+        An unknown candidate name or a source that cannot be read.
+    FitDiverged
+        Every candidate's re-fit diverged: start from a model nearer the data.
+
+    Examples
+    --------
+    >>> import labrig as lr
+    >>> diag = lr.diagnose("data/sweep_default")  # doctest: +SKIP
+    >>> diag.recommendation  # doctest: +SKIP
+    'deadband'
     """
     from labrig.diagnosis.diagnose import diagnose as _diagnose
     from labrig.model.effects import get_effect
@@ -64,13 +99,43 @@ def auto(source, model=None, *, max_rounds: int = 3, seed: int = SEED,
          fixed: dict | None = None, weights=None, through: str | None = "auto", log=None,
          on_step=None, progress=None, screen: bool = True):
     """The loop run to the end: add, pair, swap and remove effects while the
-    cross-validated error falls (``labrig diagnose --auto``). Returns an
-    :class:`~labrig.diagnosis.auto.AutoDiagnosis` with the final model and its ladder;
-    ``log(line)`` receives the rounds' summaries and ``on_step(k, model)`` every rung as
-    the search climbs the ladder; ``progress(event)`` hears both (kinds ``note`` and
-    ``rung``, the rung's model as its data) and each round's candidates as
-    :func:`diagnose`'s does (``fitted``, ``validated``); ``screen``: as
-    :func:`diagnose`'s."""
+    cross-validated error falls (``labrig diagnose --auto``).
+
+    Parameters
+    ----------
+    source : str, Path, Run, or a list of them
+        The runs, as :func:`read_runs` reads them.
+    model : Model, model file or Identification, optional
+        Where the search starts; default the linear model, fitted here.
+    max_rounds : int
+        At most this many effects added (1 or more).
+    seed, fixed, weights, through, screen
+        As :func:`diagnose`'s.
+    log : callable(str), optional
+        Receives the rounds' summaries.
+    on_step : callable(int, Model), optional
+        Hears every rung as the search climbs the ladder (0: the start).
+    progress : callable(Event), optional
+        Hears both (kinds ``note`` and ``rung``, the rung's model as its data) and each
+        round's candidates as :func:`diagnose`'s does (``fitted``, ``validated``).
+
+    Returns
+    -------
+    AutoDiagnosis
+        The final ``model``, its ``ladder``, the moves, the rounds' diagnoses and the
+        confusable pairs (explanations the data leave about equal).
+
+    Raises
+    ------
+    UserError
+        ``max_rounds`` below 1, or a source that cannot be read.
+
+    Examples
+    --------
+    >>> import labrig as lr
+    >>> res = lr.auto("data/sweep_default")  # doctest: +SKIP
+    >>> res.model.names  # doctest: +SKIP
+    """
     from labrig.diagnosis.auto import auto_diagnose
 
     if max_rounds < 1:
@@ -109,13 +174,50 @@ def propose(source, model, between: str | None = None, *, budget_s: float = 20.0
             rig_amplitude: bool = True, loop: str = "open", progress=None):
     """The experiment that best tells two explanations apart (``labrig propose``).
 
-    ``between`` is ``"a,b"`` (default: the model's effect and its usual look-alike);
-    ``rig`` a rig file or :class:`~labrig.io.config.RigConfig`: its sensors bound the
-    travel and, with ``rig_amplitude``, its output limits the input (else the data's
-    largest input does). ``loop``: ``"open"`` (inputs to the amplifier), ``"closed"``
-    (references of the rig's analog position loop: its gains from a closed-loop run of
-    the data, else the rig file's) or ``"any"``. Returns a
-    :class:`~labrig.diagnosis.proposal.Proposal`; ``to_toml()`` is the plan.
+    Parameters
+    ----------
+    source : str, Path, Run, or a list of them
+        The runs so far, as :func:`read_runs` reads them.
+    model : Model, model file or Identification
+        The model holding one of the two explanations.
+    between : str, optional
+        ``"a,b"``: the two effects; default the model's effect and its usual
+        look-alike.
+    budget_s : float
+        Rig seconds the experiment may take.
+    seed : int
+        Default 0: the same runs give the same plan.
+    rig : str, Path or RigConfig, optional
+        Its sensors bound the travel and, with ``rig_amplitude``, its output limits the
+        input (else the data's largest input does).
+    through : {"auto", "loop", "input"} or None
+        Closed-loop runs, as :func:`read_runs`'s.
+    log : callable(str), optional
+        Receives what is tried.
+    loop : {"open", "closed", "any"}
+        Inputs to the amplifier, references of the rig's position loop (its gains from
+        a closed-loop run of the data, else the rig file's), or whichever separates
+        better.
+    progress : callable(Event), optional
+        Hears the notes ``log`` receives.
+
+    Returns
+    -------
+    Proposal
+        The plan (``to_toml()``), both explanations' predictions and the margin between
+        them against the noise; ``plot()`` draws them.
+
+    Raises
+    ------
+    UserError
+        An unknown effect in ``between``, a ``loop`` not listed, a source that cannot be
+        read.
+
+    Examples
+    --------
+    >>> import labrig as lr
+    >>> p = lr.propose("runs", "m1.json", "deadband,coulomb_friction")  # doctest: +SKIP
+    >>> open("plan.toml", "w").write(p.to_toml())  # doctest: +SKIP
     """
     from labrig.diagnosis.propose import propose as _propose
 
@@ -176,8 +278,34 @@ def pair_from_diagnosis(model_path) -> str | None:
 def decide(source, model=None, *, seed: int = SEED, through: str | None = "auto", log=None,
            progress=None):
     """Both explanations of a proposal fitted with and without the proposed runs that were
-    played (``labrig diagnose DIR DIR/new``): a :class:`~labrig.diagnosis.decide.Decision`,
-    or None when the runs hold no proposed run."""
+    played (``labrig diagnose DIR DIR/new``).
+
+    Parameters
+    ----------
+    source : str, Path, Run, or a list of them
+        The runs, the played proposal's among them.
+    model : Model, model file or Identification, optional
+        The model the proposal was made from.
+    seed : int
+        Default 0.
+    through : {"auto", "loop", "input"} or None
+        Closed-loop runs, as :func:`read_runs`'s.
+    log : callable(str), optional
+        Receives what is fitted.
+    progress : callable(Event), optional
+        Hears the notes ``log`` receives.
+
+    Returns
+    -------
+    Decision or None
+        Which explanation the proposed runs favour, by how much against the noise, with
+        and without them; None when the runs hold no proposed run.
+
+    Examples
+    --------
+    >>> import labrig as lr
+    >>> lr.decide(["runs", "runs/new"], "m1.json")  # doctest: +SKIP
+    """
     from labrig.diagnosis.decide import decide as _decide
 
     return _decide(read_runs(source, through=through), model_of(model), seed=seed,
@@ -196,8 +324,7 @@ def warm_up(load: bool = True) -> None:
     """Load the loop's modules and the simulator's kernels into this process now (from
     numba's cache, compiled into it first on a cold cache), so a first click or command
     waits for neither: a process's first simulation otherwise loads them, numba's own
-    start included (0.57 s against 0.03 s warm for the lab page's first comparison of the
-    default sweep, measured). ``load=False``: the modules, and the cache compiled if it
+    start included (a cold first comparison is many times a warm one). ``load=False``: the modules, and the cache compiled if it
     is cold, but the kernels left to load on first use (a process whose first job loads
     what the next ones need, and should not take a core from anything at its start)."""
     import labrig.diagnosis.search  # noqa: F401
