@@ -228,18 +228,34 @@ def test_the_verbs_examples_run_as_written(monkeypatch):
     several seconds) are marked as not run."""
     import doctest
 
-    import labrig.verbs.acquire
-    import labrig.verbs.data
-    import labrig.verbs.fit
-    import labrig.verbs.loop
+    import importlib
 
     monkeypatch.chdir(ROOT)
     ran = 0
-    for mod in (labrig.verbs.acquire, labrig.verbs.data, labrig.verbs.fit, labrig.verbs.loop):
+    for name in ("labrig.verbs.acquire", "labrig.verbs.data", "labrig.verbs.fit",
+                 "labrig.verbs.loop", "labrig.io.runs", "labrig.model.catalogue",
+                 "labrig.identification.engine", "labrig.diagnosis.ranking",
+                 "labrig.diagnosis.auto", "labrig.diagnosis.ladder",
+                 "labrig.diagnosis.proposal"):
+        mod = importlib.import_module(name)
         res = doctest.testmod(mod, optionflags=doctest.ELLIPSIS)
         assert res.failed == 0, mod.__name__
         ran += res.attempted
-    assert ran >= 6
+    assert ran >= 10
+
+
+#: the public results (the classes `import labrig as lr` gives that the verbs return)
+RESULTS = ("Model", "Run", "AnalysisResult", "Identification", "Diagnosis", "AutoDiagnosis",
+           "Evaluation", "Ladder", "Proposal", "Catalogue")
+
+
+@pytest.mark.parametrize("name", RESULTS)
+def test_every_result_is_documented_as_an_api(name):
+    """Each public result's docstring lists its attributes (numpydoc Attributes)."""
+    import inspect
+
+    doc = inspect.getdoc(getattr(lr, name))
+    assert re.search(r"^Attributes\n-+$", doc, re.M), name
 
 
 def test_removing_an_effect_the_model_lacks_names_the_argument():

@@ -46,7 +46,28 @@ class ConfusablePair:
 
 @dataclass(repr=False)
 class AutoDiagnosis(Displayable):
-    """Every round's diagnosis, the final model, its ladder and the confusable pairs."""
+    """Every round's diagnosis, the final model, its ladder and the confusable pairs.
+
+    Attributes
+    ----------
+    rounds : list of Diagnosis
+        One per round of the search.
+    model : Model
+        Where the search ended.
+    ladder : Ladder
+        The error after each move, in-sample and held out.
+    confusable : list of ConfusablePair
+        Explanations the data leave about equal, with where they differ most.
+    moves : list
+        The search's moves (add, pair, swap, remove) with the held-out error before
+        and after each.
+
+    Examples
+    --------
+    >>> import labrig as lr
+    >>> res = lr.auto("data/sweep_default")  # doctest: +SKIP
+    >>> res.model.names, res.ladder.steps[-1].rmse_over_noise  # doctest: +SKIP
+    """
 
     rounds: list[Diagnosis]
     model: Model

@@ -45,7 +45,22 @@ class LadderStep:
 
 @dataclass(repr=False)
 class Ladder(Displayable):
-    """The error after each step; ``to_json()`` is ``labrig ladder --json``."""
+    """The error after each step; ``to_json()`` is ``labrig ladder --json``.
+
+    Attributes
+    ----------
+    steps : list of LadderStep
+        One rung a model, simplest first: its label, effects, rmse/noise and fit % per
+        channel, and its held-out error where the search validated it.
+
+    ``plot()`` draws the rungs against the noise floor; ``to_pandas()`` is the table.
+
+    Examples
+    --------
+    >>> import labrig as lr
+    >>> lad = lr.ladder("data/sweep_default", ["m0.json", "m1.json"])  # doctest: +SKIP
+    >>> lad.to_pandas()  # doctest: +SKIP
+    """
 
     steps: list[LadderStep] = field(default_factory=list)
 

@@ -123,7 +123,35 @@ class Judged:
 class Proposal(Displayable):
     """The proposed experiment, why it separates the pair and by how much; or, when no
     input within the limits separates it (``separates`` False), the best found and what
-    would help instead."""
+    would help instead.
+
+    Attributes
+    ----------
+    pair : tuple of str
+        The two explanations.
+    chosen : Judged
+        The input proposed, with its predicted separation against the noise.
+    judged : list of Judged
+        Every input tried, best first.
+    budget_s : float
+        The rig seconds it was allowed.
+    amax : float
+        The input limit it kept to (V).
+    separates : bool
+        Whether the chosen input separates the pair beyond the noise.
+    advice : str
+        What would help when it does not.
+
+    ``to_toml()`` is the plan ``labrig sweep --plan`` plays; ``plot()`` draws both
+    explanations' predictions.
+
+    Examples
+    --------
+    >>> import labrig as lr
+    >>> p = lr.propose("runs", "m1.json", "deadband,coulomb_friction")  # doctest: +SKIP
+    >>> p.separates  # doctest: +SKIP
+    True
+    """
 
     pair: tuple
     hypotheses: list

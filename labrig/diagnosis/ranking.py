@@ -125,8 +125,31 @@ class Candidate:
 class Diagnosis(Displayable):
     """Where the model fails and which effect is missing, with the evidence.
 
+    Attributes
+    ----------
+    baseline : dict
+        The diagnosed model's rmse/noise and fit % per channel.
+    regimes : dict
+        Its error by regime (start from rest, reversal, steady, ...), worst first.
+    ranking : list of Candidate
+        Each catalogue effect re-fitted, best first: rmse/noise, BIC, held-out error
+        by fold, the evidence by regime, whether it is supported, and the words.
+    recommendation : str or None
+        The effect to add, or None when none earns its parameters.
+    verdict : str
+        The recommendation in a sentence.
+    cross_validation : dict or None
+        How the held-out folds were cut and the base model's held-out error.
+
     ``to_json()`` gives the keys of ``labrig diagnose --json``: baseline, regimes,
-    ranking, recommendation, verdict, cross_validation, noise, weights, criteria, seconds.
+    ranking, recommendation, verdict, cross_validation, noise, weights, criteria, seconds;
+    ``recommended_model()`` the re-fitted model with the recommended effect.
+
+    Examples
+    --------
+    >>> import labrig as lr
+    >>> diag = lr.diagnose("data/sweep_default")  # doctest: +SKIP
+    >>> [c.effect for c in diag.ranking[:2]]  # doctest: +SKIP
     """
 
     baseline: dict

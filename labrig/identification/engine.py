@@ -107,7 +107,35 @@ METHODS = {"jfo": _run_jfo, "pso": _run_pso, "co": _run_co}
 
 @dataclass(repr=False)
 class Identification(Displayable):
-    """An identified model and everything known about how good it is."""
+    """An identified model and everything known about how good it is.
+
+    Attributes
+    ----------
+    method : str
+        ``"co"``, ``"jfo"`` or ``"pso"``.
+    effects : list of Effect
+        The model's effects.
+    params : dict
+        Every fitted parameter, physical units (an effect's as ``"name.param"``).
+    metrics : dict
+        ``fitness``, rmse/noise and fit % per channel, the parameters at a bound.
+    identifiable : dict
+        Per parameter, its interval where the data resolve it, or why not.
+    seconds : float
+        Wall time of the fit.
+    result : IdentResult
+        The optimiser's own record: its ``seed`` (repeat the fit with it), evaluations,
+        history and message.
+
+    ``model()`` is the fitted :class:`~labrig.model.model.Model`; ``to_json()`` is
+    ``labrig identify --json``.
+
+    Examples
+    --------
+    >>> import labrig as lr
+    >>> fit = lr.identify("data/sweep_default")  # doctest: +SKIP
+    >>> fit.metrics["fitness"], fit.model().params["K"]  # doctest: +SKIP
+    """
 
     method: str
     effects: list[Effect]

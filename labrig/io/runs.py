@@ -33,7 +33,31 @@ COLUMN_ORDER = ("t", "u", "tacho", "speed", "pos", "ref", "current")
 
 @dataclass(repr=False)
 class Run:
-    """One acquired or imported run, in raw volts plus its sidecar metadata."""
+    """One acquired or imported run, in raw volts plus its sidecar metadata.
+
+    Attributes
+    ----------
+    name : str
+        The run file's name without ``.csv``.
+    data : pandas.DataFrame
+        The samples: ``t``, ``u`` and the sensors' columns as recorded (volts, or the
+        import's units), ``gap`` where the link lost a sample.
+    meta : dict
+        The sidecar (``.json``): the experiment, the rig, the sensors' gains.
+    path : Path or None
+        The file it was read from.
+
+    The channels are properties: ``t``, ``u``, ``speed`` and ``position`` in physical
+    units (None where the run has no such sensor), ``measured`` (False where the link
+    lost the sample).
+
+    Examples
+    --------
+    >>> import labrig as lr
+    >>> run = lr.read_runs("data/sweep_default")[2]
+    >>> run.name, len(run.u) > 0
+    ('sq_1.20V', True)
+    """
 
     name: str
     data: pd.DataFrame

@@ -11,7 +11,22 @@ from labrig.model.effects import CATALOGUE
 
 @dataclass(repr=False)
 class Catalogue(Displayable):
-    """The effects a model can hold (``lr.effects()``); ``[name]`` gives the class."""
+    """The effects a model can hold (``lr.effects()``); ``[name]`` gives the class.
+
+    Attributes
+    ----------
+    effects : dict
+        Name -> effect class, in the catalogue's order.
+
+    ``to_pandas()`` is the table (name, stage, parameters, physics); a notebook shows it.
+
+    Examples
+    --------
+    >>> import labrig as lr
+    >>> cat = lr.effects()
+    >>> cat["deadband"].name
+    'deadband'
+    """
 
     effects: dict = field(default_factory=dict)
 
