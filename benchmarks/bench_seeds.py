@@ -99,6 +99,7 @@ def _record(folder: Path, tmp: Path) -> dict:
 
 
 def measure() -> dict:
+    load = os.getloadavg()[0]
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         from twin import emps_like_axis
@@ -114,7 +115,6 @@ def measure() -> dict:
             work = tmp / f"work{k}"
             work.mkdir()
             out[what] = _record(folder, work)
-        load = os.getloadavg()[0]
     return {"records": out, "seeds": list(SEEDS), "kernels": [k or "own" for k in KERNELS],
             "tolerance": TOLERANCE, **machine(load)}
 

@@ -203,7 +203,9 @@ class Round:
             return None if ident is None else self.entry(ident, name)
 
         # in turns while one gains: a richer member fitted from the simpler can end well
-        # below it, and then the simpler is fitted from the richer's new result
+        # below it, and then the simpler is fitted from the richer's new result (a job
+        # whose source has not changed since it was tried would give what it gave then)
+        tried = set()
         for _ in range(NESTED_TURNS):
             changed = False
             jobs = []
@@ -216,6 +218,8 @@ class Round:
                     jobs.append((rich, simple))
                 elif fs > (1.0 + NESTED_MARGIN) * fr:
                     jobs.append((simple, rich))
+            jobs = [j for j in jobs if (j, id(by[j[1]])) not in tried]
+            tried.update((j, id(by[j[1]])) for j in jobs)
             for (name, _), c in zip(jobs, each(one, jobs)):
                 if c is not None and c.evaluation.fitness < by[name].evaluation.fitness:
                     by[name], changed = c, True

@@ -28,13 +28,18 @@ def _dispatchers():
             residual_rows.residual_rows]
 
 
-def _sources() -> list[str]:
-    """The kernels' source files: a driver inlines functions from all of them."""
+def _modules() -> list:
+    """The kernel modules: a driver inlines functions from all of them."""
     from labrig.simulation import (candidate_kernel, expm, kernels, layout, loop_kernel,
                                    residual_rows, sampled_kernel)
 
-    return [m.__file__ for m in (candidate_kernel, expm, kernels, layout, loop_kernel,
-                                 residual_rows, sampled_kernel)]
+    return [candidate_kernel, expm, kernels, layout, loop_kernel, residual_rows,
+            sampled_kernel]
+
+
+def _sources() -> list[str]:
+    """The kernels' source files."""
+    return [m.__file__ for m in _modules()]
 
 
 def _indexes(dispatchers=None) -> tuple[list[str], list[str]]:
@@ -65,10 +70,10 @@ def _cached_kernels() -> list:
     the loop's lanes), and numba checks only the callee's own file."""
     import numba.core.registry
 
-    _sources()  # (imports every kernel module)
     out = []
-    for name in ("candidate_kernel", "expm", "kernels", "loop_kernel", "residual_rows"):
-        module = sys.modules[f"labrig.simulation.{name}"]
+    # every kernel module, from the one list the staleness check reads (a module left
+    # out here kept its stale index, and every command then "compiled" it again)
+    for module in _modules():
         for obj in vars(module).values():
             if isinstance(obj, numba.core.registry.CPUDispatcher) and \
                     obj.__module__ == module.__name__ \
