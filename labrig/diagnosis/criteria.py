@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 
-from labrig.model.effects import get_effect
+from labrig.model.effects import CATALOGUE, get_effect
 
 #: a candidate must lower the cross-validated (and the in-sample) error by this much
 MIN_GAIN = 0.05
@@ -110,3 +110,35 @@ def undecided(a, b) -> bool:
             get_effect(a.effect).family_name == get_effect(b.effect).family_name:
         return False
     return score(b) <= (1 + UNDECIDED) * score(a)
+
+
+
+def simpler_first(names) -> tuple:
+    """The deterministic order between explanations the data do not tell apart: fewer
+    parameters first, then the catalogue's order (:data:`labrig.model.effects.CATALOGUE`).
+    It reads only the effects' names, so no seed and no last digit of a fit can change
+    it."""
+    order = list(CATALOGUE)
+    names = list(names)
+    return (sum(len(get_effect(n).params) for n in names),
+            sorted(order.index(n) if n in order else len(order) for n in names))
+
+
+def candidate_order(c) -> tuple:
+    """:func:`simpler_first` for a round's move: the parameters it adds (fewer when it
+    takes some away), then the catalogue's order of its effect."""
+    return (c.extra_params,) + simpler_first([c.effect])[1:]
+
+
+def decide_ties(items: list, error, simpler) -> list:
+    """``items`` best first by ``error(item)``, except that those within :data:`UNDECIDED`
+    of the best come first in the order of ``simpler(item)`` (:func:`simpler_first`):
+    where the data cannot tell explanations apart, the answer is the simpler one by a
+    stated rule, not whichever one the seed or the BLAS kernel's rounding left a hair
+    ahead."""
+    items = sorted(items, key=error)
+    if not items:
+        return items
+    e0 = error(items[0])
+    near = [x for x in items if error(x) <= (1 + UNDECIDED) * e0]
+    return sorted(near, key=simpler) + items[len(near):]

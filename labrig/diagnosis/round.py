@@ -18,8 +18,9 @@ from labrig.core.parallel import each
 from labrig.diagnosis.baseline import at_bounds, balanced_weights, linear_model
 from labrig.diagnosis.candidates import candidate_names, refinements
 from labrig.diagnosis.criteria import (CV_CANDIDATES, FLOOR, MIN_DBIC, MIN_GAIN, REFINE,
-                                       SCREEN_AFTER, SIMPLER_MARGIN, SWAP_GAIN, bic, score,
-                                       screen, supported)
+                                       SCREEN_AFTER, SIMPLER_MARGIN, SWAP_GAIN, UNDECIDED, bic,
+                                       candidate_order, decide_ties, score, screen,
+                                       supported)
 from labrig.diagnosis.crossval import CrossValidation, Folds, cross_validate, fold_evidence, \
     make_folds
 from labrig.diagnosis.evaluation import Evaluation, evaluate
@@ -302,7 +303,12 @@ class Round:
             c.supported = supported(c)
         ranking.sort(key=lambda c: (c.cross_validated is None,
                                     score(c) if c.cross_validated else 0.0, c.delta_bic))
-        return ranking
+        # supported moves the held-out data do not tell apart: the simpler first, by the
+        # stated rule (the recommendation must not be the seed's)
+        good = [c for c in ranking if c.supported]
+        near = [c for c in good if score(c) <= (1 + UNDECIDED) * score(good[0])]
+        lead = decide_ties(near, score, candidate_order)
+        return lead + [c for c in ranking if c not in lead]
 
     def result(self, ranking: list[Candidate], diverged: list[str],
                source: str | None = None) -> Diagnosis:

@@ -28,7 +28,7 @@ from pathlib import Path
 from labrig.diagnosis.crossval import cross_validate
 from labrig.diagnosis.candidates import candidate_names, refinements
 from labrig.diagnosis.criteria import (MIN_DBIC, MIN_GAIN, NEAR_FLOOR, PAIR_POOL, SIMPLER_MARGIN,
-                                  SWAP_GAIN, bic)
+                                  SWAP_GAIN, bic, decide_ties, simpler_first)
 from labrig.diagnosis.diagnose import diagnose, linear_model
 from labrig.diagnosis.evaluation import evaluate
 from labrig.diagnosis.ladder import Ladder, LadderStep, rung_label
@@ -199,7 +199,7 @@ def _pair(judge: _Judge, diag, log) -> Step | None:
     pool = _pool(diag.ranking)
     if not pool or min(c.rmse_over_noise for c in pool) <= NEAR_FLOOR:
         return None
-    best = None
+    tried = []
     for i, a in enumerate(pool):
         for b in pool[i + 1:]:
             if b.effect not in candidate_names(a.model):
@@ -207,11 +207,10 @@ def _pair(judge: _Judge, diag, log) -> Step | None:
             m = judge.add(a.model, b.effect)
             if judge.unresolved(m, [a.effect, b.effect]):
                 continue
-            ev = judge.evaluate(m)
-            if best is None or ev.fitness < best[1].fitness:
-                best = (m, ev, [a.effect, b.effect])
-    if best is None:
+            tried.append((m, judge.evaluate(m), [a.effect, b.effect]))
+    if not tried:
         return None
+    best = decide_ties(tried, lambda t: t[1].fitness, lambda t: simpler_first(t[2]))[0]
     m, ev = judge.or_fresh(best[0], best[1])
     _say(log, f"  trying the pair {' + '.join(best[2])} (no single effect is near the floor)")
     return Step("pair", best[2], m, ev, judge.cv(m))
@@ -239,7 +238,7 @@ def _threshold_pair(judge: _Judge, model, cv_now: float, log) -> Step | None:
     ok = [i for i, ab in enumerate(pairs) if not judge.unresolved(fits[i], list(ab))]
     if not ok:
         return None
-    k = min(ok, key=lambda i: evs[i].fitness)
+    k = decide_ties(ok, lambda i: evs[i].fitness, lambda i: simpler_first(pairs[i]))[0]
     m, ev, names = fits[k], evs[k], list(pairs[k])
     if judge.bic(m, ev) - judge.bic(model, judge.evaluate(model)) >= MIN_DBIC:
         return None
