@@ -349,6 +349,7 @@ def test_two_explanations_within_two_percent_are_reported_as_undecided():
     text = _undecided([cand("deadband", 1.00), cand("coulomb_friction", 1.01)])
     assert "Undecided against coulomb_friction" in text
     assert "labrig propose --between deadband,coulomb_friction" in text
+    assert "fewer parameters, then the catalogue's order" in text   # the stated rule
     assert _undecided([cand("deadband", 1.00), cand("coulomb_friction", 1.10)]) == ""
     assert _undecided([cand("coulomb_friction", 1.00), cand("stiction", 1.00, 2)]) == ""
 

@@ -156,8 +156,10 @@ def undecided_note(supported: list) -> str:
         return ""
     return (f" Undecided against {b.label}: its held-out error ({b.cross_validated['with_effect']:.2f}) "
             f"is within {100 * UNDECIDED:g} % of this one's, so these data do not tell the two "
-            f"apart; `labrig propose --between {a.effect},{b.effect}` designs the run that "
-            "would.")
+            f"apart; this one comes first by the stated rule for such equals (fewer "
+            f"parameters, then the catalogue's order), not by the last digits of the fits; "
+            f"`labrig propose --between {a.effect},{b.effect}` designs the run that would "
+            "tell them apart.")
 
 
 def sensor_verdict(weights, per: dict) -> str:

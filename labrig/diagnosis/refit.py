@@ -35,6 +35,7 @@ from labrig.core.parallel import each
 from labrig.identification.engine import dataset_constants, identify, initial_point
 from labrig.model.plants import plant_of_runs
 from labrig.identification.objective import Objective, build_space
+from labrig.identification.result import at_bounds
 from labrig.model.model import Model
 from labrig.analysis.noise import Weights
 from labrig.model.reach import Reach
@@ -148,6 +149,24 @@ def _swapped_poles(params: dict) -> dict | None:
     return {**params, "L": R * tau_m, "J": tau_e * (B * R + K * K) / R}
 
 
+#: the shares of the model's inertia the scan also tries a threshold in, where
+#: no open-loop step measures the plant (:func:`_lighter_plants`)
+LIGHTER = (0.5, 0.25, 0.125)
+
+
+def _lighter_plants(params: dict, fixed: dict) -> list[dict]:
+    """A torque or force plant with its inertia (``M`` of a force axis, ``J`` of a torque
+    drive) a half, a quarter and an eighth of the model's: a coarse scan of its slowest
+    pole. A model without the threshold has bent its plant to stand in for it (a
+    heavier, slower load), and the threshold added from there makes every point worse
+    before any better; where no open-loop step gives the analyser's plant
+    (:func:`_analysed_plant`: a voltage plant's), this is where the data may put it."""
+    keys = ("M",) if "M" in params else ("J",) if "L" not in params else ()
+    if not keys or not all(k in params for k in keys) or set(keys) & set(fixed):
+        return []
+    return [{**params, **{k: params[k] * f for k in keys}} for f in LIGHTER]
+
+
 def _analysed_plant(runs, params: dict, dt: float) -> dict | None:
     """The voltage plant with the analyser's Km and tau_m (the slope of the steady states
     beyond their intercept, the steps' rise), R and K kept and the electrical pole far
@@ -203,6 +222,8 @@ def starts_for(runs, base_params: dict, effects, new, reach, fixed: dict,
         analysed = _analysed_plant(runs, base_params, reach.dt)
         if analysed is not None:
             basins.append(analysed)
+        else:   # no open-loop step to measure the plant by: a coarse scan of its inertia
+            basins += _lighter_plants(base_params, fixed)
     if _starts_in_motion(base_params):
         # the same plant from the start the data show (see _best_of_starts)
         basins.append({k: v for k, v in base_params.items() if not is_start_key(k)})
@@ -340,6 +361,14 @@ def _best_of_starts(runs, effects, new, params, *, reach, fixed, seed, weights, 
             # BLAS kernels)
             if not moved.diverged and moved.fitness <= (1.0 - POLISH_GAIN) * best.fitness:
                 best = best_fit([best, moved], what)
+        if _level_at_floor(best, new):
+            # the friction stayed at the bottom of its range: the plant the model before
+            # bent to mimic it (a heavy carriage, a slow tau_m) holds it there; the same
+            # effects from the identification's own starts, where the data put the plant
+            again = fresh_fit(runs, effects, seed=seed, fixed=fixed, weights=weights,
+                              reach=reach)
+            if not again.diverged and again.fitness <= (1.0 - POLISH_GAIN) * best.fitness:
+                best = best_fit([best, again], what)
     if not _starts_in_motion(params):
         return best
     # a run that starts in motion had its start fitted by the model before, bent to that
@@ -350,6 +379,13 @@ def _best_of_starts(runs, effects, new, params, *, reach, fixed, seed, weights, 
     again = fit(runs, effects, own, fixed, seed=seed, weights=weights, reach=reach,
                 max_nfev=MOVING_START_NFEV)
     return best_fit([best, again], what)
+
+
+def _level_at_floor(ident, new) -> bool:
+    """Whether the friction law ``new`` ended with a level at the lower bound of its
+    search range (absent: the fit never left the basin of the model without it)."""
+    return any(n.startswith(f"{new.name}.") and side == "lower"
+               for n, _, side, _ in at_bounds(ident.space, ident.params))
 
 
 def simplex_polish(runs, effects, start: dict, fixed: dict, weights: Weights,

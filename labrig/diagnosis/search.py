@@ -205,9 +205,17 @@ def _pair(judge: _Judge, diag, log) -> Step | None:
             if b.effect not in candidate_names(a.model):
                 continue  # two friction laws, two dead zones: not a pair
             m = judge.add(a.model, b.effect)
+            ev = judge.evaluate(m)
+            if ev.fitness > (1 - MIN_GAIN) * min(a.evaluation.fitness, b.evaluation.fitness):
+                # no better than its members: b's fit from a's model stayed where a left
+                # the plant; from b's model too (else the last digits say which pair gained)
+                m2 = judge.add(b.model, a.effect)
+                ev2 = judge.evaluate(m2)
+                if ev2.fitness < ev.fitness:
+                    m, ev = m2, ev2
             if judge.unresolved(m, [a.effect, b.effect]):
                 continue
-            tried.append((m, judge.evaluate(m), [a.effect, b.effect]))
+            tried.append((m, ev, [a.effect, b.effect]))
     if not tried:
         return None
     best = decide_ties(tried, lambda t: t[1].fitness, lambda t: simpler_first(t[2]))[0]
