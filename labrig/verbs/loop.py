@@ -22,7 +22,9 @@ def diagnose(source, model=None, *, candidates=None, seed: int = SEED,
     candidates : list of str, optional
         The catalogue effects to try; default every one the model can take.
     seed : int
-        Default 0: the same runs give the same ranking.
+        Default 0: the same runs give the same ranking. The loop's multi-starts are the
+        default seed's design; another seed's random starts are kept only where they fit
+        more than 1 % better, so near-equal minima are not the seed's choice.
     fixed : dict, optional
         Parameters held at a value (``{"R": 8.2}``), as ``--fix``.
     weights : Weights, optional
