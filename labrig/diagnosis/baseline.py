@@ -87,15 +87,16 @@ def linear_model(runs, *, seed=0, fixed=None, weights=Weights(), start: Model | 
     if start is not None:
         return refit(runs, start, seed=seed, fixed=fixed, weights=weights).model()
 
+    # the grid's polishes start from no random point: fitted once, whatever the seed
+    grid = [identify(runs, "co", [], seed=seed, start=pt, starts=1, fixed=fixed,
+                     identifiability=False, p=weights.p, q=weights.q)
+            for pt in grid_starts(runs, fixed or {}, weights)]
+
     def from_starts(s):
         ident = identify(runs, "co", [], seed=s, starts=4, fixed=fixed, identifiability=False,
                          p=weights.p, q=weights.q)
         again = refit(runs, ident.model(), seed=s, fixed=fixed, weights=weights)
-        fits = [again, ident] + [
-            identify(runs, "co", [], seed=s, start=pt, starts=1, fixed=fixed,
-                     identifiability=False, p=weights.p, q=weights.q)
-            for pt in grid_starts(runs, fixed or {}, weights)]
-        return min(fits, key=lambda f: f.fitness)
+        return min([again, ident] + grid, key=lambda f: f.fitness)
     return seed_or_design(from_starts, seed).model()
 
 

@@ -161,10 +161,10 @@ def _lighter_plants(params: dict, fixed: dict) -> list[dict]:
     heavier, slower load), and the threshold added from there makes every point worse
     before any better; where no open-loop step gives the analyser's plant
     (:func:`_analysed_plant`: a voltage plant's), this is where the data may put it."""
-    keys = ("M",) if "M" in params else ("J",) if "L" not in params else ()
-    if not keys or not all(k in params for k in keys) or set(keys) & set(fixed):
+    key = "M" if "M" in params else "J" if "L" not in params and "J" in params else None
+    if key is None or key in fixed:
         return []
-    return [{**params, **{k: params[k] * f for k in keys}} for f in LIGHTER]
+    return [{**params, key: params[key] * f} for f in LIGHTER]
 
 
 def _analysed_plant(runs, params: dict, dt: float) -> dict | None:

@@ -19,8 +19,7 @@ from labrig.diagnosis.baseline import at_bounds, balanced_weights, linear_model
 from labrig.diagnosis.candidates import candidate_names, refinements
 from labrig.diagnosis.criteria import (CV_CANDIDATES, FLOOR, MIN_DBIC, MIN_GAIN, REFINE,
                                        SCREEN_AFTER, SIMPLER_MARGIN, SWAP_GAIN, UNDECIDED, bic,
-                                       candidate_order, decide_ties, score, screen,
-                                       supported)
+                                       candidate_order, score, screen, supported)
 from labrig.diagnosis.crossval import CrossValidation, Folds, cross_validate, fold_evidence, \
     make_folds
 from labrig.diagnosis.evaluation import Evaluation, evaluate
@@ -307,7 +306,7 @@ class Round:
         # stated rule (the recommendation must not be the seed's)
         good = [c for c in ranking if c.supported]
         near = [c for c in good if score(c) <= (1 + UNDECIDED) * score(good[0])]
-        lead = decide_ties(near, score, candidate_order)
+        lead = sorted(near, key=candidate_order)   # (near: already within UNDECIDED)
         return lead + [c for c in ranking if c not in lead]
 
     def result(self, ranking: list[Candidate], diverged: list[str],
