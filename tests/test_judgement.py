@@ -231,6 +231,50 @@ def test_a_jittered_count_is_found_and_a_tacho_is_not_a_count():
     assert not floor.counted and floor.rest > 0
 
 
+def test_an_undeclared_count_is_found_in_its_readings():
+    """A logger's speed, counts over a millis() window (60 a turn, 10 ms, jittering 1 %),
+    with rests between square waves, no window declared: read before as an ADC's codes
+    ('quantisation step 0.000173', the jitter's gaps). Found to be a count from its
+    readings: one count reads 10.47 rad/s, the
+    floor moving is the counting noise, at rest zero; the shipped ADC tacho, whose still
+    readings flip between the codes either side of zero, stays an ADC."""
+    from labrig.analysis.noise import noise_floor
+
+    rng = np.random.default_rng(3)
+    dt, cpr = 0.01, 60
+    u = np.repeat(rng.choice([0.0, 0.0, 40.0, -60.0, 90.0], 60), 100)    # rad/s targets
+    w = np.zeros(len(u))
+    for k in range(1, len(u)):                                   # a 50 ms motor
+        w[k] = w[k - 1] + dt / 0.05 * (u[k] - w[k - 1])
+    window = dt * (1 + 0.01 * rng.standard_normal(len(u)))
+    angle = np.cumsum(w * window) + rng.uniform(0, 2 * math.pi / cpr)
+    counts = np.floor(angle * cpr / (2 * math.pi))
+    speed = np.diff(counts, prepend=counts[0]) * 2 * math.pi / cpr / window
+    floor = noise_floor([speed], [speed], "speed", "rad/s")
+    q = 2 * math.pi / cpr / dt
+    assert floor.counted and floor.found
+    assert floor.q == pytest.approx(q, rel=0.005) and floor.rest == 0.0
+    assert floor.moving == pytest.approx(floor.q / math.sqrt(6), rel=1e-9)
+    assert "one count reads 10.4" in floor.describe()
+    actual = np.sqrt(np.mean((speed - w)[200:] ** 2))            # a perfect model's error
+    assert floor.sigma == pytest.approx(actual, rel=0.25)
+
+
+def test_an_undeclared_count_is_found_on_the_gearmotor(tmp_path):
+    """The stiction gearmotor imported as an owner who does not know its window would:
+    its speed found a count (the quantum 2 pi / 600 / 0.05 rad/s), zero at rest."""
+    from twin import stiction_gearmotor
+    from labrig.analysis.noise import channel_floors
+    from labrig.model.simulate import prepare
+
+    for src in stiction_gearmotor(tmp_path / "logger", seed=5):
+        labrig("import", src, "-o", tmp_path / "runs", "--map", "t=t,u=u,speed=speed",
+               "--waveform", "custom", check=0)
+    floor = channel_floors(prepare(read_dataset(tmp_path / "runs")))["speed"]
+    assert floor.counted and floor.found and floor.rest == 0.0
+    assert floor.q == pytest.approx(2 * math.pi / 600 / 0.05, rel=1e-4)
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("breakaway_v, law", [(0.0, "coulomb_friction"), (1.0, "stiction")])
 def test_a_delay_is_found_beside_a_friction(tmp_path, breakaway_v, law):

@@ -36,9 +36,10 @@ def test_floor_of_an_analogue_tacho_is_its_noise(tmp_path):
 
 
 def test_floor_of_an_encoder_speed_is_taken_while_moving():
-    """An encoder-derived speed (counts per 10 ms sample) does not scatter at rest and jumps
-    by whole steps while moving: the floor must be the error of a perfect model (the
-    quantisation while moving), never below q/sqrt(12), and not the silence at rest."""
+    """An encoder-derived speed (counts per 10 ms sample, no window declared) does not
+    scatter at rest and jumps by whole steps while moving: it is found to be a count, its
+    floor the counting noise while moving (q/sqrt(6)) and exactly zero at rest, overall
+    the error a perfect model leaves, with the quantum said in rad/s."""
     rng = np.random.default_rng(4)
     dt, cpr = 0.01, 48 * 30.0
     t = np.arange(0, 40, dt)
@@ -50,11 +51,11 @@ def test_floor_of_an_encoder_speed_is_taken_while_moving():
     q = 2 * np.pi / cpr / dt
     f = noise_floor([w_enc], [w_enc], "speed", "rad/s")
     actual = np.sqrt(np.mean((w_enc - w)[50:] ** 2))              # what a perfect model leaves
-    assert f.q == pytest.approx(q, rel=1e-6)
-    assert f.sigma >= q / np.sqrt(12)
-    assert f.sigma == pytest.approx(actual, rel=0.25)
-    assert f.rest == pytest.approx(q / np.sqrt(12), rel=0.05)   # silence is floored at q/sqrt(12)
-    assert f.moving > 1.3 * f.rest
+    assert f.counted and f.found and f.q == pytest.approx(q, rel=1e-6)
+    assert f.sigma == pytest.approx(actual, rel=0.15)
+    assert f.moving == pytest.approx(q / np.sqrt(6), rel=1e-9) and f.rest == 0.0
+    assert f"one count reads {q:.4g} rad/s" in f.describe()
+    assert "found in the readings" in f.describe()
 
 
 # -- folds and bounds ----------------------------------------------------------------------

@@ -39,6 +39,11 @@ OUTLIER = 5.0
 MOVING = 0.05
 #: how much a logger's counting window may jitter (a share of its length)
 JITTER = 0.02
+#: a still stretch: this many readings in a row within one quantum of zero
+STILL = 5
+#: a speed on a lattice is a count when at most this share of its successive nonzero
+#: still readings change sign (an ADC's noise at rest flips about half of them)
+FLIPS = 0.1
 
 
 @dataclass(frozen=True)
@@ -80,6 +85,9 @@ class NoiseFloor:
     counted : bool
         The channel is a count over a window (:func:`count_quantum`): its floor while
         moving is the counting noise ``q/sqrt(6)``, at rest what the still count shows.
+    found : bool
+        A count found in the readings (:func:`still_reads_like_a_count`), its window not
+        declared: the floor is the count's, the reading simulated at its instant.
     blocks : int
         Blocks used.
     """
@@ -93,6 +101,7 @@ class NoiseFloor:
     q: float
     blocks: int
     counted: bool = False
+    found: bool = False
 
     @property
     def quantisation(self) -> float:
@@ -110,7 +119,10 @@ class NoiseFloor:
             return (f"{self.channel}: {self.sigma:.3g} {self.unit} rms, a count over a window "
                     f"(one count reads {self.q:.4g} {self.unit}): moving, the counting noise "
                     f"q/sqrt(6) = {self.moving:.3g}; at rest the count stands still (0); "
-                    f"{100 * self.share_moving:.0f} % of the readings moving")
+                    f"{100 * self.share_moving:.0f} % of the readings moving"
+                    + ("; found in the readings (whole counts, still at rest): declare the "
+                       "window (sensors.speed_window_s) to simulate the reading as the "
+                       "sensor takes it" if self.found else ""))
         return (f"{self.channel}: {self.sigma:.3g} {self.unit} rms ({', '.join(parts)}; "
                 f"{100 * self.share_moving:.0f} % of the time moving; {self.blocks} blocks of "
                 f"{BLOCK} samples detrended by a {WINDOW}-sample quadratic{qtxt})")
@@ -119,7 +131,7 @@ class NoiseFloor:
         return {"channel": self.channel, "unit": self.unit, "sigma": self.sigma,
                 "moving": self.moving, "rest": self.rest, "share_moving": self.share_moving,
                 "quantisation_step": self.q, "blocks": self.blocks, "counted": self.counted,
-                "method": self.describe()}
+                "found": self.found, "method": self.describe()}
 
 
 def quantisation_step(y: np.ndarray) -> float:
@@ -168,6 +180,33 @@ def count_quantum(y: np.ndarray) -> float:
         if holds:
             return float(np.median(z[use] / k[use]))
     return 0.0
+
+
+def still_reads_like_a_count(signals, q: float) -> bool:
+    """Whether a speed whose readings are whole multiples of ``q`` (:func:`count_quantum`)
+    is a count over a window rather than an ADC's codes, told where the shaft is still.
+
+    A count at rest reads exactly zero, and a creeping shaft one count at a time, always
+    the same way (or once the other way, where it turns round); an ADC's noise at rest
+    flips between the codes above and below zero. Still stretches are :data:`STILL` or
+    more readings in a row within one quantum of zero; the speed is a count where it has
+    at least 10 such readings and at most :data:`FLIPS` of the successive nonzero readings
+    within a stretch change sign beyond the one turn a stretch may hold. A record that is
+    never still cannot tell: not a count (declare the window to say it is)."""
+    still, pairs, flips = 0, 0, 0
+    for y in signals:
+        y = np.asarray(y, float)
+        near = np.isfinite(y) & (np.abs(y) <= 1.5 * q)
+        edges = np.flatnonzero(np.diff(np.concatenate([[0], near.astype(np.int8), [0]])))
+        for a, b in zip(edges[::2], edges[1::2]):
+            if b - a < STILL:
+                continue
+            still += b - a
+            s = np.sign(y[a:b][y[a:b] != 0.0])
+            pairs += max(len(s) - 1, 0)
+            # one change of sign is the shaft turning round through rest
+            flips += max(int(np.sum(s[1:] != s[:-1])) - 1, 0)
+    return still >= 10 and flips <= FLIPS * pairs
 
 
 def _residual_filter(window: int) -> np.ndarray:
@@ -250,11 +289,16 @@ def noise_floor(signals, speeds, channel: str = "speed", unit: str = "rad/s",
     counts : bool, optional
         The channel is declared a count over a window (a speed's ``speed_window_s``):
         where its readings are whole counts (:func:`count_quantum`), its floor is the
-        counting noise (:attr:`NoiseFloor.counted`).
+        counting noise (:attr:`NoiseFloor.counted`). Undeclared, a speed channel is
+        taken for a count where its readings are whole counts and its still stretches
+        read as a count does (:func:`still_reads_like_a_count`).
     """
     signals = [np.asarray(y, float) for y in signals]
     measured = measured or [None] * len(signals)
-    counted = count_quantum(np.concatenate(signals)) if counts and signals else 0.0
+    counted = count_quantum(np.concatenate(signals)) if signals and \
+        (counts or channel == "speed") else 0.0
+    if counted and not counts and not still_reads_like_a_count(signals, counted):
+        counted = 0.0
     q = counted or max([quantisation_step(y if m is None else y[np.asarray(m, bool)])
                         for y, m in zip(signals, measured)] + [float(quantum)])
     floor = q * q / 12.0
@@ -276,7 +320,7 @@ def noise_floor(signals, speeds, channel: str = "speed", unit: str = "rad/s",
         return NoiseFloor(channel=channel, unit=unit,
                           sigma=float(max(np.sqrt(share * 2.0 * floor), 1e-12)),
                           moving=float(np.sqrt(2.0 * floor)), rest=0.0, share_moving=share,
-                          q=q, blocks=km + kr, counted=True)
+                          q=q, blocks=km + kr, counted=True, found=not counts)
     share = float(mov.mean()) if len(mov) else 0.0
     if vm is None and vr is None:  # too short to block: all of it, detrended once
         y = np.concatenate(signals)

@@ -183,8 +183,10 @@ def evaluate(runs, model: Model, sigmas=None, weights: Weights | None = None,
     sims = obj.simulate_physical(phys[None, :])
     metrics = adequacy(obj.runs, sims, obj.sigma_w, obj.sigma_theta, weights.p, weights.q)
     quanta = {ch: f.q for ch, f in obj.floors.items()}
+    counted = bool(getattr(obj.floors.get("speed"), "counted", False))
     per_run = [run_residuals(rd, {"w": s["w"][0], "theta": s["theta"][0]}, obj.sigma_w,
-                             obj.sigma_theta, quanta, detail) for rd, s in zip(obj.runs, sims)]
+                             obj.sigma_theta, quanta, detail, counted)
+               for rd, s in zip(obj.runs, sims)]
     if obj.use_i:   # a measured current: drawn beside the channels, not in their numbers
         for rr, rd, s in zip(per_run, obj.runs, sims):
             rr["current"] = current_residual(rd, s["i"][0], obj.sigma_i)

@@ -129,13 +129,15 @@ AXIS_UNITS = {"rotary": {"speed": "rad/s (motor)", "position": "rad (output)"},
 
 
 def run_residuals(rd, sim: dict, sigma_w: float, sigma_theta: float,
-                  quanta: dict | None = None, detail: bool = True) -> dict:
+                  quanta: dict | None = None, detail: bool = True,
+                  counted: bool = False) -> dict:
     """Residuals of one run in noise units, with regimes and stretches.
 
     ``quanta`` maps a channel to its quantisation step in the channel's units
     (:attr:`labrig.analysis.noise.NoiseFloor.q`; 0 or absent: none seen). Each channel carries
     it as ``quantum`` with ``quantum_kind`` (an encoder's count or an ADC step), so a
-    figure can show the staircase a quantised reading leaves in the residual.
+    figure can show the staircase a quantised reading leaves in the residual;
+    ``counted``: the speed is a count over a window (:attr:`NoiseFloor.counted`).
 
     ``detail=False``: the residuals and their numbers only (no regimes, stretches or
     correlations): two thirds of the time of a slider's re-simulation went to them."""
@@ -161,8 +163,8 @@ def run_residuals(rd, sim: dict, sigma_w: float, sigma_theta: float,
         c.update({"quantum": float(quanta.get(ch) or 0.0),
                   "quantum_kind": "encoder count" if ch == "position" and
                   getattr(rd, "pos_q", 0.0) > 0 else
-                  "count over the speed's window" if ch == "speed" and
-                  getattr(rd, "speed_window", 0) > 1 else "ADC step"})
+                  "count over the speed's window" if ch == "speed" and counted
+                  else "ADC step"})
     return out
 
 
