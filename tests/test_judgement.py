@@ -8,6 +8,7 @@ import math
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from labrig.diagnosis.crossval import MAX_FOLDS, make_folds
@@ -262,17 +263,29 @@ def test_an_undeclared_count_is_found_in_its_readings():
 
 def test_an_undeclared_count_is_found_on_the_gearmotor(tmp_path):
     """The stiction gearmotor imported as an owner who does not know its window would:
-    its speed found a count (the quantum 2 pi / 600 / 0.05 rad/s), zero at rest."""
+    the import finds its speed a count, says so, and takes it as counted over the sample
+    before (as the logger does); the floor is the count's (2 pi / 600 / 0.05 rad/s),
+    zero at rest. The shipped sweep's ADC tacho, imported the same way, stays an ADC."""
     from twin import stiction_gearmotor
     from labrig.analysis.noise import channel_floors
     from labrig.model.simulate import prepare
 
     for src in stiction_gearmotor(tmp_path / "logger", seed=5):
-        labrig("import", src, "-o", tmp_path / "runs", "--map", "t=t,u=u,speed=speed",
-               "--waveform", "custom", check=0)
-    floor = channel_floors(prepare(read_dataset(tmp_path / "runs")))["speed"]
+        out = labrig("import", src, "-o", tmp_path / "runs", "--map", "t=t,u=u,speed=speed",
+                     "--waveform", "custom", check=0)
+        assert "taken as counted over the sample before (50 ms)" in out.stderr + out.stdout
+    runs = read_dataset(tmp_path / "runs")
+    assert all(r.speed_window_s == pytest.approx(0.05) for r in runs)
+    floor = channel_floors(prepare(runs))["speed"]
     assert floor.counted and floor.found and floor.rest == 0.0
     assert floor.q == pytest.approx(2 * math.pi / 600 / 0.05, rel=1e-4)
+    # the ADC tacho of the shipped sweep, as rad/s in a CSV of its own
+    sweep = read_dataset(ROOT / "data" / "sweep_default")[2]
+    pd.DataFrame({"t": sweep.t, "u": sweep.u, "speed": sweep.speed}).to_csv(
+        tmp_path / "adc.csv", index=False)
+    labrig("import", tmp_path / "adc.csv", "-o", tmp_path / "adc", "--map",
+           "t=t,u=u,speed=speed", check=0)
+    assert read_dataset(tmp_path / "adc")[0].speed_window_s == 0.0
 
 
 @pytest.mark.slow

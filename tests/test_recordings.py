@@ -305,9 +305,18 @@ def _independent_hammerstein(records, dt):
 def test_a_drive_that_is_a_curve_of_the_command(tmp_path):
     """A hobby shield whose motor voltage is a concave function of the command, stepped
     from rest to eight levels: the steady curve bends (no named effect follows it), the
-    static input curve is offered and found, takes the error down tenfold, and its run-mean
-    fit is within 1 point of an independent Hammerstein fit (the old loop ended with the
-    linear model)."""
+    static input curve is offered and found first, takes the error down tenfold, and the
+    run-mean fit is within 1 point of an independent Hammerstein fit (the old loop ended
+    with the linear model).
+
+    The speed is counts over each sample, found so by the import: its floor is the
+    counting noise (one count reads 1.57 rad/s, 0.14 % of the top speed). Against it the
+    curve's three knots cannot follow the shield's power law (their best miss at the
+    levels is about 0.1 V, seven counts), so the loop goes on, and on commands of one sign
+    an offset and a Coulomb friction shift the curve: it adds them and still does not
+    claim the floor (the README's 'and what it cannot'). Before the count was found the
+    floor was the blocks' 4.9 rad/s, inflated by the 40 ms rises, and the loop stopped at
+    the curve."""
     import pandas as pd
     from labrig.diagnosis.auto import auto_diagnose
     from twin import shield_steps
@@ -315,8 +324,10 @@ def test_a_drive_that_is_a_curve_of_the_command(tmp_path):
     srcs = shield_steps(tmp_path / "logger")
     runs = _imported(srcs, tmp_path / "runs", "--map", "t=t,u=u,speed=speed",
                      "--waveform", "step")
+    assert all(r.sensors.get("speed_window_found") for r in runs)
     res = auto_diagnose(runs, seed=0)
-    assert res.model.names == ["input_curve"], [m.label for m in res.moves]
+    assert res.moves[0].label == "+ input_curve", [m.label for m in res.moves]
+    assert "input_curve" in res.model.names
     curve = res.model.effect_params["input_curve"]
     assert curve["b2"] > 0.05   # concave: bends down towards a soft rail
     assert "bends down towards a soft rail" in res.rounds[0].verdict
@@ -327,10 +338,9 @@ def test_a_drive_that_is_a_curve_of_the_command(tmp_path):
     theirs = _independent_hammerstein(records, 0.01)
     print(f"run-mean fit: labrig {ours:.2f} %, independent Hammerstein {theirs:.2f} %")
     assert ours >= theirs - 1.0, (ours, theirs)
-    # (not "at the floor": this record's speed floor, 4.9 rad/s, is inflated by the 40 ms
-    # rises its 7-sample detrending cannot follow; the count is 1.57 rad/s)
     ladder = res.ladder.steps
-    assert ladder[-1].rmse_over_noise["speed"] < 0.1 * ladder[0].rmse_over_noise["speed"]
+    assert ladder[1].rmse_over_noise["speed"] < 0.1 * ladder[0].rmse_over_noise["speed"]
+    assert ladder[-1].rmse_over_noise["speed"] > 1.5     # not explained to the count
 
 
 # -- the current at a run's start, where the model has it ------------------------------------

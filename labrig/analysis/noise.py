@@ -28,6 +28,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from labrig.model.sensors import (FLIPS, JITTER, STILL, count_quantum,  # noqa: F401
+                                  quantisation_step, still_reads_like_a_count)
+
 from .savgol import savgol_coeffs, savgol_filter
 
 #: samples per block, and of the local quadratic fit
@@ -37,13 +40,6 @@ WINDOW = 7
 OUTLIER = 5.0
 #: a block is moving when its median |speed| exceeds this share of the largest speed
 MOVING = 0.05
-#: how much a logger's counting window may jitter (a share of its length)
-JITTER = 0.02
-#: a still stretch: this many readings in a row within one quantum of zero
-STILL = 5
-#: a speed on a lattice is a count when at most this share of its successive nonzero
-#: still readings change sign (an ADC's noise at rest flips about half of them)
-FLIPS = 0.1
 
 
 @dataclass(frozen=True)
@@ -87,7 +83,7 @@ class NoiseFloor:
         moving is the counting noise ``q/sqrt(6)``, at rest what the still count shows.
     found : bool
         A count found in the readings (:func:`still_reads_like_a_count`), its window not
-        declared: the floor is the count's, the reading simulated at its instant.
+        declared (the import takes it as the sample before).
     blocks : int
         Blocks used.
     """
@@ -120,9 +116,9 @@ class NoiseFloor:
                     f"(one count reads {self.q:.4g} {self.unit}): moving, the counting noise "
                     f"q/sqrt(6) = {self.moving:.3g}; at rest the count stands still (0); "
                     f"{100 * self.share_moving:.0f} % of the readings moving"
-                    + ("; found in the readings (whole counts, still at rest): declare the "
-                       "window (sensors.speed_window_s) to simulate the reading as the "
-                       "sensor takes it" if self.found else ""))
+                    + ("; found in the readings (whole counts, still at rest), taken as "
+                       "counted over the sample before (declare sensors.speed_window_s if "
+                       "another)" if self.found else ""))
         return (f"{self.channel}: {self.sigma:.3g} {self.unit} rms ({', '.join(parts)}; "
                 f"{100 * self.share_moving:.0f} % of the time moving; {self.blocks} blocks of "
                 f"{BLOCK} samples detrended by a {WINDOW}-sample quadratic{qtxt})")
@@ -132,81 +128,6 @@ class NoiseFloor:
                 "moving": self.moving, "rest": self.rest, "share_moving": self.share_moving,
                 "quantisation_step": self.q, "blocks": self.blocks, "counted": self.counted,
                 "found": self.found, "method": self.describe()}
-
-
-def quantisation_step(y: np.ndarray) -> float:
-    """The smallest regular step between the signal's levels (5th percentile of the
-    gaps between distinct values; 0 for an unquantised signal)."""
-    levels = np.unique(np.round(np.asarray(y, float), 12))
-    steps = np.diff(levels)
-    steps = steps[steps > 1e-12]
-    if len(steps) == 0:
-        return 0.0
-    q = float(np.percentile(steps, 5))
-    # an unquantised noisy signal has gaps far below its spread: no quantisation step
-    return q if q > 1e-6 * max(np.ptp(levels), 1e-300) else 0.0
-
-
-def count_quantum(y: np.ndarray) -> float:
-    """The speed one encoder count over the window reads, when ``y`` is such a speed (a
-    count over a window: every reading a whole number of quanta, the window's own length
-    jittering each a little); 0 otherwise.
-
-    Candidates: divisors of the slowest readings (a few counts), then the smallest regular
-    gap between levels (:func:`quantisation_step`: a motor that never runs slowly reads
-    hundreds of counts). A candidate holds where 98 % of the readings of under 15 counts
-    lie within a tenth of a quantum of a whole number of them, and 2 % of themselves (a
-    logger's window jitters: at 15 counts that is 0.3 of one, still short of the half a
-    random reading would pass); with fewer than 10 such readings, where every reading lies
-    within a tenth of a quantum of one."""
-    y = np.asarray(y, float)
-    y = y[np.isfinite(y)]
-    z = np.abs(y[y != 0.0])
-    if len(z) < 10:
-        return 0.0
-    low = float(np.percentile(z, 2))
-    for q in [low / m for m in range(1, 9)] + [quantisation_step(y)]:
-        if q <= 0.0:
-            continue
-        k = np.maximum(np.round(z / q), 1.0)
-        off = np.abs(z - k * q)
-        few = k < 15
-        if few.sum() >= 10:
-            holds = np.mean(off[few] <= 0.1 * q + JITTER * z[few]) >= 0.98
-            use = few
-        else:
-            holds = np.mean(off <= 0.1 * q) >= 0.98
-            use = np.ones(len(z), bool)
-        if holds:
-            return float(np.median(z[use] / k[use]))
-    return 0.0
-
-
-def still_reads_like_a_count(signals, q: float) -> bool:
-    """Whether a speed whose readings are whole multiples of ``q`` (:func:`count_quantum`)
-    is a count over a window rather than an ADC's codes, told where the shaft is still.
-
-    A count at rest reads exactly zero, and a creeping shaft one count at a time, always
-    the same way (or once the other way, where it turns round); an ADC's noise at rest
-    flips between the codes above and below zero. Still stretches are :data:`STILL` or
-    more readings in a row within one quantum of zero; the speed is a count where it has
-    at least 10 such readings and at most :data:`FLIPS` of the successive nonzero readings
-    within a stretch change sign beyond the one turn a stretch may hold. A record that is
-    never still cannot tell: not a count (declare the window to say it is)."""
-    still, pairs, flips = 0, 0, 0
-    for y in signals:
-        y = np.asarray(y, float)
-        near = np.isfinite(y) & (np.abs(y) <= 1.5 * q)
-        edges = np.flatnonzero(np.diff(np.concatenate([[0], near.astype(np.int8), [0]])))
-        for a, b in zip(edges[::2], edges[1::2]):
-            if b - a < STILL:
-                continue
-            still += b - a
-            s = np.sign(y[a:b][y[a:b] != 0.0])
-            pairs += max(len(s) - 1, 0)
-            # one change of sign is the shaft turning round through rest
-            flips += max(int(np.sum(s[1:] != s[:-1])) - 1, 0)
-    return still >= 10 and flips <= FLIPS * pairs
 
 
 def _residual_filter(window: int) -> np.ndarray:
@@ -272,7 +193,8 @@ def _class_variance(ms: np.ndarray, lag1: np.ndarray, window: int,
 
 
 def noise_floor(signals, speeds, channel: str = "speed", unit: str = "rad/s",
-                quantum: float = 0.0, measured=None, counts: bool = False) -> NoiseFloor:
+                quantum: float = 0.0, measured=None, counts: bool | None = None,
+                found: bool = False) -> NoiseFloor:
     """The noise floor of one channel over several runs.
 
     Parameters
@@ -286,19 +208,22 @@ def noise_floor(signals, speeds, channel: str = "speed", unit: str = "rad/s",
         the data is used when larger (an ADC's code on top).
     measured : list of bool arrays or None, optional
         Per run, False where the link lost the sample; blocks holding one are left out.
-    counts : bool, optional
-        The channel is declared a count over a window (a speed's ``speed_window_s``):
-        where its readings are whole counts (:func:`count_quantum`), its floor is the
-        counting noise (:attr:`NoiseFloor.counted`). Undeclared, a speed channel is
-        taken for a count where its readings are whole counts and its still stretches
-        read as a count does (:func:`still_reads_like_a_count`).
+    counts : bool or None, optional
+        True: the channel is declared a count over a window (a speed's
+        ``speed_window_s``): where its readings are whole counts (:func:`count_quantum`),
+        its floor is the counting noise (:attr:`NoiseFloor.counted`). False: it is not.
+        None (default): a speed channel is a count where its readings are whole counts
+        and its still stretches read as a count does (:func:`still_reads_like_a_count`).
+    found : bool, optional
+        The window was found in the readings, not declared (said in the description).
     """
     signals = [np.asarray(y, float) for y in signals]
     measured = measured or [None] * len(signals)
-    counted = count_quantum(np.concatenate(signals)) if signals and \
-        (counts or channel == "speed") else 0.0
-    if counted and not counts and not still_reads_like_a_count(signals, counted):
-        counted = 0.0
+    find = counts is None and channel == "speed"
+    counted = count_quantum(np.concatenate(signals)) if signals and (counts or find) else 0.0
+    if counted and find:
+        found = still_reads_like_a_count(signals, counted)
+        counted = counted if found else 0.0
     q = counted or max([quantisation_step(y if m is None else y[np.asarray(m, bool)])
                         for y, m in zip(signals, measured)] + [float(quantum)])
     floor = q * q / 12.0
@@ -320,7 +245,7 @@ def noise_floor(signals, speeds, channel: str = "speed", unit: str = "rad/s",
         return NoiseFloor(channel=channel, unit=unit,
                           sigma=float(max(np.sqrt(share * 2.0 * floor), 1e-12)),
                           moving=float(np.sqrt(2.0 * floor)), rest=0.0, share_moving=share,
-                          q=q, blocks=km + kr, counted=True, found=not counts)
+                          q=q, blocks=km + kr, counted=True, found=found)
     share = float(mov.mean()) if len(mov) else 0.0
     if vm is None and vr is None:  # too short to block: all of it, detrended once
         y = np.concatenate(signals)
@@ -352,7 +277,7 @@ def _digest(runs, units) -> bytes:
     h = hashlib.blake2b(repr(units).encode(), digest_size=20)
     for r in runs:
         h.update(repr((r.dt, r.N, getattr(r, "pos_q", 0.0),
-                       getattr(r, "speed_window", 0))).encode())
+                       getattr(r, "speed_window", 0), getattr(r, "window_found", False))).encode())
         for a in (r.w, r.theta, getattr(r, "current", None), getattr(r, "measured", None)):
             h.update(b"-" if a is None else np.ascontiguousarray(a).view(np.uint8).data)
     return h.digest()
@@ -385,6 +310,8 @@ def _channel_floors(runs, units) -> dict:
             known = max((getattr(r, "pos_q", 0.0) for r in runs), default=0.0) \
                 if ch == "position" else 0.0
             counts = ch == "speed" and any(getattr(r, "speed_window", 0) >= 1 for r in runs)
+            found = counts and any(getattr(r, "window_found", False) for r in runs)
             out[ch] = noise_floor([p[0] for p in pairs], [p[1] for p in pairs], ch, unit,
-                                  quantum=known, measured=[p[2] for p in pairs], counts=counts)
+                                  quantum=known, measured=[p[2] for p in pairs], counts=counts,
+                                  found=found)
     return out

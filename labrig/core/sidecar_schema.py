@@ -87,6 +87,9 @@ class SidecarSensors(ClosedModel):
     #: the speed is the travel over this window divided by it (a moving window of
     #: encoder counts, as a sketch computes it): a sensor filter, modelled, not fitted
     speed_window_s: Num(gt=0, le=10.0) = None
+    #: the window was not declared: the import found the speed to be whole counts that
+    #: stand at zero when still, and took it as counted over the sample before
+    speed_window_found: Optional[bool] = None
 
 
 class SidecarRig(ClosedModel):

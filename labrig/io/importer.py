@@ -26,6 +26,7 @@ import pandas as pd
 
 from labrig.core.errors import RunFileError, UserError
 from labrig.model.plants import AXES, check_axis
+from labrig.model.sensors import found_count
 from labrig.core.schemas import RUN_NAME_MAX, check_run_name, validate
 from labrig.core.sidecar_schema import Controller, Sidecar
 from labrig.io.exportfile import CsvLayout, read_export
@@ -212,6 +213,24 @@ class ImportOptions:
     input_measured: bool = False
 
 
+def _find_count(src: Path, speed, fs: float, sensors: dict, notes: list) -> None:
+    """An undeclared speed that reads whole counts and stands at zero when still is a
+    count, not an ADC's codes (:func:`labrig.model.sensors.found_count`): taken as counted
+    over the sample before, as a sketch's ``(count - last) / dt`` reads, so the model reads
+    it as the sensor does (half a sample late) and its floor is the counting noise. Only
+    for a speed logged without the position: beside the counts, the window is measured
+    against them (:func:`labrig.analysis.agreement.channel_agreement`), not assumed."""
+    q = found_count([np.asarray(speed, float)])
+    if not q:
+        return
+    sensors["speed_window_s"] = 1.0 / fs
+    sensors["speed_window_found"] = True
+    notes.append(f"{src.name}: the speed reads whole counts ({q:.4g} {sensors['speed_unit']} "
+                 f"each) and stands at exactly 0 when still: taken as counted over the "
+                 f"sample before ({1e3 / fs:.4g} ms); give --speed-window S if the logger "
+                 "counts over another window")
+
+
 def import_csv(src: Path | str, outdir: Path | str, mapping: dict[str, str],
                options: ImportOptions | None = None, *, name: str | None = None,
                overwrite: bool = False, warn=None, **settings) -> Path:
@@ -355,6 +374,8 @@ def import_csv(src: Path | str, outdir: Path | str, mapping: dict[str, str],
     fs = 1.0 / float(np.median(dt))
     if abs(fs - round(fs)) < 1e-3 * fs:
         fs = float(round(fs))
+    if "speed" in mapping and "pos" not in mapping and o.speed_window is None:
+        _find_count(src, cols["speed"], fs, sensors, notes)
     check_ranges(src, pd.DataFrame(cols), mapping, first_row)  # before anything is written
     rig = {"gear_ratio": float(o.gear_ratio if o.gear_ratio is not None else 1.0),
            "amplifier_gain": float(o.amplifier_gain),

@@ -98,6 +98,8 @@ class RunData:
     measured: np.ndarray | None = None
     #: the speed channel is a moving window of this many samples (0: not filtered)
     speed_window: int = 0
+    #: that window was found in the readings by the import, not declared
+    window_found: bool = False
     #: how the run starts as its file states it: "auto" (from the data), "rest", "moving"
     start: str = "auto"
     #: a board's own loop (``experiment.controller.sampled``): its PD's constants as
@@ -125,6 +127,7 @@ class RunData:
                    current=run.current, pos_q=run.pos_quantum, axis=run.axis,
                    measured=run.measured if run.n_gaps else None,
                    speed_window=int(round(run.speed_window_s / run.dt)) if run.has_speed else 0,
+                   window_found=bool(run.sensors.get("speed_window_found")),
                    start=run.start)
 
 
