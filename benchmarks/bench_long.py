@@ -13,6 +13,9 @@
     ``shield_long_record``);
   - the EMPS benchmark's shape (24,800 samples of a position loop's force on a linear
     axis, Coulomb friction and an offset hidden; ``tests/twin.py``, ``emps_like_axis``).
+  - the real EMPS record (24,841 samples, ``DATA_EMPS.mat`` of
+    github:forgi86/sysid-neural-continuous: no licence, not in this repository), where
+    ``LABRIG_EMPS_MAT`` names the file, imported as ``bench_seeds.py`` does.
   (The HSM150's four real runs named by the issue are not shipped here: not measured.)
 
 Target: each within 2 times the reference. Where a record misses, the record says where
@@ -22,6 +25,7 @@ final files) and the process's start (the interpreter, imports, numba's cache).
 """
 from __future__ import annotations
 
+import os
 import statistics
 import sys
 import tempfile
@@ -46,8 +50,15 @@ def _records(tmp: Path) -> dict:
     emps = emps_like_axis(tmp / "emps_export")
     labrig("import", emps, "-o", tmp / "emps", "--map", "t=t,u=vir,pos=qm", "--axis",
            "linear", "--drive", "force", "--input-gain", "35.15065", "--pos-unit", "m")
-    return {"shield 96 s at 50 Hz (offset, input curve hidden)": tmp / "shield",
-            "EMPS-shaped axis, 24,800 samples (Coulomb friction, offset hidden)": tmp / "emps"}
+    out = {"shield 96 s at 50 Hz (offset, input curve hidden)": tmp / "shield",
+           "EMPS-shaped axis, 24,800 samples (Coulomb friction, offset hidden)": tmp / "emps"}
+    real = os.environ.get("LABRIG_EMPS_MAT")
+    if real:
+        from bench_seeds import IMPORT
+
+        labrig("import", Path(real), "-o", tmp / "real", *IMPORT)
+        out["the real EMPS record, 24,841 samples"] = tmp / "real"
+    return out
 
 
 def _auto(folder: Path, out: Path) -> dict:
