@@ -88,8 +88,9 @@ def still_reads_like_a_count(signals, q: float) -> bool:
     A count at rest reads exactly zero, and a creeping shaft one count at a time, always
     the same way (or once the other way, where it turns round); an ADC's noise at rest
     flips between the codes above and below zero. Still stretches are :data:`STILL` or
-    more readings in a row within one quantum of zero; the speed is a count where it has
-    at least 10 such readings and at most :data:`FLIPS` of the successive nonzero readings
+    more readings in a row within one quantum of zero; the speed is a count where they
+    hold at least 10 readings of exactly zero (a shaft at rest: a steady speed of one
+    count is no evidence) and at most :data:`FLIPS` of the successive nonzero readings
     within a stretch change sign beyond the one turn a stretch may hold. A record that is
     never still cannot tell: not a count (declare the window to say it is)."""
     still, pairs, flips = 0, 0, 0
@@ -100,7 +101,7 @@ def still_reads_like_a_count(signals, q: float) -> bool:
         for a, b in zip(edges[::2], edges[1::2]):
             if b - a < STILL:
                 continue
-            still += b - a
+            still += int(np.sum(y[a:b] == 0.0))
             s = np.sign(y[a:b][y[a:b] != 0.0])
             pairs += max(len(s) - 1, 0)
             # one change of sign is the shaft turning round through rest
