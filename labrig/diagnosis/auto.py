@@ -228,7 +228,9 @@ def sensor_lag(model: Model, runs, ev) -> str:
         return ""
     agree = agreement_of(runs, ev) if "position" in ev.floors else None
     tc = time_constants(model.plant_class, model.params, model.constants)
-    declared = max((r.speed_window_s for r in runs), default=0.0)
+    # a window the import found is its guess (the sample before), not the owner's word
+    declared = max((r.speed_window_s for r in runs
+                    if not r.sensors.get("speed_window_found")), default=0.0)
     return lag_explained(agree, tc.get("tau_e_s"),
                          model.effect_params.get("delay", {}).get("td_s"), tc.get("tau_m_s"),
                          declared)

@@ -371,7 +371,9 @@ def _channel_notes(obj, p: float, q: float, params: dict, constants: dict) -> di
     if "speed" not in obj.floors:
         return out or None
     tc = time_constants(obj.plant, params, constants)
-    declared = max(0.5 * r.speed_window * r.dt if r.speed_window >= 1 else 0.0 for r in obj.runs)
+    # (a window the import found is its guess, not the owner's word)
+    declared = max(0.5 * r.speed_window * r.dt if r.speed_window >= 1 and not r.window_found
+                   else 0.0 for r in obj.runs)
     lag = lag_explained(agree, tc.get("tau_e_s"), params.get("delay.td_s"), tc.get("tau_m_s"),
                         declared)
     if lag:
