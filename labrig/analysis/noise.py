@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from labrig.model.sensors import (FLIPS, JITTER, STILL, count_quantum,  # noqa: F401
+from labrig.model.sensors import (count_quantum, found_count,  # noqa: F401 (re-exported)
                                   quantisation_step, still_reads_like_a_count)
 
 from .savgol import savgol_coeffs, savgol_filter
@@ -220,10 +220,11 @@ def noise_floor(signals, speeds, channel: str = "speed", unit: str = "rad/s",
     signals = [np.asarray(y, float) for y in signals]
     measured = measured or [None] * len(signals)
     find = counts is None and channel == "speed"
-    counted = count_quantum(np.concatenate(signals)) if signals and (counts or find) else 0.0
-    if counted and find:
-        found = still_reads_like_a_count(signals, counted)
-        counted = counted if found else 0.0
+    if find:
+        counted = found_count(signals)
+        found = bool(counted)
+    else:
+        counted = count_quantum(np.concatenate(signals)) if signals and counts else 0.0
     q = counted or max([quantisation_step(y if m is None else y[np.asarray(m, bool)])
                         for y, m in zip(signals, measured)] + [float(quantum)])
     floor = q * q / 12.0

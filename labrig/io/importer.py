@@ -374,9 +374,9 @@ def import_csv(src: Path | str, outdir: Path | str, mapping: dict[str, str],
     fs = 1.0 / float(np.median(dt))
     if abs(fs - round(fs)) < 1e-3 * fs:
         fs = float(round(fs))
+    check_ranges(src, pd.DataFrame(cols), mapping, first_row)  # before anything is written
     if "speed" in mapping and "pos" not in mapping and o.speed_window is None:
         _find_count(src, cols["speed"], fs, sensors, notes)
-    check_ranges(src, pd.DataFrame(cols), mapping, first_row)  # before anything is written
     rig = {"gear_ratio": float(o.gear_ratio if o.gear_ratio is not None else 1.0),
            "amplifier_gain": float(o.amplifier_gain),
            "name": f"imported from {src.name}", "drive": o.drive, "axis": axis}
