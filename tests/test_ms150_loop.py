@@ -4,7 +4,8 @@ from the pot and tacho its ADC reads (`closed_by = "board"`, the plan's gains); 
 loop's gains are the rig file's patched knobs (`[bridge] loop_kp, loop_kv`), which the
 emulator's patch panel takes as a real one has them; a plan's gains nothing applies are
 refused, never recorded as applied; exercise 4's gain change changes the run as the sheet
-says, either way."""
+says, either way. And the MS150 board stops itself as the H-bridge board does: at its
+position window in a closed loop and at its E-stop, the DAC at 0 V within a sample."""
 from __future__ import annotations
 
 import json
@@ -190,3 +191,80 @@ def test_a_patched_loop_the_rig_cannot_have_is_refused(tmp_path, base, keys, wor
         f"{k} = {v}\n" for k, v in keys.items()), 1))
     r = _labrig("sweep", "--sim", "--rig", rig, "-o", tmp_path / "x")
     assert r.returncode == 2 and words in r.stderr and "Traceback" not in r.stderr, r.stderr
+
+
+def _dac_events(log: Path) -> list[tuple[float, int]]:
+    """The emulator's DAC log: (seconds, word) at each change of the MCP4822's latched word."""
+    return [(float(a), int(b)) for a, b in (line.split() for line in log.read_text().splitlines())]
+
+
+def test_the_ms150_board_trips_at_its_position_window_in_its_own_loop(tmp_path):
+    """The position window on the MS150 (firmware's pot words, closed-loop runs only): the
+    board's own loop asked for a 1.6 rad step against a window of +-1 rad; the board ends the
+    run at the first sample whose pot word leaves the window, the DAC back at 0 V within one
+    sample period, the run kept up to there and recorded as tripped; the sweep exits 1."""
+    from labrig.bridge import trips
+    from labrig.bridge.emulate import Emulator
+    from labrig.bridge.serial import bridge_settings
+    from labrig.io.config import load_rig
+    from labrig.io.experiment import Experiment
+
+    rig_file = _rig(tmp_path, "rig_window.toml", trip_position="[-1.0, 1.0]")
+    rig = load_rig(rig_file)
+    plan = tmp_path / "board.toml"
+    plan.write_text(CL_PLAN.replace("[0.3]", "[0.8]") + 'closed_by = "board"\n'
+                    "position_gain = 2.0\nvelocity_gain = 0.15\n")
+    log = tmp_path / "dac.log"
+    with Emulator("uno", rig, dac_log=log) as emu:
+        r = _labrig("sweep", "--port", emu.pty, "--rig", rig_file, "--plan", plan,
+                    "-o", tmp_path / "runs")
+    assert r.returncode == 1 and "(position limit)" in r.stderr, r.stderr
+    side = json.loads((tmp_path / "runs" / "cl_sq_0.80V.json").read_text())
+    trip = side["bridge"]["trip"]
+    assert trip["fault"] == "TRIP" and trip["text"] == "position limit", trip
+    k = trip["after_sample"]
+    d = pd.read_csv(tmp_path / "runs" / "cl_sq_0.80V.csv")
+    s = bridge_settings(rig)
+    _, _, _, lo, hi = trips.limits(Experiment(name="w", loop="closed"), rig, s)
+    words = trips.adc_words(d["pos"].to_numpy()[:k + 1], "pos", s)
+    assert not lo <= words[-1] <= hi and ((words[:-1] >= lo) & (words[:-1] <= hi)).all(), \
+        (words[-3:], lo, hi)
+    assert (d["gap"].iloc[k + 1:] == 1).all() and (d["gap"].iloc[:k + 1] == 0).all()  # never taken
+    events = _dac_events(log)
+    driven = [t for t, w in events if w != 2048]
+    back = [t for t, w in events if driven and t > driven[0] and w == 2048]
+    rate = 200.0    # the plan's
+    # the tripping sample's tick, counted from the board's first drive (the lead-in's
+    # reference holds the shaft, so the first word off 2048 is at most a tick after START)
+    tick_k = driven[0] + (k + 1) / rate
+    assert back and back[0] <= tick_k + 1.0 / rate + 1e-3, (back[:1], tick_k)
+    assert events[-1][1] == 2048
+
+
+def test_the_ms150_board_stops_at_its_estop_and_latches(tmp_path):
+    """The E-stop on the MS150 (D7, normally closed to GND), opened 0.5 s after the board
+    first drives: the DAC at 0 V from the next sample on, the run kept and recorded as an
+    E-stop, the sweep exits 1; another sweep while it stays open is refused by the board."""
+    from labrig.bridge.emulate import Emulator
+    from labrig.io.config import load_rig
+
+    rig_file = _rig(tmp_path, "rig_estop.toml", estop="true")
+    plan = tmp_path / "step.toml"
+    plan.write_text('[defaults]\nsample_rate_hz = 200.0\nlead_in_s = 0.2\n\n[[experiment]]\n'
+                    'loop = "open"\nwaveform = "step"\namplitudes_v = [1.0]\nduration_s = 2.0\n')
+    log = tmp_path / "dac.log"
+    with Emulator("uno", load_rig(rig_file), dac_log=log, extra_args=("--estop-at", "0.5")) as emu:
+        r = _labrig("sweep", "--port", emu.pty, "--rig", rig_file, "--plan", plan,
+                    "-o", tmp_path / "runs")
+        again = _labrig("sweep", "--port", emu.pty, "--rig", rig_file, "--plan", plan,
+                        "-o", tmp_path / "again")
+    assert r.returncode == 1 and "(E-stop)" in r.stderr, r.stderr
+    (side,) = [json.loads(p.read_text()) for p in (tmp_path / "runs").glob("*.json")]
+    assert side["bridge"]["trip"]["text"] == "E-stop"
+    events = _dac_events(log)
+    first = next(t for t, w in events if w != 2048)
+    off = [t for t, w in events if t > first and w == 2048]
+    assert off and first + 0.5 - 1e-3 <= off[0] <= first + 0.5 + 1.0 / 200.0 + 1e-3, (first, off[:1])
+    assert all(w == 2048 for t, w in events if t >= off[0])
+    assert again.returncode == 1 and "E-stop latched" in again.stderr, again.stderr
+    assert not list((tmp_path / "again").glob("*.csv"))
