@@ -192,8 +192,8 @@ def _step_by_step(runs, seed, rounds=6):
     model, recs = None, []
     for _ in range(rounds):
         d = diagnose(runs, model, seed=seed) if seed is not None else diagnose(runs, model)
-        if not d.recommendation:
-            return model, recs
+        if not d.recommendation:   # the round's answer: the model, re-fitted if it was
+            return d.recommended_model() or model, recs
         recs.append(d.recommendation)
         model = d.recommended_model()
     raise AssertionError(f"no end after {rounds} rounds: {recs}")

@@ -117,13 +117,14 @@ def cmd_diagnose(args):
         res = lr.diagnose(runs, model, seed=args.seed, fixed=fixed, candidates=cands,
                           weights=weights, through=None, progress=bar.hook,
                           screen=not args.full)
-    if args.output and res.recommendation:
-        res.recommended_model().save(args.output)
+    keep = res.recommended_model()
+    if args.output and keep is not None:
+        keep.save(args.output)
     check = _decide(runs, model, args.seed)
-    saved = _saved_text(args.output, res.recommendation) if args.output else None
+    saved = _saved_text(args.output, res.recommendation, res.refined) if args.output else None
     if args.json:
         emit_json(_json_with_check(res, check))
-        if saved and not res.recommendation:  # stdout is the JSON: the warning goes beside it
+        if saved and keep is None:  # stdout is the JSON: the warning goes beside it
             print(f"labrig: {saved}", file=sys.stderr)
     else:
         print(_text_with_check(res, check))
@@ -132,10 +133,13 @@ def cmd_diagnose(args):
     return 0
 
 
-def _saved_text(output, recommendation) -> str:
+def _saved_text(output, recommendation, refined=False) -> str:
     """What ``diagnose -o FILE`` did with FILE, in one line."""
     if recommendation:
         return f"model saved to {output}"
+    if refined:
+        return (f"no effect earns its parameters; the model with its own parameters "
+                f"re-fitted to better values saved to {output}")
     kept = " (the file already there is left as it was)" if Path(output).exists() else ""
     return (f"nothing saved to {output}: there is no recommendation (no effect earns its "
             f"parameters), so there is no new model to save{kept}")
@@ -307,7 +311,8 @@ def _configure_diagnose(p):
                         f"same seed, same result (default {SEED})")
     p.add_argument("--candidates", help="only these catalogue effects (default: all the model lacks)")
     p.add_argument("-o", "--output", help="save the model with the recommended effect added "
-                   "(nothing is saved when there is no recommendation; with --auto: a folder "
+                   "(with none: the model itself where its candidates found better values "
+                   "of its own parameters, else nothing is saved; with --auto: a folder "
                    "for the final model, the ladder and the rounds)")
     p.add_argument("--auto", action="store_true",
                    help="run the rounds to the end: add the recommended effect and diagnose "

@@ -143,7 +143,8 @@ class Diagnosis(Displayable):
 
     ``to_json()`` gives the keys of ``labrig diagnose --json``: baseline, regimes,
     ranking, recommendation, verdict, cross_validation, noise, weights, criteria, seconds;
-    ``recommended_model()`` the re-fitted model with the recommended effect.
+    ``recommended_model()`` the re-fitted model with the recommended effect (or, with
+    none, the given model re-fitted where its candidates found better values).
 
     Examples
     --------
@@ -172,6 +173,9 @@ class Diagnosis(Displayable):
     dataset: list = field(default_factory=list, repr=False)
     folds: object = field(default=None, repr=False)
     cv_baseline: object = field(default=None, repr=False)
+    #: the given model was re-fitted here: its candidates found better values of its own
+    #: parameters, and ``base`` holds them (``baseline['source']`` says by how much)
+    refined: bool = field(default=False, repr=False)
 
     def headline(self) -> str:
         r = self.baseline["rmse_over_noise"]["overall"]
@@ -184,10 +188,23 @@ class Diagnosis(Displayable):
         return next(c for c in self.ranking if c.label == label)
 
     def recommended_model(self) -> Model | None:
-        """The re-fitted model with the recommended effect, ready to save."""
-        if not self.recommendation:
+        """The model this round leaves: the re-fitted model with the recommended effect,
+        ready to save; with no effect to add, the diagnosed model itself where its
+        candidates' re-fits found better values of its own parameters (``refined``: the
+        same effects, better placed, as ``--auto``'s search goes on from); else None.
+
+        Returns
+        -------
+        Model or None
+        """
+        if self.recommendation:
+            return self.model_with(self.recommendation)
+        if not self.refined:
             return None
-        return self.model_with(self.recommendation)
+        return replace(self.base, constants=dict(self.constants),
+                       info={"method": "co (diagnose re-fit, refined)",
+                             "rmse_over_noise": {"overall": self.evaluation.rmse},
+                             "dataset": {"runs": list(self.dataset)}})
 
     def model_with(self, label: str) -> Model:
         """The re-fitted model of a candidate (by its ranking label)."""

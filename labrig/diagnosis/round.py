@@ -310,8 +310,10 @@ class Round:
         return lead + [c for c in ranking if c not in lead]
 
     def result(self, ranking: list[Candidate], diverged: list[str],
-               source: str | None = None) -> Diagnosis:
-        """The round's :class:`~labrig.diagnosis.ranking.Diagnosis`, with its words."""
+               source: str | None = None, refined_from: "Round | None" = None) -> Diagnosis:
+        """The round's :class:`~labrig.diagnosis.ranking.Diagnosis`, with its words;
+        ``refined_from``: the round on the given model, when this one is on its
+        re-fit (:meth:`refined`)."""
         runs, ev0, base, weights = self.runs, self.ev0, self.base, self.weights
         good = [c for c in ranking if c.supported]
         rec = good[0].label if good else None
@@ -325,6 +327,11 @@ class Round:
                    "noise": ev0.metrics["noise"]}
         ripple = _ripple(ev0, runs) if rec is None and ev0.rmse > FLOOR else None
         verdict = round_verdict(good, ev0, weights, ripple, diverged, base.starts)
+        if refined_from is not None and rec is None:
+            # the same effects, better placed: the model to keep (--auto goes on from it)
+            verdict += (" The model's own parameters were re-fitted to better values "
+                        f"(rmse/noise {refined_from.ev0.rmse:.2f} -> {ev0.rmse:.2f}): keep the "
+                        "re-fitted model (the recommended model).")
         return Diagnosis(
             diverged=diverged,
             baseline={"source": source or self.source, "effects": base.names,
@@ -342,7 +349,7 @@ class Round:
             criteria={"min_improvement": MIN_GAIN, "max_delta_bic": MIN_DBIC, "floor": FLOOR},
             seconds=round(time.perf_counter() - self.t0, 2), base=base, evaluation=ev0,
             constants=dataset_constants(runs), dataset=[r.name for r in runs],
-            folds=self.folds, cv_baseline=self.cv0)
+            folds=self.folds, cv_baseline=self.cv0, refined=refined_from is not None)
 
 
 def switched_off(model: Model, effect: str) -> Model | None:
