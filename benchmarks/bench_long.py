@@ -21,7 +21,11 @@
 Target: each within 2 times the reference. Where a record misses, the record says where
 its time goes: the rounds' own seconds (each round's JSON ``seconds``), the rest of the
 search (the pairs tried when no single effect reaches the floor, the refinements, the
-final files) and the process's start (the interpreter, imports, numba's cache).
+final files) and the process's start (the interpreter, imports, numba's cache); and, after
+the timings, the search profiled in one thread: seconds by stage (the rounds' candidates,
+the pairs, the threshold pairs, the revisions, the rounds' starts), how many fits it ran
+and how much of it is the compiled simulation (the rest is Python around the kernels:
+the optimiser's steps, Jacobians, residuals).
 """
 from __future__ import annotations
 
@@ -73,6 +77,45 @@ def _auto(folder: Path, out: Path) -> dict:
             "loadavg_before": round(load, 2)}
 
 
+#: the serial profile of a record that misses: the search in one thread under cProfile
+#: (LABRIG_THREADS=1: every fit in the profiled thread), summed by stage
+PROFILE = r"""
+import cProfile, json, pstats, sys
+from labrig.io.runs import read_dataset
+from labrig.diagnosis.search import search
+runs = read_dataset(sys.argv[1])
+prof = cProfile.Profile()
+prof.runcall(search, runs)
+stats = pstats.Stats(prof).stats
+STAGES = {("round.py", "candidates"): "candidates", ("round.py", "start"): "starts",
+          ("search.py", "_pair"): "pairs", ("search.py", "_threshold_pair"): "threshold_pairs",
+          ("search.py", "_revise"): "revisions", ("search.py", "search"): "total"}
+out = {v: 0.0 for v in STAGES.values()}
+out["fits"], out["kernels"] = 0, 0.0
+for (path, _, name), (cc, nc, tt, ct, _) in stats.items():
+    key = (path.rsplit("/", 1)[-1], name)
+    if key in STAGES and "/labrig/diagnosis/" in path:
+        out[STAGES[key]] += ct
+    if name == "identify" and path.endswith("identification/engine.py"):
+        out["fits"] += nc
+    if "/labrig/simulation/" in path and "kernel" in path:
+        out["kernels"] += tt   # the compiled simulation (numba's functions run in tottime)
+print(json.dumps(out))
+"""
+
+
+def _where(folder: Path) -> dict:
+    """Where a record's search spends its time, one thread, in seconds (see PROFILE)."""
+    import json
+    import subprocess
+
+    env = {**os.environ, "LABRIG_THREADS": "1"}
+    p = subprocess.run([sys.executable, "-c", PROFILE, str(folder)], capture_output=True,
+                       text=True, check=True, env=env)
+    return {k: round(v, 1) if isinstance(v, float) else v
+            for k, v in json.loads(p.stdout.strip().splitlines()[-1]).items()}
+
+
 def measure() -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
@@ -93,6 +136,9 @@ def measure() -> dict:
             longs[what] = _auto(folder, tmp / f"auto{k}")
             longs[what]["ratio"] = round(longs[what]["seconds"] / reference, 2)
             longs[what]["pass"] = longs[what]["ratio"] <= TARGET_RATIO
+        for what, folder in records.items():   # (after the timings: it loads the machine)
+            if not longs[what]["pass"]:
+                longs[what]["profile"] = _where(folder)
         total = time.perf_counter() - t0
     return {"reference": {"command": "labrig diagnose runs --model m0.json --json (README's "
                           "default round, whole process, median of 3)",
@@ -111,10 +157,17 @@ def markdown(res: dict) -> str:
             "|---|---|---|---|---|---|"]
     for what, a in res["auto"].items():
         rounds = " + ".join(f"{s:.1f}" for s in a["rounds_s"])
+        where = (f"{len(a['rounds_s'])} rounds {rounds} s; pairs, refinements, start and "
+                 f"files {a['rest_s']:.1f} s")
+        if "profile" in a:
+            p = a["profile"]
+            where += (f"; in one thread {p['total']:.0f} s: the rounds' candidates "
+                      f"{p['candidates']:.0f} s, pairs {p['pairs']:.0f} s, threshold pairs "
+                      f"{p['threshold_pairs']:.0f} s, revisions {p['revisions']:.0f} s, the "
+                      f"rounds' starts {p['starts']:.0f} s; {p['fits']} fits, the compiled "
+                      f"simulation {p['kernels']:.0f} s ({100 * p['kernels'] / p['total']:.0f} %)")
         row = readme_row(f"{what}", f"**{a['seconds']:.1f} s** = **{a['ratio']:.1f}x** the "
-                         f"round", f"{len(a['rounds_s'])} rounds {rounds} s; pairs, "
-                         f"refinements, start and files {a['rest_s']:.1f} s",
-                         a["pass"])
+                         f"round", where, a["pass"])
         # (the found effects and the target between the timing and the result)
         head, tail = row.rsplit(" | ", 1)
         rows.append(f"{head} | {' + '.join(a['effects']) or 'nothing'} (rmse/noise "

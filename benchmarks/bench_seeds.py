@@ -17,9 +17,12 @@ runs ends with, M, Fv and Fc (the friction level, Coulomb's or stiction's kineti
 with their spread over the runs (largest minus smallest, over the seed-0 value), and
 over the cross-validation's folds of the seed-0 model (each fold's training fit, what one
 odd stretch of the record can move). The target: the same effects in all ten and every
-parameter within 2 % of seed 0's.
+parameter within 2 % of seed 0's. And the step-by-step loop, as a student runs it (one
+`labrig diagnose` process a round, each round's saved model the next one's ``--model``),
+with the same seeds and kernels: the same effects as ``--auto`` and every parameter
+within 2 % of its seed 0's.
 
-    python benchmarks/bench_seeds.py              # measure and record (about 10 minutes)
+    python benchmarks/bench_seeds.py              # measure and record (about 25 minutes with the real record)
     python benchmarks/bench_seeds.py --markdown   # the README's rows of the record
 """
 from __future__ import annotations
@@ -51,12 +54,40 @@ def _auto(folder: Path, out: Path, seed: int, kernel: str) -> dict:
                         "--seed", str(seed), "--json", "-o", str(out)],
                        capture_output=True, text=True, check=True, env=env)
     doc = json.loads(p.stdout)
-    m = doc["final_model"]
+    return {"seed": seed, "kernel": kernel or "own", "effects": doc["effects"],
+            **_params(doc["final_model"]),
+            "rmse_over_noise": doc["ladder"][-1]["rmse_over_noise"]["overall"]}
+
+
+def _params(m: dict) -> dict:
+    """M, Fv and Fc (the friction level, Coulomb's or stiction's kinetic one) of a saved model."""
     fp = m["effect_params"]
     friction = fp.get("coulomb_friction") or fp.get("stiction") or {}
-    return {"seed": seed, "kernel": kernel or "own", "effects": doc["effects"],
-            "M": m["params"]["M"], "Fv": m["params"]["Fv"], "Fc": friction.get("tc_n"),
-            "rmse_over_noise": doc["ladder"][-1]["rmse_over_noise"]["overall"]}
+    return {"M": m["params"]["M"], "Fv": m["params"]["Fv"], "Fc": friction.get("tc_n")}
+
+
+def _steps(folder: Path, out: Path, seed: int, kernel: str) -> dict:
+    """The step-by-step loop as a student runs it: `labrig diagnose DIR [--model MODEL] -o
+    NEXT --json`, each round a whole process, until a round recommends nothing (its model
+    then is the one it saved, re-fitted, or else the one it was given)."""
+    env = {**os.environ, "OPENBLAS_CORETYPE": kernel} if kernel else dict(os.environ)
+    out.mkdir(parents=True, exist_ok=True)
+    model, recs = None, []
+    for k in range(1, 9):
+        nxt = out / f"step{k}.json"
+        p = subprocess.run([sys.executable, "-m", "labrig", "diagnose", str(folder), "--seed",
+                            str(seed), "--json", "-o", str(nxt)]
+                           + (["--model", str(model)] if model else []),
+                           capture_output=True, text=True, check=True, env=env)
+        rec = json.loads(p.stdout)["recommendation"]
+        if nxt.exists():
+            model = nxt
+        if not rec:
+            break
+        recs.append(rec)
+    m = json.loads(model.read_text())
+    return {"seed": seed, "kernel": kernel or "own", "effects": m["effects"], "moves": recs,
+            **_params(m)}
 
 
 def _folds(folder: Path, model_file: Path) -> list[dict]:
@@ -94,8 +125,14 @@ def _record(folder: Path, tmp: Path) -> dict:
     same = all(r["effects"] == first["effects"] for r in runs) and all(
         spread[p] is not None and spread[p] <= TOLERANCE
         for p in ("M", "Fv", "Fc") if any(r[p] is not None for r in runs))
+    steps = [_steps(folder, tmp / f"steps_{k or 'own'}_{s}", s, k) for k in KERNELS for s in SEEDS]
+    # the step-by-step loop against --auto's seed 0: the largest gap over its ten runs
+    apart = {p: _spread([first[p]] + [x[p] for x in steps]) for p in ("M", "Fv", "Fc")}
+    steps_same = all(sorted(x["effects"]) == sorted(first["effects"]) for x in steps) and all(
+        apart[p] is not None and apart[p] <= TOLERANCE
+        for p in ("M", "Fv", "Fc") if any(x[p] is not None for x in steps))
     return {"runs": runs, "folds": folds, "spread": spread, "fold_spread": fold_spread,
-            "same": same}
+            "same": same, "steps": steps, "steps_apart": apart, "steps_same": steps_same}
 
 
 def measure() -> dict:
@@ -143,6 +180,22 @@ def markdown(res: dict) -> str:
             f"{_pct(sp['M'])} / {_pct(sp['Fv'])} / {_pct(sp['Fc'])} | "
             f"{_pct(fs['M'])} / {_pct(fs['Fv'])} / {_pct(fs['Fc'])} | same effects, "
             f"<= {100 * res['tolerance']:.0f} % | {'PASS' if r['same'] else 'MISS'} |")
+    rows += ["", "The step-by-step loop (`labrig diagnose DIR [--model M] -o NEXT`, a whole "
+             "process a round, until a round recommends nothing) with the same seeds and "
+             "kernels, against `--auto`'s seed 0 (largest gap over the ten, over --auto's "
+             "value):", "",
+             "| record | the ten end with | moves (seed 0) | M, Fv, Fc (seed 0) | apart from "
+             "`--auto` (M / Fv / Fc) | target | result |", "|---|---|---|---|---|---|---|"]
+    for what, r in res["records"].items():
+        if "steps" not in r:
+            continue
+        x, ap = r["steps"][0], r["steps_apart"]
+        ends = sorted({" + ".join(sorted(y["effects"])) for y in r["steps"]})
+        fc = "no friction level" if x["Fc"] is None else f"{x['Fc']:.3g} N"
+        rows.append(f"| {what} | {' / '.join(ends)} | {'; '.join(x['moves'])} | "
+                    f"{x['M']:.4g} kg, {x['Fv']:.4g} N s/m, {fc} | {_pct(ap['M'])} / "
+                    f"{_pct(ap['Fv'])} / {_pct(ap['Fc'])} | --auto's effects, <= "
+                    f"{100 * res['tolerance']:.0f} % | {'PASS' if r['steps_same'] else 'MISS'} |")
     for what, r in res["records"].items():
         ends: dict = {}
         for x in r["runs"]:

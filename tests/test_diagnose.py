@@ -210,3 +210,19 @@ def test_ladder_of_saved_models_labels_a_dropped_effect(tmp_path):
     assert [s.effects for s in lad.steps] == [[], ["offset"], ["deadband"]]
     # the true model (the dead zone alone) is at the noise floor, the linear one far above
     assert lad.steps[2].rmse_over_noise["overall"] < 1.3 < 3 < lad.steps[0].rmse_over_noise["overall"]
+
+
+def test_a_runs_regimes_are_labelled_once_for_its_data():
+    """The regime labels are the data's (input and speed), not a model's: a search that
+    evaluates the same run dozens of times labels it once; other data, other labels."""
+    from labrig.diagnosis.residuals import label_regimes, regimes_of
+
+    t = np.arange(2000) * 0.005
+    u = np.where((t % 4) < 2, 1.5, -1.5)
+    w = 10 * np.sign(u) * (1 - np.exp(-(t % 2) / 0.1))
+    first = regimes_of(u, w)
+    assert (first == label_regimes(u, w)).all() and not first.flags.writeable
+    assert regimes_of(u.copy(), w.copy()) is first           # same data: the same labels
+    other = regimes_of(u, np.zeros_like(w))                  # never moves: no start
+    assert (other == label_regimes(u, np.zeros_like(w))).all()
+    assert "start" in set(first) and "start" not in set(other)

@@ -30,7 +30,7 @@ from labrig.model.start import is_start_key
 from labrig.model.simulate import prepare
 from labrig.analysis.noise import run_speed
 from labrig.diagnosis.refit import fit
-from labrig.diagnosis.residuals import input_edges, label_regimes
+from labrig.diagnosis.residuals import input_edges, regimes_of
 from labrig.model.effects import get_effect
 
 #: folds, and blocks per run when the input has too few segments to interleave
@@ -230,7 +230,7 @@ def cross_validate(runs, model: Model, folds: Folds, *, sigmas, weights, seed: i
             channels[ch] = float(np.sqrt(np.mean(e ** 2)))
             total_sq += wt * float(np.sum(e ** 2))
             total_n += len(e)
-    labels = [label_regimes(r.u, run_speed(r)) for r in prepared]
+    labels = [regimes_of(r.u, run_speed(r)) for r in prepared]
     return CrossValidation(rmse=float(np.sqrt(total_sq / max(total_n, 1))), per_fold=per_fold,
                            channels=channels, residuals=res, labels=labels, fold_sq=fold_sq,
                            fold_n=fold_n, fold_params=fold_params)

@@ -15,6 +15,9 @@ Computation only; the figures live in ``labrig.diagnosis.plots``.
 """
 from __future__ import annotations
 
+import hashlib
+import threading
+
 import numpy as np
 
 from labrig.identification.objective import fit_percent
@@ -31,6 +34,31 @@ def input_edges(u: np.ndarray) -> np.ndarray:
     du = np.abs(np.diff(u))
     scale = max(np.ptp(u), 1e-9)
     return np.flatnonzero(du > 0.02 * scale) + 1
+
+
+#: regime labels of the runs seen lately, by the digest of their input and speed: a run's
+#: regimes are its data's, not a model's, and a search evaluates the same runs dozens of
+#: times (a long record of many holds: a tenth of a second each)
+_LABELS: dict = {}
+_LABELS_KEPT = 64
+_LABELS_LOCK = threading.Lock()   # (a search's fits evaluate on threads)
+
+
+def regimes_of(u: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """:func:`label_regimes` of ``u`` and ``w``, computed once for the same data (the
+    array returned is read-only: it is shared)."""
+    u, w = np.ascontiguousarray(u, dtype=float), np.ascontiguousarray(w, dtype=float)
+    key = (len(u), hashlib.blake2b(u.tobytes(), digest_size=16).digest(),
+           hashlib.blake2b(w.tobytes(), digest_size=16).digest())
+    hit = _LABELS.get(key)
+    if hit is None:
+        hit = label_regimes(u, w)
+        hit.flags.writeable = False
+        with _LABELS_LOCK:
+            while len(_LABELS) >= _LABELS_KEPT:
+                _LABELS.pop(next(iter(_LABELS)))
+            _LABELS[key] = hit
+    return hit
 
 
 def label_regimes(u: np.ndarray, w: np.ndarray) -> np.ndarray:
@@ -143,7 +171,7 @@ def run_residuals(rd, sim: dict, sigma_w: float, sigma_theta: float,
     correlations): two thirds of the time of a slider's re-simulation went to them."""
     quanta = quanta or {}
     w_ref = rd.w if rd.w is not None else np.gradient(rd.theta * rd.N, rd.dt)
-    labels = label_regimes(rd.u, w_ref) if detail else None
+    labels = regimes_of(rd.u, w_ref) if detail else None
     keep = rd.keep()
     out = {"name": rd.name, "labels": labels, "amplitude": rd.amplitude, "loop": rd.loop,
            # samples the link lost: residual 0 (no evidence), drawn as gaps, not counted

@@ -330,8 +330,8 @@ class Round:
         if refined_from is not None and rec is None:
             # the same effects, better placed: the model to keep (--auto goes on from it)
             verdict += (" The model's own parameters were re-fitted to better values "
-                        f"(rmse/noise {refined_from.ev0.rmse:.2f} -> {ev0.rmse:.2f}): keep the "
-                        "re-fitted model (the recommended model).")
+                        f"(rmse/noise {refined_from.ev0.rmse:.2f} -> {ev0.rmse:.2f}): the re-fitted "
+                        "model is this round's answer.")
         return Diagnosis(
             diverged=diverged,
             baseline={"source": source or self.source, "effects": base.names,
