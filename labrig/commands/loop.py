@@ -124,7 +124,7 @@ def cmd_diagnose(args):
     saved = _saved_text(args.output, res.recommendation, res.refined) if args.output else None
     if args.json:
         emit_json(_json_with_check(res, check))
-        if saved and keep is None:  # stdout is the JSON: the warning goes beside it
+        if saved and not res.recommendation:  # stdout is the JSON: its note goes beside it
             print(f"labrig: {saved}", file=sys.stderr)
     else:
         print(_text_with_check(res, check))
