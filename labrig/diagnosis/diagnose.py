@@ -86,9 +86,5 @@ def diagnose(runs, model: Model | None = None, *, candidates=None, seed: int = 0
             break
         rnd = rnd.refined(best)
     revisions = rnd.revisions() if revise and rnd.base.names and candidates is None else []
-    source = None
-    if rnd is not first:
-        source = (f"{first.source}, refined: the re-fits of its candidates found better values "
-                  f"of its own parameters (fitness {first.f0:.4g} -> {rnd.f0:.4g})")
-    return rnd.result(rnd.rank(ranking, revisions, on_candidate), diverged, source,
+    return rnd.result(rnd.rank(ranking, revisions, on_candidate), diverged,
                       refined_from=first if rnd is not first else None)

@@ -310,11 +310,16 @@ class Round:
         return lead + [c for c in ranking if c not in lead]
 
     def result(self, ranking: list[Candidate], diverged: list[str],
-               source: str | None = None, refined_from: "Round | None" = None) -> Diagnosis:
+               refined_from: "Round | None" = None) -> Diagnosis:
         """The round's :class:`~labrig.diagnosis.ranking.Diagnosis`, with its words;
         ``refined_from``: the round on the given model, when this one is on its
         re-fit (:meth:`refined`)."""
         runs, ev0, base, weights = self.runs, self.ev0, self.base, self.weights
+        source = self.source
+        if refined_from is not None:
+            source = (f"{refined_from.source}, refined: the re-fits of its candidates found "
+                      f"better values of its own parameters (fitness {refined_from.f0:.4g} "
+                      f"-> {self.f0:.4g})")
         good = [c for c in ranking if c.supported]
         rec = good[0].label if good else None
         for c in ranking:
@@ -334,7 +339,7 @@ class Round:
                         "model is this round's answer.")
         return Diagnosis(
             diverged=diverged,
-            baseline={"source": source or self.source, "effects": base.names,
+            baseline={"source": source, "effects": base.names,
                       "fitness": ev0.metrics["fitness"],
                       "rmse_over_noise": ev0.metrics["rmse_over_noise"],
                       "fit_percent": ev0.metrics["fit_percent"], "bic": self.bic0,
