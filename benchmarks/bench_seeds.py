@@ -115,22 +115,26 @@ def _spread(values) -> float | None:
     return (max(v) - min(v)) / abs(v[0])
 
 
+def _agree(rows, effects, spread) -> bool:
+    """Whether every row ends with ``effects`` and every parameter some row has spreads
+    at most :data:`TOLERANCE` (Fc has no spread when no row ends with a friction level,
+    and then it is not judged)."""
+    return all(sorted(r["effects"]) == sorted(effects) for r in rows) and all(
+        spread[p] is not None and spread[p] <= TOLERANCE
+        for p in ("M", "Fv", "Fc") if any(r[p] is not None for r in rows))
+
+
 def _record(folder: Path, tmp: Path) -> dict:
     runs = [_auto(folder, tmp / f"auto_{k or 'own'}_{s}", s, k) for k in KERNELS for s in SEEDS]
     first = runs[0]
     folds = _folds(folder, tmp / "auto_own_0" / "model.json")
     spread = {p: _spread([r[p] for r in runs]) for p in ("M", "Fv", "Fc")}
     fold_spread = {p: _spread([first[p]] + [f[p] for f in folds]) for p in ("M", "Fv", "Fc")}
-    # (Fc has no spread when no run ends with a friction level, and then it is not judged)
-    same = all(r["effects"] == first["effects"] for r in runs) and all(
-        spread[p] is not None and spread[p] <= TOLERANCE
-        for p in ("M", "Fv", "Fc") if any(r[p] is not None for r in runs))
+    same = _agree(runs, first["effects"], spread)
     steps = [_steps(folder, tmp / f"steps_{k or 'own'}_{s}", s, k) for k in KERNELS for s in SEEDS]
     # the step-by-step loop against --auto's seed 0: the largest gap over its ten runs
     apart = {p: _spread([first[p]] + [x[p] for x in steps]) for p in ("M", "Fv", "Fc")}
-    steps_same = all(sorted(x["effects"]) == sorted(first["effects"]) for x in steps) and all(
-        apart[p] is not None and apart[p] <= TOLERANCE
-        for p in ("M", "Fv", "Fc") if any(x[p] is not None for x in steps))
+    steps_same = _agree(steps, first["effects"], apart)
     return {"runs": runs, "folds": folds, "spread": spread, "fold_spread": fold_spread,
             "same": same, "steps": steps, "steps_apart": apart, "steps_same": steps_same}
 

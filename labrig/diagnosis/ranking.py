@@ -201,17 +201,17 @@ class Diagnosis(Displayable):
             return self.model_with(self.recommendation)
         if not self.refined:
             return None
-        return replace(self.base, constants=dict(self.constants),
-                       info={"method": "co (diagnose re-fit, refined)",
-                             "rmse_over_noise": {"overall": self.evaluation.rmse},
-                             "dataset": {"runs": list(self.dataset)}})
+        return self._to_save(self.base, self.evaluation.rmse, "co (diagnose re-fit, refined)")
 
     def model_with(self, label: str) -> Model:
         """The re-fitted model of a candidate (by its ranking label)."""
         c = self.candidate(label)
-        return replace(c.model, constants=dict(self.constants),
-                       info={"method": "co (diagnose re-fit)",
-                             "rmse_over_noise": {"overall": c.rmse_over_noise},
+        return self._to_save(c.model, c.rmse_over_noise, "co (diagnose re-fit)")
+
+    def _to_save(self, model: Model, rmse: float, method: str) -> Model:
+        """``model`` with the rig's constants and the record of how it was fitted."""
+        return replace(model, constants=dict(self.constants),
+                       info={"method": method, "rmse_over_noise": {"overall": rmse},
                              "dataset": {"runs": list(self.dataset)}})
 
     def to_json(self) -> dict:
