@@ -82,7 +82,7 @@ def _auto(folder: Path, out: Path) -> dict:
 PROFILE = r"""
 import cProfile, json, pstats, sys
 from labrig.io.runs import read_dataset
-from labrig.diagnosis.search import search
+from labrig.diagnosis.loop.search import search
 runs = read_dataset(sys.argv[1])
 prof = cProfile.Profile()
 prof.runcall(search, runs)

@@ -93,7 +93,7 @@ def _steps(folder: Path, out: Path, seed: int, kernel: str) -> dict:
 def _folds(folder: Path, model_file: Path) -> list[dict]:
     """M, Fv and Fc of each cross-validation fold's training fit of ``model_file``."""
     from labrig.analysis.noise import Weights
-    from labrig.diagnosis.crossval import cross_validate, make_folds
+    from labrig.diagnosis.evidence.crossval import cross_validate, make_folds
     from labrig.io.runs import read_dataset
     from labrig.model.model import Model
 

@@ -29,9 +29,9 @@ _PUBLIC.update({
     "Model": "labrig.model.model", "Run": "labrig.io.runs", "Effect": "labrig.model.effects",
     "Param": "labrig.model.effect_base",
     "AnalysisResult": "labrig.analysis.result", "Identification": "labrig.identification.engine",
-    "Diagnosis": "labrig.diagnosis.ranking", "AutoDiagnosis": "labrig.diagnosis.auto",
-    "Evaluation": "labrig.diagnosis.evaluation", "Ladder": "labrig.diagnosis.ladder",
-    "Proposal": "labrig.diagnosis.proposal", "Catalogue": "labrig.model.catalogue",
+    "Diagnosis": "labrig.diagnosis.results.diagnosis", "AutoDiagnosis": "labrig.diagnosis.loop.auto",
+    "Evaluation": "labrig.diagnosis.evidence.evaluation", "Ladder": "labrig.diagnosis.results.ladder",
+    "Proposal": "labrig.design.proposal", "Catalogue": "labrig.model.catalogue",
     "LabrigError": "labrig.core.errors", "UserError": "labrig.core.errors",
 })
 

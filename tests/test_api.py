@@ -33,7 +33,7 @@ def test_import_is_light_and_picks_no_backend():
                          check=True).stdout.strip()
     assert out == "[]"
     # the whole library imported, still no backend chosen: a notebook keeps its own
-    code = ("import matplotlib; import labrig.report.html, labrig.diagnosis.auto, "
+    code = ("import matplotlib; import labrig.report.html, labrig.diagnosis.loop.auto, "
             "labrig.analysis.plots; print(matplotlib.rcParams._get_backend_or_none())")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          check=True, env={"PATH": "/usr/bin:/bin", "MPLBACKEND": ""}).stdout
@@ -141,7 +141,7 @@ def test_the_interactive_view_draws_what_compare_computes():
 
     import labrig.verbs as verbs
     from labrig.core.errors import UserError
-    from labrig.diagnosis.interactive import MAX_POINTS
+    from labrig.diagnosis.results.interactive import MAX_POINTS
 
     runs = lr.read_runs(DATA)
     m = lr.identify(runs, seed=0).model()
@@ -234,9 +234,9 @@ def test_the_verbs_examples_run_as_written(monkeypatch):
     ran = 0
     for name in ("labrig.verbs.acquire", "labrig.verbs.data", "labrig.verbs.fit",
                  "labrig.verbs.loop", "labrig.io.runs", "labrig.model.catalogue",
-                 "labrig.identification.engine", "labrig.diagnosis.ranking",
-                 "labrig.diagnosis.auto", "labrig.diagnosis.ladder",
-                 "labrig.diagnosis.proposal"):
+                 "labrig.identification.engine", "labrig.diagnosis.results.diagnosis",
+                 "labrig.diagnosis.loop.auto", "labrig.diagnosis.results.ladder",
+                 "labrig.design.proposal"):
         mod = importlib.import_module(name)
         res = doctest.testmod(mod, optionflags=doctest.ELLIPSIS)
         assert res.failed == 0, mod.__name__

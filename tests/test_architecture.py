@@ -24,7 +24,8 @@ LAYERS = [
     ["bridge"],      # the rig: simulated, serial, emulated; sweeps
     ["analysis"],    # deadband, Km, tau_m from runs; noise floors
     ["identification"],  # JFO, PSO, CO fits and their results
-    ["diagnosis"],   # the missing-physics loop: residuals, diagnosis, evidence, search, ladder, proposals
+    ["diagnosis"],   # the missing-physics loop: the round and search, evidence, words, results
+    ["design"],      # experiment design: input families, propose, separation, ask, decide
     ["verbs", "api"],  # the public verbs, the front ends' one door (labrig.api is its old name)
     ["classroom"],   # batches and mystery rigs
     ["report"],      # the HTML report
@@ -151,7 +152,7 @@ def test_folders_are_layers():
 def test_what_the_loop_knows_of_an_effect_lives_on_the_effect():
     """No table keyed by effect name in the loop: a user's own effect takes part in the
     search and in proposals through its own attributes, like a built-in one."""
-    from labrig.diagnosis.inputs import KINDS
+    from labrig.design.inputs import KINDS
     from labrig.model.effects import CATALOGUE
 
     names = set(CATALOGUE)

@@ -74,9 +74,9 @@ def test_the_python_api_takes_a_method_in_any_case(ds):
 def test_files_name_effects_in_any_case(tmp_path):
     from labrig.io.experiment import Experiment
     from labrig.io.config import load_plan, load_rig
-    from labrig.diagnosis.diagnose import candidate_names
+    from labrig.diagnosis.loop.diagnose import candidate_names
     from labrig.model.model import Model
-    from labrig.diagnosis.propose import default_pair
+    from labrig.design.propose import default_pair
     from labrig.io.runs import read_dataset
 
     # a rig file: [effects.Deadband] is the dead zone, and the simulated rig plays it

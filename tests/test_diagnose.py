@@ -4,7 +4,7 @@ import json
 import numpy as np
 import pytest
 
-from labrig.diagnosis.diagnose import diagnose
+from labrig.diagnosis.loop.diagnose import diagnose
 from labrig.identification.engine import identify
 from labrig.model.effects import get_effect
 from labrig.io.runs import read_dataset
@@ -180,7 +180,7 @@ def test_diagnose_auto_runs_the_rounds_and_names_the_confusable_pair(tmp_path):
     ([], ["offset"], "linear model (without offset)"),
 ])
 def test_rung_label_names_exactly_the_models_effects(names, previous, label):
-    from labrig.diagnosis.ladder import rung_label
+    from labrig.diagnosis.results.ladder import rung_label
 
     assert rung_label(names, previous) == label
 
@@ -188,7 +188,7 @@ def test_rung_label_names_exactly_the_models_effects(names, previous, label):
 def test_ladder_of_saved_models_labels_a_dropped_effect(tmp_path):
     """Sheet 3's chain m0, m_offset, m1 where m1 has a dead zone but no offset: the third
     rung is "deadband (without offset)", and its error is the dead zone's alone."""
-    from labrig.diagnosis.ladder import evaluate_ladder
+    from labrig.diagnosis.results.ladder import evaluate_ladder
     from labrig.model.model import Model
     from labrig.model.servo import ServoParams
 
@@ -215,7 +215,7 @@ def test_ladder_of_saved_models_labels_a_dropped_effect(tmp_path):
 def test_a_runs_regimes_are_labelled_once_for_its_data():
     """The regime labels are the data's (input and speed), not a model's: a search that
     evaluates the same run dozens of times labels it once; other data, other labels."""
-    from labrig.diagnosis.residuals import label_regimes, regimes_of
+    from labrig.diagnosis.evidence.residuals import label_regimes, regimes_of
 
     t = np.arange(2000) * 0.005
     u = np.where((t % 4) < 2, 1.5, -1.5)

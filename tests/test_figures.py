@@ -10,7 +10,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
 from labrig.analysis import analyse  # noqa: E402
-from labrig.diagnosis.evaluation import evaluate  # noqa: E402
+from labrig.diagnosis.evidence.evaluation import evaluate  # noqa: E402
 from labrig.model.model import Model  # noqa: E402
 from labrig.model.servo import ServoParams  # noqa: E402
 from labrig.io.runs import read_dataset  # noqa: E402
@@ -47,7 +47,7 @@ def _overlaps(fig):
 
 def _figures(rig, ds, runs, ev):
     from labrig.analysis.plots import analysis_figures
-    from labrig.diagnosis.plots import plot_ladder, plot_run_comparison
+    from labrig.diagnosis.results.plots import plot_ladder, plot_run_comparison
     from labrig.identification.plots import plot_convergence
     from labrig.analysis.run_plots import plot_overview
 
@@ -73,7 +73,7 @@ def test_no_legend_covers_an_axes(data):
 
 
 def test_residual_panel_shows_the_quantum_and_the_staircase_lies_inside_it(data):
-    from labrig.diagnosis.plots import plot_run_comparison
+    from labrig.diagnosis.results.plots import plot_run_comparison
 
     rig, _, runs, ev = data
     # the tacho's and the pot's ADC step in their channels' units

@@ -12,7 +12,7 @@ import labrig as lr
 from labrig.analysis.doc import AnalysisDoc
 from labrig.identification.doc import IdentRecord
 from labrig.identification.table import identification_dict
-from labrig.diagnosis.docs import DiagnosisDoc, LadderDoc
+from labrig.diagnosis.results.docs import DiagnosisDoc, LadderDoc
 
 DATA = Path(__file__).resolve().parent.parent / "data" / "sweep_default"
 

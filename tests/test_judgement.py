@@ -11,9 +11,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from labrig.diagnosis.crossval import MAX_FOLDS, make_folds
-from labrig.diagnosis.refit import fit
-from labrig.diagnosis.round import NESTED_MARGIN, Round
+from labrig.diagnosis.evidence.crossval import MAX_FOLDS, make_folds
+from labrig.diagnosis.loop.refit import fit
+from labrig.diagnosis.loop.round import NESTED_MARGIN, Round
 from labrig.io.runs import read_dataset
 from labrig.model.effects import get_effect
 
@@ -59,7 +59,7 @@ def test_a_count_over_one_sample_reads_half_a_sample_late(gearmotor):
     """A speed declared as counts over one sample is simulated as the travel over that
     sample (the integrated angle's difference), not the speed at the sample's instant:
     on a step of the linear motor the two differ by the half-sample lag."""
-    from labrig.diagnosis.baseline import linear_model
+    from labrig.diagnosis.loop.baseline import linear_model
 
     runs = [r for r in gearmotor if r.name == "squares"]
     model = linear_model(runs)
@@ -162,7 +162,7 @@ def test_friction_large_against_the_drive_leaves_the_linear_basin(gearmotor):
     events): run-mean fit within 2 points, rms error within 5 %, Km and tau_m within
     10 %."""
     import pandas as pd
-    from labrig.diagnosis.auto import auto_diagnose
+    from labrig.diagnosis.loop.auto import auto_diagnose
 
     res = auto_diagnose(gearmotor, seed=0)
     model = res.model
@@ -297,7 +297,7 @@ def test_a_delay_is_found_beside_a_friction(tmp_path, breakaway_v, law):
     delay (with the breakaway, stiction; without, Coulomb friction or stiction with a
     small excess: the twin's smoothed sign is not Karnopp's, and its 0.23 is measured),
     the delay within 15 % and the Coulomb level within 10 %."""
-    from labrig.diagnosis.auto import auto_diagnose
+    from labrig.diagnosis.loop.auto import auto_diagnose
     from twin import Twin
 
     for a in (1.2, 1.5, 2.0, 2.5):
@@ -322,7 +322,7 @@ def test_near_equals_are_ordered_by_the_stated_rule_not_by_their_last_digits():
     0.8 % apart, and the seed picked."""
     from types import SimpleNamespace
 
-    from labrig.diagnosis.criteria import (UNDECIDED, candidate_order, decide_ties,
+    from labrig.diagnosis.evidence.criteria import (UNDECIDED, candidate_order, decide_ties,
                                            simpler_first)
 
     def c(effect, err, extra=1):
@@ -354,8 +354,8 @@ def test_a_force_axis_linear_model_is_the_same_from_every_seed(tmp_path):
     apart, and every effect was then fitted from wherever the seed had left the plant)."""
     from twin import emps_like_axis
 
-    from labrig.diagnosis.baseline import linear_model
-    from labrig.diagnosis.evaluation import evaluate
+    from labrig.diagnosis.loop.baseline import linear_model
+    from labrig.diagnosis.evidence.evaluation import evaluate
     from labrig.identification.engine import identify
 
     src = emps_like_axis(tmp_path / "export")
@@ -384,8 +384,8 @@ def test_the_step_by_step_loop_ends_with_autos_model_and_hands_on_a_better_place
 
     from twin import emps_like_axis
 
-    from labrig.diagnosis.diagnose import diagnose
-    from labrig.diagnosis.search import search
+    from labrig.diagnosis.loop.diagnose import diagnose
+    from labrig.diagnosis.loop.search import search
 
     src = emps_like_axis(tmp_path / "export")
     labrig("import", src, "-o", tmp_path / "runs", "--map", "t=t,u=vir,pos=qm", "--axis",

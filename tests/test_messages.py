@@ -32,7 +32,7 @@ LONG_VERDICT = ("Add deadband: A symmetric dead zone of the bridge and amplifier
 
 
 def test_round_log_lines_are_wrapped_with_every_word_whole():
-    from labrig.diagnosis.search import LOG_WIDTH, wrap_log
+    from labrig.diagnosis.loop.search import LOG_WIDTH, wrap_log
 
     msg = f"round 2: {LONG_VERDICT}"
     text = wrap_log(msg)
@@ -50,7 +50,7 @@ def test_round_log_lines_are_wrapped_with_every_word_whole():
 
 def test_the_search_logs_the_whole_verdict(monkeypatch):
     """search() hands the round's whole verdict to the log (no slice of it)."""
-    import labrig.diagnosis.search as search
+    import labrig.diagnosis.loop.search as search
 
     said = []
 
@@ -139,7 +139,7 @@ def test_diagnose_o_says_plainly_when_it_saved_nothing(saved):
 # -- 3. the ranking says its order and its rule ------------------------------------------
 
 def _diagnosis():
-    from labrig.diagnosis.ranking import Candidate, Diagnosis
+    from labrig.diagnosis.results.diagnosis import Candidate, Diagnosis
 
     cv = {"baseline": 10.0, "with_effect": 9.9, "improvement": 0.01, "folds_improved": 2,
           "folds": 4, "evidence": []}
@@ -160,8 +160,10 @@ def _diagnosis():
 
 def test_the_ranking_notes_state_the_numbers_diagnose_uses():
     """The ranking's notes and the diagnosis read one set of criteria
-    (labrig.diagnosis.criteria)."""
-    from labrig.diagnosis import criteria, diagnose, ranking
+    (labrig.diagnosis.evidence.criteria)."""
+    from labrig.diagnosis.evidence import criteria
+    from labrig.diagnosis.loop import diagnose
+    from labrig.diagnosis.results import diagnosis as ranking
     from labrig.model.effects import get_effect
 
     assert ranking.PARSIMONY == diagnose.PARSIMONY
@@ -182,7 +184,7 @@ def test_the_ranking_notes_state_the_numbers_diagnose_uses():
 
 
 def test_the_ranking_table_says_what_it_is_ordered_by_and_when_supported():
-    from labrig.diagnosis.diagnose import CV_CANDIDATES, PARSIMONY
+    from labrig.diagnosis.loop.diagnose import CV_CANDIDATES, PARSIMONY
 
     notes = " ".join(_diagnosis().table_rows()[1].notes)
     assert "ordered by: the cross-validated rmse/noise" in notes
@@ -230,9 +232,9 @@ def test_separation_is_the_decisions_ratio_and_a_proposal_predicts_that_one():
     """A proposal's "separation" is the decision's measure (worse rmse/noise over better,
     minus one), said with its definition wherever it appears; its sum of squares is the
     "predicted difference"."""
-    from labrig.diagnosis.decide import Decision
-    from labrig.diagnosis.inputs import InputCandidate as Input
-    from labrig.diagnosis.proposal import SEPARATION, Hypothesis, Judged, Proposal
+    from labrig.design.decide import Decision
+    from labrig.design.inputs import InputCandidate as Input
+    from labrig.design.proposal import SEPARATION, Hypothesis, Judged, Proposal
 
     model = SimpleNamespace(describe=lambda: "a model")
     inp = Input("ramp", [[0.0, 0.0], [5.0, 1.2], [10.0, -1.2]], "ramp through zero +-1.2 V")

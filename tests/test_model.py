@@ -119,8 +119,8 @@ def test_results_are_tabular_and_plottable(runs):
     """Evaluation, Diagnosis and Ladder give pandas tables, rich tables and figures."""
     import matplotlib.pyplot as plt
 
-    from labrig.diagnosis.evaluation import evaluate
-    from labrig.diagnosis.ladder import Ladder, LadderStep
+    from labrig.diagnosis.evidence.evaluation import evaluate
+    from labrig.diagnosis.results.ladder import Ladder, LadderStep
 
     m = Model(PLANT, EffectSet.parse("deadband"), {"deadband": {"d_v": 0.3}}, CONST)
     ev = evaluate(runs, m)

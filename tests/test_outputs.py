@@ -6,7 +6,7 @@ import os
 import re
 
 import numpy as np
-import labrig.diagnosis.search  # noqa: F401  (imported before any patching: it binds diagnose)
+import labrig.diagnosis.loop.search  # noqa: F401  (imported before any patching: it binds diagnose)
 import pytest
 
 from labrig.cli import main
@@ -91,8 +91,8 @@ def test_identify_output_that_is_a_folder_is_a_user_error(ds, tmp_path, capsys):
 @pytest.mark.parametrize("cmd", ["compare", "diagnose", "ladder", "report", "mystery"])
 def test_every_output_file_is_refused_before_the_work(cmd, ds, model, tmp_path, capsys,
                                                       monkeypatch):
-    for target in ("labrig.diagnosis.evaluation.evaluate", "labrig.diagnosis.diagnose.diagnose",
-                   "labrig.diagnosis.search.auto_ladder", "labrig.diagnosis.ladder.evaluate_ladder",
+    for target in ("labrig.diagnosis.evidence.evaluation.evaluate", "labrig.diagnosis.loop.diagnose.diagnose",
+                   "labrig.diagnosis.loop.search.auto_ladder", "labrig.diagnosis.results.ladder.evaluate_ladder",
                    "labrig.report.html.build_report", "labrig.io.mystery.new_mystery"):
         monkeypatch.setattr(target, no_call)
     folder = tmp_path / "o"
@@ -111,7 +111,7 @@ def test_every_output_file_is_refused_before_the_work(cmd, ds, model, tmp_path, 
 
 
 def test_ladder_automatic_mode_refuses_its_step_files(ds, tmp_path, capsys, monkeypatch):
-    monkeypatch.setattr("labrig.diagnosis.search.auto_ladder", no_call)
+    monkeypatch.setattr("labrig.diagnosis.loop.search.auto_ladder", no_call)
     (tmp_path / "step0.json").write_text("keep")
     rc, _, err = run(capsys, "ladder", ds, "-o", tmp_path)
     assert_refused(rc, err, tmp_path / "step0.json")
@@ -257,7 +257,7 @@ def test_diagnosis_words_name_the_side_of_the_bound():
     # say only which side and which way the data push, true for every effect
     from types import SimpleNamespace
 
-    from labrig.diagnosis.diagnose import at_bounds
+    from labrig.diagnosis.loop.diagnose import at_bounds
 
     space = build_space(["deadband", "saturation"], bounds={"deadband.d_v": (0.001, 2.0),
                                                              "saturation.vmax_v": (0.5, 30.0)})

@@ -227,7 +227,7 @@ MATRIX = [
                          ids=[f"{m[0]}-{m[1]}" for m in MATRIX])
 def test_diagnose_auto_finds_the_hidden_effect_on_every_plant(tmp_path, drive, sensors, hidden,
                                                               effect, key, truth):
-    from labrig.diagnosis.auto import auto_diagnose
+    from labrig.diagnosis.loop.auto import auto_diagnose
 
     rig = plant_rig(drive, sensors, effects=hidden)
     runs = read_dataset(sim_dataset(tmp_path, rig, square_plan(amps=(1.0, 1.7, 2.5), periods=1)))

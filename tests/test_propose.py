@@ -8,17 +8,17 @@ import pytest
 import labrig.verbs as lr
 
 from labrig.bridge.sweep import sweep
-from labrig.diagnosis.ask import ask_until_sure
+from labrig.design.ask import ask_until_sure
 from labrig.io.experiment import Experiment
 from labrig.bridge.sim import SimRig
 from labrig.io.config import load_plan, load_rig
-from labrig.diagnosis.inputs import loop_gains
-from labrig.diagnosis.diagnose import linear_model
+from labrig.design.inputs import loop_gains
+from labrig.diagnosis.loop.diagnose import linear_model
 from labrig.core.errors import ConfigError
 from labrig.model.effects import get_effect
-from labrig.diagnosis.decide import Decision, decide
-from labrig.diagnosis.propose import propose
-from labrig.diagnosis.refit import refit_with
+from labrig.design.decide import Decision, decide
+from labrig.design.propose import propose
+from labrig.diagnosis.loop.refit import refit_with
 from labrig.io.runs import read_dataset
 from conftest import labrig, make_rig, sim_dataset
 from twin import Twin
@@ -174,10 +174,10 @@ def test_the_smallest_dead_zone_the_proposal_separates_is_stated_and_holds(deadz
     the claim holds either side of it: a dead zone 1.5 times that size, fitted with its
     size fixed, is predicted separated after the rival re-fits; one at the smallest
     plausible size is not."""
-    import labrig.diagnosis.propose as P
-    import labrig.diagnosis.separation as S
+    import labrig.design.propose as P
+    import labrig.design.separation as S
     from labrig.analysis.noise import Weights, channel_floors
-    from labrig.diagnosis.refit import fit
+    from labrig.diagnosis.loop.refit import fit
     from labrig.model.reach import Reach
     from labrig.model.simulate import prepare
 
@@ -262,7 +262,7 @@ def test_the_robustness_guard_admits_variants_and_changes_the_proposal(deadzone_
     """Without the plausible variants the dead zone is judged at its fitted 0.05 V, which
     no input tells from no dead zone at all: the proposal differs (here: nothing is
     predicted to separate); with them it separates at every plausible size."""
-    import labrig.diagnosis.propose as P
+    import labrig.design.propose as P
 
     _, _, runs, model, prop = deadzone_proposal
     assert len(prop.hypotheses[0].members) > 1          # the guard admits variants
@@ -587,7 +587,7 @@ def test_default_pair_is_the_diagnosis_first_confusable_pair(tmp_path):
     """`diagnose --auto -o DIR` writes diagnosis.json beside model.json: propose takes its
     first confusable pair (an asymmetric dead zone asked about as a dead zone)."""
     from labrig.core.errors import UserError
-    from labrig.diagnosis.propose import pair_from_diagnosis
+    from labrig.design.propose import pair_from_diagnosis
 
     model = tmp_path / "model.json"
     assert pair_from_diagnosis(model) is None
@@ -635,7 +635,7 @@ def test_a_decision_says_when_neither_explains_the_proposed_runs():
     wrong (rmse/noise 1081 and 690 with it, against 0.88 for the asymmetry before): that
     is no decision for the asymmetry, and the text says neither explains the new run. A
     leader near its floor after the runs is a decision, as before."""
-    from labrig.diagnosis.decide import Decision
+    from labrig.design.decide import Decision
 
     d = Decision(("deadband", "asymmetry"), {"deadband": 275.6, "asymmetry": 0.88},
                  {"deadband": 1080.9, "asymmetry": 690.4}, ["proposed"])

@@ -7,9 +7,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from labrig.diagnosis.auto import auto_diagnose
+from labrig.diagnosis.loop.auto import auto_diagnose
 from labrig.io.experiment import Experiment
-from labrig.diagnosis.crossval import make_folds
+from labrig.diagnosis.evidence.crossval import make_folds
 from labrig.model.effects import get_effect
 from labrig.model.reach import Reach
 from labrig.analysis.noise import noise_floor
@@ -358,7 +358,7 @@ def test_effect_parameters_are_in_the_drive_units(tmp_path):
     from labrig.identification.engine import identify
     from labrig.identification.table import format_identification
     from labrig.io.importer import import_csv
-    from labrig.diagnosis.explain import context, thresholds
+    from labrig.diagnosis.words.explain import context, thresholds
     from labrig.model.model import Model
     from twin import force_axis_closed_loop
 

@@ -9,7 +9,7 @@ import labrig.verbs as lr
 
 from labrig.core.errors import FitDiverged
 from labrig.io.runs import read_dataset
-from labrig.diagnosis.refit import refit_with
+from labrig.diagnosis.loop.refit import refit_with
 from labrig.model.effects import CATALOGUE, get_effect
 from labrig.model.model import Model
 from conftest import labrig
@@ -77,7 +77,7 @@ def test_the_loop_on_a_long_axis_record_is_the_seeds_choice_of_nothing(emps_reco
     the same levels to 0.1 %, the same error to 0.1 % (on the real EMPS record, not shipped
     here, the seed used to pick offset + stiction, offset + Coulomb friction or Coulomb +
     delay + offset)."""
-    from labrig.diagnosis.auto import auto_diagnose
+    from labrig.diagnosis.loop.auto import auto_diagnose
 
     runs = read_dataset(emps_record)
     a, b = (auto_diagnose(runs, seed=s) for s in (0, 3))
@@ -158,7 +158,7 @@ def test_runs_that_start_in_motion_are_fitted_from_their_own_start(tmp_path):
     delay, and its run-mean fit is within 1 point of an independent output-error fit with
     estimated initial state. From rest (the old behaviour) it ended at rmse/noise 8.7."""
     import pandas as pd
-    from labrig.diagnosis.auto import auto_diagnose
+    from labrig.diagnosis.loop.auto import auto_diagnose
     from twin import kit_recordings
 
     srcs = kit_recordings(tmp_path / "logger")
@@ -194,7 +194,7 @@ def test_an_encoders_start_within_a_count_is_not_physics(tmp_path, seed):
     else hidden, the start anywhere within the first count and no input step declared:
     each run's position offset is fitted, so nothing but the rail is added (the old loop
     added a dead zone of 1 mV for these two starts), the rail within 1 %, at the floor."""
-    from labrig.diagnosis.auto import auto_diagnose
+    from labrig.diagnosis.loop.auto import auto_diagnose
     from twin import Twin, encoder_squares
 
     runs = _imported(encoder_squares(Twin(rail=8.0), tmp_path / "logger", seed=seed),
@@ -218,7 +218,7 @@ def test_runs_played_back_to_back_start_with_the_gears_teeth_where_the_coast_lef
     side. Those runs start in motion with the gap closed the way they move, so the play is
     found within 10 % and the model reaches the floor (started centred in the gap, they
     were off by the half gap for the whole run: rmse/noise 9 on an emulated board's sweep)."""
-    from labrig.diagnosis.auto import auto_diagnose
+    from labrig.diagnosis.loop.auto import auto_diagnose
     from twin import Twin, back_to_back_squares
 
     twin = Twin(gap_rad=0.03, deadzone_v=0.4, pot_noise_v=0.0, tacho_noise_v=0.0)
@@ -243,7 +243,7 @@ def test_friction_larger_one_way_on_a_measured_torque(tmp_path):
     50 % larger in reverse, steps of both signs from rest: no dead zone, rail or offset is
     a candidate (the input is measured), and the friction curve is found with its two
     levels, J and B within 10 % (the old loop took an asymmetric dead zone of the drive)."""
-    from labrig.diagnosis.auto import auto_diagnose
+    from labrig.diagnosis.loop.auto import auto_diagnose
     from twin import measured_current_rig
 
     runs = _imported(measured_current_rig(tmp_path / "logger"), tmp_path / "runs", "--map",
@@ -318,7 +318,7 @@ def test_a_drive_that_is_a_curve_of_the_command(tmp_path):
     floor was the blocks' 4.9 rad/s, inflated by the 40 ms rises, and the loop stopped at
     the curve."""
     import pandas as pd
-    from labrig.diagnosis.auto import auto_diagnose
+    from labrig.diagnosis.loop.auto import auto_diagnose
     from twin import shield_steps
 
     srcs = shield_steps(tmp_path / "logger")
@@ -388,7 +388,7 @@ def test_friction_with_a_stribeck_peak_on_a_measured_torque(tmp_path):
     then refines it in place (from its fitted levels) to the curve with a breakaway:
     levels within 5 %, the breakaway between what the steps pin (holding 0.03 and 0.04,
     letting 0.05 and 0.06 go: 0.01 to 0.03 N m), J and B within 10 %, at the noise floor."""
-    from labrig.diagnosis.auto import auto_diagnose
+    from labrig.diagnosis.loop.auto import auto_diagnose
     from twin import measured_current_rig
 
     runs = _imported(measured_current_rig(tmp_path / "logger", breakaway=0.015,
@@ -420,7 +420,7 @@ def test_a_pair_warm_started_from_one_member_is_also_fitted_from_the_data():
     each value within 5 %."""
     from pathlib import Path
 
-    from labrig.diagnosis.auto import auto_diagnose
+    from labrig.diagnosis.loop.auto import auto_diagnose
 
     runs = read_dataset(Path(__file__).resolve().parents[1] / "data" / "emulated_hbridge")
     res = auto_diagnose(runs, seed=0)

@@ -8,9 +8,9 @@ import pytest
 from labrig.io.config import load_plan, load_rig
 from labrig.io.experiment import Experiment
 from labrig.io.runs import read_dataset
-from labrig.diagnosis.crossval import CrossValidation, fold_evidence, make_folds, segments
-from labrig.diagnosis.diagnose import diagnose
-from labrig.diagnosis.resolution import input_quantum, jackknife_se, unresolved
+from labrig.diagnosis.evidence.crossval import CrossValidation, fold_evidence, make_folds, segments
+from labrig.diagnosis.loop.diagnose import diagnose
+from labrig.diagnosis.evidence.resolution import input_quantum, jackknife_se, unresolved
 from labrig.model.effects import get_effect
 from conftest import make_rig, sim_dataset, square_plan
 
@@ -302,7 +302,7 @@ def test_words_an_arduino_model_runs_sorted_no_minus_zero(tmp_path):
     from labrig.core.tables import fmt
     from labrig.identification.table import comparison_table
     from labrig.io.runs import natural_key
-    from labrig.diagnosis.residuals import regime_table
+    from labrig.diagnosis.evidence.residuals import regime_table
 
     runs = _arduino(tmp_path)
     # runs sort by the numbers in their names, not as text
@@ -339,8 +339,8 @@ def test_two_explanations_within_two_percent_are_reported_as_undecided():
     """The order of two different explanations whose held-out errors are within 2 % is
     not evidence: the verdict says so and names the experiment that would decide; two
     members of one family (Coulomb friction and stiction) are not two explanations."""
-    from labrig.diagnosis.explain import undecided_note as _undecided
-    from labrig.diagnosis.ranking import Candidate
+    from labrig.diagnosis.words.explain import undecided_note as _undecided
+    from labrig.diagnosis.results.diagnosis import Candidate
 
     def cand(name, cv, k=1):
         return Candidate(name, 1.0, 0.5, -100.0, {}, {}, extra_params=k,

@@ -6,9 +6,9 @@ screens out must be one the full round did not support (its full re-fit gains un
 minimum gain, so it is never cross-validated) and in which BIC sees no evidence either."""
 import pytest
 
-from labrig.diagnosis.criteria import MIN_DBIC, MIN_GAIN
-from labrig.diagnosis.diagnose import diagnose
-from labrig.diagnosis.search import search
+from labrig.diagnosis.evidence.criteria import MIN_DBIC, MIN_GAIN
+from labrig.diagnosis.loop.diagnose import diagnose
+from labrig.diagnosis.loop.search import search
 from labrig.io.runs import read_dataset
 from conftest import ROOT, make_rig, sim_dataset, square_plan
 

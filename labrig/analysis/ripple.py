@@ -66,7 +66,7 @@ def _line(r: np.ndarray, dt: float):
 
 def ripple_line(per_run: list, runs) -> Ripple | None:
     """The line locked to the angle in the speed residuals of an evaluation's runs
-    (:attr:`labrig.diagnosis.evaluation.Evaluation.per_run`, prepared ``runs`` alike); None
+    (:attr:`labrig.diagnosis.evidence.evaluation.Evaluation.per_run`, prepared ``runs`` alike); None
     when there is none."""
     found = []
     for rr, rd in zip(per_run, runs):

@@ -350,7 +350,7 @@ class FitOptions:
     start_state: str = "auto"
     #: CO from a start on a subsample only: ``stop(fitness history) -> bool`` after each
     #: iteration may end the fit there (the loop's screen of its candidates,
-    #: :func:`labrig.diagnosis.criteria.screen`); the history is the fitness (root mean
+    #: :func:`labrig.diagnosis.evidence.criteria.screen`); the history is the fitness (root mean
     #: square, as :attr:`Identification.fitness`) at the start and after each iteration
     stop: object = None
 

@@ -4,7 +4,7 @@ fit says, and a fit started from the hand-set values.
 
 A thin view over the verbs: each move is ``lr.compare(runs, model)`` on every run (the
 rmse/noise it shows is the library's, every sample counted), and the run on screen is
-redrawn in place (:class:`labrig.diagnosis.interactive.RunView`, through
+redrawn in place (:class:`labrig.diagnosis.results.interactive.RunView`, through
 ``labrig.verbs.figures``). It runs in the page's own process: a simulation of the six-run
 sweep takes milliseconds, so a move does not wait for the worker that fits.
 """
@@ -196,7 +196,7 @@ def hand_view(source, model) -> Explorer:
     ``model`` (a Model, a model file or a fit); *Fit from here* fits in this process
     from the hand-set values (``labrig identify --model ... --starts 1``). Display its
     ``view`` (``pn.extension()`` first); ``model`` and ``ev`` are the hand-set model
-    and its :class:`~labrig.diagnosis.evaluation.Evaluation`."""
+    and its :class:`~labrig.diagnosis.evidence.evaluation.Evaluation`."""
     folders = [source] if isinstance(source, (str, Path)) else list(source)
 
     def fit_from(doc):

@@ -66,7 +66,7 @@ class Effect(abc.ABC):
     threshold: str = ""
     #: the parameter that says how large the effect is, zero when it is absent (a dead
     #: zone's width, a delay, an offset): ``diagnose`` supports the effect only when the
-    #: data resolve it (:mod:`labrig.diagnosis.resolution`); empty: not checked
+    #: data resolve it (:mod:`labrig.diagnosis.evidence.resolution`); empty: not checked
     size: str = ""
     #: a member of the family with fewer parameters, tried in its place by the search
     simpler: str = ""
@@ -82,7 +82,7 @@ class Effect(abc.ABC):
     #: the effect a proposal tests in its place (the symmetric form of an asymmetric one)
     proposed_as: str = ""
     #: how it responds to each kind of input a proposal can play
-    #: (:data:`labrig.diagnosis.inputs.KINDS`), in plain words
+    #: (:data:`labrig.design.inputs.KINDS`), in plain words
     responses: dict = {}
     #: the effect sets how much drive it takes to move (a dead zone, an offset, a friction
     #: level): when no single effect earns its parameters, the search fits pairs of such
@@ -96,7 +96,7 @@ class Effect(abc.ABC):
 
     def offered(self, evaluation, runs) -> bool:
         """Whether ``diagnose`` tries this effect on a model whose evaluation (per run
-        residuals, :class:`labrig.diagnosis.evaluation.Evaluation`) is ``evaluation``; a named
+        residuals, :class:`labrig.diagnosis.evidence.evaluation.Evaluation`) is ``evaluation``; a named
         effect always is."""
         return True
 

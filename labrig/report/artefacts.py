@@ -3,7 +3,7 @@
 ``analysis.json``, ``identify_all.json`` (and ``model0.json``'s fit record),
 ``diagnosis.json`` and ``ladder.json`` are parsed into their documents (each defined
 once, beside the result that writes it: :mod:`labrig.analysis.doc`,
-:mod:`labrig.identification.doc`, :mod:`labrig.diagnosis.docs`); a file that does not fit is
+:mod:`labrig.identification.doc`, :mod:`labrig.diagnosis.results.docs`); a file that does not fit is
 ignored with a note on the page, never half-used. The documents are lax about numbers
 (an int is a float, ``null`` where a value may be missing) but every key the page reads
 has its type. Where the stage has a result object, the record turns into it

@@ -274,7 +274,7 @@ def _diagnosis(story: Story, seed, say):
         return None
     say("report: diagnosing the linear model (tries every catalogue effect, ~30 s)")
     story.diagnosis = lr.diagnose(story.runs, story.model0, seed=seed, through=None)
-    story.sources["diagnosis"] = f"computed by this report (labrig.diagnosis.diagnose, seed {seed})"
+    story.sources["diagnosis"] = f"computed by this report (labrig.diagnosis.loop.diagnose, seed {seed})"
     return story.diagnosis
 
 

@@ -21,14 +21,14 @@ def convergence_figure(results, ax=None):
 def run_figure(per_run: dict, ax=None, title: str = ""):
     """A model against one run's measurement (an entry of ``Evaluation.per_run``), with
     the residual in noise units, its noise band and the regimes that leave it."""
-    from labrig.diagnosis.plots import plot_run_comparison
+    from labrig.diagnosis.results.plots import plot_run_comparison
 
     return plot_run_comparison(per_run, ax=ax, title=title)
 
 
 def regimes_figure(regimes: dict, ax=None, title: str = "Where the model fails"):
     """rmse/noise by regime and channel (``Evaluation.regimes``), with the share of time."""
-    from labrig.diagnosis.plots import plot_regimes
+    from labrig.diagnosis.results.plots import plot_regimes
 
     return plot_regimes(regimes, ax=ax, title=title)
 
@@ -65,8 +65,8 @@ def save_figures(figures, folder, dpi: int | None = None) -> dict:
 def run_view(per_run: dict, **size):
     """One run's model against measurement as interactive Bokeh figures (linked time
     axes, hover, the residual's noise band): a
-    :class:`~labrig.diagnosis.interactive.RunView`; ``show(per_run)`` redraws it."""
-    from labrig.diagnosis.interactive import run_view as _view
+    :class:`~labrig.diagnosis.results.interactive.RunView`; ``show(per_run)`` redraws it."""
+    from labrig.diagnosis.results.interactive import run_view as _view
 
     return _view(per_run, **size)
 
@@ -74,7 +74,7 @@ def run_view(per_run: dict, **size):
 def drawn_channels(per_run: dict) -> tuple:
     """The channels :func:`run_view` draws for a run: its own, and the measured current
     beside them where the run has one."""
-    from labrig.diagnosis.interactive import drawn_channels as _channels
+    from labrig.diagnosis.results.interactive import drawn_channels as _channels
 
     return _channels(per_run)
 
@@ -82,14 +82,14 @@ def drawn_channels(per_run: dict) -> tuple:
 def pair_view(evaluations: dict, run: str | None = None, **size):
     """Two explanations of a pair on one run, as interactive Bokeh figures
     (``evaluations``: ``{effect: Evaluation}`` of the same runs, from :func:`compare`)."""
-    from labrig.diagnosis.interactive import pair_view as _view
+    from labrig.diagnosis.results.interactive import pair_view as _view
 
     return _view(evaluations, run, **size)
 
 
 def ladder_view(steps, **size):
     """The error ladder (a Ladder's ``to_json()["steps"]``) as an interactive Bokeh figure."""
-    from labrig.diagnosis.interactive import ladder_figure
+    from labrig.diagnosis.results.interactive import ladder_figure
 
     return ladder_figure(steps, **size)
 
@@ -97,6 +97,6 @@ def ladder_view(steps, **size):
 def ranking_view(rows, **size):
     """A diagnosis' ranking (its candidates, or the lab's rows) as an interactive Bokeh
     figure."""
-    from labrig.diagnosis.interactive import ranking_figure
+    from labrig.diagnosis.results.interactive import ranking_figure
 
     return ranking_figure(rows, **size)

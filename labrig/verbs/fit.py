@@ -219,7 +219,7 @@ def remove_effect(model, name: str):
     >>> lr.remove_effect(m1, "deadband").names  # doctest: +SKIP
     []
     """
-    from labrig.diagnosis.refit import without
+    from labrig.diagnosis.loop.refit import without
 
     m = model_of(model)
     if name not in m.names:
@@ -254,7 +254,7 @@ def compare(source, model, *, through: str | None = "auto", detail: bool = True)
     >>> m = lr.identify("data/sweep_default").model()  # doctest: +SKIP
     >>> lr.compare("data/sweep_default", m).rmse_over_noise  # doctest: +SKIP
     """
-    from labrig.diagnosis.evaluation import evaluate
+    from labrig.diagnosis.evidence.evaluation import evaluate
 
     return evaluate(read_runs(source, through=through), model_of(model), detail=detail)
 
@@ -283,7 +283,7 @@ def ladder(source, models, *, through: str | None = "auto"):
     """
     from os import PathLike
 
-    from labrig.diagnosis.ladder import evaluate_ladder
+    from labrig.diagnosis.results.ladder import evaluate_ladder
 
     return evaluate_ladder(read_runs(source, through=through),
                            [m if isinstance(m, (str, PathLike)) else model_of(m) for m in models])

@@ -37,7 +37,7 @@ def diagnose(source, model=None, *, candidates=None, seed: int = SEED,
         forms.
     screen : bool
         False re-fits every candidate to the end (``--full``); by default a re-fit that
-        stalls without gaining is ended early (:func:`labrig.diagnosis.criteria.screen`).
+        stalls without gaining is ended early (:func:`labrig.diagnosis.evidence.criteria.screen`).
 
     Returns
     -------
@@ -60,7 +60,7 @@ def diagnose(source, model=None, *, candidates=None, seed: int = SEED,
     >>> diag.recommendation  # doctest: +SKIP
     'deadband'
     """
-    from labrig.diagnosis.diagnose import diagnose as _diagnose
+    from labrig.diagnosis.loop.diagnose import diagnose as _diagnose
     from labrig.model.effects import get_effect
 
     for c in candidates or ():
@@ -138,7 +138,7 @@ def auto(source, model=None, *, max_rounds: int = 3, seed: int = SEED,
     >>> res = lr.auto("data/sweep_default")  # doctest: +SKIP
     >>> res.model.names  # doctest: +SKIP
     """
-    from labrig.diagnosis.auto import auto_diagnose
+    from labrig.diagnosis.loop.auto import auto_diagnose
 
     if max_rounds < 1:
         raise UserError(f"max_rounds: {max_rounds} adds nothing; give 1 or more")
@@ -164,8 +164,8 @@ def auto_ladder(source, *, max_steps: int = 3, output=None, seed: int = SEED,
                 through: str | None = "auto", log=None, progress=None):
     """The search's ladder from the linear model (``labrig ladder`` without ``--models``);
     each rung's model saved as ``output/step<k>.json`` when ``output`` is given. Returns
-    a :class:`~labrig.diagnosis.ladder.Ladder`."""
-    from labrig.diagnosis.search import auto_ladder as _ladder
+    a :class:`~labrig.diagnosis.results.ladder.Ladder`."""
+    from labrig.diagnosis.loop.search import auto_ladder as _ladder
 
     return _ladder(read_runs(source, through=through), max_steps=max_steps, outdir=output,
                    seed=seed, log=both(log, note(progress, "ladder")))
@@ -221,7 +221,7 @@ def propose(source, model, between: str | None = None, *, budget_s: float = 20.0
     >>> p = lr.propose("runs", "m1.json", "deadband,coulomb_friction")  # doctest: +SKIP
     >>> open("plan.toml", "w").write(p.to_toml())  # doctest: +SKIP
     """
-    from labrig.diagnosis.propose import propose as _propose
+    from labrig.design.propose import propose as _propose
 
     rig, amax = _rig_limit(rig, rig_amplitude)
     return _propose(read_runs(source, through=through), model_of(model), between,
@@ -238,9 +238,9 @@ def ask_until_sure(source, model, between: str, play, *, budget_s: float = 20.0,
     judged after each (the decision's fits and margin), until one explanation of
     ``between`` (``"a,b"``) wins or ``budget_s`` seconds are spent. ``rig`` and
     ``rig_amplitude`` and ``loop`` as :func:`propose`'s; ``on_step(step, runs)`` hears each step as
-    it is judged. Returns an :class:`~labrig.diagnosis.ask.Asking`: the steps, the rig
+    it is judged. Returns an :class:`~labrig.design.ask.Asking`: the steps, the rig
     seconds used and the one-shot plan's."""
-    from labrig.diagnosis.ask import ask_until_sure as _ask
+    from labrig.design.ask import ask_until_sure as _ask
 
     rig, amax = _rig_limit(rig, rig_amplitude)
     return _ask(read_runs(source, through=through), model_of(model), between, play,
@@ -264,7 +264,7 @@ def _rig_limit(rig, rig_amplitude: bool):
 def proposed_as(name: str) -> str:
     """The effect a proposal tests in place of ``name`` (the symmetric form of an
     asymmetric one)."""
-    from labrig.diagnosis.propose import proposed_as as _as
+    from labrig.design.propose import proposed_as as _as
 
     return _as(name)
 
@@ -272,7 +272,7 @@ def proposed_as(name: str) -> str:
 def pair_from_diagnosis(model_path) -> str | None:
     """The first confusable pair of the ``diagnosis.json`` beside a model that ``diagnose
     --auto -o DIR`` wrote, as ``"a,b"``; None when there is none."""
-    from labrig.diagnosis.propose import pair_from_diagnosis as _pair
+    from labrig.design.propose import pair_from_diagnosis as _pair
 
     return _pair(model_path)
 
@@ -308,7 +308,7 @@ def decide(source, model=None, *, seed: int = SEED, through: str | None = "auto"
     >>> import labrig as lr
     >>> lr.decide(["runs", "runs/new"], "m1.json")  # doctest: +SKIP
     """
-    from labrig.diagnosis.decide import decide as _decide
+    from labrig.design.decide import decide as _decide
 
     return _decide(read_runs(source, through=through), model_of(model), seed=seed,
                    log=both(log, note(progress, "decide")))
@@ -317,7 +317,7 @@ def decide(source, model=None, *, seed: int = SEED, through: str | None = "auto"
 def confusable_pairs(diagnosis, round_no: int = 1) -> list:
     """The candidates of a diagnosis (round ``round_no`` of a search) that fit about as
     well as the best, each paired with it: the pairs a proposal can separate."""
-    from labrig.diagnosis.auto import confusable_pairs as _pairs
+    from labrig.diagnosis.loop.auto import confusable_pairs as _pairs
 
     return _pairs(diagnosis, round_no)
 
@@ -329,7 +329,7 @@ def warm_up(load: bool = True) -> None:
     start included (a cold first comparison is many times a warm one). ``load=False``: the modules, and the cache compiled if it
     is cold, but the kernels left to load on first use (a process whose first job loads
     what the next ones need, and should not take a core from anything at its start)."""
-    import labrig.diagnosis.search  # noqa: F401
+    import labrig.diagnosis.loop.search  # noqa: F401
     from labrig.simulation.warm import ready, warm
 
     ready()   # a cold cache: said, and compiled

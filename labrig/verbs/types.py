@@ -3,10 +3,10 @@
 in annotations."""
 from labrig.analysis.doc import AnalysisDoc
 from labrig.analysis.result import AnalysisResult
-from labrig.diagnosis.docs import DiagnosisDoc, LadderDoc, Regimes
-from labrig.diagnosis.ladder import Ladder, LadderStep
-from labrig.diagnosis.ranking import Diagnosis
-from labrig.diagnosis.residuals import REGIME_TEXT
+from labrig.diagnosis.results.docs import DiagnosisDoc, LadderDoc, Regimes
+from labrig.diagnosis.results.ladder import Ladder, LadderStep
+from labrig.diagnosis.results.diagnosis import Diagnosis
+from labrig.diagnosis.evidence.residuals import REGIME_TEXT
 from labrig.identification.doc import IdentifyAllDoc, IdentRecord
 from labrig.model.model import Model
 from labrig.model.servo import ServoParams

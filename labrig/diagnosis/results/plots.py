@@ -9,7 +9,7 @@ from __future__ import annotations
 import matplotlib.pyplot as plt
 import numpy as np
 
-from labrig.diagnosis.residuals import AXIS_UNITS, REGIME_TEXT
+from labrig.diagnosis.evidence.residuals import AXIS_UNITS, REGIME_TEXT
 from labrig.core.figures import legend_outside
 
 REGIME_COLOURS = {"start": "tab:green", "reversal": "tab:red", "accel": "tab:orange",
@@ -131,7 +131,7 @@ def _quantum_band(ax, c: dict, unit: str) -> None:
 def plot_ladder(ladder, ax=None):
     """The error ladder: rmse/noise after each added effect, against the noise floor.
 
-    ``ladder``: a :class:`labrig.diagnosis.ladder.Ladder` (or its list of steps as dicts).
+    ``ladder``: a :class:`labrig.diagnosis.results.ladder.Ladder` (or its list of steps as dicts).
     """
     steps = [s.to_json() if hasattr(s, "to_json") else s
              for s in getattr(ladder, "steps", ladder)]

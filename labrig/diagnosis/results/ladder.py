@@ -1,7 +1,7 @@
 """The error ladder: the model's error after each added effect, against the noise floor.
 
 :func:`evaluate_ladder` judges a chain of saved models;
-:func:`labrig.diagnosis.search.auto_ladder` builds the chain itself. Both return a :class:`Ladder`.
+:func:`labrig.diagnosis.loop.search.auto_ladder` builds the chain itself. Both return a :class:`Ladder`.
 """
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 
 import pandas as pd
 
-from labrig.diagnosis.evaluation import Evaluation, evaluate
+from labrig.diagnosis.evidence.evaluation import Evaluation, evaluate
 from labrig.model.model import Model
 from labrig.core.tables import Table, fmt
 from labrig.core.display import Displayable
@@ -90,14 +90,14 @@ class Ladder(Displayable):
         return t
 
     def plot(self, ax=None):
-        from labrig.diagnosis.plots import plot_ladder  # matplotlib: ~0.27 s more to import
+        from labrig.diagnosis.results.plots import plot_ladder  # matplotlib: ~0.27 s more to import
 
         return plot_ladder(self, ax=ax)
 
     def view(self, **size):
         """The ladder as an interactive Bokeh figure (hover for each rung's numbers), what
         the lab page shows."""
-        from labrig.diagnosis.interactive import ladder_figure  # bokeh: ~0.3 s more to import
+        from labrig.diagnosis.results.interactive import ladder_figure  # bokeh: ~0.3 s more to import
 
         return ladder_figure(self.steps, **size)
 

@@ -1,6 +1,6 @@
 """``labrig diagnose --auto``: the missing-physics loop run to the end.
 
-:func:`labrig.diagnosis.search.search` adds, pairs, swaps and removes effects round after round
+:func:`labrig.diagnosis.loop.search.search` adds, pairs, swaps and removes effects round after round
 until the cross-validated error stops falling (or ``max_rounds`` effects were added).
 The result holds the final model, the error ladder (in-sample and cross-validated),
 the moves of the search, the thresholds of the final model stated through the effects
@@ -12,18 +12,18 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from labrig.diagnosis.ranking import Candidate, Diagnosis
-from labrig.diagnosis.explain import thresholds
-from labrig.diagnosis.ladder import Ladder
+from labrig.diagnosis.results.diagnosis import Candidate, Diagnosis
+from labrig.diagnosis.words.explain import thresholds
+from labrig.diagnosis.results.ladder import Ladder
 from labrig.model.effects import get_effect
 from labrig.model.model import Model
-from labrig.diagnosis.residuals import REGIME_TEXT
+from labrig.diagnosis.evidence.residuals import REGIME_TEXT
 from labrig.core.tables import Table, fmt
 from labrig.core.display import Displayable
-from labrig.diagnosis.search import search
+from labrig.diagnosis.loop.search import search
 from labrig.analysis.agreement import lag_explained
 from labrig.identification.identifiability import time_constants
-from labrig.diagnosis.diagnose import agreement_of
+from labrig.diagnosis.loop.diagnose import agreement_of
 
 #: two candidates are confusable when their errors differ by less than this (relative)
 CONFUSABLE = 0.10
@@ -188,7 +188,7 @@ def _where_they_differ(a: Candidate, b: Candidate) -> dict | None:
 def auto_diagnose(runs, model: Model | None = None, *, max_rounds: int = 3, seed: int = 0,
                   fixed: dict | None = None, weights=None, log=None,
                   on_step=None, screen: bool = True, on_candidate=None) -> AutoDiagnosis:
-    """Run the search (:func:`labrig.diagnosis.search.search`) and name the confusable pairs of
+    """Run the search (:func:`labrig.diagnosis.loop.search.search`) and name the confusable pairs of
     every round.
 
     Parameters
@@ -208,7 +208,7 @@ def auto_diagnose(runs, model: Model | None = None, *, max_rounds: int = 3, seed
         Called for every rung of the ladder as the search climbs it (k = 0: the start).
     screen : bool
         End a candidate's re-fit early when it stalls without gaining (default True;
-        :func:`labrig.diagnosis.criteria.screen`).
+        :func:`labrig.diagnosis.evidence.criteria.screen`).
     on_candidate : callable(candidate, cv), optional
         Each round's candidates as they are re-fitted (cv None) and cross-validated.
     """

@@ -10,7 +10,7 @@ from one amplitude trades off against the gain, so 0.05 V and 1.5 V fit alike). 
    without it, which the rival contains too: no input can tell them apart that way. One
    that already explains the data clearly worse is not designed for. The others are
    judged true at their best fit when the data pin its size, else at each plausible size.
-2. **Candidate inputs** (:mod:`labrig.diagnosis.inputs`): levels around the threshold only
+2. **Candidate inputs** (:mod:`labrig.design.inputs`): levels around the threshold only
    when the data pin it, else spread across the whole range; steps that coast to rest at
    0 V, ramps, dwells, reversals, staircases; within the budget, the board's table and
    the input limit.
@@ -19,7 +19,7 @@ from one amplitude trades off against the gain, so 0.05 V and 1.5 V fit alike). 
    are each played, in simulation, on every plausible truth with the rig's noise; the
    rival is re-fitted to the old runs and that run together, from scanned starts, as
    ``diagnose`` will fit it. What it then fails to explain is the **predicted separation**:
-   the decision's measure (:mod:`labrig.diagnosis.decide`: the worse rmse/noise over the
+   the decision's measure (:mod:`labrig.design.decide`: the worse rmse/noise over the
    better, minus one), the worst over the truths.
 4. The input with the largest predicted separation is proposed when it reaches
    :data:`DECISIVE`; when no input within the budget does, the proposal says so and what
@@ -33,14 +33,14 @@ from pathlib import Path
 import numpy as np
 
 from labrig.core.errors import UserError
-from labrig.diagnosis.inputs import candidates, closed_candidates, loop_gains
-from labrig.diagnosis.separation import (branch_and_bound, separation_after_refit,
+from labrig.design.inputs import candidates, closed_candidates, loop_gains
+from labrig.design.separation import (branch_and_bound, separation_after_refit,
                                          smallest_separable, smallest_unseparated)
-from labrig.diagnosis.proposal import DECISIVE, Hypothesis, Judged, Proposal, synthetic_run
+from labrig.design.proposal import DECISIVE, Hypothesis, Judged, Proposal, synthetic_run
 from labrig.model.effects import catalogue_name, get_effect
 from labrig.model.model import Model
 from labrig.analysis.noise import Weights, channel_floors
-from labrig.diagnosis.refit import fit, refit_with, without
+from labrig.diagnosis.loop.refit import fit, refit_with, without
 from labrig.io.runs import Run
 from labrig.core.schemas import read_json
 from labrig.model.reach import Reach

@@ -11,7 +11,7 @@ Every sample of a run gets a regime label from the measured input and speed:
 ``coast``     the input went to zero and the rotor runs down
 ``rest``      zero input, rotor still (lead-in)
 
-Computation only; the figures live in ``labrig.diagnosis.plots``.
+Computation only; the figures live in ``labrig.diagnosis.results.plots``.
 """
 from __future__ import annotations
 

@@ -1,7 +1,7 @@
 """Did the proposed runs decide? Both explanations fitted with and without them.
 
 ``labrig diagnose DIR DIR/new`` calls :func:`decide` when some runs carry
-``experiment.between`` (they were proposed by :func:`labrig.diagnosis.propose.propose`).
+``experiment.between`` (they were proposed by :func:`labrig.design.propose.propose`).
 """
 from __future__ import annotations
 
@@ -11,10 +11,10 @@ from labrig.core.display import Displayable
 from labrig.core.errors import UserError
 from labrig.core.tables import Table
 from labrig.io.runs import Run
-from labrig.diagnosis.refit import refit_with, without, refit
+from labrig.diagnosis.loop.refit import refit_with, without, refit
 from labrig.model.effects import catalogue_name, get_effect
 from labrig.model.model import Model
-from labrig.diagnosis.diagnose import linear_model
+from labrig.diagnosis.loop.diagnose import linear_model
 
 
 #: after the proposed runs, a leader more than this many times the noise floor, and more
@@ -38,7 +38,7 @@ class Decision(Displayable):
     def separation(r: dict) -> float:
         """The worse explanation's rmse/noise over the better one's, minus one: what every
         text line calls *separation* (a proposal's sum of squares in noise units is its
-        *predicted difference*, labrig.diagnosis.propose)."""
+        *predicted difference*, labrig.design.propose)."""
         lo, hi = sorted(r.values())
         return hi / lo - 1.0
 

@@ -1,6 +1,6 @@
 """The result of ``labrig diagnose``: typed, with its JSON, its tables and its figure.
 
-:func:`labrig.diagnosis.diagnose.diagnose` computes a :class:`Diagnosis`; the CLI prints
+:func:`labrig.diagnosis.loop.diagnose.diagnose` computes a :class:`Diagnosis`; the CLI prints
 :meth:`Diagnosis.to_text`, ``--json`` prints :meth:`Diagnosis.to_json` and the report
 renders :meth:`Diagnosis.table_rows`, so nothing is formatted twice.
 """
@@ -10,13 +10,13 @@ from dataclasses import dataclass, field, replace
 
 import pandas as pd
 
-from labrig.diagnosis.evaluation import Evaluation
+from labrig.diagnosis.evidence.evaluation import Evaluation
 from labrig.model.model import Model
-from labrig.diagnosis.residuals import REGIME_TEXT
+from labrig.diagnosis.evidence.residuals import REGIME_TEXT
 from labrig.core.tables import Table, fmt
 from labrig.core.display import Displayable
 # how the diagnosis ranks and picks candidates, for the table's notes
-from labrig.diagnosis.criteria import (CV_CANDIDATES, PARSIMONY, SCREEN_AFTER, SCREEN_GAIN,
+from labrig.diagnosis.evidence.criteria import (CV_CANDIDATES, PARSIMONY, SCREEN_AFTER, SCREEN_GAIN,
                                        SCREEN_STALL, SIMPLER_MARGIN, SWAP_GAIN)
 from labrig.model.effects import CATALOGUE, get_effect
 from labrig.model import drive_units
@@ -53,7 +53,7 @@ class Candidate:
     off_fitness: float | None = field(default=None, repr=False)
     #: starts of its re-fit that diverged (their simulation overflowed) and were dropped
     failed_starts: int = 0
-    #: screened out (:func:`labrig.diagnosis.criteria.screen`): its re-fit was ended
+    #: screened out (:func:`labrig.diagnosis.evidence.criteria.screen`): its re-fit was ended
     #: after this many iterations, stalled below the screen's gain; its numbers are
     #: where the re-fit stood then. None: re-fitted to the end
     screened: int | None = None
@@ -337,7 +337,7 @@ class Diagnosis(Displayable):
     def view(self, **size):
         """The ranking as an interactive Bokeh figure (hover for each move's numbers),
         what the lab page shows beside the table."""
-        from labrig.diagnosis.interactive import ranking_figure  # bokeh: ~0.3 s more to import
+        from labrig.diagnosis.results.interactive import ranking_figure  # bokeh: ~0.3 s more to import
 
         return ranking_figure(self.ranking, **size)
 
@@ -346,9 +346,9 @@ class Diagnosis(Displayable):
         cross-validated rmse/noise, dBIC, folds) beside where the model fails;
         ``kind="regimes"``: rmse/noise by regime for every channel."""
         if kind == "regimes":
-            from labrig.diagnosis.plots import plot_regimes  # matplotlib: ~0.27 s to import
+            from labrig.diagnosis.results.plots import plot_regimes  # matplotlib: ~0.27 s to import
 
             return plot_regimes(self.regimes, ax=ax)
-        from labrig.diagnosis.ranking_plots import plot_ranking  # matplotlib: ~0.27 s to import
+        from labrig.diagnosis.results.ranking_plots import plot_ranking  # matplotlib: ~0.27 s to import
 
         return plot_ranking(self, ax=ax)

@@ -5,7 +5,7 @@ candidate re-fitted and entered (:meth:`Round.candidates`), a base that its cand
 re-fits show unconverged refined into a new round (:meth:`Round.refined`), the
 revisions of the effects it has (:meth:`Round.revisions`), the leaders cross-validated
 and ranked (:meth:`Round.rank`) and the result (:meth:`Round.result`). The criteria
-live in :mod:`labrig.diagnosis.criteria`, the words in :mod:`labrig.diagnosis.explain`.
+live in :mod:`labrig.diagnosis.evidence.criteria`, the words in :mod:`labrig.diagnosis.words.explain`.
 """
 from __future__ import annotations
 
@@ -15,20 +15,20 @@ from dataclasses import dataclass, field
 from labrig.analysis.noise import Weights
 from labrig.core.errors import FitDiverged, UserError
 from labrig.core.parallel import each
-from labrig.diagnosis.baseline import at_bounds, balanced_weights, linear_model
-from labrig.diagnosis.candidates import candidate_names, refinements
-from labrig.diagnosis.criteria import (CV_CANDIDATES, FLOOR, MIN_DBIC, MIN_GAIN, REFINE,
+from labrig.diagnosis.loop.baseline import at_bounds, balanced_weights, linear_model
+from labrig.diagnosis.loop.candidates import candidate_names, refinements
+from labrig.diagnosis.evidence.criteria import (CV_CANDIDATES, FLOOR, MIN_DBIC, MIN_GAIN, REFINE,
                                        SCREEN_AFTER, SIMPLER_MARGIN, SWAP_GAIN, UNDECIDED, bic,
                                        candidate_order, score, screen, supported)
-from labrig.diagnosis.crossval import CrossValidation, Folds, cross_validate, fold_evidence, \
+from labrig.diagnosis.evidence.crossval import CrossValidation, Folds, cross_validate, fold_evidence, \
     make_folds
-from labrig.diagnosis.evaluation import Evaluation, evaluate
-from labrig.diagnosis.explain import context as explain_context, explain, round_verdict
-from labrig.diagnosis.ranking import Candidate, Diagnosis
-from labrig.diagnosis.refit import (refit, refit_as_member, refit_with, thinned_fitness,
+from labrig.diagnosis.evidence.evaluation import Evaluation, evaluate
+from labrig.diagnosis.words.explain import context as explain_context, explain, round_verdict
+from labrig.diagnosis.results.diagnosis import Candidate, Diagnosis
+from labrig.diagnosis.loop.refit import (refit, refit_as_member, refit_with, thinned_fitness,
                                     without)
-from labrig.diagnosis.residuals import worst_regime
-from labrig.diagnosis.resolution import unresolved
+from labrig.diagnosis.evidence.residuals import worst_regime
+from labrig.diagnosis.evidence.resolution import unresolved
 from labrig.identification.engine import dataset_constants
 from labrig.io.runs import require_excitation
 from labrig.model.effects import get_effect
@@ -52,7 +52,7 @@ class Round:
     ----------
     runs, base : the data and the model the round starts from
     source : how ``base`` came to be, in words
-    seed, fixed, weights, folds : as :func:`labrig.diagnosis.diagnose.diagnose` takes them
+    seed, fixed, weights, folds : as :func:`labrig.diagnosis.loop.diagnose.diagnose` takes them
     ev0 : the base's evaluation (noise floors ``ev0.sigmas``, samples, effective samples)
     bic0, cv0 : the base's BIC and held-out error
     reach : what the data reach (the re-fits' bounds and scans)
@@ -150,7 +150,7 @@ class Round:
         """Every effect the base could take (or ``names``), re-fitted side by side
         (:mod:`labrig.core.parallel`) in the catalogue's order: ``(ranked, diverged)``,
         the second naming those whose every start diverged. With ``screen_out``, a re-fit
-        that stalls without gaining is ended early (:func:`~labrig.diagnosis.criteria.screen`).
+        that stalls without gaining is ended early (:func:`~labrig.diagnosis.evidence.criteria.screen`).
         ``progress(i, name)`` hears each re-fit start, ``on_candidate(candidate, None)``
         each one done."""
         rule = screen(thinned_fitness(self.runs, self.base, self.fixed, self.weights, self.reach),
@@ -185,7 +185,7 @@ class Round:
     def nested(self, ranking: list[Candidate]) -> list[Candidate]:
         """``ranking`` with each nested pair (an effect and its :attr:`simpler` family
         member, stiction and Coulomb friction, say) fitted each from the other's result
-        too (:func:`~labrig.diagnosis.refit.refit_as_member`), the better kept: the richer
+        too (:func:`~labrig.diagnosis.loop.refit.refit_as_member`), the better kept: the richer
         when it explains the runs worse than the one it contains, the simpler when it is
         more than :data:`NESTED_MARGIN` worse than the richer. Each fitted from its own
         scan alone, the two can end in different basins, and the seed would decide between
@@ -311,7 +311,7 @@ class Round:
 
     def result(self, ranking: list[Candidate], diverged: list[str],
                refined_from: "Round | None" = None) -> Diagnosis:
-        """The round's :class:`~labrig.diagnosis.ranking.Diagnosis`, with its words;
+        """The round's :class:`~labrig.diagnosis.results.diagnosis.Diagnosis`, with its words;
         ``refined_from``: the round on the given model, when this one is on its
         re-fit (:meth:`refined`)."""
         runs, ev0, base, weights = self.runs, self.ev0, self.base, self.weights

@@ -14,7 +14,7 @@ import pandas as pd
 from labrig.identification.objective import Objective, adequacy, build_space
 from labrig.model.model import Model, param_keys
 from labrig.analysis.noise import Weights
-from labrig.diagnosis.residuals import (autocorr, current_residual, regime_table, run_residuals,
+from labrig.diagnosis.evidence.residuals import (autocorr, current_residual, regime_table, run_residuals,
                                         worst_regime, worst_run)
 from labrig.core.tables import Table, fmt
 from labrig.core.display import Displayable
@@ -31,7 +31,7 @@ class Evaluation(Displayable):
         ``fitness``, ``rmse_over_noise`` and ``fit_percent`` (overall and per channel),
         ``per_run`` and ``noise`` (the keys of ``labrig identify --json``).
     per_run : list of dict
-        Residuals per run (``labrig.diagnosis.residuals.run_residuals``).
+        Residuals per run (``labrig.diagnosis.evidence.residuals.run_residuals``).
     regimes : dict
         The regime table (``by_regime``, ``by_amplitude``).
     sse, n : float, int
@@ -142,7 +142,7 @@ class Evaluation(Displayable):
         stretches outside it shaded by regime (``labrig compare``'s figure);
         ``kind="regimes"``: rmse/noise by regime."""
         # matplotlib: ~0.27 s more to import, only for a figure
-        from labrig.diagnosis.plots import plot_regimes, plot_run_comparison
+        from labrig.diagnosis.results.plots import plot_regimes, plot_run_comparison
 
         if kind == "regimes":
             return plot_regimes(self.regimes, ax=ax)
@@ -161,8 +161,8 @@ class Evaluation(Displayable):
         """The same as :meth:`plot` as interactive Bokeh figures on linked time axes
         (zoom, pan, hover: time, measured, model, residual), what the lab page shows;
         a notebook displays it with ``bokeh.io.show`` or ``panel.pane.Bokeh``. Returns
-        the :class:`labrig.diagnosis.interactive.RunView` (its ``layout`` is the figure)."""
-        from labrig.diagnosis.interactive import run_view  # bokeh: ~0.3 s more to import
+        the :class:`labrig.diagnosis.results.interactive.RunView` (its ``layout`` is the figure)."""
+        from labrig.diagnosis.results.interactive import run_view  # bokeh: ~0.3 s more to import
 
         return run_view(self.run(run), **size)
 

@@ -9,8 +9,8 @@ import numpy as np
 
 from labrig.analysis.agreement import WINDOW_DECLARED_IN, channel_agreement
 from labrig.analysis.noise import Weights
-from labrig.diagnosis.evaluation import Evaluation
-from labrig.diagnosis.refit import refit, seed_or_design
+from labrig.diagnosis.evidence.evaluation import Evaluation
+from labrig.diagnosis.loop.refit import refit, seed_or_design
 from labrig.identification.engine import dataset_constants, identify, initial_point
 from labrig.identification.objective import Objective, build_space
 from labrig.model.plants import plant_of_runs
@@ -83,7 +83,7 @@ def linear_model(runs, *, seed=0, fixed=None, weights=Weights(), start: Model | 
     then both basins of the electrical pole; a torque or force plant (two parameters)
     also from the best points of a grid over its whole box (:func:`grid_starts`). The
     four starts are the default seed's design unless ``seed``'s fit clearly better
-    (:func:`labrig.diagnosis.refit.seed_or_design`)."""
+    (:func:`labrig.diagnosis.loop.refit.seed_or_design`)."""
     if start is not None:
         return refit(runs, start, seed=seed, fixed=fixed, weights=weights).model()
 

@@ -74,7 +74,7 @@ SHARES = (0.5, 0.9)
 def fit(runs, effects, start: dict, fixed: dict, *, seed: int, weights: Weights,
         reach, max_nfev: int = 60, masks=None, stop=None):
     """One CO fit from ``start`` (bounds from ``reach``); ``stop``: a rule that may end
-    it early (:func:`labrig.diagnosis.criteria.screen`)."""
+    it early (:func:`labrig.diagnosis.evidence.criteria.screen`)."""
     return identify(runs, "co", effects, seed=seed, start=start, fixed=fixed, starts=1,
                     identifiability=False, max_nfev=max_nfev, p=weights.p, q=weights.q,
                     masks=masks, reach=reach, subsample=SUBSAMPLE, stop=stop)
@@ -115,7 +115,7 @@ def seed_or_design(fit_from, seed: int):
 def thinned_fitness(runs, model: Model, fixed: dict, weights: Weights, reach) -> float:
     """``model``'s fitness on the residuals a re-fit sees (every k-th, :data:`SUBSAMPLE`):
     what a re-fit's own history is compared with (the screen,
-    :func:`labrig.diagnosis.criteria.screen`); on all residuals it differs by a per cent
+    :func:`labrig.diagnosis.evidence.criteria.screen`); on all residuals it differs by a per cent
     or so, as much as a small effect gains."""
     space = build_space(model.effects, None, fixed, reach=reach, plant=plant_of_runs(runs))
     obj = Objective(runs, model.effects, space, p=weights.p, q=weights.q)
@@ -302,7 +302,7 @@ def refit_with(runs, base: Model, effect, *, seed: int = 0, fixed: dict | None =
     the effect's parameters where the model it replaces left them (a replacement also
     starts there, when they are all of its parameters: a simpler family member), or a
     list of such starts (a refinement's, ``Effect.from_simpler``). ``stop``: the screen
-    that may end each start's fit early (:func:`labrig.diagnosis.criteria.screen`); the
+    that may end each start's fit early (:func:`labrig.diagnosis.evidence.criteria.screen`); the
     result's ``stopped`` says when it ended every one."""
     reach = reach or Reach.of(runs, base)
     effects = base.effects_with([effect])

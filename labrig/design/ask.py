@@ -2,13 +2,13 @@
 recorded so far, until one explanation of a pair wins by the decision's margin or the
 budget is spent (sequential design, docs/physics.md, 'Experiments that decide').
 
-A one-shot proposal (:func:`labrig.diagnosis.propose.propose`) must separate the pair for
+A one-shot proposal (:func:`labrig.design.propose.propose`) must separate the pair for
 every truth the data allow, so it spends its whole budget on the hardest one. Asked in
 steps, the rig answers for the truth it actually has: when the first short run already
 decides, the rest of the budget is never played. Each step is the best input of at most
 ``step_s`` seconds for the data as they now stand (earlier steps included, so a step that
 pinned a size lets the next aim at it), played, added, and judged by
-:func:`labrig.diagnosis.decide.decide` -- the same fits and the same measure as a one-shot
+:func:`labrig.design.decide.decide` -- the same fits and the same measure as a one-shot
 decision. The rig seconds used are reported beside the one-shot plan's.
 """
 from __future__ import annotations
@@ -18,9 +18,9 @@ from dataclasses import dataclass, field
 from labrig.core.display import Displayable
 from labrig.core.errors import UserError
 from labrig.core.tables import Table
-from labrig.diagnosis.decide import Decision, decide
-from labrig.diagnosis.proposal import DECISIVE, SEPARATION
-from labrig.diagnosis.propose import propose
+from labrig.design.decide import Decision, decide
+from labrig.design.proposal import DECISIVE, SEPARATION
+from labrig.design.propose import propose
 from labrig.model.model import Model
 
 #: the shortest step worth playing (s): a lead-in and one level
@@ -137,7 +137,7 @@ def ask_until_sure(runs, model: Model, between: str, play, *, budget_s: float = 
         Plays the plan of step ``k`` (1, 2, ...) on the rig and returns its runs (none:
         the rig was stopped, and asking ends with the steps finished).
     amax, rig, loop :
-        As :func:`labrig.diagnosis.propose.propose`'s (``loop``: which inputs each step
+        As :func:`labrig.design.propose.propose`'s (``loop``: which inputs each step
         may be: the amplifier's, the rig's position loop's reference, or either).
     on_step : callable(AskStep, runs), optional
         Each step as it is judged, with the runs it played (its decision's ``models``

@@ -1,8 +1,8 @@
 """The diagnosis's criteria: every threshold and rule of "supported", "undecided",
 "refined" and "near the floor", in one place, with why (docs/physics.md, 'Diagnosis').
 
-The diagnosis (:mod:`labrig.diagnosis.diagnose`), the search (:mod:`labrig.diagnosis.search`) and
-the ranking's words (:mod:`labrig.diagnosis.ranking`) read them from here; nothing else holds
+The diagnosis (:mod:`labrig.diagnosis.loop.diagnose`), the search (:mod:`labrig.diagnosis.loop.search`) and
+the ranking's words (:mod:`labrig.diagnosis.results.diagnosis`) read them from here; nothing else holds
 a copy.
 """
 from __future__ import annotations
@@ -52,7 +52,7 @@ def bic(sse, n, n_eff, k):
 
 def screen(f0: float, n_eff: float):
     """The rule that screens a candidate out of a round (``stop`` of its re-fit,
-    :func:`labrig.diagnosis.refit.refit_with`), for a base of fitness ``f0`` on data of
+    :func:`labrig.diagnosis.loop.refit.refit_with`), for a base of fitness ``f0`` on data of
     ``n_eff`` effective samples.
 
     After :data:`SCREEN_AFTER` iterations a re-fit is ended there when all three hold: it
@@ -79,7 +79,7 @@ def screen(f0: float, n_eff: float):
 
 
 def supported(c) -> bool:
-    """The decision on a :class:`~labrig.diagnosis.ranking.Candidate`, in the terms the ranking
+    """The decision on a :class:`~labrig.diagnosis.results.diagnosis.Candidate`, in the terms the ranking
     table states (:meth:`Diagnosis._ranking_rules`)."""
     cv = c.cross_validated
     if cv is None or c.unresolved:

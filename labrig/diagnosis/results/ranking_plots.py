@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import matplotlib.pyplot as plt
 
-from labrig.diagnosis.plots import plot_regimes
+from labrig.diagnosis.results.plots import plot_regimes
 
 
 def plot_ranking(diag, ax=None):

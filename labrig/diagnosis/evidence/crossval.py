@@ -15,7 +15,7 @@ The fold fits start from the full-data fit, so they cost little, but they never 
 held-out samples. The held-out residuals are stitched back into one prediction of every
 run, so the regimes where a structure predicts better are named, and every fold's own
 evidence is kept: a fold whose training part does not pin the new effect's threshold
-(:func:`unpinned_folds`) is reported, and :mod:`labrig.diagnosis.diagnose` does not let it
+(:func:`unpinned_folds`) is reported, and :mod:`labrig.diagnosis.loop.diagnose` does not let it
 outvote the others.
 """
 from __future__ import annotations
@@ -29,8 +29,8 @@ from labrig.model.model import Model
 from labrig.model.start import is_start_key
 from labrig.model.simulate import prepare
 from labrig.analysis.noise import run_speed
-from labrig.diagnosis.refit import fit
-from labrig.diagnosis.residuals import input_edges, regimes_of
+from labrig.diagnosis.loop.refit import fit
+from labrig.diagnosis.evidence.residuals import input_edges, regimes_of
 from labrig.model.effects import get_effect
 
 #: folds, and blocks per run when the input has too few segments to interleave

@@ -25,19 +25,19 @@ from dataclasses import dataclass, field
 from itertools import combinations
 from pathlib import Path
 
-from labrig.diagnosis.crossval import cross_validate
-from labrig.diagnosis.candidates import candidate_names, refinements
-from labrig.diagnosis.criteria import (MIN_DBIC, MIN_GAIN, NEAR_FLOOR, PAIR_POOL, SIMPLER_MARGIN,
+from labrig.diagnosis.evidence.crossval import cross_validate
+from labrig.diagnosis.loop.candidates import candidate_names, refinements
+from labrig.diagnosis.evidence.criteria import (MIN_DBIC, MIN_GAIN, NEAR_FLOOR, PAIR_POOL, SIMPLER_MARGIN,
                                   SWAP_GAIN, bic, decide_ties, simpler_first)
-from labrig.diagnosis.diagnose import diagnose, linear_model
-from labrig.diagnosis.evaluation import evaluate
-from labrig.diagnosis.ladder import Ladder, LadderStep, rung_label
+from labrig.diagnosis.loop.diagnose import diagnose, linear_model
+from labrig.diagnosis.evidence.evaluation import evaluate
+from labrig.diagnosis.results.ladder import Ladder, LadderStep, rung_label
 from labrig.core.parallel import each
 from labrig.model.effects import CATALOGUE, get_effect
 from labrig.model.model import Model, param_keys
 from labrig.model.reach import Reach
-from labrig.diagnosis.refit import fresh_fit, refit, refit_with, without
-from labrig.diagnosis.resolution import unresolved
+from labrig.diagnosis.loop.refit import fresh_fit, refit, refit_with, without
+from labrig.diagnosis.evidence.resolution import unresolved
 
 #: the catalogue's effects that set how much drive it takes to move (``Effect.pair_rank``,
 #: in its order): their pairs are tried whenever no single effect earns its parameters and
@@ -267,9 +267,9 @@ def search(runs, model: Model | None = None, *, max_rounds: int = 3, seed: int =
 
     ``on_step(k, model)`` is called for every rung (k = 0 is the starting model);
     ``on_candidate(candidate, cv)``: each round's candidates as they are re-fitted and
-    cross-validated (:func:`~labrig.diagnosis.diagnose.diagnose`'s);
+    cross-validated (:func:`~labrig.diagnosis.loop.diagnose.diagnose`'s);
     ``max_rounds`` bounds the number of effects added; ``screen``: as
-    :func:`~labrig.diagnosis.diagnose.diagnose`'s, in every round.
+    :func:`~labrig.diagnosis.loop.diagnose.diagnose`'s, in every round.
     """
     fixed = dict(fixed or {})
     rounds, moves = [], []

@@ -1,6 +1,6 @@
 """The JSON of ``labrig diagnose --json`` (``diagnosis.json``) and ``labrig ladder
---json`` (``ladder.json``): their one definition. :meth:`~labrig.diagnosis.ranking.Diagnosis.to_json`
-and :meth:`~labrig.diagnosis.ladder.Ladder.to_json` write them; a test checks that every key
+--json`` (``ladder.json``): their one definition. :meth:`~labrig.diagnosis.results.diagnosis.Diagnosis.to_json`
+and :meth:`~labrig.diagnosis.results.ladder.Ladder.to_json` write them; a test checks that every key
 they write is declared here, and ``result()`` turns a record back into the result.
 """
 from __future__ import annotations
@@ -8,9 +8,9 @@ from __future__ import annotations
 from typing import Literal, Optional
 
 from labrig.core.schemas import JsonDoc as _Doc
-from labrig.diagnosis.ladder import Ladder, LadderStep
-from labrig.diagnosis.ranking import Candidate, Diagnosis
-from labrig.diagnosis.residuals import REGIMES
+from labrig.diagnosis.results.ladder import Ladder, LadderStep
+from labrig.diagnosis.results.diagnosis import Candidate, Diagnosis
+from labrig.diagnosis.evidence.residuals import REGIMES
 
 Num = Optional[float]
 Regime = Literal[REGIMES]

@@ -5,7 +5,7 @@ Per channel (speed, position, current where present), the measurement and the mo
 one figure and the residual in noise units below it, every time axis linked (zoom into a
 reversal on one and the others follow); the residual's +-1 noise band, the +-1 quantum of
 a quantised sensor (a staircase inside it is the sensor's resolution) and the stretches
-that leave the band shaded by regime, as the PNG of :func:`labrig.diagnosis.plots.
+that leave the band shaded by regime, as the PNG of :func:`labrig.diagnosis.results.plots.
 plot_run_comparison`; hovering gives the time, the measured and model values and the
 residual. :meth:`RunView.show` redraws it from a new evaluation in place (a slider's move),
 without building new figures.
@@ -25,7 +25,7 @@ from bokeh.models import (BoxAnnotation, ColumnDataSource, DataRange1d, FactorRa
                           Legend, LegendItem, Range1d, Span)
 from bokeh.plotting import figure
 
-from labrig.diagnosis.residuals import AXIS_UNITS, REGIME_TEXT
+from labrig.diagnosis.evidence.residuals import AXIS_UNITS, REGIME_TEXT
 
 #: the regimes' colours, as the PNG figures draw them (matplotlib's tab10)
 REGIME_COLOURS = {"start": "#2ca02c", "reversal": "#d62728", "accel": "#ff7f0e",
@@ -242,7 +242,7 @@ def ladder_figure(steps, width: int | None = None, height: int = 260):
     """The error ladder as an interactive figure: rmse/noise after each rung (overall and
     per channel), the cross-validated error where known and the noise floor at 1, on a
     log scale; hover gives each rung's numbers. ``steps``: a Ladder's ``to_json()["steps"]``
-    (or its :class:`~labrig.diagnosis.ladder.LadderStep` objects)."""
+    (or its :class:`~labrig.diagnosis.results.ladder.LadderStep` objects)."""
     steps = [s.to_json() if hasattr(s, "to_json") else s for s in steps]
     labels = [f"{k}: {s['label']}" for k, s in enumerate(steps)]
     size = dict(width=width) if width else dict(sizing_mode="stretch_width")

@@ -1,7 +1,7 @@
 """What ``labrig propose`` returns: the explanations it weighed, the candidate inputs it
 judged, and the proposal (or the plain statement that nothing within the limits separates
 the pair), with its text, tables, plan file and figure. The search is
-:mod:`labrig.diagnosis.propose`; the words are those of docs/physics.md, 'Experiments that
+:mod:`labrig.design.propose`; the words are those of docs/physics.md, 'Experiments that
 decide'.
 """
 from __future__ import annotations
@@ -16,13 +16,13 @@ from labrig.core.display import Displayable
 from labrig.core.errors import UserError
 from labrig.core.tables import Table
 from labrig.io.runs import Run
-from labrig.diagnosis.inputs import MAX_POINTS, InputCandidate, why
+from labrig.design.inputs import MAX_POINTS, InputCandidate, why
 from labrig.model.model import Model
 
 LEAD_IN_S = 0.5
 #: what the naive ranking uses, in the words every text line uses
 DIFFERENCE = "sum of squared differences of the two predictions, in noise units"
-#: what a proposal is judged by: the decision's own measure (labrig.diagnosis.decide)
+#: what a proposal is judged by: the decision's own measure (labrig.design.decide)
 SEPARATION = "worse rmse/noise over better, minus one"
 #: a proposal is made when the rival, re-fitted, is predicted to stay at least this far
 #: behind for every plausible truth: its rmse/noise at least twice the truth's
@@ -166,7 +166,7 @@ class Proposal(Displayable):
     separates: bool = True
     advice: str = ""
     #: per explanation judged across sizes the data cannot narrow: the smallest size the
-    #: proposed input separates (:func:`labrig.diagnosis.separation.smallest_separable`)
+    #: proposed input separates (:func:`labrig.design.separation.smallest_separable`)
     smallest: list = field(default_factory=list)
     #: [(truth label, best separation any leading input reached)]: the smallest sizes no
     #: input within the budget separates (the noise hides them), set aside from the worst
@@ -224,7 +224,7 @@ class Proposal(Displayable):
 
     def to_toml(self, name: str = "proposed", step: bool = False) -> str:
         """The plan file: an ordinary plan with one ``pwl`` experiment named ``name``.
-        ``step``: a step of a sequence (:mod:`labrig.diagnosis.ask`), written even when
+        ``step``: a step of a sequence (:mod:`labrig.design.ask`), written even when
         it is not predicted to decide alone (the evidence adds up)."""
         if not self.separates and not (step and self.chosen.refit):
             raise UserError(f"no input within {self.budget_s:g} s separates {self.pair[0]} "
@@ -363,7 +363,7 @@ class Proposal(Displayable):
 
     def plot(self, ax=None):
         """Both explanations' predicted responses to the proposed input, with the noise band."""
-        from labrig.diagnosis.propose_plots import plot_proposal  # matplotlib: ~0.25 s to import
+        from labrig.design.plots import plot_proposal  # matplotlib: ~0.25 s to import
 
         return plot_proposal(self, ax=ax)
 

@@ -8,10 +8,10 @@ and the evidence, in numbers and in words.
    that neither drowns the other;
 2. re-fits the model with every catalogue effect it lacks, from starts scanned over
    the range the data can see and in two basins of the electrical pole
-   (``labrig.diagnosis.refit``), so no threshold starts on a plateau;
+   (``labrig.diagnosis.loop.refit``), so no threshold starts on a plateau;
 3. compares the candidates on equal terms: BIC with the sample count corrected for
    the colour of simulation residuals, and the error on data the fits did not see,
-   by cross-validation (``labrig.diagnosis.crossval``: whole runs held out in turn, or blocks
+   by cross-validation (``labrig.diagnosis.evidence.crossval``: whole runs held out in turn, or blocks
    of a single long run), so an extra parameter cannot win by overfitting or by luck;
 4. explains the winner: what it is in the rig, where its signature shows in these
    runs (the regimes that carry the held-out evidence), and the experiment that would
@@ -21,14 +21,14 @@ from __future__ import annotations
 
 from labrig.analysis.noise import Weights
 # the baseline's helpers and the candidates' rule, under the names callers have used
-from labrig.diagnosis.baseline import (agreement_of, at_bounds, balanced_weights,  # noqa: F401
+from labrig.diagnosis.loop.baseline import (agreement_of, at_bounds, balanced_weights,  # noqa: F401
                                        linear_model)
-from labrig.diagnosis.candidates import candidate_names  # noqa: F401
+from labrig.diagnosis.loop.candidates import candidate_names  # noqa: F401
 # every threshold and rule of the decision (also under the names callers have used)
-from labrig.diagnosis.criteria import (CV_CANDIDATES, FLOOR, MAX_REFINE, MIN_DBIC,  # noqa: F401
+from labrig.diagnosis.evidence.criteria import (CV_CANDIDATES, FLOOR, MAX_REFINE, MIN_DBIC,  # noqa: F401
                                        MIN_GAIN, PARSIMONY, REFINE, SIMPLER_MARGIN, SWAP_GAIN)
-from labrig.diagnosis.ranking import Diagnosis
-from labrig.diagnosis.round import Round, switched_off  # noqa: F401
+from labrig.diagnosis.results.diagnosis import Diagnosis
+from labrig.diagnosis.loop.round import Round, switched_off  # noqa: F401
 from labrig.model.model import Model
 from labrig.simulation.warm import ready
 
@@ -53,7 +53,7 @@ def diagnose(runs, model: Model | None = None, *, candidates=None, seed: int = 0
     weights : Weights, optional
         Channel weights (default: balanced on the starting model).
     folds : Folds, optional
-        Cross-validation folds (default: :func:`labrig.diagnosis.crossval.make_folds`).
+        Cross-validation folds (default: :func:`labrig.diagnosis.evidence.crossval.make_folds`).
     revise : bool
         With a model that has effects, also test removing each of them and replacing
         each by its look-alikes and simpler family members (default True; the search of
@@ -63,7 +63,7 @@ def diagnose(runs, model: Model | None = None, *, candidates=None, seed: int = 0
         is (the cross-validated rmse/noise): the ranking as it forms.
     screen : bool
         End a candidate's re-fit early when it stalls without gaining
-        (:func:`labrig.diagnosis.criteria.screen`; default True). False re-fits every
+        (:func:`labrig.diagnosis.evidence.criteria.screen`; default True). False re-fits every
         candidate to the end: the full round, the same recommendation (tested), slower.
     baseline_cv : CrossValidation, optional
         ``model``'s cross-validation on these ``folds``, when known (the search hands on

@@ -8,10 +8,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from labrig.diagnosis.evaluation import evaluate
-from labrig.diagnosis.inputs import InputCandidate
-from labrig.diagnosis.proposal import DECISIVE, synthetic_run
-from labrig.diagnosis.refit import fit, refit_with
+from labrig.diagnosis.evidence.evaluation import evaluate
+from labrig.design.inputs import InputCandidate
+from labrig.design.proposal import DECISIVE, synthetic_run
+from labrig.diagnosis.loop.refit import fit, refit_with
 from labrig.io.runs import Run
 from labrig.model.effects import get_effect
 from labrig.model.model import Model

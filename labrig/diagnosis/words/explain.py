@@ -10,8 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from labrig.diagnosis.criteria import FLOOR, UNDECIDED, undecided
-from labrig.diagnosis.residuals import REGIME_TEXT
+from labrig.diagnosis.evidence.criteria import FLOOR, UNDECIDED, undecided
+from labrig.diagnosis.evidence.residuals import REGIME_TEXT
 from labrig.model.drive_units import level, unit as drive_unit
 from labrig.model.effects import get_effect
 from labrig.model.model import Model
