@@ -196,3 +196,23 @@ def test_no_benchmark_history_in_the_code():
              for p in sorted(PKG.rglob("*.py"))
              for k, line in enumerate(p.read_text().splitlines(), 1) if stale.search(line)]
     assert not found, "\n".join(found)
+
+
+#: what turns a problem into the optimisers' form: only identification builds or holds it
+SEARCH_FORM = {"build_space", "Objective", "Space"}
+
+
+def test_only_identification_builds_a_search_space():
+    """The loop and the front ends hand identification a problem
+    (:class:`labrig.identification.problem.Problem`) and get a fit; the search space, the
+    objective and a model's search vector are identification's own (issue 62)."""
+    offenders = []
+    for f in PKG.rglob("*.py"):
+        rel = f.relative_to(PKG)
+        if rel.parts[0] == "identification":
+            continue
+        for node in ast.walk(ast.parse(f.read_text())):
+            if isinstance(node, ast.ImportFrom) and (node.module or "").startswith(
+                    "labrig.identification.objective"):
+                offenders += [f"{rel}: {a.name}" for a in node.names if a.name in SEARCH_FORM]
+    assert offenders == []

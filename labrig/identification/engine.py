@@ -12,28 +12,28 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
-from labrig.core.defaults import LOOP_GAINS, METHOD, SEED
+from labrig.core.defaults import METHOD, SEED
 from labrig.core.errors import UserError
 from labrig.core.timing import mark
 from labrig.model import drive_units
 from labrig.model.effects import Effect
 from labrig.model.start import start_report
-from labrig.model.effectset import EffectSet
 from labrig.model.model import Model
 from labrig.model.reach import Reach
-from labrig.model.plants import plant_of_runs
 from labrig.model.servo import ServoParams, step_info
 from labrig.io.runs import require_excitation
 from labrig.identification.identifiability import analyse_identifiability, time_constants
 from labrig.identification.jellyfish import jellyfish
 from labrig.identification.local import local, polish as _polish
-from labrig.identification.objective import Objective, Space, build_space
+from labrig.identification.objective import Space
+from labrig.identification.problem import Problem, dataset_constants, initial_point
 from labrig.identification.pso import pso
 from labrig.identification.settle import settle
 from labrig.identification.result import IdentResult
 from labrig.core.display import Displayable
 from labrig.identification.table import comparison_table, identification_dict
 from labrig.analysis.agreement import channel_agreement, lag_explained
+from labrig.analysis.noise import Weights
 
 
 def _run_jfo(obj, lo, hi, x0, o):
@@ -288,37 +288,6 @@ class Identification(Displayable):
             "dataset": self.dataset})
 
 
-def dataset_constants(runs) -> dict:
-    """Known rig constants from the runs' sidecars (the first run speaks for all)."""
-    closed = [r.gains for r in runs if r.loop == "closed"]
-    # step metrics are for the data's own loop, else for the lab's standard loop (the
-    # MS150's, with tacho feedback): a rig without a tacho has no such loop, and an
-    # Arduino's model gets no step metrics of a loop it never ran
-    if closed:
-        gains = closed[0]
-    elif all(r.has_tacho for r in runs):
-        gains = {"kp": LOOP_GAINS["position_gain"], "kv": LOOP_GAINS["velocity_gain"]}
-    else:
-        gains = {}
-    return {**runs[0].constants, **gains}
-
-
-def initial_point(space: Space, effects, runs, constants, start: dict | None) -> dict:
-    """A physical starting point: the start model where given, else the middle of the
-    (log) box for the plant and each effect's data-driven guess."""
-    mid = {n: float(np.sqrt(lo * hi)) if lg else 0.5 * (lo + hi)
-           for n, lo, hi, lg in zip(space.names, space.lower, space.upper, space.log)}
-    point = dict(mid)
-    if start:
-        point.update({k: v for k, v in start.items() if k in point})
-    plant = space.plant.servo(point, constants)
-    for key, v in EffectSet.parse(effects).initial_guess(runs, plant).items():
-        if not (start and key in start):
-            point[key] = v
-    point.update(space.fixed)
-    return point
-
-
 @dataclass(frozen=True)
 class FitOptions:
     """How hard and on what an identifier works (``labrig identify``'s tuning options).
@@ -417,15 +386,14 @@ def identify(runs, method: str = METHOD, effects: list[Effect] = (), *, seed: in
     if not runs:
         raise UserError("the data set is empty: give a folder with at least one run")
     require_excitation(runs, "identify")
-    effects = EffectSet.parse(effects)
-    space = build_space(effects, bounds, fixed, reach=reach or Reach.of(runs),
-                        plant=plant_of_runs(runs))
-    obj = Objective(runs, effects, space, p=o.p, q=o.q, masks=masks, c=o.c,
-                    start=o.start_state)
+    problem = Problem(runs, effects, fixed=fixed, bounds=bounds, reach=reach or Reach.of(runs),
+                      weights=Weights(p=o.p, q=o.q), masks=masks, c=o.c,
+                      start_state=o.start_state)
+    effects, space, obj = problem.effects, problem.space, problem.objective
     t0 = time.perf_counter()  # after the simulator is ready: a first compile is not fitting
     constants = dataset_constants(runs)
     lo, hi = space.search_bounds()
-    x0 = space.to_search(initial_point(space, effects, runs, constants, start))
+    x0 = space.to_search(problem.initial_point(start))
     seed = int(np.random.default_rng().integers(2 ** 31)) if seed is None else int(seed)
     opts = {"pop": o.pop, "iters": o.iters, "seed": seed, "starts": o.starts, "callback": callback,
             "max_nfev": o.max_nfev, "rule": o.rule, "subsample": o.subsample, "stop": o.stop}

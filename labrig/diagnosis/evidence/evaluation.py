@@ -11,7 +11,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
-from labrig.identification.objective import Objective, adequacy, build_space
+from labrig.identification.objective import adequacy
+from labrig.identification.problem import Problem
 from labrig.model.model import Model, param_keys
 from labrig.analysis.noise import Weights
 from labrig.diagnosis.evidence.residuals import (autocorr, current_residual, regime_table, run_residuals,
@@ -175,12 +176,11 @@ def evaluate(runs, model: Model, sigmas=None, weights: Weights | None = None,
     ``detail=False``: the residuals and every rmse/noise and fit %, without the regimes,
     stretches and correlations (``regimes`` empty, ``rho1`` nan): a slider's move."""
     weights = weights or Weights()
-    space = build_space(model.effects, plant=model.plant_class)
-    obj = Objective(runs, model.effects, space, p=weights.p, q=weights.q)
+    problem = Problem.of(runs, model, weights=weights)
+    obj = problem.objective
     if sigmas is not None:
         obj.sigma_w, obj.sigma_theta = sigmas
-    phys = space.physical_row(model.flat())
-    sims = obj.simulate_physical(phys[None, :])
+    sims = problem.simulate(model)
     metrics = adequacy(obj.runs, sims, obj.sigma_w, obj.sigma_theta, weights.p, weights.q)
     quanta = {ch: f.q for ch, f in obj.floors.items()}
     counted = bool(getattr(obj.floors.get("speed"), "counted", False))

@@ -11,8 +11,8 @@ from labrig.analysis.agreement import WINDOW_DECLARED_IN, channel_agreement
 from labrig.analysis.noise import Weights
 from labrig.diagnosis.evidence.evaluation import Evaluation
 from labrig.diagnosis.loop.refit import refit, seed_or_design
-from labrig.identification.engine import dataset_constants, identify, initial_point
-from labrig.identification.objective import Objective, build_space
+from labrig.identification.engine import identify
+from labrig.identification.problem import Problem
 from labrig.model.plants import plant_of_runs
 from labrig.identification.result import at_bounds as bound_sides
 from labrig.model import drive_units
@@ -116,9 +116,9 @@ def grid_starts(runs, fixed: dict, weights: Weights) -> list[dict]:
     free = [n for n in plant.names if n not in fixed]
     if len(plant.names) != 2 or not free:
         return []
-    space = build_space([], None, fixed, plant=plant)
-    obj = Objective(runs, [], space, p=weights.p, q=weights.q)
-    fill = initial_point(space, [], runs, dataset_constants(runs), None)
+    problem = Problem(runs, [], fixed=fixed, weights=weights, plant=plant)
+    space = problem.space
+    fill = problem.initial_point()
     axes = []
     for n in free:
         k = space.names.index(n)
@@ -127,5 +127,5 @@ def grid_starts(runs, fixed: dict, weights: Weights) -> list[dict]:
                     np.linspace(lo, hi, GRID_SIDE))
     points = [{**fill, **dict(zip(free, map(float, combo)))}
               for combo in itertools.product(*axes)]
-    f = obj.fitness_batch(np.array([space.to_search(pt) for pt in points]))
+    f = problem.fitness(points)
     return [points[i] for i in np.argsort(f, kind="stable")[:GRID_POLISHED]]

@@ -32,9 +32,9 @@ import numpy as np
 from labrig.core.defaults import SEED
 from labrig.core.errors import FitDiverged
 from labrig.core.parallel import each
-from labrig.identification.engine import dataset_constants, identify, initial_point
+from labrig.identification.engine import dataset_constants, identify
 from labrig.model.plants import plant_of_runs
-from labrig.identification.objective import Objective, build_space
+from labrig.identification.problem import Problem
 from labrig.identification.result import at_bounds
 from labrig.model.model import Model
 from labrig.analysis.noise import Weights
@@ -117,11 +117,8 @@ def thinned_fitness(runs, model: Model, fixed: dict, weights: Weights, reach) ->
     what a re-fit's own history is compared with (the screen,
     :func:`labrig.diagnosis.evidence.criteria.screen`); on all residuals it differs by a per cent
     or so, as much as a small effect gains."""
-    space = build_space(model.effects, None, fixed, reach=reach, plant=plant_of_runs(runs))
-    obj = Objective(runs, model.effects, space, p=weights.p, q=weights.q)
-    k = obj.thinning(SUBSAMPLE)   # as the re-fit thins them
-    R = obj.residuals_batch(space.to_search({**model.flat(), **fixed})[None, :], k)[0]
-    return float(np.sqrt(np.mean(R ** 2)))
+    problem = Problem(runs, model.effects, fixed=fixed, reach=reach, weights=weights)
+    return problem.thinned_fitness(model, SUBSAMPLE)   # as the re-fit thins them
 
 
 def _alternative_pole(params: dict, dt: float) -> dict:
@@ -210,8 +207,7 @@ def starts_for(runs, base_params: dict, effects, new, reach, fixed: dict,
                weights: Weights) -> list[dict]:
     """The best scanned start in each basin, best first (at most two), and the best start
     that shares a held threshold with the new effect (:data:`INPUT_THRESHOLDS`)."""
-    space = build_space(effects, None, fixed, reach=reach, plant=plant_of_runs(runs))
-    obj = Objective(runs, effects, space, p=weights.p, q=weights.q)
+    problem = Problem(runs, effects, fixed=fixed, reach=reach, weights=weights)
     grid = new.scan_grid(reach) if new is not None else {}
     npts = len(next(iter(grid.values()))) if grid else 1
     basins = [b for b in (base_params, _alternative_pole(base_params, reach.dt)) if b]
@@ -238,9 +234,8 @@ def starts_for(runs, base_params: dict, effects, new, reach, fixed: dict,
         sizes.append(len(pts) + len(shared))
     # parameters neither the base nor the grid sets (a user effect without a scan):
     # the identifiers' own starting point, once
-    fill = initial_point(space, effects, runs, dataset_constants(runs), base_params)
-    X = np.array([space.to_search({**fill, **pt}) for pt in points])
-    f = obj.fitness_batch(X)
+    fill = problem.initial_point(base_params)
+    f = problem.fitness([{**fill, **pt} for pt in points])
     best, at = [], 0
     for size in sizes:
         seg = f[at:at + size]
@@ -403,17 +398,16 @@ def simplex_polish(runs, effects, start: dict, fixed: dict, weights: Weights,
     capped at :data:`POLISH_BUDGET` residuals' worth of simulation."""
     from scipy.optimize import minimize
 
-    space = build_space(effects, None, fixed, reach=reach, plant=plant_of_runs(runs))
-    obj = Objective(runs, effects, space, p=weights.p, q=weights.q)
-    lo, hi = space.search_bounds()
-    x0 = space.to_search({**start, **fixed})
-    f0 = float(obj.fitness_batch(x0[None, :])[0])
+    problem = Problem(runs, effects, fixed=fixed, reach=reach, weights=weights)
+    lo, hi = problem.bounds_of_search()
+    x0 = problem.point(start)
+    f0 = float(problem.fitness_of_vectors(x0[None, :])[0])
     n = sum(len(r.u) for r in runs)
     x, f = x0, f0
     for _ in range(POLISH_RESTARTS):
         # a simplex collapses along the valley it found: a fresh one from where it ended
         # walks on while a pass still gains (a restarted Nelder-Mead)
-        res = minimize(lambda v: float(obj.fitness_batch(np.clip(v, lo, hi)[None, :])[0]), x,
+        res = minimize(lambda v: float(problem.fitness_of_vectors(np.clip(v, lo, hi)[None, :])[0]), x,
                        method="Nelder-Mead",
                        options=dict(maxfev=int(np.clip(POLISH_BUDGET / max(n, 1), 100, 2000)),
                                     xatol=1e-7, fatol=1e-10, adaptive=True))
@@ -424,7 +418,7 @@ def simplex_polish(runs, effects, start: dict, fixed: dict, weights: Weights,
             break
     if f >= f0:
         return None
-    return space.as_dict(space.to_physical(x)[0])
+    return problem.values(x)
 
 
 def _starts_in_motion(params) -> bool:
