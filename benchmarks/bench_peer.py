@@ -14,7 +14,7 @@ In ONE run, on this machine:
   starts in two basins, the cross-validation of the best four, the files written),
   median of 3 after a warm-up;
 * **the peer**: the round a scipy user writes: every catalogue effect the model lacks,
-  fitted from the *same* starts (labrig's own scan, `labrig.diagnosis.loop.refit.starts_for`) with
+  fitted from the *same* starts (labrig's own scan, `labrig.diagnosis.loop.starts.starts_for`) with
   `scipy.optimize.least_squares` (trf, the same bounds and coordinates, a 2-point
   Jacobian, the same evaluation limit), over a per-candidate simulation of the same
   model: `scipy.signal.lsim` of the servo's state space (`ServoParams.A_open/B_open/
@@ -139,7 +139,7 @@ def peer_round(runs_dir: Path, model_file: Path) -> dict:
     from labrig.identification.objective import build_space
     from labrig.diagnosis.loop.diagnose import balanced_weights, candidate_names
     from labrig.diagnosis.evidence.evaluation import evaluate
-    from labrig.diagnosis.loop.refit import starts_for
+    from labrig.diagnosis.loop.starts import starts_for
     from labrig.model.effects import get_effect
     from labrig.model.plants import plant_of_runs
     from labrig.model.reach import Reach

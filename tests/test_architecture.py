@@ -134,6 +134,17 @@ def test_modules_are_small():
     assert big == {}
 
 
+#: the loop's and experiment design's floors, read most: smaller still
+LOOP_MAX_LINES = 400
+
+
+def test_the_loop_and_design_modules_are_smaller():
+    big = {str(f.relative_to(PKG.parent)): n for folder in ("diagnosis", "design")
+           for f in (PKG / folder).rglob("*.py")
+           if (n := len(f.read_text().splitlines())) > LOOP_MAX_LINES}
+    assert big == {}
+
+
 def _part(module: str) -> str:
     parts = module.split(".")
     return parts[1] if len(parts) > 1 else "labrig"

@@ -76,7 +76,7 @@ def test_files_name_effects_in_any_case(tmp_path):
     from labrig.io.config import load_plan, load_rig
     from labrig.diagnosis.loop.diagnose import candidate_names
     from labrig.model.model import Model
-    from labrig.design.propose import default_pair
+    from labrig.design.pairs import default_pair
     from labrig.io.runs import read_dataset
 
     # a rig file: [effects.Deadband] is the dead zone, and the simulated rig plays it

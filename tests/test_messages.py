@@ -32,7 +32,7 @@ LONG_VERDICT = ("Add deadband: A symmetric dead zone of the bridge and amplifier
 
 
 def test_round_log_lines_are_wrapped_with_every_word_whole():
-    from labrig.diagnosis.loop.search import LOG_WIDTH, wrap_log
+    from labrig.diagnosis.loop.moves import LOG_WIDTH, wrap_log
 
     msg = f"round 2: {LONG_VERDICT}"
     text = wrap_log(msg)

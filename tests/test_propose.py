@@ -587,7 +587,7 @@ def test_default_pair_is_the_diagnosis_first_confusable_pair(tmp_path):
     """`diagnose --auto -o DIR` writes diagnosis.json beside model.json: propose takes its
     first confusable pair (an asymmetric dead zone asked about as a dead zone)."""
     from labrig.core.errors import UserError
-    from labrig.design.propose import pair_from_diagnosis
+    from labrig.design.pairs import pair_from_diagnosis
 
     model = tmp_path / "model.json"
     assert pair_from_diagnosis(model) is None

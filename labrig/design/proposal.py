@@ -6,20 +6,16 @@ decide'.
 """
 from __future__ import annotations
 
-import copy
 from dataclasses import dataclass, field
-
-import numpy as np
-import pandas as pd
 
 from labrig.core.display import Displayable
 from labrig.core.errors import UserError
 from labrig.core.tables import Table
 from labrig.io.runs import Run
 from labrig.design.inputs import MAX_POINTS, InputCandidate, why
+from labrig.design.synthetic import LEAD_IN_S, loop_keys, synthetic_run
 from labrig.model.model import Model
 
-LEAD_IN_S = 0.5
 #: what the naive ranking uses, in the words every text line uses
 DIFFERENCE = "sum of squared differences of the two predictions, in noise units"
 #: what a proposal is judged by: the decision's own measure (labrig.design.decide)
@@ -218,7 +214,7 @@ class Proposal(Displayable):
         """The plan's ``[[experiment]]`` table."""
         c = self.chosen.candidate
         return {"name": name, "loop": c.loop, "waveform": "pwl", "lead_in_s": LEAD_IN_S,
-                "sample_rate_hz": float(self.template.fs), **_loop_keys(c),
+                "sample_rate_hz": float(self.template.fs), **loop_keys(c),
                 "points": [[float(t), float(u)] for t, u in c.points],
                 "between": list(self.pair)}
 
@@ -366,48 +362,3 @@ class Proposal(Displayable):
         from labrig.design.plots import plot_proposal  # matplotlib: ~0.25 s to import
 
         return plot_proposal(self, ax=ax)
-
-
-def _loop_keys(cand: InputCandidate, fs: float | None = None) -> dict:
-    """A closed-loop input's gains, as a plan states them; with ``fs`` (a run's sidecar)
-    a board's own loop adds its controller and law at that rate, as labrig sweep records
-    them (labrig.bridge.settings.sampled_pd)."""
-    g = cand.gains
-    if g is None:
-        return {}
-    out = {"position_gain": float(g["kp"]), "velocity_gain": float(g["kv"])}
-    if fs is not None and "board" in g:
-        b = g["board"]
-        per = 256.0 / (b["volts_per_count"] * b["counts_per_unit"])   # Q8.8 per V/unit
-        out["controller"] = {"kind": "pd", "kp": float(g["kp"]), "kd": float(g["kv"]),
-                             "ki": 0.0, "feedback": "position",
-                             "sampled": {**b, "kp_q": int(round(g["kp"] * per)),
-                                         "kd_q": int(round(g["kv"] * fs * per))}}
-    return out
-
-
-def synthetic_run(template: Run, cand: InputCandidate, name: str, sim: dict | None = None,
-                  noise: dict | None = None, rng=None) -> Run:
-    """A run of ``cand`` as ``template``'s rig would record it: volts through the same
-    sensors, the model's prediction ``sim`` (``w``, ``theta``) plus seeded noise."""
-    fs = template.fs
-    u = cand.values(fs, LEAD_IN_S)
-    n = len(u)
-    cols = {"t": np.arange(n) / fs, "u": u}
-    w = np.zeros(n) if sim is None else sim["w"]
-    th = np.zeros(n) if sim is None else sim["theta"]
-    if noise is not None:
-        w = w + rng.normal(0.0, noise.get("speed", 0.0), n)
-        th = th + rng.normal(0.0, noise.get("position", 0.0), n)
-    if template.has_tacho:
-        cols["tacho"] = w * template.kt
-    elif template.has_speed:  # imported speed: stored as speed, as the template's is
-        cols["speed"] = w
-    if template.has_pos:
-        cols["pos"] = th * template.kpot + template.pos_offset
-    meta = copy.deepcopy(template.meta)
-    meta["experiment"] = {"loop": cand.loop, "waveform": "pwl", "lead_in_s": LEAD_IN_S,
-                          "points": cand.points, **_loop_keys(cand, fs)}
-    if cand.gains is not None:   # the reference, as the bridge records it
-        cols["ref"] = u
-    return Run(name=name, data=pd.DataFrame(cols), meta=meta)

@@ -10,7 +10,8 @@ import numpy as np
 
 from labrig.diagnosis.evidence.evaluation import evaluate
 from labrig.design.inputs import InputCandidate
-from labrig.design.proposal import DECISIVE, synthetic_run
+from labrig.design.proposal import DECISIVE
+from labrig.design.synthetic import synthetic_run
 from labrig.diagnosis.loop.refit import fit, refit_with
 from labrig.io.runs import Run
 from labrig.model.effects import get_effect

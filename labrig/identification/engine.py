@@ -26,7 +26,7 @@ from labrig.identification.identifiability import analyse_identifiability, time_
 from labrig.identification.jellyfish import jellyfish
 from labrig.identification.local import local, polish as _polish
 from labrig.identification.objective import Space
-from labrig.identification.problem import Problem, dataset_constants, initial_point
+from labrig.identification.problem import Problem, dataset_constants
 from labrig.identification.pso import pso
 from labrig.identification.settle import settle
 from labrig.identification.result import IdentResult

@@ -264,7 +264,7 @@ def _rig_limit(rig, rig_amplitude: bool):
 def proposed_as(name: str) -> str:
     """The effect a proposal tests in place of ``name`` (the symmetric form of an
     asymmetric one)."""
-    from labrig.design.propose import proposed_as as _as
+    from labrig.design.pairs import proposed_as as _as
 
     return _as(name)
 
@@ -272,7 +272,7 @@ def proposed_as(name: str) -> str:
 def pair_from_diagnosis(model_path) -> str | None:
     """The first confusable pair of the ``diagnosis.json`` beside a model that ``diagnose
     --auto -o DIR`` wrote, as ``"a,b"``; None when there is none."""
-    from labrig.design.propose import pair_from_diagnosis as _pair
+    from labrig.design.pairs import pair_from_diagnosis as _pair
 
     return _pair(model_path)
 

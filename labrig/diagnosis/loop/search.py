@@ -20,8 +20,6 @@ weights are fixed in the first round, so every rung of the ladder is judged alik
 """
 from __future__ import annotations
 
-import textwrap
-from dataclasses import dataclass, field
 from itertools import combinations
 from pathlib import Path
 
@@ -37,6 +35,7 @@ from labrig.model.effects import CATALOGUE, get_effect
 from labrig.model.model import Model, param_keys
 from labrig.model.reach import Reach
 from labrig.diagnosis.loop.refit import fresh_fit, refit, refit_with, without
+from labrig.diagnosis.loop.moves import Move, SearchResult, Step, say
 from labrig.diagnosis.evidence.resolution import unresolved
 
 #: the catalogue's effects that set how much drive it takes to move (``Effect.pair_rank``,
@@ -46,64 +45,6 @@ THRESHOLD_FAMILY = tuple(sorted((n for n, c in CATALOGUE.items() if c.pair_rank 
                                 key=lambda n: CATALOGUE[n].pair_rank))
 # a swap must lower the cross-validated error by SWAP_GAIN; a simpler family member may
 # be SIMPLER_MARGIN worse (the step-by-step diagnose uses the same two, hence imported)
-#: log lines are wrapped at this width (words whole, never cut)
-LOG_WIDTH = 100
-
-
-def wrap_log(text: str, width: int = LOG_WIDTH) -> str:
-    """One log message, wrapped at word boundaries with a hanging indent: continuation
-    lines line up under the text after the leading spaces and a label ending in ": "
-    (``round 2: ...``), so a long verdict is shown whole, never cut mid-word."""
-    body = text.lstrip(" ")
-    lead = text[:len(text) - len(body)]
-    label, sep, _ = body.partition(": ")
-    hang = lead + " " * (len(label) + len(sep) if sep and len(label) <= 12 else 4)
-    return textwrap.fill(body, width=width, initial_indent=lead, subsequent_indent=hang,
-                         break_long_words=False, break_on_hyphens=False)
-
-
-def _say(log, text: str) -> None:
-    if log:
-        log(wrap_log(text))
-
-
-@dataclass
-class Move:
-    """One step of the search: what changed and the cross-validated error after it."""
-
-    kind: str            # "add", "pair", "swap", "remove"
-    effects: list        # the effect(s) added, or [old, new] for a swap, [old] for a removal
-    cv_before: float
-    cv_after: float
-    round: int
-    replaces: list = field(default_factory=list)   # a pair fitted in place of these
-
-    @property
-    def label(self) -> str:
-        e = self.effects
-        if self.kind == "swap":
-            return f"{e[0]} -> {e[1]}"
-        if self.replaces:
-            return f"{', '.join(self.replaces)} -> {' + '.join(e)}"
-        return ("- " if self.kind == "remove" else "+ ") + ", ".join(e)
-
-    def to_json(self) -> dict:
-        out = {"kind": self.kind, "effects": list(self.effects), "label": self.label,
-               "cross_validated_before": self.cv_before, "cross_validated_after": self.cv_after,
-               "round": self.round}
-        if self.replaces:
-            out["replaces"] = list(self.replaces)
-        return out
-
-
-@dataclass
-class SearchResult:
-    rounds: list
-    ladder: Ladder
-    model: Model
-    moves: list = field(default_factory=list)
-
-
 class _Judge:
     """Evaluates and cross-validates models on the first round's terms."""
 
@@ -180,20 +121,6 @@ def _pool(ranking) -> list:
     return sorted(best.values(), key=lambda c: -c.improvement)[:PAIR_POOL]
 
 
-@dataclass
-class Step:
-    """A move the search considers: its kind ("add" or "pair"), the effects it adds (and
-    those it takes out in their place), the fitted model, its evaluation and its
-    cross-validated error."""
-
-    kind: str
-    names: list
-    model: Model
-    evaluation: object
-    cv: float
-    replaced: list = field(default_factory=list)
-
-
 def _pair(judge: _Judge, diag, log) -> Step | None:
     """The best pair of the leading candidates, when no single one is near the floor."""
     pool = _pool(diag.ranking)
@@ -220,7 +147,7 @@ def _pair(judge: _Judge, diag, log) -> Step | None:
         return None
     best = decide_ties(tried, lambda t: t[1].fitness, lambda t: simpler_first(t[2]))[0]
     m, ev = judge.or_fresh(best[0], best[1])
-    _say(log, f"  trying the pair {' + '.join(best[2])} (no single effect is near the floor)")
+    say(log, f"  trying the pair {' + '.join(best[2])} (no single effect is near the floor)")
     return Step("pair", best[2], m, ev, judge.cv(m))
 
 
@@ -251,7 +178,7 @@ def _threshold_pair(judge: _Judge, model, cv_now: float, log) -> Step | None:
     if judge.bic(m, ev) - judge.bic(model, judge.evaluate(model)) >= MIN_DBIC:
         return None
     cv = judge.cv(m)
-    _say(log, f"  trying the pair {' + '.join(names)}"
+    say(log, f"  trying the pair {' + '.join(names)}"
               + (f" in place of {', '.join(replaced)}" if replaced else "")
               + f" (no single effect earns its parameters): cross-validated {cv_now:.2f} -> "
                 f"{cv:.2f}")
@@ -287,7 +214,7 @@ def search(runs, model: Model | None = None, *, max_rounds: int = 3, seed: int =
         on_step(0, model)
     added = 0
     for k in range(1, max_rounds + 1):
-        _say(log, f"round {k}: {diag.verdict}")
+        say(log, f"round {k}: {diag.verdict}")
         step = None
         if diag.recommendation:
             c = diag.candidate(diag.recommendation)
@@ -328,7 +255,7 @@ def search(runs, model: Model | None = None, *, max_rounds: int = 3, seed: int =
             # run's start, a threshold's split): the same effects, better placed, are the
             # rung the next round climbs from and the answer if nothing more is added
             model, cv_now = diag.base, diag.cv_baseline.rmse
-            _say(log, f"  {' + '.join(model.names) or 'the model'} re-fitted where the "
+            say(log, f"  {' + '.join(model.names) or 'the model'} re-fitted where the "
                       f"candidates' fits found better values: held-out rmse/noise "
                       f"{ladder.steps[-1].cross_validated:.2f} -> {cv_now:.2f}")
             ladder.steps[-1] = LadderStep.of(ladder.steps[-1].label, model, diag.evaluation,
@@ -349,7 +276,7 @@ def _revise(judge, model, new, cv_now, moves, ladder, k, log, on_step):
         m = judge.add(without(model, old), alt)
         cv = judge.cv(m)
         if cv <= (1 + SIMPLER_MARGIN) * cv_now:
-            _say(log, f"  {alt} instead of {old}: as good on held-out data ({cv_now:.2f} -> "
+            say(log, f"  {alt} instead of {old}: as good on held-out data ({cv_now:.2f} -> "
                       f"{cv:.2f}) with fewer parameters")
             moves.append(Move("swap", [old, alt], cv_now, cv, k))
             model, cv_now = m, cv
@@ -361,7 +288,7 @@ def _revise(judge, model, new, cv_now, moves, ladder, k, log, on_step):
         m = judge.add(without(model, old), alt, carried=start)
         cv = judge.cv(m)
         if cv < (1 - MIN_GAIN) * cv_now and not judge.unresolved(m, [alt]):
-            _say(log, f"  {alt} in place of {old}: cross-validated {cv_now:.2f} -> {cv:.2f}")
+            say(log, f"  {alt} in place of {old}: cross-validated {cv_now:.2f} -> {cv:.2f}")
             moves.append(Move("swap", [old, alt], cv_now, cv, k))
             model, cv_now = m, cv
             _rung(ladder, model, judge, cv, on_step)
@@ -376,7 +303,7 @@ def _revise(judge, model, new, cv_now, moves, ladder, k, log, on_step):
             m = judge.add(reduced, alt)
             cv = judge.cv(m)
             if cv < (1 - SWAP_GAIN) * cv_now:
-                _say(log, f"  swap {old} -> {alt}: cross-validated {cv_now:.2f} -> {cv:.2f}")
+                say(log, f"  swap {old} -> {alt}: cross-validated {cv_now:.2f} -> {cv:.2f}")
                 moves.append(Move("swap", [old, alt], cv_now, cv, k))
                 model, cv_now = m, cv
                 _rung(ladder, model, judge, cv, on_step)
@@ -388,7 +315,7 @@ def _revise(judge, model, new, cv_now, moves, ladder, k, log, on_step):
             cv = judge.cv(m)
             # the mirror of adding: an effect stays when taking it out costs MIN_GAIN
             if cv < cv_now / (1 - MIN_GAIN):
-                _say(log, f"  remove {old}: cross-validated {cv_now:.2f} -> {cv:.2f} "
+                say(log, f"  remove {old}: cross-validated {cv_now:.2f} -> {cv:.2f} "
                           "without it")
                 moves.append(Move("remove", [old], cv_now, cv, k))
                 model, cv_now = m, cv
