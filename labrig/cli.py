@@ -177,21 +177,29 @@ def _main(argv=None) -> int:
         print("labrig: interrupted; finished runs are kept, the output is at 0 V", file=sys.stderr)
         return 130
     except Interrupted as exc:   # SIGTERM/SIGHUP (errors.Terminated): one line, 128 + signal
-        print(f"labrig: {exc}", file=sys.stderr)
+        print(f"labrig: {_as_typed(exc)}", file=sys.stderr)
         return exc.exit_code
     except LabrigError as exc:
         if debug:
             traceback.print_exc()
-        print(f"labrig: error: {exc}", file=sys.stderr)
+        print(f"labrig: error: {_as_typed(exc)}", file=sys.stderr)
         return exc.exit_code
     except BrokenPipeError:
         return 1
     except Exception as exc:  # a bug: say so plainly, keep the traceback behind --debug
         if debug:
             traceback.print_exc()
-        print(f"labrig: internal error: {type(exc).__name__}: {exc} "
+        print(f"labrig: internal error: {type(exc).__name__}: {_as_typed(exc)} "
               "(rerun with --debug and report it)", file=sys.stderr)
         return 1
+
+
+def _as_typed(exc: BaseException) -> str:
+    """A library error's text with its Python parameters named as the options typed
+    ("`method`" -> "--method"; :func:`labrig.commands.options.translate`)."""
+    from labrig.commands.options import translate
+
+    return translate(str(exc))
 
 
 def run() -> None:

@@ -236,7 +236,8 @@ def test_the_verbs_examples_run_as_written(monkeypatch):
                  "labrig.verbs.loop", "labrig.io.runs", "labrig.model.catalogue",
                  "labrig.identification.engine", "labrig.diagnosis.results.diagnosis",
                  "labrig.diagnosis.loop.auto", "labrig.diagnosis.results.ladder",
-                 "labrig.design.proposal"):
+                 "labrig.design.proposal", "labrig.model.model", "labrig.analysis.result",
+                 "labrig.diagnosis.evidence.evaluation", "labrig.identification.problem"):
         mod = importlib.import_module(name)
         res = doctest.testmod(mod, optionflags=doctest.ELLIPSIS)
         assert res.failed == 0, mod.__name__
@@ -251,11 +252,25 @@ RESULTS = ("Model", "Run", "AnalysisResult", "Identification", "Diagnosis", "Aut
 
 @pytest.mark.parametrize("name", RESULTS)
 def test_every_result_is_documented_as_an_api(name):
-    """Each public result's docstring lists its attributes (numpydoc Attributes)."""
+    """Each public result's docstring lists its attributes and shows it in use (numpydoc
+    Attributes and Examples)."""
     import inspect
 
     doc = inspect.getdoc(getattr(lr, name))
     assert re.search(r"^Attributes\n-+$", doc, re.M), name
+    assert re.search(r"^Examples\n-+$", doc, re.M), name
+
+
+#: the verbs that read files or fit: their docstrings say what they raise
+RAISING = ("sweep", "read_runs", "analyse", "identify", "add_effect", "remove_effect",
+           "diagnose", "auto", "propose", "decide", "compare", "ladder", "load_model")
+
+
+@pytest.mark.parametrize("name", RAISING)
+def test_every_verb_that_reads_or_fits_says_what_it_raises(name):
+    import inspect
+
+    assert re.search(r"^Raises\n-+$", inspect.getdoc(getattr(lr, name)), re.M), name
 
 
 def test_removing_an_effect_the_model_lacks_names_the_argument():

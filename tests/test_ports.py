@@ -51,7 +51,7 @@ def test_the_one_board_is_taken_and_two_are_named():
     two = Port("/dev/ttyACM1", 0x1A86, 0x7523, serial_number="B2", hello={"firmware": "labrig-fw 2.0.0 nano hbridge"})
     plain = Port("/dev/ttyS0")
     assert the_board([plain, one]) == "/dev/ttyACM0"
-    with pytest.raises(UserError, match=r"2 labrig boards .*/dev/ttyACM0 .*serial A1.*/dev/ttyACM1.*--port"):
+    with pytest.raises(UserError, match=r"2 labrig boards .*/dev/ttyACM0 .*serial A1.*/dev/ttyACM1.*`port`"):
         the_board([one, two])
     with pytest.raises(UserError, match="no labrig board found"):
         the_board([plain])

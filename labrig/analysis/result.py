@@ -234,6 +234,15 @@ class AnalysisResult(Displayable):
         separates the candidates.
     figure_paths : list of str
         Where the figures were saved (:meth:`record_figures`); ``"figures"`` in the JSON.
+
+    Examples
+    --------
+    >>> import labrig as lr
+    >>> res = lr.analyse("data/sweep_default")
+    >>> round(res.deadband_v, 2), res.gain_trend
+    (..., '...')
+    >>> res.to_json()["deadband_v"] == res.deadband_v
+    True
     """
 
     deadband_v: float | None

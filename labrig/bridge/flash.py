@@ -209,10 +209,10 @@ def default_port() -> str:
         return boards[0].device
     if not boards:
         raise UserError("port: no Arduino-class board found (labrig ports lists every serial "
-                        "port); plug it in, or give --port")
+                        "port); plug it in, or give `port`")
     listed = "; ".join(f"{p.device} ({p.kind}, serial {p.serial_number or '-'})" for p in boards)
     raise UserError(f"port: {len(boards)} Arduino-class boards are connected ({listed}); "
-                    "choose one with --port")
+                    "choose one with `port`")
 
 
 def flash(board: str, rig=None, port: str | None = None, *, programmer: str | None = None,
@@ -270,7 +270,7 @@ def flash(board: str, rig=None, port: str | None = None, *, programmer: str | No
         tail = " | ".join([ln.strip() for ln in (r.stdout + r.stderr).splitlines()
                            if ln.strip()][-3:])
         hint = (" -- the bootloader did not answer: a Nano clone often has the old one "
-                "(--board nano-old); check the board and the port"
+                "(`board=nano-old`); check the board and the port"
                 if "sync" in tail or "not responding" in tail else "")
         raise RigError(f"avrdude failed (exit {r.returncode}): {tail}{hint}")
     result = FlashResult(spec, Path(image), source, cmd)
@@ -294,7 +294,7 @@ def confirm(port: str, spec: Board, rig=None, *, timeout: float = 6.0) -> dict:
     if not hello:
         raise RigError(f"the upload ended, but the board on {port} does not greet as labrig "
                        "firmware: press its reset button and try labrig ports; a Nano clone "
-                       "may need --board nano-old")
+                       "may need `board=nano-old`")
     want = f"labrig-fw {FIRMWARE_VERSION} {spec.build} {rig.bridge.firmware if rig else 'ms150'}"
     if hello.get("firmware") != want:
         raise RigError(f"the board on {port} greets as {hello.get('firmware')!r} after the "

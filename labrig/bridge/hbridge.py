@@ -75,7 +75,7 @@ def check_board(rig, hello: dict, port: str) -> None:
     if want != have:
         raise RigError(f"the board on {port} runs the {have} firmware ({hello.get('firmware')}), "
                        f"but the rig file describes an {want} rig: {flash}, or give the "
-                       "rig file that matches the board (--rig)")
+                       "rig file that matches the board (`rig`)")
     from labrig.bridge.trips import FIRST_VERSION
 
     if (b.trip_speed or b.trip_position or b.estop) and firmware_version(hello) < FIRST_VERSION:
@@ -92,7 +92,7 @@ def check_board(rig, hello: dict, port: str) -> None:
         raise RigError(
             f"the board on {port} has a {hello['dac_bits']}-bit output word, the rig file "
             f"{int(b.dac_bits)} bits ([bridge] dac_bits{', pwm_bits' if want == 'hbridge' else ''}): "
-            "give the rig file of this board (--rig) or flash the firmware it describes")
+            "give the rig file of this board (`rig`) or flash the firmware it describes")
     if want != "hbridge":
         return
     from labrig.bridge import protocol as P

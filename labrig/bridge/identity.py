@@ -74,8 +74,8 @@ def settle(ask, version: tuple, *, expected: int | None = None, port: str = "",
             raise RigError(f"the board on {port} cannot say which it is (firmware "
                            f"{'.'.join(map(str, version))}; ids from "
                            f"{'.'.join(map(str, FIRST_VERSION))}): flash it (labrig flash), or "
-                           "leave out --board-id")
+                           "leave out `board_id`")
         raise RigError(f"the board on {port} is {format_board_id(have)}, not "
-                       f"{format_board_id(expected)} (--board-id): is this bench's board on "
+                       f"{format_board_id(expected)} (`board_id`): is this bench's board on "
                        "another port? labrig ports lists them")
     return have

@@ -184,9 +184,9 @@ def the_board(ports: list[Port], board_id: int | None = None) -> str:
         return boards[0].device
     if not boards:
         raise UserError("port: no labrig board found (labrig ports lists what is connected); "
-                        "plug it in and flash it, or give --port")
+                        "plug it in and flash it, or give `port`")
     listed = "; ".join(f"{p.device} ({p.hello.get('firmware')}, id "
                        f"{P.format_board_id(p.hello.get('board_id'))}, serial {p.serial_number or '-'})"
                        for p in boards)
     raise UserError(f"port: {len(boards)} labrig boards are connected ({listed}); choose one "
-                    "with --port or --board-id")
+                    "with `port` or `board_id`")

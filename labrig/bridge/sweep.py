@@ -200,7 +200,7 @@ def sweep(bridge: Bridge, plan: list[Experiment], rig, outdir: Path | str, *,
         if run_exists(outdir, exp.name):
             if resume:
                 continue
-            raise UserError(f"{outdir / exp.name}.json exists; use --resume to continue this "
+            raise UserError(f"{outdir / exp.name}.json exists; use `resume` to continue this "
                             "sweep or choose an empty output folder")
         todo.append(exp)
     remove_stale_tmp(outdir, [exp.name for exp in plan])
@@ -259,7 +259,7 @@ class TripError(RigError):
         super().__init__(
             f"run '{name}': {why} after sample {trip.get('after_sample')} ({text}); the run "
             f"is kept in {outdir} up to there and the sweep stopped. Check the rig before "
-            f"going on ({check}), then continue with --resume")
+            f"going on ({check}), then continue with `resume`")
 
 
 class LossError(RigError):
@@ -274,7 +274,7 @@ class LossError(RigError):
             f"{len(lossy)} run(s) in {outdir} lost more samples on the link than [bridge] "
             f"max_lost_fraction = {tolerance:g} allows: {worst}; they are written with the "
             "lost samples flagged as gaps (never fitted as measured): use a shorter or "
-            "shielded USB cable, a lower sample rate, or --resume after removing them"
+            "shielded USB cable, a lower sample rate, or `resume` after removing them"
             + (f"; and {also}" if also else ""))
 
 
@@ -292,4 +292,4 @@ class EncoderError(RigError):
             "encoder's record in their sidecar (bridge.encoder), but a position after lost "
             "counts is not the shaft's (labrig will not read them): check the encoder's "
             "wiring and supply, lower the speed or the decoding (bridge.decoding), then remove them and play them again "
-            "(--resume keeps the others)")
+            "(`resume` keeps the others)")

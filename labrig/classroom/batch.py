@@ -108,7 +108,7 @@ class Check(Task):
         if not model.exists():
             raise UserError(f"{folder.name}: no {model.name}; hand in the model saved by "
                             "`labrig identify -o` or `labrig diagnose -o`, or name it "
-                            "with --model")
+                            "with `model`")
         res = lr.check_mystery(mystery, model, tolerance=options.get("tolerance", 20.0) / 100.0)
         res["file"], res["model"] = mystery.name, model.name  # no worker paths in the output
         figs = {"pass": res["pass"], "score": res["score"],
@@ -126,7 +126,7 @@ def _one(folder: Path, pattern: str, what: str, given: str | None) -> Path:
     found = sorted(folder.glob(pattern))
     if len(found) != 1:
         raise UserError(f"{folder.name}: {len(found)} {what}s ({pattern}); put exactly one "
-                        "in the folder or give it with --mystery")
+                        "in the folder or give it with `mystery`")
     return found[0]
 
 
@@ -360,7 +360,7 @@ def check_scheduler(scheduler: str) -> None:
     """A Dask scheduler address with a host and a port (1-65535), or one line."""
     m = _ADDRESS.match(scheduler)
     if m is None or (m.group(1) is not None and not 0 < int(m.group(1)) < 65536):
-        raise UserError(f"--scheduler: '{scheduler}' is not an address like "
+        raise UserError(f"`scheduler`: '{scheduler}' is not an address like "
                         "tcp://HOST:8786 (a protocol, a host and a port from 1 to 65535)")
 
 
@@ -372,11 +372,11 @@ def _dask(scheduler, task, work, options):
     try:
         from dask.distributed import Client, as_completed  # only for --scheduler; may be missing
     except ImportError:  # pragma: no cover - a dependency, but say what to install
-        raise UserError("--scheduler needs dask.distributed: pip install 'dask[distributed]'")
+        raise UserError("`scheduler` needs dask.distributed: pip install 'dask[distributed]'")
     try:
         client = Client(scheduler, timeout="10s")
     except (OSError, TimeoutError) as exc:
-        raise UserError(f"--scheduler: cannot reach {scheduler} ({exc}); start one with "
+        raise UserError(f"`scheduler`: cannot reach {scheduler} ({exc}); start one with "
                         "`dask scheduler` and workers with `dask worker ADDRESS`") from None
     with client:
         futures = {client.submit(run_one, task, name, files, options, 1, shown, pure=False,

@@ -5,6 +5,7 @@ import sys
 from pathlib import Path
 
 from labrig.commands.registry import command, emit_json, float_opt, refuse_existing
+from labrig.commands.options import translate
 from labrig.commands.progress import Progress
 from labrig.core.defaults import METHOD
 from labrig.core.errors import UserError
@@ -51,6 +52,8 @@ def cmd_batch(args):
 
         res = run_batch(args.task, args.folders, options=options, jobs=args.jobs,
                         scheduler=args.scheduler, progress=progress)
+    for row in res.rows:   # a folder's error as the command line says it (--model, ...)
+        row["error"] = translate(row["error"])
     write_batch(res, out)
     if args.json:
         emit_json({**res.to_json(), "output": str(out)})

@@ -10,7 +10,13 @@ class LabrigError(Exception):
 
 
 class UserError(LabrigError):
-    """Bad input, bad option, missing file: the user can fix it (exit 2)."""
+    """Bad input, bad option, missing file: the user can fix it (exit 2).
+
+    The message names a parameter as the Python caller passes it, in backticks:
+    "`method`: unknown method 'x'", or with its value, "only with `loop=closed`". The
+    command line shows each as its option ("--method", "--loop closed"; see
+    ``labrig.commands.options``), so a notebook reads Python and a terminal reads options.
+    """
 
     exit_code = 2
 

@@ -12,22 +12,22 @@ from labrig.model.model import Model
 
 
 def default_pair(model: Model, between: str | None) -> tuple:
-    """``--between a,b``; else the model's effect and its usual rival."""
+    """``between="a,b"``; else the model's effect and its usual rival."""
     if between:
         names = [catalogue_name(n.strip()) for n in between.split(",") if n.strip()]
         if len(names) != 2:
-            raise UserError(f"--between: give two effects, e.g. deadband,coulomb_friction; got "
+            raise UserError(f"`between`: give two effects, e.g. deadband,coulomb_friction; got "
                             f"{between!r}")
         for n in names:
             get_effect(n)   # an unknown name fails here, with the catalogue listed
         if names[0] == names[1]:
-            raise UserError("--between: the two effects must differ")
+            raise UserError("`between`: the two effects must differ")
         return tuple(names)
     for e in model.effects:
         if e.rival:
             return e.name, e.rival
     raise UserError("the model has no effect with a usual look-alike (dead zone, friction, "
-                    "stiction, delay, backlash); name the pair with --between a,b")
+                    "stiction, delay, backlash); name the pair with `between=a,b`")
 
 
 def pair_from_diagnosis(model_path) -> str | None:
@@ -44,7 +44,7 @@ def pair_from_diagnosis(model_path) -> str | None:
     pair = pairs[0].get("pair") if isinstance(pairs[0], dict) else None
     if not (isinstance(pair, list) and len(pair) == 2 and all(isinstance(n, str) for n in pair)):
         raise UserError(f"{path}: key 'confusable.0.pair' is not two effect names; give the "
-                        "pair with --between a,b")
+                        "pair with `between=a,b`")
     return ",".join(proposed_as(n) for n in pair)
 
 

@@ -235,17 +235,17 @@ def propose(runs: list[Run], model: Model, between: str | None = None, *,
     ready()  # a first compile is announced and kept out of the timing
     t0 = time.perf_counter()
     if not 1.0 <= budget_s <= 600.0:
-        raise UserError(f"--budget-s: {budget_s:g} s; give 1 to 600 s of new data")
+        raise UserError(f"`budget_s`: {budget_s:g} s; give 1 to 600 s of new data")
     opened = [r for r in runs if r.loop == "open"]
     if not opened:
         raise UserError("propose needs at least one open-loop run (its rig plays the input)")
     if loop not in ("open", "closed", "any"):
-        raise UserError(f"--loop: {loop!r}; give open, closed or any")
+        raise UserError(f"`loop`: {loop!r}; give open, closed or any")
     gains = None if loop == "open" else loop_gains(runs, rig)
     if loop != "open" and gains is None:
-        raise UserError(f"--loop {loop}: neither the data nor the rig file show the rig's "
+        raise UserError(f"`loop={loop}`: neither the data nor the rig file show the rig's "
                         "analog position loop; record a closed-loop run (a plan's loop = "
-                        "\"closed\") or give --rig with a tacho and a pot")
+                        "\"closed\") or give `rig` with a tacho and a pot")
     pair = default_pair(model, between)
     say = log or (lambda s: None)
     # the pair's effects, and any of their families (a dead zone for a dead zone), go out
@@ -279,7 +279,7 @@ def propose(runs: list[Run], model: Model, between: str | None = None, *,
         cands += closed_candidates(threshold=threshold, amax=amax, gains=gains,
                                    tau=float(tau_loop), budget_s=budget_s, dt=template.dt)
     if not cands:
-        raise UserError(f"--budget-s: no candidate input fits in {budget_s:g} s; allow more")
+        raise UserError(f"`budget_s`: no candidate input fits in {budget_s:g} s; allow more")
     say(f"simulating {len(cands)} candidate inputs with {sum(map(len, family))} plausible "
         "models")
     syn = [synthetic_run(template, c, f"cand{k}") for k, c in enumerate(cands)]
@@ -304,7 +304,7 @@ def propose(runs: list[Run], model: Model, between: str | None = None, *,
         raise UserError(f"every candidate input drives the axis further than the data did "
                         f"(+{up:.3g} / -{down:.3g} {template.units[0]} from the start) in "
                         f"{budget_s:g} s; record a run with more travel, or give a shorter "
-                        "--budget-s")
+                        "`budget_s`")
     leaders = _leaders(judged)
     truths = _truth_order(hyps)
     say(f"re-fitting the rival to each of {len(leaders)} leading inputs played on "

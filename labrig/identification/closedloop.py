@@ -53,7 +53,7 @@ def as_open_loop(run: Run) -> Run:
 def choose_way(runs: list[Run], through: str = "auto") -> tuple[list[Run], Way]:
     """The runs as they will be fitted, and the way chosen (see the module text)."""
     if through not in WAYS:
-        raise UserError(f"--through: '{through}' unknown; choose {', '.join(WAYS)}")
+        raise UserError(f"`through`: '{through}' unknown; choose {', '.join(WAYS)}")
     closed = [r for r in runs if r.loop == "closed"]
     if not closed:
         return runs, Way("open", "open-loop runs: the input drives the plant directly")
@@ -64,9 +64,9 @@ def choose_way(runs: list[Run], through: str = "auto") -> tuple[list[Run], Way]:
     if through == "input":
         if len(logged) < len(closed):
             missing = next(r.name for r in closed if "drive" not in r.data)
-            raise UserError(f"--through input: run '{missing}' has no logged controller output "
-                            "(column 'drive'); fit it through the loop (--through loop) or "
-                            "import the controller output with --map u=COLUMN,ref=COLUMN")
+            raise UserError(f"`through=input`: run '{missing}' has no logged controller output "
+                            "(column 'drive'); fit it through the loop (`through=loop`) or "
+                            "import the controller output with `mapping=u=COLUMN,ref=COLUMN`")
         why = ("fitted from the logged controller output as the plant's input: the plant "
                "is seen directly, whatever the controller (a stiff loop hides the plant "
                "when fitted through it)")
@@ -77,7 +77,7 @@ def choose_way(runs: list[Run], through: str = "auto") -> tuple[list[Run], Way]:
         if c.get("ki"):
             raise UserError(f"run '{r.name}': its controller has an integral term (ki = "
                             f"{c['ki']:g}), which labrig does not simulate through the loop; fit "
-                            "from the logged controller output (--through input)")
+                            "from the logged controller output (`through=input`)")
     why = ("fitted through the loop: the reference is the input and the controller's gains "
            "are part of the model" + ("" if logged else
                                       "; no controller output was logged") +

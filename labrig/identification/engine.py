@@ -48,10 +48,9 @@ def _run_pso(obj, lo, hi, x0, o):
 
 #: a start of CO's multi-start search still going after this many evaluations of the
 #: residuals is crawling (along an electrical pole the data do not resolve, typically, one
-#: start in four) and is ended there: it loses by far (cost 170 against 114 on the
-#: README's five-run case) after scipy's limit of 100 per parameter, while the starts
-#: that win converge within 12-40 (measured on the README's and the shipped sweeps). The
-#: best start's fit is unchanged: it ends long before.
+#: start in four) and is ended there: such a start loses by far when it reaches scipy's
+#: limit of 100 per parameter, while the starts that win converge well within this many.
+#: The best start's fit is unchanged: it ends long before.
 START_MAX_NFEV = 100
 
 
@@ -382,13 +381,53 @@ def identify(runs, method: str = METHOD, effects: list[Effect] = (), *, seed: in
     o = options if options is not None else FitOptions(**settings)
     method = method.lower() if isinstance(method, str) else method  # "JFO" is jfo
     if method not in METHODS:
-        raise UserError(f"--method: unknown method '{method}'; choose {', '.join(METHODS)} or all")
+        raise UserError(f"`method`: unknown method '{method}'; choose {', '.join(METHODS)} or all")
     if not runs:
         raise UserError("the data set is empty: give a folder with at least one run")
-    require_excitation(runs, "identify")
     problem = Problem(runs, effects, fixed=fixed, bounds=bounds, reach=reach or Reach.of(runs),
                       weights=Weights(p=o.p, q=o.q), masks=masks, c=o.c,
                       start_state=o.start_state)
+    return solve(problem, method, seed=seed, start=start, options=o, callback=callback,
+                 dataset=dataset)
+
+
+def solve(problem: Problem, method: str = METHOD, *, seed: int | None = SEED,
+          start=None, options: FitOptions | None = None, callback=None,
+          dataset: dict | None = None, **settings) -> Identification:
+    """Fit a :class:`~labrig.identification.problem.Problem`: the one entry to fitting
+    (:func:`identify` builds the problem from its arguments and calls this).
+
+    Parameters
+    ----------
+    problem : Problem
+        The runs, the structure, what is fixed, the weights, the folds' samples and the
+        reach. Its weights and start state are the fit's (``options``' ``p``, ``q``,
+        ``c`` and ``start_state`` are the problem's, not read here).
+    method : {"jfo", "pso", "co"}
+    seed : int or None
+        As :func:`identify`'s.
+    start : Model or dict, optional
+        Where to start: a model, or its flat parameters.
+    options : FitOptions, optional
+        The tuning options; or give its fields as keywords (``settings``).
+    callback : callable, optional
+        ``callback(iteration, fitness)`` as the optimiser goes.
+    dataset : dict, optional
+        What the fit's record says of its data set.
+
+    Returns
+    -------
+    Identification
+        The fit; :meth:`Identification.model` is the fitted Model.
+    """
+    o = options if options is not None else FitOptions(**settings)
+    method = method.lower() if isinstance(method, str) else method
+    if method not in METHODS:
+        raise UserError(f"`method`: unknown method '{method}'; choose {', '.join(METHODS)}")
+    runs = problem.runs
+    require_excitation(runs, "identify")
+    if isinstance(start, Model):
+        start = start.flat()
     effects, space, obj = problem.effects, problem.space, problem.objective
     t0 = time.perf_counter()  # after the simulator is ready: a first compile is not fitting
     constants = dataset_constants(runs)
@@ -432,7 +471,8 @@ def identify(runs, method: str = METHOD, effects: list[Effect] = (), *, seed: in
     if any(st.fitted for st in space.starts):  # the runs' starts, as decided and fitted
         dataset["starts"] = start_report(space.starts, space.as_dict(phys))
     # with the identifiability report only: the loop's re-fits never show them
-    notes = _channel_notes(obj, o.p, o.q, space.as_dict(phys), constants) \
+    notes = _channel_notes(obj, problem.weights.p, problem.weights.q, space.as_dict(phys),
+                           constants) \
         if o.identifiability else None
     if notes:
         dataset.update(notes)

@@ -154,16 +154,16 @@ def build_space(effects: list[Effect], bounds: dict | None = None, fixed: dict |
     back = {key: name for name, (key, _) in shown.items()}   # as the output names them
     listed = ", ".join(back.get(n, n) for n in names)
     if bounds:
-        raise UserError(f"--bounds: unknown parameter '{sorted(bounds)[0]}'; the model has "
+        raise UserError(f"`bounds`: unknown parameter '{sorted(bounds)[0]}'; the model has "
                         f"{listed}")
     for n, v in fixed.items():
         if n not in names and not is_start_key(n):  # (a run's start joins with the runs)
-            raise UserError(f"--fix: unknown parameter '{n}'; the model has {listed}")
+            raise UserError(f"`fixed`: unknown parameter '{n}'; the model has {listed}")
     for n, a, b in zip(names, lo, hi):
         if not a < b:
-            raise UserError(f"--bounds: {n} has lower {a:g} >= upper {b:g}")
+            raise UserError(f"`bounds`: {n} has lower {a:g} >= upper {b:g}")
     if len([n for n in fixed if not is_start_key(n)]) >= len(names):
-        raise UserError("--fix: every parameter is fixed; nothing left to identify")
+        raise UserError("`fixed`: every parameter is fixed; nothing left to identify")
     return Space(names, np.array(lo, float), np.array(hi, float), np.array(log), fixed, plant)
 
 

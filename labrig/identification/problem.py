@@ -83,7 +83,7 @@ class Problem:
     --------
     >>> import labrig as lr
     >>> from labrig.identification.problem import Problem
-    >>> runs = lr.load_runs("data/sweep_default")  # doctest: +SKIP
+    >>> runs = lr.read_runs("data/sweep_default")
     >>> model = lr.identify(runs).model()  # doctest: +SKIP
     >>> Problem.of(runs, model).fitness([model])  # doctest: +SKIP
     """
@@ -98,7 +98,7 @@ class Problem:
         self.reach = reach
         self.weights = weights or Weights()
         self.masks = masks
-        self.plant = plant if plant is not None else plant_of_runs(self.runs)
+        self._plant = plant
         self.c = c
         self.start_state = start_state
 
@@ -106,6 +106,11 @@ class Problem:
     def of(cls, runs, model: Model, **kw) -> "Problem":
         """The problem of ``model``'s structure (its effects, its plant) on ``runs``."""
         return cls(runs, model.effects, plant=model.plant_class, **kw)
+
+    @cached_property
+    def plant(self):
+        """The plant class: the one given, else the runs'."""
+        return self._plant if self._plant is not None else plant_of_runs(self.runs)
 
     @cached_property
     def space(self) -> Space:

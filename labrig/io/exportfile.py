@@ -176,7 +176,7 @@ def _no_header(path: Path, lines: list[str], ended: bool, wanted: list[str],
     if skip_rows is not None:
         i = skip_rows
         if not lines[i].strip():
-            return RunFileError(f"{path}: --skip-rows {skip_rows}: line {i + 1} is blank; give "
+            return RunFileError(f"{path}: `skip_rows={skip_rows}`: line {i + 1} is blank; give "
                                 "the number of lines before the header row")
         sep = max(dict.fromkeys([sniffed or ",", *SEPARATORS]),
                   key=lambda s: len(_split(lines[i], s)))
@@ -191,18 +191,18 @@ def _no_header(path: Path, lines: list[str], ended: bool, wanted: list[str],
         what = f"it holds {held[0]!r}" if held else "nor with ';', a tab or spaces"
         return RunFileError(f"{path}: the header did not split into columns with {sep!r} "
                             f"({what}); save the export with ',' or ';' between columns "
-                            "(one separator throughout) and the --map names in its header")
+                            "(one separator throughout) and the `mapping` names in its header")
     missing = next(c for c in wanted if c not in cells)
     close = difflib.get_close_matches(missing, cells, n=1, cutoff=0.6)
     hint = f" (did you mean '{close[0]}'?)" if close else ""
     where = "the header" if i == 0 else f"the header (line {i + 1})"
     text = f"{path}: column '{missing}' not found{hint}; {where} has {_shown(cells)}"
     if skip_rows is not None:
-        text += (f"; --skip-rows {skip_rows} makes line {i + 1} the header: give the number "
+        text += (f"; `skip_rows={skip_rows}` makes line {i + 1} the header: give the number "
                  "of lines before the header row")
     elif best is None and (len(lines) > len(window) or not ended):
         text += (f"; no line of the first {len(window)} names {', '.join(wanted)}: give "
-                 "--skip-rows N, the number of lines before the header row")
+                 "`skip_rows=N`, the number of lines before the header row")
     return RunFileError(text)
 
 
@@ -220,7 +220,7 @@ def scan_export(path: Path | str, columns: list[str],
         raise RunFileError(f"{path}: {size / 1e9:.1f} GB is more than labrig reads in one "
                            f"run ({MAX_CSV_BYTES / 1e9:.0f} GB); split the recording")
     if skip_rows is not None and skip_rows < 0:
-        raise RunFileError(f"--skip-rows: {skip_rows} is not a number of lines; give 0 or "
+        raise RunFileError(f"`skip_rows`: {skip_rows} is not a number of lines; give 0 or "
                            "more, the number of lines before the header row")
     top = HEADER_SEARCH_LINES if skip_rows is None else skip_rows + 1
     lines, ended = _head(path, top + MAX_UNIT_LINES + 50)
@@ -229,13 +229,13 @@ def scan_export(path: Path | str, columns: list[str],
     if skip_rows is not None and skip_rows >= len(lines):
         where = f"{path} has only {len(lines)} lines" if ended else \
             f"the header must be within the first {HEAD_BYTES / 1e6:.0f} MB of {path}"
-        raise RunFileError(f"--skip-rows {skip_rows}: {where}; give the number of lines "
+        raise RunFileError(f"`skip_rows={skip_rows}`: {where}; give the number of lines "
                            "before the header row")
     window = [skip_rows] if skip_rows is not None else list(range(min(top, len(lines))))
     if skip_rows is None and not any(lines[i].strip() for i in window):
         raise RunFileError(f"{path}: no header in the first {top} lines (they "
                            f"are blank, or longer than {HEAD_BYTES / 1e6:.0f} MB); give "
-                           "--skip-rows N, the number of lines before the header row")
+                           "`skip_rows=N`, the number of lines before the header row")
     wanted = list(dict.fromkeys(columns))
     sniffed = _sniff(lines[window[0]:])
     rejected = best = None

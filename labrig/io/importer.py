@@ -52,19 +52,19 @@ def parse_map(text: str) -> dict[str, str]:
     out = {}
     for item in filter(None, (s.strip() for s in text.split(","))):
         if "=" not in item:
-            raise UserError(f"--map: '{item}' is not TARGET=COLUMN (e.g. t=Time,u=CH1,speed=RPM)")
+            raise UserError(f"`mapping`: '{item}' is not TARGET=COLUMN (e.g. t=Time,u=CH1,speed=RPM)")
         key, col = (s.strip() for s in item.split("=", 1))
         if key not in MAP_TARGETS:
-            raise UserError(f"--map: unknown target '{key}'; expected one of {', '.join(MAP_TARGETS)}")
+            raise UserError(f"`mapping`: unknown target '{key}'; expected one of {', '.join(MAP_TARGETS)}")
         out[key] = col
     if "t" not in out:
-        raise UserError("--map: 't=COLUMN' missing; t and u (or ref, in closed loop) are required")
+        raise UserError("`mapping`: 't=COLUMN' missing; t and u (or ref, in closed loop) are required")
     if "u" not in out and "ref" not in out:
-        raise UserError("--map: 'u=COLUMN' missing; t and u (or ref, in closed loop) are required")
+        raise UserError("`mapping`: 'u=COLUMN' missing; t and u (or ref, in closed loop) are required")
     if not ({"speed", "tacho", "pos"} & set(out)):
-        raise UserError("--map: map at least one of speed=, tacho= or pos=")
+        raise UserError("`mapping`: map at least one of speed=, tacho= or pos=")
     if "speed" in out and "tacho" in out:
-        raise UserError("--map: give speed= (physical units) or tacho= (volts), not both")
+        raise UserError("`mapping`: give speed= (physical units) or tacho= (volts), not both")
     return out
 
 
@@ -78,20 +78,20 @@ def parse_controller(text: str | None) -> dict | None:
     for item in filter(None, (s.strip() for s in rest.split(","))):
         key, _, val = item.partition("=")
         if key.strip() not in names:
-            raise UserError(f"--controller: unknown gain '{key.strip()}'; use kp, kd, ki, limit "
+            raise UserError(f"`controller`: unknown gain '{key.strip()}'; use kp, kd, ki, limit "
                             "(e.g. pd:kp=2,kd=0.1)")
         try:
             body[names[key.strip()]] = float(val)
         except ValueError:
-            raise UserError(f"--controller: '{item}' is not NAME=NUMBER") from None
+            raise UserError(f"`controller`: '{item}' is not NAME=NUMBER") from None
     if body["kind"] not in ("pd", "pid"):
-        raise UserError(f"--controller: kind '{kind}' unknown; use pd or pid (e.g. pd:kp=2,kd=0.1)")
+        raise UserError(f"`controller`: kind '{kind}' unknown; use pd or pid (e.g. pd:kp=2,kd=0.1)")
     if "kp" not in body:
-        raise UserError("--controller: kp missing (e.g. pd:kp=2,kd=0.1)")
+        raise UserError("`controller`: kp missing (e.g. pd:kp=2,kd=0.1)")
     if body["kind"] == "pd" and body.get("ki"):
-        raise UserError("--controller: a pd controller has no ki; write pid:kp=..,kd=..,ki=..")
+        raise UserError("`controller`: a pd controller has no ki; write pid:kp=..,kd=..,ki=..")
 
-    return validate(Controller, body, "--controller", UserError).model_dump(exclude_none=True)
+    return validate(Controller, body, "`controller`", UserError).model_dump(exclude_none=True)
 
 
 def _units(axis: str, pos_unit: str, speed_unit: str) -> tuple[float | None, float, float]:
@@ -102,12 +102,12 @@ def _units(axis: str, pos_unit: str, speed_unit: str) -> tuple[float | None, flo
         except ValueError:
             per = float("nan")
         if not math.isfinite(per) or per <= 0:
-            raise UserError(f"--pos-unit: '{pos_unit}' is not counts:N with N > 0 counts per "
+            raise UserError(f"`pos_unit`: '{pos_unit}' is not counts:N with N > 0 counts per "
                             f"{'revolution' if axis == 'rotary' else 'metre'}")
         return (per / (2 * math.pi) if axis == "rotary" else per), 1.0, \
-            _factor("--speed-unit", speed_unit, SPEED_UNITS, axis)
-    return None, _factor("--pos-unit", pos_unit, POS_UNITS, axis), \
-        _factor("--speed-unit", speed_unit, SPEED_UNITS, axis)
+            _factor("`speed_unit`", speed_unit, SPEED_UNITS, axis)
+    return None, _factor("`pos_unit`", pos_unit, POS_UNITS, axis), \
+        _factor("`speed_unit`", speed_unit, SPEED_UNITS, axis)
 
 
 def _factor(opt, unit, table, axis):
@@ -116,10 +116,10 @@ def _factor(opt, unit, table, axis):
     other = "linear" if axis == "rotary" else "rotary"
     if unit in table[other]:
         raise UserError(f"{opt}: '{unit}' is a unit of a {other} axis, and this import is "
-                        f"{axis}; add --axis {other} (with --drive force for a linear axis) or "
+                        f"{axis}; add `axis={other}` (with `drive=force` for a linear axis) or "
                         f"use {', '.join(table[axis])}")
     raise UserError(f"{opt}: unknown unit '{unit}'; expected one of {', '.join(table[axis])}"
-                    + (", counts:N" if opt == "--pos-unit" else ""))
+                    + (", counts:N" if opt == "`pos_unit`" else ""))
 
 
 def read_columns(src: Path, columns: list[str],
@@ -128,7 +128,7 @@ def read_columns(src: Path, columns: list[str],
     MATLAB .mat file (no layout)."""
     if src.suffix.lower() == ".mat":
         if skip_rows is not None:
-            raise UserError(f"--skip-rows: only for a CSV export; {src.name} is a MATLAB file")
+            raise UserError(f"`skip_rows`: only for a CSV export; {src.name} is a MATLAB file")
         return read_mat_columns(src, columns), None
     return read_export(src, columns, skip_rows)
 
@@ -146,7 +146,7 @@ def default_name(src: Path) -> str:
 
 def time_factor(src: Path, column: str, layout: CsvLayout | None,
                 time_unit: str | None) -> float:
-    """Seconds per unit of the time column: --time-unit, else the unit row's (a Rigol
+    """Seconds per unit of the time column: ``time_unit``, else the unit row's (a Rigol
     'Sequence' column counts samples: its unit row's Increment is the step), else s."""
     cell = layout.unit(column) if layout is not None else ""
     said = UNIT_ROW_TIME.get(cell.strip("()[] ").lower())
@@ -163,13 +163,13 @@ def time_factor(src: Path, column: str, layout: CsvLayout | None,
                                "says 'Sequence') and the file gives no Increment > 0; map a "
                                "time column")
         if time_unit is not None:
-            raise UserError(f"--time-unit: column '{column}' of {src.name} numbers the "
+            raise UserError(f"`time_unit`: column '{column}' of {src.name} numbers the "
                             f"samples and its Increment ({inc:g} s) makes them seconds; "
-                            "drop --time-unit")
+                            "drop `time_unit`")
         return inc
     if said is not None and time_unit is not None and said != time_unit:
-        raise UserError(f"--time-unit: {time_unit}, but column '{column}' of {src.name} is "
-                        f"in {said} (its unit row says {cell!r}); drop --time-unit or fix it")
+        raise UserError(f"`time_unit`: {time_unit}, but column '{column}' of {src.name} is "
+                        f"in {said} (its unit row says {cell!r}); drop `time_unit` or fix it")
     return TIME_UNITS[time_unit or said or "s"]
 
 
@@ -248,7 +248,7 @@ def import_csv(src: Path | str, outdir: Path | str, mapping: dict[str, str],
     src = Path(src)
     if name is None:  # from the file's stem, made a safe run name
         name = default_name(src)
-    check_run_name(name, "--name")
+    check_run_name(name, "`name`")
     if axis is None:  # from the drive; a unit never switches the plant behind the user
         axis = "linear" if o.drive == "force" else "rotary"
     check_axis(o.drive, axis)
@@ -256,16 +256,16 @@ def import_csv(src: Path | str, outdir: Path | str, mapping: dict[str, str],
     speed_unit = speed_unit or next(iter(SPEED_UNITS[axis]))
     counts_per_unit, pos_factor, speed_factor = _units(axis, pos_unit, speed_unit)
     if o.time_unit is not None and o.time_unit not in TIME_UNITS:
-        raise UserError(f"--time-unit: unknown unit '{o.time_unit}'; expected one of "
+        raise UserError(f"`time_unit`: unknown unit '{o.time_unit}'; expected one of "
                         f"{', '.join(TIME_UNITS)}")
-    for opt, val, positive in (("--tacho-gain", o.tacho_gain, False), ("--pos-gain", o.pos_gain, False),
-                               ("--pos-offset", o.pos_offset, None),
-                               ("--gear-ratio", o.gear_ratio, True),
-                               ("--amplifier-gain", o.amplifier_gain, True),
-                               ("--input-gain", o.input_gain, True),
-                               ("--current-gain", o.current_gain, False),
-                               ("--speed-window", o.speed_window, True),
-                               ("--input-step", o.input_step, True)):
+    for opt, val, positive in (("`tacho_gain`", o.tacho_gain, False), ("`pos_gain`", o.pos_gain, False),
+                               ("`pos_offset`", o.pos_offset, None),
+                               ("`gear_ratio`", o.gear_ratio, True),
+                               ("`amplifier_gain`", o.amplifier_gain, True),
+                               ("`input_gain`", o.input_gain, True),
+                               ("`current_gain`", o.current_gain, False),
+                               ("`speed_window`", o.speed_window, True),
+                               ("`input_step`", o.input_step, True)):
         if val is None:
             continue
         if not math.isfinite(val) or (positive and val <= 0) or (positive is False and val == 0):
@@ -273,53 +273,53 @@ def import_csv(src: Path | str, outdir: Path | str, mapping: dict[str, str],
                 if positive is False else "a finite number"
             raise UserError(f"{opt}: {val:g} is not {need}")
     if o.drive != "voltage" and o.input_gain is None:
-        raise UserError(f"--input-gain: a {o.drive}-driven axis needs its drive's gain kd "
+        raise UserError(f"`input_gain`: a {o.drive}-driven axis needs its drive's gain kd "
                         f"({'N m' if o.drive == 'torque' else 'N'} per input volt), e.g. "
-                        "--input-gain 20")
+                        "`input_gain=20`")
     if o.input_measured and o.drive == "voltage":
-        raise UserError("--input-measured: only for --drive torque or force (the input is a "
-                        "measured current times its torque or force constant, --input-gain)")
+        raise UserError("`input_measured`: only for `drive=torque` or force (the input is a "
+                        "measured current times its torque or force constant, `input_gain`)")
     if o.drive == "voltage" and o.input_gain is not None:
-        raise UserError("--input-gain: only for --drive torque or force; a voltage drive's "
-                        "gain is --amplifier-gain")
+        raise UserError("`input_gain`: only for `drive=torque` or force; a voltage drive's "
+                        "gain is `amplifier_gain`")
     if axis == "linear" and o.gear_ratio not in (None, 1.0):
-        raise UserError("--gear-ratio: a linear axis has none (positions are the carriage's)")
+        raise UserError("`gear_ratio`: a linear axis has none (positions are the carriage's)")
     if o.loop not in ("open", "closed"):
-        raise UserError(f"--loop: expected open or closed, got '{o.loop}'")
+        raise UserError(f"`loop`: expected open or closed, got '{o.loop}'")
     experiment = {"loop": o.loop, "waveform": o.waveform}
     if o.input_step is not None:  # what the input can resolve: an effect below it is not
         experiment["input_step_v"] = float(o.input_step)
     if o.start not in (None, "auto"):
         if o.start not in ("rest", "moving"):
-            raise UserError(f"--start: expected auto, rest or moving, got '{o.start}'")
+            raise UserError(f"`start`: expected auto, rest or moving, got '{o.start}'")
         experiment["start"] = o.start
     if o.loop == "closed":
         # fitted through the loop, the controller is part of the model: without its
         # gains the fit would be of a different system
         if o.controller is not None:
             if o.position_gain is not None or o.velocity_gain is not None:
-                raise UserError("--controller: give the controller or --position-gain/"
-                                "--velocity-gain (the MS150's analog loop), not both")
+                raise UserError("`controller`: give the controller or `position_gain`/"
+                                "`velocity_gain` (the MS150's analog loop), not both")
             experiment["controller"] = o.controller
         else:
-            for opt, v in (("--position-gain", o.position_gain), ("--velocity-gain", o.velocity_gain)):
+            for opt, v in (("`position_gain`", o.position_gain), ("`velocity_gain`", o.velocity_gain)):
                 if v is None or not math.isfinite(v) or v < 0:
-                    raise UserError(f"--controller: a closed-loop import needs its controller, "
-                                    "e.g. --controller pd:kp=2,kd=0.1 (or the MS150 loop's "
+                    raise UserError(f"`controller`: a closed-loop import needs its controller, "
+                                    "e.g. `controller=pd:kp=2,kd=0.1` (or the MS150 loop's "
                                     f"{opt}); got none")
             experiment.update(position_gain=float(o.position_gain),
                               velocity_gain=float(o.velocity_gain))
     elif o.controller is not None or o.position_gain is not None or o.velocity_gain is not None:
-        raise UserError("--controller/--position-gain/--velocity-gain: only with --loop closed")
+        raise UserError("`controller`/`position_gain`/`velocity_gain`: only with `loop=closed`")
     elif "u" not in mapping:
-        raise UserError("--map: 'u=COLUMN' missing; an open-loop run needs its input")
+        raise UserError("`mapping`: 'u=COLUMN' missing; an open-loop run needs its input")
     if "pos" in mapping and o.pos_gain is None and "tacho" in mapping:
-        raise UserError("--pos-gain is needed with raw-volt columns (tacho=...,pos=...)")
+        raise UserError("`pos_gain` is needed with raw-volt columns (tacho=...,pos=...)")
     if "tacho" in mapping and o.tacho_gain is None:
-        raise UserError("--tacho-gain (V per rad/s) is needed when mapping raw tacho volts")
+        raise UserError("`tacho_gain` (V per rad/s) is needed when mapping raw tacho volts")
     if o.skip_rows is not None and (isinstance(o.skip_rows, bool)
                                     or not isinstance(o.skip_rows, int)):
-        raise UserError(f"--skip-rows: {o.skip_rows!r} is not a number of lines")
+        raise UserError(f"`skip_rows`: {o.skip_rows!r} is not a number of lines")
     frame, layout = read_columns(src, list(mapping.values()), o.skip_rows)
     first_row = layout.first_row if layout is not None else 2  # the file's line of sample 0
     t = frame[mapping["t"]] * time_factor(src, mapping["t"], layout, o.time_unit)
@@ -336,7 +336,7 @@ def import_csv(src: Path | str, outdir: Path | str, mapping: dict[str, str],
         sensors["speed_unit"] = AXES[axis][1]
     if o.speed_window is not None:
         if not ({"speed", "tacho"} & set(mapping)):
-            raise UserError("--speed-window: the file has no speed channel (map speed= or "
+            raise UserError("`speed_window`: the file has no speed channel (map speed= or "
                             "tacho=), or leave the option out")
         sensors["speed_window_s"] = float(o.speed_window)
     if "tacho" in mapping:

@@ -136,7 +136,7 @@ def new_mystery(seed: int, base_rig: Path | str | None = None) -> dict:
     "mystery rig <seed>".
     """
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
-        raise UserError(f"--seed must be a whole number >= 0, got {seed!r}")
+        raise UserError(f"`seed` must be a whole number >= 0, got {seed!r}")
     rng = np.random.default_rng([seed, 0x6D797374])  # "myst"
     base = _base_doc(base_rig)
     doc = copy.deepcopy(base)
@@ -178,9 +178,9 @@ def write_mystery(doc: dict, path: Path | str, seed: int | None = None,
     path = Path(path)
     if path.suffix != SUFFIX:
         raise UserError(f"{path}: a mystery rig file must end in '{SUFFIX}' "
-                        f"(e.g. {path.with_suffix(SUFFIX).name}) so that --rig recognises it")
+                        f"(e.g. {path.with_suffix(SUFFIX).name}) so that `rig` recognises it")
     if path.exists() and not overwrite:
-        raise UserError(f"{path}: already exists; add --force to replace it")
+        raise UserError(f"{path}: already exists; add `overwrite` to replace it")
     rig_from_dict(doc, str(path))  # never write a rig that cannot be loaded
     path.parent.mkdir(parents=True, exist_ok=True)
     atomic_write(path, encode({"rig": doc, "seed": seed}))

@@ -368,7 +368,7 @@ def _read_sidecar(json_path: Path, csv_path: Path) -> dict:
                            "'experiment.controller' ({\"kind\": \"pd\", \"kp\": .., \"kd\": ..}) "
                            "or the analog loop's 'experiment.position_gain' and "
                            "'experiment.velocity_gain' missing; add it, or import with "
-                           "--loop closed --controller pd:kp=..,kd=..")
+                           "`loop=closed` `controller=pd:kp=..,kd=..`")
     if checked.rig.drive is not None or checked.rig.axis is not None:
         drive = checked.rig.drive or "voltage"
         axis = checked.rig.axis or ("linear" if drive == "force" else "rotary")

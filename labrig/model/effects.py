@@ -430,7 +430,7 @@ def trust_code(files) -> None:
     for f in files or ():
         path = Path(f)
         if path.suffix != ".py" or not path.is_file():
-            raise UserError(f"--trust-code: '{f}' is not a Python file (give FILE.py)")
+            raise UserError(f"`trust_code`: '{f}' is not a Python file (give FILE.py)")
         _TRUSTED.add(path.resolve())
 
 
@@ -450,11 +450,11 @@ def load_user_effect(spec: str, origin: str | None = None) -> type[Effect]:
     """
     file, _, clsname = spec.rpartition(":")
     path = Path(file)
-    where = origin or "--effects"
+    where = origin or "`effects`"
     if origin is not None and (not path.is_file() or path.resolve() not in _TRUSTED):
         raise UserError(f"{origin}: names the user effect '{spec}', which is Python code; "
                         "labrig never runs code named in a data file unless you pass "
-                        f"--trust-code {file} (only for code you have read)")
+                        f"`trust_code={file}` (only for code you have read)")
     if not path.is_file():
         raise UserError(f"{where}: file '{file}' not found (expected FILE.py:ClassName)")
     if origin is None:  # named on the command line: the user asked for this code
@@ -487,7 +487,7 @@ def get_effect(name: str, origin: str | None = None) -> Effect:
     see :func:`load_user_effect` for what a data file may name.
     """
     if not isinstance(name, str):
-        raise UserError(f"{origin or '--effects'}: an effect name must be text, got {name!r}")
+        raise UserError(f"{origin or '`effects`'}: an effect name must be text, got {name!r}")
     if is_user_spec(name):
         eff = load_user_effect(name, origin)()
         eff.spec = name  # saved in model files, so later commands can load it again

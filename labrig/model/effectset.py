@@ -34,7 +34,7 @@ class EffectSet(Sequence):
         Who gave them (an option or a file), for the error message.
     """
 
-    def __init__(self, effects: Iterable[Effect] = (), where: str = "--effects"):
+    def __init__(self, effects: Iterable[Effect] = (), where: str = "`effects`"):
         effects = list(effects)
         names = [e.name for e in effects]
         for n in names:
@@ -67,7 +67,7 @@ class EffectSet(Sequence):
         # effect objects pass through; names are looked up (and checked for trust)
         return cls([s if isinstance(s, Effect) else get_effect(s.strip(), origin)
                     for s in items if isinstance(s, Effect) or s.strip()],
-                   where=origin or "--effects")
+                   where=origin or "`effects`")
 
     # -- sequence ----------------------------------------------------------------------
     def __getitem__(self, i):

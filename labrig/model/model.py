@@ -51,6 +51,17 @@ class Model:
         Plant kind, a key of :data:`PLANTS`.
     info : dict
         What the fit reported (method, fitness, rmse_over_noise, ...), carried along.
+    starts : dict
+        The fitted start of each run that does not start at rest (see below).
+
+    Examples
+    --------
+    >>> import labrig as lr
+    >>> m = lr.Model(params={"R": 8.0, "L": 0.01, "K": 0.05, "J": 1e-4, "B": 1e-5})
+    >>> m.names
+    []
+    >>> m.with_value("K", 0.06).params["K"]
+    0.06
     """
 
     params: dict

@@ -184,16 +184,16 @@ def plant_class(kind: str, origin: str = "drive") -> type[Plant]:
     return PLANTS[kind]
 
 
-def check_axis(drive: str, axis: str, origin: str = "--axis") -> None:
+def check_axis(drive: str, axis: str, origin: str = "`axis`") -> None:
     """Refuse a drive/axis pair labrig has no plant for, saying what to use instead."""
     plant_class(drive)
     if axis not in AXES:
         raise UserError(f"{origin}: unknown axis {axis!r}; choose rotary or linear")
     if axis not in DRIVE_AXES[drive]:
         fix = {"voltage": "a voltage-driven screw axis is a rotary motor: import it with "
-                          "--axis rotary and the screw in --gear-ratio",
-               "torque": "a linear axis is force-driven: use --drive force",
-               "force": "a rotary axis is torque-driven: use --drive torque"}[drive]
+                          "`axis=rotary` and the screw in `gear_ratio`",
+               "torque": "a linear axis is force-driven: use `drive=force`",
+               "force": "a rotary axis is torque-driven: use `drive=torque`"}[drive]
         raise UserError(f"{origin}: a {drive}-driven plant moves a "
                         f"{' or '.join(DRIVE_AXES[drive])} axis, not a {axis} one; {fix}")
 

@@ -220,7 +220,7 @@ def run_starts(runs, sigma_w: float | None, sigma_theta: float | None,
     """Every run's start (prepared runs, the channels' noise floors; ``play``: the model
     has backlash)."""
     if mode not in MODES:
-        raise UserError(f"--start: unknown mode '{mode}'; choose {', '.join(MODES)}")
+        raise UserError(f"`start_state`: unknown mode '{mode}'; choose {', '.join(MODES)}")
     return [run_start(r, sigma_w, sigma_theta, mode, sigma_i, play) for r in runs]
 
 

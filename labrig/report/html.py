@@ -77,6 +77,6 @@ def build_report(data_dir, output="report.html", work=None, *, quick=False, seed
     elif work is False:
         work = None
     elif not Path(work).is_dir():
-        raise UserError(f"--work {work}: no such folder")
+        raise UserError(f"`work={work}`: no such folder")
     story = gather(data_dir, work=work, quick=quick, seed=seed, log=log)
     return write(render(story), output)

@@ -248,6 +248,12 @@ def compare(source, model, *, through: str | None = "auto", detail: bool = True)
         Fit %, rmse/noise by run and regime, the residuals; ``plot()`` overlays model
         and measurement with the residual and its noise band.
 
+    Raises
+    ------
+    UserError
+        A run folder or model file that cannot be read, a model whose plant is not the
+        runs' (one line naming the file and the fix).
+
     Examples
     --------
     >>> import labrig as lr
@@ -275,6 +281,11 @@ def ladder(source, models, *, through: str | None = "auto"):
     -------
     Ladder
         One rung a model: in-sample and held-out rmse/noise; ``plot()`` draws the ladder.
+
+    Raises
+    ------
+    UserError
+        A run folder or model file that cannot be read, or no model given.
 
     Examples
     --------

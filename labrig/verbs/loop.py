@@ -303,6 +303,14 @@ def decide(source, model=None, *, seed: int = SEED, through: str | None = "auto"
         Which explanation the proposed runs favour, by how much against the noise, with
         and without them; None when the runs hold no proposed run.
 
+    Raises
+    ------
+    UserError
+        A run folder or model file that cannot be read; a proposed run whose pair the
+        model's effects cannot be read from.
+    FitDiverged
+        Every start of a re-fit diverged (the message says what to try).
+
     Examples
     --------
     >>> import labrig as lr

@@ -45,6 +45,14 @@ class Evaluation(Displayable):
         The channels' :class:`labrig.analysis.noise.NoiseFloor` (how the noise was measured).
     weights : Weights
         The channel weights of ``fitness``.
+
+    Examples
+    --------
+    >>> import labrig as lr
+    >>> m = lr.identify("data/sweep_default").model()  # doctest: +SKIP
+    >>> ev = lr.compare("data/sweep_default", m)  # doctest: +SKIP
+    >>> ev.rmse_over_noise, ev.metrics["fit_percent"]["overall"]  # doctest: +SKIP
+    >>> ev.plot()  # doctest: +SKIP
     """
 
     metrics: dict

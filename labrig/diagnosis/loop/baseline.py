@@ -11,7 +11,8 @@ from labrig.analysis.agreement import WINDOW_DECLARED_IN, channel_agreement
 from labrig.analysis.noise import Weights
 from labrig.diagnosis.evidence.evaluation import Evaluation
 from labrig.diagnosis.loop.refit import refit, seed_or_design
-from labrig.identification.engine import identify
+from labrig.identification.engine import solve
+from labrig.model.reach import Reach
 from labrig.identification.problem import Problem
 from labrig.model.plants import plant_of_runs
 from labrig.identification.result import at_bounds as bound_sides
@@ -88,13 +89,14 @@ def linear_model(runs, *, seed=0, fixed=None, weights=Weights(), start: Model | 
         return refit(runs, start, seed=seed, fixed=fixed, weights=weights).model()
 
     # the grid's polishes start from no random point: fitted once, whatever the seed
-    grid = [identify(runs, "co", [], seed=seed, start=pt, starts=1, fixed=fixed,
-                     identifiability=False, p=weights.p, q=weights.q)
+    def linear():   # the problem without effects (one a fit: nothing shared between threads)
+        return Problem(runs, [], fixed=fixed, reach=Reach.of(runs), weights=weights)
+
+    grid = [solve(linear(), "co", seed=seed, start=pt, starts=1, identifiability=False)
             for pt in grid_starts(runs, fixed or {}, weights)]
 
     def from_starts(s):
-        ident = identify(runs, "co", [], seed=s, starts=4, fixed=fixed, identifiability=False,
-                         p=weights.p, q=weights.q)
+        ident = solve(linear(), "co", seed=s, starts=4, identifiability=False)
         again = refit(runs, ident.model(), seed=s, fixed=fixed, weights=weights)
         return min([again, ident] + grid, key=lambda f: f.fitness)
     return seed_or_design(from_starts, seed).model()

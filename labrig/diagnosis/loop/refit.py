@@ -30,7 +30,7 @@ import numpy as np
 from labrig.core.defaults import SEED
 from labrig.core.errors import FitDiverged
 from labrig.core.parallel import each
-from labrig.identification.engine import identify
+from labrig.identification.engine import solve
 from labrig.identification.problem import Problem
 from labrig.identification.result import at_bounds
 from labrig.model.model import Model
@@ -62,9 +62,10 @@ def fit(runs, effects, start: dict, fixed: dict, *, seed: int, weights: Weights,
         reach, max_nfev: int = 60, masks=None, stop=None):
     """One CO fit from ``start`` (bounds from ``reach``); ``stop``: a rule that may end
     it early (:func:`labrig.diagnosis.evidence.criteria.screen`)."""
-    return identify(runs, "co", effects, seed=seed, start=start, fixed=fixed, starts=1,
-                    identifiability=False, max_nfev=max_nfev, p=weights.p, q=weights.q,
-                    masks=masks, reach=reach, subsample=SUBSAMPLE, stop=stop)
+    problem = Problem(runs, effects, fixed=fixed, reach=reach or Reach.of(runs),
+                      weights=weights, masks=masks)
+    return solve(problem, "co", seed=seed, start=start, starts=1, identifiability=False,
+                 max_nfev=max_nfev, subsample=SUBSAMPLE, stop=stop)
 
 
 def fresh_fit(runs, effects, *, seed: int, fixed: dict, weights: Weights, reach=None):
@@ -77,8 +78,9 @@ def fresh_fit(runs, effects, *, seed: int, fixed: dict, weights: Weights, reach=
     another ``seed``'s random starts are fitted too and kept only where they fit clearly
     better (:func:`seed_or_design`)."""
     def one(s):
-        return identify(runs, "co", effects, seed=s, fixed=fixed, identifiability=False,
-                        p=weights.p, q=weights.q, reach=reach)
+        problem = Problem(runs, effects, fixed=fixed, reach=reach or Reach.of(runs),
+                          weights=weights)
+        return solve(problem, "co", seed=s, identifiability=False)
     return seed_or_design(one, seed)
 
 
@@ -254,7 +256,7 @@ def best_fit(fits, what: str = "the re-fit"):
         raise FitDiverged(
             f"{what}: every start ({len(fits)}) diverged (the simulation overflowed); "
             "start from a model nearer the data (labrig identify DATA -o m0.json, then "
-            "--model m0.json) or narrow the plant's range with --bounds")
+            "--model m0.json) or narrow the plant's range with `bounds`")
     low = min(f.fitness for f in good)
     near = [f for f in good if f.fitness <= 1.01 * low]
     right = [f for f in near if "L" not in f.params or f.params["L"] / f.params["R"]

@@ -179,7 +179,7 @@ class Round:
                 f"every candidate's re-fit diverged ({', '.join(diverged)}: the simulation "
                 "overflowed from every start); start from a model nearer the data (labrig "
                 "identify DATA -o m0.json, then --model m0.json) or narrow the plant's range "
-                "with --bounds")
+                "with `bounds`")
         return ranking, diverged
 
     def nested(self, ranking: list[Candidate]) -> list[Candidate]:
