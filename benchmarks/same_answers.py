@@ -57,9 +57,10 @@ COMMANDS = [
     ("mystery reveal", ["mystery", "reveal", "lab.mystery", "--json"], []),
 ]
 
-#: keys whose values are wall-clock times or paths of the temporary folder
+#: keys whose values are wall-clock times, paths of the temporary folder, or drawn fresh
+#: each time (an emulated board's id is random when it is first given one)
 DROP = {"seconds", "elapsed_s", "time_s", "wall_s", "figure", "figures", "paths", "path",
-        "folder", "plan", "created"}
+        "folder", "plan", "created", "board_id"}
 
 
 def _clean(x):

@@ -130,10 +130,13 @@ def cmd_import(args):
 
 
 def _warn_line(text: str) -> None:
-    """An import's warning: one line on stderr; the import goes on (exit 0)."""
+    """An import's warning: one line on stderr, its parameters named as the options typed;
+    the import goes on (exit 0)."""
     import sys
 
-    print(f"labrig: warning: {text}", file=sys.stderr, flush=True)
+    from labrig.commands.options import translate
+
+    print(f"labrig: warning: {translate(text)}", file=sys.stderr, flush=True)
 
 
 def _configure_import(p):

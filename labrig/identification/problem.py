@@ -113,15 +113,22 @@ class Problem:
         return self._plant if self._plant is not None else plant_of_runs(self.runs)
 
     @cached_property
-    def space(self) -> Space:
-        """The search space (bounds, scaling, what is fixed)."""
+    def _bare_space(self) -> Space:
         return build_space(self.effects, self.bounds, self.fixed, reach=self.reach,
                            plant=self.plant)
+
+    @property
+    def space(self) -> Space:
+        """The search space (bounds, scaling, what is fixed), with the runs' fitted starts
+        the objective adds to it: it is whole only once the objective is built, so asking
+        for it builds both."""
+        self.objective
+        return self._bare_space
 
     @cached_property
     def objective(self) -> Objective:
         """The runs' residuals and fitness over the space."""
-        return Objective(self.runs, self.effects, self.space, p=self.weights.p,
+        return Objective(self.runs, self.effects, self._bare_space, p=self.weights.p,
                          q=self.weights.q, masks=self.masks, c=self.c,
                          start=self.start_state)
 

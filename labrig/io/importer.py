@@ -227,7 +227,7 @@ def _find_count(src: Path, speed, fs: float, sensors: dict, notes: list) -> None
     sensors["speed_window_found"] = True
     notes.append(f"{src.name}: the speed reads whole counts ({q:.4g} {sensors['speed_unit']} "
                  f"each) and stands at exactly 0 when still: taken as counted over the "
-                 f"sample before ({1e3 / fs:.4g} ms); give --speed-window S if the logger "
+                 f"sample before ({1e3 / fs:.4g} ms); give `speed_window=S` if the logger "
                  "counts over another window")
 
 
@@ -345,10 +345,10 @@ def import_csv(src: Path | str, outdir: Path | str, mapping: dict[str, str],
     if "pos" in mapping:
         if counts_per_unit is not None:  # encoder counts, kept as counts
             if axis == "rotary" and o.gear_ratio is None:
-                notes.append(f"{src.name}: --pos-unit {pos_unit} counts per turn of the "
-                             "output shaft and no --gear-ratio was given, so the motor is "
+                notes.append(f"{src.name}: `pos_unit={pos_unit}` counts per turn of the "
+                             "output shaft and no `gear_ratio` was given, so the motor is "
                              "taken to be that shaft (ratio 1); for an encoder on a geared "
-                             "motor add --gear-ratio N and give counts:(counts per motor "
+                             "motor add `gear_ratio=N` and give counts:(counts per motor "
                              "turn x N)")
             cols["pos"] = frame[mapping["pos"]]
             sensors.update(pos_v_per_rad=counts_per_unit, pos_offset_v=0.0, pos_kind="encoder",
