@@ -1,7 +1,7 @@
 """The model's walk through the code: during ``diagnose --auto`` on ``data/sweep_default``,
 which modules the model reaches, in which form, and how often the effects are parsed.
 
-    python benchmarks/bench_walk.py [--json]
+    python benchmarks/bench_walk.py [--json] [--save LABEL]
 
 Every call into a labrig function is watched (``sys.setprofile``); a call *carries the
 model* when one of its arguments is the model in one of its forms:
@@ -132,8 +132,16 @@ def walk() -> dict:
             "climb_list": climbs, "form_change_list": changes, "room_list": rooms}
 
 
+RESULTS = ROOT / "benchmarks" / "results_walk.json"
+
+
 if __name__ == "__main__":
     res = walk()
+    if "--save" in sys.argv:   # --save LABEL: kept under LABEL in results_walk.json
+        label = sys.argv[sys.argv.index("--save") + 1]
+        saved = json.loads(RESULTS.read_text()) if RESULTS.exists() else {}
+        saved[label] = res
+        RESULTS.write_text(json.dumps(saved, indent=1) + "\n")
     if "--json" in sys.argv:
         print(json.dumps(res, indent=1))
     else:

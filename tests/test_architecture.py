@@ -227,3 +227,11 @@ def test_only_identification_builds_a_search_space():
                     "labrig.identification.objective"):
                 offenders += [f"{rel}: {a.name}" for a in node.names if a.name in SEARCH_FORM]
     assert offenders == []
+
+
+def test_the_readme_and_design_quote_these_limits():
+    """The README's and design.md's architecture sections quote the limits checked here."""
+    readme = " ".join((PKG.parent / "README.md").read_text().split())
+    design = " ".join((PKG.parent / "docs" / "design.md").read_text().split())
+    assert f"no module over {MAX_LINES} lines ({LOOP_MAX_LINES} in the loop's" in readme
+    assert f"no module over {MAX_LINES} lines ({LOOP_MAX_LINES} in `diagnosis/` and `design/`)" in design

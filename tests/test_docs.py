@@ -186,3 +186,17 @@ def test_readme_quotes_the_recorded_seed_benchmark():
     what benchmarks/bench_seeds.py writes from benchmarks/results_seeds.json, misses
     included."""
     assert _markdown("bench_seeds.py") in (ROOT / "README.md").read_text()
+
+
+def test_benchmarks_readme_quotes_the_recorded_walk():
+    """The walk's table in benchmarks/README.md is results_walk.json's."""
+    import json
+
+    text = (ROOT / "benchmarks" / "README.md").read_text()
+    rec = json.loads((ROOT / "benchmarks" / "results_walk.json").read_text())
+    before, after = rec.values()
+    for key in ("rooms", "folders", "hand_offs", "back_and_forth", "climbs", "form_changes"):
+        assert f"| {key} | {before[key]} | {after[key]} |" in text, key
+    parse = [f"{r['effectset_parse']['calls']} ({r['effectset_parse']['parsed']} parsing)"
+             for r in (before, after)]
+    assert f"| effectset_parse | {parse[0]} | {parse[1]} |" in text
