@@ -3,7 +3,7 @@ the channel weights, the folds' samples and what the data reach.
 
 Identification alone turns a problem into the optimisers' form (the search space, the
 objective over the runs, a model's parameters as a search vector); the loop above asks
-a problem for a model's fitness or hands it to :func:`labrig.identification.engine.identify`,
+a problem for a model's fitness or hands it to :func:`labrig.identification.engine.solve`,
 and never builds a space or an objective itself.
 """
 from __future__ import annotations
