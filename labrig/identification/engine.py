@@ -26,7 +26,7 @@ from labrig.identification.identifiability import analyse_identifiability, time_
 from labrig.identification.jellyfish import jellyfish
 from labrig.identification.local import local, polish as _polish
 from labrig.identification.objective import Space
-from labrig.identification.problem import Problem, dataset_constants
+from labrig.identification.problem import Problem
 from labrig.identification.pso import pso
 from labrig.identification.settle import settle
 from labrig.identification.result import IdentResult
@@ -430,7 +430,7 @@ def solve(problem: Problem, method: str = METHOD, *, seed: int | None = SEED,
         start = start.flat()
     effects, space, obj = problem.effects, problem.space, problem.objective
     t0 = time.perf_counter()  # after the simulator is ready: a first compile is not fitting
-    constants = dataset_constants(runs)
+    constants = problem.constants
     lo, hi = space.search_bounds()
     x0 = space.to_search(problem.initial_point(start))
     seed = int(np.random.default_rng().integers(2 ** 31)) if seed is None else int(seed)

@@ -113,6 +113,11 @@ class Problem:
         return self._plant if self._plant is not None else plant_of_runs(self.runs)
 
     @cached_property
+    def constants(self) -> dict:
+        """The rig's known constants from the runs' sidecars (:func:`dataset_constants`)."""
+        return dataset_constants(self.runs)
+
+    @cached_property
     def _bare_space(self) -> Space:
         return build_space(self.effects, self.bounds, self.fixed, reach=self.reach,
                            plant=self.plant)
@@ -136,8 +141,7 @@ class Problem:
         """A physical starting point: ``start`` where it gives a value, else the middle of
         the (log) box for the plant and each effect's data-driven guess
         (:func:`initial_point`)."""
-        return initial_point(self.space, self.effects, self.runs,
-                             dataset_constants(self.runs), start)
+        return initial_point(self.space, self.effects, self.runs, self.constants, start)
 
     # -- a model's values in the optimisers' form --------------------------------------------
     def point(self, values) -> np.ndarray:

@@ -29,7 +29,7 @@ from labrig.diagnosis.loop.refit import (refit, refit_as_member, refit_with, thi
                                     without)
 from labrig.diagnosis.evidence.residuals import worst_regime
 from labrig.diagnosis.evidence.resolution import unresolved
-from labrig.identification.engine import dataset_constants
+from labrig.identification.problem import dataset_constants
 from labrig.io.runs import require_excitation
 from labrig.model.effects import get_effect
 from labrig.model.model import Model, param_keys
