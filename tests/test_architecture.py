@@ -229,6 +229,23 @@ def test_only_identification_builds_a_search_space():
     assert offenders == []
 
 
+def test_only_identification_flattens_a_model_for_a_search():
+    """A model goes to a fit as a Model, or flattened by identification's own
+    ``start_of`` (with what is fixed over it): no front end or loop module merges a
+    model's flat values with fixed ones by hand (``{**model.flat(), **fixed}``)."""
+    offenders = []
+    for f in PKG.rglob("*.py"):
+        rel = f.relative_to(PKG)
+        if rel.parts[0] == "identification":
+            continue
+        for node in ast.walk(ast.parse(f.read_text())):
+            if isinstance(node, ast.Dict) and any(
+                    k is None and isinstance(v, ast.Call) and isinstance(v.func, ast.Attribute)
+                    and v.func.attr == "flat" for k, v in zip(node.keys, node.values)):
+                offenders.append(f"{rel}:{node.lineno}")
+    assert offenders == []
+
+
 def test_the_readme_and_design_quote_these_limits():
     """The README's and design.md's architecture sections quote the limits checked here."""
     readme = " ".join((PKG.parent / "README.md").read_text().split())

@@ -89,7 +89,7 @@ def variants(runs, hyp: Hypothesis, reach, *, seed: int, weights: Weights,
         v = share * top
         if abs(v / best - 1.0) < 0.3:
             continue   # the best fit already stands for it
-        res = fit(runs, hyp.model.effects, hyp.model.flat(), {f"{hyp.effect}.{key}": v},
+        res = fit(runs, hyp.model.effects, hyp.model, {f"{hyp.effect}.{key}": v},
                   seed=seed, weights=weights, reach=reach, max_nfev=40)
         if res.metrics["rmse_over_noise"]["overall"] <= PLAUSIBLE * hyp.rmse_over_noise:
             hyp.members.append((v, res.model()))

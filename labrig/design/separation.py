@@ -66,7 +66,7 @@ def smallest_separable(runs, base: Model, h, rival: str, chosen, template: Run, 
     out = {"effect": h.effect, "key": h.key, "unit": h.unit, "plausible_from": lo}
 
     def separates(size, step):
-        truth = fit(runs, h.model.effects, h.model.flat(), {f"{h.effect}.{h.key}": size},
+        truth = fit(runs, h.model.effects, h.model, {f"{h.effect}.{h.key}": size},
                     seed=seed, weights=weights, reach=reach, max_nfev=40).model()
         sep, _ = separation_after_refit(runs, base, rival, truth, chosen.candidate, template,
                                         sig, seed=seed, weights=weights,

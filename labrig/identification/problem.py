@@ -35,6 +35,14 @@ def dataset_constants(runs) -> dict:
     return {**runs[0].constants, **gains}
 
 
+def start_of(model, fixed: dict | None = None) -> dict:
+    """The flat values a search of ``model`` starts from: its parameters (effects' under
+    dotted keys, the runs' starts) with what is ``fixed`` over them. The one place a
+    :class:`Model` is flattened for a search (a flat dict is taken as it stands)."""
+    flat = model.flat() if isinstance(model, Model) else dict(model)
+    return {**flat, **(fixed or {})}
+
+
 def initial_point(space: Space, effects, runs, constants, start: dict | None) -> dict:
     """A physical starting point: the start model where given, else the middle of the
     (log) box for the plant and each effect's data-driven guess."""
@@ -146,8 +154,7 @@ class Problem:
     # -- a model's values in the optimisers' form --------------------------------------------
     def point(self, values) -> np.ndarray:
         """The search vector of ``values`` (a Model or a flat dict), what is fixed over it."""
-        flat = values.flat() if isinstance(values, Model) else values
-        return self.space.to_search({**flat, **self.fixed})
+        return self.space.to_search(start_of(values, self.fixed))
 
     def values(self, x: np.ndarray) -> dict:
         """The flat physical parameters of the search vector ``x``."""

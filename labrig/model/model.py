@@ -84,11 +84,20 @@ class Model:
 
     @property
     def plant_class(self):
+        """The plant's class (:data:`PLANTS` ``[plant]``): its parameter names, units and
+        simulator form."""
         return PLANTS[self.plant]
 
     # -- flat form -------------------------------------------------------------------------
     def flat(self) -> dict:
-        """Every parameter in one dict: plant names, then ``effect.param``."""
+        """Every parameter in one dict: plant names, then ``effect.param``.
+
+        Returns
+        -------
+        dict
+            ``{name: float}`` in SI units: the plant's parameters (``"J"``), the effects'
+            (``"deadband.d_v"``), then each run's fitted start (``"start[RUN].w0"``).
+        """
         out = {k: float(self.params[k]) for k in self.plant_class.names}
         out.update(EffectSet.flatten(self.effect_params))
         out.update({start_key(run, what): float(v) for run, st in self.starts.items()
@@ -98,6 +107,32 @@ class Model:
     @classmethod
     def from_flat(cls, flat: dict, effects, constants: dict | None = None,
                   plant: str = VoltagePlant.kind, info: dict | None = None) -> "Model":
+        """A model from the flat form :meth:`flat` gives (the inverse of :meth:`flat`).
+
+        Parameters
+        ----------
+        flat : dict
+            ``{name: value}`` in SI units: every plant parameter, every parameter of
+            ``effects`` as ``"effect.param"``, and optionally runs' starts as
+            ``"start[RUN].w0"``; other keys are ignored.
+        effects : EffectSet, str or list of str
+            The model's effects (``"deadband,coulomb_friction"`` or a list of names).
+        constants : dict, optional
+            The rig's known constants (Ka, N, Kt, Kpot, kp, kv); None: none.
+        plant : str, default "voltage"
+            Plant kind, a key of :data:`PLANTS`.
+        info : dict, optional
+            What the fit reported, carried along; None: nothing.
+
+        Returns
+        -------
+        Model
+
+        Raises
+        ------
+        UserError
+            An unknown effect name, or effects that conflict.
+        """
         effects = EffectSet.parse(effects)
         names = PLANTS[plant].names
         starts: dict = {}

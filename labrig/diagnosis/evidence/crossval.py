@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from labrig.core.parallel import each
+from labrig.identification.problem import start_of
 from labrig.model.model import Model
 from labrig.model.start import is_start_key
 from labrig.model.simulate import prepare
@@ -188,7 +189,7 @@ def cross_validate(runs, model: Model, folds: Folds, *, sigmas, weights, seed: i
     res = [{ch: np.zeros(len(r.u)) for ch, y in (("speed", r.w), ("position", r.theta))
             if y is not None} for r in prepared]
     per_fold, fold_sq, fold_n, fold_params = [], [], [], []
-    start = {**model.flat(), **(fixed or {})}
+    start = start_of(model, fixed)
     # a run's start (labrig.model.start) is held where the model has it: a held-out stretch
     # is given its own starting state and nothing more, and a fold whose training part
     # lacks a run's first samples could not pin it

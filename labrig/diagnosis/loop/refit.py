@@ -31,7 +31,7 @@ from labrig.core.defaults import SEED
 from labrig.core.errors import FitDiverged
 from labrig.core.parallel import each
 from labrig.identification.engine import solve
-from labrig.identification.problem import Problem
+from labrig.identification.problem import Problem, start_of
 from labrig.identification.result import at_bounds
 from labrig.model.model import Model
 from labrig.analysis.noise import Weights
@@ -58,9 +58,9 @@ POLISH_GAIN = 0.05
 
 
 
-def fit(runs, effects, start: dict, fixed: dict, *, seed: int, weights: Weights,
+def fit(runs, effects, start, fixed: dict, *, seed: int, weights: Weights,
         reach, max_nfev: int = 60, masks=None, stop=None):
-    """One CO fit from ``start`` (bounds from ``reach``); ``stop``: a rule that may end
+    """One CO fit from ``start`` (a Model or its flat values; bounds from ``reach``); ``stop``: a rule that may end
     it early (:func:`labrig.diagnosis.evidence.criteria.screen`)."""
     problem = Problem(runs, effects, fixed=fixed, reach=reach or Reach.of(runs),
                       weights=weights, masks=masks)
@@ -123,7 +123,7 @@ def refit_with(runs, base: Model, effect, *, seed: int = 0, fixed: dict | None =
     reach = reach or Reach.of(runs, base)
     effects = base.effects_with([effect])
     fixed = dict(fixed or {})
-    params = {**base.flat(), **fixed}
+    params = start_of(base, fixed)
     extra = []
     for c in ([carried] if isinstance(carried, dict) else carried or []):
         if set(effect.param_names()) <= set(c):
@@ -145,7 +145,7 @@ def refit_as_member(runs, base: Model, effect, other: Model, name: str, *, seed:
         return None
     reach = reach or Reach.of(runs, base)
     fixed = dict(fixed or {})
-    rest = {**without(other, name).flat(), **fixed}
+    rest = start_of(without(other, name), fixed)
     effects = base.effects_with([effect])
     points = [{**rest, **{f"{effect.name}.{k}": float(v) for k, v in s.items()}} for s in starts]
     # each start also kept as it stands: the fit sees every k-th residual, and where the
@@ -166,7 +166,7 @@ def _best_of_starts(runs, effects, new, params, *, reach, fixed, seed, weights, 
                                        reach=reach, stop=stop), starts), what)
     if getattr(new, "stage", None) == "friction" and not best.stopped \
             and best.fitness > POLISH_ABOVE:
-        polished = simplex_polish(runs, effects, {**best.model().flat(), **fixed}, fixed,
+        polished = simplex_polish(runs, effects, best.model(), fixed,
                                   weights, reach)
         if polished is not None:   # (a short gradient fit from there: the result's form)
             moved = fit(runs, effects, polished, fixed, seed=seed, weights=weights,
@@ -191,7 +191,7 @@ def _best_of_starts(runs, effects, new, params, *, reach, fixed, seed, weights, 
     # model's compromise (a linear model's coast is too slow: its start speed runs to its
     # bound); with the plant and the effects where this fit put them, the start the data
     # show is tried too
-    own = {k: v for k, v in {**best.model().flat(), **fixed}.items() if not is_start_key(k)}
+    own = {k: v for k, v in start_of(best.model(), fixed).items() if not is_start_key(k)}
     again = fit(runs, effects, own, fixed, seed=seed, weights=weights, reach=reach,
                 max_nfev=MOVING_START_NFEV)
     return best_fit([best, again], what)
@@ -204,9 +204,9 @@ def _level_at_floor(ident, new) -> bool:
                for n, _, side, _ in at_bounds(ident.space, ident.params))
 
 
-def simplex_polish(runs, effects, start: dict, fixed: dict, weights: Weights,
+def simplex_polish(runs, effects, start, fixed: dict, weights: Weights,
                    reach) -> dict | None:
-    """``start`` polished by a simplex (Nelder-Mead) over every free parameter: the
+    """``start`` (a Model or its flat values) polished by a simplex (Nelder-Mead) over every free parameter: the
     parameters where it ended, or None when it found nothing better.
 
     A friction law makes the error piecewise constant in its levels: the rotor breaks
@@ -271,7 +271,7 @@ def refit(runs, model: Model, *, seed: int = 0, fixed: dict | None = None,
     """``model`` re-fitted as it is (both basins of the electrical pole)."""
     reach = reach or Reach.of(runs, model)
     fixed = dict(fixed or {})
-    params = {**model.flat(), **fixed}
+    params = start_of(model, fixed)
     return _best_of_starts(runs, model.effects, None, params, reach=reach, fixed=fixed,
                            seed=seed, weights=weights)
 
