@@ -284,3 +284,74 @@ def test_removing_an_effect_the_model_lacks_names_the_argument():
     with pytest.raises(lr.UserError, match=r"^name: 'stiction' is not an effect of the "
                                            r"model; its effects: deadband$"):
         lr.remove_effect(m, "stiction")
+
+
+#: methods whose docstrings belong to the JSON form, not to this check
+JSON_METHODS = ("to_json", "from_json", "json_schema", "to_dict")
+
+
+def _public_methods(cls) -> dict:
+    """``{name: function}`` of ``cls``'s public methods defined in a labrig class (the
+    class itself or a base such as Displayable); classmethods and staticmethods unwrapped."""
+    import inspect
+
+    owners = {k.__qualname__ for k in cls.__mro__ if k.__module__.startswith("labrig")}
+    out = {}
+    for name, member in inspect.getmembers(cls, inspect.isroutine):
+        if name.startswith("_") or name in JSON_METHODS:
+            continue
+        fn = inspect.unwrap(getattr(member, "__func__", member))
+        if inspect.isfunction(fn) and fn.__qualname__.split(".")[0] in owners:
+            out[name] = fn
+    return out
+
+
+def _returns_a_value(fn) -> bool:
+    """The function has ``return <value>`` in its own body (not in a nested function),
+    or a return annotation other than None."""
+    import ast
+    import inspect
+    import textwrap
+
+    ann = inspect.signature(fn).return_annotation
+    if ann not in (inspect.Signature.empty, None, "None"):
+        return True
+    tree = ast.parse(textwrap.dedent(inspect.getsource(fn))).body[0]
+    todo = list(tree.body)
+    while todo:
+        node = todo.pop()
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda, ast.ClassDef)):
+            continue
+        if isinstance(node, ast.Return) and node.value is not None and not (
+                isinstance(node.value, ast.Constant) and node.value.value is None):
+            return True
+        todo.extend(ast.iter_child_nodes(node))
+    return False
+
+
+@pytest.mark.parametrize("name", RESULTS)
+def test_every_results_public_method_is_documented(name):
+    """Each public method of a public result has a numpydoc docstring: a ``Parameters``
+    section naming every parameter (``*args``/``**kwargs`` aside) and a ``Returns`` section
+    when it returns a value."""
+    import inspect
+
+    cls = getattr(lr, name)
+    methods = _public_methods(cls)
+    if name != "Run":   # a run's channels are properties; every other result has methods
+        assert methods, name
+    for meth, fn in methods.items():
+        where = f"{name}.{meth}"
+        doc = inspect.getdoc(fn)
+        assert doc and doc.strip(), f"{where}: no docstring"
+        params = [p.name for p in inspect.signature(fn).parameters.values()
+                  if p.name not in ("self", "cls")
+                  and p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD)]
+        if params:
+            m = re.search(r"^Parameters\n-{10}\n(.*?)(?=^\w[\w ]*\n-+\n|\Z)", doc, re.M | re.S)
+            assert m, f"{where}: no Parameters section"
+            for p in params:
+                assert re.search(rf"^{re.escape(p)}\b.*?(:|$)", m.group(1), re.M), \
+                    f"{where}: parameter {p!r} not in its Parameters section"
+        if _returns_a_value(fn):
+            assert re.search(r"^Returns\n-{7}$", doc, re.M), f"{where}: no Returns section"

@@ -7,12 +7,16 @@ import math
 import os
 import warnings
 from dataclasses import dataclass, field
+from typing import Annotated, Any, Optional, Union
 
 import numpy as np
 import pandas as pd
+from pydantic import Field, PlainSerializer, computed_field, model_serializer, model_validator
+from typing_extensions import TypedDict
 
 from labrig.analysis.stepfit import StepFit
 from labrig.core.display import Displayable
+from labrig.core.record import Record
 from labrig.analysis.text import summary_text, table_rows
 
 #: relative change of w/V over the amplitude range still called "constant"
@@ -27,8 +31,25 @@ TAU_BOUND_NOTES = {
 }
 
 
+Num = Optional[float]
+#: not in the JSON
+_live = Field(exclude=True)
+
+
+class Side(TypedDict):
+    """One side's gain (rad/s per V) and deadband (V) of the speed-vs-voltage line."""
+
+    km: Num
+    deadband_v: Num
+
+
+def _trend_json(trend: dict) -> dict[str, Any]:
+    # (the gains by amplitude are written as km_paper, the asymmetry as asymmetry)
+    return {k: v for k, v in trend.items() if k not in ("asymmetry", "km_by_amplitude")}
+
+
 @dataclass
-class EdgeFit:
+class EdgeFit(Record):
     """One edge of the input and the first-order fit of the speed after it.
 
     Attributes
@@ -71,25 +92,28 @@ class EdgeFit:
         The raw fit (also when rejected) with the arrays for the figure.
     """
 
-    index: int
+    # (the JSON keeps the numbers and the note, not the flags behind the note)
+    finite_json = True
+
+    index: Annotated[int, Field(exclude=True, default=0)]
     t_s: float
-    v_from: float
-    v_to: float
+    v_from: Num
+    v_to: Num
     kind: str
-    speed_from: float | None = None
-    speed_to: float | None = None
-    tau_s: float | None = None
-    tau63_s: float | None = None
-    delay_s: float | None = None
-    fit_nrmse: float | None = None
-    too_short: bool = False
-    no_response: bool = False
-    fit_failed: bool = False
-    not_settled: bool = False
-    tau_at_bound: bool = False
-    poor_fit: bool = False
-    t63_disagrees: bool = False
-    fit: StepFit | None = field(default=None, repr=False, compare=False)
+    speed_from: Num = None
+    speed_to: Num = None
+    tau_s: Num = None
+    tau63_s: Num = None
+    delay_s: Num = None
+    fit_nrmse: Num = None
+    too_short: Annotated[bool, _live] = False
+    no_response: Annotated[bool, _live] = False
+    fit_failed: Annotated[bool, _live] = False
+    not_settled: Annotated[bool, _live] = False
+    tau_at_bound: Annotated[bool, _live] = False
+    poor_fit: Annotated[bool, _live] = False
+    t63_disagrees: Annotated[bool, _live] = False
+    fit: Annotated[Optional[StepFit], _live] = field(default=None, repr=False, compare=False)
 
     @property
     def ok(self) -> bool:
@@ -117,7 +141,12 @@ class EdgeFit:
             notes.append("63 % point disagrees with the fit")
         return "; ".join(notes)
 
-    def to_json(self) -> dict:
+    @computed_field(alias="note")
+    @property
+    def _note_or_none(self) -> Optional[str]:
+        return self.note or None
+
+    def _old_to_json(self) -> dict:
         return {"t_s": self.t_s, "v_from": self.v_from, "v_to": self.v_to, "kind": self.kind,
                 "speed_from": self.speed_from, "speed_to": self.speed_to, "tau_s": self.tau_s,
                 "tau63_s": self.tau63_s, "delay_s": self.delay_s, "fit_nrmse": self.fit_nrmse,
@@ -125,20 +154,26 @@ class EdgeFit:
 
 
 @dataclass
-class Level:
+class Level(Record):
     """The steady speed of one input level of a run (all its segments pooled)."""
 
-    run: str
-    v: float
-    speed: float | None
-    spread: float | None
-    n_segments: int
-    n_settled: int
-    moving: bool | None
-    tacho_v: float | None = None      # mean tacho volts on the flat parts (Kt check)
-    pot_speed: float | None = None    # motor speed from the pot on the same flat parts
-    tau_s: float | None = None        # median tau of the edges into this level
+    finite_json = True
 
+    # (a run's JSON holds its levels: the run's name is the run's)
+    run: Annotated[str, Field(exclude=True, default="")]
+    v: float
+    speed: Annotated[Num, Field(alias="speed_rad_s", default=None)]
+    spread: Annotated[Num, Field(alias="spread_rad_s", default=None)]
+    n_segments: Annotated[int, Field(alias="segments", default=0)]
+    n_settled: Annotated[int, Field(alias="settled", default=0)]
+    moving: Annotated[Optional[bool], Field(default=None)]
+    # mean tacho volts on the flat parts (Kt check)
+    tacho_v: Annotated[Num, _live] = None
+    # motor speed from the pot on the same flat parts
+    pot_speed: Annotated[Num, _live] = None
+    tau_s: Num = None        # median tau of the edges into this level
+
+    @computed_field
     @property
     def km_paper(self) -> float | None:
         """The paper's Km = w / V (eq. 5); None at 0 V or when not settled."""
@@ -146,46 +181,68 @@ class Level:
             return None
         return self.speed / self.v
 
-    def to_json(self) -> dict:
+    def _old_to_json(self) -> dict:
         return {"v": self.v, "speed_rad_s": self.speed, "spread_rad_s": self.spread,
                 "km_paper": self.km_paper, "moving": self.moving,
                 "segments": self.n_segments, "settled": self.n_settled, "tau_s": self.tau_s}
 
 
 @dataclass
-class RunAnalysis:
-    """What one run gave: its levels, its edges, or why it was skipped."""
+class RunAnalysis(Record):
+    """What one run gave: its levels, its edges, or why it was skipped (then its JSON
+    says only its name, loop, rate and why)."""
+
+    finite_json = True
 
     name: str
-    loop: str
-    fs: float
-    sensor: str | None = None         # "tacho", "speed" (imported, no tacho) or "pos"
+    loop: str = "open"
+    fs: Annotated[float, Field(alias="sample_rate_hz", default=math.nan)] = math.nan
+    sensor: Optional[str] = None      # "tacho", "speed" (imported, no tacho) or "pos"
     levels: list[Level] = field(default_factory=list)
     edges: list[EdgeFit] = field(default_factory=list)
-    kt_est: float | None = None
-    kt_configured: float | None = None
-    skipped: str | None = None
+    kt_est: Num = None
+    kt_configured: Annotated[Num, _live] = None
+    skipped: Optional[str] = None
     notes: list[str] = field(default_factory=list)
-    figure: str | None = None         # where its edges figure was saved, if it was
-    speed_unit: str = "rad/s"         # the axis's (m/s on a linear axis)
+    figure: Optional[str] = None      # where its edges figure was saved, if it was
+    speed_unit: Annotated[str, _live] = "rad/s"   # the axis's (m/s on a linear axis)
 
+    @computed_field
     @property
-    def tau_s(self) -> float | None:
+    def tau_s(self) -> Num:
+        """The median time constant of its fitted edges (s); None without one."""
         taus = [e.tau_s for e in self.edges if e.ok]
         return float(np.median(taus)) if taus else None
 
-    def to_json(self) -> dict:
+    @model_serializer(mode="wrap")
+    def _skipped_says_why(self, handler):
+        d = handler(self)
+        return {k: d[k] for k in ("name", "loop", "sample_rate_hz", "skipped")} \
+            if self.skipped else d
+
+    @model_validator(mode="before")
+    @classmethod
+    def _levels_are_the_runs(cls, d):
+        # (read back without its edges: the JSON keeps no fit behind them)
+        if isinstance(d, dict):
+            d = {k: v for k, v in d.items() if k != "edges"}
+            d["levels"] = [{**lv, "run": d.get("name", "")} for lv in d.get("levels", ())]
+        return d
+
+    def _old_to_json(self) -> dict:
         d = {"name": self.name, "loop": self.loop, "sample_rate_hz": self.fs,
              "skipped": self.skipped}
         if self.skipped:
             return clean_json(d)
         d.update({"sensor": self.sensor, "tau_s": self.tau_s, "kt_est": self.kt_est,
-                  "levels": [lv.to_json() for lv in self.levels],
-                  "edges": [e.to_json() for e in self.edges],
+                  "levels": [lv._old_to_json() for lv in self.levels],
+                  "edges": [e._old_to_json() for e in self.edges],
                   "notes": self.notes, "figure": self.figure})
         return clean_json(d)
 
-    to_dict = to_json
+    def to_dict(self) -> dict:
+        """The older name of :meth:`to_json`."""
+        return self.to_json()
 
 
 @dataclass
@@ -208,7 +265,7 @@ class LineFit:
 
 
 @dataclass(repr=False)
-class AnalysisResult(Displayable):
+class AnalysisResult(Displayable, Record):
     """The answer of ``labrig analyse``: summary figures plus everything behind them.
 
     Attributes
@@ -245,30 +302,104 @@ class AnalysisResult(Displayable):
     True
     """
 
-    deadband_v: float | None
-    km: float | None
-    tau_s: float | None
-    kt: float | None
+    finite_json = True
+
+    deadband_v: Num
+    km: Num
+    tau_s: Num
+    kt: Num
     gain_trend: str
-    runs: list
-    verdict: str
-    line: LineFit = field(default_factory=LineFit)
-    trend: dict = field(default_factory=dict)
-    breakaway_v: float | None = None
-    kt_configured: float | None = None
-    kt_mismatch: bool | None = None
+    # (a table's analysis gives one plain dict)
+    runs: list[Union[RunAnalysis, dict]]
+    verdict: str = ""
+    # (written as its parts: forward, reverse, line_region)
+    line: Annotated[LineFit, _live] = field(default_factory=LineFit)
+    # (written without what km_paper and asymmetry say)
+    trend: Annotated[dict, PlainSerializer(_trend_json)] = field(default_factory=dict)
+    breakaway_v: Num = None
+    kt_configured: Num = None
+    kt_mismatch: Optional[bool] = None
     tolerance: float = GAIN_TOLERANCE
     source: str = "runs"
-    levels: list = field(default_factory=list)
-    figure_paths: list = field(default_factory=list)
+    # (the runs' levels, pooled; the JSON has them under each run)
+    levels: Annotated[list, _live] = field(default_factory=list)
+    figure_paths: Annotated[list[str], Field(alias="figures")] = field(default_factory=list)
     #: the axis's speed unit (rad/s on a rotary axis, m/s on a linear one)
-    speed_unit: str = "rad/s"
+    speed_unit: Annotated[str, _live] = "rad/s"
+
+    # -- the JSON's keys derived from the fields --------------------------------------------
+    @computed_field
+    @property
+    def km_paper(self) -> dict[str, Num]:
+        """w / V by amplitude (V, as text) (rad/s per V)."""
+        return {f"{a:g}": k for a, k in self.trend.get("km_by_amplitude", [])}
+
+    @computed_field
+    @property
+    def forward(self) -> Side:
+        """The forward side's gain and deadband."""
+        return {"km": self.line.km_fwd, "deadband_v": self.line.deadband_fwd}
+
+    @computed_field
+    @property
+    def reverse(self) -> Side:
+        """The reverse side's gain and deadband."""
+        return {"km": self.line.km_rev, "deadband_v": self.line.deadband_rev}
+
+    @computed_field
+    @property
+    def asymmetry(self) -> dict[str, Num]:
+        """Forward over reverse: Km and steady speed ratios, deadband difference (V)."""
+        asym = {}
+        if self.line.km_fwd is not None and self.line.km_rev is not None:
+            asym["km_ratio_fwd_rev"] = self.line.km_fwd / self.line.km_rev
+        if self.line.deadband_fwd is not None and self.line.deadband_rev is not None:
+            asym["deadband_diff_v"] = self.line.deadband_fwd - self.line.deadband_rev
+        asym.update(self.trend.get("asymmetry", {}))
+        return asym
+
+    @computed_field
+    @property
+    def line_region(self) -> str:
+        """Where the line was fitted: "linear", "saturated" or "single_level"."""
+        return self.line.region
+
+    @model_validator(mode="before")
+    @classmethod
+    def _from_record(cls, d):
+        # a record read back: the line from its parts, the trend with its gains by amplitude
+        if not isinstance(d, dict) or "line" in d:
+            return d
+        fwd, rev = d.get("forward") or {}, d.get("reverse") or {}
+        line = LineFit(km=d.get("km"), deadband_fwd=fwd.get("deadband_v"),
+                       deadband_rev=rev.get("deadband_v"), km_fwd=fwd.get("km"),
+                       km_rev=rev.get("km"), region=d.get("line_region", "linear"))
+        trend = {k: v for k, v in (d.get("trend") or {}).items() if v is not None}
+        trend["km_by_amplitude"] = sorted((float(a), k) for a, k in (d.get("km_paper") or {}).items())
+        own = {k: v for k, v in (d.get("asymmetry") or {}).items()
+               if k not in ("km_ratio_fwd_rev", "deadband_diff_v")}
+        if own:
+            trend["asymmetry"] = own
+        return {**d, "line": line, "trend": trend}
+
+    @model_validator(mode="after")
+    def _levels_of_the_runs(self):
+        if not self.levels:
+            self.levels = [lv for r in self.runs if isinstance(r, RunAnalysis) and not r.skipped
+                           for lv in r.levels]
+        return self
 
     def headline(self) -> str:
+        """The first line of the ``repr``: how many runs, and where the whole text is.
+
+        Returns
+        -------
+        str
+        """
         return f"AnalysisResult: {len(self.runs)} run(s); .summary() for the whole text"
 
     # -- data outputs ----------------------------------------------------------
-    def to_json(self) -> dict:
+    def _old_to_json(self) -> dict:
         """JSON-safe dict printed by ``--json`` (docs/design.md, 'Commands'; NaN, inf -> None)."""
         asym = {}
         if self.line.km_fwd is not None and self.line.km_rev is not None:
@@ -297,11 +428,20 @@ class AnalysisResult(Displayable):
         }
         return clean_json(d)
 
-    #: the older name, still used by ``labrig demo`` and the report
-    to_dict = to_json
+    def to_dict(self) -> dict:
+        """The older name of :meth:`to_json`, still used by ``labrig demo`` and the report."""
+        return self.to_json()
 
     def to_pandas(self) -> pd.DataFrame:
-        """Per-level table (one row per run and input level), like the paper's Table 1."""
+        """Per-level table (one row per run and input level), like the paper's Table 1.
+
+        Returns
+        -------
+        pandas.DataFrame
+            Columns ``run``, ``input_v`` (V), ``speed_rpm``, ``omega_rad_s``,
+            ``spread_rad_s``, ``tacho_v`` (V), ``km_paper``, ``tau_s`` (s), ``moving``,
+            ``segments``, ``settled``; None where a level has no such value.
+        """
         rows = []
         for lv in self.levels:
             rows.append({"run": lv.run, "input_v": lv.v,
@@ -313,11 +453,24 @@ class AnalysisResult(Displayable):
         return pd.DataFrame(rows)
 
     def table_rows(self) -> list:
-        """The per-level table and the summary table, as :class:`labrig.core.tables.Table`."""
+        """The per-level table and the summary table, as :class:`labrig.core.tables.Table`.
+
+        Returns
+        -------
+        list of Table
+            The steady speed per run and level (skipped runs as notes), then the summary
+            quantities.
+        """
         return table_rows(self)
 
     def summary(self) -> str:
-        """The readable summary: the tables, the verdict, the saved figures."""
+        """The readable summary: the tables, the verdict, the saved figures.
+
+        Returns
+        -------
+        str
+            Plain text, 110 columns wide.
+        """
         return summary_text(self)
 
     # -- figures ------------------------------------------------------------------
@@ -327,7 +480,8 @@ class AnalysisResult(Displayable):
         Parameters
         ----------
         ax : matplotlib Axes, optional
-            Draw here; by default on a new figure.
+            Draw here; by default on a new figure. (A folder path, deprecated, saves
+            every figure there as :meth:`save_figures` does and returns its paths.)
 
         Returns
         -------
@@ -359,15 +513,33 @@ class AnalysisResult(Displayable):
 
     def save_figures(self, figdir) -> list[str]:
         """Save every figure of :meth:`figures` as PNG into ``figdir`` (closing each)
-        and record the paths (:meth:`record_figures`); returns them."""
+        and record the paths (:meth:`record_figures`).
+
+        Parameters
+        ----------
+        figdir : str or Path
+            The folder to save into; made if missing, files of the same names replaced.
+
+        Returns
+        -------
+        list of str
+            The saved files' paths (:attr:`figure_paths`).
+        """
         from labrig.analysis.plots import save_figures  # matplotlib: ~0.2 s more to import
 
         self.record_figures(save_figures(self.figures(), figdir))
         return self.figure_paths
 
     def record_figures(self, saved) -> None:
-        """Remember where figures were saved (``{name: path}``) for the JSON: the
-        ``figures`` list and each run's ``figure``."""
+        """Remember where figures were saved for the JSON: the ``figures`` list and each
+        run's ``figure``.
+
+        Parameters
+        ----------
+        saved : dict
+            ``{file name: path}`` as saving gives it (``edges_<run>.png`` sets that
+            run's ``figure``).
+        """
         self.figure_paths = [str(p) for p in saved.values()]
         for r in self.runs:
             if isinstance(r, RunAnalysis) and f"edges_{r.name}.png" in saved:

@@ -22,6 +22,13 @@ class Displayable:
     """Mixin: ``__repr__`` (one screen of text) and ``_repr_html_`` (tables + figure)."""
 
     def headline(self) -> str:
+        """The first line of the ``repr`` and the title of the notebook's view.
+
+        Returns
+        -------
+        str
+            Here the class's name; a result says more.
+        """
         return type(self).__name__
 
     def _tables(self) -> list[Table]:

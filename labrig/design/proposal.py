@@ -170,7 +170,15 @@ class Proposal(Displayable):
     unseen: list = field(default_factory=list)
 
     def smallest_text(self) -> str:
-        """'it separates them for any deadband d_v above 0.08 V ...', one clause each."""
+        """'it separates them for any deadband d_v above 0.08 V ...', one clause each.
+
+        Returns
+        -------
+        str
+            One clause per explanation whose size the data cannot narrow (the smallest
+            size the proposed input separates), then the sizes no input within the
+            budget separates; "" when there are none.
+        """
         out = []
         for s in self.smallest:
             u = after_number(s["unit"])
@@ -192,6 +200,13 @@ class Proposal(Displayable):
         return text
 
     def headline(self) -> str:
+        """The first line of the ``repr``: the pair and the proposed input, or that
+        nothing within the budget separates them.
+
+        Returns
+        -------
+        str
+        """
         if not self.separates:
             return (f"No proposal between {self.pair[0]} and {self.pair[1]}: nothing within "
                     f"{self.budget_s:g} s separates them")
@@ -200,18 +215,34 @@ class Proposal(Displayable):
 
     @property
     def why(self) -> str:
+        """Why the chosen kind of input separates the pair, in plain words."""
         return why(self.chosen.candidate.kind, self.pair)
 
     @property
     def limits(self) -> dict:
-        """The board's limits the proposed input respects, and what it uses of them."""
+        """The board's limits the proposed input respects, and what it uses of them:
+        ``budget_s``, ``duration_s`` (s), ``max_points``, ``points``, ``amax_v``,
+        ``peak_v`` (V; rad for a reference of the board's own loop)."""
         c = self.chosen.candidate
         return {"budget_s": self.budget_s, "duration_s": c.duration,
                 "max_points": MAX_POINTS, "points": len(c.points),
                 "amax_v": self.amax, "peak_v": max(abs(u) for _, u in c.points)}
 
     def experiment(self, name: str = "proposed") -> dict:
-        """The plan's ``[[experiment]]`` table."""
+        """The plan's ``[[experiment]]`` table.
+
+        Parameters
+        ----------
+        name : str, default "proposed"
+            The experiment's name (the run file's stem when the rig plays it).
+
+        Returns
+        -------
+        dict
+            ``name``, ``loop``, ``waveform`` ("pwl"), ``lead_in_s``, ``sample_rate_hz``
+            (the template run's), a closed loop's gains, ``points`` (``[t_s, u]``
+            breakpoints) and ``between`` (the pair).
+        """
         c = self.chosen.candidate
         return {"name": name, "loop": c.loop, "waveform": "pwl", "lead_in_s": LEAD_IN_S,
                 "sample_rate_hz": float(self.template.fs), **loop_keys(c),
@@ -220,8 +251,28 @@ class Proposal(Displayable):
 
     def to_toml(self, name: str = "proposed", step: bool = False) -> str:
         """The plan file: an ordinary plan with one ``pwl`` experiment named ``name``.
-        ``step``: a step of a sequence (:mod:`labrig.design.ask`), written even when
-        it is not predicted to decide alone (the evidence adds up)."""
+
+        Parameters
+        ----------
+        name : str, default "proposed"
+            The experiment's name (:meth:`experiment`).
+        step : bool, default False
+            A step of a sequence (:mod:`labrig.design.ask`): written even when it is
+            not predicted to decide alone (the evidence adds up), provided its rival
+            re-fits were judged.
+
+        Returns
+        -------
+        str
+            TOML for ``labrig sweep --plan``, with comments saying why the input
+            separates the pair, by how much, and the limits it keeps to.
+
+        Raises
+        ------
+        UserError
+            No input within the budget separates the pair (the message gives the
+            advice), unless ``step`` and the chosen input was judged after re-fits.
+        """
         if not self.separates and not (step and self.chosen.refit):
             raise UserError(f"no input within {self.budget_s:g} s separates {self.pair[0]} "
                             f"and {self.pair[1]}; {self.advice}")
@@ -282,6 +333,14 @@ class Proposal(Displayable):
         return lead + rest[:max(0, 8 - len(lead))]
 
     def to_text(self) -> str:
+        """What ``labrig propose`` prints: the explanations' fits, the candidate inputs
+        with their predicted differences and separations, and the proposal with why (or
+        that nothing separates the pair, and what would).
+
+        Returns
+        -------
+        str
+        """
         c = self.chosen
         a, b = self.pair
         fits = "; ".join(f"with {h.effect}: rmse/noise {h.rmse_over_noise:.2f}"
@@ -323,7 +382,15 @@ class Proposal(Displayable):
                        + (f"\n{self.smallest_text()}" if self.smallest or self.unseen else ""))
 
     def table_rows(self) -> list[Table]:
-        """The explanations' fits, and the candidate inputs by predicted separation."""
+        """The explanations' fits, and the candidate inputs by predicted separation.
+
+        Returns
+        -------
+        list of Table
+            One row per explanation (rmse/noise, size, judged true), then the leading
+            inputs (predicted difference of the best fits, worst case, separation after
+            the rival re-fits).
+        """
         fits = Table(f"between {self.pair[0]} and {self.pair[1]}",
                      ["explanation", "rmse/noise", "size", "judged true"], numeric=(1,))
         fits.rows = [[h.effect, f"{h.rmse_over_noise:.2f}", h.describe_size() or "-",
@@ -344,7 +411,14 @@ class Proposal(Displayable):
         """The proposed run as the template's rig would record it, and the two predictions
         of it (``w``, ``theta``) in the pair's order, with their labels: the hardest
         plausible truth judged and the rival as re-fitted to it (what the predicted
-        separation measures), else the two best fits."""
+        separation measures), else the two best fits.
+
+        Returns
+        -------
+        tuple of (Run, list of dict, list of str)
+            The synthetic run; per explanation ``{"w", "theta", "i"}`` as
+            :meth:`Model.simulate` gives them; their labels.
+        """
         run = synthetic_run(self.template, self.chosen.candidate, "proposed")
         hard = self.chosen.hardest
         if hard is None:
@@ -358,7 +432,19 @@ class Proposal(Displayable):
         return run, [p for p, _ in pair], [lab for _, lab in pair]
 
     def plot(self, ax=None):
-        """Both explanations' predicted responses to the proposed input, with the noise band."""
+        """Both explanations' predicted responses to the proposed input, with the noise band.
+
+        Parameters
+        ----------
+        ax : matplotlib Axes, optional
+            Draw the speed (or, without a speed channel, the position) only, here; by
+            default a new figure with each channel and the input.
+
+        Returns
+        -------
+        matplotlib.figure.Figure
+            Not saved: the caller saves (and closes) it.
+        """
         from labrig.design.plots import plot_proposal  # matplotlib: ~0.25 s to import
 
         return plot_proposal(self, ax=ax)

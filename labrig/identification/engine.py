@@ -164,28 +164,53 @@ class Identification(Displayable):
         return bool(starts) and all(st.get("status") == -2 for st in starts)
 
     def headline(self) -> str:
+        """The first line of the ``repr``: the method, the effects, the fitness and the
+        overall rmse/noise.
+
+        Returns
+        -------
+        str
+        """
         m = self.metrics
         return (f"Identification ({self.method}; effects: {', '.join(self.effects.names) or 'none'}): "
                 f"fitness {m['fitness']:.4g}, rmse/noise {m['rmse_over_noise']['overall']:.2f}")
 
     @property
     def plant(self) -> dict:
+        """The fitted plant parameters ``{name: value}`` in SI units (R, L, J, B, K for
+        the voltage plant)."""
         return {k: self.params[k] for k in self.space.plant.names}
 
     @property
     def effect_params(self) -> dict:
+        """The fitted effects' parameters, ``{effect name: {param: value}}``."""
         return self.effects.nest(self.params)
 
     @property
     def fitness(self) -> float:
+        """The weighted rmse/noise the fit minimised (1.0 is the noise floor)."""
         return self.metrics["fitness"]
 
     def servo(self) -> ServoParams:
+        """The fitted plant and the rig's constants in the simulators' form.
+
+        Returns
+        -------
+        ServoParams
+        """
         return self.space.plant.servo(self.plant, self.constants)
 
     def step_info(self) -> dict:
         """Rise time, settling time and overshoot of the position loop with this model
-        (computed once: the text and the JSON both show them)."""
+        (computed once: the text and the JSON both show them).
+
+        Returns
+        -------
+        dict
+            ``rise_time_s`` and ``settling_time_s`` (s), ``overshoot_percent``; each
+            None where the identified loop is unstable, and ``"loop": None`` too where
+            the rig states no loop gains (kp).
+        """
         if getattr(self, "_step_info", None) is None:
             c = self.constants
             if "kp" not in c:   # no loop to speak of (see dataset_constants)
@@ -201,8 +226,14 @@ class Identification(Displayable):
     def physical(self) -> dict:
         """The plant and friction in the axis's units: ``{name: {value, unit, interval95}}``
         (J, B, Tc, T0 in kg m^2, N m s/rad, N m, N m for a torque-driven axis; M, Fv, Fc,
-        F0 for a force-driven one; R, L, J, B, K and friction for the voltage plant). The
-        interval is null where the parameter is not identifiable or fixed."""
+        F0 for a force-driven one; R, L, J, B, K and friction for the voltage plant).
+
+        Returns
+        -------
+        dict
+            ``{name: {"value": float, "unit": str, "interval95": [lo, hi] or None}}``;
+            the interval is None where the parameter is not identifiable or fixed.
+        """
         pars = (self.identifiable or {}).get("parameters", {})
         plant = self.space.plant
         # a friction in N m on the voltage plant is tc_v Ka K / R: it has an interval only
@@ -255,18 +286,46 @@ class Identification(Displayable):
         return identification_dict(self)
 
     def table_rows(self):
-        """The Table 2 column of this fit (:func:`labrig.identification.table.comparison_table`)."""
+        """The Table 2 column of this fit (:func:`labrig.identification.table.comparison_table`).
+
+        Returns
+        -------
+        Table
+            The identifiable combinations, the parameters, the fit, the closed-loop step
+            and the cost.
+        """
         return comparison_table([self])
 
     def to_pandas(self):
-        """Every parameter with its value (physical units) and whether it was fixed."""
+        """Every parameter with its value (physical units) and whether it was fixed.
+
+        Returns
+        -------
+        pandas.DataFrame
+            Indexed by ``parameter`` (``"J"``, ``"deadband.d_v"``), columns ``value`` and
+            ``fixed``.
+        """
         return pd.DataFrame([{"parameter": n, "value": v, "fixed": n in self.space.fixed}
                              for n, v in self.params.items()]).set_index("parameter")
 
     def plot(self, ax=None, kind: str = "fit"):
-        """``kind="fit"``: the model on the runs it was fitted to (measured and simulated,
-        one panel per run); ``kind="convergence"``: best fitness against iteration (JFO
-        and PSO; CO's local starts have no iterations to show)."""
+        """The fit on its runs, or its convergence.
+
+        Parameters
+        ----------
+        ax : matplotlib Axes, optional
+            Draw here (``kind="fit"``: the first run only); by default on a new figure.
+        kind : {"fit", "convergence"}
+            ``"fit"``: the model on the runs it was fitted to (measured and simulated,
+            one panel per run, at most four); ``"convergence"``: best fitness against
+            iteration (JFO and PSO; CO's local starts show as a line at their fitness).
+            A fit that holds no runs (``runs`` None) shows its convergence.
+
+        Returns
+        -------
+        matplotlib.figure.Figure
+            Not saved: the caller saves (and closes) it.
+        """
         # matplotlib: ~0.24 s more to import, only for a figure
         from labrig.identification.plots import plot_convergence, plot_fit
 
@@ -275,7 +334,14 @@ class Identification(Displayable):
         return plot_convergence([self], ax=ax)
 
     def model(self) -> Model:
-        """The identified model (what ``-o model.json`` saves)."""
+        """The identified model (what ``-o model.json`` saves).
+
+        Returns
+        -------
+        Model
+            The fitted parameters, effects and constants, with the fit's record
+            (method, fitness, seed, ...) in ``info``.
+        """
         return Model.from_flat(self.params, self.effects, self.constants,
                                plant=self.space.plant.kind, info={
             "method": self.method, "fitness": self.metrics["fitness"],

@@ -68,14 +68,18 @@ class Run:
     # -- raw columns ---------------------------------------------------------
     @property
     def t(self) -> np.ndarray:
+        """Sample times in s since the start of the record (the ``t`` column)."""
         return self.data["t"].to_numpy(float)
 
     @property
     def u(self) -> np.ndarray:
+        """The input in V as the bridge output it (``u``): the amplifier input in open
+        loop, the position reference in closed loop."""
         return self.data["u"].to_numpy(float)
 
     @property
     def ref(self) -> np.ndarray | None:
+        """The reference in V as the board read it back (``ref``), or None without one."""
         return self.data["ref"].to_numpy(float) if "ref" in self.data else None
 
     @property
@@ -93,10 +97,12 @@ class Run:
 
     @property
     def fs(self) -> float:
+        """The sample rate in Hz (the sidecar's ``sample_rate_hz``)."""
         return float(self.meta["sample_rate_hz"])
 
     @property
     def dt(self) -> float:
+        """The sample period in s (``1 / fs``)."""
         return 1.0 / self.fs
 
     @property
@@ -111,19 +117,23 @@ class Run:
 
     @property
     def has_pos(self) -> bool:
+        """A position channel (``pos``: a pot's volts or an encoder's counts)."""
         return "pos" in self.data
 
     # -- metadata ------------------------------------------------------------
     @property
     def experiment(self) -> dict:
+        """The sidecar's ``experiment`` table (loop, input, controller, ...); {} if none."""
         return self.meta.get("experiment", {})
 
     @property
     def loop(self) -> str:
+        """``"open"`` or ``"closed"`` (``experiment.loop``; default open)."""
         return self.experiment.get("loop", "open")
 
     @property
     def sensors(self) -> dict:
+        """The sidecar's ``sensors`` table (the channels' gains and offsets); {} if none."""
         return self.meta.get("sensors", {})
 
     @property
@@ -228,18 +238,23 @@ class Run:
 
     @property
     def kt(self) -> float:
+        """The tacho's gain Kt in V per rad/s of the motor shaft (``tacho_v_per_rad_s``)."""
         return float(self.sensors["tacho_v_per_rad_s"])
 
     @property
     def kpot(self) -> float:
+        """The position sensor's gain Kpot in V per rad of the output shaft (an
+        encoder's: counts per axis unit; ``pos_v_per_rad``)."""
         return float(self.sensors["pos_v_per_rad"])
 
     @property
     def pos_offset(self) -> float:
+        """The pot's volts at 0 rad (``pos_offset_v``; default 0)."""
         return float(self.sensors.get("pos_offset_v", 0.0))
 
     @property
     def gear_ratio(self) -> float:
+        """The gear ratio N, motor turns per output turn (``rig.gear_ratio``; default 1)."""
         return float(self.meta.get("rig", {}).get("gear_ratio", 1.0))
 
     @property
@@ -260,7 +275,8 @@ class Run:
 
     @property
     def position(self) -> np.ndarray | None:
-        """Output-shaft angle in rad from the pot, or None for a tacho-only run."""
+        """Output-shaft position in the axis's unit (rad, m): ``(pos - pos_offset) / kpot``;
+        None for a run without a position channel."""
         if not self.has_pos:
             return None
         return (self.data["pos"].to_numpy(float) - self.pos_offset) / self.kpot

@@ -32,6 +32,13 @@ class Catalogue(Displayable):
 
     @classmethod
     def builtin(cls) -> "Catalogue":
+        """The built-in effect catalogue (what ``lr.effects()`` gives).
+
+        Returns
+        -------
+        Catalogue
+            Every built-in effect, in the catalogue's order (user effects not included).
+        """
         return cls(dict(CATALOGUE))
 
     def __getitem__(self, name: str):
@@ -44,9 +51,23 @@ class Catalogue(Displayable):
         return len(self.effects)
 
     def headline(self) -> str:
+        """The first line of the ``repr``: how many effects.
+
+        Returns
+        -------
+        str
+        """
         return f"Catalogue: {len(self.effects)} effects"
 
     def table_rows(self) -> Table:
+        """The catalogue as a table.
+
+        Returns
+        -------
+        Table
+            One row per effect: its name, stage, parameters with their units, and what
+            it is.
+        """
         t = Table("the effect catalogue", ["effect", "stage", "parameters", "what it is"])
         for name, e in self.effects.items():
             params = ", ".join(f"{p.name} ({p.unit})" for p in e.params)
@@ -54,6 +75,15 @@ class Catalogue(Displayable):
         return t
 
     def to_pandas(self):
+        """The catalogue as a DataFrame, one row per effect.
+
+        Returns
+        -------
+        pandas.DataFrame
+            Columns ``effect``, ``stage``, ``parameters`` (a list of names),
+            ``summary``, ``signature`` (where it shows in the residuals) and
+            ``experiment`` (the one that confirms it).
+        """
         import pandas as pd  # ~0.19 s to import, for a notebook's table only
 
         return pd.DataFrame([{"effect": n, "stage": e.stage,

@@ -147,20 +147,76 @@ class Model:
                    starts=starts)
 
     def with_effect(self, effect: Effect, params: dict) -> "Model":
-        """This model plus ``effect`` with its ``params`` (nothing re-fitted)."""
+        """This model plus ``effect`` with its ``params`` (nothing re-fitted).
+
+        Parameters
+        ----------
+        effect : Effect
+            The effect to add (an effect object, not a name).
+        params : dict
+            ``{param: value}`` for ``effect``, in the units :attr:`effect_params` holds.
+
+        Returns
+        -------
+        Model
+            A new model; this one is unchanged and the fit record (``info``) is dropped.
+
+        Raises
+        ------
+        UserError
+            ``effect`` is already in the model or conflicts with one of its effects.
+        """
         eps = {**self.effect_params, effect.name: dict(params)}
         return replace(self, effects=self.effects + [effect], effect_params=eps, info={})
 
     def with_params(self, effect: str, **params) -> "Model":
         """This model with some of ``effect``'s parameters set (nothing re-fitted; the
-        fit record, which no longer describes it, dropped)."""
+        fit record, which no longer describes it, dropped).
+
+        Parameters
+        ----------
+        effect : str
+            The name of one of the model's effects.
+        **params : float
+            The parameters to set, ``name=value`` in the units :attr:`effect_params`
+            holds; the effect's other parameters keep their values.
+
+        Returns
+        -------
+        Model
+            A new model; this one is unchanged.
+
+        Raises
+        ------
+        KeyError
+            ``effect`` is not an effect of the model.
+        """
         eps = {**self.effect_params, effect: {**self.effect_params[effect],
                                               **{k: float(v) for k, v in params.items()}}}
         return replace(self, effect_params=eps, info={})
 
     def with_value(self, key: str, value: float) -> "Model":
         """This model with one parameter set: a plant's (``"J"``) or an effect's
-        (``"deadband.d_v"``); nothing re-fitted, the fit record dropped."""
+        (``"deadband.d_v"``); nothing re-fitted, the fit record dropped.
+
+        Parameters
+        ----------
+        key : str
+            A plant parameter (``"J"``) or ``"effect.param"`` (``"deadband.d_v"``).
+        value : float
+            Its new value, in SI units (an effect's in the units :attr:`effect_params`
+            holds).
+
+        Returns
+        -------
+        Model
+            A new model; this one is unchanged.
+
+        Raises
+        ------
+        KeyError
+            ``key`` is not a parameter of this model.
+        """
         if "." in key:
             effect, name = key.split(".", 1)
             if effect not in self.effect_params or name not in self.effect_params[effect]:
@@ -173,7 +229,18 @@ class Model:
     def values_from(self, other: "Model") -> "Model":
         """This model's structure with the values ``other`` holds for its parameters (the
         plant, its effects', the runs' starts): a model whose own parameters a larger
-        model's fit moved."""
+        model's fit moved.
+
+        Parameters
+        ----------
+        other : Model
+            The model to take values from; a parameter it lacks keeps this model's value.
+
+        Returns
+        -------
+        Model
+            A new model with this model's structure, constants and fit record.
+        """
         theirs = other.flat()
         flat = {k: theirs.get(k, v) for k, v in self.flat().items()}
         return Model.from_flat(flat, self.effects, self.constants, plant=self.plant,
@@ -181,14 +248,38 @@ class Model:
 
     def effects_with(self, asked) -> EffectSet:
         """This model's effects and those of ``asked`` it lacks, in that order: what a fit
-        warm-started from this model adds to (``identify --model``, ``lr.add_effect``)."""
+        warm-started from this model adds to (``identify --model``, ``lr.add_effect``).
+
+        Parameters
+        ----------
+        asked : EffectSet, str or list of str
+            The effects asked for (``"deadband,coulomb_friction"`` or a list of names).
+
+        Returns
+        -------
+        EffectSet
+
+        Raises
+        ------
+        UserError
+            An unknown effect name, or an asked effect that conflicts with the model's.
+        """
         return self.effects + [e for e in EffectSet.parse(asked) if e.name not in self.names]
 
     @property
     def names(self) -> list[str]:
+        """The names of the model's effects, in order (``[]`` for the linear model)."""
         return self.effects.names
 
     def servo(self) -> ServoParams:
+        """The plant's parameters and the rig's constants in the simulators' form.
+
+        Returns
+        -------
+        ServoParams
+            R, L, J, B, K in SI units (a torque or force drive: its J, B with no back-EMF)
+            and Ka, N, Kt, Kpot (a default where a constant is missing).
+        """
         return self.plant_class.servo(self.params, self.constants)
 
     # -- files ---------------------------------------------------------------------------
@@ -244,16 +335,63 @@ class Model:
 
     @classmethod
     def load(cls, path: Path | str) -> "Model":
-        """Read, validate and load a model file."""
+        """Read, validate and load a model file.
+
+        Parameters
+        ----------
+        path : str or Path
+            A ``labrig-model/1`` JSON file (what :meth:`save` writes).
+
+        Returns
+        -------
+        Model
+
+        Raises
+        ------
+        UserError
+            The file is missing, too big, not JSON or not a labrig model, or a key is
+            missing or wrong (one line naming the file and the key).
+        """
         return cls.from_json(read_model_file(path), str(path))
 
     def save(self, path: Path | str) -> Path:
-        """Write the model file atomically (the caller checks --force first)."""
+        """Write the model file atomically (the caller checks --force first).
+
+        Parameters
+        ----------
+        path : str or Path
+            Where to write; its folder is made if missing, an existing file replaced.
+
+        Returns
+        -------
+        Path
+            ``path``, as a :class:`~pathlib.Path`.
+        """
         return write_json(path, self.to_json())
 
     # -- simulation ------------------------------------------------------------------------
     def simulate(self, runs) -> list[dict]:
-        """Simulate this model on ``runs``: per run ``{"w": (n,), "theta": (n,)}``."""
+        """Simulate this model on ``runs``, each with its fitted start (or from rest).
+
+        Parameters
+        ----------
+        runs : list of Run
+            The runs whose inputs drive the simulation (open or closed loop as each
+            run's sidecar says).
+
+        Returns
+        -------
+        list of dict
+            Per run ``{"w": (n,), "theta": (n,), "i": (n,)}``: motor speed (rad/s or
+            m/s), output position (rad or m) and the armature current (A; on a torque
+            or force drive, the drive's torque or force).
+
+        Raises
+        ------
+        UserError
+            A user-written input or drive effect on a closed-loop run (it is simulated
+            on open-loop runs only).
+        """
         # the simulator brings numba (~0.12 s more to import); reading or writing a model
         # file never simulates
         from labrig.model.simulate import Simulator
@@ -279,11 +417,24 @@ class Model:
     def shown_effect_params(self) -> dict:
         """The effects' parameters as a user reads them: in the drive's units on a torque
         or force drive (``tc_nm``, ``tc_n``; :mod:`labrig.model.drive_units`), as they
-        are on a voltage drive."""
+        are on a voltage drive.
+
+        Returns
+        -------
+        dict
+            ``{effect name: {param: value}}``.
+        """
         return drive_units.to_drive(self.effects, self.effect_params, self.plant, self.constants)
 
     def describe(self) -> str:
-        """One line: the structure and its parameters."""
+        """One line: the structure and its parameters.
+
+        Returns
+        -------
+        str
+            ``"linear + deadband (R = 8, ...; deadband: d_v = 0.3)"``: plant parameters
+            in SI units, effects' as :meth:`shown_effect_params` gives them.
+        """
         ps = ", ".join(f"{k} = {v:.4g}" for k, v in self.params.items())
         eff = "; ".join(f"{e}: " + ", ".join(f"{k} = {v:.3g}" for k, v in p.items())
                         for e, p in self.shown_effect_params().items())

@@ -66,6 +66,12 @@ class Evaluation(Displayable):
     weights: Weights = Weights()
 
     def headline(self) -> str:
+        """The first line of the ``repr``: the overall rmse/noise and how many runs.
+
+        Returns
+        -------
+        str
+        """
         return (f"Evaluation: rmse/noise {self.metrics['rmse_over_noise']['overall']:.2f} "
                 f"on {len(self.per_run)} run(s)")
 
@@ -93,9 +99,24 @@ class Evaluation(Displayable):
         return max(self.n * (1 - rho) / (1 + rho), 10.0)
 
     def worst_regime(self):
+        """Where the error is most over-represented: the regime with the largest
+        rmse/noise (regimes under 0.5 % of the time left out).
+
+        Returns
+        -------
+        tuple of (str, str, float) or None
+            ``(channel, regime, rmse/noise)``; None when no regime qualifies.
+        """
         return worst_regime(self.regimes)
 
     def worst_run(self) -> dict:
+        """The run whose worst channel is furthest from the noise floor.
+
+        Returns
+        -------
+        dict
+            Its entry of :attr:`per_run` (``name``, ``t``, ``channels``, ...).
+        """
         return worst_run(self.per_run)
 
     def to_json(self) -> dict:
@@ -106,7 +127,15 @@ class Evaluation(Displayable):
 
     def runs(self) -> list[dict]:
         """Per run: fit % and rmse/noise per channel and the worst stretch outside the
-        noise band (the ``runs`` of ``labrig compare --json``, without figures)."""
+        noise band (the ``runs`` of ``labrig compare --json``, without figures).
+
+        Returns
+        -------
+        list of dict
+            ``{"run", "fit_percent": {channel: %}, "rmse_over_noise": {channel: x},
+            "worst_stretch": {"regime", "t_s", "rms_over_noise"} or None}``, one per
+            run (``worst_stretch`` None for an evaluation without detail).
+        """
         out = []
         for rr in self.per_run:
             ch = rr["channels"]
@@ -122,17 +151,36 @@ class Evaluation(Displayable):
         return out
 
     def to_pandas(self):
-        """Per run and channel: fit % and rmse/noise, one row each."""
+        """Per run and channel: fit % and rmse/noise, one row each.
+
+        Returns
+        -------
+        pandas.DataFrame
+            Columns ``run``, ``channel``, ``fit_percent``, ``rmse_over_noise``.
+        """
         return pd.DataFrame([{"run": r["run"], "channel": ch, "fit_percent": r["fit_percent"][ch],
                               "rmse_over_noise": r["rmse_over_noise"][ch]}
                              for r in self.runs() for ch in r["fit_percent"]])
 
     def warnings(self) -> list[str]:
-        """A run whose fit % is below zero (the model is worse than a constant)."""
+        """A run whose fit % is below zero (the model is worse than a constant).
+
+        Returns
+        -------
+        list of str
+            One sentence per run and channel whose fit % is below zero or not a number;
+            empty when none.
+        """
         return [w for r in self.runs() for w in fit_warnings(r["fit_percent"], f"run '{r['run']}'")]
 
     def table_rows(self) -> Table:
-        """Per run: fit % and rmse/noise of each channel, and the worst stretch."""
+        """Per run: fit % and rmse/noise of each channel, and the worst stretch.
+
+        Returns
+        -------
+        Table
+            One row per run (:meth:`runs`).
+        """
         rows = []
         for r in self.runs():
             f, e, st = r["fit_percent"], r["rmse_over_noise"], r["worst_stretch"]
@@ -146,10 +194,31 @@ class Evaluation(Displayable):
                      numeric=(1, 2, 3, 4))
 
     def plot(self, ax=None, kind: str = "overlay", run: str | None = None):
-        """``kind="overlay"``: one run (``run`` by name; default the worst), measured
-        against simulated, with the residual in noise units, its noise band and the
-        stretches outside it shaded by regime (``labrig compare``'s figure);
-        ``kind="regimes"``: rmse/noise by regime."""
+        """One run's model against measurement, or the error by regime.
+
+        Parameters
+        ----------
+        ax : matplotlib Axes, optional
+            Draw here (the overlay's first channel only, or the first channel's
+            regimes); by default on a new figure.
+        kind : {"overlay", "regimes"}
+            ``"overlay"``: one run measured against simulated, with the residual in
+            noise units, its noise band and the stretches outside it shaded by regime
+            (``labrig compare``'s figure); ``"regimes"``: rmse/noise by regime. Any
+            other value draws the overlay.
+        run : str, optional
+            The overlay's run by name; None: the worst run (:meth:`worst_run`).
+
+        Returns
+        -------
+        matplotlib.figure.Figure
+            Not saved: the caller saves (and closes) it.
+
+        Raises
+        ------
+        KeyError
+            ``run`` names no run of this evaluation.
+        """
         # matplotlib: ~0.27 s more to import, only for a figure
         from labrig.diagnosis.results.plots import plot_regimes, plot_run_comparison
 
@@ -158,7 +227,26 @@ class Evaluation(Displayable):
         return plot_run_comparison(self.run(run), ax=ax)
 
     def run(self, name: str | None = None) -> dict:
-        """The entry of :attr:`per_run` named ``name`` (default: the worst run)."""
+        """The entry of :attr:`per_run` named ``name`` (default: the worst run).
+
+        Parameters
+        ----------
+        name : str, optional
+            The run's name (its file name without ``.csv``); None: the worst run
+            (:meth:`worst_run`).
+
+        Returns
+        -------
+        dict
+            The run's residuals: ``name``, ``t`` (s), ``channels`` (per channel
+            ``measured``, ``simulated``, ``residual`` in noise units, fit %,
+            rmse/noise, ...) and each sample's regime (``labels``).
+
+        Raises
+        ------
+        KeyError
+            ``name`` is not one of the evaluated runs.
+        """
         if name is None:
             return self.worst_run()
         rr = next((r for r in self.per_run if r["name"] == name), None)
@@ -169,8 +257,26 @@ class Evaluation(Displayable):
     def view(self, run: str | None = None, **size):
         """The same as :meth:`plot` as interactive Bokeh figures on linked time axes
         (zoom, pan, hover: time, measured, model, residual), what the lab page shows;
-        a notebook displays it with ``bokeh.io.show`` or ``panel.pane.Bokeh``. Returns
-        the :class:`labrig.diagnosis.results.interactive.RunView` (its ``layout`` is the figure)."""
+        a notebook displays it with ``bokeh.io.show`` or ``panel.pane.Bokeh``.
+
+        Parameters
+        ----------
+        run : str, optional
+            The run by name; None: the worst run (:meth:`worst_run`).
+        **size
+            ``width`` and ``height`` of each channel's figure in pixels (default: the
+            container's width, 190).
+
+        Returns
+        -------
+        labrig.diagnosis.results.interactive.RunView
+            Its ``layout`` is the figure.
+
+        Raises
+        ------
+        KeyError
+            ``run`` names no run of this evaluation.
+        """
         from labrig.diagnosis.results.interactive import run_view  # bokeh: ~0.3 s more to import
 
         return run_view(self.run(run), **size)

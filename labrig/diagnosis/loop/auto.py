@@ -79,6 +79,12 @@ class AutoDiagnosis(Displayable):
     sensor_lag: str = ""
 
     def headline(self) -> str:
+        """The first line of the ``repr``: the final effects and how many rounds.
+
+        Returns
+        -------
+        str
+        """
         return (f"AutoDiagnosis: final effects {', '.join(self.model.names) or 'none'} after "
                 f"{len(self.rounds)} round(s)")
 
@@ -89,6 +95,8 @@ class AutoDiagnosis(Displayable):
 
     @property
     def verdict(self) -> str:
+        """The final model and its thresholds in words, the last round's verdict when it
+        recommends nothing more, and a fitted lag that is the sensor's; '' with no rounds."""
         if not self.rounds:
             return ""
         last = self.rounds[-1]
@@ -110,6 +118,14 @@ class AutoDiagnosis(Displayable):
                 "verdict": self.verdict}
 
     def table_rows(self) -> list[Table]:
+        """The error ladder and the confusable pairs.
+
+        Returns
+        -------
+        list of Table
+            The ladder's table (:meth:`Ladder.table_rows`), then one row per confusable
+            pair: its round, rmse/noise and the regime where the two differ most.
+        """
         pairs = Table("confusable pairs", ["round", "pair", "rmse/noise", "they differ most in"])
         pairs.notes.append("about equally good explanations: an experiment should decide")
         for p in self.confusable:
@@ -124,6 +140,13 @@ class AutoDiagnosis(Displayable):
         return [self.ladder.table_rows(), pairs]
 
     def to_text(self) -> str:
+        """What ``labrig diagnose --auto`` prints: the tables, the moves, the noise
+        floors, weights and folds, the final model and the verdict.
+
+        Returns
+        -------
+        str
+        """
         out = [t.to_text() + "\n" for t in self.table_rows()]
         if self.moves:
             out.append("moves: " + "; ".join(f"round {m.round}: {m.label} (cross-validated "
@@ -147,6 +170,19 @@ class AutoDiagnosis(Displayable):
         return "\n".join(out)
 
     def plot(self, ax=None):
+        """The error ladder: rmse/noise after each move against the noise floor
+        (:meth:`Ladder.plot`).
+
+        Parameters
+        ----------
+        ax : matplotlib Axes, optional
+            Draw here; by default on a new figure.
+
+        Returns
+        -------
+        matplotlib.figure.Figure
+            Not saved: the caller saves (and closes) it.
+        """
         return self.ladder.plot(ax=ax)
 
 

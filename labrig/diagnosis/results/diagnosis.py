@@ -7,14 +7,18 @@ renders :meth:`Diagnosis.table_rows`, so nothing is formatted twice.
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from typing import Annotated, Any, Literal, Optional
 
 import pandas as pd
+from pydantic import ConfigDict, Field, computed_field, with_config
+from typing_extensions import NotRequired, TypedDict
 
 from labrig.diagnosis.evidence.evaluation import Evaluation
 from labrig.model.model import Model
-from labrig.diagnosis.evidence.residuals import REGIME_TEXT
+from labrig.diagnosis.evidence.residuals import REGIME_TEXT, REGIMES
 from labrig.core.tables import Table, fmt
 from labrig.core.display import Displayable
+from labrig.core.record import Record
 # how the diagnosis ranks and picks candidates, for the table's notes
 from labrig.diagnosis.evidence.criteria import (CV_CANDIDATES, PARSIMONY, SCREEN_AFTER, SCREEN_GAIN,
                                        SCREEN_STALL, SIMPLER_MARGIN, SWAP_GAIN)
@@ -22,48 +26,135 @@ from labrig.model.effects import CATALOGUE, get_effect
 from labrig.model import drive_units
 
 
+Num = Optional[float]
+Regime = Literal[REGIMES]
+#: a nested record that may carry keys beyond those declared (kept as they are)
+_open = with_config(ConfigDict(extra="allow"))
+
+
+def _unset(v) -> bool:
+    return v is None
+
+
+def _empty(v) -> bool:
+    return not v
+
+
+# -- the shapes of the JSON's nested records ------------------------------------------------
+
+@_open
+class RegimeStat(TypedDict):
+    rmse_over_noise: float
+    share_of_time: float
+    share_of_error: NotRequired[Num]
+
+
+@_open
+class Worst(TypedDict):
+    channel: str
+    regime: Regime
+    rmse_over_noise: NotRequired[Num]
+
+
+@_open
+class Regimes(TypedDict):
+    """A model's error by regime and by run amplitude, per channel, and the worst."""
+
+    by_regime: dict[str, dict[Regime, RegimeStat]]
+    by_amplitude: NotRequired[dict[str, dict[str, float]]]
+    worst: NotRequired[Optional[Worst]]
+    noise: NotRequired[dict[str, Num]]
+
+
+@_open
+class CrossValidated(TypedDict):
+    """A candidate's held-out evidence against the model it changes."""
+
+    baseline: float
+    with_effect: float
+    improvement: NotRequired[Num]
+    folds_improved: NotRequired[int]
+    folds: NotRequired[int]
+    per_fold: NotRequired[list[dict]]
+    not_counted: NotRequired[list[dict]]
+    evidence: NotRequired[list[dict]]
+
+
+@_open
+class Baseline(TypedDict, total=False):
+    """The diagnosed model's error and size."""
+
+    source: str
+    effects: list[str]
+    rmse_over_noise: dict[str, Num]
+    fit_percent: dict[str, Num]
+    fitness: Num
+    bic: Num
+    n: Optional[int]
+    n_effective: Num
+    cross_validated: Num
+    #: each run's fitted start where it is not rest (labrig.model.start)
+    starts: dict[str, dict[str, float]]
+
+
+@_open
+class Criteria(TypedDict, total=False):
+    min_improvement: Num
+    max_delta_bic: Num
+    floor: Num
+
+
 @dataclass
-class Candidate:
-    """One catalogue effect tried on the data: re-fitted, scored and explained."""
+class Candidate(Record):
+    """One catalogue effect tried on the data: re-fitted, scored and explained.
+
+    Its fields are its record in ``labrig diagnose --json`` (``ranking``), but for the
+    live ones (the re-fitted model, its evaluation and cross-validation); ``params`` is
+    written in the drive's units (:meth:`shown_params`) and ``label`` is the move.
+    """
 
     effect: str
     rmse_over_noise: float
     improvement: float
-    delta_bic: float
-    params: dict
-    fit_percent: dict
+    delta_bic: Num
+    # (written as shown_params(): the drive's units)
+    params: Annotated[dict[str, Num], Field(exclude=True)]
+    fit_percent: dict[str, Num]
     #: held-out evidence: baseline and candidate cross-validated rmse/noise, the folds
     #: it improved, and the regimes that carry the gain
-    cross_validated: dict | None = None
+    cross_validated: Annotated[Optional[CrossValidated], Field(exclude_if=_unset)] = None
     supported: bool = False
     explanation: str = ""
     #: parameters whose fit ended at a bound of the search space
-    at_bound: list = field(default_factory=list)
+    at_bound: list[str] = field(default_factory=list)
     #: "add" (``effect`` added), "remove" (``effect`` taken out) or "replace"
     #: (``replaces`` taken out, ``effect`` put in its place)
-    move: str = "add"
-    replaces: str | None = None
+    move: Literal["add", "remove", "replace"] = "add"
+    replaces: Annotated[Optional[str], Field(exclude_if=_empty)] = None
     #: parameters the move adds to the model (negative: takes away)
-    extra_params: int = 1
+    extra_params: Annotated[int, Field(exclude=True)] = 1
     #: why the effect's fitted size is not resolved by the data (None: it is)
-    unresolved: str | None = None
+    unresolved: Annotated[Optional[str], Field(exclude_if=_empty)] = None
     #: the share of the candidate's error the effect itself carries (the error with the
     #: effect switched off, the rest unchanged, is ``off_fitness``); None: not checked
-    carried: float | None = None
-    off_fitness: float | None = field(default=None, repr=False)
+    carried: Annotated[Num, Field(exclude_if=_unset)] = None
+    off_fitness: Annotated[Num, Field(exclude=True)] = field(default=None, repr=False)
     #: starts of its re-fit that diverged (their simulation overflowed) and were dropped
-    failed_starts: int = 0
+    failed_starts: Annotated[int, Field(exclude_if=_empty)] = 0
     #: screened out (:func:`labrig.diagnosis.evidence.criteria.screen`): its re-fit was ended
     #: after this many iterations, stalled below the screen's gain; its numbers are
     #: where the re-fit stood then. None: re-fitted to the end
-    screened: int | None = None
+    screened: Annotated[Optional[int], Field(alias="screened_after_iterations",
+                                             exclude_if=_unset)] = None
     #: live, not in the JSON: the re-fitted model and its evaluation on all runs
-    model: Model | None = field(default=None, repr=False)
-    evaluation: Evaluation | None = field(default=None, repr=False)
+    model: Annotated[Optional[Model], Field(exclude=True)] = field(default=None, repr=False)
+    evaluation: Annotated[Optional[Evaluation], Field(exclude=True)] = field(default=None,
+                                                                             repr=False)
     #: live, not in the JSON: its cross-validation (the next round's baseline when the
     #: search takes it)
-    held_out: object = field(default=None, repr=False)
+    held_out: Annotated[Any, Field(exclude=True)] = field(default=None, repr=False)
 
+    @computed_field
     @property
     def label(self) -> str:
         """The move in the ranking and the recommendation: ``deadband`` (add it),
@@ -98,7 +189,12 @@ class Candidate:
         return drive_units.to_drive([eff], {self.effect: self.params}, m.plant,
                                     m.constants)[self.effect]
 
-    def to_json(self) -> dict:
+    @computed_field(alias="params")
+    @property
+    def _params_shown(self) -> dict[str, Num]:
+        return self.shown_params()
+
+    def _old_to_json(self) -> dict:
         d = {"effect": self.effect, "move": self.move, "label": self.label,
              "rmse_over_noise": self.rmse_over_noise,
              "improvement": self.improvement, "delta_bic": self.delta_bic,
@@ -122,7 +218,7 @@ class Candidate:
 
 
 @dataclass(repr=False)
-class Diagnosis(Displayable):
+class Diagnosis(Displayable, Record):
     """Where the model fails and which effect is missing, with the evidence.
 
     Attributes
@@ -153,38 +249,63 @@ class Diagnosis(Displayable):
     >>> [c.effect for c in diag.ranking[:2]]  # doctest: +SKIP
     """
 
-    baseline: dict
-    regimes: dict
+    baseline: Baseline
+    regimes: Regimes
     ranking: list[Candidate]
-    recommendation: str | None
+    recommendation: Optional[str]
     verdict: str
-    cross_validation: dict | None
-    criteria: dict
-    seconds: float
+    cross_validation: Optional[dict]
+    criteria: Criteria
+    seconds: Num
     #: each channel's noise floor and how it was measured; the channel weights
     noise: dict = field(default_factory=dict)
     weights: dict = field(default_factory=dict)
     #: candidates not ranked because every start of their re-fit diverged
-    diverged: list = field(default_factory=list)
-    #: live: the diagnosed model, its evaluation, the rig constants and run names
-    base: Model | None = field(default=None, repr=False)
-    evaluation: Evaluation | None = field(default=None, repr=False)
-    constants: dict = field(default_factory=dict, repr=False)
-    dataset: list = field(default_factory=list, repr=False)
-    folds: object = field(default=None, repr=False)
-    cv_baseline: object = field(default=None, repr=False)
+    diverged: Annotated[list[str], Field(exclude_if=_empty)] = field(default_factory=list)
+    #: live, not in the JSON: the diagnosed model, its evaluation, the rig constants and
+    #: run names, the folds and the base model's cross-validation
+    base: Annotated[Optional[Model], Field(exclude=True)] = field(default=None, repr=False)
+    evaluation: Annotated[Optional[Evaluation], Field(exclude=True)] = field(default=None,
+                                                                             repr=False)
+    constants: Annotated[dict, Field(exclude=True)] = field(default_factory=dict, repr=False)
+    dataset: Annotated[list, Field(exclude=True)] = field(default_factory=list, repr=False)
+    folds: Annotated[Any, Field(exclude=True)] = field(default=None, repr=False)
+    cv_baseline: Annotated[Any, Field(exclude=True)] = field(default=None, repr=False)
     #: the given model was re-fitted here: its candidates found better values of its own
     #: parameters, and ``base`` holds them (``baseline['source']`` says by how much)
-    refined: bool = field(default=False, repr=False)
+    refined: Annotated[bool, Field(exclude=True)] = field(default=False, repr=False)
 
     def headline(self) -> str:
+        """The first line of the ``repr``: the model's rmse/noise, its effects and the
+        recommendation.
+
+        Returns
+        -------
+        str
+        """
         r = self.baseline["rmse_over_noise"]["overall"]
         return (f"Diagnosis: rmse/noise {r:.2f} with effects "
                 f"{', '.join(self.baseline['effects']) or 'none'}; recommendation: "
                 f"{self.recommendation or 'none'}")
 
     def candidate(self, label: str) -> Candidate:
-        """The candidate of a ranking label (an added effect is its own name)."""
+        """The candidate of a ranking label (an added effect is its own name).
+
+        Parameters
+        ----------
+        label : str
+            A label of :attr:`ranking`: ``"deadband"`` (added), ``"- deadband"``
+            (removed) or ``"X -> Y"`` (replaced).
+
+        Returns
+        -------
+        Candidate
+
+        Raises
+        ------
+        StopIteration
+            No candidate of the ranking has that label.
+        """
         return next(c for c in self.ranking if c.label == label)
 
     def recommended_model(self) -> Model | None:
@@ -196,6 +317,7 @@ class Diagnosis(Displayable):
         Returns
         -------
         Model or None
+            With the rig's constants and a record of the re-fit in ``info``.
         """
         if self.recommendation:
             return self.model_with(self.recommendation)
@@ -204,7 +326,24 @@ class Diagnosis(Displayable):
         return self._to_save(self.base, self.evaluation.rmse, "co (diagnose re-fit, refined)")
 
     def model_with(self, label: str) -> Model:
-        """The re-fitted model of a candidate (by its ranking label)."""
+        """The re-fitted model of a candidate (by its ranking label).
+
+        Parameters
+        ----------
+        label : str
+            A label of :attr:`ranking` (:meth:`candidate`'s).
+
+        Returns
+        -------
+        Model
+            The candidate's re-fitted model with the rig's constants and a record of the
+            re-fit in ``info``, ready to save.
+
+        Raises
+        ------
+        StopIteration
+            No candidate of the ranking has that label.
+        """
         c = self.candidate(label)
         return self._to_save(c.model, c.rmse_over_noise, "co (diagnose re-fit)")
 
@@ -214,9 +353,9 @@ class Diagnosis(Displayable):
                        info={"method": method, "rmse_over_noise": {"overall": rmse},
                              "dataset": {"runs": list(self.dataset)}})
 
-    def to_json(self) -> dict:
+    def _old_to_json(self) -> dict:
         return {"baseline": self.baseline, "regimes": self.regimes,
-                "ranking": [c.to_json() for c in self.ranking],
+                "ranking": [c._old_to_json() for c in self.ranking],
                 "recommendation": self.recommendation, "verdict": self.verdict,
                 "cross_validation": self.cross_validation, "noise": self.noise,
                 "weights": self.weights, "criteria": self.criteria,
@@ -224,7 +363,15 @@ class Diagnosis(Displayable):
                 **({"diverged": list(self.diverged)} if self.diverged else {})}
 
     def to_pandas(self):
-        """The ranking as a DataFrame, one row per candidate effect."""
+        """The ranking as a DataFrame, one row per candidate effect.
+
+        Returns
+        -------
+        pandas.DataFrame
+            Best first; columns ``effect``, ``move`` (the label), ``rmse_over_noise``,
+            ``improvement`` (a fraction), ``delta_bic``, ``cross_validated`` (held-out
+            rmse/noise with the move, None if not cross-validated) and ``supported``.
+        """
         return pd.DataFrame([{"effect": c.effect, "move": c.label, "rmse_over_noise": c.rmse_over_noise,
                               "improvement": c.improvement, "delta_bic": c.delta_bic,
                               "cross_validated": (c.cross_validated or {}).get("with_effect"),
@@ -232,7 +379,14 @@ class Diagnosis(Displayable):
 
     # -- presentation ---------------------------------------------------------------------
     def table_rows(self) -> list[Table]:
-        """Where it fails (by regime), and the ranking of candidates."""
+        """Where it fails (by regime), and the ranking of candidates.
+
+        Returns
+        -------
+        list of Table
+            The rmse/noise by channel and regime, then the ranking with its rules,
+            cross-validation, noise floors and weights as notes.
+        """
         regimes = Table("where it fails (rmse/noise by regime; share of time)",
                         ["channel", "regime", "rmse/noise", "share of time"], numeric=(2, 3))
         for ch, regs in self.regimes["by_regime"].items():
@@ -312,6 +466,13 @@ class Diagnosis(Displayable):
         return [ranking, regimes]   # in a notebook, the ranking first: it is the answer
 
     def to_text(self) -> str:
+        """What ``labrig diagnose`` prints: the baseline, the tables, the recommendation
+        (with each fold's evidence), the verdict and the next command.
+
+        Returns
+        -------
+        str
+        """
         b = self.baseline
         r = b["rmse_over_noise"]
         out = [f"baseline ({b['source']}; effects: {', '.join(b['effects']) or 'none'}): "
@@ -336,15 +497,41 @@ class Diagnosis(Displayable):
 
     def view(self, **size):
         """The ranking as an interactive Bokeh figure (hover for each move's numbers),
-        what the lab page shows beside the table."""
+        what the lab page shows beside the table.
+
+        Parameters
+        ----------
+        **size
+            ``width`` in pixels; by default the figure stretches to its container.
+
+        Returns
+        -------
+        bokeh.plotting.figure
+            Show it with ``bokeh.io.show`` (or ``panel.pane.Bokeh``).
+        """
         from labrig.diagnosis.results.interactive import ranking_figure  # bokeh: ~0.3 s more to import
 
         return ranking_figure(self.ranking, **size)
 
     def plot(self, ax=None, kind: str = "ranking"):
-        """``kind="ranking"``: the candidates with their evidence (in-sample and
-        cross-validated rmse/noise, dBIC, folds) beside where the model fails;
-        ``kind="regimes"``: rmse/noise by regime for every channel."""
+        """The candidates' evidence, or where the model fails.
+
+        Parameters
+        ----------
+        ax : matplotlib Axes, optional
+            Draw here (the ranking alone, or the first channel's regimes); by default
+            on a new figure.
+        kind : {"ranking", "regimes"}
+            ``"ranking"``: the candidates with their evidence (in-sample and
+            cross-validated rmse/noise, dBIC, folds) beside where the model fails;
+            ``"regimes"``: rmse/noise by regime for every channel. Any other value
+            draws the ranking.
+
+        Returns
+        -------
+        matplotlib.figure.Figure
+            Not saved: the caller saves (and closes) it.
+        """
         if kind == "regimes":
             from labrig.diagnosis.results.plots import plot_regimes  # matplotlib: ~0.27 s to import
 

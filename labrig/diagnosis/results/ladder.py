@@ -6,27 +6,43 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Optional
 
 import pandas as pd
+from pydantic import ConfigDict, with_config
+from typing_extensions import NotRequired, TypedDict
 
 from labrig.diagnosis.evidence.evaluation import Evaluation, evaluate
 from labrig.model.model import Model
 from labrig.core.tables import Table, fmt
 from labrig.core.display import Displayable
+from labrig.core.record import Record
+
+Num = Optional[float]
+
+
+@with_config(ConfigDict(extra="allow"))
+class RungError(TypedDict):
+    """A rung's rmse/noise: ``overall`` (the weighted sum) and per channel."""
+
+    overall: Num
+    speed: NotRequired[Num]
+    position: NotRequired[Num]
 
 
 @dataclass
-class LadderStep:
+class LadderStep(Record):
     """One rung: the model's label, its effects and how well it explains the runs."""
 
     label: str
-    effects: list
-    rmse_over_noise: dict
-    fit_percent: dict
-    fitness: float
-    model: str | None = None
+    effects: list[str]
+    rmse_over_noise: RungError
+    fit_percent: dict[str, Num]
+    fitness: Num
+    #: the model file the rung was read from (None: built by the search)
+    model: Optional[str] = None
     #: weighted rmse/noise on held-out data (``diagnose --auto``); None: not validated
-    cross_validated: float | None = None
+    cross_validated: Num = None
 
     @classmethod
     def of(cls, label: str, model: Model, ev: Evaluation, path=None,
@@ -36,7 +52,7 @@ class LadderStep:
                    fit_percent=ev.metrics["fit_percent"], fitness=ev.metrics["fitness"],
                    model=str(path) if path else None, cross_validated=cv)
 
-    def to_json(self) -> dict:
+    def _old_to_json(self) -> dict:
         return {"label": self.label, "effects": self.effects,
                 "rmse_over_noise": self.rmse_over_noise, "fit_percent": self.fit_percent,
                 "fitness": self.fitness, "cross_validated": self.cross_validated,
@@ -44,7 +60,7 @@ class LadderStep:
 
 
 @dataclass(repr=False)
-class Ladder(Displayable):
+class Ladder(Displayable, Record):
     """The error after each step; ``to_json()`` is ``labrig ladder --json``.
 
     Attributes
@@ -65,18 +81,40 @@ class Ladder(Displayable):
     steps: list[LadderStep] = field(default_factory=list)
 
     def headline(self) -> str:
+        """The first line of the ``repr``: how many rungs.
+
+        Returns
+        -------
+        str
+        """
         return f"Ladder: {len(self.steps)} rung(s)"
 
-    def to_json(self) -> dict:
-        return {"steps": [s.to_json() for s in self.steps]}
+    def _old_to_json(self) -> dict:
+        return {"steps": [s._old_to_json() for s in self.steps]}
 
     def to_pandas(self):
+        """The ladder as a DataFrame, one row per rung, simplest first.
+
+        Returns
+        -------
+        pandas.DataFrame
+            Columns ``step`` (the rung's label), ``rmse/noise <channel>`` (``overall``,
+            ``speed``, ``position``) and ``fit % <channel>``.
+        """
         return pd.DataFrame([{"step": s.label,
                               **{f"rmse/noise {k}": v for k, v in s.rmse_over_noise.items()},
                               **{f"fit % {k}": v for k, v in s.fit_percent.items()}}
                              for s in self.steps])
 
     def table_rows(self) -> Table:
+        """The error ladder as a table.
+
+        Returns
+        -------
+        Table
+            One row per rung: rmse/noise overall and per channel, cross-validated (where
+            the search validated it) and fit % per channel.
+        """
         t = Table("the error ladder (rmse/noise; 1.00 is the noise floor)",
                   ["step", "rmse/noise", "speed", "position", "cross-validated", "fit % w",
                    "fit % th"], numeric=(1, 2, 3, 4, 5, 6))
@@ -90,13 +128,37 @@ class Ladder(Displayable):
         return t
 
     def plot(self, ax=None):
+        """The rungs' rmse/noise (overall, per channel and cross-validated) against the
+        noise floor, on a log scale.
+
+        Parameters
+        ----------
+        ax : matplotlib Axes, optional
+            Draw here; by default on a new figure.
+
+        Returns
+        -------
+        matplotlib.figure.Figure
+            Not saved: the caller saves (and closes) it.
+        """
         from labrig.diagnosis.results.plots import plot_ladder  # matplotlib: ~0.27 s more to import
 
         return plot_ladder(self, ax=ax)
 
     def view(self, **size):
         """The ladder as an interactive Bokeh figure (hover for each rung's numbers), what
-        the lab page shows."""
+        the lab page shows.
+
+        Parameters
+        ----------
+        **size
+            ``width`` and ``height`` in pixels (default: the container's width, 260).
+
+        Returns
+        -------
+        bokeh.plotting.figure
+            Show it with ``bokeh.io.show`` (or ``panel.pane.Bokeh``).
+        """
         from labrig.diagnosis.results.interactive import ladder_figure  # bokeh: ~0.3 s more to import
 
         return ladder_figure(self.steps, **size)

@@ -1,0 +1,155 @@
+"""A result declared once: its dataclass is its JSON form.
+
+A result mixes in :class:`Record`; its dataclass fields, and the typed properties it marks
+with :func:`pydantic.computed_field`, are the keys of its JSON. pydantic derives from that
+one declaration the JSON (:meth:`Record.to_json`), the schema (:meth:`Record.json_schema`)
+and the reading back (:meth:`Record.from_json`), so there is no hand-written writer and no
+second document to keep in line with it. A field's JSON name, when it differs from its
+Python name, is its pydantic ``alias``; a field the JSON does not keep has
+``exclude=True``; a key written only when it says something has ``exclude_if``.
+
+Examples
+--------
+>>> from dataclasses import dataclass
+>>> @dataclass
+... class Level(Record):
+...     v: float
+...     speed: Annotated[float, Field(alias="speed_rad_s")]
+...
+...     @computed_field
+...     @property
+...     def km(self) -> float:
+...         return self.speed / self.v
+>>> Level(2.0, 30.0).to_json()
+{'v': 2.0, 'speed_rad_s': 30.0, 'km': 15.0}
+>>> Level.from_json({"v": 2.0, "speed_rad_s": 30.0, "km": 15.0})
+Level(v=2.0, speed=30.0)
+>>> sorted(Level.json_schema()["properties"])
+['km', 'speed_rad_s', 'v']
+"""
+from __future__ import annotations
+
+import math
+from functools import cache
+from typing import Annotated, Any, ClassVar
+
+import numpy as np
+from pydantic import (BeforeValidator, ConfigDict, Field, PlainSerializer, TypeAdapter,
+                      computed_field)
+
+# (Field and computed_field are what a result's declaration uses; given here too, with
+# Annotated, so a declaration's words are found in one place)
+__all__ = ["Record", "AsJson", "AsList", "TupleOf", "finite_json", "Annotated", "Field",
+           "computed_field"]
+
+
+def finite_json(o):
+    """``o`` with NaN and inf as None and numpy scalars and arrays as Python, recursively
+    (strict JSON has no inf or nan)."""
+    if isinstance(o, dict):
+        return {str(k): finite_json(v) for k, v in o.items()}
+    if isinstance(o, (list, tuple)):
+        return [finite_json(v) for v in o]
+    if isinstance(o, np.bool_):
+        return bool(o)
+    if isinstance(o, np.integer):
+        return int(o)
+    if isinstance(o, (float, np.floating)):
+        f = float(o)
+        return f if math.isfinite(f) else None
+    if isinstance(o, np.ndarray):
+        return finite_json(o.tolist())
+    return o
+
+
+@cache
+def _adapter(cls) -> TypeAdapter:
+    return TypeAdapter(cls)
+
+
+class Record:
+    """Mixin for a result dataclass whose fields are its JSON form (module docstring).
+
+    A subclass may set ``finite_json = True``: its JSON then has NaN and inf as None
+    (:func:`finite_json`), for results whose JSON has always said so in Python too.
+    """
+
+    # (arbitrary types: a field may hold a Model or an array; its annotation says how
+    # it is written, e.g. :data:`AsJson`)
+    __pydantic_config__ = ConfigDict(arbitrary_types_allowed=True, populate_by_name=True)
+    finite_json: ClassVar[bool] = False
+
+    def to_json(self) -> dict:
+        """The result's JSON form (the keys its command's ``--json`` prints).
+
+        Returns
+        -------
+        dict
+            Every field and computed key under its JSON name; what the JSON does not
+            keep is left out.
+        """
+        import os  # TEMP-RECORD-CHECK
+        strict = "error" if os.environ.get("LABRIG_RECORD_CHECK") else True  # TEMP-RECORD-CHECK
+        out = _adapter(type(self)).dump_python(self, mode="python", by_alias=True, warnings=strict)
+        out = finite_json(out) if self.finite_json else out
+        _check(self, out)  # TEMP-RECORD-CHECK
+        return out
+
+    @classmethod
+    def json_schema(cls) -> dict:
+        """The JSON schema of :meth:`to_json`'s form, derived from the declaration.
+
+        Returns
+        -------
+        dict
+            A JSON Schema (draft 2020-12) object.
+        """
+        return _adapter(cls).json_schema(mode="serialization", by_alias=True)
+
+    @classmethod
+    def from_json(cls, doc: dict):
+        """The result a JSON record was written from, less what the JSON does not keep.
+
+        Parameters
+        ----------
+        doc : dict
+            A record as :meth:`to_json` wrote it (read from a file, say).
+
+        Returns
+        -------
+        Record
+            An instance of ``cls``.
+
+        Raises
+        ------
+        pydantic.ValidationError
+            When ``doc`` lacks a key the result needs or holds a value of the wrong kind.
+        """
+        return _adapter(cls).validate_python(doc, by_alias=True, by_name=True)
+
+
+def _json_of(value) -> Any:
+    return value.to_json() if value is not None else None
+
+
+#: a field holding an object with its own ``to_json`` (a Model): written as that JSON
+AsJson = PlainSerializer(_json_of)
+#: a tuple written as a JSON list
+AsList = PlainSerializer(list)
+#: ... and read back as a tuple
+TupleOf = Annotated[tuple, AsList, BeforeValidator(tuple)]
+
+
+def _check(obj, new):  # TEMP-RECORD-CHECK: the hand-written writer's JSON against the derived one
+    import json
+    import os
+    old_fn = getattr(type(obj), "_old_to_json", None)
+    if old_fn is None or not os.environ.get("LABRIG_RECORD_CHECK"):
+        return
+    def norm(d):
+        return json.dumps(d, sort_keys=True, default=lambda o: o.tolist() if hasattr(o, "tolist") else repr(o))
+    old = old_fn(obj)
+    a, b = norm(old), norm(new)
+    if a != b:
+        with open("/tmp/record_diffs.log", "a") as f:
+            f.write(f"{type(obj).__qualname__}\n  old {a[:3000]}\n  new {b[:3000]}\n")
