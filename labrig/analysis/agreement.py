@@ -22,8 +22,12 @@ integrated (a random walk). Only the excess over both is called drift.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Annotated
 
 import numpy as np
+from pydantic import Field, computed_field
+
+from labrig.core.record import Record
 
 #: drift beyond this many noise floors of the position weighs the position down
 DRIFT = 2.0
@@ -32,7 +36,7 @@ WINDOW_DECLARED_IN = "(sensors.speed_window_s in the run's sidecar, or labrig im
 
 
 @dataclass(frozen=True)
-class ChannelAgreement:
+class ChannelAgreement(Record):
     """How far the measured position strays from the integral of the measured speed.
 
     Attributes
@@ -60,20 +64,31 @@ class ChannelAgreement:
     """
 
     drift: float
-    sigma_pos: float
+    sigma_pos: Annotated[float, Field(exclude=True)]
     lag_s: float
     unit: str
     runs: int
     declared_lag_s: float = 0.0
     lag_error: float = 0.0
-    sigma_speed: float = 1.0
+    sigma_speed: Annotated[float, Field(exclude=True)] = 1.0
     speed_unit: str = "rad/s"
+
+    @computed_field(alias="drift_over_noise")
+    @property
+    def _ratio(self) -> float:
+        return self.ratio
+
+    @computed_field(alias="lag_error_over_noise")
+    @property
+    def _lag_ratio(self) -> float:
+        return self.lag_ratio
 
     @property
     def ratio(self) -> float:
         """Drift in noise floors of the position."""
         return self.drift / max(self.sigma_pos, 1e-300)
 
+    @computed_field
     @property
     def drifts(self) -> bool:
         """True when the drift is more than :data:`DRIFT` noise floors."""
@@ -93,6 +108,7 @@ class ChannelAgreement:
         """The speed error of the unexplained lag, in noise floors of the speed."""
         return self.lag_error / max(self.sigma_speed, 1e-300)
 
+    @computed_field
     @property
     def lags(self) -> bool:
         """True when the speed reads late by more than :data:`DRIFT` of its noise floors
@@ -117,7 +133,7 @@ class ChannelAgreement:
                 f"({self.lag_ratio:.1f} x its noise floor at its accelerations): a filtered "
                 f"speed, as a moving window of about {2e3 * lag:.3g} ms reads it")
 
-    def to_json(self) -> dict:
+    def _old_to_json(self) -> dict:
         return {"drift": self.drift, "drift_over_noise": self.ratio, "lag_s": self.lag_s,
                 "declared_lag_s": self.declared_lag_s, "lag_error": self.lag_error,
                 "lag_error_over_noise": self.lag_ratio, "unit": self.unit,

@@ -25,8 +25,12 @@ from __future__ import annotations
 import hashlib
 import threading
 from dataclasses import dataclass, field
+from typing import Annotated, Optional
 
 import numpy as np
+from pydantic import Field, computed_field, model_serializer
+
+from labrig.core.record import Record
 
 from labrig.model.sensors import (count_quantum, found_count,  # noqa: F401 (re-exported)
                                   quantisation_step, still_reads_like_a_count)
@@ -43,19 +47,25 @@ MOVING = 0.05
 
 
 @dataclass(frozen=True)
-class Weights:
+class Weights(Record):
     """Channel weights of the fit (position p, speed q), each already in noise units.
 
     ``why`` says, when one channel was weighted down for what it is (a position that
     drifts against the speed), which channel decides (``decides``: "speed" or
     "position") and why; neither is part of the weights' identity."""
 
-    p: float = 1.0
-    q: float = 1.0
+    p: Annotated[float, Field(alias="position")] = 1.0
+    q: Annotated[float, Field(alias="speed")] = 1.0
     why: str = field(default="", compare=False)
     decides: str = field(default="", compare=False)
 
-    def to_json(self) -> dict:
+    @model_serializer(mode="wrap")
+    def _why_when_weighted(self, handler):
+        # (equal weights need no reason: the JSON gives the two numbers alone)
+        d = handler(self)
+        return d if self.why else {k: d[k] for k in ("position", "speed")}
+
+    def _old_to_json(self) -> dict:
         out = {"position": self.p, "speed": self.q}
         if self.why:
             out["why"] = self.why
@@ -64,7 +74,7 @@ class Weights:
 
 
 @dataclass(frozen=True)
-class NoiseFloor:
+class NoiseFloor(Record):
     """The noise level of one channel (in the channel's units) and how it was found.
 
     Attributes
@@ -91,10 +101,10 @@ class NoiseFloor:
     channel: str
     unit: str
     sigma: float
-    moving: float | None
-    rest: float | None
+    moving: Optional[float]
+    rest: Optional[float]
     share_moving: float
-    q: float
+    q: Annotated[float, Field(alias="quantisation_step")]
     blocks: int
     counted: bool = False
     found: bool = False
@@ -123,7 +133,12 @@ class NoiseFloor:
                 f"{100 * self.share_moving:.0f} % of the time moving; {self.blocks} blocks of "
                 f"{BLOCK} samples detrended by a {WINDOW}-sample quadratic{qtxt})")
 
-    def to_json(self) -> dict:
+    @computed_field(alias="method")
+    @property
+    def _method(self) -> str:
+        return self.describe()
+
+    def _old_to_json(self) -> dict:
         return {"channel": self.channel, "unit": self.unit, "sigma": self.sigma,
                 "moving": self.moving, "rest": self.rest, "share_moving": self.share_moving,
                 "quantisation_step": self.q, "blocks": self.blocks, "counted": self.counted,

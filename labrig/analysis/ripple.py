@@ -11,8 +11,12 @@ speeds agree on that ratio, the line is locked to the angle and it is the sensor
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Annotated
 
 import numpy as np
+from pydantic import Field, computed_field
+
+from labrig.core.record import Record, TupleOf
 
 #: a stretch must hold this many samples to resolve a line
 MIN_SAMPLES = 256
@@ -25,7 +29,7 @@ SPEEDS_APART = 0.2
 
 
 @dataclass(frozen=True)
-class Ripple:
+class Ripple(Record):
     """A line locked to the shaft: ``order`` cycles per motor turn, ``relative`` its
     amplitude over the speed, seen in ``stretches`` settled stretches at ``speeds``
     (motor rev/s)."""
@@ -33,8 +37,13 @@ class Ripple:
     order: float
     relative: float
     stretches: int
-    speeds: tuple
+    speeds: Annotated[TupleOf, Field(alias="speeds_rev_s")]
     share: float   # of the speed residual's variance in those stretches
+
+    @computed_field(alias="description")
+    @property
+    def _description(self) -> str:
+        return self.describe()
 
     def describe(self) -> str:
         sp = ", ".join(f"{s:.3g}" for s in self.speeds)
@@ -44,7 +53,7 @@ class Ripple:
                 f"{100 * self.share:.0f} % of the residual there: a ripple of the speed "
                 "sensor (a tacho's commutator, an eccentric encoder disc), not the plant")
 
-    def to_json(self) -> dict:
+    def _old_to_json(self) -> dict:
         return {"order": self.order, "relative": self.relative, "stretches": self.stretches,
                 "speeds_rev_s": list(self.speeds), "share": self.share,
                 "description": self.describe()}

@@ -13,10 +13,13 @@ import os
 import stat
 import time
 from dataclasses import asdict, dataclass, field
+from typing import Annotated, Optional
 
 import numpy as np
+from pydantic import Field, computed_field
 
 from labrig.core.errors import LabrigError, UserError
+from labrig.core.record import Record
 
 #: serial speeds tried when the board does not greet at the one asked for (the firmware's
 #: BAUD options first, then the usual ones of other sketches)
@@ -28,12 +31,12 @@ class Check:
     """One link of the chain: its name, whether it holds, and what was found or what to do."""
 
     name: str
-    ok: bool | None   # None: not run (an earlier check it needs failed)
+    ok: Optional[bool]   # None: not run (an earlier check it needs failed)
     text: str
 
 
 @dataclass
-class ChainReport:
+class ChainReport(Record):
     """What ``labrig doctor`` found, check by check.
 
     Attributes
@@ -44,10 +47,11 @@ class ChainReport:
         The board's greeting ({} when it did not greet).
     """
 
-    port: str | None
+    port: Optional[str]
     checks: list[Check] = field(default_factory=list)
-    hello: dict = field(default_factory=dict)
+    hello: Annotated[dict, Field(exclude=True)] = field(default_factory=dict)
 
+    @computed_field
     @property
     def ok(self) -> bool:
         """Every check ran and passed."""
@@ -61,7 +65,7 @@ class ChainReport:
         for n in names:
             self.add(n, None, "not run (an earlier check failed)")
 
-    def to_json(self) -> dict:
+    def _old_to_json(self) -> dict:
         return {"port": self.port, "ok": self.ok, "checks": [asdict(c) for c in self.checks]}
 
     def to_pandas(self):

@@ -19,11 +19,15 @@ import time
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Annotated
+
+from pydantic import Field, PlainSerializer, computed_field
 
 import labrig.verbs as lr
 from labrig.core.defaults import METHOD
 from labrig.core.errors import LabrigError, UserError
 from labrig.core.fileio import atomic_write, dumps
+from labrig.core.record import Record
 
 #: a hand-in larger than this is refused (a run folder is a few MB)
 MAX_FOLDER_BYTES = 200 * 2 ** 20
@@ -201,19 +205,36 @@ def run_one(task: "str | Task", name: str, files: dict, options: dict, threads: 
 
 
 # -- the result ---------------------------------------------------------------------------
+def _rows_json(rows: list[dict]) -> list[dict]:
+    # (a row's files stay in its folder: the JSON says what was done)
+    return [{k: r[k] for k in ROW_KEYS} for r in rows]
+
+
+#: what the JSON keeps of a row
+ROW_KEYS = ("folder", "name", "status", "figures", "seconds", "error")
+
+
 @dataclass
-class BatchResult:
+class BatchResult(Record):
     """One row per folder: folder, output name, status, the task's key figures, error."""
 
     task: str
-    rows: list[dict] = field(default_factory=list)
+    rows: Annotated[list[dict], PlainSerializer(_rows_json)] = field(default_factory=list)
     engine: str = ""
     #: the task's key figures (the table's columns); a built-in task's when empty
-    figures: tuple = ()
+    figures: Annotated[tuple, Field(exclude=True)] = ()
 
+    @computed_field
     @property
     def failed(self) -> int:
+        """The folders whose task failed."""
         return sum(r["status"] != "ok" for r in self.rows)
+
+    @computed_field
+    @property
+    def folders(self) -> int:
+        """The folders it ran on."""
+        return len(self.rows)
 
     def to_pandas(self):
         import pandas as pd  # ~0.2 s to import, for a notebook's table only
@@ -224,7 +245,7 @@ class BatchResult:
                                                         "error")}, **r["figures"]}
                              for r in self.rows], columns=cols)
 
-    def to_json(self) -> dict:
+    def _old_to_json(self) -> dict:
         return {"task": self.task, "engine": self.engine, "folders": len(self.rows),
                 "failed": self.failed,
                 "rows": [{k: r[k] for k in ("folder", "name", "status", "figures", "seconds",

@@ -39,7 +39,7 @@ from pydantic import (BeforeValidator, ConfigDict, Field, PlainSerializer, TypeA
 
 # (Field and computed_field are what a result's declaration uses; given here too, with
 # Annotated, so a declaration's words are found in one place)
-__all__ = ["Record", "AsJson", "AsList", "TupleOf", "finite_json", "Annotated", "Field",
+__all__ = ["Record", "AsJson", "AsList", "NoneIfEmpty", "TupleOf", "finite_json", "Annotated", "Field",
            "computed_field"]
 
 
@@ -134,6 +134,8 @@ def _json_of(value) -> Any:
 
 #: a field holding an object with its own ``to_json`` (a Model): written as that JSON
 AsJson = PlainSerializer(_json_of)
+#: an empty value (0, "", [], {}) written as null
+NoneIfEmpty = PlainSerializer(lambda v: v or None)
 #: a tuple written as a JSON list
 AsList = PlainSerializer(list)
 #: ... and read back as a tuple

@@ -14,8 +14,12 @@ decision. The rig seconds used are reported beside the one-shot plan's.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Annotated, Optional
+
+from pydantic import Field, computed_field
 
 from labrig.core.display import Displayable
+from labrig.core.record import Record, TupleOf
 from labrig.core.errors import UserError
 from labrig.core.tables import Table
 from labrig.design.decide import Decision, decide
@@ -32,15 +36,35 @@ FUTILE = 0.1
 
 
 @dataclass
-class AskStep:
-    """One short experiment played: what it was and where the decision stood after it."""
+class AskStep(Record):
+    """One short experiment played: what it was and where the decision stood after it
+    (its JSON: the decision's separation, leader and rmse/noise after it)."""
 
-    label: str
+    label: Annotated[str, Field(alias="input")]
     duration_s: float
-    predicted: float | None    # its predicted separation, worst over the plausible truths
-    decision: Decision
+    # its predicted separation, worst over the plausible truths
+    predicted: Annotated[Optional[float], Field(alias="predicted_separation")]
+    decision: Annotated[Decision, Field(exclude=True)]
 
-    def to_json(self) -> dict:
+    @computed_field
+    @property
+    def separation_after(self) -> float:
+        """The decision's separation after this step."""
+        return Decision.separation(self.decision.after)
+
+    @computed_field
+    @property
+    def leader(self) -> str:
+        """The better explanation after this step."""
+        return self.decision.leader
+
+    @computed_field
+    @property
+    def rmse_over_noise(self) -> dict[str, float]:
+        """Each explanation's rmse/noise on every run so far."""
+        return self.decision.after
+
+    def _old_to_json(self) -> dict:
         return {"input": self.label, "duration_s": self.duration_s,
                 "predicted_separation": self.predicted,
                 "separation_after": Decision.separation(self.decision.after),
@@ -48,31 +72,37 @@ class AskStep:
 
 
 @dataclass(repr=False)
-class Asking(Displayable):
+class Asking(Displayable, Record):
     """The experiments asked one at a time, the decision after each, and why it stopped."""
 
-    pair: tuple
-    steps: list = field(default_factory=list)
+    pair: Annotated[TupleOf, Field(alias="between")]
+    steps: list[AskStep] = field(default_factory=list)
     budget_s: float = 20.0
     step_s: float = 5.0
-    one_shot_s: float | None = None   # the one-shot plan's length, for comparison
+    # the one-shot plan's length, for comparison
+    one_shot_s: Annotated[Optional[float], Field(alias="one_shot_seconds")] = None
     stopped: str = ""
 
+    @computed_field
     @property
     def rig_seconds(self) -> float:
+        """The rig time the steps took (s)."""
         return float(sum(s.duration_s for s in self.steps))
 
     @property
     def decision(self) -> Decision | None:
         return self.steps[-1].decision if self.steps else None
 
+    @computed_field
     @property
     def sure(self) -> bool:
         d = self.decision
         return d is not None and not d.neither and Decision.separation(d.after) >= DECISIVE
 
+    @computed_field
     @property
-    def leader(self) -> str | None:
+    def leader(self) -> Optional[str]:
+        """The explanation the rig chose; None until sure."""
         return self.decision.leader if self.sure else None
 
     def headline(self) -> str:
@@ -82,11 +112,11 @@ class Asking(Displayable):
                     f"experiment(s), {self.rig_seconds:.1f} s of rig time)")
         return f"Asked the rig between {a} and {b}: not decided ({self.stopped})"
 
-    def to_json(self) -> dict:
+    def _old_to_json(self) -> dict:
         return {"between": list(self.pair), "sure": self.sure, "leader": self.leader,
                 "rig_seconds": self.rig_seconds, "one_shot_seconds": self.one_shot_s,
                 "budget_s": self.budget_s, "step_s": self.step_s, "stopped": self.stopped,
-                "steps": [s.to_json() for s in self.steps]}
+                "steps": [s._old_to_json() for s in self.steps]}
 
     def table_rows(self) -> Table:
         t = Table(f"asked the rig, one short experiment at a time ({self.pair[0]} or "

@@ -6,8 +6,12 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Annotated
+
+from pydantic import Field, computed_field
 
 from labrig.core.display import Displayable
+from labrig.core.record import Record, TupleOf
 from labrig.core.errors import UserError
 from labrig.core.tables import Table
 from labrig.io.runs import Run
@@ -24,15 +28,17 @@ NEITHER = 3.0
 
 
 @dataclass(repr=False)
-class Decision(Displayable):
+class Decision(Displayable, Record):
     """How well each of a pair explains the data before and after the proposed runs."""
 
-    pair: tuple
-    before: dict          # effect -> rmse/noise on the runs without the proposed ones
-    after: dict           # effect -> rmse/noise on all runs
-    new_runs: list
+    pair: Annotated[TupleOf, Field(alias="between")]
+    # effect -> rmse/noise on the runs without the proposed ones
+    before: Annotated[dict[str, float], Field(alias="rmse_over_noise_before")]
+    # effect -> rmse/noise on all runs
+    after: Annotated[dict[str, float], Field(alias="rmse_over_noise_after")]
+    new_runs: list[str]
     #: effect -> its model fitted to all runs (what a figure draws on the new runs)
-    models: dict = field(default_factory=dict, repr=False)
+    models: Annotated[dict, Field(exclude=True)] = field(default_factory=dict, repr=False)
 
     @staticmethod
     def separation(r: dict) -> float:
@@ -42,10 +48,25 @@ class Decision(Displayable):
         lo, hi = sorted(r.values())
         return hi / lo - 1.0
 
+    @computed_field
+    @property
+    def separation_before(self) -> float:
+        """:meth:`separation` on the runs without the proposed ones."""
+        return self.separation(self.before)
+
+    @computed_field
+    @property
+    def separation_after(self) -> float:
+        """:meth:`separation` on all runs."""
+        return self.separation(self.after)
+
+    @computed_field
     @property
     def leader(self) -> str:
+        """The effect that explains all runs better."""
         return min(self.after, key=self.after.get)
 
+    @computed_field
     @property
     def neither(self) -> bool:
         """Neither explanation fits the proposed runs: the better one is far above the noise
@@ -53,7 +74,7 @@ class Decision(Displayable):
         best = self.after[self.leader]
         return best > NEITHER and best > 2.0 * min(self.before.values())
 
-    def to_json(self) -> dict:
+    def _old_to_json(self) -> dict:
         return {"between": list(self.pair), "new_runs": self.new_runs,
                 "rmse_over_noise_before": self.before, "rmse_over_noise_after": self.after,
                 "separation_before": self.separation(self.before),

@@ -7,8 +7,12 @@ decide'.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Annotated, Any, Optional
+
+from pydantic import Field, PlainSerializer, computed_field
 
 from labrig.core.display import Displayable
+from labrig.core.record import NoneIfEmpty, Record, TupleOf
 from labrig.core.errors import UserError
 from labrig.core.tables import Table
 from labrig.io.runs import Run
@@ -32,18 +36,52 @@ def after_number(unit: str) -> str:
     return "" if unit in ("", "-") else f" {unit}"
 
 
+_live = Field(exclude=True)
+
+
+def _describe(model) -> str:
+    return model.describe()
+
+
 @dataclass
-class Hypothesis:
-    """One explanation, fitted to the data, and the sizes of it the data cannot exclude."""
+class Hypothesis(Record):
+    """One explanation, fitted to the data, and the sizes of it the data cannot exclude
+    (its JSON: the model in words, the size in words, the plausible sizes)."""
 
     effect: str
-    model: Model
+    model: Annotated[Model, PlainSerializer(_describe)]
     rmse_over_noise: float
-    key: str = ""                 # its size parameter ("d_v", "tc_v", "a_rad", "td_s")
-    unit: str = ""
-    members: list = field(default_factory=list)   # [(size, Model)], plausible, best first
-    degenerate: bool = False      # its size at a bound of the range the data allow
-    skipped: str = ""             # why it is not judged as the truth ("" when it is)
+    # its size parameter ("d_v", "tc_v", "a_rad", "td_s")
+    key: Annotated[str, _live] = ""
+    unit: Annotated[str, _live] = ""
+    # [(size, Model)], plausible, best first
+    members: Annotated[list, _live] = field(default_factory=list)
+    # its size at a bound of the range the data allow
+    degenerate: Annotated[bool, Field(alias="at_bound")] = False
+    # why it is not judged as the truth ("" when it is)
+    skipped: Annotated[str, Field(alias="why_not_judged_true"), NoneIfEmpty] = ""
+
+    @computed_field(alias="size")
+    @property
+    def _size_text(self) -> str:
+        return self.describe_size()
+
+    @computed_field(alias="pinned")
+    @property
+    def _pinned(self) -> bool:
+        return self.pinned
+
+    @computed_field
+    @property
+    def plausible_sizes(self) -> list[Optional[float]]:
+        """Every size the data allow, best first."""
+        return [s for s, _ in self.members]
+
+    @computed_field
+    @property
+    def judged_true(self) -> bool:
+        """Whether it is judged as the truth (``skipped`` says why not)."""
+        return not self.skipped
 
     @property
     def size(self) -> float | None:
@@ -87,26 +125,58 @@ class Hypothesis:
 
 
 @dataclass
-class Judged:
+class Judged(Record):
     """One candidate input and how well it separates the pair."""
 
-    candidate: InputCandidate
+    candidate: Annotated[InputCandidate, _live]
     naive: float                      # predicted difference of the best fits (noise units)
-    robust: float = 0.0               # the worst over plausible truths and rival variants
+    # the worst over plausible truths and rival variants
+    robust: Annotated[float, Field(alias="worst_plausible")] = 0.0
     #: plausible truth -> predicted separation after the rival re-fits (leaders only)
-    refit: dict = field(default_factory=dict)
+    refit: Annotated[dict[str, float], Field(alias="separation_after_refit"),
+                     NoneIfEmpty] = field(default_factory=dict)
     #: its re-fits stopped before every truth was tried, once a better input was found
     #: (its worst is then at most the value shown)
-    stopped: bool = False
+    stopped: Annotated[bool, Field(alias="stopped_below_a_better_input")] = False
     #: the hardest case judged: (truth index in the pair, truth label, truth model, the
     #: rival as re-fitted to it) -- what the figure shows
-    hardest: tuple | None = field(default=None, repr=False)
+    hardest: Annotated[Optional[tuple], _live] = field(default=None, repr=False)
 
     @property
     def worst(self) -> float | None:
+        """The predicted separation after the rival re-fits, at the hardest truth."""
         return min(self.refit.values()) if self.refit else None
 
-    def to_json(self) -> dict:
+    @computed_field(alias="worst_separation_after_refit")
+    @property
+    def _worst(self) -> Optional[float]:
+        return self.worst
+
+    @computed_field
+    @property
+    def kind(self) -> str:
+        """The input's family ("ramp", "pulses", ...)."""
+        return self.candidate.kind
+
+    @computed_field
+    @property
+    def label(self) -> str:
+        """The input in words."""
+        return self.candidate.label
+
+    @computed_field
+    @property
+    def duration_s(self) -> float:
+        """Its length (s)."""
+        return self.candidate.duration
+
+    @computed_field
+    @property
+    def points(self) -> int:
+        """Its breakpoints."""
+        return len(self.candidate.points)
+
+    def _old_to_json(self) -> dict:
         return {"kind": self.candidate.kind, "label": self.candidate.label,
                 "duration_s": self.candidate.duration, "points": len(self.candidate.points),
                 "naive": self.naive, "worst_plausible": self.robust,
@@ -116,7 +186,7 @@ class Judged:
 
 
 @dataclass(repr=False)
-class Proposal(Displayable):
+class Proposal(Displayable, Record):
     """The proposed experiment, why it separates the pair and by how much; or, when no
     input within the limits separates it (``separates`` False), the best found and what
     would help instead.
@@ -149,25 +219,43 @@ class Proposal(Displayable):
     True
     """
 
-    pair: tuple
-    hypotheses: list
-    judged: list
-    chosen: Judged
-    sigmas: dict
-    template: Run
+    pair: Annotated[TupleOf, Field(alias="between")]
+    hypotheses: list[Hypothesis]
+    judged: Annotated[list[Judged], Field(alias="candidates")]
+    # (written as "proposed")
+    chosen: Annotated[Judged, _live]
+    sigmas: Annotated[dict[str, float], Field(alias="noise")]
+    template: Annotated[Run, _live]
     budget_s: float
-    amax: float
-    seconds: float = 0.0
-    plausible: list = field(default_factory=list)   # plausible models per hypothesis
+    amax: Annotated[float, Field(alias="amax_v")]
+    seconds: Annotated[float, PlainSerializer(lambda v: round(v, 2))] = 0.0
+    # plausible models per hypothesis
+    plausible: Annotated[list, _live] = field(default_factory=list)
     separates: bool = True
-    advice: str = ""
+    advice: Annotated[str, NoneIfEmpty] = ""
     #: per explanation judged across sizes the data cannot narrow: the smallest size the
     #: proposed input separates (:func:`labrig.design.separation.smallest_separable`)
-    smallest: list = field(default_factory=list)
+    smallest: Annotated[list[dict[str, Any]], Field(alias="smallest_separable"),
+                        NoneIfEmpty] = field(default_factory=list)
     #: [(truth label, best separation any leading input reached)]: the smallest sizes no
     #: input within the budget separates (the noise hides them), set aside from the worst
     #: case; the smallest size the input separates is then stated
-    unseen: list = field(default_factory=list)
+    unseen: Annotated[list, Field(alias="not_separable"),
+                      PlainSerializer(lambda v: [{"truth": lab, "best_separation": best}
+                                                 for lab, best in v] or None)] \
+        = field(default_factory=list)
+
+    @computed_field
+    @property
+    def proposed(self) -> dict[str, Any]:
+        """The chosen input: its kind, label, length (s), why it separates the pair, its
+        breakpoints and its predicted separation."""
+        c = self.chosen
+        return {"kind": c.candidate.kind, "label": c.candidate.label,
+                "duration_s": c.candidate.duration, "why": self.why,
+                "points": c.candidate.points,
+                "separation": {"naive": c.naive, "after_refit": dict(c.refit),
+                               "worst_after_refit": c.worst}}
 
     def smallest_text(self) -> str:
         """'it separates them for any deadband d_v above 0.08 V ...', one clause each.
@@ -218,8 +306,9 @@ class Proposal(Displayable):
         """Why the chosen kind of input separates the pair, in plain words."""
         return why(self.chosen.candidate.kind, self.pair)
 
+    @computed_field
     @property
-    def limits(self) -> dict:
+    def limits(self) -> dict[str, Any]:
         """The board's limits the proposed input respects, and what it uses of them:
         ``budget_s``, ``duration_s`` (s), ``max_points``, ``points``, ``amax_v``,
         ``peak_v`` (V; rad for a reference of the board's own loop)."""
@@ -303,7 +392,7 @@ class Proposal(Displayable):
         lines.append("points = [" + ", ".join(f"[{t:g}, {u:g}]" for t, u in e["points"]) + "]")
         return "\n".join(lines) + "\n"
 
-    def to_json(self) -> dict:
+    def _old_to_json(self) -> dict:
         c = self.chosen
         return {"between": list(self.pair),
                 "hypotheses": [{"effect": h.effect, "rmse_over_noise": h.rmse_over_noise,
@@ -323,7 +412,7 @@ class Proposal(Displayable):
                              "separation": {"naive": c.naive, "after_refit": dict(c.refit),
                                             "worst_after_refit": c.worst}},
                 "limits": self.limits,
-                "candidates": [j.to_json() for j in self.judged],
+                "candidates": [j._old_to_json() for j in self.judged],
                 "noise": self.sigmas, "budget_s": self.budget_s, "amax_v": self.amax,
                 "seconds": round(self.seconds, 2)}
 

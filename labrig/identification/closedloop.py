@@ -15,25 +15,30 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from typing import Annotated
+
+from pydantic import Field
 
 from labrig.core.errors import UserError
+from labrig.core.record import Record
 from labrig.io.runs import Run
 
 WAYS = ("auto", "loop", "input")
 
 
 @dataclass
-class Way:
+class Way(Record):
     """How the closed-loop runs of a data set are fitted, and why."""
 
     way: str          # "loop", "input" or "open" (no closed-loop run)
     why: str
-    runs: int = 0     # closed-loop runs concerned
+    # closed-loop runs concerned
+    runs: Annotated[int, Field(alias="closed_loop_runs")] = 0
     #: worth saying: a digital controller or a logged controller output (an MS150's analog
     #: loop has only one way and is fitted through it as always)
-    told: bool = False
+    told: Annotated[bool, Field(exclude=True)] = False
 
-    def to_json(self) -> dict:
+    def _old_to_json(self) -> dict:
         return {"way": self.way, "why": self.why, "closed_loop_runs": self.runs}
 
 

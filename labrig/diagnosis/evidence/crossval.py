@@ -21,10 +21,14 @@ outvote the others.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Annotated, Any
+
+from pydantic import Field
 
 import numpy as np
 
 from labrig.core.parallel import each
+from labrig.core.record import Record
 from labrig.identification.problem import start_of
 from labrig.model.model import Model
 from labrig.model.start import is_start_key
@@ -139,8 +143,11 @@ def make_folds(runs, max_folds: int = MAX_FOLDS, blocks: int = BLOCKS) -> Folds:
                  "(too few input steps to interleave)", folds)
 
 
+_live = Field(exclude=True)
+
+
 @dataclass
-class CrossValidation:
+class CrossValidation(Record):
     """Held-out error of one structure.
 
     Attributes
@@ -160,14 +167,15 @@ class CrossValidation:
         Per run, the stitched held-out residual of each channel (noise units).
     """
 
-    rmse: float
-    per_fold: list
-    channels: dict
-    residuals: list = field(default_factory=list, repr=False)
-    labels: list = field(default_factory=list, repr=False)
-    fold_sq: list = field(default_factory=list, repr=False)
-    fold_n: list = field(default_factory=list, repr=False)
-    fold_params: list = field(default_factory=list, repr=False)
+    rmse: Annotated[float, Field(alias="rmse_over_noise")]
+    per_fold: Annotated[list[float], Field(alias="per_fold_mean_square")]
+    channels: dict[str, Any]
+    # (not in the JSON: the residuals, and each fold's sums and parameters)
+    residuals: Annotated[list, _live] = field(default_factory=list, repr=False)
+    labels: Annotated[list, _live] = field(default_factory=list, repr=False)
+    fold_sq: Annotated[list, _live] = field(default_factory=list, repr=False)
+    fold_n: Annotated[list, _live] = field(default_factory=list, repr=False)
+    fold_params: Annotated[list, _live] = field(default_factory=list, repr=False)
 
     def pooled(self, skip=()) -> float:
         """The held-out rmse/noise over every fold but those in ``skip``."""
@@ -175,7 +183,7 @@ class CrossValidation:
         n = sum(self.fold_n[j] for j in keep)
         return float(np.sqrt(sum(self.fold_sq[j] for j in keep) / max(n, 1)))
 
-    def to_json(self) -> dict:
+    def _old_to_json(self) -> dict:
         return {"rmse_over_noise": self.rmse, "per_fold_mean_square": self.per_fold,
                 "channels": self.channels}
 

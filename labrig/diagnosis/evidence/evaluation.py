@@ -7,23 +7,30 @@ and the residuals' sum of squares and lag-1 correlation for the BIC.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Annotated, Any
+
+from pydantic import Field, computed_field
 
 import numpy as np
 import pandas as pd
 
 from labrig.identification.objective import adequacy
 from labrig.identification.problem import Problem
-from labrig.model.model import Model, param_keys
+from labrig.model.model import Model
 from labrig.analysis.noise import Weights
 from labrig.diagnosis.evidence.residuals import (autocorr, current_residual, regime_table, run_residuals,
                                         worst_regime, worst_run)
 from labrig.core.tables import Table, fmt
 from labrig.core.display import Displayable
+from labrig.core.record import Record
 from labrig.identification.result import fit_warnings
 
 
+_live = Field(exclude=True)
+
+
 @dataclass(repr=False)
-class Evaluation(Displayable):
+class Evaluation(Displayable, Record):
     """How well a model explains runs.
 
     Attributes
@@ -55,15 +62,16 @@ class Evaluation(Displayable):
     >>> ev.plot()  # doctest: +SKIP
     """
 
-    metrics: dict
-    per_run: list
-    regimes: dict
-    sse: float
-    n: int
-    sigmas: tuple
-    rho1: float
-    floors: dict = field(default_factory=dict, repr=False)
-    weights: Weights = Weights()
+    # (its JSON: the metrics' fitness, rmse/noise, fit % and noise, and the regimes)
+    metrics: Annotated[dict, _live]
+    per_run: Annotated[list, _live]
+    regimes: dict[str, Any]
+    sse: Annotated[float, _live]
+    n: Annotated[int, _live]
+    sigmas: Annotated[tuple, _live]
+    rho1: Annotated[float, _live]
+    floors: Annotated[dict, _live] = field(default_factory=dict, repr=False)
+    weights: Annotated[Weights, _live] = Weights()
 
     def headline(self) -> str:
         """The first line of the ``repr``: the overall rmse/noise and how many runs.
@@ -80,6 +88,22 @@ class Evaluation(Displayable):
         """Overall rmse/noise (1.0 is the noise floor)."""
         return self.metrics["rmse_over_noise"]["overall"]
 
+    @computed_field(alias="rmse_over_noise")
+    @property
+    def _rmse_over_noise(self) -> dict[str, Any]:
+        return self.metrics["rmse_over_noise"]
+
+    @computed_field(alias="fit_percent")
+    @property
+    def _fit_percent(self) -> dict[str, Any]:
+        return self.metrics["fit_percent"]
+
+    @computed_field(alias="noise")
+    @property
+    def _noise(self) -> dict[str, Any]:
+        return self.metrics["noise"]
+
+    @computed_field
     @property
     def fitness(self) -> float:
         """The weighted rmse/noise the fits minimise (equal to ``rmse`` at p = q = 1)."""
@@ -119,7 +143,7 @@ class Evaluation(Displayable):
         """
         return worst_run(self.per_run)
 
-    def to_json(self) -> dict:
+    def _old_to_json(self) -> dict:
         return {"fitness": self.metrics["fitness"],
                 "rmse_over_noise": self.metrics["rmse_over_noise"],
                 "fit_percent": self.metrics["fit_percent"], "noise": self.metrics["noise"],

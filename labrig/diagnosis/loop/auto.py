@@ -11,6 +11,9 @@ should look).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Annotated, Any, Optional
+
+from pydantic import Field, PlainSerializer, computed_field
 
 from labrig.diagnosis.results.diagnosis import Candidate, Diagnosis
 from labrig.diagnosis.words.explain import thresholds
@@ -20,6 +23,8 @@ from labrig.model.model import Model
 from labrig.diagnosis.evidence.residuals import REGIME_TEXT
 from labrig.core.tables import Table, fmt
 from labrig.core.display import Displayable
+from labrig.core.record import AsJson, Record, TupleOf
+from labrig.diagnosis.loop.moves import Move
 from labrig.diagnosis.loop.search import search
 from labrig.analysis.agreement import lag_explained
 from labrig.identification.identifiability import time_constants
@@ -29,23 +34,34 @@ from labrig.diagnosis.loop.diagnose import agreement_of
 CONFUSABLE = 0.10
 
 
+def _steps(ladder: Ladder) -> list[dict]:
+    return ladder.to_json()["steps"]
+
+
 @dataclass
-class ConfusablePair:
+class ConfusablePair(Record):
     """Two effects that explain the data about equally well."""
 
-    first: str
-    second: str
-    rmse_over_noise: tuple
-    differ_in: dict | None  # {"channel", "regime", "first", "second"}: where they differ most
+    first: Annotated[str, Field(exclude=True)]
+    second: Annotated[str, Field(exclude=True)]
+    rmse_over_noise: TupleOf
+    # {"channel", "regime", "first", "second"}: where they differ most
+    differ_in: Optional[dict[str, Any]]
     round: int
 
-    def to_json(self) -> dict:
+    @computed_field
+    @property
+    def pair(self) -> list[str]:
+        """The two effects."""
+        return [self.first, self.second]
+
+    def _old_to_json(self) -> dict:
         return {"pair": [self.first, self.second], "rmse_over_noise": list(self.rmse_over_noise),
                 "differ_in": self.differ_in, "round": self.round}
 
 
 @dataclass(repr=False)
-class AutoDiagnosis(Displayable):
+class AutoDiagnosis(Displayable, Record):
     """Every round's diagnosis, the final model, its ladder and the confusable pairs.
 
     Attributes
@@ -70,10 +86,11 @@ class AutoDiagnosis(Displayable):
     """
 
     rounds: list[Diagnosis]
-    model: Model
-    ladder: Ladder
+    model: Annotated[Model, Field(alias="final_model"), AsJson]
+    # (written as its steps)
+    ladder: Annotated[Ladder, PlainSerializer(_steps)]
     confusable: list[ConfusablePair] = field(default_factory=list)
-    moves: list = field(default_factory=list)
+    moves: list[Move] = field(default_factory=list)
     thresholds: str = ""
     #: a fitted lag that is the speed sensor's, in words ('' when none)
     sensor_lag: str = ""
@@ -88,11 +105,37 @@ class AutoDiagnosis(Displayable):
         return (f"AutoDiagnosis: final effects {', '.join(self.model.names) or 'none'} after "
                 f"{len(self.rounds)} round(s)")
 
+    @computed_field
+    @property
+    def effects(self) -> list[str]:
+        """The final model's effects."""
+        return self.model.names
+
+    @computed_field
+    @property
+    def noise(self) -> dict:
+        """Each channel's noise floor and how it was measured (the first round's)."""
+        return self.rounds[0].noise if self.rounds else {}
+
+    @computed_field
+    @property
+    def weights(self) -> dict:
+        """The channel weights (the first round's)."""
+        return self.rounds[0].weights if self.rounds else {}
+
+    @computed_field
+    @property
+    def cross_validation(self) -> Optional[dict]:
+        """How the held-out folds were cut (the first round's)."""
+        return self.rounds[0].cross_validation if self.rounds else None
+
+    @computed_field
     @property
     def added(self) -> list[str]:
         """Effects added, in order (a pair adds two; swaps and removals not counted)."""
         return [e for m in self.moves if m.kind in ("add", "pair") for e in m.effects]
 
+    @computed_field
     @property
     def verdict(self) -> str:
         """The final model and its thresholds in words, the last round's verdict when it
@@ -105,7 +148,7 @@ class AutoDiagnosis(Displayable):
         tail = f" {self.sensor_lag}" if self.sensor_lag else ""
         return (head + last.verdict if not last.recommendation else head.rstrip()) + tail
 
-    def to_json(self) -> dict:
+    def _old_to_json(self) -> dict:
         first = self.rounds[0] if self.rounds else None
         return {"effects": self.model.names, "added": self.added,
                 "moves": [m.to_json() for m in self.moves],

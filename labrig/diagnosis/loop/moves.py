@@ -4,8 +4,12 @@ from __future__ import annotations
 
 import textwrap
 from dataclasses import dataclass, field
+from typing import Annotated
+
+from pydantic import Field, computed_field
 
 from labrig.diagnosis.results.ladder import Ladder
+from labrig.core.record import Record
 from labrig.model.model import Model
 
 #: log lines are wrapped at this width (words whole, never cut)
@@ -30,18 +34,23 @@ def say(log, text: str) -> None:
 
 
 @dataclass
-class Move:
+class Move(Record):
     """One step of the search: what changed and the cross-validated error after it."""
 
     kind: str            # "add", "pair", "swap", "remove"
-    effects: list        # the effect(s) added, or [old, new] for a swap, [old] for a removal
-    cv_before: float
-    cv_after: float
+    # the effect(s) added, or [old, new] for a swap, [old] for a removal
+    effects: list[str]
+    cv_before: Annotated[float, Field(alias="cross_validated_before")]
+    cv_after: Annotated[float, Field(alias="cross_validated_after")]
     round: int
-    replaces: list = field(default_factory=list)   # a pair fitted in place of these
+    # a pair fitted in place of these
+    replaces: Annotated[list[str], Field(exclude_if=lambda v: not v)] \
+        = field(default_factory=list)
 
+    @computed_field
     @property
     def label(self) -> str:
+        """The move in words: ``+ deadband``, ``- deadband``, ``old -> new``."""
         e = self.effects
         if self.kind == "swap":
             return f"{e[0]} -> {e[1]}"
@@ -49,7 +58,7 @@ class Move:
             return f"{', '.join(self.replaces)} -> {' + '.join(e)}"
         return ("- " if self.kind == "remove" else "+ ") + ", ".join(e)
 
-    def to_json(self) -> dict:
+    def _old_to_json(self) -> dict:
         out = {"kind": self.kind, "effects": list(self.effects), "label": self.label,
                "cross_validated_before": self.cv_before, "cross_validated_after": self.cv_after,
                "round": self.round}
