@@ -28,7 +28,7 @@ _PUBLIC = {name: "labrig.verbs" for name in (
 _PUBLIC.update({
     "Model": "labrig.model.model", "Run": "labrig.io.runs", "Effect": "labrig.model.effects",
     "Param": "labrig.model.effect_base",
-    "AnalysisResult": "labrig.analysis.result", "Identification": "labrig.identification.engine",
+    "AnalysisResult": "labrig.analysis.result", "Identification": "labrig.identification.fit",
     "Diagnosis": "labrig.diagnosis.results.diagnosis", "AutoDiagnosis": "labrig.diagnosis.loop.auto",
     "Evaluation": "labrig.diagnosis.evidence.evaluation", "Ladder": "labrig.diagnosis.results.ladder",
     "Proposal": "labrig.design.proposal", "Catalogue": "labrig.model.catalogue",

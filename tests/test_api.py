@@ -234,7 +234,8 @@ def test_the_verbs_examples_run_as_written(monkeypatch):
     ran = 0
     for name in ("labrig.verbs.acquire", "labrig.verbs.data", "labrig.verbs.fit",
                  "labrig.verbs.loop", "labrig.io.runs", "labrig.model.catalogue",
-                 "labrig.identification.engine", "labrig.diagnosis.results.diagnosis",
+                 "labrig.identification.engine", "labrig.identification.fit",
+                 "labrig.diagnosis.results.diagnosis",
                  "labrig.diagnosis.loop.auto", "labrig.diagnosis.results.ladder",
                  "labrig.design.proposal", "labrig.model.model", "labrig.analysis.result",
                  "labrig.diagnosis.evidence.evaluation", "labrig.identification.problem"):

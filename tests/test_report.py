@@ -264,16 +264,16 @@ def test_the_page_renders_the_cli_tables(full_report, work):
     """The ranking and the ladder on the page are Diagnosis.table_rows() and
     Ladder.table_rows() (the CLI's tables), cell for cell, with the page's extra columns
     beside them; Table 1 and the summary are AnalysisResult.table_rows()."""
-    from labrig.report.artefacts import DiagnosisDoc, LadderDoc
+    from labrig.verbs.types import Diagnosis, Ladder
 
     page = full_report.read_text(encoding="utf-8")
     cells = _cells(page)
-    diag = DiagnosisDoc.model_validate_json((work / "diagnosis.json").read_text()).result()
+    diag = Diagnosis.from_json(json.loads((work / "diagnosis.json").read_text()))
     ranking = diag.table_rows()[1]
     for row, cand in zip(ranking.rows, diag.ranking):
         params = ", ".join(f"{p} = {v:.3g}" for p, v in cand.params.items())
         assert _contains_row(cells, [*row, params]), row
-    ladder = LadderDoc.model_validate_json((work / "ladder.json").read_text()).result()
+    ladder = Ladder.from_json(json.loads((work / "ladder.json").read_text()))
     table = ladder.table_rows()
     for row, step in zip(table.rows, ladder.steps):
         assert _contains_row(cells, [row[0], ", ".join(step.effects) or "none", *row[1:]]), row
@@ -285,12 +285,11 @@ def test_analysis_json_gives_the_same_tables_as_the_live_analysis(dataset):
     """analysis.json read back is the AnalysisResult it was written from: the same
     table cells, less the tacho volts the JSON does not keep."""
     from labrig.analysis import analyse
-    from labrig.report.artefacts import AnalysisDoc
+    from labrig.analysis.result import AnalysisResult
     from labrig.report.blocks import without_empty_columns
 
     live = analyse([dataset])
-    doc = AnalysisDoc.model_validate(json.loads(json.dumps(live.to_json())))
-    read = doc.result()
+    read = AnalysisResult.from_json(json.loads(json.dumps(live.to_json())))
     live_levels, live_summary = live.table_rows()
     read_levels, read_summary = read.table_rows()
     assert read_summary.to_dict() == live_summary.to_dict()
@@ -303,7 +302,9 @@ def test_analysis_json_gives_the_same_tables_as_the_live_analysis(dataset):
 
 
 def test_artefacts_that_do_not_fit_are_ignored_with_a_note(tmp_path):
-    from labrig.report.artefacts import AnalysisDoc, DiagnosisDoc, IdentifyAllDoc, LadderDoc, read_artefact
+    from labrig.report.artefacts import read_artefact
+    from labrig.verbs.types import AnalysisResult as AnalysisDoc, Diagnosis as DiagnosisDoc
+    from labrig.verbs.types import IdentifyAllDoc, Ladder as LadderDoc
 
     notes = []
     cases = {"a.json": ("{not json", AnalysisDoc, "not valid JSON"),
@@ -323,7 +324,7 @@ def test_artefacts_that_do_not_fit_are_ignored_with_a_note(tmp_path):
 
 
 def test_identify_all_records_and_the_best(work):
-    from labrig.report.artefacts import IdentifyAllDoc
+    from labrig.verbs.types import IdentifyAllDoc
 
     doc = IdentifyAllDoc.model_validate_json((work / "identify_all.json").read_text())
     records, best = doc.records()

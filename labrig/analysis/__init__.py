@@ -36,7 +36,8 @@ from labrig.analysis.dataset import analyse
 from labrig.analysis.edges import fit_edge
 from labrig.analysis.stepfit import StepFit
 from labrig.analysis.levels import SETTLE_TAUS
-from labrig.analysis.result import GAIN_TOLERANCE, AnalysisResult, EdgeFit, Level, LineFit, RunAnalysis
+from labrig.analysis.result import GAIN_TOLERANCE, AnalysisResult
+from labrig.analysis.run_result import EdgeFit, Level, LineFit, RunAnalysis
 from labrig.analysis.run import analyse_run
 from labrig.analysis.segments import find_segments
 from labrig.analysis.summarise import KT_TOLERANCE

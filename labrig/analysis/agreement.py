@@ -133,13 +133,6 @@ class ChannelAgreement(Record):
                 f"({self.lag_ratio:.1f} x its noise floor at its accelerations): a filtered "
                 f"speed, as a moving window of about {2e3 * lag:.3g} ms reads it")
 
-    def _old_to_json(self) -> dict:
-        return {"drift": self.drift, "drift_over_noise": self.ratio, "lag_s": self.lag_s,
-                "declared_lag_s": self.declared_lag_s, "lag_error": self.lag_error,
-                "lag_error_over_noise": self.lag_ratio, "unit": self.unit,
-                "speed_unit": self.speed_unit, "runs": self.runs, "drifts": self.drifts,
-                "lags": self.lags}
-
 
 def channel_agreement(runs, sigma_w: float, sigma_pos: float, unit: str = "rad",
                       speed_unit: str = "rad/s") -> ChannelAgreement | None:

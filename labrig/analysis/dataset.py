@@ -7,7 +7,8 @@ import numpy as np
 
 from labrig.core.errors import AnalysisError
 from labrig.analysis.levels import kt_from_levels
-from labrig.analysis.result import GAIN_TOLERANCE, AnalysisResult, RunAnalysis
+from labrig.analysis.result import GAIN_TOLERANCE, AnalysisResult
+from labrig.analysis.run_result import RunAnalysis
 from labrig.analysis.run import analyse_run
 from labrig.analysis.summarise import summarise
 from labrig.analysis.table1 import analyse_table

@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 import numpy as np
 
-from labrig.analysis.result import EdgeFit
+from labrig.analysis.run_result import EdgeFit
 from labrig.analysis.savgol import savgol_filter
 from labrig.analysis.stepfit import StepFit
 from labrig.analysis.segments import edge_kind

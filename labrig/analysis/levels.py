@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from labrig.analysis.result import Level, LineFit
+from labrig.analysis.run_result import Level, LineFit
 
 #: the flat part of a level starts this many time constants after its edge; the
 #: fitted exponential tail still left there (exp(-4) = 1.8 % of the step) is removed

@@ -65,13 +65,6 @@ class Weights(Record):
         d = handler(self)
         return d if self.why else {k: d[k] for k in ("position", "speed")}
 
-    def _old_to_json(self) -> dict:
-        out = {"position": self.p, "speed": self.q}
-        if self.why:
-            out["why"] = self.why
-            out["decides"] = self.decides
-        return out
-
 
 @dataclass(frozen=True)
 class NoiseFloor(Record):
@@ -137,12 +130,6 @@ class NoiseFloor(Record):
     @property
     def _method(self) -> str:
         return self.describe()
-
-    def _old_to_json(self) -> dict:
-        return {"channel": self.channel, "unit": self.unit, "sigma": self.sigma,
-                "moving": self.moving, "rest": self.rest, "share_moving": self.share_moving,
-                "quantisation_step": self.q, "blocks": self.blocks, "counted": self.counted,
-                "found": self.found, "method": self.describe()}
 
 
 def _residual_filter(window: int) -> np.ndarray:

@@ -53,11 +53,6 @@ class Ripple(Record):
                 f"{100 * self.share:.0f} % of the residual there: a ripple of the speed "
                 "sensor (a tacho's commutator, an eccentric encoder disc), not the plant")
 
-    def _old_to_json(self) -> dict:
-        return {"order": self.order, "relative": self.relative, "stretches": self.stretches,
-                "speeds_rev_s": list(self.speeds), "share": self.share,
-                "description": self.describe()}
-
 
 def _line(r: np.ndarray, dt: float):
     """(frequency, amplitude, prominence, share of variance) of the strongest line."""

@@ -8,7 +8,7 @@ import numpy as np
 from labrig.core.errors import AnalysisError
 from labrig.analysis.edges import fit_run_edges
 from labrig.analysis.levels import SETTLE_TAUS, Signal, kt_from_levels, pool_levels, segment_flat_parts
-from labrig.analysis.result import RunAnalysis
+from labrig.analysis.run_result import RunAnalysis
 from labrig.analysis.segments import Segments, robust_std
 
 CLOSED_LOOP_SKIP = "closed-loop run: analyse uses open-loop runs only (identify uses both)"

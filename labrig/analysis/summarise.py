@@ -5,7 +5,8 @@ import numpy as np
 
 from labrig.core.errors import AnalysisError
 from labrig.analysis.levels import fit_line, moving_points
-from labrig.analysis.result import AnalysisResult, LineFit, RunAnalysis
+from labrig.analysis.result import AnalysisResult
+from labrig.analysis.run_result import LineFit, RunAnalysis
 from labrig.analysis.verdict import gain_trend, verdict
 
 #: relative Kt mismatch (pot-derived vs configured) that is flagged

@@ -8,7 +8,8 @@ import numpy as np
 import pandas as pd
 
 from labrig.core.errors import AnalysisError
-from labrig.analysis.result import GAIN_TOLERANCE, AnalysisResult, Level
+from labrig.analysis.result import GAIN_TOLERANCE, AnalysisResult
+from labrig.analysis.run_result import Level
 from labrig.analysis.summarise import summarise
 from labrig.io.steady_table import read_table1
 

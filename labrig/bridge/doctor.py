@@ -65,9 +65,6 @@ class ChainReport(Record):
         for n in names:
             self.add(n, None, "not run (an earlier check failed)")
 
-    def _old_to_json(self) -> dict:
-        return {"port": self.port, "ok": self.ok, "checks": [asdict(c) for c in self.checks]}
-
     def to_pandas(self):
         import pandas as pd
 

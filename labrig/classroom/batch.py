@@ -245,12 +245,6 @@ class BatchResult(Record):
                                                         "error")}, **r["figures"]}
                              for r in self.rows], columns=cols)
 
-    def _old_to_json(self) -> dict:
-        return {"task": self.task, "engine": self.engine, "folders": len(self.rows),
-                "failed": self.failed,
-                "rows": [{k: r[k] for k in ("folder", "name", "status", "figures", "seconds",
-                                            "error")} for r in self.rows]}
-
     def to_text(self) -> str:
         df = self.to_pandas().drop(columns=["name"])
         with_pd = df.to_string(index=False, na_rep="-", float_format=lambda x: f"{x:.4g}")

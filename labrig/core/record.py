@@ -39,7 +39,7 @@ from pydantic import (BeforeValidator, ConfigDict, Field, PlainSerializer, TypeA
 
 # (Field and computed_field are what a result's declaration uses; given here too, with
 # Annotated, so a declaration's words are found in one place)
-__all__ = ["Record", "AsJson", "AsList", "NoneIfEmpty", "TupleOf", "finite_json", "Annotated", "Field",
+__all__ = ["Record", "AsJson", "AsList", "NoneIfEmpty", "TupleOf", "unset", "empty", "finite_json", "Annotated", "Field",
            "computed_field"]
 
 
@@ -88,12 +88,8 @@ class Record:
             Every field and computed key under its JSON name; what the JSON does not
             keep is left out.
         """
-        import os  # TEMP-RECORD-CHECK
-        strict = "error" if os.environ.get("LABRIG_RECORD_CHECK") else True  # TEMP-RECORD-CHECK
-        out = _adapter(type(self)).dump_python(self, mode="python", by_alias=True, warnings=strict)
-        out = finite_json(out) if self.finite_json else out
-        _check(self, out)  # TEMP-RECORD-CHECK
-        return out
+        out = _adapter(type(self)).dump_python(self, mode="python", by_alias=True)
+        return finite_json(out) if self.finite_json else out
 
     @classmethod
     def json_schema(cls) -> dict:
@@ -134,6 +130,17 @@ def _json_of(value) -> Any:
 
 #: a field holding an object with its own ``to_json`` (a Model): written as that JSON
 AsJson = PlainSerializer(_json_of)
+def unset(value) -> bool:
+    """For ``exclude_if``: the key is written only when its value is not None."""
+    return value is None
+
+
+def empty(value) -> bool:
+    """For ``exclude_if``: the key is written only when its value says something (not
+    None, 0, "", [] or {})."""
+    return not value
+
+
 #: an empty value (0, "", [], {}) written as null
 NoneIfEmpty = PlainSerializer(lambda v: v or None)
 #: a tuple written as a JSON list
@@ -141,17 +148,3 @@ AsList = PlainSerializer(list)
 #: ... and read back as a tuple
 TupleOf = Annotated[tuple, AsList, BeforeValidator(tuple)]
 
-
-def _check(obj, new):  # TEMP-RECORD-CHECK: the hand-written writer's JSON against the derived one
-    import json
-    import os
-    old_fn = getattr(type(obj), "_old_to_json", None)
-    if old_fn is None or not os.environ.get("LABRIG_RECORD_CHECK"):
-        return
-    def norm(d):
-        return json.dumps(d, sort_keys=True, default=lambda o: o.tolist() if hasattr(o, "tolist") else repr(o))
-    old = old_fn(obj)
-    a, b = norm(old), norm(new)
-    if a != b:
-        with open("/tmp/record_diffs.log", "a") as f:
-            f.write(f"{type(obj).__qualname__}\n  old {a[:3000]}\n  new {b[:3000]}\n")

@@ -64,12 +64,6 @@ class AskStep(Record):
         """Each explanation's rmse/noise on every run so far."""
         return self.decision.after
 
-    def _old_to_json(self) -> dict:
-        return {"input": self.label, "duration_s": self.duration_s,
-                "predicted_separation": self.predicted,
-                "separation_after": Decision.separation(self.decision.after),
-                "leader": self.decision.leader, "rmse_over_noise": self.decision.after}
-
 
 @dataclass(repr=False)
 class Asking(Displayable, Record):
@@ -111,12 +105,6 @@ class Asking(Displayable, Record):
             return (f"Asked the rig: {self.leader} explains the data ({len(self.steps)} "
                     f"experiment(s), {self.rig_seconds:.1f} s of rig time)")
         return f"Asked the rig between {a} and {b}: not decided ({self.stopped})"
-
-    def _old_to_json(self) -> dict:
-        return {"between": list(self.pair), "sure": self.sure, "leader": self.leader,
-                "rig_seconds": self.rig_seconds, "one_shot_seconds": self.one_shot_s,
-                "budget_s": self.budget_s, "step_s": self.step_s, "stopped": self.stopped,
-                "steps": [s._old_to_json() for s in self.steps]}
 
     def table_rows(self) -> Table:
         t = Table(f"asked the rig, one short experiment at a time ({self.pair[0]} or "

@@ -74,13 +74,6 @@ class Decision(Displayable, Record):
         best = self.after[self.leader]
         return best > NEITHER and best > 2.0 * min(self.before.values())
 
-    def _old_to_json(self) -> dict:
-        return {"between": list(self.pair), "new_runs": self.new_runs,
-                "rmse_over_noise_before": self.before, "rmse_over_noise_after": self.after,
-                "separation_before": self.separation(self.before),
-                "separation_after": self.separation(self.after), "leader": self.leader,
-                "neither": self.neither}
-
     def headline(self) -> str:
         if self.neither:
             return (f"Decision between {self.pair[0]} and {self.pair[1]}: neither explains "

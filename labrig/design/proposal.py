@@ -7,7 +7,7 @@ decide'.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Annotated, Any, Optional
+from typing import Annotated, Any
 
 from pydantic import Field, PlainSerializer, computed_field
 
@@ -16,9 +16,9 @@ from labrig.core.record import NoneIfEmpty, Record, TupleOf
 from labrig.core.errors import UserError
 from labrig.core.tables import Table
 from labrig.io.runs import Run
-from labrig.design.inputs import MAX_POINTS, InputCandidate, why
+from labrig.design.inputs import MAX_POINTS, why
+from labrig.design.hypotheses import Hypothesis, Judged, after_number
 from labrig.design.synthetic import LEAD_IN_S, loop_keys, synthetic_run
-from labrig.model.model import Model
 
 #: what the naive ranking uses, in the words every text line uses
 DIFFERENCE = "sum of squared differences of the two predictions, in noise units"
@@ -27,164 +27,8 @@ SEPARATION = "worse rmse/noise over better, minus one"
 #: a proposal is made when the rival, re-fitted, is predicted to stay at least this far
 #: behind for every plausible truth: its rmse/noise at least twice the truth's
 DECISIVE = 1.0
-#: plausible sizes within this factor of each other: the data pin the size
-PINNED = 2.0
-
-
-def after_number(unit: str) -> str:
-    """' V' after a number; nothing for a ratio (a breakaway excess, unit '-')."""
-    return "" if unit in ("", "-") else f" {unit}"
-
 
 _live = Field(exclude=True)
-
-
-def _describe(model) -> str:
-    return model.describe()
-
-
-@dataclass
-class Hypothesis(Record):
-    """One explanation, fitted to the data, and the sizes of it the data cannot exclude
-    (its JSON: the model in words, the size in words, the plausible sizes)."""
-
-    effect: str
-    model: Annotated[Model, PlainSerializer(_describe)]
-    rmse_over_noise: float
-    # its size parameter ("d_v", "tc_v", "a_rad", "td_s")
-    key: Annotated[str, _live] = ""
-    unit: Annotated[str, _live] = ""
-    # [(size, Model)], plausible, best first
-    members: Annotated[list, _live] = field(default_factory=list)
-    # its size at a bound of the range the data allow
-    degenerate: Annotated[bool, Field(alias="at_bound")] = False
-    # why it is not judged as the truth ("" when it is)
-    skipped: Annotated[str, Field(alias="why_not_judged_true"), NoneIfEmpty] = ""
-
-    @computed_field(alias="size")
-    @property
-    def _size_text(self) -> str:
-        return self.describe_size()
-
-    @computed_field(alias="pinned")
-    @property
-    def _pinned(self) -> bool:
-        return self.pinned
-
-    @computed_field
-    @property
-    def plausible_sizes(self) -> list[Optional[float]]:
-        """Every size the data allow, best first."""
-        return [s for s, _ in self.members]
-
-    @computed_field
-    @property
-    def judged_true(self) -> bool:
-        """Whether it is judged as the truth (``skipped`` says why not)."""
-        return not self.skipped
-
-    @property
-    def size(self) -> float | None:
-        return self.model.effect_params[self.effect][self.key] if self.key else None
-
-    @property
-    def pinned(self) -> bool:
-        """The plausible sizes lie within :data:`PINNED` of each other."""
-        sizes = [s for s, _ in self.members if s is not None and s > 0]
-        return len(sizes) < 2 or max(sizes) / min(sizes) <= PINNED
-
-    def truths(self) -> list:
-        """``[(label, Model)]`` it is judged true as: its best fit when the data pin its
-        size, else each plausible variant (the best fit is one point of a range the data
-        cannot narrow); none when it is skipped."""
-        if self.skipped:
-            return []
-        if self.pinned:
-            return [(self.effect, self.model)]
-        return [(self.label(s), m) for s, m in self.members[1:]]
-
-    def label(self, size: float) -> str:
-        """How a truth of this explanation at ``size`` is named ('deadband d_v = 0.25 V')."""
-        return f"{self.effect} {self.key} = {size:.3g}{self.units}"
-
-    @property
-    def units(self) -> str:
-        return after_number(self.unit)
-
-    def describe_size(self) -> str:
-        if not self.key:
-            return ""
-        s = f"{self.key} = {self.size:.3g}{self.units}"
-        if self.degenerate and self.pinned:
-            return s + " (at its bound)"
-        if not self.pinned:
-            sizes = sorted(v for v, _ in self.members)
-            return (f"{self.key} not pinned by the data: {sizes[0]:.3g}-{sizes[-1]:.3g}"
-                    f"{self.units} fit as well")
-        return s
-
-
-@dataclass
-class Judged(Record):
-    """One candidate input and how well it separates the pair."""
-
-    candidate: Annotated[InputCandidate, _live]
-    naive: float                      # predicted difference of the best fits (noise units)
-    # the worst over plausible truths and rival variants
-    robust: Annotated[float, Field(alias="worst_plausible")] = 0.0
-    #: plausible truth -> predicted separation after the rival re-fits (leaders only)
-    refit: Annotated[dict[str, float], Field(alias="separation_after_refit"),
-                     NoneIfEmpty] = field(default_factory=dict)
-    #: its re-fits stopped before every truth was tried, once a better input was found
-    #: (its worst is then at most the value shown)
-    stopped: Annotated[bool, Field(alias="stopped_below_a_better_input")] = False
-    #: the hardest case judged: (truth index in the pair, truth label, truth model, the
-    #: rival as re-fitted to it) -- what the figure shows
-    hardest: Annotated[Optional[tuple], _live] = field(default=None, repr=False)
-
-    @property
-    def worst(self) -> float | None:
-        """The predicted separation after the rival re-fits, at the hardest truth."""
-        return min(self.refit.values()) if self.refit else None
-
-    @computed_field(alias="worst_separation_after_refit")
-    @property
-    def _worst(self) -> Optional[float]:
-        return self.worst
-
-    @computed_field
-    @property
-    def kind(self) -> str:
-        """The input's family ("ramp", "pulses", ...)."""
-        return self.candidate.kind
-
-    @computed_field
-    @property
-    def label(self) -> str:
-        """The input in words."""
-        return self.candidate.label
-
-    @computed_field
-    @property
-    def duration_s(self) -> float:
-        """Its length (s)."""
-        return self.candidate.duration
-
-    @computed_field
-    @property
-    def points(self) -> int:
-        """Its breakpoints."""
-        return len(self.candidate.points)
-
-    def _old_to_json(self) -> dict:
-        return {"kind": self.candidate.kind, "label": self.candidate.label,
-                "duration_s": self.candidate.duration, "points": len(self.candidate.points),
-                "naive": self.naive, "worst_plausible": self.robust,
-                "separation_after_refit": dict(self.refit) or None,
-                "worst_separation_after_refit": self.worst,
-                "stopped_below_a_better_input": self.stopped}
-
-
 @dataclass(repr=False)
 class Proposal(Displayable, Record):
     """The proposed experiment, why it separates the pair and by how much; or, when no
@@ -391,30 +235,6 @@ class Proposal(Displayable, Record):
         lines.append("between = [" + ", ".join(f'"{x}"' for x in e["between"]) + "]")
         lines.append("points = [" + ", ".join(f"[{t:g}, {u:g}]" for t, u in e["points"]) + "]")
         return "\n".join(lines) + "\n"
-
-    def _old_to_json(self) -> dict:
-        c = self.chosen
-        return {"between": list(self.pair),
-                "hypotheses": [{"effect": h.effect, "rmse_over_noise": h.rmse_over_noise,
-                                "model": h.model.describe(), "size": h.describe_size(),
-                                "pinned": h.pinned, "at_bound": h.degenerate,
-                                "plausible_sizes": [s for s, _ in h.members],
-                                "judged_true": not h.skipped,
-                                "why_not_judged_true": h.skipped or None}
-                               for h in self.hypotheses],
-                "separates": self.separates, "advice": self.advice or None,
-                "smallest_separable": self.smallest or None,
-                "not_separable": [{"truth": lab, "best_separation": best}
-                                  for lab, best in self.unseen] or None,
-                "proposed": {"kind": c.candidate.kind, "label": c.candidate.label,
-                             "duration_s": c.candidate.duration, "why": self.why,
-                             "points": c.candidate.points,
-                             "separation": {"naive": c.naive, "after_refit": dict(c.refit),
-                                            "worst_after_refit": c.worst}},
-                "limits": self.limits,
-                "candidates": [j._old_to_json() for j in self.judged],
-                "noise": self.sigmas, "budget_s": self.budget_s, "amax_v": self.amax,
-                "seconds": round(self.seconds, 2)}
 
     def _leaders(self) -> list:
         lead = sorted((j for j in self.judged if j.refit), key=lambda j: -j.worst)

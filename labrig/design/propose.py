@@ -36,7 +36,8 @@ from labrig.design.inputs import candidates, closed_candidates, loop_gains
 from labrig.design.separation import (branch_and_bound, separation_after_refit,
                                          smallest_separable, smallest_unseparated)
 from labrig.design.pairs import default_pair, threshold_of, varied_key
-from labrig.design.proposal import DECISIVE, Hypothesis, Judged, Proposal
+from labrig.design.hypotheses import Hypothesis, Judged
+from labrig.design.proposal import DECISIVE, Proposal
 from labrig.design.synthetic import synthetic_run
 from labrig.model.effects import get_effect
 from labrig.model.model import Model

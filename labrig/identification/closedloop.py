@@ -38,9 +38,6 @@ class Way(Record):
     #: loop has only one way and is fitted through it as always)
     told: Annotated[bool, Field(exclude=True)] = False
 
-    def _old_to_json(self) -> dict:
-        return {"way": self.way, "why": self.why, "closed_loop_runs": self.runs}
-
 
 def as_open_loop(run: Run) -> Run:
     """A closed-loop run with its logged controller output as the plant's input."""

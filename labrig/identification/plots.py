@@ -10,7 +10,7 @@ from labrig.core.figures import legend_outside
 def plot_convergence(results, ax=None):
     """Best fitness against iteration for each method (log scale), with the noise floor.
 
-    ``results``: one :class:`labrig.identification.engine.Identification` or a list of them.
+    ``results``: one :class:`labrig.identification.fit.Identification` or a list of them.
     Returns the figure; the caller saves it.
     """
     results = results if isinstance(results, (list, tuple)) else [results]

@@ -186,7 +186,7 @@ def fit_warnings(fit_percent: dict, where: str) -> list[str]:
 
 
 def identification_warnings(ident: Any) -> list[str]:
-    """Bound and fit warnings of an ``engine.Identification``."""
+    """Bound and fit warnings of an ``fit.Identification``."""
     plant = ident.space.plant
     units = dict(plant.units)
     units.update({key: p.unit for key, p in ident.effects.units()})

@@ -33,14 +33,24 @@ def null_unbounded(identifiable: dict) -> dict:
     return out
 
 
-def identification_dict(res) -> dict:
-    """``res.to_dict()`` (keys unchanged) with unbounded intervals null and the bound and
-    fit warnings under ``warnings``."""
+def identification_record(res):
+    """The fit's record (:class:`~labrig.identification.doc.IdentRecord`, its one
+    declaration): ``res.to_dict()`` with unbounded intervals null and the bound and fit
+    warnings under ``warnings``. A key the record does not declare is an error here, where
+    it is written, not a surprise where it is read."""
+    from labrig.identification.doc import IdentRecord
+
     d = res.to_dict()
     d["identifiable"] = null_unbounded(d.get("identifiable") or {})
     d["physical"] = null_unbounded({"physical": d.get("physical") or {}})["physical"]
     d["warnings"] = identification_warnings(res)
-    return d
+    return IdentRecord.model_validate(d, extra="forbid")
+
+
+def identification_dict(res) -> dict:
+    """The JSON of ``labrig identify --json``: :func:`identification_record` as a dict
+    (the keys it was given)."""
+    return identification_record(res).model_dump(exclude_unset=True)
 
 
 #: what the "fitness (eq. 26)" row is (labrig.identification.objective.adequacy computes it)
@@ -96,7 +106,7 @@ def comparison_table(results, best: str | None = None) -> Table:
     (one member of the family the data allow), the fit, the identified model's
     closed-loop step and the cost; one column per method.
 
-    ``results``: live :class:`~labrig.identification.engine.Identification` objects or their
+    ``results``: live :class:`~labrig.identification.fit.Identification` objects or their
     JSON records (``identify --json``), so the CLI and the report print the same table.
     """
     recs = [_record(r) for r in results]

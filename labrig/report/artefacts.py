@@ -1,14 +1,13 @@
 """The JSON artefacts of the earlier stages, validated once where the report reads them.
 
-``analysis.json``, ``identify_all.json`` (and ``model0.json``'s fit record),
-``diagnosis.json`` and ``ladder.json`` are parsed into their documents (each defined
-once, beside the result that writes it: :mod:`labrig.analysis.doc`,
-:mod:`labrig.identification.doc`, :mod:`labrig.diagnosis.results.docs`); a file that does not fit is
-ignored with a note on the page, never half-used. The documents are lax about numbers
+``analysis.json``, ``diagnosis.json`` and ``ladder.json`` are read back into the results
+that wrote them (``AnalysisResult.from_json``, ``Diagnosis.from_json``,
+``Ladder.from_json``: each result declared once, :mod:`labrig.core.record`), so the page
+renders the same ``table_rows()`` as the CLI; ``identify_all.json`` (and ``model0.json``'s
+fit record) into the fit's record (:mod:`labrig.identification.doc`). A file that does not
+fit is ignored with a note on the page, never half-used. The reading is lax about numbers
 (an int is a float, ``null`` where a value may be missing) but every key the page reads
-has its type. Where the stage has a result object, the record turns into it
-(``AnalysisDoc.result()``, ``DiagnosisDoc.result()``, ``LadderDoc.result()``), so the page
-renders the same ``table_rows()`` as the CLI.
+has its type.
 """
 from __future__ import annotations
 
@@ -17,20 +16,19 @@ from pathlib import Path
 
 from pydantic import ValidationError
 
-from labrig.core.schemas import MAX_JSON_BYTES, JsonDoc, describe
-from labrig.verbs.types import (AnalysisDoc, DiagnosisDoc, IdentifyAllDoc,  # noqa: F401
-                                IdentRecord, LadderDoc, Regimes)  # (the documents the report reads)
+from labrig.core.schemas import MAX_JSON_BYTES, describe
+from labrig.verbs.types import Diagnosis, Ladder
 
 
 # -- reading --------------------------------------------------------------------------
 
 #: the one-line reasons the page has always given for the two shapes a stage's file
 #: is most often wrong in: (schema, key, only when the key itself is wrong)
-_REASONS = {(DiagnosisDoc, "regimes"): ("no 'regimes' key", True),
-            (LadderDoc, "steps"): ("'steps' is not a list of steps", False)}
+_REASONS = {(Diagnosis, "regimes"): ("no 'regimes' key", True),
+            (Ladder, "steps"): ("'steps' is not a list of steps", False)}
 
 
-def read_artefact(path: Path, schema: type[JsonDoc], notes: list):
+def read_artefact(path: Path, schema: type, notes: list):
     """``path`` validated as ``schema``, or None when it is absent or does not fit
     (then a note on the page says why).
 
@@ -39,7 +37,8 @@ def read_artefact(path: Path, schema: type[JsonDoc], notes: list):
     path : Path
         The artefact in the work folder.
     schema : type
-        One of the document models above.
+        A result declared as a :class:`~labrig.core.record.Record` (read with its
+        ``from_json``) or the fit's record (a pydantic model).
     notes : list of str
         Receives one sentence per ignored file.
     """
@@ -56,7 +55,8 @@ def read_artefact(path: Path, schema: type[JsonDoc], notes: list):
         notes.append(f"{path} was ignored: not a JSON object.")
         return None
     try:
-        return schema.model_validate(data)
+        read = getattr(schema, "from_json", None) or schema.model_validate
+        return read(data)
     except ValidationError as exc:
         loc = exc.errors()[0]["loc"]
         why, whole = _REASONS.get((schema, loc[0] if loc else None), (None, False))

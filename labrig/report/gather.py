@@ -14,10 +14,10 @@ from pathlib import Path
 import labrig.verbs as lr
 import labrig.verbs.figures as lrf
 from labrig.core.errors import UserError
-from labrig.report.artefacts import (AnalysisDoc, DiagnosisDoc, IdentifyAllDoc, IdentRecord,
-                                     LadderDoc, Regimes, read_artefact)
+from labrig.report.artefacts import read_artefact
 from labrig.report.story import Figure, Story, fig_bytes
-from labrig.verbs.types import Ladder, LadderStep
+from labrig.verbs.types import (AnalysisResult, Diagnosis, IdentifyAllDoc, IdentRecord, Ladder,
+                                LadderStep, Regimes)
 
 
 def gather(data_dir, work=None, quick=False, seed=1, log=None) -> Story:
@@ -88,7 +88,7 @@ def _sweep(story: Story) -> None:
 
 def _analysis(story: Story, say) -> None:
     w = story.work
-    doc = _artefact(story, "analysis.json", AnalysisDoc)
+    doc = _artefact(story, "analysis.json", AnalysisResult)
     if doc is not None and not _same_runs([r.name for r in doc.runs], story):
         story.notes.append(f"{w / 'analysis.json'} describes other runs than {story.data_dir}; "
                            "the analysis was recomputed.")
@@ -98,7 +98,7 @@ def _analysis(story: Story, say) -> None:
                  *(f"edges_{r.name}.png" for r in story.runs)):
         if (b := _work_png(story, name)) is not None:
             pngs[name] = b
-    res = doc.result() if doc is not None else None
+    res = doc
     if res is not None:
         story.sources["analysis"] = str(w / "analysis.json")
     if res is None or not pngs:
@@ -203,9 +203,9 @@ def _failures(story: Story, say):
     """Regime table, regimes figure and the worst run's comparison. Returns the live
     evaluation of the linear model when it had to be computed (else None)."""
     w = story.work
-    doc = _artefact(story, "diagnosis.json", DiagnosisDoc)
+    doc = _artefact(story, "diagnosis.json", Diagnosis)
     if doc is not None:
-        story.diagnosis = doc.result()
+        story.diagnosis = doc
         story.regimes = doc.regimes
         story.sources["failures"] = str(w / "diagnosis.json")
     reg_png = _work_png(story, "regimes.png")
@@ -223,10 +223,10 @@ def _failures(story: Story, say):
         ev0 = lr.compare(story.runs, story.model0, through=None)
         if doc is None:
             wr = ev0.worst_regime()
-            story.regimes = Regimes.model_validate(
-                {**ev0.regimes, "noise": ev0.metrics["noise"],
-                 "worst": None if wr is None else {"channel": wr[0], "regime": wr[1],
-                                                   "rmse_over_noise": wr[2]}})
+            story.regimes = Regimes(
+                **ev0.regimes, noise=ev0.metrics["noise"],
+                worst=None if wr is None else {"channel": wr[0], "regime": wr[1],
+                                               "rmse_over_noise": wr[2]})
             story.sources["failures"] = (f"computed by this report (simulation of "
                                          f"{story.model0_source})")
         if reg_png is None:
@@ -280,8 +280,8 @@ def _diagnosis(story: Story, seed, say):
 
 def _ladder(story: Story, diag_live, ev0, say, seed=1) -> None:
     w = story.work
-    doc = _artefact(story, "ladder.json", LadderDoc)
-    ladder = doc.result() if doc is not None and doc.steps else None
+    doc = _artefact(story, "ladder.json", Ladder)
+    ladder = doc if doc is not None and doc.steps else None
     png = None
     if ladder is not None:
         story.sources["ladder"] = str(w / "ladder.json")

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from labrig.core.tables import Table
 from labrig.verbs.figures import fits_table
-from labrig.report.artefacts import IdentRecord
+from labrig.verbs.types import IdentRecord
 from labrig.report.blocks import Bullets, Figures, Heading, Section, TableBlock, Text, markup
 from labrig.report.story import Story
 

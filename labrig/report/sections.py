@@ -113,10 +113,10 @@ def _analysis(story: Story, key, title) -> Section:
 def regime_tables(regimes) -> tuple[Table, int | None, Table | None]:
     """Error by regime (each channel's rmse/noise with its share of time and of error)
     with the worst regime's row, and error by run amplitude (None when absent)."""
-    by = regimes.by_regime
+    by = regimes["by_regime"]
     chans = list(by)
     regs = list(dict.fromkeys(reg for ch in chans for reg in by[ch]))
-    worst = regimes.worst.regime if regimes.worst else None
+    worst = regimes["worst"]["regime"] if regimes.get("worst") else None
     cols = ["regime"]
     for ch in chans:
         cols += [markup("{}<br>rmse/noise", ch), markup("share of<br>time"),
@@ -127,12 +127,12 @@ def regime_tables(regimes) -> tuple[Table, int | None, Table | None]:
         for ch in chans:
             v = by[ch].get(reg)
             row += ["–", "–", "–"] if v is None else [
-                num(v.rmse_over_noise, ".2f"), pct(v.share_of_time, ".0f"),
-                pct(v.share_of_error, ".0f")]
+                num(v["rmse_over_noise"], ".2f"), pct(v["share_of_time"], ".0f"),
+                pct(v.get("share_of_error"), ".0f")]
         rows.append(row)
     table = Table("Error by regime", cols, rows, numeric=tuple(range(1, len(cols))))
     hl = regs.index(worst) if worst in regs else None
-    ba = regimes.by_amplitude
+    ba = regimes.get("by_amplitude")
     if not ba:
         return table, hl, None
     keys = list(dict.fromkeys(k for ch in ba for k in ba[ch]))
@@ -152,10 +152,11 @@ def _failures(story: Story, key, title) -> Section:
         "The linear model ({}) simulated on every run; its error is split by what the motor "
         "was doing. rmse/noise = 1 means the model explains all that the sensor noise allows.",
         story.model0_source or "the linear model")))
-    if t.worst is not None:
+    worst = t.get("worst")
+    if worst is not None:
         text = markup("<b>Worst:</b> the {} stretches of the {} (rmse/noise {})",
-                      REGIME_TEXT.get(t.worst.regime, t.worst.regime), t.worst.channel,
-                      num(t.worst.rmse_over_noise, ".2f"))
+                      REGIME_TEXT.get(worst["regime"], worst["regime"]), worst["channel"],
+                      num(worst.get("rmse_over_noise"), ".2f"))
         if story.worst_run:
             text += markup("; worst run: <b>{}</b>", story.worst_run)
         blocks.append(Verdict(text + ".", "warn"))
@@ -164,9 +165,9 @@ def _failures(story: Story, key, title) -> Section:
         blocks.append(TableBlock(table, hl_rows={hl} if hl is not None else set()))
     if amp is not None:
         blocks.append(TableBlock(amp))
-    if t.noise:
+    if t.get("noise"):
         blocks.append(Text("Noise levels used: " + ", ".join(
-            f"{k} {num(v, '.3g')}" for k, v in t.noise.items()) + ".", "small muted"))
+            f"{k} {num(v, '.3g')}" for k, v in t["noise"].items()) + ".", "small muted"))
     return Section(key, title, blocks + _figures(story, key))
 
 

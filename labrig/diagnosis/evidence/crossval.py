@@ -183,10 +183,6 @@ class CrossValidation(Record):
         n = sum(self.fold_n[j] for j in keep)
         return float(np.sqrt(sum(self.fold_sq[j] for j in keep) / max(n, 1)))
 
-    def _old_to_json(self) -> dict:
-        return {"rmse_over_noise": self.rmse, "per_fold_mean_square": self.per_fold,
-                "channels": self.channels}
-
 
 def cross_validate(runs, model: Model, folds: Folds, *, sigmas, weights, seed: int = 0,
                    fixed: dict | None = None, reach=None, max_nfev: int = 25) -> CrossValidation:

@@ -143,12 +143,6 @@ class Evaluation(Displayable, Record):
         """
         return worst_run(self.per_run)
 
-    def _old_to_json(self) -> dict:
-        return {"fitness": self.metrics["fitness"],
-                "rmse_over_noise": self.metrics["rmse_over_noise"],
-                "fit_percent": self.metrics["fit_percent"], "noise": self.metrics["noise"],
-                "regimes": self.regimes}
-
     def runs(self) -> list[dict]:
         """Per run: fit % and rmse/noise per channel and the worst stretch outside the
         noise band (the ``runs`` of ``labrig compare --json``, without figures).

@@ -55,10 +55,6 @@ class ConfusablePair(Record):
         """The two effects."""
         return [self.first, self.second]
 
-    def _old_to_json(self) -> dict:
-        return {"pair": [self.first, self.second], "rmse_over_noise": list(self.rmse_over_noise),
-                "differ_in": self.differ_in, "round": self.round}
-
 
 @dataclass(repr=False)
 class AutoDiagnosis(Displayable, Record):
@@ -147,18 +143,6 @@ class AutoDiagnosis(Displayable, Record):
                 + (self.thresholds + " " if self.thresholds else ""))
         tail = f" {self.sensor_lag}" if self.sensor_lag else ""
         return (head + last.verdict if not last.recommendation else head.rstrip()) + tail
-
-    def _old_to_json(self) -> dict:
-        first = self.rounds[0] if self.rounds else None
-        return {"effects": self.model.names, "added": self.added,
-                "moves": [m.to_json() for m in self.moves],
-                "final_model": self.model.to_json(), "ladder": self.ladder.to_json()["steps"],
-                "confusable": [p.to_json() for p in self.confusable],
-                "thresholds": self.thresholds, "sensor_lag": self.sensor_lag,
-                "noise": first.noise if first else {}, "weights": first.weights if first else {},
-                "cross_validation": first.cross_validation if first else None,
-                "rounds": [d.to_json() for d in self.rounds],
-                "verdict": self.verdict}
 
     def table_rows(self) -> list[Table]:
         """The error ladder and the confusable pairs.

@@ -9,7 +9,7 @@ from typing import Annotated
 from pydantic import Field, computed_field
 
 from labrig.diagnosis.results.ladder import Ladder
-from labrig.core.record import Record
+from labrig.core.record import Record, empty
 from labrig.model.model import Model
 
 #: log lines are wrapped at this width (words whole, never cut)
@@ -44,7 +44,7 @@ class Move(Record):
     cv_after: Annotated[float, Field(alias="cross_validated_after")]
     round: int
     # a pair fitted in place of these
-    replaces: Annotated[list[str], Field(exclude_if=lambda v: not v)] \
+    replaces: Annotated[list[str], Field(exclude_if=empty)] \
         = field(default_factory=list)
 
     @computed_field
@@ -57,14 +57,6 @@ class Move(Record):
         if self.replaces:
             return f"{', '.join(self.replaces)} -> {' + '.join(e)}"
         return ("- " if self.kind == "remove" else "+ ") + ", ".join(e)
-
-    def _old_to_json(self) -> dict:
-        out = {"kind": self.kind, "effects": list(self.effects), "label": self.label,
-               "cross_validated_before": self.cv_before, "cross_validated_after": self.cv_after,
-               "round": self.round}
-        if self.replaces:
-            out["replaces"] = list(self.replaces)
-        return out
 
 
 @dataclass

@@ -114,7 +114,7 @@ def refit_with(runs, base: Model, effect, *, seed: int = 0, fixed: dict | None =
                weights: Weights = Weights(), reach=None, carried: dict | None = None,
                stop=None):
     """``base`` plus ``effect``, re-fitted from scanned starts in two basins; returns the
-    best :class:`labrig.identification.engine.Identification`. ``carried``: the values of
+    best :class:`labrig.identification.fit.Identification`. ``carried``: the values of
     the effect's parameters where the model it replaces left them (a replacement also
     starts there, when they are all of its parameters: a simpler family member), or a
     list of such starts (a refinement's, ``Effect.from_simpler``). ``stop``: the screen

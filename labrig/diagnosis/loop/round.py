@@ -116,7 +116,7 @@ class Round:
     # -- the candidates --------------------------------------------------------------
     def entry(self, ident, effect: str, move: str = "add", replaces=None,
               params=None) -> Candidate:
-        """A re-fit (:class:`~labrig.identification.engine.Identification`) as a ranked
+        """A re-fit (:class:`~labrig.identification.fit.Identification`) as a ranked
         candidate: its error, gain and BIC against the base, and whether the effect
         itself carries the gain (the effect switched off in the re-fitted model)."""
         cand = ident.model()

@@ -7,214 +7,21 @@ renders :meth:`Diagnosis.table_rows`, so nothing is formatted twice.
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
-from typing import Annotated, Any, Literal, Optional
+from typing import Annotated, Any, Optional
 
 import pandas as pd
-from pydantic import ConfigDict, Field, computed_field, with_config
-from typing_extensions import NotRequired, TypedDict
+from pydantic import Field
 
 from labrig.diagnosis.evidence.evaluation import Evaluation
 from labrig.model.model import Model
-from labrig.diagnosis.evidence.residuals import REGIME_TEXT, REGIMES
+from labrig.diagnosis.evidence.residuals import REGIME_TEXT
 from labrig.core.tables import Table, fmt
 from labrig.core.display import Displayable
-from labrig.core.record import Record
+from labrig.core.record import Record, empty
+from labrig.diagnosis.results.candidate import Baseline, Candidate, Criteria, Num, Regimes
 # how the diagnosis ranks and picks candidates, for the table's notes
 from labrig.diagnosis.evidence.criteria import (CV_CANDIDATES, PARSIMONY, SCREEN_AFTER, SCREEN_GAIN,
                                        SCREEN_STALL, SIMPLER_MARGIN, SWAP_GAIN)
-from labrig.model.effects import CATALOGUE, get_effect
-from labrig.model import drive_units
-
-
-Num = Optional[float]
-Regime = Literal[REGIMES]
-#: a nested record that may carry keys beyond those declared (kept as they are)
-_open = with_config(ConfigDict(extra="allow"))
-
-
-def _unset(v) -> bool:
-    return v is None
-
-
-def _empty(v) -> bool:
-    return not v
-
-
-# -- the shapes of the JSON's nested records ------------------------------------------------
-
-@_open
-class RegimeStat(TypedDict):
-    rmse_over_noise: float
-    share_of_time: float
-    share_of_error: NotRequired[Num]
-
-
-@_open
-class Worst(TypedDict):
-    channel: str
-    regime: Regime
-    rmse_over_noise: NotRequired[Num]
-
-
-@_open
-class Regimes(TypedDict):
-    """A model's error by regime and by run amplitude, per channel, and the worst."""
-
-    by_regime: dict[str, dict[Regime, RegimeStat]]
-    by_amplitude: NotRequired[dict[str, dict[str, float]]]
-    worst: NotRequired[Optional[Worst]]
-    noise: NotRequired[dict[str, Num]]
-
-
-@_open
-class CrossValidated(TypedDict):
-    """A candidate's held-out evidence against the model it changes."""
-
-    baseline: float
-    with_effect: float
-    improvement: NotRequired[Num]
-    folds_improved: NotRequired[int]
-    folds: NotRequired[int]
-    per_fold: NotRequired[list[dict]]
-    not_counted: NotRequired[list[dict]]
-    evidence: NotRequired[list[dict]]
-
-
-@_open
-class Baseline(TypedDict, total=False):
-    """The diagnosed model's error and size."""
-
-    source: str
-    effects: list[str]
-    rmse_over_noise: dict[str, Num]
-    fit_percent: dict[str, Num]
-    fitness: Num
-    bic: Num
-    n: Optional[int]
-    n_effective: Num
-    cross_validated: Num
-    #: each run's fitted start where it is not rest (labrig.model.start)
-    starts: dict[str, dict[str, float]]
-
-
-@_open
-class Criteria(TypedDict, total=False):
-    min_improvement: Num
-    max_delta_bic: Num
-    floor: Num
-
-
-@dataclass
-class Candidate(Record):
-    """One catalogue effect tried on the data: re-fitted, scored and explained.
-
-    Its fields are its record in ``labrig diagnose --json`` (``ranking``), but for the
-    live ones (the re-fitted model, its evaluation and cross-validation); ``params`` is
-    written in the drive's units (:meth:`shown_params`) and ``label`` is the move.
-    """
-
-    effect: str
-    rmse_over_noise: float
-    improvement: float
-    delta_bic: Num
-    # (written as shown_params(): the drive's units)
-    params: Annotated[dict[str, Num], Field(exclude=True)]
-    fit_percent: dict[str, Num]
-    #: held-out evidence: baseline and candidate cross-validated rmse/noise, the folds
-    #: it improved, and the regimes that carry the gain
-    cross_validated: Annotated[Optional[CrossValidated], Field(exclude_if=_unset)] = None
-    supported: bool = False
-    explanation: str = ""
-    #: parameters whose fit ended at a bound of the search space
-    at_bound: list[str] = field(default_factory=list)
-    #: "add" (``effect`` added), "remove" (``effect`` taken out) or "replace"
-    #: (``replaces`` taken out, ``effect`` put in its place)
-    move: Literal["add", "remove", "replace"] = "add"
-    replaces: Annotated[Optional[str], Field(exclude_if=_empty)] = None
-    #: parameters the move adds to the model (negative: takes away)
-    extra_params: Annotated[int, Field(exclude=True)] = 1
-    #: why the effect's fitted size is not resolved by the data (None: it is)
-    unresolved: Annotated[Optional[str], Field(exclude_if=_empty)] = None
-    #: the share of the candidate's error the effect itself carries (the error with the
-    #: effect switched off, the rest unchanged, is ``off_fitness``); None: not checked
-    carried: Annotated[Num, Field(exclude_if=_unset)] = None
-    off_fitness: Annotated[Num, Field(exclude=True)] = field(default=None, repr=False)
-    #: starts of its re-fit that diverged (their simulation overflowed) and were dropped
-    failed_starts: Annotated[int, Field(exclude_if=_empty)] = 0
-    #: screened out (:func:`labrig.diagnosis.evidence.criteria.screen`): its re-fit was ended
-    #: after this many iterations, stalled below the screen's gain; its numbers are
-    #: where the re-fit stood then. None: re-fitted to the end
-    screened: Annotated[Optional[int], Field(alias="screened_after_iterations",
-                                             exclude_if=_unset)] = None
-    #: live, not in the JSON: the re-fitted model and its evaluation on all runs
-    model: Annotated[Optional[Model], Field(exclude=True)] = field(default=None, repr=False)
-    evaluation: Annotated[Optional[Evaluation], Field(exclude=True)] = field(default=None,
-                                                                             repr=False)
-    #: live, not in the JSON: its cross-validation (the next round's baseline when the
-    #: search takes it)
-    held_out: Annotated[Any, Field(exclude=True)] = field(default=None, repr=False)
-
-    @computed_field
-    @property
-    def label(self) -> str:
-        """The move in the ranking and the recommendation: ``deadband`` (add it),
-        ``- deadband`` (remove it), ``coulomb_friction -> deadband`` (replace)."""
-        if self.move == "remove":
-            return f"- {self.effect}"
-        if self.move == "replace":
-            return f"{self.replaces} -> {self.effect}"
-        return self.effect
-
-    @property
-    def action(self) -> str:
-        """The move in words: 'Add deadband', 'Remove deadband', 'Replace X by Y'."""
-        return {"add": f"Add {self.effect}", "remove": f"Remove {self.effect}",
-                "replace": f"Replace {self.replaces} by {self.effect}"}[self.move]
-
-    @property
-    def regimes(self) -> dict | None:
-        return self.evaluation.regimes if self.evaluation is not None else None
-
-    def shown_params(self) -> dict:
-        """The effect's parameters in the drive's units (:mod:`labrig.model.drive_units`)."""
-        m = self.model
-        if m is None or m.plant == "voltage":
-            return dict(self.params)
-        eff = m.effects.by_name(self.effect) if self.effect in m.names else None
-        if eff is None:
-            eff = get_effect(self.effect) if self.effect in CATALOGUE else None
-        if eff is None:
-            return dict(self.params)
-
-        return drive_units.to_drive([eff], {self.effect: self.params}, m.plant,
-                                    m.constants)[self.effect]
-
-    @computed_field(alias="params")
-    @property
-    def _params_shown(self) -> dict[str, Num]:
-        return self.shown_params()
-
-    def _old_to_json(self) -> dict:
-        d = {"effect": self.effect, "move": self.move, "label": self.label,
-             "rmse_over_noise": self.rmse_over_noise,
-             "improvement": self.improvement, "delta_bic": self.delta_bic,
-             "params": self.shown_params(), "fit_percent": self.fit_percent}
-        if self.cross_validated is not None:
-            d["cross_validated"] = self.cross_validated
-        if self.replaces:
-            d["replaces"] = self.replaces
-        d["at_bound"] = list(self.at_bound)
-        if self.carried is not None:
-            d["carried"] = self.carried
-        if self.unresolved:
-            d["unresolved"] = self.unresolved
-        if self.failed_starts:
-            d["failed_starts"] = self.failed_starts
-        if self.screened is not None:
-            d["screened_after_iterations"] = self.screened
-        d["supported"] = self.supported
-        d["explanation"] = self.explanation
-        return d
 
 
 @dataclass(repr=False)
@@ -249,19 +56,20 @@ class Diagnosis(Displayable, Record):
     >>> [c.effect for c in diag.ranking[:2]]  # doctest: +SKIP
     """
 
-    baseline: Baseline
+    # (a record read back may lack what it can do without: pydantic defaults)
+    baseline: Annotated[Baseline, Field(default_factory=dict)]
     regimes: Regimes
-    ranking: list[Candidate]
-    recommendation: Optional[str]
-    verdict: str
-    cross_validation: Optional[dict]
-    criteria: Criteria
-    seconds: Num
+    ranking: Annotated[list[Candidate], Field(default_factory=list)]
+    recommendation: Annotated[Optional[str], Field(default=None)]
+    verdict: Annotated[str, Field(default="")]
+    cross_validation: Annotated[Optional[dict], Field(default=None)]
+    criteria: Annotated[Criteria, Field(default_factory=dict)]
+    seconds: Annotated[Num, Field(default=None)]
     #: each channel's noise floor and how it was measured; the channel weights
     noise: dict = field(default_factory=dict)
     weights: dict = field(default_factory=dict)
     #: candidates not ranked because every start of their re-fit diverged
-    diverged: Annotated[list[str], Field(exclude_if=_empty)] = field(default_factory=list)
+    diverged: Annotated[list[str], Field(exclude_if=empty)] = field(default_factory=list)
     #: live, not in the JSON: the diagnosed model, its evaluation, the rig constants and
     #: run names, the folds and the base model's cross-validation
     base: Annotated[Optional[Model], Field(exclude=True)] = field(default=None, repr=False)
@@ -352,15 +160,6 @@ class Diagnosis(Displayable, Record):
         return replace(model, constants=dict(self.constants),
                        info={"method": method, "rmse_over_noise": {"overall": rmse},
                              "dataset": {"runs": list(self.dataset)}})
-
-    def _old_to_json(self) -> dict:
-        return {"baseline": self.baseline, "regimes": self.regimes,
-                "ranking": [c._old_to_json() for c in self.ranking],
-                "recommendation": self.recommendation, "verdict": self.verdict,
-                "cross_validation": self.cross_validation, "noise": self.noise,
-                "weights": self.weights, "criteria": self.criteria,
-                "seconds": self.seconds,
-                **({"diverged": list(self.diverged)} if self.diverged else {})}
 
     def to_pandas(self):
         """The ranking as a DataFrame, one row per candidate effect.

@@ -6,10 +6,10 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Optional
+from typing import Annotated, Optional
 
 import pandas as pd
-from pydantic import ConfigDict, with_config
+from pydantic import ConfigDict, Field, with_config
 from typing_extensions import NotRequired, TypedDict
 
 from labrig.diagnosis.evidence.evaluation import Evaluation, evaluate
@@ -34,11 +34,12 @@ class RungError(TypedDict):
 class LadderStep(Record):
     """One rung: the model's label, its effects and how well it explains the runs."""
 
-    label: str
-    effects: list[str]
+    # (a record read back may lack what it can do without: pydantic defaults)
+    label: Annotated[str, Field(default="")]
+    effects: Annotated[list[str], Field(default_factory=list)]
     rmse_over_noise: RungError
-    fit_percent: dict[str, Num]
-    fitness: Num
+    fit_percent: Annotated[dict[str, Num], Field(default_factory=dict)]
+    fitness: Annotated[Num, Field(default=None)]
     #: the model file the rung was read from (None: built by the search)
     model: Optional[str] = None
     #: weighted rmse/noise on held-out data (``diagnose --auto``); None: not validated
@@ -51,12 +52,6 @@ class LadderStep(Record):
                    rmse_over_noise=ev.metrics["rmse_over_noise"],
                    fit_percent=ev.metrics["fit_percent"], fitness=ev.metrics["fitness"],
                    model=str(path) if path else None, cross_validated=cv)
-
-    def _old_to_json(self) -> dict:
-        return {"label": self.label, "effects": self.effects,
-                "rmse_over_noise": self.rmse_over_noise, "fit_percent": self.fit_percent,
-                "fitness": self.fitness, "cross_validated": self.cross_validated,
-                "model": self.model}
 
 
 @dataclass(repr=False)
@@ -88,9 +83,6 @@ class Ladder(Displayable, Record):
         str
         """
         return f"Ladder: {len(self.steps)} rung(s)"
-
-    def _old_to_json(self) -> dict:
-        return {"steps": [s._old_to_json() for s in self.steps]}
 
     def to_pandas(self):
         """The ladder as a DataFrame, one row per rung, simplest first.
