@@ -102,3 +102,25 @@ def test_a_record_read_back_shows_the_same_tables(results):
         mine = res.table_rows() if isinstance(res.table_rows(), list) else [res.table_rows()]
         theirs = back.table_rows() if isinstance(back.table_rows(), list) else [back.table_rows()]
         assert [t.rows for t in theirs] == [t.rows for t in mine], key
+
+
+def test_a_summary_is_not_read_back_as_if_it_were_the_result():
+    """A result whose JSON summarises live objects (an evaluation's residuals, a
+    proposal's candidate inputs) says so rather than failing on a missing key."""
+    from labrig.design.proposal import Proposal
+    from labrig.diagnosis.evidence.evaluation import Evaluation
+
+    for cls in (Evaluation, Proposal, lr.AutoDiagnosis):
+        with pytest.raises(TypeError, match=f"^{cls.__name__}'s JSON is a summary"):
+            cls.from_json({})
+        assert cls.json_schema()["type"] == "object"
+
+
+def test_a_move_not_in_the_ranking_is_named_with_the_ones_that_are(results):
+    """``Diagnosis.candidate`` is a lookup by label: a missing one is a KeyError that
+    lists the ranking's moves (it was a bare StopIteration)."""
+    diag = results["diagnosis"]
+    with pytest.raises(KeyError, match="'stiction' is not a move of the ranking; its moves: "
+                                       + diag.ranking[0].label):
+        diag.candidate("stiction")
+    assert diag.candidate(diag.ranking[0].label) is diag.ranking[0]

@@ -63,6 +63,8 @@ class ChannelAgreement(Record):
         Runs with both channels.
     """
 
+    readable = False   # (a summary of live objects: not read back)
+
     drift: float
     sigma_pos: Annotated[float, Field(exclude=True)]
     lag_s: float

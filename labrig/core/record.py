@@ -71,13 +71,16 @@ class Record:
     """Mixin for a result dataclass whose fields are its JSON form (module docstring).
 
     A subclass may set ``finite_json = True``: its JSON then has NaN and inf as None
-    (:func:`finite_json`), for results whose JSON has always said so in Python too.
+    (:func:`finite_json`), for results whose JSON has always said so in Python too; and
+    ``readable = False`` when its JSON is a summary that cannot give the result back
+    (the live objects it was computed from are not in it).
     """
 
     # (arbitrary types: a field may hold a Model or an array; its annotation says how
     # it is written, e.g. :data:`AsJson`)
     __pydantic_config__ = ConfigDict(arbitrary_types_allowed=True, populate_by_name=True)
     finite_json: ClassVar[bool] = False
+    readable: ClassVar[bool] = True
 
     def to_json(self) -> dict:
         """The result's JSON form (the keys its command's ``--json`` prints).
@@ -120,7 +123,12 @@ class Record:
         ------
         pydantic.ValidationError
             When ``doc`` lacks a key the result needs or holds a value of the wrong kind.
+        TypeError
+            When the result's JSON is a summary that cannot give it back (``readable``).
         """
+        if not cls.readable:
+            raise TypeError(f"{cls.__name__}'s JSON is a summary of live objects it does "
+                            "not hold: it is not read back")
         return _adapter(cls).validate_python(doc, by_alias=True, by_name=True)
 
 

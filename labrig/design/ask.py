@@ -40,6 +40,8 @@ class AskStep(Record):
     """One short experiment played: what it was and where the decision stood after it
     (its JSON: the decision's separation, leader and rmse/noise after it)."""
 
+    readable = False   # (a summary of live objects: not read back)
+
     label: Annotated[str, Field(alias="input")]
     duration_s: float
     # its predicted separation, worst over the plausible truths
@@ -68,6 +70,8 @@ class AskStep(Record):
 @dataclass(repr=False)
 class Asking(Displayable, Record):
     """The experiments asked one at a time, the decision after each, and why it stopped."""
+
+    readable = False   # (a summary of live objects: not read back)
 
     pair: Annotated[TupleOf, Field(alias="between")]
     steps: list[AskStep] = field(default_factory=list)

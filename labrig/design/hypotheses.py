@@ -33,6 +33,8 @@ class Hypothesis(Record):
     """One explanation, fitted to the data, and the sizes of it the data cannot exclude
     (its JSON: the model in words, the size in words, the plausible sizes)."""
 
+    readable = False   # (a summary of live objects: not read back)
+
     effect: str
     model: Annotated[Model, PlainSerializer(_describe)]
     rmse_over_noise: float
@@ -112,6 +114,8 @@ class Hypothesis(Record):
 @dataclass
 class Judged(Record):
     """One candidate input and how well it separates the pair."""
+
+    readable = False   # (a summary of live objects: not read back)
 
     candidate: Annotated[InputCandidate, _live]
     naive: float                      # predicted difference of the best fits (noise units)

@@ -63,6 +63,8 @@ class Proposal(Displayable, Record):
     True
     """
 
+    readable = False   # (a summary of live objects: not read back)
+
     pair: Annotated[TupleOf, Field(alias="between")]
     hypotheses: list[Hypothesis]
     judged: Annotated[list[Judged], Field(alias="candidates")]

@@ -62,6 +62,8 @@ class Evaluation(Displayable, Record):
     >>> ev.plot()  # doctest: +SKIP
     """
 
+    readable = False   # (a summary of live objects: not read back)
+
     # (its JSON: the metrics' fitness, rmse/noise, fit % and noise, and the regimes)
     metrics: Annotated[dict, _live]
     per_run: Annotated[list, _live]

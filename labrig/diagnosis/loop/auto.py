@@ -42,6 +42,8 @@ def _steps(ladder: Ladder) -> list[dict]:
 class ConfusablePair(Record):
     """Two effects that explain the data about equally well."""
 
+    readable = False   # (a summary of live objects: not read back)
+
     first: Annotated[str, Field(exclude=True)]
     second: Annotated[str, Field(exclude=True)]
     rmse_over_noise: TupleOf
@@ -80,6 +82,8 @@ class AutoDiagnosis(Displayable, Record):
     >>> res = lr.auto("data/sweep_default")  # doctest: +SKIP
     >>> res.model.names, res.ladder.steps[-1].rmse_over_noise  # doctest: +SKIP
     """
+
+    readable = False   # (a summary of live objects: not read back)
 
     rounds: list[Diagnosis]
     model: Annotated[Model, Field(alias="final_model"), AsJson]

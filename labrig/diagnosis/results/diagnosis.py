@@ -111,10 +111,15 @@ class Diagnosis(Displayable, Record):
 
         Raises
         ------
-        StopIteration
-            No candidate of the ranking has that label.
+        KeyError
+            No candidate of the ranking has that label (the message lists them).
         """
-        return next(c for c in self.ranking if c.label == label)
+        for c in self.ranking:
+            if c.label == label:
+                return c
+        # (a lookup by key, as a mapping's: the command line never asks for a missing one)
+        raise KeyError(f"'{label}' is not a move of the ranking; its moves: "
+                       + (", ".join(c.label for c in self.ranking) or "none"))
 
     def recommended_model(self) -> Model | None:
         """The model this round leaves: the re-fitted model with the recommended effect,
@@ -149,8 +154,8 @@ class Diagnosis(Displayable, Record):
 
         Raises
         ------
-        StopIteration
-            No candidate of the ranking has that label.
+        KeyError
+            No candidate of the ranking has that label (:meth:`candidate`).
         """
         c = self.candidate(label)
         return self._to_save(c.model, c.rmse_over_noise, "co (diagnose re-fit)")
