@@ -213,19 +213,22 @@ def test_no_benchmark_history_in_the_code():
 SEARCH_FORM = {"build_space", "Objective", "Space"}
 
 
+def _nodes_outside_identification():
+    """(module path, AST node) of every module but identification's."""
+    for f in PKG.rglob("*.py"):
+        rel = f.relative_to(PKG)
+        if rel.parts[0] != "identification":
+            yield from ((rel, node) for node in ast.walk(ast.parse(f.read_text())))
+
+
 def test_only_identification_builds_a_search_space():
     """The loop and the front ends hand identification a problem
     (:class:`labrig.identification.problem.Problem`) and get a fit; the search space, the
     objective and a model's search vector are identification's own (issue 62)."""
-    offenders = []
-    for f in PKG.rglob("*.py"):
-        rel = f.relative_to(PKG)
-        if rel.parts[0] == "identification":
-            continue
-        for node in ast.walk(ast.parse(f.read_text())):
-            if isinstance(node, ast.ImportFrom) and (node.module or "").startswith(
-                    "labrig.identification.objective"):
-                offenders += [f"{rel}: {a.name}" for a in node.names if a.name in SEARCH_FORM]
+    offenders = [f"{rel}: {a.name}" for rel, node in _nodes_outside_identification()
+                 if isinstance(node, ast.ImportFrom)
+                 and (node.module or "").startswith("labrig.identification.objective")
+                 for a in node.names if a.name in SEARCH_FORM]
     assert offenders == []
 
 
@@ -233,16 +236,10 @@ def test_only_identification_flattens_a_model_for_a_search():
     """A model goes to a fit as a Model, or flattened by identification's own
     ``start_of`` (with what is fixed over it): no front end or loop module merges a
     model's flat values with fixed ones by hand (``{**model.flat(), **fixed}``)."""
-    offenders = []
-    for f in PKG.rglob("*.py"):
-        rel = f.relative_to(PKG)
-        if rel.parts[0] == "identification":
-            continue
-        for node in ast.walk(ast.parse(f.read_text())):
-            if isinstance(node, ast.Dict) and any(
-                    k is None and isinstance(v, ast.Call) and isinstance(v.func, ast.Attribute)
-                    and v.func.attr == "flat" for k, v in zip(node.keys, node.values)):
-                offenders.append(f"{rel}:{node.lineno}")
+    offenders = [f"{rel}:{node.lineno}" for rel, node in _nodes_outside_identification()
+                 if isinstance(node, ast.Dict) and any(
+                     k is None and isinstance(v, ast.Call) and isinstance(v.func, ast.Attribute)
+                     and v.func.attr == "flat" for k, v in zip(node.keys, node.values))]
     assert offenders == []
 
 

@@ -166,11 +166,12 @@ class AnalysisResult(Displayable, Record):
         return self
 
     def headline(self) -> str:
-        """The first line of the ``repr``: how many runs, and where the whole text is.
+        """The first line of the ``repr``.
 
         Returns
         -------
         str
+            How many runs, and where the whole text is (:meth:`summary`).
         """
         return f"AnalysisResult: {len(self.runs)} run(s); .summary() for the whole text"
 

@@ -29,37 +29,18 @@ Level(v=2.0, speed=30.0)
 """
 from __future__ import annotations
 
-import math
 from functools import cache
 from typing import Annotated, Any, ClassVar
 
-import numpy as np
 from pydantic import (BeforeValidator, ConfigDict, Field, PlainSerializer, TypeAdapter,
                       computed_field)
 
+from labrig.core.fileio import finite_json
+
 # (Field and computed_field are what a result's declaration uses; given here too, with
 # Annotated, so a declaration's words are found in one place)
-__all__ = ["Record", "AsJson", "AsList", "NoneIfEmpty", "TupleOf", "unset", "empty", "finite_json", "Annotated", "Field",
-           "computed_field"]
-
-
-def finite_json(o):
-    """``o`` with NaN and inf as None and numpy scalars and arrays as Python, recursively
-    (strict JSON has no inf or nan)."""
-    if isinstance(o, dict):
-        return {str(k): finite_json(v) for k, v in o.items()}
-    if isinstance(o, (list, tuple)):
-        return [finite_json(v) for v in o]
-    if isinstance(o, np.bool_):
-        return bool(o)
-    if isinstance(o, np.integer):
-        return int(o)
-    if isinstance(o, (float, np.floating)):
-        f = float(o)
-        return f if math.isfinite(f) else None
-    if isinstance(o, np.ndarray):
-        return finite_json(o.tolist())
-    return o
+__all__ = ["Record", "AsJson", "AsList", "NoneIfEmpty", "TupleOf", "unset", "empty",
+           "Annotated", "Field", "computed_field"]
 
 
 @cache
@@ -71,7 +52,7 @@ class Record:
     """Mixin for a result dataclass whose fields are its JSON form (module docstring).
 
     A subclass may set ``finite_json = True``: its JSON then has NaN and inf as None
-    (:func:`finite_json`), for results whose JSON has always said so in Python too; and
+    (:func:`labrig.core.fileio.finite_json`), for results whose JSON has always said so in Python too; and
     ``readable = False`` when its JSON is a summary that cannot give the result back
     (the live objects it was computed from are not in it).
     """
@@ -92,7 +73,7 @@ class Record:
             keep is left out.
         """
         out = _adapter(type(self)).dump_python(self, mode="python", by_alias=True)
-        return finite_json(out) if self.finite_json else out
+        return finite_json(out, key=str) if self.finite_json else out
 
     @classmethod
     def json_schema(cls) -> dict:

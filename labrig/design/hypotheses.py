@@ -141,6 +141,7 @@ class Judged(Record):
     def _worst(self) -> Optional[float]:
         return self.worst
 
+    # -- the input judged, as the JSON names it ------------------------------------------
     @computed_field
     @property
     def kind(self) -> str:
@@ -150,17 +151,19 @@ class Judged(Record):
     @computed_field
     @property
     def label(self) -> str:
-        """The input in words."""
+        """The input in words, as a plan and the tables name it (its kind, its levels,
+        its length)."""
         return self.candidate.label
 
     @computed_field
     @property
     def duration_s(self) -> float:
-        """Its length (s)."""
+        """Its length (s): the last breakpoint's time."""
         return self.candidate.duration
 
     @computed_field
     @property
     def points(self) -> int:
-        """Its breakpoints."""
+        """How many breakpoints it has (the board holds :data:`~labrig.design.inputs.MAX_POINTS`
+        at most)."""
         return len(self.candidate.points)

@@ -127,6 +127,7 @@ class Model:
         Returns
         -------
         Model
+            Its effects parsed and checked, its parameters as given.
 
         Raises
         ------
@@ -210,7 +211,8 @@ class Model:
         Returns
         -------
         Model
-            A new model; this one is unchanged.
+            A new model with ``key`` at ``value``, the fit record dropped; this one is
+            unchanged.
 
         Raises
         ------
@@ -345,6 +347,7 @@ class Model:
         Returns
         -------
         Model
+            The file's plant, effects, constants and fit record.
 
         Raises
         ------

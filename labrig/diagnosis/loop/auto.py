@@ -201,18 +201,17 @@ class AutoDiagnosis(Displayable, Record):
         return "\n".join(out)
 
     def plot(self, ax=None):
-        """The error ladder: rmse/noise after each move against the noise floor
-        (:meth:`Ladder.plot`).
+        """The error ladder: rmse/noise after each move against the noise floor.
 
         Parameters
         ----------
         ax : matplotlib Axes, optional
-            Draw here; by default on a new figure.
+            As :meth:`Ladder.plot`'s.
 
         Returns
         -------
         matplotlib.figure.Figure
-            Not saved: the caller saves (and closes) it.
+            :meth:`Ladder.plot`'s figure of :attr:`ladder`.
         """
         return self.ladder.plot(ax=ax)
 
