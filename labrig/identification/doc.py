@@ -5,7 +5,7 @@ writes it; a test checks that every key it writes is declared here.
 from __future__ import annotations
 
 import math
-from typing import Any, Optional
+from typing import Any, Optional, Union
 
 import numpy as np
 from pydantic import field_validator
@@ -81,7 +81,8 @@ class IdentRecord(_Doc):
     units: dict[str, str] = {}
     physical: dict[str, Physical] = {}
     fixed: list[str] = []
-    noise: dict[str, Num] = {}
+    #: each channel's noise floor (its units: ``units``, on a linear axis m and m/s)
+    noise: dict[str, Union[Num, dict[str, str]]] = {}
     warnings: list[str] = []
 
     @field_validator("fitness", mode="before")
