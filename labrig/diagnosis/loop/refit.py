@@ -106,7 +106,7 @@ def thinned_fitness(runs, model: Model, fixed: dict, weights: Weights, reach) ->
     what a re-fit's own history is compared with (the screen,
     :func:`labrig.diagnosis.evidence.criteria.screen`); on all residuals it differs by a per cent
     or so, as much as a small effect gains."""
-    problem = Problem(runs, model.effects, fixed=fixed, reach=reach, weights=weights)
+    problem = Problem.of(runs, model, fixed=fixed, reach=reach, weights=weights)
     return problem.thinned_fitness(model, SUBSAMPLE)   # as the re-fit thins them
 
 
