@@ -52,9 +52,9 @@ class Record:
     """Mixin for a result dataclass whose fields are its JSON form (module docstring).
 
     A subclass may set ``finite_json = True``: its JSON then has NaN and inf as None
-    (:func:`labrig.core.fileio.finite_json`), for results whose JSON has always said so in Python too; and
-    ``readable = False`` when its JSON is a summary that cannot give the result back
-    (the live objects it was computed from are not in it).
+    (:func:`labrig.core.fileio.finite_json`), for results whose JSON has always said so
+    in Python too; and ``readable = False`` when its JSON is a summary that cannot give
+    the result back (the live objects it was computed from are not in it).
     """
 
     # (arbitrary types: a field may hold a Model or an array; its annotation says how
@@ -119,6 +119,8 @@ def _json_of(value) -> Any:
 
 #: a field holding an object with its own ``to_json`` (a Model): written as that JSON
 AsJson = PlainSerializer(_json_of)
+
+
 def unset(value) -> bool:
     """For ``exclude_if``: the key is written only when its value is not None."""
     return value is None
