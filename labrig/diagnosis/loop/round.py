@@ -173,7 +173,7 @@ class Round:
 
         tried = each(one, enumerate(candidate_names(self.base, names, self.runs, self.ev0)))
         diverged = [c for c in tried if isinstance(c, str)]
-        ranking = self.nested([c for c in tried if not isinstance(c, str)])
+        ranking = self.nested([c for c in tried if not isinstance(c, str)], on_candidate)
         if diverged and not ranking:
             raise FitDiverged(
                 f"every candidate's re-fit diverged ({', '.join(diverged)}: the simulation "
@@ -182,14 +182,15 @@ class Round:
                 "with `bounds`")
         return ranking, diverged
 
-    def nested(self, ranking: list[Candidate]) -> list[Candidate]:
+    def nested(self, ranking: list[Candidate], on_candidate=None) -> list[Candidate]:
         """``ranking`` with each nested pair (an effect and its :attr:`simpler` family
         member, stiction and Coulomb friction, say) fitted each from the other's result
         too (:func:`~labrig.diagnosis.loop.refit.refit_as_member`), the better kept: the richer
         when it explains the runs worse than the one it contains, the simpler when it is
         more than :data:`NESTED_MARGIN` worse than the richer. Each fitted from its own
         scan alone, the two can end in different basins, and the seed would decide between
-        near equals."""
+        near equals. ``on_candidate(candidate, None)`` hears each one that takes the place
+        of its own re-fit (a page listing the re-fits as they come ends with the kept one)."""
         by = {c.effect: c for c in ranking}
 
         def one(job):
@@ -223,6 +224,8 @@ class Round:
             for (name, _), c in zip(jobs, each(one, jobs)):
                 if c is not None and c.evaluation.fitness < by[name].evaluation.fitness:
                     by[name], changed = c, True
+                    if on_candidate:
+                        on_candidate(c, None)
             if not changed:
                 break
         return [by[c.effect] for c in ranking]
