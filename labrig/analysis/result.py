@@ -15,16 +15,13 @@ from typing_extensions import TypedDict
 
 from labrig.analysis.run_result import LineFit, RunAnalysis
 from labrig.core.display import Displayable
-from labrig.core.record import Record
+from labrig.core.record import Live, Num, Record
 from labrig.analysis.text import summary_text, table_rows
 
 #: relative change of w/V over the amplitude range still called "constant"
 GAIN_TOLERANCE = 0.03
 
 
-Num = Optional[float]
-#: not in the JSON
-_live = Field(exclude=True)
 
 
 class Side(TypedDict):
@@ -89,7 +86,7 @@ class AnalysisResult(Displayable, Record):
     runs: list[Union[RunAnalysis, dict]]
     verdict: str = ""
     # (written as its parts: forward, reverse, line_region)
-    line: Annotated[LineFit, _live] = field(default_factory=LineFit)
+    line: Annotated[LineFit, Live] = field(default_factory=LineFit)
     # (written without what km_paper and asymmetry say)
     trend: Annotated[dict, PlainSerializer(_trend_json)] = field(default_factory=dict)
     breakaway_v: Num = None
@@ -98,10 +95,10 @@ class AnalysisResult(Displayable, Record):
     tolerance: float = GAIN_TOLERANCE
     source: str = "runs"
     # (the runs' levels, pooled; the JSON has them under each run)
-    levels: Annotated[list, _live] = field(default_factory=list)
+    levels: Annotated[list, Live] = field(default_factory=list)
     figure_paths: Annotated[list[str], Field(alias="figures")] = field(default_factory=list)
     #: the axis's speed unit (rad/s on a rotary axis, m/s on a linear one)
-    speed_unit: Annotated[str, _live] = "rad/s"
+    speed_unit: Annotated[str, Live] = "rad/s"
 
     # -- the JSON's keys derived from the fields --------------------------------------------
     @computed_field

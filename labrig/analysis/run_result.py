@@ -11,11 +11,8 @@ import numpy as np
 from pydantic import Field, computed_field, model_serializer, model_validator
 
 from labrig.analysis.stepfit import StepFit
-from labrig.core.record import Record
+from labrig.core.record import Live, Num, Record
 
-Num = Optional[float]
-#: not in the JSON
-_live = Field(exclude=True)
 
 
 #: what an edge's time constant at a bound of the search means, by bound
@@ -84,14 +81,14 @@ class EdgeFit(Record):
     tau63_s: Num = None
     delay_s: Num = None
     fit_nrmse: Num = None
-    too_short: Annotated[bool, _live] = False
-    no_response: Annotated[bool, _live] = False
-    fit_failed: Annotated[bool, _live] = False
-    not_settled: Annotated[bool, _live] = False
-    tau_at_bound: Annotated[bool, _live] = False
-    poor_fit: Annotated[bool, _live] = False
-    t63_disagrees: Annotated[bool, _live] = False
-    fit: Annotated[Optional[StepFit], _live] = field(default=None, repr=False, compare=False)
+    too_short: Annotated[bool, Live] = False
+    no_response: Annotated[bool, Live] = False
+    fit_failed: Annotated[bool, Live] = False
+    not_settled: Annotated[bool, Live] = False
+    tau_at_bound: Annotated[bool, Live] = False
+    poor_fit: Annotated[bool, Live] = False
+    t63_disagrees: Annotated[bool, Live] = False
+    fit: Annotated[Optional[StepFit], Live] = field(default=None, repr=False, compare=False)
 
     @property
     def ok(self) -> bool:
@@ -140,9 +137,9 @@ class Level(Record):
     n_settled: Annotated[int, Field(alias="settled", default=0)]
     moving: Annotated[Optional[bool], Field(default=None)]
     # mean tacho volts on the flat parts (Kt check)
-    tacho_v: Annotated[Num, _live] = None
+    tacho_v: Annotated[Num, Live] = None
     # motor speed from the pot on the same flat parts
-    pot_speed: Annotated[Num, _live] = None
+    pot_speed: Annotated[Num, Live] = None
     tau_s: Num = None        # median tau of the edges into this level
 
     @computed_field
@@ -168,11 +165,11 @@ class RunAnalysis(Record):
     levels: list[Level] = field(default_factory=list)
     edges: list[EdgeFit] = field(default_factory=list)
     kt_est: Num = None
-    kt_configured: Annotated[Num, _live] = None
+    kt_configured: Annotated[Num, Live] = None
     skipped: Optional[str] = None
     notes: list[str] = field(default_factory=list)
     figure: Optional[str] = None      # where its edges figure was saved, if it was
-    speed_unit: Annotated[str, _live] = "rad/s"   # the axis's (m/s on a linear axis)
+    speed_unit: Annotated[str, Live] = "rad/s"   # the axis's (m/s on a linear axis)
 
     @computed_field
     @property

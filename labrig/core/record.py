@@ -30,17 +30,24 @@ Level(v=2.0, speed=30.0)
 from __future__ import annotations
 
 from functools import cache
-from typing import Annotated, Any, ClassVar
+from typing import Annotated, Any, ClassVar, Optional
 
 from pydantic import (BeforeValidator, ConfigDict, Field, PlainSerializer, TypeAdapter,
-                      computed_field)
+                      computed_field, with_config)
 
 from labrig.core.fileio import finite_json
 
 # (Field and computed_field are what a result's declaration uses; given here too, with
 # Annotated, so a declaration's words are found in one place)
-__all__ = ["Record", "AsJson", "AsList", "NoneIfEmpty", "TupleOf", "unset", "empty",
-           "Annotated", "Field", "computed_field"]
+__all__ = ["Record", "AsJson", "AsList", "NoneIfEmpty", "TupleOf", "Num", "Live",
+           "keeps_extra_keys", "unset", "empty", "Annotated", "Field", "computed_field"]
+
+#: a number the JSON may hold as null
+Num = Optional[float]
+#: a field the JSON does not keep (a live object, or the flags behind a derived key)
+Live = Field(exclude=True)
+#: a nested record's TypedDict shape that carries keys beyond those it declares, as they are
+keeps_extra_keys = with_config(ConfigDict(extra="allow"))
 
 
 @cache

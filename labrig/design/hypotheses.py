@@ -8,7 +8,7 @@ from typing import Annotated, Optional
 
 from pydantic import Field, PlainSerializer, computed_field
 
-from labrig.core.record import NoneIfEmpty, Record
+from labrig.core.record import Live, NoneIfEmpty, Record
 from labrig.design.inputs import InputCandidate
 from labrig.model.model import Model
 
@@ -21,7 +21,6 @@ def after_number(unit: str) -> str:
     return "" if unit in ("", "-") else f" {unit}"
 
 
-_live = Field(exclude=True)
 
 
 def _describe(model) -> str:
@@ -39,10 +38,10 @@ class Hypothesis(Record):
     model: Annotated[Model, PlainSerializer(_describe)]
     rmse_over_noise: float
     # its size parameter ("d_v", "tc_v", "a_rad", "td_s")
-    key: Annotated[str, _live] = ""
-    unit: Annotated[str, _live] = ""
+    key: Annotated[str, Live] = ""
+    unit: Annotated[str, Live] = ""
     # [(size, Model)], plausible, best first
-    members: Annotated[list, _live] = field(default_factory=list)
+    members: Annotated[list, Live] = field(default_factory=list)
     # its size at a bound of the range the data allow
     degenerate: Annotated[bool, Field(alias="at_bound")] = False
     # why it is not judged as the truth ("" when it is)
@@ -117,7 +116,7 @@ class Judged(Record):
 
     readable = False   # (a summary of live objects: not read back)
 
-    candidate: Annotated[InputCandidate, _live]
+    candidate: Annotated[InputCandidate, Live]
     naive: float                      # predicted difference of the best fits (noise units)
     # the worst over plausible truths and rival variants
     robust: Annotated[float, Field(alias="worst_plausible")] = 0.0
@@ -129,7 +128,7 @@ class Judged(Record):
     stopped: Annotated[bool, Field(alias="stopped_below_a_better_input")] = False
     #: the hardest case judged: (truth index in the pair, truth label, truth model, the
     #: rival as re-fitted to it) -- what the figure shows
-    hardest: Annotated[Optional[tuple], _live] = field(default=None, repr=False)
+    hardest: Annotated[Optional[tuple], Live] = field(default=None, repr=False)
 
     @property
     def worst(self) -> float | None:

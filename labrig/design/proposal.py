@@ -12,7 +12,7 @@ from typing import Annotated, Any
 from pydantic import Field, PlainSerializer, computed_field
 
 from labrig.core.display import Displayable
-from labrig.core.record import NoneIfEmpty, Record, TupleOf
+from labrig.core.record import Live, NoneIfEmpty, Record, TupleOf
 from labrig.core.errors import UserError
 from labrig.core.tables import Table
 from labrig.io.runs import Run
@@ -28,7 +28,6 @@ SEPARATION = "worse rmse/noise over better, minus one"
 #: behind for every plausible truth: its rmse/noise at least twice the truth's
 DECISIVE = 1.0
 
-_live = Field(exclude=True)
 @dataclass(repr=False)
 class Proposal(Displayable, Record):
     """The proposed experiment, why it separates the pair and by how much; or, when no
@@ -69,14 +68,14 @@ class Proposal(Displayable, Record):
     hypotheses: list[Hypothesis]
     judged: Annotated[list[Judged], Field(alias="candidates")]
     # (written as "proposed")
-    chosen: Annotated[Judged, _live]
+    chosen: Annotated[Judged, Live]
     sigmas: Annotated[dict[str, float], Field(alias="noise")]
-    template: Annotated[Run, _live]
+    template: Annotated[Run, Live]
     budget_s: float
     amax: Annotated[float, Field(alias="amax_v")]
     seconds: Annotated[float, PlainSerializer(lambda v: round(v, 2))] = 0.0
     # plausible models per hypothesis
-    plausible: Annotated[list, _live] = field(default_factory=list)
+    plausible: Annotated[list, Live] = field(default_factory=list)
     separates: bool = True
     advice: Annotated[str, NoneIfEmpty] = ""
     #: per explanation judged across sizes the data cannot narrow: the smallest size the

@@ -9,6 +9,7 @@ from labrig.model.effectset import param_key
 from labrig.model.drive_units import unit as drive_unit
 from labrig.model.plants import plant_class
 from labrig.core.tables import Table, fmt
+from labrig.identification.doc import IdentRecord
 from labrig.identification.result import identification_warnings
 
 
@@ -38,8 +39,6 @@ def identification_record(res):
     declaration): ``res.to_dict()`` with unbounded intervals null and the bound and fit
     warnings under ``warnings``. A key the record does not declare is an error here, where
     it is written, not a surprise where it is read."""
-    from labrig.identification.doc import IdentRecord
-
     d = res.to_dict()
     d["identifiable"] = null_unbounded(d.get("identifiable") or {})
     d["physical"] = null_unbounded({"physical": d.get("physical") or {}})["physical"]

@@ -28,7 +28,7 @@ from pydantic import Field
 import numpy as np
 
 from labrig.core.parallel import each
-from labrig.core.record import Record
+from labrig.core.record import Live, Record
 from labrig.identification.problem import start_of
 from labrig.model.model import Model
 from labrig.model.start import is_start_key
@@ -143,7 +143,6 @@ def make_folds(runs, max_folds: int = MAX_FOLDS, blocks: int = BLOCKS) -> Folds:
                  "(too few input steps to interleave)", folds)
 
 
-_live = Field(exclude=True)
 
 
 @dataclass
@@ -171,11 +170,11 @@ class CrossValidation(Record):
     per_fold: Annotated[list[float], Field(alias="per_fold_mean_square")]
     channels: dict[str, Any]
     # (not in the JSON: the residuals, and each fold's sums and parameters)
-    residuals: Annotated[list, _live] = field(default_factory=list, repr=False)
-    labels: Annotated[list, _live] = field(default_factory=list, repr=False)
-    fold_sq: Annotated[list, _live] = field(default_factory=list, repr=False)
-    fold_n: Annotated[list, _live] = field(default_factory=list, repr=False)
-    fold_params: Annotated[list, _live] = field(default_factory=list, repr=False)
+    residuals: Annotated[list, Live] = field(default_factory=list, repr=False)
+    labels: Annotated[list, Live] = field(default_factory=list, repr=False)
+    fold_sq: Annotated[list, Live] = field(default_factory=list, repr=False)
+    fold_n: Annotated[list, Live] = field(default_factory=list, repr=False)
+    fold_params: Annotated[list, Live] = field(default_factory=list, repr=False)
 
     def pooled(self, skip=()) -> float:
         """The held-out rmse/noise over every fold but those in ``skip``."""

@@ -9,7 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Annotated, Any
 
-from pydantic import Field, computed_field
+from pydantic import computed_field
 
 import numpy as np
 import pandas as pd
@@ -22,11 +22,10 @@ from labrig.diagnosis.evidence.residuals import (autocorr, current_residual, reg
                                         worst_regime, worst_run)
 from labrig.core.tables import Table, fmt
 from labrig.core.display import Displayable
-from labrig.core.record import Record
+from labrig.core.record import Live, Record
 from labrig.identification.result import fit_warnings
 
 
-_live = Field(exclude=True)
 
 
 @dataclass(repr=False)
@@ -65,15 +64,15 @@ class Evaluation(Displayable, Record):
     readable = False   # (a summary of live objects: not read back)
 
     # (its JSON: the metrics' fitness, rmse/noise, fit % and noise, and the regimes)
-    metrics: Annotated[dict, _live]
-    per_run: Annotated[list, _live]
+    metrics: Annotated[dict, Live]
+    per_run: Annotated[list, Live]
     regimes: dict[str, Any]
-    sse: Annotated[float, _live]
-    n: Annotated[int, _live]
-    sigmas: Annotated[tuple, _live]
-    rho1: Annotated[float, _live]
-    floors: Annotated[dict, _live] = field(default_factory=dict, repr=False)
-    weights: Annotated[Weights, _live] = Weights()
+    sse: Annotated[float, Live]
+    n: Annotated[int, Live]
+    sigmas: Annotated[tuple, Live]
+    rho1: Annotated[float, Live]
+    floors: Annotated[dict, Live] = field(default_factory=dict, repr=False)
+    weights: Annotated[Weights, Live] = Weights()
 
     def headline(self) -> str:
         """The first line of the ``repr``: the overall rmse/noise and how many runs.

@@ -7,39 +7,36 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Annotated, Any, Literal, Optional
 
-from pydantic import ConfigDict, Field, computed_field, with_config
+from pydantic import Field, computed_field
 from typing_extensions import NotRequired, TypedDict
 
-from labrig.core.record import Record, empty, unset
+from labrig.core.record import Num, Record, empty, keeps_extra_keys, unset
 from labrig.diagnosis.evidence.evaluation import Evaluation
 from labrig.diagnosis.evidence.residuals import REGIMES
 from labrig.model import drive_units
 from labrig.model.effects import CATALOGUE, get_effect
 from labrig.model.model import Model
 
-Num = Optional[float]
 Regime = Literal[REGIMES]
-#: a nested record that may carry keys beyond those declared (kept as they are)
-_open = with_config(ConfigDict(extra="allow"))
 
 
 # -- the shapes of the JSON's nested records ------------------------------------------------
 
-@_open
+@keeps_extra_keys
 class RegimeStat(TypedDict):
     rmse_over_noise: float
     share_of_time: float
     share_of_error: NotRequired[Num]
 
 
-@_open
+@keeps_extra_keys
 class Worst(TypedDict):
     channel: str
     regime: Regime
     rmse_over_noise: NotRequired[Num]
 
 
-@_open
+@keeps_extra_keys
 class Regimes(TypedDict):
     """A model's error by regime and by run amplitude, per channel, and the worst."""
 
@@ -49,7 +46,7 @@ class Regimes(TypedDict):
     noise: NotRequired[dict[str, Num]]
 
 
-@_open
+@keeps_extra_keys
 class CrossValidated(TypedDict):
     """A candidate's held-out evidence against the model it changes."""
 
@@ -63,7 +60,7 @@ class CrossValidated(TypedDict):
     evidence: NotRequired[list[dict]]
 
 
-@_open
+@keeps_extra_keys
 class Baseline(TypedDict, total=False):
     """The diagnosed model's error and size."""
 
@@ -80,7 +77,7 @@ class Baseline(TypedDict, total=False):
     starts: dict[str, dict[str, float]]
 
 
-@_open
+@keeps_extra_keys
 class Criteria(TypedDict, total=False):
     min_improvement: Num
     max_delta_bic: Num

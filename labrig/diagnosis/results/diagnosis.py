@@ -17,8 +17,8 @@ from labrig.model.model import Model
 from labrig.diagnosis.evidence.residuals import REGIME_TEXT
 from labrig.core.tables import Table, fmt
 from labrig.core.display import Displayable
-from labrig.core.record import Record, empty
-from labrig.diagnosis.results.candidate import Baseline, Candidate, Criteria, Num, Regimes
+from labrig.core.record import Num, Record, empty
+from labrig.diagnosis.results.candidate import Baseline, Candidate, Criteria, Regimes
 # how the diagnosis ranks and picks candidates, for the table's notes
 from labrig.diagnosis.evidence.criteria import (CV_CANDIDATES, PARSIMONY, SCREEN_AFTER, SCREEN_GAIN,
                                        SCREEN_STALL, SIMPLER_MARGIN, SWAP_GAIN)

@@ -9,19 +9,18 @@ from dataclasses import dataclass, field
 from typing import Annotated, Optional
 
 import pandas as pd
-from pydantic import ConfigDict, Field, with_config
+from pydantic import Field
 from typing_extensions import NotRequired, TypedDict
 
 from labrig.diagnosis.evidence.evaluation import Evaluation, evaluate
 from labrig.model.model import Model
 from labrig.core.tables import Table, fmt
 from labrig.core.display import Displayable
-from labrig.core.record import Record
-
-Num = Optional[float]
+from labrig.core.record import Num, Record, keeps_extra_keys
 
 
-@with_config(ConfigDict(extra="allow"))
+
+@keeps_extra_keys
 class RungError(TypedDict):
     """A rung's rmse/noise: ``overall`` (the weighted sum) and per channel."""
 
