@@ -185,7 +185,7 @@ def test_what_the_loop_knows_of_an_effect_lives_on_the_effect():
 #: errors, defaults, tables and figures), and their own folder; the command line may also
 #: start the other front ends
 DOOR = ("verbs", "core")
-FRONT_ENDS = {"lab": (), "classroom": (), "report": (),
+FRONT_ENDS = {"lab": ("classroom",), "classroom": (), "report": (),
               "commands": ("lab", "classroom", "report", "cli")}
 
 

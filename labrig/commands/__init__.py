@@ -10,3 +10,4 @@ from labrig.commands import report  # noqa: F401
 from labrig.commands import propose  # noqa: F401
 from labrig.commands import batch  # noqa: F401
 from labrig.commands import lab  # noqa: F401
+from labrig.commands import classroom  # noqa: F401

@@ -13,8 +13,14 @@ def cmd_lab(args):
     the emulated board (--emulate) and watch each run come in; fit the linear model, see
     where it fails, add, remove or replace effects and watch the error fall; ask the rig
     to decide between two explanations. Runs and models are the CLI's own files in DIR.
-    Binds to 127.0.0.1; Ctrl-C stops it and leaves the rig at 0 V."""
-    from labrig.lab.serve import make_station, serve
+    Binds to 127.0.0.1 and nowhere else (no one logs in here: a room is served by
+    ``labrig class serve``); Ctrl-C stops it and leaves the rig at 0 V."""
+    from labrig.lab.serve import LOCAL, make_station, serve
+
+    if args.host not in LOCAL:   # before a rig or an emulator is started
+        raise UserError(f"--host: {args.host} is beyond this machine, and this page asks no "
+                        "one to log in; serve the bench to a class instead (labrig class "
+                        "serve CLASS.toml), where everyone logs in")
 
     if sum(map(bool, (args.sim, args.port, args.emulate))) > 1:
         raise UserError("give one of --sim, --port DEV or --emulate")
@@ -41,8 +47,9 @@ def _configure(p):
                      help="the real firmware in simavr (needs the AVR toolchain and simavr)")
     p.add_argument("--rig", help="rig file (TOML or mystery rig); default configs/rig_default.toml")
     p.add_argument("--host", default="127.0.0.1",
-                   help="address to listen on (default 127.0.0.1: this machine only; 0.0.0.0 "
-                        "lets anyone on the network drive the rig)")
+                   help="address to listen on: this machine only (127.0.0.1, the default, "
+                        "localhost or ::1); for a room, where everyone logs in: labrig class "
+                        "serve")
     p.add_argument("--http-port", type=int, default=5006, help="port of the page (default 5006)")
     p.add_argument("--no-browser", action="store_true", help="do not open a browser")
     p.add_argument("--fast", action="store_true",

@@ -57,6 +57,9 @@ PARAM_OPTIONS: dict[str, str] = {
     "mystery": "--mystery",
     "scheduler": "--scheduler",
     "work": "--work",
+    # class
+    "force": "--force",
+    "host": "--host",
 }
 
 #: "`name`" or "`name=value`" (a value without a backtick)

@@ -31,12 +31,20 @@ REFRESH_MS = 100
 
 
 class LabPage:
-    """One browser session's page. ``owner``: this session may drive the rig."""
+    """One browser session's page. ``owner``: this session may drive the rig.
 
-    def __init__(self, station: Station, session: str):
+    ``may_drive``: False for a watcher who never drives, even when the rig is free (a
+    class's instructor or another student looking on); every action checks it here, on
+    the server, not only by a disabled button (a page's requests can be edited)."""
+
+    def __init__(self, station: Station, session: str, *, may_drive: bool = True,
+                 refused=None):
         self.st = station
+        #: told the name of each action refused to this page (the class server logs it)
+        self.refused = refused or (lambda what: None)
         self.session = session
-        self.owner = station.claim(session)
+        self.may_drive = may_drive
+        self.owner = may_drive and station.claim(session)
         self._seen = None
         self._build()
 
@@ -63,7 +71,7 @@ class LabPage:
                                        css_classes=["lab-start"])
         self.stop = pn.widgets.Button(name="Stop", button_type="danger", css_classes=["lab-stop"])
         self.start.on_click(self._on_start)
-        self.stop.on_click(lambda e: self.st.stop())
+        self.stop.on_click(lambda e: self._do(self.st.stop))
         self.counters = pn.pane.Markdown("", css_classes=["lab-counters"])
         self.sweep_note = pn.pane.Markdown("", css_classes=["lab-sweep-note"])
         self.runs_list = pn.pane.Markdown("", css_classes=["lab-runs"])
@@ -89,7 +97,7 @@ class LabPage:
                                             css_classes=["lab-cancel"])
         self.fit_btn.on_click(lambda e: self._do(self.st.fit_linear))
         self.auto_btn.on_click(lambda e: self._do(self.st.auto))
-        self.cancel_btn.on_click(lambda e: self.st.cancel())
+        self.cancel_btn.on_click(lambda e: self._do(self.st.cancel))
         # (what runs, and for how long, is said in words: an animated progress bar beside
         # it cost the browser 0.3-0.6 s of a core during a 4.5 s click, taken from the fits)
         self.status = pn.pane.Markdown("", css_classes=["lab-status"])
@@ -190,7 +198,7 @@ class LabPage:
     # -- actions ---------------------------------------------------------------------
     def _do(self, action, *args, **kw) -> None:
         if not self.owner:
-            return
+            return self.refused(getattr(action, "__name__", "an action"))
         self._page_error = ""
         try:
             action(*args, **kw)
@@ -218,6 +226,8 @@ class LabPage:
     def _on_save(self, event) -> None:
         from labrig.lab.jobs import save_model
 
+        if not self.owner:
+            return self.refused("save")
         if not self.st.rungs:
             return self._show_error("no model yet: fit one first")
         name = self.save_name.value.strip()
@@ -230,6 +240,8 @@ class LabPage:
             self._show_error(str(exc))
 
     def _on_predict(self, event) -> None:
+        if not self.owner:
+            return self.refused("predict")
         if self.which.value in (None, "-") or not self.why.value.strip():
             return self._show_error("say which explanation you expect, and why, in one line")
         self.st.predict(self.which.value, self.why.value)
@@ -243,7 +255,7 @@ class LabPage:
 
     def refresh(self) -> None:
         st = self.st
-        if not self.owner and st.claim(self.session):   # the owner left: this page drives
+        if not self.owner and self.may_drive and st.claim(self.session):   # the owner left
             self._set_owner(True)
         live = st.live
         shown = (id(live), live.samples)

@@ -11,7 +11,11 @@ from __future__ import annotations
 import sys
 
 import labrig.verbs as lr
+from labrig.core.errors import UserError
 from labrig.lab.station import Station
+
+#: the addresses of this machine only: the one page without logins listens on no other
+LOCAL = ("127.0.0.1", "localhost", "::1")
 
 #: how often the server looks for sessions without a connection, and how long it keeps one
 #: (a page reloaded or a connection back within this keeps its session and the rig)
@@ -46,9 +50,10 @@ def serve(station: Station, *, host: str = "127.0.0.1", port: int = 5006,
         pn.state.on_session_destroyed(lambda ctx: station.release(ctx.id))
         return view.view
 
-    if host not in ("127.0.0.1", "localhost", "::1"):
-        log(f"labrig lab: warning: listening on {host}: anyone on the network who can reach "
-            "this machine can drive the rig")
+    if host not in LOCAL:   # (the command refuses it first; a caller of serve() too)
+        raise UserError(f"`host`: {host} is beyond this machine, and this page asks no one "
+                        "to log in; serve the bench to a class instead (labrig class "
+                        "serve CLASS.toml), where everyone logs in")
     origins = [f"{h}:{port}" for h in ("127.0.0.1", "localhost", host)]
     # a page closed or cut off loses its session (and the rig stops) within ~6 s, where
     # Bokeh's defaults (checked every 17 s, kept 15 s) left a rig running for ~35 s
@@ -76,3 +81,85 @@ def serve(station: Station, *, host: str = "127.0.0.1", port: int = 5006,
     finally:
         station.close()
         server.stop()
+
+
+def serve_class(server, *, open_browser: bool = False, log=None) -> None:
+    """Serve a class (:class:`~labrig.lab.class_server.ClassServer`) until Ctrl-C or
+    SIGTERM: everyone logs in (:mod:`labrig.lab.login`); a student gets the seat page,
+    an instructor the view of every bench. On the way out every bench is left at 0 V.
+
+    Built on Panel's server: its auth provider hooks (the login handler checking scrypt
+    hashes), Tornado's XSRF cookies, Bokeh's signed session ids, websocket connections
+    only from the origins the page is served under, and its own TLS when the class file
+    gives a certificate (else plain HTTP, for this machine or behind a reverse proxy).
+    """
+    import secrets
+    import socket
+
+    import panel as pn
+    from tornado.ioloop import PeriodicCallback
+
+    from labrig.lab.class_page import InstructorPage, StudentPage
+    from labrig.lab.login import ClassAuth, user_of
+    from labrig.lab.page import REFRESH_MS
+
+    room, log = server.room, log or server.log
+    cfg = room.server
+    pn.extension(notifications=False)
+    secret = secrets.token_urlsafe(48)   # a restart logs everyone out
+    auth = ClassAuth(room, secret, log)
+
+    def page():
+        doc = pn.state.curdoc
+        ctx = doc.session_context
+        cookie = ctx.request.cookies.get("user") if ctx and ctx.request else None
+        user = user_of(cookie, secret, auth.max_age_days)
+        sid = ctx.id if ctx else "local"
+        if user is None or room.role(user) is None:   # (the provider refused it already)
+            return pn.pane.Markdown("Log in first: [log in](/login)")
+
+        def alive():   # the login still young enough (a page outlives no login)
+            return user_of(cookie, secret, auth.max_age_days) == user
+
+        kind = InstructorPage if room.role(user) == "instructor" else StudentPage
+        view = kind(server, user, sid, alive)
+        pn.state.add_periodic_callback(view.refresh, period=REFRESH_MS)
+        pn.state.on_session_destroyed(lambda _ctx: view.closed())
+        return view.view
+
+    host, port = cfg.host, cfg.port
+    names = {"127.0.0.1", "localhost", host, socket.gethostname(), socket.getfqdn()}
+    origins = sorted(f"{n}:{port}" for n in names if n not in ("0.0.0.0", "::"))
+    tls = {}
+    if cfg.certfile:
+        tls = {"ssl_certfile": str(room.resolve(cfg.certfile)),
+               "ssl_keyfile": str(room.resolve(cfg.keyfile))}
+    app = pn.serve({"/": page}, port=port, address=host, websocket_origin=origins,
+                   show=False, start=False, title=room.name, verbose=False,
+                   auth_provider=auth, cookie_secret=secret, xsrf_cookies=True,
+                   sign_sessions=True, secret_key=secrets.token_urlsafe(48),
+                   check_unused_sessions_milliseconds=CHECK_UNUSED_MS,
+                   unused_session_lifetime_milliseconds=UNUSED_LIFETIME_MS, **tls)
+    shown = "127.0.0.1" if host in ("0.0.0.0", "::") else host
+    url = f"{'https' if tls else 'http'}://{shown}:{port}/"
+    log(f"serving {room.name!r} on {url} ({len(server.benches)} benches; Ctrl-C stops it, "
+        "every bench left at 0 V)")
+    print(url, flush=True)
+    expiry = PeriodicCallback(server.expire, 1000)
+    expiry.start()
+    import signal
+
+    # SIGTERM (a service manager's stop) ends the server as Ctrl-C does: benches at 0 V
+    signal.signal(signal.SIGTERM, lambda *_: app.io_loop.add_callback_from_signal(
+        app.io_loop.stop))
+    if open_browser:
+        import webbrowser
+
+        app.io_loop.add_callback(lambda: webbrowser.open(url))
+    try:
+        app.start()
+        app.io_loop.start()
+    finally:
+        expiry.stop()
+        server.close()
+        app.stop()

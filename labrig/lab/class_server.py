@@ -1,0 +1,210 @@
+"""A class on one server: the room's benches, the seats on them, a station per booking.
+
+The state behind the class pages, with no page in it. Each bench is reached as
+``labrig lab`` reaches its rig (:func:`labrig.verbs.open_bridge`: the simulated rig, the
+emulated board, or a board on this PC, its port held by this process for as long as the
+server runs); a student's booking gets a :class:`~labrig.lab.station.Station` on the
+bench whose folder is the student's own (``<class folder>/<student>/<bench>/``). Ending a
+booking (released, expired, or ended by an instructor) stops the rig as Ctrl-C does
+(STOP, ZERO; the finished runs kept) and closes the station.
+"""
+from __future__ import annotations
+
+import shutil
+import sys
+import threading
+import time
+from dataclasses import dataclass, field
+
+import labrig.verbs as lr
+from labrig.classroom.batch import run_batch
+from labrig.classroom.roster import ClassRoom
+from labrig.classroom.seats import Booking, Seats
+from labrig.lab.station import Station
+
+
+def server_log(line: str) -> None:
+    """One line in the server's log (its standard error), stamped with the time."""
+    print(f"{time.strftime('%Y-%m-%d %H:%M:%S')} labrig class: {line}", file=sys.stderr,
+          flush=True)
+
+
+@dataclass
+class Bench:
+    """One bench of the room: how to reach its rig, and the station of its booking."""
+
+    name: str
+    kind: str
+    rig: object
+    make_bridge: object
+    rig_name: str
+    close: object
+    station: Station | None = None
+    booking: Booking | None = None
+    #: what the bench's last booking ended by (shown to the instructor)
+    note: str = ""
+    watchers: set = field(default_factory=set)
+
+
+class ClassServer:
+    """The benches, seats and stations of one class.
+
+    Parameters
+    ----------
+    room : ClassRoom
+        The class file, read (:func:`labrig.classroom.roster.read_class`).
+    realtime : bool
+        Pace the simulated benches to real time (as on the bench).
+    log : callable
+        Where the server's lines go (refusals, bookings, stops).
+    """
+
+    def __init__(self, room: ClassRoom, *, realtime: bool = True, log=server_log,
+                 clock=time.time):
+        self.room = room
+        self.log = log
+        self.realtime = realtime
+        self.seats = Seats([b.name for b in room.benches], room.booking_minutes, clock=clock)
+        self.benches: dict[str, Bench] = {}
+        self._lock = threading.RLock()
+        self.grading = False
+        self.graded = None          # the last BatchResult
+        self.grade_note = ""
+        try:
+            for spec in room.benches:
+                rig = lr.load_rig(room.resolve(spec.rig_file))
+                make, name, close = lr.open_bridge(rig, port=spec.port,
+                                                   emulate=spec.rig == "emulate",
+                                                   board_id=spec.board_id)
+                self.benches[spec.name] = Bench(spec.name, spec.rig, rig, make, name, close)
+        except BaseException:   # a board that cannot be held: the others are let go
+            self.close()
+            raise
+        room.folder.mkdir(parents=True, exist_ok=True)
+
+    # -- seats -----------------------------------------------------------------------
+    def take(self, student: str, bench: str | None = None) -> Station:
+        """Book a bench (the first free one by default) for ``student``: its station,
+        on the student's folder."""
+        with self._lock:
+            booking = self.seats.take(student, bench)
+            b = self.benches[booking.bench]
+            if b.station is None or b.booking != booking:
+                folder = self.room.seat_folder(student, b.name)
+                folder.mkdir(parents=True, exist_ok=True)
+                rig_file = self.room.resolve(self.room.bench(b.name).rig_file)
+                if rig_file is not None and rig_file.suffix == ".mystery" \
+                        and not (folder / rig_file.name).exists():
+                    # a hand-in holds its mystery file (what `batch check` scores against)
+                    shutil.copyfile(rig_file, folder / rig_file.name)
+                b.station = Station(folder, b.rig, b.make_bridge, rig_name=b.rig_name,
+                                    realtime=self.realtime and b.kind == "sim")
+                b.booking, b.note = booking, ""
+                self.log(f"{student} took {b.name} until "
+                         f"{time.strftime('%H:%M', time.localtime(booking.until))}")
+            return b.station
+
+    def station_of(self, student: str) -> Station | None:
+        booking = self.seats.of(student)
+        return None if booking is None else self.benches[booking.bench].station
+
+    def release(self, student: str, why: str = "released") -> None:
+        """End ``student``'s booking: the rig stopped at 0 V, the finished runs kept."""
+        with self._lock:
+            booking = self.seats.release(student)
+            if booking is not None:
+                self._end(booking, why)
+
+    def expire(self) -> None:
+        """End the bookings whose time is up (the server's timer calls this)."""
+        for booking in self.seats.expired():
+            with self._lock:
+                self._end(booking, "the booking's time ended")
+
+    def _end(self, booking: Booking, why: str) -> None:
+        b = self.benches[booking.bench]
+        st, b.station, b.booking = b.station, None, None
+        if st is not None:
+            st.stop()           # STOP and ZERO; a run in progress is not written
+            kept = len(st.runs_on_disk())
+            st.close()
+            b.note = f"{booking.student}: {why}; {kept} run(s) kept"
+        self.log(f"{booking.student}'s booking of {b.name} ended: {why} (rig at 0 V)")
+
+    def stop_bench(self, bench: str, by: str) -> None:
+        """An instructor's Stop: the bench's sweep stops at 0 V (the booking stays)."""
+        b = self.benches[bench]
+        if b.station is not None:
+            b.station.stop()
+        self.log(f"{by} stopped {bench} (rig at 0 V)")
+
+    # -- the instructor's view -------------------------------------------------------
+    def overview(self) -> list[dict]:
+        """A row per bench: who holds it, until when, what plays, the last rung."""
+        now = self.seats.clock()
+        rows = []
+        for b in self.benches.values():
+            st, bk = b.station, b.booking
+            row = {"bench": b.name, "rig": b.rig_name, "student": bk.student if bk else "",
+                   "minutes_left": round(bk.left_s(now) / 60, 1) if bk else None,
+                   "state": "free" if st is None else _state(st), "rung": "",
+                   "rmse_over_noise": None, "note": b.note, "watchers": len(b.watchers)}
+            if st is not None and st.rungs:
+                r = st.rungs[-1]
+                row["rung"] = ", ".join(r["effects"]) or "linear model"
+                row["rmse_over_noise"] = r["rmse_over_noise"]
+            rows.append(row)
+        return rows
+
+    def hand_ins(self) -> list:
+        """Every student's bench folder that holds runs: what the grading reads."""
+        out = []
+        for s in self.room.students:
+            for b in self.room.benches:
+                f = self.room.seat_folder(s, b.name)
+                if f.is_dir() and any(f.glob("*.csv")):
+                    out.append(f)
+        return out
+
+    def grade(self, task: str = "diagnose", by: str = "") -> None:
+        """The class's folders through the batch (``labrig batch diagnose``, or
+        ``check`` for mystery rigs), in the background: two processes (joblib), so the
+        benches' pages keep their pace. The result lands on :attr:`graded`."""
+        with self._lock:
+            if self.grading:
+                return
+            self.grading, self.grade_note = True, f"grading ({task})"
+        folders = self.hand_ins()
+        self.log(f"{by} graded {len(folders)} folder(s) with batch {task}")
+
+        def work():
+            try:
+                if not folders:
+                    self.graded, self.grade_note = None, "no runs in any student's folder yet"
+                    return
+                self.graded = run_batch(task, folders, options={"seed": 0}, jobs=2)
+                self.grade_note = (f"{task}: {self.graded.folders - self.graded.failed} ok, "
+                                   f"{self.graded.failed} failed")
+            except Exception as exc:   # one line on the page, like any error of the batch
+                self.graded, self.grade_note = None, f"error: {str(exc).splitlines()[0]}"
+            finally:
+                self.grading = False
+
+        threading.Thread(target=work, name="labrig-grade", daemon=True).start()
+
+    def close(self) -> None:
+        """Every station stopped at 0 V and closed; every bench let go (ports, emulators)."""
+        for b in self.benches.values():
+            if b.station is not None:
+                b.station.close()
+                b.station = None
+            b.close()
+
+
+def _state(st: Station) -> str:
+    if st.sweeping:
+        live = st.live
+        return f"playing {live.name} ({live.samples}/{live.n_planned})"
+    if st.worker.busy:
+        return f"fitting ({st.worker.name})"
+    return "idle"
