@@ -153,3 +153,11 @@ def pytest_terminal_summary(terminalreporter):
         terminalreporter.write_sep("-", "emulated boards behind real time")
         for nodeid, lag, outcome in _LAGGED:
             terminalreporter.write_line(f"{nodeid}: {1e3 * lag:.0f} ms behind ({outcome})")
+
+
+@pytest.fixture(scope="module")
+def browser():
+    """Headless Chromium for the browser tests (tests/lab_page.py)."""
+    from lab_page import launch
+
+    yield from launch()

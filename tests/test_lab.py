@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import json
 import re
-import shutil
 import signal
 import subprocess
 import sys
@@ -18,12 +17,9 @@ from pathlib import Path
 import pytest
 
 from conftest import labrig
-from lab_page import DRAWN, DRAWN_READY, WORDS, free_port
+from lab_page import ARTEFACTS, DRAWN, DRAWN_READY, WORDS, Page, free_port
 
 ROOT = Path(__file__).resolve().parent.parent
-ARTEFACTS = Path(__file__).resolve().parent / "artefacts"
-CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
-LOCAL = ("http://127.0.0.1", "ws://127.0.0.1", "data:", "blob:", "about:")
 
 pytestmark = [pytest.mark.slow, pytest.mark.browser]
 
@@ -54,83 +50,6 @@ class Server:
                 self.proc.kill()
                 self.proc.wait(10)
         return self.proc.returncode
-
-
-@pytest.fixture(scope="module")
-def browser():
-    sync_api = pytest.importorskip("playwright.sync_api")
-    if not Path(CHROMIUM).exists():
-        pytest.skip("Chromium is not installed (CI installs Debian's chromium)")
-    with sync_api.sync_playwright() as p:
-        b = p.chromium.launch(executable_path=CHROMIUM, headless=True, args=[
-            "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-            "--disable-background-networking", "--disable-component-update", "--disable-sync"])
-        yield b
-        b.close()
-
-
-class Page:
-    """A browser page on the lab that records every request leaving the machine."""
-
-    def __init__(self, browser, url):
-        self.outside = []
-        self.page = browser.new_page(viewport={"width": 1400, "height": 1000})
-        self.page.route("**/*", self._route)
-        self.page.goto(url)
-        self.page.wait_for_selector(".lab-start", timeout=60000)
-
-    def fit_the_linear_model(self):
-        """The loop's tab, then its first button, as a student starts the loop."""
-        self.page.get_by_text("The loop", exact=True).click()
-        self.click(".lab-fit")
-        self.idle()
-
-    def _route(self, route):
-        if route.request.url.startswith(LOCAL):
-            route.continue_()
-        else:
-            self.outside.append(route.request.url)
-            route.abort()
-
-    def text(self, css: str) -> str:
-        """The text of a Panel pane (it renders inside the element's shadow root)."""
-        try:
-            return self.page.locator(css).first.evaluate(WORDS)
-        except Exception:
-            return ""
-
-    def click(self, css: str) -> None:
-        self.page.locator(f"{css} button").first.click()
-
-    def wait(self, cond, timeout: float = 300, what: str = "") -> None:
-        t0 = time.monotonic()
-        while time.monotonic() - t0 < timeout:
-            if cond():
-                return
-            time.sleep(0.25)
-        self.shot("timeout")
-        raise AssertionError(f"waited {timeout:.0f} s for {what}")
-
-    def idle(self) -> None:
-        """No job running: the status says no "working" three looks in a row (a pane read
-        while the page redraws it reads empty, which alone proves nothing)."""
-        time.sleep(1.0)
-        quiet = []
-        self.wait(lambda: quiet.append("working" not in self.text(".lab-status"))
-                  or quiet[-3:] == [True] * 3, 600, "the fits to finish")
-
-    def number(self, css: str, pattern: str) -> float:
-        return float(re.search(pattern, self.text(css)).group(1))
-
-    def shot(self, name: str) -> Path:
-        ARTEFACTS.mkdir(exist_ok=True)
-        path = ARTEFACTS / f"lab_{name}.png"
-        self.page.screenshot(path=str(path), full_page=True)
-        return path
-
-    def close(self) -> None:
-        self.page.close()
-        assert self.outside == [], f"requests left the machine: {self.outside}"
 
 
 def test_a_run_streams_in_and_stop_keeps_every_finished_run(browser, tmp_path):

@@ -35,7 +35,7 @@ class _ClassView:
         self.error = pn.pane.Alert("", alert_type="danger", visible=False,
                                    css_classes=["lab-class-error"])
         self.area = pn.Column(sizing_mode="stretch_width")
-        self.watch_area = pn.Column(sizing_mode="stretch_width")
+        self.watch_area = pn.Column(sizing_mode="stretch_width", css_classes=["lab-watch-area"])
         room = server.room
         self.header = pn.pane.Markdown(
             f"## {esc(room.name)}\nlogged in as **{user}** ({room.role(user)}) · "
@@ -255,8 +255,8 @@ class InstructorPage(_ClassView):
         self.srv.grade(task, by=self.user)
 
     def _csv(self):
-        res = self.srv.graded
-        return io.StringIO("" if res is None else res.to_pandas().to_csv(index=False))
+        return io.StringIO("" if self.srv.graded is None else
+                           self.srv.grades().to_csv(index=False))
 
     def _paint(self) -> None:
         rows = self.srv.overview()
@@ -265,7 +265,7 @@ class InstructorPage(_ClassView):
                   [[r["bench"], r["rig"], r["student"] or "-",
                     "-" if r["minutes_left"] is None else f"{r['minutes_left']:.0f}",
                     r["state"], r["rung"] or "-",
-                    "-" if r["rmse_over_noise"] is None else f"{r['rmse_over_noise']:.3g}",
+                    "-" if r["rmse_over_noise"] is None else f"{r['rmse_over_noise']:.2f}",
                     str(r["watchers"]), r["note"] or ""] for r in rows])
         html = table_html(t)
         if self.table.object != html:
@@ -274,8 +274,8 @@ class InstructorPage(_ClassView):
         res = self.srv.graded
         if res is not None and res is not self._graded_shown:
             self._graded_shown = res
-            df = res.to_pandas().drop(columns=["name"])
-            self.grades.object = df.to_html(index=False, na_rep="-", float_format="%.4g")
+            self.grades.object = self.srv.grades().to_html(index=False, na_rep="-",
+                                                           float_format="%.4g")
             self.csv.visible = True
         self.grade_btn.disabled = self.srv.grading
 

@@ -15,6 +15,7 @@ import sys
 import threading
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import labrig.verbs as lr
 from labrig.classroom.batch import run_batch
@@ -152,7 +153,7 @@ class ClassServer:
             if st is not None and st.rungs:
                 r = st.rungs[-1]
                 row["rung"] = ", ".join(r["effects"]) or "linear model"
-                row["rmse_over_noise"] = r["rmse_over_noise"]
+                row["rmse_over_noise"] = r["rmse_over_noise"]["overall"]
             rows.append(row)
         return rows
 
@@ -191,6 +192,15 @@ class ClassServer:
                 self.grading = False
 
         threading.Thread(target=work, name="labrig-grade", daemon=True).start()
+
+    def grades(self):
+        """The last grading as a table (pandas): a row per student and bench, the
+        batch's key figures, no paths of this machine."""
+        df = self.graded.to_pandas().drop(columns=["name"])
+        seat = [Path(f).relative_to(self.room.folder).parts for f in df["folder"]]
+        df.insert(0, "student", [p[0] for p in seat])
+        df.insert(1, "bench", [p[1] for p in seat])
+        return df.drop(columns=["folder"])
 
     def close(self) -> None:
         """Every station stopped at 0 V and closed; every bench let go (ports, emulators)."""

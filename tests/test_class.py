@@ -1,0 +1,266 @@
+"""A class on one server, without a browser: the class file, the passwords, the seats,
+the bookings' ends on a real (simulated) rig, and the server's trust boundary tried over
+HTTP and the websocket as a stranger would (tests/test_class_browser.py drives it with
+logged-in Chromium pages)."""
+from __future__ import annotations
+
+import asyncio
+import json
+import re
+import time
+from pathlib import Path
+
+import pytest
+import requests
+
+from class_room import PASSWORDS, ClassProc, write_class
+from conftest import labrig
+
+
+# -- the class file --------------------------------------------------------------------
+
+@pytest.mark.parametrize("body, words", [
+    ('[[bench]]\nname = "b1"\n[people]\ninstructors = ["kim"]\nstudents = ["../x"]\n',
+     "key 'people.students"),
+    ('[[bench]]\nname = "b1"\n[people]\ninstructors = ["kim"]\nstudents = ["kim"]\n',
+     "both a student and an instructor"),
+    ('[[bench]]\nname = "b1"\nrig = "board"\n[people]\ninstructors = ["kim"]\n',
+     "needs its port"),
+    ('[[bench]]\nname = "b1"\n[[bench]]\nname = "b1"\n[people]\ninstructors = ["kim"]\n',
+     "listed twice"),
+    ('[[bench]]\nname = "b1"\n[people]\ninstructors = ["kim"]\n[server]\ncertfile = "c.pem"\n',
+     "certfile and keyfile together"),
+    ('[[bench]]\nname = "b1"\n[people]\ninstructors = ["kim"]\n[clas]\nname = "x"\n',
+     "clas"),
+    ('[[bench]]\nname = "b1"\n[people]\ninstructors = []\n', "people.instructors"),
+])
+def test_a_bad_class_file_is_one_line_naming_the_key(tmp_path, body, words):
+    f = tmp_path / "class.toml"
+    f.write_text(body)
+    for action in (("serve", f), ("passwd", f, "kim")):
+        p = labrig("class", *action, input="a-password-9\n", timeout=60)
+        assert p.returncode == 2, p.stderr
+        lines = p.stderr.strip().splitlines()
+        assert len(lines) == 1 and "Traceback" not in p.stderr, p.stderr
+        assert str(f) in lines[0] and words in lines[0], lines[0]
+
+
+def test_a_student_folder_cannot_leave_the_class_folder(tmp_path):
+    from labrig.classroom.roster import read_class
+
+    room = read_class(write_class(tmp_path))
+    assert room.seat_folder("ana", "bench1") == tmp_path / "class_runs" / "ana" / "bench1"
+    for bad in ("..", "../ana", "/etc", "Ana", "a b", ""):
+        with pytest.raises(ValueError):
+            room.seat_folder(bad, "bench1")
+        with pytest.raises(ValueError):
+            room.seat_folder("ana", bad)
+
+
+# -- passwords -------------------------------------------------------------------------
+
+def test_passwords_are_stored_as_scrypt_hashes_only_their_owner_reads(tmp_path):
+    f = write_class(tmp_path)
+    pw_file = tmp_path / "class_passwords.json"
+    text = pw_file.read_text()
+    assert all(pw not in text for pw in PASSWORDS.values())
+    hashes = json.loads(text)
+    assert sorted(hashes) == ["ana", "ben", "kim"]
+    assert all(h.startswith("scrypt$16384$8$1$") for h in hashes.values())
+    assert pw_file.stat().st_mode & 0o077 == 0
+    from labrig.classroom.passwords import check_password
+
+    assert check_password("ana-secret-1", hashes["ana"])
+    assert not check_password("ana-secret-2", hashes["ana"])
+    assert not check_password("ana-secret-1", hashes["ben"])
+    assert not check_password("ana-secret-1", None)
+    # the tool: from standard input; a second time only with --force; a short one refused
+    p = labrig("class", "passwd", f, "ana", input="a-new-password\n")
+    assert p.returncode == 2 and "--force" in p.stderr and "a-new-password" not in p.stderr
+    p = labrig("class", "passwd", f, "ana", "--force", input="a-new-password\n", check=0)
+    assert "a-new-password" not in p.stderr + p.stdout
+    assert check_password("a-new-password", json.loads(pw_file.read_text())["ana"])
+    p = labrig("class", "passwd", f, "ben", "--force", input="short\n")
+    assert p.returncode == 2 and "at least 8" in p.stderr
+    p = labrig("class", "passwd", f, "zed", input="long-enough-1\n")
+    assert p.returncode == 2 and "zed is not in [people]" in p.stderr
+
+
+# -- seats and bookings ----------------------------------------------------------------
+
+def test_one_bench_per_student_one_student_per_bench():
+    from labrig.classroom.seats import Seats, SeatTaken
+
+    t = [1000.0]
+    seats = Seats(["b1", "b2"], minutes=10, clock=lambda: t[0])
+    assert seats.take("ana").bench == "b1"
+    assert seats.take("ana").bench == "b1"          # taking again keeps the booking
+    with pytest.raises(SeatTaken, match="b1 is taken"):
+        seats.take("ben", "b1")
+    with pytest.raises(SeatTaken, match="you hold b1"):
+        seats.take("ana", "b2")
+    assert seats.take("ben").bench == "b2"
+    with pytest.raises(SeatTaken, match="every bench is taken"):
+        seats.take("cem")
+    t[0] += 599
+    assert seats.expired() == []
+    t[0] += 1
+    assert sorted(b.student for b in seats.expired()) == ["ana", "ben"]
+    assert seats.free() == ["b1", "b2"]
+
+
+def _plan(folder: Path, rig, amplitudes="0.8, 1.0, 1.2"):
+    import labrig.verbs as lr
+
+    f = folder / "plan.toml"
+    f.write_text('[[experiment]]\nwaveform = "square"\n'
+                 f"amplitudes_v = [{amplitudes}]\nfrequency_hz = 0.5\nperiods = 1\n"
+                 "sample_rate_hz = 500\nlead_in_s = 0.5\n")
+    return lr.load_plan(f, rig)
+
+
+def _wait(cond, timeout, what):
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < timeout:
+        if cond():
+            return
+        time.sleep(0.05)
+    raise AssertionError(f"waited {timeout} s for {what}")
+
+
+def test_a_booking_that_ends_mid_run_stops_the_rig_and_keeps_the_finished_runs(tmp_path):
+    """The booking's time runs out during the second run (the simulated rig paced to real
+    time): the sweep stops as Ctrl-C stops it (STOP, ZERO: the output at 0 V), the first
+    run is on disk whole, the second is not written, the bench is free again; the
+    instructor's Stop does the same without ending the booking."""
+    from labrig.classroom.roster import read_class
+    from labrig.io.runs import read_run
+    from labrig.lab.class_server import ClassServer
+
+    t = [0.0]
+    lines = []
+    srv = ClassServer(read_class(write_class(tmp_path)), realtime=True, log=lines.append,
+                      clock=lambda: t[0])
+    try:
+        st = srv.take("ana")
+        assert st.folder == tmp_path / "class_runs" / "ana" / "bench1"
+        st.start_sweep(_plan(tmp_path, st.rig))
+        _wait(lambda: len(st.written) == 1 and st.live.samples > 100, 30, "the second run")
+        t[0] = srv.room.booking_minutes * 60          # the booking's time is up
+        srv.expire()
+        assert not st.sweeping and "0 V" in st.sweep_note, st.sweep_note
+        assert srv.seats.of("ana") is None and srv.benches["bench1"].station is None
+        assert "the booking's time ended; 1 run(s) kept" in srv.benches["bench1"].note
+        on_disk = sorted(p.name for p in st.folder.iterdir())
+        assert on_disk == ["sq_0.80V.csv", "sq_0.80V.json"], on_disk
+        assert len(read_run(st.folder / "sq_0.80V.csv")) == 1250
+        assert any("ana's booking of bench1 ended: the booking's time ended (rig at 0 V)"
+                   in line for line in lines)
+        # the instructor's Stop: the sweep stops at 0 V, the booking stays
+        st2 = srv.take("ben")
+        st2.start_sweep(_plan(tmp_path, st2.rig, "1.0"))
+        _wait(lambda: st2.live.samples > 100, 30, "ben's run")
+        srv.stop_bench("bench1", by="kim")
+        assert not st2.sweeping and "0 V" in st2.sweep_note
+        assert srv.seats.of("ben").bench == "bench1" and srv.station_of("ben") is st2
+        assert not list((tmp_path / "class_runs" / "ben" / "bench1").glob("*.csv"))
+        row = srv.overview()[0]
+        assert row["student"] == "ben" and row["state"] == "idle"
+    finally:
+        srv.close()
+
+
+# -- the server's trust boundary -------------------------------------------------------
+
+def test_the_lab_page_without_logins_refuses_to_listen_beyond_this_machine(tmp_path):
+    for host in ("0.0.0.0", "192.168.1.20", "::"):
+        p = labrig("lab", tmp_path / "runs", "--no-browser", "--host", host, timeout=60)
+        assert p.returncode == 2, p.stderr
+        assert len(p.stderr.strip().splitlines()) == 1
+        assert "labrig class serve" in p.stderr and "log in" in p.stderr
+    assert not (tmp_path / "runs").exists() or not any((tmp_path / "runs").iterdir())
+
+
+def _login(url, user, password, session=None):
+    s = session or requests.Session()
+    form = s.get(f"{url}/login", timeout=30)
+    xsrf = s.cookies.get("_xsrf")
+    assert xsrf and 'name="_xsrf"' in form.text
+    r = s.post(f"{url}/login", data={"username": user, "password": password, "_xsrf": xsrf},
+               allow_redirects=False, timeout=30)
+    return s, r
+
+
+def _token(page: str) -> str:
+    """The Bokeh session token a served page carries (signed by the server)."""
+    return re.findall(r'token[^:]{0,3}:\s*\\?"([^"\\]+)', page)[0]
+
+
+async def _ws(url, cookies: str, token: str = "x"):
+    """``ack`` when the server takes the websocket (its first message acknowledges the
+    session), else how it refused."""
+    from tornado.httpclient import HTTPRequest
+    from tornado.websocket import websocket_connect
+
+    req = HTTPRequest(url.replace("http", "ws") + "/ws", headers={
+        "Cookie": cookies, "Origin": url})
+    try:
+        conn = await websocket_connect(req, subprotocols=["bokeh", token])
+        msg = await asyncio.wait_for(conn.read_message(), 30)
+    except Exception as exc:
+        return f"refused: {exc}"
+    conn.close()
+    return "ack" if msg and '"ACK"' in msg else f"closed: {msg}"
+
+
+def test_strangers_forged_cookies_and_old_logins_are_refused_each_in_one_log_line(tmp_path):
+    """No page, websocket or login without the right password, XSRF token and a young
+    enough login; each refusal a line in the server's log; no password in it."""
+    f = write_class(tmp_path, extra_server="session_hours = 0.002")   # 7.2 s
+    server = ClassProc(f)
+    url = server.url
+    try:
+        # no login: the page sends to the login form; the websocket is refused
+        r = requests.get(url + "/", allow_redirects=False, timeout=30)
+        assert r.status_code == 302 and "/login" in r.headers["Location"]
+        assert asyncio.run(_ws(url, "")).startswith("refused")
+        # a wrong password, an unknown name, a form without its XSRF token
+        s, r = _login(url, "ana", "ben-secret-2")
+        assert r.status_code == 302 and "error" in r.headers["Location"]
+        assert "user" not in s.cookies
+        s, r = _login(url, "mallory", "ana-secret-1")
+        assert "error" in r.headers["Location"]
+        r = requests.post(url + "/login", data={"username": "ana", "password": "ana-secret-1"},
+                          allow_redirects=False, timeout=30)
+        assert r.status_code == 403
+        # a forged cookie (a user named without the server's signature)
+        r = requests.get(url + "/", cookies={"user": "kim"}, allow_redirects=False, timeout=30)
+        assert r.status_code == 302
+        # the right password: the page; then, once the login is older than
+        # session_hours, the page and the websocket are refused again
+        s, r = _login(url, "ana", "ana-secret-1")
+        assert r.status_code == 302 and r.headers["Location"] == "/"
+        page = s.get(url + "/", allow_redirects=False, timeout=60)
+        assert page.status_code == 200 and "bokeh" in page.text.lower()
+        assert s.cookies.get("user") and "ana-secret-1" not in str(s.cookies)
+        cookie = "; ".join(f"{k}={v}" for k, v in s.cookies.items())
+        token = _token(page.text)
+        assert asyncio.run(_ws(url, cookie, token)) == "ack"     # the page's own socket
+        assert asyncio.run(_ws(url, "", token)).startswith("refused")   # without the login
+        forged = token[:-4] + ("AAAA" if not token.endswith("AAAA") else "BBBB")
+        assert asyncio.run(_ws(url, cookie, forged)) != "ack"    # a session id not signed
+        time.sleep(8)
+        r = s.get(url + "/", allow_redirects=False, timeout=30)
+        assert r.status_code == 302 and "/login" in r.headers["Location"]
+        assert asyncio.run(_ws(url, cookie, token)).startswith("refused")
+    finally:
+        server.stop()
+    log = server.log.read_text()
+    refused = [line for line in log.splitlines() if "refused:" in line]
+    assert sum("a wrong password for ana" in line for line in refused) == 1
+    assert sum("a wrong password for an unknown name" in line for line in refused) == 1
+    assert sum("without a valid XSRF token" in line for line in refused) == 1
+    assert sum("an expired or invalid login" in line for line in refused) >= 3
+    assert "ana logged in (student)" in log
+    assert all(pw not in log for pw in PASSWORDS.values())
+    assert "mallory" not in log          # an unknown name is not written down either
