@@ -84,6 +84,10 @@ class ServerSection(ClosedModel):
     #: the server's own TLS (https://); or leave both out and put it behind a reverse proxy
     certfile: Optional[str] = None
     keyfile: Optional[str] = None
+    #: where bench PCs reach the class's Dask scheduler (TLS only; remote benches)
+    dask_port: Annotated[int, Field(ge=1, le=65535)] = 8786
+    #: the class's certificates (``labrig class certs``), relative to the class file
+    certs: Annotated[str, Field(min_length=1, max_length=400)] = "certs"
 
     @model_validator(mode="after")
     def _both_or_neither(self):
@@ -95,7 +99,9 @@ class ServerSection(ClosedModel):
 
 class BenchSection(ClosedModel):
     name: Name
-    rig: Literal["sim", "emulate", "board"] = "sim"
+    #: the simulated rig, the emulated board, a board on this PC, or a bench PC that
+    #: serves its board to the class (``labrig class bench``)
+    rig: Literal["sim", "emulate", "board", "remote"] = "sim"
     #: the serial device of a board on this PC (``rig = "board"``)
     port: Optional[Annotated[str, Field(min_length=1, max_length=255)]] = None
     #: the board's id (``labrig board id``): another board on the port is refused

@@ -19,6 +19,8 @@ from pathlib import Path
 
 import labrig.verbs as lr
 from labrig.classroom.batch import run_batch
+from labrig.classroom.certs import security
+from labrig.classroom.remote import RemoteBench, Scheduler
 from labrig.classroom.roster import ClassRoom
 from labrig.classroom.seats import Booking, Seats
 from labrig.lab.station import Station
@@ -45,6 +47,8 @@ class Bench:
     #: what the bench's last booking ended by (shown to the instructor)
     note: str = ""
     watchers: set = field(default_factory=set)
+    #: a bench on another PC (its sweeps played there, through the class's scheduler)
+    remote: RemoteBench | None = None
 
 
 class ClassServer:
@@ -71,9 +75,17 @@ class ClassServer:
         self.grading = False
         self.graded = None          # the last BatchResult
         self.grade_note = ""
+        self.scheduler = None
         try:
+            if any(spec.rig == "remote" for spec in room.benches):
+                self.scheduler = _scheduler(room)
             for spec in room.benches:
                 rig = lr.load_rig(room.resolve(spec.rig_file))
+                if spec.rig == "remote":
+                    self.benches[spec.name] = Bench(
+                        spec.name, spec.rig, rig, None, f"bench PC ({spec.name})",
+                        lambda: None, remote=RemoteBench(self.scheduler, spec.name))
+                    continue
                 make, name, close = lr.open_bridge(rig, port=spec.port,
                                                    emulate=spec.rig == "emulate",
                                                    board_id=spec.board_id)
@@ -99,7 +111,8 @@ class ClassServer:
                     # a hand-in holds its mystery file (what `batch check` scores against)
                     shutil.copyfile(rig_file, folder / rig_file.name)
                 b.station = Station(folder, b.rig, b.make_bridge, rig_name=b.rig_name,
-                                    realtime=self.realtime and b.kind == "sim")
+                                    realtime=self.realtime and b.kind == "sim",
+                                    remote=b.remote)
                 b.booking, b.note = booking, ""
                 self.log(f"{student} took {b.name} until "
                          f"{time.strftime('%H:%M', time.localtime(booking.until))}")
@@ -143,12 +156,15 @@ class ClassServer:
     def overview(self) -> list[dict]:
         """A row per bench: who holds it, until when, what plays, the last rung."""
         now = self.seats.clock()
+        online = self.online()
         rows = []
         for b in self.benches.values():
             st, bk = b.station, b.booking
             row = {"bench": b.name, "rig": b.rig_name, "student": bk.student if bk else "",
                    "minutes_left": round(bk.left_s(now) / 60, 1) if bk else None,
-                   "state": "free" if st is None else _state(st), "rung": "",
+                   "state": ("not connected" if b.remote is not None and b.name not in online
+                             else "free" if st is None else _state(st)),
+                   "rung": "",
                    "rmse_over_noise": None, "note": b.note, "watchers": len(b.watchers)}
             if st is not None and st.rungs:
                 r = st.rungs[-1]
@@ -156,6 +172,22 @@ class ClassServer:
                 row["rmse_over_noise"] = r["rmse_over_noise"]["overall"]
             rows.append(row)
         return rows
+
+    _online: tuple = (0.0, set())
+
+    def online(self) -> set:
+        """The benches on other PCs connected now (asked of the scheduler at most once a
+        second, however many pages look)."""
+        if self.scheduler is None:
+            return set()
+        t, names = self._online
+        if time.monotonic() - t > 1.0:
+            try:
+                names = self.scheduler.benches_online()
+            except Exception:   # the scheduler busy or closing: the last answer stands
+                pass
+            self._online = (time.monotonic(), names)
+        return names
 
     def hand_ins(self) -> list:
         """Every student's bench folder that holds runs: what the grading reads."""
@@ -209,6 +241,15 @@ class ClassServer:
                 b.station.close()
                 b.station = None
             b.close()
+        if self.scheduler is not None:
+            self.scheduler.close()
+
+
+def _scheduler(room: ClassRoom):
+    """The class's Dask scheduler for its bench PCs: TLS only, the class's certificates."""
+    folder = room.resolve(room.server.certs)
+    return Scheduler(room.server.host, room.server.dask_port, security(folder, "server"),
+                     security(folder, "server"))
 
 
 def _state(st: Station) -> str:

@@ -11,6 +11,7 @@ import collections
 import threading
 import time
 from dataclasses import dataclass, field
+from types import SimpleNamespace
 from pathlib import Path
 
 import numpy as np
@@ -50,10 +51,18 @@ class Station:
         A fresh bridge for each sweep (simulated, serial or the emulated board).
     realtime : bool
         Pace a simulated rig to real time, so a run comes in as it would on the bench.
+    rig_name : str
+        The rig in words, for the page.
+    remote : object, optional
+        A bench on another PC (:class:`labrig.classroom.remote.RemoteBench`): it plays
+        the sweeps instead of ``make_bridge``.
     """
 
-    def __init__(self, folder, rig, make_bridge, *, realtime: bool = True, rig_name: str = ""):
+    def __init__(self, folder, rig, make_bridge, *, realtime: bool = True, rig_name: str = "",
+                 remote=None):
         self.folder = Path(folder)
+        #: a bench on another PC that plays the sweeps (``play(plan, outdir, ...)``), or None
+        self.remote = remote
         self.rig = rig
         self.rig_name = rig_name
         self.make_bridge = make_bridge
@@ -132,9 +141,13 @@ class Station:
             self.written.append(exp.name)
 
         try:   # an unplugged board fails here: one line on the page, like any rig error
-            self._bridge = lr.live(self.make_bridge(), self._on_block, realtime=self.realtime,
-                                   stop=self._stop)
-            lr.play(self._bridge, plan, self.rig, outdir, on_start=on_start, on_done=on_done)
+            if self.remote is not None:
+                self._play_remote(plan, outdir)
+            else:
+                self._bridge = lr.live(self.make_bridge(), self._on_block,
+                                       realtime=self.realtime, stop=self._stop)
+                lr.play(self._bridge, plan, self.rig, outdir, on_start=on_start,
+                        on_done=on_done)
             self.sweep_note = f"{len(self.written)} run(s) written to {outdir}"
         except Interrupted as exc:
             self.sweep_note = f"{exc} ({len(self.written)} run(s) written to {outdir})"
@@ -144,6 +157,25 @@ class Station:
             self.sweep_note = f"error: {type(exc).__name__}: {exc}"
         finally:
             self.sweeping = False
+
+    def _play_remote(self, plan, outdir) -> None:
+        """The sweep played by a bench on another PC (:attr:`remote`): its samples and
+        finished runs come back as it plays; Stop reaches it as an event."""
+        counters: dict = {}
+        self._bridge = SimpleNamespace(counters=lambda: counters)
+
+        def on_start(name, n):
+            self.live = Live(name=name, n_planned=n)
+
+        def on_block(msg):
+            counters.clear()
+            counters.update(msg["counters"])
+            arr = lambda k: None if msg[k] is None else np.asarray(msg[k], float)  # noqa: E731
+            self._on_block(SimpleNamespace(index=np.asarray(msg["index"]), u=arr("u"),
+                                           tacho=arr("tacho"), pos=arr("pos")))
+
+        self.remote.play(plan, outdir, on_start=on_start, on_block=on_block,
+                         on_done=self.written.append, stop=self._stop)
 
     def _on_block(self, blk) -> None:
         live = self.live
