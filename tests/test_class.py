@@ -264,3 +264,85 @@ def test_strangers_forged_cookies_and_old_logins_are_refused_each_in_one_log_lin
     assert "ana logged in (student)" in log
     assert all(pw not in log for pw in PASSWORDS.values())
     assert "mallory" not in log          # an unknown name is not written down either
+
+
+# -- a bench on another PC -------------------------------------------------------------
+
+@pytest.mark.slow
+def test_a_bench_on_another_pc_plays_stops_and_goes_away_over_tls(tmp_path):
+    """A bench PC (here a subprocess: `labrig class bench --sim`, paced to real time)
+    serves its rig through the class's TLS-only Dask scheduler: a student's sweep on it
+    streams in and lands whole in her folder; Stop reaches it (0 V, finished runs kept);
+    killed mid-run, the bench is said to be gone and the runs it finished are kept. A
+    client without the class's certificate, or with another authority's, is refused."""
+    import subprocess
+    import sys
+
+    from distributed import Client
+    from distributed.security import Security
+
+    from class_room import ROOT
+    from labrig.classroom.certs import make_certs, security
+    from labrig.classroom.roster import read_class
+    from labrig.lab.class_server import ClassServer
+    from lab_page import free_port
+
+    f = write_class(tmp_path, benches=("far",), kinds={"far": "remote"},
+                    extra_server=f"dask_port = {free_port()}")
+    p = labrig("class", "certs", f, check=0)
+    assert "one per bench PC (far)" in p.stderr
+    assert labrig("class", "certs", f).returncode == 2          # nothing overwritten
+    assert (tmp_path / "certs" / "far.key").stat().st_mode & 0o077 == 0
+    lines = []
+    srv = ClassServer(read_class(f), log=lines.append)
+    bench = None
+    try:
+        assert srv.overview()[0]["state"] == "not connected"
+        address = srv.scheduler.address
+        assert address.startswith("tls://")
+        # strangers: no certificate, or another class's
+        make_certs(tmp_path / "other", ["far"], ["127.0.0.1"])
+        for sec in (None, Security(), security(tmp_path / "other", "far")):
+            with pytest.raises(Exception):
+                Client(address, security=sec, timeout=5).close()
+        bench = subprocess.Popen(
+            [sys.executable, "-m", "labrig", "class", "bench", "far", "--scheduler", address,
+             "--certs", str(tmp_path / "certs"), "--sim"], cwd=ROOT,
+            stderr=subprocess.PIPE, text=True)
+        _wait(lambda: "far" in srv.online(), 60, "the bench PC")
+        assert srv.overview()[0]["state"] == "free"
+        st = srv.take("ana")
+        st.start_sweep(_plan(tmp_path, st.rig, "1.0, 1.5"))
+        _wait(lambda: st.live.samples > 100, 30, "the first samples")
+        assert st.live.samples < 1250                  # streamed as it plays, not at the end
+        _wait(lambda: not st.sweeping, 60, "the sweep")
+        assert st.sweep_note.startswith("2 run(s) written"), st.sweep_note
+        from labrig.io.runs import read_run
+
+        for name in ("sq_1.00V", "sq_1.50V"):
+            assert len(read_run(st.folder / f"{name}.csv")) == 1250
+        # the same runs again: refused, nothing overwritten
+        st.start_sweep(_plan(tmp_path, st.rig, "1.0"))
+        _wait(lambda: not st.sweeping, 30, "the refusal")
+        assert "exists" in st.sweep_note
+        # Stop during the second run: at 0 V on the bench, the first run kept
+        st.start_sweep(_plan(tmp_path, st.rig, "0.5, 0.7, 0.9"))
+        _wait(lambda: len(st.written) == 1 and st.live.samples > 100, 30, "the second run")
+        st.stop()
+        assert "output is at 0 V" in st.sweep_note and "1 run(s) written" in st.sweep_note
+        # the bench PC goes away mid-run
+        st.start_sweep(_plan(tmp_path, st.rig, "0.6, 0.8, 1.1"))
+        _wait(lambda: len(st.written) == 1 and st.live.samples > 100, 30, "the second run")
+        bench.kill()
+        bench.wait(10)
+        _wait(lambda: not st.sweeping, 60, "the bench's absence noticed")
+        assert "far went away mid-run" in st.sweep_note and "kept" in st.sweep_note
+        _wait(lambda: srv.overview()[0]["state"] == "not connected", 10, "the overview")
+    finally:
+        if bench is not None and bench.poll() is None:
+            bench.kill()
+            bench.wait(10)
+        srv.close()
+    runs = sorted(p.name for p in (tmp_path / "class_runs" / "ana" / "far").glob("*.csv"))
+    assert runs == ["sq_0.50V.csv", "sq_0.60V.csv", "sq_1.00V.csv", "sq_1.50V.csv"]
+    assert not list((tmp_path / "class_runs").rglob("*.tmp"))

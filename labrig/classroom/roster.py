@@ -41,7 +41,7 @@ from typing import Annotated, Literal, Optional
 from pydantic import AfterValidator, Field, model_validator
 
 from labrig.core.errors import ConfigError
-from labrig.core.schemas import ClosedModel, Num, validate
+from labrig.core.schemas import ClosedModel, Num, read_toml, validate
 
 #: a person's or a bench's name: it becomes a folder name and a word in the server's log,
 #: so lower-case letters, digits, ``_`` and ``-`` only, starting with a letter
@@ -84,6 +84,10 @@ class ServerSection(ClosedModel):
     #: the server's own TLS (https://); or leave both out and put it behind a reverse proxy
     certfile: Optional[str] = None
     keyfile: Optional[str] = None
+    #: the addresses students type (``host:port``) beyond this PC's own names: behind a
+    #: reverse proxy, its public name (the page's websocket is refused from any other)
+    origins: Annotated[list[Annotated[str, Field(min_length=1, max_length=255)]],
+                       Field(max_length=20)] = []
     #: where bench PCs reach the class's Dask scheduler (TLS only; remote benches)
     dask_port: Annotated[int, Field(ge=1, le=65535)] = 8786
     #: the class's certificates (``labrig class certs``), relative to the class file
@@ -199,8 +203,6 @@ def read_class(path: Path | str) -> ClassRoom:
         Not found, not TOML, or a key missing, unknown or out of range (one line naming
         the file and the key).
     """
-    from labrig.io.config import read_toml
-
     path = Path(path)
     doc = read_toml(path, "class")
     checked = validate(ClassFile, doc, path, ConfigError, section_word=True)

@@ -15,6 +15,7 @@ from __future__ import annotations
 import difflib
 import json
 import re
+import tomllib
 import typing
 from pathlib import Path
 from typing import Annotated, Any, Literal, Optional, Union
@@ -22,7 +23,7 @@ from typing import Annotated, Any, Literal, Optional, Union
 from pydantic import (AfterValidator, BaseModel, BeforeValidator, ConfigDict, Field,
                       ValidationError, model_validator)
 
-from labrig.core.errors import UserError
+from labrig.core.errors import ConfigError, UserError
 from labrig.core.fileio import size_within
 
 #: a JSON file a user hands in is small (a model, a sidecar); a bigger one is a mistake
@@ -286,6 +287,19 @@ class IdentifyConfig(ClosedModel):
 
 
 # -- reading and reporting ----------------------------------------------------------------
+
+def read_toml(path: Path | str, what: str) -> dict:
+    """Parse a user's TOML file, or raise one line: not found, too big, not TOML."""
+    path = Path(path)
+    size_within(path, 1_000_000, ConfigError, f"{what} file not found",
+                lambda size: f"too big for a {what} file (over 1 MB); is this the right file?")
+    try:
+        return tomllib.loads(path.read_text(encoding="utf-8"))
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{path}: not valid TOML ({exc}); fix the syntax") from None
+    except (UnicodeDecodeError, RecursionError):
+        raise ConfigError(f"{path}: not a text TOML file") from None
+
 
 def read_json(path: Path | str, what: str, error: type[UserError] = UserError,
               hint: str = "") -> Any:

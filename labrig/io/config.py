@@ -7,15 +7,13 @@ to a default.
 from __future__ import annotations
 
 import dataclasses
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from labrig.io.board_pins import check_pins
 from labrig.io.experiment import PWL_MAX_POINTS, Experiment
 from labrig.core.errors import ConfigError, UserError
-from labrig.core.fileio import size_within
-from labrig.core.schemas import PlanFile, RigFile, validate
+from labrig.core.schemas import PlanFile, RigFile, read_toml, validate
 from labrig.model.plants import check_axis, plant_class
 from labrig.io.mysteryfile import decode
 from labrig.model.effects import CATALOGUE, catalogue_name
@@ -203,18 +201,6 @@ _ATTRS = {
     "plant": {"R_ohm": "R", "L_h": "L", "J_kgm2": "J", "B_nms_per_rad": "B",
               "K_nm_per_a": "K", "M_kg": "M", "Fv_ns_per_m": "Fv"},
 }
-
-
-def read_toml(path: Path | str, what: str) -> dict:
-    path = Path(path)
-    size_within(path, 1_000_000, ConfigError, f"{what} file not found",
-                lambda size: f"too big for a {what} file (over 1 MB); is this the right file?")
-    try:
-        return tomllib.loads(path.read_text(encoding="utf-8"))
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{path}: not valid TOML ({exc}); fix the syntax") from None
-    except (UnicodeDecodeError, RecursionError):
-        raise ConfigError(f"{path}: not a text TOML file") from None
 
 
 def rig_from_dict(doc: dict, path: str = "<rig>") -> RigConfig:

@@ -47,7 +47,8 @@ class _ClassView:
     def _say(self, text: str) -> None:
         self.error.object, self.error.visible = text, bool(text)
 
-    def _watch(self, bench: str | None) -> None:
+    def watch(self, bench: str | None) -> None:
+        """Open ``bench``'s lab page below, read-only (its actions refused and logged)."""
         b = self.srv.benches.get(bench or "")
         if b is None or b.station is None:
             return self._say(f"{bench}: no one is on that bench now")
@@ -106,7 +107,7 @@ class StudentPage(_ClassView):
                                             visible=server.room.watch)
         self.watch_btn = pn.widgets.Button(name="Watch", css_classes=["lab-watch"],
                                            visible=server.room.watch)
-        self.watch_btn.on_click(lambda e: self._watch(self.watch_pick.value))
+        self.watch_btn.on_click(lambda e: self.watch(self.watch_pick.value))
         controls += [self.watch_pick, self.watch_btn]
         self.view = pn.Column(self.header, self.error, pn.Row(*controls), self.seat,
                               self.area, self.watch_area, sizing_mode="stretch_width")
@@ -137,13 +138,13 @@ class StudentPage(_ClassView):
             return
         self.srv.release(self.user)
 
-    def _watch(self, bench) -> None:
+    def watch(self, bench) -> None:
         if not self.srv.room.watch:
             return self.refused(f"watch {str(bench)[:40]} (this class does not allow it)")
         mine = self.srv.seats.of(self.user)
         if mine is not None and mine.bench == bench:
             return
-        super()._watch(bench)
+        super().watch(bench)
 
     def _paint_seat(self) -> None:
         mine = self.srv.seats.of(self.user)
@@ -156,13 +157,12 @@ class StudentPage(_ClassView):
             until = time.strftime("%H:%M", time.localtime(mine.until))
             text = (f"You hold **{mine.bench}** until {until} ({left:.0f} min left). Your "
                     f"runs: `{self.srv.room.seat_folder(self.user, mine.bench)}`. ")
-        b = self._ended_note()
-        set_text(self.seat, text + b)
+        set_text(self.seat, text + self._ended_note())
         options = [ANY_BENCH, *free]
         if self.bench_pick.options != options:
             self.bench_pick.options = options
-        held = [n for n, b in self.srv.benches.items() if b.station is not None
-                and (mine is None or n != mine.bench)]
+        held = [name for name, bench in self.srv.benches.items() if bench.station is not None
+                and (mine is None or name != mine.bench)]
         if self.watch_pick.options != held:
             self.watch_pick.options = held
         self.take_btn.disabled = mine is not None or not free
@@ -210,7 +210,7 @@ class InstructorPage(_ClassView):
                                           css_classes=["lab-bench-stop"])
         self.end_btn = pn.widgets.Button(name="End the booking", button_type="warning",
                                          css_classes=["lab-bench-end"])
-        self.watch_btn.on_click(lambda e: self._watch(self.bench_pick.value))
+        self.watch_btn.on_click(lambda e: self.watch(self.bench_pick.value))
         self.stop_btn.on_click(lambda e: self._stop(self.bench_pick.value))
         self.end_btn.on_click(lambda e: self._end(self.bench_pick.value))
         self.task = pn.widgets.RadioButtonGroup(

@@ -22,7 +22,7 @@ import labrig.verbs as lr
 import labrig.verbs.figures as lrf
 from labrig.lab.explore import Explorer, under_lock
 from labrig.lab.plan_form import PlanForm
-from labrig.lab.station import Station, as_array
+from labrig.lab.station import LIVE_POINTS, Station
 from labrig.lab.words import (asking_html, esc, evidence_html, forming_html, set_text,
                               why_not)
 
@@ -260,10 +260,16 @@ class LabPage:
         live = st.live
         shown = (id(live), live.samples)
         if shown != self._live_shown:   # only what changed goes to the browser (a slider's
-            self._live_shown = shown    # move should not wait behind an unchanged run)
-            self.src.data = {"t": as_array(live.t), "u": as_array(live.u),
-                             "speed": as_array(live.speed) if live.speed else as_array(live.t) * 0,
-                             "pos": as_array(live.pos) if live.pos else as_array(live.t) * 0}
+            # move should not wait behind an unchanged run): a new run whole, then only
+            # its new points, streamed (a class's thirty pages resent 4000 points each
+            # ten times a second)
+            new_run = self._live_shown is None or shown[0] != self._live_shown[0]
+            self._live_shown = shown
+            cols, self._points = live.since(0 if new_run else self._points)
+            if new_run:
+                self.src.data = cols
+            elif len(cols["t"]):
+                self.src.stream(cols, rollover=LIVE_POINTS)
         c = live.counters
         set_text(self.counters, (
             f"**{live.name or 'no run yet'}** · samples {live.samples}/{live.n_planned} · gaps "
@@ -317,6 +323,7 @@ class LabPage:
 
     _asked = False
     _live_shown = None
+    _points = 0
     _asked_drawn = None
 
     def _show_asked_step(self) -> None:

@@ -83,21 +83,22 @@ def serve(station: Station, *, host: str = "127.0.0.1", port: int = 5006,
         server.stop()
 
 
-def serve_class(server, *, open_browser: bool = False, log=None) -> None:
-    """Serve a class (:class:`~labrig.lab.class_server.ClassServer`) until Ctrl-C or
-    SIGTERM: everyone logs in (:mod:`labrig.lab.login`); a student gets the seat page,
-    an instructor the view of every bench. On the way out every bench is left at 0 V.
+def class_app(server, *, log=None):
+    """The class's Panel server, built but not started: ``(bokeh_server, url)``.
 
-    Built on Panel's server: its auth provider hooks (the login handler checking scrypt
-    hashes), Tornado's XSRF cookies, Bokeh's signed session ids, websocket connections
-    only from the origins the page is served under, and its own TLS when the class file
-    gives a certificate (else plain HTTP, for this machine or behind a reverse proxy).
+    Everyone logs in (:mod:`labrig.lab.login`); a student gets the seat page, an
+    instructor the view of every bench; ``?watch=BENCH`` opens a bench read-only where
+    the class allows watching (asked as the Watch button asks: refused and logged where
+    it may not). Built on Panel's server: its auth provider hooks (the login handler
+    checking scrypt hashes), Tornado's XSRF cookies, Bokeh's signed session ids,
+    websocket connections only from the origins the page is served under, and its own
+    TLS when the class file gives a certificate (else plain HTTP, for this machine or
+    behind a reverse proxy). Built on the calling thread's IO loop.
     """
     import secrets
     import socket
 
     import panel as pn
-    from tornado.ioloop import PeriodicCallback
 
     from labrig.lab.class_page import InstructorPage, StudentPage
     from labrig.lab.login import ClassAuth, user_of
@@ -123,13 +124,17 @@ def serve_class(server, *, open_browser: bool = False, log=None) -> None:
 
         kind = InstructorPage if room.role(user) == "instructor" else StudentPage
         view = kind(server, user, sid, alive)
+        watch = pn.state.session_args.get("watch")
+        if watch:
+            view.watch(watch[0].decode("utf-8", "replace")[:40])
         pn.state.add_periodic_callback(view.refresh, period=REFRESH_MS)
         pn.state.on_session_destroyed(lambda _ctx: view.closed())
         return view.view
 
     host, port = cfg.host, cfg.port
     names = {"127.0.0.1", "localhost", host, socket.gethostname(), socket.getfqdn()}
-    origins = sorted(f"{n}:{port}" for n in names if n not in ("0.0.0.0", "::"))
+    origins = sorted({f"{n}:{port}" for n in names if n not in ("0.0.0.0", "::")}
+                     | set(cfg.origins))
     tls = {}
     if cfg.certfile:
         tls = {"ssl_certfile": str(room.resolve(cfg.certfile)),
@@ -141,14 +146,23 @@ def serve_class(server, *, open_browser: bool = False, log=None) -> None:
                    check_unused_sessions_milliseconds=CHECK_UNUSED_MS,
                    unused_session_lifetime_milliseconds=UNUSED_LIFETIME_MS, **tls)
     shown = "127.0.0.1" if host in ("0.0.0.0", "::") else host
-    url = f"{'https' if tls else 'http'}://{shown}:{port}/"
-    log(f"serving {room.name!r} on {url} ({len(server.benches)} benches; Ctrl-C stops it, "
-        "every bench left at 0 V)")
+    return app, f"{'https' if tls else 'http'}://{shown}:{port}/"
+
+
+def serve_class(server, *, open_browser: bool = False, log=None) -> None:
+    """Serve a class (:class:`~labrig.lab.class_server.ClassServer`, :func:`class_app`)
+    until Ctrl-C or SIGTERM; on the way out every bench is left at 0 V."""
+    import signal
+
+    from tornado.ioloop import PeriodicCallback
+
+    log = log or server.log
+    app, url = class_app(server, log=log)
+    log(f"serving {server.room.name!r} on {url} ({len(server.benches)} benches; Ctrl-C stops "
+        "it, every bench left at 0 V)")
     print(url, flush=True)
     expiry = PeriodicCallback(server.expire, 1000)
     expiry.start()
-    import signal
-
     # SIGTERM (a service manager's stop) ends the server as Ctrl-C does: benches at 0 V
     signal.signal(signal.SIGTERM, lambda *_: app.io_loop.add_callback_from_signal(
         app.io_loop.stop))

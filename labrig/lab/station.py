@@ -8,6 +8,7 @@ session owns the rig at a time; the others watch.
 from __future__ import annotations
 
 import collections
+import itertools
 import threading
 import time
 from dataclasses import dataclass, field
@@ -37,6 +38,22 @@ class Live:
     pos: collections.deque = field(default_factory=lambda: collections.deque(maxlen=LIVE_POINTS))
     samples: int = 0
     counters: dict = field(default_factory=dict)
+    #: points appended so far (the deques keep the last LIVE_POINTS): a page sends only
+    #: the points it has not shown (:meth:`since`)
+    points: int = 0
+    lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
+
+    def since(self, shown: int) -> tuple[dict, int]:
+        """The points after the first ``shown`` (at most the last LIVE_POINTS), as
+        arrays per channel, and the count now; taken under the lock the sweep appends
+        under, so the channels stay the same length."""
+        with self.lock:
+            k = min(self.points - shown, len(self.t))
+            cols = {"t": _tail(self.t, k), "u": _tail(self.u, k)}
+            for key in ("speed", "pos"):
+                d = getattr(self, key)
+                cols[key] = _tail(d, k) if d else np.zeros(k)
+            return cols, self.points
 
 
 class Station:
@@ -182,12 +199,14 @@ class Station:
         fs = self.rig.bridge.sample_rate_hz
         step = max(1, int(fs // 500))          # at most 500 points per second on screen
         idx = blk.index[::step]
-        live.t.extend(idx / fs)
-        live.u.extend(blk.u[::step])
-        if blk.tacho is not None and self._kt:
-            live.speed.extend(blk.tacho[::step] / self._kt)
-        if blk.pos is not None:
-            live.pos.extend((blk.pos[::step] - self._pos0) / self._kpot)
+        with live.lock:
+            live.t.extend(idx / fs)
+            live.u.extend(blk.u[::step])
+            if blk.tacho is not None and self._kt:
+                live.speed.extend(blk.tacho[::step] / self._kt)
+            if blk.pos is not None:
+                live.pos.extend((blk.pos[::step] - self._pos0) / self._kpot)
+            live.points += len(idx)
         live.samples = int(blk.index[-1]) + 1
         live.counters = dict(self._bridge.counters())
 
@@ -435,5 +454,6 @@ class Station:
             f()
 
 
-def as_array(d: collections.deque) -> np.ndarray:
-    return np.fromiter(d, float, len(d))
+def _tail(d: collections.deque, k: int) -> np.ndarray:
+    """The last ``k`` items of ``d``."""
+    return np.fromiter(itertools.islice(d, len(d) - k, None), float, k)
