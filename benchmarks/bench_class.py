@@ -40,12 +40,14 @@ RUN_S = 22.5
 #: the seconds of it measured (after every client has connected and the runs started)
 WINDOW = (6.0, 20.0)
 
-#: counts the live view's data updates the browser applies (Bokeh's document events)
+#: counts the live view's data updates the browser applies (its data source's signals: a
+#: new run's whole data, then the points streamed to it)
 COUNT_UPDATES = r"""() => { window.labUpdates = []; let n = 0;
   for (const d of Bokeh.documents) for (const m of d.all_models)
     if (m.data && (m.data instanceof Map ? m.data.has("speed") && m.data.has("pos")
                                          : "speed" in m.data && "pos" in m.data)) {
-      m.change.connect(() => window.labUpdates.push(performance.now() / 1000)); n++; }
+      const seen = () => window.labUpdates.push(performance.now() / 1000);
+      m.change.connect(seen); m.streaming.connect(seen); n++; }
   return n; }"""
 
 
@@ -82,7 +84,8 @@ def _login(url: str, user: str) -> requests.Session:
 async def _watcher(url: str, session: requests.Session, bench: str, times: list,
                    stop: asyncio.Event) -> None:
     """A Bokeh-protocol client: the page's session, pulled, then every PATCH-DOC that
-    changes the live view's data counted with its arrival time."""
+    changes the live view's data (a new run's, or points streamed to it) counted with its
+    arrival time."""
     from tornado.httpclient import HTTPRequest
     from tornado.websocket import websocket_connect
 
@@ -116,7 +119,7 @@ async def _watcher(url: str, session: requests.Session, bench: str, times: list,
         left -= 1
         if left == 2 * int(header.get("num_buffers", 0)) \
                 and header.get("msgtype") == "PATCH-DOC" \
-                and re.search(r'"kind":\s*"ColumnDataChanged"', msg):
+                and re.search(r'"kind":\s*"(ColumnDataChanged|ColumnsStreamed)"', msg):
             times.append(time.monotonic())
     ws.close()
 
@@ -258,16 +261,21 @@ def measure() -> dict:
 
 
 def _fits(stations) -> list[float]:
-    """Each station's linear fit clicked at the same moment: its seconds until done."""
+    """Each station's linear fit clicked at the same moment: its seconds until done
+    (the pages are closed: this polls the stations as their pages would)."""
     from labrig.lab import jobs
 
     t0 = time.monotonic()
-    for st in stations:
-        st.worker.submit("fit", jobs.fit, [st.folder])
+    for st in stations:   # as the Fit button asks: through the class's turns for the cores
+        st.submit("fit", jobs.fit, [st.folder])
     left, out = dict(enumerate(stations)), {}
     while left:
+        for st in stations:
+            if st.cores is not None:
+                st.cores.tick()
+                break
         for k, st in list(left.items()):
-            if not st.worker.busy:
+            if st.waiting_note() == "" and not st.worker.busy:
                 out[k] = time.monotonic() - t0
                 _name, _value, error = st.worker.poll()
                 if error is not None:

@@ -160,6 +160,12 @@ def test_readme_quotes_the_recorded_lab_benchmark():
     assert _markdown("bench_lab.py") in (ROOT / "README.md").read_text()
 
 
+def test_readme_quotes_the_recorded_class_benchmark():
+    """The class server's load table is the one benchmarks/bench_class.py writes from
+    benchmarks/results_class.json, misses included."""
+    assert _markdown("bench_class.py") in (ROOT / "README.md").read_text()
+
+
 def test_readme_quotes_the_recorded_sheet_and_peer_benchmarks():
     """The slowest commands of the sheets and the README's loop, the named targets, and
     the diagnose round against scipy are what benchmarks/bench_sheets.py and

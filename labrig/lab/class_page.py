@@ -68,6 +68,7 @@ class _ClassView:
 
     def refresh(self) -> None:
         self._tick += 1
+        self.srv.turns.tick()
         if self._tick % SLOW_EVERY == 1 and not self._alive():
             return self.expire()
         if self.watched is not None:

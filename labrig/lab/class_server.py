@@ -10,6 +10,7 @@ booking (released, expired, or ended by an instructor) stops the rig as Ctrl-C d
 """
 from __future__ import annotations
 
+import os
 import shutil
 import sys
 import threading
@@ -23,7 +24,7 @@ from labrig.classroom.certs import security
 from labrig.classroom.remote import RemoteBench, Scheduler
 from labrig.classroom.roster import ClassRoom
 from labrig.classroom.seats import Booking, Seats
-from labrig.lab.station import Station
+from labrig.lab.station import Station, Turns
 
 
 def server_log(line: str) -> None:
@@ -72,6 +73,8 @@ class ClassServer:
         self.seats = Seats([b.name for b in room.benches], room.booking_minutes, clock=clock)
         self.benches: dict[str, Bench] = {}
         self._lock = threading.RLock()
+        #: the stations' jobs take turns for the server's cores, first come first served
+        self.turns = Turns(os.cpu_count() or 1)
         self.grading = False
         self.graded = None          # the last BatchResult
         self.grade_note = ""
@@ -113,6 +116,7 @@ class ClassServer:
                 b.station = Station(folder, b.rig, b.make_bridge, rig_name=b.rig_name,
                                     realtime=self.realtime and b.kind == "sim",
                                     remote=b.remote)
+                b.station.cores = self.turns   # the class's fits take turns
                 b.booking, b.note = booking, ""
                 self.log(f"{student} took {b.name} until "
                          f"{time.strftime('%H:%M', time.localtime(booking.until))}")
@@ -130,7 +134,9 @@ class ClassServer:
                 self._end(booking, why)
 
     def expire(self) -> None:
-        """End the bookings whose time is up (the server's timer calls this)."""
+        """End the bookings whose time is up (the server's timer calls this), and pass
+        on the turns of fits whose page is gone."""
+        self.turns.tick()
         for booking in self.seats.expired():
             with self._lock:
                 self._end(booking, "the booking's time ended")
@@ -139,6 +145,7 @@ class ClassServer:
         b = self.benches[booking.bench]
         st, b.station, b.booking = b.station, None, None
         if st is not None:
+            self.turns.forget(st)
             st.stop()           # STOP and ZERO; a run in progress is not written
             kept = len(st.runs_on_disk())
             st.close()

@@ -276,7 +276,10 @@ class LabPage:
             f"{c.get('dropped_samples', 0)} · CRC errors {c.get('crc_errors', 0)} · "
             f"retries {c.get('retries', 0)}" + (" · **running**" if st.sweeping else "")))
         set_text(self.sweep_note, st.sweep_note)
-        set_text(self.runs_list, "runs in the folder: " + (", ".join(st.runs_on_disk()) or "none"))
+        if self._ticks % 5 == 0:   # the folder's listing: twice a second is enough
+            set_text(self.runs_list,
+                     "runs in the folder: " + (", ".join(st.runs_on_disk()) or "none"))
+        self._ticks += 1
         if self.owner and st.poll():
             self._show_loop()
         elif self._seen != self._state() or self._hand_view_behind():
@@ -284,7 +287,8 @@ class LabPage:
         busy = st.busy()
         self._show_stream()
         rungs = [line for line in st.log if line.startswith("rung ")]
-        set_text(self.status, (
+        waiting = st.waiting_note()
+        set_text(self.status, waiting or (
             f"working: {st.worker.name} ({time.monotonic() - st.worker.started:.0f} s)"
             + "".join(f"  \n{line}" for line in rungs[-6:])
             + (f"  \n{st.log[-1].splitlines()[0]}" if st.log and st.log[-1] not in rungs[-6:]
@@ -294,17 +298,20 @@ class LabPage:
         # each widget set once, to its final state: a button that flipped in every
         # refresh (Propose: enabled, then disabled again) sent two changes ten times a
         # second, and each made the browser lay out the whole page again (~30 ms)
-        idle = self.owner and not busy and not st.sweeping
+        # (and set only when it changes: a class's thirty pages each setting twelve
+        # unchanged widgets ten times a second cost the server's process a core's third)
+        idle = bool(self.owner and not busy and not st.sweeping)
         for w in (self.fit_btn, self.auto_btn, self.add_btn, self.rm_btn, self.rep_btn,
                   self.start, self.explore.fit_btn):
-            w.disabled = not idle
-        self.propose_btn.disabled = not idle or not self.pair_pick.options
-        self.sure_btn.disabled = self.propose_btn.disabled
+            _disable(w, not idle)
+        _disable(self.propose_btn, not idle or not self.pair_pick.options)
+        _disable(self.sure_btn, self.propose_btn.disabled)
         set_text(self.asking, asking_html(st))
         self._show_asked_step()
-        self.cancel_btn.disabled = not self.owner or not busy
-        self.play_btn.disabled = (not self.owner or busy or st.sweeping or st.proposal is None
-                                  or st.proposal.get("plan") is None or st.prediction is None)
+        _disable(self.cancel_btn, not self.owner or not busy)
+        _disable(self.play_btn, bool(
+            not self.owner or busy or st.sweeping or st.proposal is None
+            or st.proposal.get("plan") is None or st.prediction is None))
         note = why_not(st, bool(self.pair_pick.options))
         if self.ask_note.object != note:
             self.ask_note.object = note
@@ -324,6 +331,7 @@ class LabPage:
     _asked = False
     _live_shown = None
     _points = 0
+    _ticks = 0
     _asked_drawn = None
 
     def _show_asked_step(self) -> None:
@@ -469,3 +477,10 @@ class LabPage:
         self.overlay.object = f"<p>drawing the model on {esc(self.run_pick.value)}…</p>"
         if self.owner and self.st.idle():   # a Cancel stopped the drawing: again
             self.st.draw_overlays()
+
+
+def _disable(widget, disabled: bool) -> None:
+    """``widget.disabled``, set only when it changes."""
+    if widget.disabled != disabled:
+        widget.disabled = disabled
+

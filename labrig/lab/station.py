@@ -231,7 +231,8 @@ class Station:
     def busy(self) -> bool:
         """A click must wait: a job runs, other than the background drawing of overlays
         (a click overtakes that after its current figure), or a click is already queued."""
-        return self._queued is not None or (self.worker.busy and not self.drawing())
+        return (self._queued is not None or self._waiting is not None
+                or (self.worker.busy and not self.drawing()))
 
     def drawing(self) -> bool:
         """The worker draws the model on the runs the fit left, one run per job."""
@@ -239,7 +240,7 @@ class Station:
 
     def idle(self) -> bool:
         """Nothing running, no result waiting for :meth:`poll`, nothing queued."""
-        return not self.worker.pending and self._queued is None
+        return not self.worker.pending and self._queued is None and self._waiting is None
 
     def submit(self, name, fn, *args, **kw) -> None:
         self.error = ""
@@ -248,8 +249,31 @@ class Station:
         if self.drawing():   # after this figure (about half a second), not after them all
             self._queued = (name, fn, args, kw)
             return
+        self._waiting = (name, fn, args, kw)
+        if self.cores is None:
+            self.start_waiting()
+        else:   # a class's stations take turns for the server's cores
+            self.cores.ask(self)
+
+    _waiting = None
+    #: the class's turns for the cores (:class:`Turns`), or None: the job starts at once
+    cores = None
+
+    def start_waiting(self) -> bool:
+        """Start the job waiting for its turn, if any (the turns call this)."""
+        if self._waiting is None:
+            return False
+        (name, fn, args, kw), self._waiting = self._waiting, None
         self.worker.submit(name, fn, *args, **kw)
         self.warm()
+        return True
+
+    def waiting_note(self) -> str:
+        """What the page says while the job waits for its turn ("" when it does not)."""
+        if self._waiting is None or self.cores is None:
+            return ""
+        return (f"waiting for a free core: {self._waiting[0]} ({self.cores.ahead(self)} "
+                "ahead of it)")
 
     def warm(self) -> None:
         """Load the simulator's kernels into this process, once, in the background: the
@@ -360,6 +384,9 @@ class Station:
 
     def cancel(self) -> None:
         self._queued = None
+        self._waiting = None
+        if self.cores is not None:
+            self.cores.forget(self)
         if self._rig_request is not None:   # the step being played stops too (at 0 V)
             self.stop()
             self._rig_request = None
@@ -393,6 +420,8 @@ class Station:
         done = self.worker.poll()
         if done is None:
             return False
+        if self.cores is not None:   # this station's turn is over: the next one's
+            self.cores.tick()
         name, value, error = done
         self.streamed = (name, list(self.stream))   # the finished job's, whole
         if error is not None:
@@ -452,6 +481,53 @@ class Station:
         self.worker.close()
         for f in self.on_close:
             f()
+
+
+class Turns:
+    """Stations taking turns for the server's cores, first come first served: at most
+    ``slots`` jobs run at once, the others wait in the order they were asked (a class's
+    fits queued fairly: no student's click waits behind another's next one).
+
+    Parameters
+    ----------
+    slots : int
+        Jobs run at once (the server's cores).
+    """
+
+    def __init__(self, slots: int):
+        self.slots = max(1, int(slots))
+        self._running: list = []
+        self._waiting: collections.deque = collections.deque()
+        self._lock = threading.Lock()
+
+    def ask(self, station) -> None:
+        """``station`` has a job waiting: its turn now if a core is free, else later."""
+        with self._lock:
+            if station not in self._waiting:
+                self._waiting.append(station)
+        self.tick()
+
+    def tick(self) -> None:
+        """Free the turns of finished jobs and start the next waiting ones (the server's
+        timer and the pages call this; cheap)."""
+        with self._lock:
+            self._running = [s for s in self._running if s.worker.busy]
+            while len(self._running) < self.slots and self._waiting:
+                st = self._waiting.popleft()
+                if st.start_waiting():
+                    self._running.append(st)
+
+    def ahead(self, station) -> int:
+        """Jobs before ``station``'s: the running ones and those waiting before it."""
+        with self._lock:
+            waiting = list(self._waiting)
+            k = waiting.index(station) if station in waiting else 0
+            return len(self._running) + k
+
+    def forget(self, station) -> None:
+        with self._lock:
+            if station in self._waiting:
+                self._waiting.remove(station)
 
 
 def _tail(d: collections.deque, k: int) -> np.ndarray:
