@@ -346,3 +346,31 @@ def test_a_bench_on_another_pc_plays_stops_and_goes_away_over_tls(tmp_path):
     runs = sorted(p.name for p in (tmp_path / "class_runs" / "ana" / "far").glob("*.csv"))
     assert runs == ["sq_0.50V.csv", "sq_0.60V.csv", "sq_1.00V.csv", "sq_1.50V.csv"]
     assert not list((tmp_path / "class_runs").rglob("*.tmp"))
+
+
+def test_the_server_speaks_https_with_the_certificate_the_class_file_gives(tmp_path):
+    """``[server] certfile/keyfile``: the login page and the websocket over TLS only,
+    the certificate checked by the client against the authority that signed it."""
+    from labrig.classroom.certs import make_certs
+
+    make_certs(tmp_path / "tls", [], ["127.0.0.1", "localhost"])
+    f = write_class(tmp_path, extra_server='certfile = "tls/server.pem"\n'
+                                           'keyfile = "tls/server.key"')
+    server = ClassProc(f)
+    try:
+        assert server.url.startswith("https://127.0.0.1:")
+        ca = str(tmp_path / "tls" / "ca.pem")
+        r = requests.get(server.url + "/", allow_redirects=False, timeout=30, verify=ca)
+        assert r.status_code == 302 and "/login" in r.headers["Location"]
+        with pytest.raises(requests.exceptions.SSLError):   # not a certificate it trusts
+            requests.get(server.url + "/login", timeout=30)
+        with pytest.raises(requests.exceptions.ConnectionError):   # no plain HTTP
+            requests.get(server.url.replace("https", "http") + "/login", timeout=30)
+        s = requests.Session()   # (verify per request: a session's own yields to the
+        s.get(server.url + "/login", timeout=30, verify=ca)   # environment's CA bundle)
+        r = s.post(server.url + "/login", data={"username": "kim", "password": PASSWORDS["kim"],
+                                                "_xsrf": s.cookies.get("_xsrf")},
+                   allow_redirects=False, timeout=30, verify=ca)
+        assert r.status_code == 302 and r.headers["Location"] == "/"
+    finally:
+        server.stop()

@@ -24,7 +24,8 @@ from labrig.classroom.certs import security
 from labrig.classroom.remote import RemoteBench, Scheduler
 from labrig.classroom.roster import ClassRoom
 from labrig.classroom.seats import Booking, Seats
-from labrig.lab.station import Station, Turns
+from labrig.lab.station import Station
+from labrig.lab.turns import Turns
 
 
 def server_log(line: str) -> None:

@@ -22,7 +22,8 @@ import labrig.verbs as lr
 import labrig.verbs.figures as lrf
 from labrig.lab.explore import Explorer, under_lock
 from labrig.lab.plan_form import PlanForm
-from labrig.lab.station import LIVE_POINTS, Station
+from labrig.lab.live import LIVE_POINTS
+from labrig.lab.station import Station
 from labrig.lab.words import (asking_html, esc, evidence_html, forming_html, set_text,
                               why_not)
 

@@ -7,11 +7,8 @@ session owns the rig at a time; the others watch.
 """
 from __future__ import annotations
 
-import collections
-import itertools
 import threading
 import time
-from dataclasses import dataclass, field
 from types import SimpleNamespace
 from pathlib import Path
 
@@ -20,41 +17,8 @@ import numpy as np
 import labrig.verbs as lr
 from labrig.core.errors import Interrupted, LabrigError
 from labrig.lab import jobs
+from labrig.lab.live import Live
 from labrig.lab.worker import Worker
-
-#: samples kept for the live view per channel (decimated for display only)
-LIVE_POINTS = 4000
-
-
-@dataclass
-class Live:
-    """The run coming in: decimated for the view; counters as the bridge reports them."""
-
-    name: str = ""
-    n_planned: int = 0
-    t: collections.deque = field(default_factory=lambda: collections.deque(maxlen=LIVE_POINTS))
-    u: collections.deque = field(default_factory=lambda: collections.deque(maxlen=LIVE_POINTS))
-    speed: collections.deque = field(default_factory=lambda: collections.deque(maxlen=LIVE_POINTS))
-    pos: collections.deque = field(default_factory=lambda: collections.deque(maxlen=LIVE_POINTS))
-    samples: int = 0
-    counters: dict = field(default_factory=dict)
-    #: points appended so far (the deques keep the last LIVE_POINTS): a page sends only
-    #: the points it has not shown (:meth:`since`)
-    points: int = 0
-    lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
-
-    def since(self, shown: int) -> tuple[dict, int]:
-        """The points after the first ``shown`` (at most the last LIVE_POINTS), as
-        arrays per channel, and the count now; taken under the lock the sweep appends
-        under, so the channels stay the same length."""
-        with self.lock:
-            k = min(self.points - shown, len(self.t))
-            cols = {"t": _tail(self.t, k), "u": _tail(self.u, k)}
-            for key in ("speed", "pos"):
-                d = getattr(self, key)
-                cols[key] = _tail(d, k) if d else np.zeros(k)
-            return cols, self.points
-
 
 class Station:
     """The rig, the folder and the loop of one lab bench.
@@ -256,7 +220,7 @@ class Station:
             self.cores.ask(self)
 
     _waiting = None
-    #: the class's turns for the cores (:class:`Turns`), or None: the job starts at once
+    #: the class's turns for the cores (:class:`~labrig.lab.turns.Turns`), or None: the job starts at once
     cores = None
 
     def start_waiting(self) -> bool:
@@ -481,55 +445,3 @@ class Station:
         self.worker.close()
         for f in self.on_close:
             f()
-
-
-class Turns:
-    """Stations taking turns for the server's cores, first come first served: at most
-    ``slots`` jobs run at once, the others wait in the order they were asked (a class's
-    fits queued fairly: no student's click waits behind another's next one).
-
-    Parameters
-    ----------
-    slots : int
-        Jobs run at once (the server's cores).
-    """
-
-    def __init__(self, slots: int):
-        self.slots = max(1, int(slots))
-        self._running: list = []
-        self._waiting: collections.deque = collections.deque()
-        self._lock = threading.Lock()
-
-    def ask(self, station) -> None:
-        """``station`` has a job waiting: its turn now if a core is free, else later."""
-        with self._lock:
-            if station not in self._waiting:
-                self._waiting.append(station)
-        self.tick()
-
-    def tick(self) -> None:
-        """Free the turns of finished jobs and start the next waiting ones (the server's
-        timer and the pages call this; cheap)."""
-        with self._lock:
-            self._running = [s for s in self._running if s.worker.busy]
-            while len(self._running) < self.slots and self._waiting:
-                st = self._waiting.popleft()
-                if st.start_waiting():
-                    self._running.append(st)
-
-    def ahead(self, station) -> int:
-        """Jobs before ``station``'s: the running ones and those waiting before it."""
-        with self._lock:
-            waiting = list(self._waiting)
-            k = waiting.index(station) if station in waiting else 0
-            return len(self._running) + k
-
-    def forget(self, station) -> None:
-        with self._lock:
-            if station in self._waiting:
-                self._waiting.remove(station)
-
-
-def _tail(d: collections.deque, k: int) -> np.ndarray:
-    """The last ``k`` items of ``d``."""
-    return np.fromiter(itertools.islice(d, len(d) - k, None), float, k)
