@@ -35,7 +35,7 @@ class Live:
         arrays per channel, and the count now; taken under the lock the sweep appends
         under, so the channels stay the same length."""
         with self.lock:
-            k = min(self.points - shown, len(self.t))
+            k = min(max(self.points - shown, 0), len(self.t))
             cols = {"t": _tail(self.t, k), "u": _tail(self.u, k)}
             for key in ("speed", "pos"):
                 d = getattr(self, key)

@@ -259,13 +259,12 @@ class LabPage:
         if not self.owner and self.may_drive and st.claim(self.session):   # the owner left
             self._set_owner(True)
         live = st.live
-        shown = (id(live), live.samples)
-        if shown != self._live_shown:   # only what changed goes to the browser (a slider's
-            # move should not wait behind an unchanged run): a new run whole, then only
-            # its new points, streamed (a class's thirty pages resent 4000 points each
-            # ten times a second)
-            new_run = self._live_shown is None or shown[0] != self._live_shown[0]
-            self._live_shown = shown
+        # only what changed goes to the browser (a slider's move should not wait behind an
+        # unchanged run): a new run whole, then only its new points, streamed (a class's
+        # thirty pages resent 4000 points each ten times a second)
+        if live is not self._live_shown or live.points != self._points:
+            new_run = live is not self._live_shown   # (the object itself: an id is reused)
+            self._live_shown = live
             cols, self._points = live.since(0 if new_run else self._points)
             if new_run:
                 self.src.data = cols
