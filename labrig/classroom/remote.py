@@ -32,6 +32,8 @@ from labrig.core.schemas import RUN_NAME_RE
 
 #: what this process holds when it serves a bench: {name: (rig, make_bridge, realtime)}
 _HELD: dict = {}
+#: how long a bench PC tries to reach (or waits to hear again from) the class scheduler
+CONNECT_S = 30.0
 #: how often the bench sends the samples it has (the page refreshes as often)
 SEND_S = 0.1
 
@@ -55,16 +57,25 @@ def serve_bench(address: str, bench: str, rig, make_bridge, close, security, *,
     _HELD[bench] = (rig, make_bridge, realtime)
 
     async def run():
+        # death_timeout: a scheduler not reached (or lost) for this long ends the bench's
+        # process, with a line saying so, instead of retrying forever
         async with Worker(address, security=security, nthreads=1, name=resource(bench),
                           resources={resource(bench): 1}, dashboard=False,
-                          memory_limit=0) as w:
+                          memory_limit=0, death_timeout=CONNECT_S) as w:
             log(f"serving {bench} to {address} (worker {w.address}); Ctrl-C stops it")
             await w.finished()
+        log(f"stopped serving {bench}: the class server closed, or was not heard from "
+            f"for {CONNECT_S:.0f} s")
 
     try:
         asyncio.run(run())
     except KeyboardInterrupt:
         pass
+    except (OSError, TimeoutError, asyncio.TimeoutError) as exc:
+        raise RigError(f"{address}: the class server's scheduler did not answer within "
+                       f"{CONNECT_S:.0f} s ({type(exc).__name__}); is `labrig class serve` "
+                       "running there, the address and port right, the port open to this "
+                       "PC?") from None
     finally:
         _HELD.pop(bench, None)
         close()
