@@ -5,12 +5,11 @@ from __future__ import annotations
 
 import os
 import re
-import signal
 import subprocess
 import sys
 from pathlib import Path
 
-from lab_page import free_port
+from lab_page import free_port, stop_process
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -61,12 +60,6 @@ class ClassProc:
         return self.log.read_text().splitlines()
 
     def stop(self) -> int:
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGINT)
-            try:
-                self.proc.wait(30)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait(10)
+        code = stop_process(self.proc)
         self._err.close()
-        return self.proc.returncode
+        return code

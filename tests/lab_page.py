@@ -5,7 +5,9 @@ from __future__ import annotations
 
 import re
 import shutil
+import signal
 import socket
+import subprocess
 import time
 from pathlib import Path
 
@@ -34,6 +36,18 @@ DRAWN = r"""() => { const doc = Bokeh.documents.find(d => d.get_model_by_name("r
   const col = k => src.data.get ? src.data.get(k) : src.data[k];
   const t = col("t"), m = col("model");
   return [x.start, x.end, t.length, t[1] - t[0], Array.from(m).reduce((a, b) => a + b, 0)]; }"""
+
+
+def stop_process(proc) -> int:
+    """End a server we started, by its PID: Ctrl-C (SIGINT), then SIGKILL after 30 s."""
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.wait(30)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(10)
+    return proc.returncode
 
 
 def free_port() -> int:

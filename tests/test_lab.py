@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import json
 import re
-import signal
 import subprocess
 import sys
 import time
@@ -17,7 +16,7 @@ from pathlib import Path
 import pytest
 
 from conftest import labrig
-from lab_page import ARTEFACTS, DRAWN, DRAWN_READY, WORDS, Page, free_port
+from lab_page import ARTEFACTS, DRAWN, DRAWN_READY, WORDS, Page, free_port, stop_process
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -42,14 +41,7 @@ class Server:
         self.url = re.search(r"http://\S+/", line).group(0)
 
     def stop(self) -> int:
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGINT)
-            try:
-                self.proc.wait(30)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait(10)
-        return self.proc.returncode
+        return stop_process(self.proc)
 
 
 def test_a_run_streams_in_and_stop_keeps_every_finished_run(browser, tmp_path):

@@ -71,16 +71,22 @@ def serve(station: Station, *, host: str = "127.0.0.1", port: int = 5006,
 
     threading.Thread(target=lr.warm_up, kwargs={"load": False}, name="labrig-import",
                      daemon=True).start()
+    run(server, url, open_browser, station.close)
+
+
+def run(app, url: str, open_browser: bool, close) -> None:
+    """Start the Panel server ``app`` and its IO loop until Ctrl-C (or the loop is
+    stopped); ``close()`` then leaves the rigs at 0 V, before the server stops."""
     if open_browser:
         import webbrowser
 
-        server.io_loop.add_callback(lambda: webbrowser.open(url))
+        app.io_loop.add_callback(lambda: webbrowser.open(url))
     try:
-        server.start()
-        server.io_loop.start()
+        app.start()
+        app.io_loop.start()
     finally:
-        station.close()
-        server.stop()
+        close()
+        app.stop()
 
 
 def class_app(server, *, log=None):
@@ -166,14 +172,4 @@ def serve_class(server, *, open_browser: bool = False, log=None) -> None:
     # SIGTERM (a service manager's stop) ends the server as Ctrl-C does: benches at 0 V
     signal.signal(signal.SIGTERM, lambda *_: app.io_loop.add_callback_from_signal(
         app.io_loop.stop))
-    if open_browser:
-        import webbrowser
-
-        app.io_loop.add_callback(lambda: webbrowser.open(url))
-    try:
-        app.start()
-        app.io_loop.start()
-    finally:
-        expiry.stop()
-        server.close()
-        app.stop()
+    run(app, url, open_browser, lambda: (expiry.stop(), server.close()))
