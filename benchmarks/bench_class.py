@@ -281,10 +281,7 @@ def _fits(stations) -> list[float]:
         st.submit("fit", jobs.fit, [st.folder])
     left, out = dict(enumerate(stations)), {}
     while left:
-        for st in stations:
-            if st.cores is not None:
-                st.cores.tick()
-                break
+        stations[0].cores.tick()   # (the class's turns: every station's)
         for k, st in list(left.items()):
             if st.waiting_note() == "" and not st.worker.busy:
                 out[k] = time.monotonic() - t0

@@ -92,7 +92,7 @@ def play_on_bench(bench: str, plan, key: str) -> str:
     pending: list = []
     lock = threading.Lock()
     done = threading.Event()
-    state = {"counters": {}}
+    held: dict = {}   # the bridge, once it is open (its counters go with the samples)
 
     def on_block(blk):
         with lock:
@@ -106,7 +106,7 @@ def play_on_bench(bench: str, plan, key: str) -> str:
                              else np.concatenate([getattr(b, k) for b in blocks]).tolist())
             queue.put({"kind": "samples", "index": cat("index"), "u": cat("u"),
                        "tacho": cat("tacho"), "pos": cat("pos"),
-                       "counters": state["counters"]})
+                       "counters": dict(held["bridge"].counters()) if held else {}})
 
     def pump():   # the samples out every SEND_S; the server's Stop in
         while not done.is_set():
@@ -131,15 +131,7 @@ def play_on_bench(bench: str, plan, key: str) -> str:
         pumper = threading.Thread(target=pump, name="labrig-bench-pump", daemon=True)
         pumper.start()
         try:
-            bridge = lr.live(make(), on_block, realtime=realtime, stop=stop)
-            state["counters"] = bridge.counters()
-            orig = bridge.counters
-
-            def counters():
-                state["counters"] = dict(orig())
-                return state["counters"]
-
-            bridge.counters = counters
+            bridge = held["bridge"] = lr.live(make(), on_block, realtime=realtime, stop=stop)
             lr.play(bridge, plan, rig, outdir, on_start=on_start, on_done=on_done)
             note = "done"
         except Interrupted as exc:
@@ -245,7 +237,8 @@ class RemoteBench:
         return self.bench in self.scheduler.benches_online()
 
     def play(self, plan, outdir: Path, *, on_start, on_block, on_done, stop) -> str:
-        """Play ``plan`` on the bench: its samples to ``on_block(block, counters)``, each
+        """Play ``plan`` on the bench: its samples (and the link's counters) to
+        ``on_block(message)``, each
         finished run written (atomically) to ``outdir`` and told to ``on_done(name)``;
         ``stop`` (a threading.Event) stops it at 0 V. Returns the bench's note.
 

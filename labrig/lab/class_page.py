@@ -68,7 +68,6 @@ class _ClassView:
 
     def refresh(self) -> None:
         self._tick += 1
-        self.srv.turns.tick()
         if self._tick % SLOW_EVERY == 1 and not self._alive():
             return self.expire()
         if self.watched is not None:
@@ -173,8 +172,8 @@ class StudentPage(_ClassView):
         if self.lab is None:
             return ""
         for b in self.srv.benches.values():
-            if b.note.startswith(f"{self.user}:"):
-                return f"Your last booking ended ({b.name}: {b.note.split(': ', 1)[1]})."
+            if b.ended and b.ended[0] == self.user:
+                return f"Your last booking ended ({b.name}: {b.ended[1]})."
         return ""
 
     def refresh(self) -> None:

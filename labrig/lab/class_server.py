@@ -46,11 +46,16 @@ class Bench:
     close: object
     station: Station | None = None
     booking: Booking | None = None
-    #: what the bench's last booking ended by (shown to the instructor)
-    note: str = ""
+    #: how the bench's last booking ended: (student, what ended it and what was kept)
+    ended: tuple = ()
     watchers: set = field(default_factory=set)
     #: a bench on another PC (its sweeps played there, through the class's scheduler)
     remote: RemoteBench | None = None
+
+    @property
+    def note(self) -> str:
+        """How its last booking ended, in words (the instructor's table)."""
+        return ": ".join(self.ended)
 
 
 class ClassServer:
@@ -118,7 +123,7 @@ class ClassServer:
                                     realtime=self.realtime and b.kind == "sim",
                                     remote=b.remote)
                 b.station.cores = self.turns   # the class's fits take turns
-                b.booking, b.note = booking, ""
+                b.booking, b.ended = booking, ()
                 self.log(f"{student} took {b.name} until "
                          f"{time.strftime('%H:%M', time.localtime(booking.until))}")
             return b.station
@@ -150,7 +155,7 @@ class ClassServer:
             st.stop()           # STOP and ZERO; a run in progress is not written
             kept = len(st.runs_on_disk())
             st.close()
-            b.note = f"{booking.student}: {why}; {kept} run(s) kept"
+            b.ended = (booking.student, f"{why}; {kept} run(s) kept")
         self.log(f"{booking.student}'s booking of {b.name} ended: {why} (rig at 0 V)")
 
     def stop_bench(self, bench: str, by: str) -> None:
@@ -255,9 +260,8 @@ class ClassServer:
 
 def _scheduler(room: ClassRoom):
     """The class's Dask scheduler for its bench PCs: TLS only, the class's certificates."""
-    folder = room.resolve(room.server.certs)
-    return Scheduler(room.server.host, room.server.dask_port, security(folder, "server"),
-                     security(folder, "server"))
+    sec = security(room.resolve(room.server.certs), "server")   # its scheduler and client
+    return Scheduler(room.server.host, room.server.dask_port, sec, sec)
 
 
 def _state(st: Station) -> str:
