@@ -374,3 +374,16 @@ def test_the_server_speaks_https_with_the_certificate_the_class_file_gives(tmp_p
         assert r.status_code == 302 and r.headers["Location"] == "/"
     finally:
         server.stop()
+
+
+def test_a_password_file_spoilt_while_the_class_runs_refuses_logins_in_one_line(tmp_path):
+    server = ClassProc(write_class(tmp_path))
+    try:
+        (tmp_path / "class_passwords.json").write_text("{not json")
+        s, r = _login(server.url, "ana", PASSWORDS["ana"])
+        assert r.status_code == 302 and "unreadable" in r.headers["Location"]
+        assert "user" not in s.cookies
+    finally:
+        server.stop()
+    log = server.log.read_text()
+    assert "password file is not valid JSON" in log and "Traceback" not in log

@@ -20,6 +20,7 @@ from tornado.web import decode_signed_value
 from tornado.websocket import WebSocketHandler
 
 from labrig.classroom.passwords import check_password, read_passwords
+from labrig.core.errors import LabrigError
 
 _PAGE = """<!DOCTYPE html><html><head><meta charset="utf-8"><title>labrig class: {title}</title>
 <style>body{{font-family:sans-serif;max-width:26em;margin:4em auto;color:#222}}
@@ -70,7 +71,13 @@ class ClassLoginHandler(BasicLoginHandler):
     def post(self):
         user = self.get_argument("username", "")[:64]
         password = self.get_argument("password", "")[:1024]
-        hashes = read_passwords(self.room.passwords)
+        try:   # (read at each login: a password set while the class runs counts at once)
+            hashes = read_passwords(self.room.passwords)
+        except LabrigError as exc:   # spoilt since the server started: no one logs in
+            self.log(f"refused: a login for {user[:32]!r}: {str(exc).splitlines()[0]}")
+            self.redirect("/login?error=The+class's+password+file+is+unreadable;+ask+your+"
+                          "instructor.")
+            return
         known = self.room.role(user) is not None
         if check_password(password, hashes.get(user)) and known:
             self.set_current_user(user)
