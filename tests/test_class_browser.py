@@ -50,7 +50,9 @@ def test_two_students_and_an_instructor_share_a_class(browser, tmp_path):
         ana.click(".lab-take")
         ana.page.wait_for_selector(".lab-start", timeout=60000)
         ana.wait(lambda: "You hold bench1" in ana.text(".lab-seat"), 30, "ana's seat")
-        ana.page.locator(".lab-amplitudes input").fill("1.0, 1.5")
+        # four runs of 8 s: the instructor's Stop below lands mid-sweep however slow the
+        # machine is between ana's first run and kim's click
+        ana.page.locator(".lab-amplitudes input").fill("1.0, 1.5, 2.0, 2.5")
         ana.page.locator(".lab-periods input").first.fill("2")
         ana.click(".lab-start")
         ana.wait(lambda: "running" in ana.text(".lab-counters"), 60, "ana's sweep")
@@ -143,7 +145,10 @@ def test_two_students_and_an_instructor_share_a_class(browser, tmp_path):
     finally:
         server.stop()
     # each student's runs in their own folder, whole; nothing of one in the other's
-    assert _runs(runs / "ana" / "bench1") == ["sq_1.00V.csv"]
+    # the runs finished before the Stop, whole; the one it ended is not kept
+    kept = _runs(runs / "ana" / "bench1")
+    sweep = ["sq_1.00V.csv", "sq_1.50V.csv", "sq_2.00V.csv", "sq_2.50V.csv"]
+    assert kept and kept == sweep[:len(kept)] and len(kept) < len(sweep), kept
     assert _runs(runs / "ben" / "bench2") == [] and not (runs / "ben" / "bench1").exists()
     log = server.log.read_text()
     refused = [line for line in log.splitlines() if "refused: ben" in line]
@@ -195,7 +200,9 @@ def test_a_student_on_the_emulated_board_in_a_class(browser, tmp_path):
         ana.click(".lab-take")
         ana.page.wait_for_selector(".lab-start", timeout=60000)
         ana.page.locator(".lab-amplitudes input").fill("1.5")
-        ana.page.locator(".lab-periods input").first.fill("1")
+        # two periods (8.5 s): the instructor's table, refreshed twice a second, sees it
+        # play however slow the machine
+        ana.page.locator(".lab-periods input").first.fill("2")
         time.sleep(3)   # the bench's fitting process started with the booking
         ana.click(".lab-start")
         kim.wait(lambda: re.search(r"emu .*emulated board.*ana .*playing",
@@ -209,4 +216,4 @@ def test_a_student_on_the_emulated_board_in_a_class(browser, tmp_path):
     from labrig.io.runs import read_run
 
     run = read_run(tmp_path / "class_runs" / "ana" / "emu" / "sq_1.50V.csv")
-    assert len(run) == 4500 and ("gap" not in run.data or run.data["gap"].sum() == 0)
+    assert len(run) == 8500 and ("gap" not in run.data or run.data["gap"].sum() == 0)
