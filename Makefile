@@ -19,9 +19,10 @@ demo: $(STAMP)          ## the main job on the simulated rig -> demo_out/report.
 	$(BIN)/labrig demo -o demo_out
 
 test: $(STAMP)          ## the whole test suite on both cores (firmware and browser tests need the AVR toolchain and Chromium)
-	$(BIN)/python -m pytest -q -n 2 --dist load --durations=40 -m "not firmware"
+	$(BIN)/python -m pytest -q -n 2 --dist worksteal --durations=40 -m "not firmware"
 	# the emulated board runs in real time: its tests get the machine to themselves (beside
-	# the other worker's fits it dropped samples in 3 of 7 runs on 2 cores)
+	# the other worker's fits it dropped samples in 3 of 7 runs on 2 cores; beside the
+	# kernels' reruns at the lowest priority, nice 19, it still lost samples in 2 tests)
 	$(BIN)/python -m pytest -q -m firmware
 	$(MAKE) test-kernels
 
@@ -29,15 +30,15 @@ test: $(STAMP)          ## the whole test suite on both cores (firmware and brow
 # picks one at run time; OPENBLAS_CORETYPE forces it): the quoted figures, the same-answer
 # tests and the screen's equivalence tests must give the same answers under each
 test-kernels: $(STAMP)  ## the kernels-marked tests under OpenBLAS's Prescott (SSE3, no FMA) and Nehalem kernels
-	OPENBLAS_CORETYPE=Prescott $(BIN)/python -m pytest -q -n 2 --dist load -m "kernels and not firmware"
-	OPENBLAS_CORETYPE=Nehalem $(BIN)/python -m pytest -q -n 2 --dist load -m "kernels and not firmware"
+	OPENBLAS_CORETYPE=Prescott $(BIN)/python -m pytest -q -n 2 --dist worksteal -m "kernels and not firmware"
+	OPENBLAS_CORETYPE=Nehalem $(BIN)/python -m pytest -q -n 2 --dist worksteal -m "kernels and not firmware"
 
 # the end-to-end loop files (diagnose, propose, plants, real rigs, sheets, report) are left
 # to `make test`; what is left runs in about two minutes on 2 cores
 QUICK_SKIP := $(foreach f,diagnose propose plants real_rigs recordings exercises report,--ignore=tests/test_$(f).py)
 
 test-quick: $(STAMP)    ## about two minutes: no slow, firmware, browser or end-to-end loop tests
-	$(BIN)/python -m pytest -q -n 2 --dist load -m "not slow and not firmware and not browser" $(QUICK_SKIP)
+	$(BIN)/python -m pytest -q -n 2 --dist worksteal -m "not slow and not firmware and not browser" $(QUICK_SKIP)
 
 firmware:               ## build both boards and run the C unit tests
 	$(MAKE) -C firmware all test

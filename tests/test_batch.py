@@ -183,10 +183,16 @@ class _Fatal(Analyse):
         return super().run(folder, options)
 
 
-def test_a_killed_worker_costs_only_its_folder(class_dir, tmp_path):
+def test_a_killed_worker_costs_only_its_folder(class_dir, tmp_path, monkeypatch):
     """A worker killed under one folder: that folder is a failed row saying so, a folder
     whose worker died once is run again and kept, every other row is there, and the
-    table is written."""
+    table is written; the killed workers' copies of the folders are not left behind."""
+    import tempfile
+
+    scratch = tmp_path / "scratch"
+    scratch.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(scratch))   # this process's
+    monkeypatch.setenv("TMPDIR", str(scratch))               # the workers'
     src = _folders(class_dir)[1]
     names = ["s1", "flaky", "s2", "poison", "s3", "s4"]
     folders = []
@@ -213,6 +219,7 @@ def test_a_killed_worker_costs_only_its_folder(class_dir, tmp_path):
         table = list(csv.DictReader(f))
     assert [r["status"] for r in table] == ["ok", "ok", "ok", "failed", "ok", "ok"]
     assert tmp_path / "out" / "results.json" in written
+    assert not list(scratch.iterdir())
 
 
 @pytest.mark.slow

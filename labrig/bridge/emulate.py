@@ -257,8 +257,9 @@ class Emulator:
     def start(self, timeout: float = 10.0) -> str:
         """Start the harness; return the pty path (its first line of stdout)."""
         cmd = self.command()
-        # stderr to a file: simavr chats there and an unread pipe would stall it
-        self._log = tempfile.NamedTemporaryFile(prefix="labrig-emu-", suffix=".log", delete=False)
+        # stderr to a file: simavr chats there and an unread pipe would stall it. A file
+        # without a name: it goes with the last process that holds it, however that ends
+        self._log = tempfile.TemporaryFile(prefix="labrig-emu-", suffix=".log")
         self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=self._log, text=True,
                                      start_new_session=True)
         deadline = time.monotonic() + timeout
@@ -272,9 +273,10 @@ class Emulator:
 
     def log_text(self) -> str:
         """What the harness wrote to stderr so far."""
-        try:
-            return Path(self._log.name).read_text(errors="replace") if self._log else ""
-        except OSError:
+        try:   # (pread: the harness writes through the same offset, which must not move)
+            fd = self._log.fileno()
+            return os.pread(fd, os.fstat(fd).st_size, 0).decode(errors="replace")
+        except (AttributeError, OSError, ValueError):   # no log yet, or closed
             return ""
 
     def behind_s(self) -> float:
@@ -307,10 +309,6 @@ class Emulator:
                 p.stdout.close()
         if self._log is not None:
             self._log.close()
-            try:
-                os.unlink(self._log.name)
-            except OSError:
-                pass
             self._log = None
 
     def __enter__(self) -> "Emulator":

@@ -176,10 +176,12 @@ def read_folder(folder: Path) -> dict[str, bytes]:
 
 
 def run_one(task: "str | Task", name: str, files: dict, options: dict, threads: int = 0,
-            shown: str = "") -> dict:
-    """One folder on a worker: its files in a private temporary folder, the task (a name
-    in :data:`TASKS` or a :class:`Task`), and a row (never an exception: a failure is a
-    row with its message, which names the folder as the user gave it, ``shown``)."""
+            shown: str = "", tmp_root: str | None = None) -> dict:
+    """One folder on a worker: its files in a private temporary folder (inside
+    ``tmp_root`` when given: the batch's own, which it removes even if a worker was
+    killed), the task (a name in :data:`TASKS` or a :class:`Task`), and a row (never an
+    exception: a failure is a row with its message, which names the folder as the user
+    gave it, ``shown``)."""
     t0 = time.perf_counter()
     folder = None
     if threads:
@@ -187,7 +189,7 @@ def run_one(task: "str | Task", name: str, files: dict, options: dict, threads: 
 
         numba.set_num_threads(max(1, min(threads, numba.config.NUMBA_NUM_THREADS)))
     try:
-        with tempfile.TemporaryDirectory(prefix="labrig-batch-") as tmp:
+        with tempfile.TemporaryDirectory(prefix="labrig-batch-", dir=tmp_root) as tmp:
             folder = Path(tmp) / name
             folder.mkdir()
             for fname, data in files.items():
@@ -331,24 +333,29 @@ def _joblib(jobs, task, work, options, threads):
     # loky: ~0.17 s to import, only for a pool (jobs > 1)
     from joblib.externals.loky import get_reusable_executor
 
-    try:
-        lost = yield from _pool_round(jobs, task, work, options, threads)
-        if lost:
-            lost = yield from _pool_round(min(jobs, len(lost)), task, lost, options, threads)
-        for item in lost:
-            again = yield from _pool_round(1, task, [item], options, threads)
-            if again:
-                yield item[0], {"status": "failed", "figures": {}, "files": {},
-                                "seconds": 0.0, "error": WORKER_DIED}
-    finally:
-        # idle workers outlive the batch by loky's idle timeout (5 min) and hold the
-        # caller's stdout open meanwhile: `labrig batch ... | cat` would not return
-        get_reusable_executor().shutdown(wait=True)
+    # the workers' folders inside one of the batch's: a killed worker's goes with it
+    with tempfile.TemporaryDirectory(prefix="labrig-batch-") as root:
+        run = (task, options, threads, root)
+        try:
+            lost = yield from _pool_round(jobs, run, work)
+            if lost:
+                lost = yield from _pool_round(min(jobs, len(lost)), run, lost)
+            for item in lost:
+                again = yield from _pool_round(1, run, [item])
+                if again:
+                    yield item[0], {"status": "failed", "figures": {}, "files": {},
+                                    "seconds": 0.0, "error": WORKER_DIED}
+        finally:
+            # idle workers outlive the batch by loky's idle timeout (5 min) and hold the
+            # caller's stdout open meanwhile: `labrig batch ... | cat` would not return
+            get_reusable_executor().shutdown(wait=True)
 
 
-def _pool_round(jobs, task, work, options, threads):
-    """Yield the rows of ``work`` run on a pool of ``jobs``; return the items whose worker
+def _pool_round(jobs, run, work):
+    """Yield the rows of ``work`` run on a pool of ``jobs`` (``run``: the task, its options,
+    the threads per worker, the workers' temporary root); return the items whose worker
     died (the pool breaks for all of them at once)."""
+    task, options, threads, root = run
     # only for a pool: concurrent.futures.process ~0.015 s, loky ~0.17 s to import
     from concurrent.futures import as_completed
     from concurrent.futures.process import BrokenProcessPool
@@ -356,8 +363,8 @@ def _pool_round(jobs, task, work, options, threads):
     from joblib.externals.loky import get_reusable_executor
 
     executor = get_reusable_executor(max_workers=jobs)
-    futures = {executor.submit(_tagged, item[0], task, *item[1:3], options, threads, item[3]):
-               item for item in work}
+    futures = {executor.submit(_tagged, item[0], task, *item[1:3], options, threads, item[3],
+                               root): item for item in work}
     lost = []
     for fut in as_completed(futures):
         try:
