@@ -230,3 +230,61 @@ def test_the_hand_view_waits_for_the_diagnosis_and_a_cancel_still_builds_it(tmp_
         assert page.explore.model.params == st.rungs[-1]["model"]["params"]
     finally:
         st.close()
+
+
+@pytest.mark.slow
+def test_a_diagnosis_that_places_the_model_better_offers_that_model_as_the_next_rung(tmp_path):
+    """Nothing left to add, but the candidates' re-fits found better values of the model's
+    own parameters (the EMPS-shaped twin, its search's model with M 10 % heavier): the
+    station offers the model ``labrig diagnose -o`` writes, and taking it makes it the
+    next rung as it stands, with the error lower than the model it replaces."""
+    from dataclasses import replace
+
+    from conftest import labrig
+    from twin import emps_like_axis
+
+    import labrig as lr
+    from labrig.diagnosis.loop.search import search
+    from labrig.io.runs import read_dataset
+    from labrig.lab import jobs
+    from labrig.lab.page import LabPage
+    from labrig.lab.serve import make_station
+
+    src = emps_like_axis(tmp_path / "export")
+    folder = tmp_path / "runs"
+    labrig("import", src, "-o", folder, "--map", "t=t,u=vir,pos=qm", "--axis", "linear",
+           "--drive", "force", "--input-gain", "35.15065", "--pos-unit", "m", check=0)
+    runs = read_dataset(folder)
+    auto = search(runs).model
+    bent = replace(auto, params={**auto.params, "M": 1.1 * auto.params["M"]})
+    st = make_station(folder, port=str(tmp_path / "ttyNONE"))
+    try:
+        with pytest.raises(lr.LabrigError, match="no better values"):
+            st.take_refined()                          # no diagnosis yet
+        st.submit("fit", jobs.fit, [folder], bent.to_json(), as_is=True)
+        _poll_until(st, lambda: st.diagnosis is not None)
+        d = st.diagnosis
+        assert d["recommendation"] is None and d["refined"] is not None, d["verdict"]
+        assert "re-fitted to better values" in d["verdict"]
+        cli = lr.diagnose(runs, bent).recommended_model()     # what diagnose -o writes
+        assert st.rungs[0]["model"]["params"]["M"] == pytest.approx(bent.params["M"])
+        page = LabPage(st, "s1")     # the page's own components: its button offers it
+        page.refresh()
+        assert page.refined_btn.visible and not page.refined_btn.disabled
+        watcher = LabPage(st, "s2", may_drive=False)
+        watcher.refined_btn.clicks += 1                # a watcher's click: refused
+        assert st.idle() and len(st.rungs) == 1
+        page.refined_btn.clicks += 1
+        _poll_until(st, lambda: len(st.rungs) == 2)
+        taken = st.rungs[1]
+        for k in ("M", "Fv"):
+            assert taken["model"]["params"][k] == pytest.approx(cli.params[k], rel=1e-9), k
+            assert taken["model"]["params"][k] == pytest.approx(auto.params[k], rel=0.02), k
+        assert taken["fit"] is None and sorted(taken["effects"]) == sorted(auto.names)
+        before, after = (r["rmse_over_noise"]["overall"] for r in st.rungs)
+        assert after < before
+        _poll_until(st, st.idle)
+        page.refresh()
+        assert page.refined_btn.visible == (st.diagnosis["refined"] is not None)
+    finally:
+        st.close()

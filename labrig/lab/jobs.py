@@ -36,25 +36,31 @@ def _runs(folders):
     return lr.read_runs([str(f) for f in folders])
 
 
-def fit(folders, model_doc=None, add=(), remove=(), label="", from_here=False) -> dict:
+def fit(folders, model_doc=None, add=(), remove=(), label="", from_here=False,
+        as_is=False) -> dict:
     """A rung: the model (``model_doc``, or the linear model) with ``add`` effects added and
     ``remove`` taken out, fitted on the runs (CO, the lab's seed), with its overlay on the
     worst run (``runs`` names them all; :func:`overlays` draws the others: each figure
     costs about half a second, and the diagnosis should not wait for them).
     ``from_here``: start from ``model_doc``'s values even without effects (values set by
-    hand on the page)."""
+    hand on the page). ``as_is``: ``model_doc`` is fitted already (a diagnosis's re-fit,
+    as ``diagnose -o`` writes it): taken as it stands, ``fit`` None."""
     runs = _runs(folders)
     base = _model(model_doc)
-    for name in remove:
-        base = lr.remove_effect(base, name)
-    if base is not None and not base.names and not add and not from_here:
-        base = None     # back to the linear model: fitted afresh, as identify does
-    ident = lr.identify(runs, effects=list(add), model=base, seed=LAB_SEED)
-    model = ident.model()
+    ident = None
+    if as_is:
+        model = base
+    else:
+        for name in remove:
+            base = lr.remove_effect(base, name)
+        if base is not None and not base.names and not add and not from_here:
+            base = None     # back to the linear model: fitted afresh, as identify does
+        ident = lr.identify(runs, effects=list(add), model=base, seed=LAB_SEED)
+        model = ident.model()
     ev = lr.compare(runs, model)
     worst = ev.worst_run()["name"]
     return {"label": label or "linear model", "model": model.to_json(),
-            "effects": model.names, "fit": ident.to_json(),
+            "effects": model.names, "fit": ident.to_json() if ident is not None else None,
             "rmse_over_noise": ev.metrics["rmse_over_noise"],
             "fit_percent": ev.metrics["fit_percent"],
             "runs": [rr["name"] for rr in ev.per_run], "worst": worst,
@@ -92,7 +98,11 @@ def diagnose(folders, model_doc, log=None) -> dict:
                      "physics": lr.effect(c.effect).summary,
                      # its re-fitted model: a click shows its curves on the runs
                      "model": c.model.to_json() if c.model is not None else None})
+    # nothing to add, but the candidates' re-fits placed the model's own parameters
+    # better: that model (what ``diagnose -o`` writes) is offered as the next rung
+    refined = diag.recommended_model() if diag.recommendation is None else None
     return {"json": diag.to_json(), "rows": rows, "recommendation": diag.recommendation,
+            "refined": refined.to_json() if refined is not None else None,
             "verdict": diag.verdict, "pairs": [p.to_json() for p in pairs],
             "tables": _html(diag.table_rows())}   # (its figure: the page draws it, Bokeh)
 

@@ -124,6 +124,10 @@ class LabPage:
         self.rm_btn = pn.widgets.Button(name="Remove", css_classes=["lab-remove"])
         self.rep_new = pn.widgets.Select(name="by", options=[], width=200)
         self.rep_btn = pn.widgets.Button(name="Replace", css_classes=["lab-replace"])
+        self.refined_btn = pn.widgets.Button(
+            name="Take the better-placed values", button_type="success", visible=False,
+            css_classes=["lab-take-refined"])
+        self.refined_btn.on_click(lambda e: self._do(self.st.take_refined))
         self.add_btn.on_click(lambda e: self._do(self.st.add, self.add_pick.value))
         self.rm_btn.on_click(lambda e: self._do(self.st.remove, self.rm_pick.value))
         self.rep_btn.on_click(lambda e: self._do(self.st.replace, self.rm_pick.value,
@@ -137,12 +141,12 @@ class LabPage:
         self.explore = Explorer(self.st.folders, lambda doc: self._do(self.st.fit_from, doc))
         self._explored = None
         self._drivers += [self.fit_btn, self.auto_btn, self.cancel_btn, self.add_btn,
-                          self.rm_btn, self.rep_btn, self.save_btn, *self.explore.drivers]
+                          self.refined_btn, self.rm_btn, self.rep_btn, self.save_btn, *self.explore.drivers]
         actions = pn.Column(
             pn.Row(self.fit_btn, self.auto_btn, self.cancel_btn), self.status,
             self.forming,
             self.now, pn.pane.Markdown("#### The error falls"), self.ladder_plot, self.ladder,
-            pn.Row(self.add_pick, self.add_btn),
+            pn.Row(self.add_pick, self.add_btn, self.refined_btn),
             pn.Row(self.rm_pick, self.rm_btn, self.rep_new, self.rep_btn),
             self.ranking_plot, self.evidence, pn.Row(self.show_pick, self.show_btn),
             pn.Row(self.save_name, self.save_force, self.save_btn),
@@ -301,8 +305,8 @@ class LabPage:
         # (and set only when it changes: a class's thirty pages each setting twelve
         # unchanged widgets ten times a second cost the server's process a core's third)
         idle = bool(self.owner and not busy and not st.sweeping)
-        for w in (self.fit_btn, self.auto_btn, self.add_btn, self.rm_btn, self.rep_btn,
-                  self.start, self.explore.fit_btn):
+        for w in (self.fit_btn, self.auto_btn, self.add_btn, self.refined_btn, self.rm_btn,
+                  self.rep_btn, self.start, self.explore.fit_btn):
             _disable(w, not idle)
         _disable(self.propose_btn, not idle or not self.pair_pick.options)
         _disable(self.sure_btn, self.propose_btn.disabled)
@@ -386,6 +390,7 @@ class LabPage:
         if st.diagnosis is None and self._drawn_diagnosis is not None:
             self._drawn_diagnosis = None
             self.pair_pick.options = []   # nothing to ask about until the next diagnosis
+            self.refined_btn.visible = False
         if st.diagnosis and st.diagnosis is not self._drawn_diagnosis:
             d = self._drawn_diagnosis = st.diagnosis
             adds = [row["effect"] for row in d["rows"] if row.get("move", "add") == "add"]
@@ -400,6 +405,7 @@ class LabPage:
                 self.rm_pick.value = rec["replaces"] or rec["effect"]
                 if rec["move"] == "replace":
                     self.rep_new.value = rec["effect"]
+            self.refined_btn.visible = d.get("refined") is not None
             self.evidence.object = evidence_html(d)
             self.show_pick.options = [row["label"] for row in d["rows"] if row.get("model")]
             fig = lrf.ranking_view(d["rows"])

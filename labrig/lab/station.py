@@ -262,6 +262,14 @@ class Station:
         """Fit the model the page set by hand, from its values (*Fit from here*)."""
         self.submit("fit", jobs.fit, [self.folder], model_doc, from_here=True)
 
+    def take_refined(self) -> None:
+        """The last diagnosis's better-placed model as the next rung, as it stands (nothing
+        to add, its own parameters re-fitted to better values: ``diagnose -o``'s model)."""
+        doc = (self.diagnosis or {}).get("refined")
+        if doc is None:
+            raise LabrigError("the last diagnosis found no better values to take")
+        self.submit("fit", jobs.fit, [self.folder], doc, as_is=True)
+
     def add(self, effect: str) -> None:
         self.submit("fit", jobs.fit, [self.folder], self.model(), add=[effect])
 
