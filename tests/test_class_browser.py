@@ -29,6 +29,10 @@ ENABLE = r"""cls => { let n = 0;
   return n; }"""
 
 
+#: ana's sweep (2 periods at 0.25 Hz each)
+SWEEP_V = ("1.00", "1.25", "1.50", "1.75", "2.00", "2.25", "2.50")
+
+
 def _as(browser, server, who: str) -> Page:
     return Page(browser, server.url + "/", login=(who, PASSWORDS[who]),
                 ready=".lab-class-header")
@@ -50,9 +54,10 @@ def test_two_students_and_an_instructor_share_a_class(browser, tmp_path):
         ana.click(".lab-take")
         ana.page.wait_for_selector(".lab-start", timeout=60000)
         ana.wait(lambda: "You hold bench1" in ana.text(".lab-seat"), 30, "ana's seat")
-        # four runs of 8 s: the instructor's Stop below lands mid-sweep however slow the
-        # machine is between ana's first run and kim's click
-        ana.page.locator(".lab-amplitudes input").fill("1.0, 1.5, 2.0, 2.5")
+        # seven runs of 8.5 s: the instructor's Stop below lands mid-sweep however slow
+        # the machine is between ana's start and kim's click (13 s here; CI's slower
+        # machine once took longer than two runs)
+        ana.page.locator(".lab-amplitudes input").fill(", ".join(SWEEP_V))
         ana.page.locator(".lab-periods input").first.fill("2")
         ana.click(".lab-start")
         ana.wait(lambda: "running" in ana.text(".lab-counters"), 60, "ana's sweep")
@@ -94,7 +99,7 @@ def test_two_students_and_an_instructor_share_a_class(browser, tmp_path):
         # the instructor sees both benches live
         kim = _as(browser, server, "kim")
         pages.append(kim)
-        kim.wait(lambda: re.search(r"bench1 .*ana .*playing sq_1\.\d0V",
+        kim.wait(lambda: re.search(r"bench1 .*ana .*playing sq_\d\.\d\dV",
                                    kim.text(".lab-class-table")), 60, "bench1 playing")
         row = kim.text(".lab-class-table")
         assert re.search(r"bench2 .* free", row), row
@@ -147,7 +152,7 @@ def test_two_students_and_an_instructor_share_a_class(browser, tmp_path):
     # each student's runs in their own folder, whole; nothing of one in the other's
     # the runs finished before the Stop, whole; the one it ended is not kept
     kept = _runs(runs / "ana" / "bench1")
-    sweep = ["sq_1.00V.csv", "sq_1.50V.csv", "sq_2.00V.csv", "sq_2.50V.csv"]
+    sweep = [f"sq_{v}V.csv" for v in SWEEP_V]
     assert kept and kept == sweep[:len(kept)] and len(kept) < len(sweep), kept
     assert _runs(runs / "ben" / "bench2") == [] and not (runs / "ben" / "bench1").exists()
     log = server.log.read_text()
