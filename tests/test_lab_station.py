@@ -261,7 +261,7 @@ def test_a_diagnosis_that_places_the_model_better_offers_that_model_as_the_next_
     try:
         with pytest.raises(lr.LabrigError, match="no better values"):
             st.take_refined()                          # no diagnosis yet
-        st.submit("fit", jobs.fit, [folder], bent.to_json(), as_is=True)
+        st.submit("fit", jobs.take, [folder], bent.to_json())
         _poll_until(st, lambda: st.diagnosis is not None)
         d = st.diagnosis
         assert d["recommendation"] is None and d["refined"] is not None, d["verdict"]

@@ -36,31 +36,35 @@ def _runs(folders):
     return lr.read_runs([str(f) for f in folders])
 
 
-def fit(folders, model_doc=None, add=(), remove=(), label="", from_here=False,
-        as_is=False) -> dict:
+def fit(folders, model_doc=None, add=(), remove=(), label="", from_here=False) -> dict:
     """A rung: the model (``model_doc``, or the linear model) with ``add`` effects added and
     ``remove`` taken out, fitted on the runs (CO, the lab's seed), with its overlay on the
     worst run (``runs`` names them all; :func:`overlays` draws the others: each figure
     costs about half a second, and the diagnosis should not wait for them).
     ``from_here``: start from ``model_doc``'s values even without effects (values set by
-    hand on the page). ``as_is``: ``model_doc`` is fitted already (a diagnosis's re-fit,
-    as ``diagnose -o`` writes it): taken as it stands, ``fit`` None."""
+    hand on the page)."""
     runs = _runs(folders)
     base = _model(model_doc)
-    ident = None
-    if as_is:
-        model = base
-    else:
-        for name in remove:
-            base = lr.remove_effect(base, name)
-        if base is not None and not base.names and not add and not from_here:
-            base = None     # back to the linear model: fitted afresh, as identify does
-        ident = lr.identify(runs, effects=list(add), model=base, seed=LAB_SEED)
-        model = ident.model()
+    for name in remove:
+        base = lr.remove_effect(base, name)
+    if base is not None and not base.names and not add and not from_here:
+        base = None     # back to the linear model: fitted afresh, as identify does
+    ident = lr.identify(runs, effects=list(add), model=base, seed=LAB_SEED)
+    return _rung(runs, ident.model(), ident.to_json(), label)
+
+
+def take(folders, model_doc) -> dict:
+    """A rung of a model fitted already (a diagnosis's re-fit, as ``diagnose -o`` writes
+    it), as it stands: :func:`fit`'s rung without a fit (``fit`` None)."""
+    runs = _runs(folders)
+    return _rung(runs, _model(model_doc), None, "")
+
+
+def _rung(runs, model, fit_json, label) -> dict:
     ev = lr.compare(runs, model)
     worst = ev.worst_run()["name"]
     return {"label": label or "linear model", "model": model.to_json(),
-            "effects": model.names, "fit": ident.to_json() if ident is not None else None,
+            "effects": model.names, "fit": fit_json,
             "rmse_over_noise": ev.metrics["rmse_over_noise"],
             "fit_percent": ev.metrics["fit_percent"],
             "runs": [rr["name"] for rr in ev.per_run], "worst": worst,

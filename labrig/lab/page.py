@@ -141,7 +141,8 @@ class LabPage:
         self.explore = Explorer(self.st.folders, lambda doc: self._do(self.st.fit_from, doc))
         self._explored = None
         self._drivers += [self.fit_btn, self.auto_btn, self.cancel_btn, self.add_btn,
-                          self.refined_btn, self.rm_btn, self.rep_btn, self.save_btn, *self.explore.drivers]
+                          self.refined_btn, self.rm_btn, self.rep_btn, self.save_btn,
+                          *self.explore.drivers]
         actions = pn.Column(
             pn.Row(self.fit_btn, self.auto_btn, self.cancel_btn), self.status,
             self.forming,

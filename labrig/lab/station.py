@@ -268,7 +268,7 @@ class Station:
         doc = (self.diagnosis or {}).get("refined")
         if doc is None:
             raise LabrigError("the last diagnosis found no better values to take")
-        self.submit("fit", jobs.fit, [self.folder], doc, as_is=True)
+        self.submit("fit", jobs.take, [self.folder], doc)   # a rung, as a fit's
 
     def add(self, effect: str) -> None:
         self.submit("fit", jobs.fit, [self.folder], self.model(), add=[effect])
