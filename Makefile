@@ -18,20 +18,24 @@ $(STAMP): pyproject.toml $(LOCK)
 demo: $(STAMP)          ## the main job on the simulated rig -> demo_out/report.html
 	$(BIN)/labrig demo -o demo_out
 
+# each stage is timed and its JUnit record kept in .suite/ (benchmarks/bench_suite.py)
+STAGE := $(BIN)/python benchmarks/bench_suite.py stage
+
 test: $(STAMP)          ## the whole test suite on both cores (firmware and browser tests need the AVR toolchain and Chromium)
-	$(BIN)/python -m pytest -q -n 2 --dist worksteal --durations=40 -m "not firmware"
+	$(STAGE) non-firmware -- $(BIN)/python -m pytest -q -n 2 --dist worksteal --durations=20 -m "not firmware"
 	# the emulated board runs in real time: its tests get the machine to themselves (beside
 	# the other worker's fits it dropped samples in 3 of 7 runs on 2 cores; beside the
 	# kernels' reruns at the lowest priority, nice 19, it still lost samples in 2 tests)
-	$(BIN)/python -m pytest -q -m firmware
+	$(STAGE) firmware -- $(BIN)/python -m pytest -q --durations=10 -m firmware
 	$(MAKE) test-kernels
+	$(BIN)/python benchmarks/bench_suite.py summary
 
 # Another machine's rounding, stood for by two other OpenBLAS kernels (the wheels' OpenBLAS
 # picks one at run time; OPENBLAS_CORETYPE forces it): the quoted figures, the same-answer
 # tests and the screen's equivalence tests must give the same answers under each
 test-kernels: $(STAMP)  ## the kernels-marked tests under OpenBLAS's Prescott (SSE3, no FMA) and Nehalem kernels
-	OPENBLAS_CORETYPE=Prescott $(BIN)/python -m pytest -q -n 2 --dist worksteal -m "kernels and not firmware"
-	OPENBLAS_CORETYPE=Nehalem $(BIN)/python -m pytest -q -n 2 --dist worksteal -m "kernels and not firmware"
+	OPENBLAS_CORETYPE=Prescott $(STAGE) kernels-prescott -- $(BIN)/python -m pytest -q -n 2 --dist worksteal -m "kernels and not firmware"
+	OPENBLAS_CORETYPE=Nehalem $(STAGE) kernels-nehalem -- $(BIN)/python -m pytest -q -n 2 --dist worksteal -m "kernels and not firmware"
 
 # the end-to-end loop files (diagnose, propose, plants, real rigs, sheets, report) are left
 # to `make test`; what is left runs in about two minutes on 2 cores
@@ -56,4 +60,4 @@ lock:                   ## refresh requirements/lock-py311-linux-x86_64.txt
 	rm -rf .lock-venv build labrig.egg-info
 
 clean:
-	rm -rf demo_out .pytest_cache
+	rm -rf demo_out .pytest_cache .suite

@@ -96,7 +96,8 @@ for (path, _, name), (cc, nc, tt, ct, _) in stats.items():
     key = (path.rsplit("/", 1)[-1], name)
     if key in STAGES and "/labrig/diagnosis/" in path:
         out[STAGES[key]] += ct
-    if name == "identify" and path.endswith("identification/engine.py"):
+    # solve() is the one entry to fitting (identify() builds a problem and calls it)
+    if name == "solve" and path.endswith("identification/engine.py"):
         out["fits"] += nc
     if "/labrig/simulation/" in path and "kernel" in path:
         out["kernels"] += tt   # the compiled simulation (numba's functions run in tottime)

@@ -6,6 +6,7 @@ from labrig.core.parallel import one_blas_thread
 one_blas_thread()  # as the command line does, before numpy is imported
 
 import copy  # noqa: E402
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -21,6 +22,21 @@ from labrig.core.memory import keep_freed_memory
 
 # as the command line does: the fits' arrays stay in the heap between calls
 keep_freed_memory()
+
+import outputs_record  # noqa: E402  (LABRIG_RECORD_OUTPUTS: the kernels' measurement)
+
+outputs_record.install()
+
+# A suite started in the background of a non-interactive shell (nohup, `&`, some CI
+# runners) inherits SIGINT ignored, and so would every command a test starts: the tests
+# of Ctrl-C would then test the launcher. Python's own handler here is reset to the default
+# in each child at exec, as in a terminal.
+if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+
+
+def pytest_sessionfinish(session):
+    outputs_record.write()
 
 ROOT = Path(__file__).resolve().parent.parent
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 import grp
 import json
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -78,24 +79,23 @@ def test_a_port_another_program_holds_is_named(emulators):
     assert r.returncode == 1 and not ok and f"PID {os.getpid()}" in text, text
 
 
-@pytest.mark.skipif(os.geteuid() != 0, reason="dropping to an unprivileged user needs root")
+@pytest.mark.skipif(os.geteuid() != 0, reason="taking a user's rights away needs root")
+@pytest.mark.skipif(shutil.which("setpriv") is None, reason="needs util-linux's setpriv")
 def test_no_permission_on_the_port_names_the_group_to_join(emulators, tmp_path):
-    """As an unprivileged user (nobody) on a port of the dialout group: the doctor names the
-    group and the command. The child imports what it needs before it drops root (the
-    interpreter may live where nobody can read), then runs the command as nobody."""
+    """A user who may not open a port of the dialout group: the doctor names the group and
+    the command. The user is this one with every capability and supplementary group taken
+    away (util-linux's setpriv), on a port owned by nobody: the kernel's own permission
+    checks then refuse it as they refuse any user outside the group, and the code it runs
+    stays readable wherever the clone is (a private 0700 home folder, which nobody itself
+    could not read)."""
     emu = emulators("uno")
     dialout = grp.getgrnam("dialout").gr_gid
-    os.chown(emu.pty, 0, dialout)
+    os.chown(emu.pty, 65534, dialout)
     os.chmod(emu.pty, 0o660)
-    child = (
-        "import os, sys, grp, json\n"
-        "from labrig.cli import build_parser, main\n"
-        "import labrig.bridge.doctor, labrig.bridge.ports, labrig.io.config, labrig.core.fileio\n"
-        "build_parser()\n"
-        "os.setgroups([]); os.setgid(65534); os.setuid(65534)\n"
-        "sys.exit(main(['doctor', '--port', sys.argv[1], '--json']))\n")
-    r = subprocess.run([sys.executable, "-c", child, emu.pty], capture_output=True, text=True,
-                       timeout=60, cwd=tmp_path)
+    r = subprocess.run(["setpriv", "--clear-groups", "--inh-caps=-all", "--ambient-caps=-all",
+                        "--bounding-set=-all", sys.executable, "-m", "labrig", "doctor",
+                        "--port", emu.pty, "--json"],
+                       capture_output=True, text=True, timeout=60, cwd=tmp_path)
     assert r.returncode == 1, r.stderr
     ok, text = _checks(json.loads(r.stdout))["permissions"]
     assert not ok and "sudo usermod -aG dialout $USER" in text, text

@@ -34,6 +34,7 @@ from pathlib import Path
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+import outputs_record  # noqa: E402
 import quoted  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -103,6 +104,7 @@ def run_command(argv: list[str], workdir: Path) -> tuple[subprocess.CompletedPro
     t0 = time.monotonic()
     proc = subprocess.run(cmd, cwd=workdir, env=_env(), capture_output=True, text=True,
                           timeout=600)
+    outputs_record.record(proc.stdout.replace(str(workdir), "WORKDIR"))
     return proc, time.monotonic() - t0
 
 

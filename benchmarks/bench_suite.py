@@ -1,0 +1,223 @@
+"""The test suite's time, stage by stage and test by test.
+
+``make test`` runs each of its stages through ``stage``, which times it and keeps pytest's
+JUnit record of it in ``.suite/`` (``SUITE_DIR`` moves it); ``.ci/run`` times its install
+steps the same way and ends with ``summary``: each stage's wall time and the total against
+CI's 90-minute limit. ``record`` turns the folder into ``benchmarks/results_suite.json``
+(per stage, per file, the 40 slowest tests with what each proves) and ``--markdown`` prints
+the README's record of it. No test asserts on a time: this is where the time is kept.
+
+    python benchmarks/bench_suite.py stage NAME -- pytest ARGS...   # one stage, timed
+    python benchmarks/bench_suite.py summary                         # the stages so far
+    python benchmarks/bench_suite.py record [--note TEXT]            # .suite/ -> results_suite.json
+    python benchmarks/bench_suite.py --markdown                      # the README's record
+
+Only the standard library: ``.ci/run`` times the install before any virtualenv exists.
+"""
+from __future__ import annotations
+
+import argparse
+import ast
+import json
+import os
+import platform
+import subprocess
+import sys
+import time
+import xml.etree.ElementTree as ET
+from collections import defaultdict
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+RESULTS = Path(__file__).resolve().parent / "results_suite.json"
+#: CI's wall: a run of .ci/run that has not finished by then does not land
+CI_LIMIT_S = 90 * 60
+#: the target of the suite's own issue: .ci/run from a fresh clone within half an hour
+TARGET_S = 30 * 60
+SLOWEST = 40
+
+
+def suite_dir() -> Path:
+    return Path(os.environ.get("SUITE_DIR", ROOT / ".suite"))
+
+
+def _stages_file() -> Path:
+    return suite_dir() / "stages.json"
+
+
+def _read_stages() -> list[dict]:
+    f = _stages_file()
+    return json.loads(f.read_text()) if f.is_file() else []
+
+
+def _add_stage(entry: dict) -> None:
+    stages = [s for s in _read_stages() if s["name"] != entry["name"]] + [entry]
+    tmp = _stages_file().with_suffix(".tmp")
+    tmp.write_text(json.dumps(stages, indent=1) + "\n")
+    tmp.replace(_stages_file())
+
+
+def stage(name: str, argv: list[str]) -> int:
+    """Run ``argv`` (a pytest command: its JUnit record goes to ``.suite/NAME.xml``), time
+    it and add it to the stages; returns its exit code."""
+    d = suite_dir()
+    d.mkdir(parents=True, exist_ok=True)
+    if any("pytest" in a for a in argv[:3]):
+        argv = [*argv, f"--junitxml={d / (name + '.xml')}", "-o", "junit_family=xunit1"]
+    load = os.getloadavg()[0]
+    t0 = time.monotonic()
+    rc = subprocess.call(argv)
+    seconds = time.monotonic() - t0
+    _add_stage({"name": name, "seconds": round(seconds, 1), "rc": rc, "load": round(load, 2),
+                "started": time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime(time.time() - seconds))})
+    print(f"[suite] stage {name}: {_mmss(seconds)} (exit {rc})", flush=True)
+    return rc
+
+
+def _mmss(s: float) -> str:
+    return f"{int(s) // 60}:{int(s) % 60:02d}"
+
+
+def summary() -> int:
+    """Each stage's wall time so far and the total against CI's limit."""
+    stages = _read_stages()
+    if not stages:
+        print("[suite] no stage recorded")
+        return 0
+    total = sum(s["seconds"] for s in stages)
+    print("[suite] stage times (wall):")
+    for s in stages:
+        print(f"[suite]   {s['name']:<14} {_mmss(s['seconds']):>6}  (exit {s['rc']}, "
+              f"load {s['load']} at its start)")
+    print(f"[suite]   {'total':<14} {_mmss(total):>6}  = {100 * total / CI_LIMIT_S:.0f} % of CI's "
+          f"90-minute limit (target {TARGET_S // 60} min)", flush=True)
+    return 0
+
+
+# -- the record --------------------------------------------------------------------------
+
+def _docstring_line(nodeid: str, cache: dict) -> str:
+    """What a test proves: the first sentence of its docstring (or of its module's, for a
+    test without one), else its name in words."""
+    path, _, rest = nodeid.partition("::")
+    func = rest.split("[", 1)[0].split("::")[-1]
+    if path not in cache:
+        try:
+            tree = ast.parse((ROOT / path).read_text(encoding="utf-8"))
+        except (OSError, SyntaxError):
+            tree = None
+        cache[path] = tree
+    tree = cache[path]
+    doc = None
+    if tree is not None:
+        for node in ast.walk(tree):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) and node.name == func:
+                doc = ast.get_docstring(node)
+                break
+    if not doc:
+        return func.removeprefix("test_").replace("_", " ")
+    first = " ".join(doc.split("\n\n", 1)[0].split())
+    for end in (". ", ": "):
+        if end in first:
+            first = first.split(end, 1)[0]
+    return first.rstrip(".") if len(first) <= 160 else first[:157].rsplit(" ", 1)[0] + "..."
+
+
+def _cases(xml: Path):
+    for case in ET.parse(xml).getroot().iter("testcase"):
+        cls, name = case.get("classname", ""), case.get("name", "")
+        file = case.get("file") or cls.replace(".", "/") + ".py"
+        # xunit1 gives the file; a class inside it is the last part of classname
+        if not (ROOT / file).is_file() and "/" in file:
+            file = file.rsplit("/", 1)[0] + ".py"
+        outcome = "passed"
+        for tag in ("failure", "error", "skipped"):
+            if case.find(tag) is not None:
+                outcome = {"failure": "failed", "error": "error", "skipped": "skipped"}[tag]
+        yield {"nodeid": f"{file}::{name}", "file": file, "seconds": float(case.get("time", 0)),
+               "outcome": outcome}
+
+
+def record(note: str | None) -> dict:
+    d = suite_dir()
+    stages = _read_stages()
+    out = {"when": stages[0]["started"] if stages else None, "cpus": os.cpu_count(),
+           "python": platform.python_version(), "note": note, "stages": [], "files": {},
+           "slowest": []}
+    docs: dict = {}
+    every = []
+    for s in stages:
+        entry = {k: s[k] for k in ("name", "seconds", "rc", "load")}
+        xml = d / f"{s['name']}.xml"
+        if xml.is_file():
+            cases = list(_cases(xml))
+            entry["tests"] = len(cases)
+            entry["outcomes"] = {o: sum(c["outcome"] == o for c in cases)
+                                 for o in ("passed", "failed", "error", "skipped")}
+            entry["test_seconds"] = round(sum(c["seconds"] for c in cases), 1)
+            by_file = defaultdict(float)
+            for c in cases:
+                by_file[c["file"]] += c["seconds"]
+                every.append({**c, "stage": s["name"]})
+            out["files"][s["name"]] = {f: round(t, 1) for f, t in
+                                       sorted(by_file.items(), key=lambda kv: -kv[1])}
+        out["stages"].append(entry)
+    out["total_s"] = round(sum(s["seconds"] for s in stages), 1)
+    for c in sorted(every, key=lambda c: -c["seconds"])[:SLOWEST]:
+        out["slowest"].append({"test": c["nodeid"], "stage": c["stage"],
+                               "seconds": round(c["seconds"], 1),
+                               "proves": _docstring_line(c["nodeid"], docs)})
+    return out
+
+
+def markdown(res: dict) -> str:
+    stages = " + ".join(f"{s['name']} {_mmss(s['seconds'])}" for s in res["stages"])
+    tests = sum(s.get("tests", 0) for s in res["stages"])
+    lines = [f"The last full run (`python benchmarks/bench_suite.py record` after `.ci/run`, "
+             f"{res['when']}, {res['cpus']} cores, load {res['stages'][0]['load']} at the "
+             f"start): {stages} = **{_mmss(res['total_s'])}** "
+             f"({100 * res['total_s'] / CI_LIMIT_S:.0f} % of CI's 90 minutes; target "
+             f"{TARGET_S // 60} min: {'PASS' if res['total_s'] <= TARGET_S else 'MISS'}), "
+             f"{tests} test runs.", ""]
+    if res.get("note"):
+        lines += [res["note"], ""]
+    lines += [f"<details><summary>The {len(res['slowest'])} slowest tests of that run</summary>",
+              "", "| test | stage | s | what it proves |", "|---|---|---|---|"]
+    for t in res["slowest"]:
+        lines.append(f"| `{t['test']}` | {t['stage']} | {t['seconds']:.0f} | {t['proves']} |")
+    lines += ["", "</details>"]
+    return "\n".join(lines)
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--markdown", action="store_true",
+                    help="print the README's record of results_suite.json and exit")
+    sub = ap.add_subparsers(dest="what")
+    st = sub.add_parser("stage", help="run one stage of the suite, timed")
+    st.add_argument("name")
+    st.add_argument("argv", nargs=argparse.REMAINDER)
+    sub.add_parser("summary", help="print the stages' times so far")
+    rec = sub.add_parser("record", help="write results_suite.json from the suite folder")
+    rec.add_argument("--note", help="one paragraph said under the record")
+    rec.add_argument("-o", "--output", type=Path, default=RESULTS)
+    args = ap.parse_args()
+    if args.markdown:
+        print(markdown(json.loads(RESULTS.read_text())))
+        return 0
+    if args.what == "stage":
+        argv = args.argv[1:] if args.argv[:1] == ["--"] else args.argv
+        return stage(args.name, argv)
+    if args.what == "summary":
+        return summary()
+    if args.what == "record":
+        res = record(args.note)
+        args.output.write_text(json.dumps(res, indent=1) + "\n")
+        print(markdown(res))
+        return 0
+    ap.print_help()
+    return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())
