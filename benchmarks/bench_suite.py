@@ -11,6 +11,7 @@ the README's record of it. No test asserts on a time: this is where the time is 
     python benchmarks/bench_suite.py summary                         # the stages so far
     python benchmarks/bench_suite.py record [--note TEXT]            # .suite/ -> results_suite.json
     python benchmarks/bench_suite.py --markdown                      # the README's record
+    python benchmarks/bench_suite.py untouched coverage.json         # modules no test ran
 
 Only the standard library: ``.ci/run`` times the install before any virtualenv exists.
 """
@@ -120,7 +121,7 @@ def _docstring_line(nodeid: str, cache: dict) -> str:
     for end in (". ", ": "):
         if end in first:
             first = first.split(end, 1)[0]
-    return first.rstrip(".") if len(first) <= 160 else first[:157].rsplit(" ", 1)[0] + "..."
+    return first.rstrip(".") if len(first) <= 110 else first[:107].rsplit(" ", 1)[0] + "..."
 
 
 def _cases(xml: Path):
@@ -179,6 +180,12 @@ def markdown(res: dict) -> str:
              f"({100 * res['total_s'] / CI_LIMIT_S:.0f} % of CI's 90 minutes; target "
              f"{TARGET_S // 60} min: {'PASS' if res['total_s'] <= TARGET_S else 'MISS'}), "
              f"{tests} test runs.", ""]
+    prev = res.get("previous")
+    if prev:
+        stages_p = " + ".join(f"{s['name']} {_mmss(s['seconds'])}" for s in prev["stages"])
+        lines[-2:-1] = [lines[-2] + f" The run before it ({prev['when']}, load "
+                        f"{prev['stages'][0]['load']} at the start): {stages_p} = "
+                        f"{_mmss(prev['total_s'])}."]
     if res.get("note"):
         lines += [res["note"], ""]
     lines += [f"<details><summary>The {len(res['slowest'])} slowest tests of that run</summary>",
@@ -187,6 +194,23 @@ def markdown(res: dict) -> str:
         lines.append(f"| `{t['test']}` | {t['stage']} | {t['seconds']:.0f} | {t['proves']} |")
     lines += ["", "</details>"]
     return "\n".join(lines)
+
+
+def untouched(report: Path) -> int:
+    """The modules of ``labrig/`` of which a coverage run (``coverage json``) ran no line;
+    exit 1 if any, with the line coverage of the whole package."""
+    doc = json.loads(report.read_text())
+    files = {Path(f).resolve().relative_to(ROOT).as_posix(): v for f, v in doc["files"].items()
+             if (ROOT / "labrig") in Path(f).resolve().parents}
+    every = sorted(p.relative_to(ROOT).as_posix() for p in (ROOT / "labrig").rglob("*.py"))
+    missing = [f for f in every if f not in files or (
+        files[f]["summary"]["covered_lines"] == 0 and files[f]["summary"]["num_statements"] > 0)]
+    pct = doc["totals"]["percent_covered"]
+    print(f"[suite] {len(every) - len(missing)} of {len(every)} modules of labrig/ touched, "
+          f"{pct:.1f} % of its lines run")
+    for f in missing:
+        print(f"[suite]   not touched: {f}")
+    return 1 if missing else 0
 
 
 def main() -> int:
@@ -201,7 +225,11 @@ def main() -> int:
     rec = sub.add_parser("record", help="write results_suite.json from the suite folder")
     rec.add_argument("--note", help="one paragraph said under the record")
     rec.add_argument("-o", "--output", type=Path, default=RESULTS)
+    un = sub.add_parser("untouched", help="the modules a coverage run did not touch")
+    un.add_argument("report", type=Path, help="coverage's JSON report")
     args = ap.parse_args()
+    if args.what == "untouched":
+        return untouched(args.report)
     if args.markdown:
         print(markdown(json.loads(RESULTS.read_text())))
         return 0
@@ -212,6 +240,10 @@ def main() -> int:
         return summary()
     if args.what == "record":
         res = record(args.note)
+        if args.output.is_file():   # the run before this one, in one line of the README
+            old = json.loads(args.output.read_text())
+            res["previous"] = {k: old[k] for k in ("when", "total_s")} | {
+                "stages": [{k: s[k] for k in ("name", "seconds", "load")} for s in old["stages"]]}
         args.output.write_text(json.dumps(res, indent=1) + "\n")
         print(markdown(res))
         return 0

@@ -94,6 +94,9 @@ def _env() -> dict:
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(ROOT), env.get("PYTHONPATH")]))
     env["MPLBACKEND"] = "Agg"
+    # the sheets' checks read the numbers, not the pictures: draft figures, a third of a
+    # command's time less (tests/test_figures.py draws and checks every kind in full)
+    env["LABRIG_FIGURES"] = "draft"
     env.setdefault("PYTHONHASHSEED", "0")
     return env
 

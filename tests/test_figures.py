@@ -103,3 +103,25 @@ def test_residual_panel_shows_the_quantum_and_the_staircase_lies_inside_it(data)
             assert any(t.startswith("+-1 quantum (ADC step ") for t in labels), labels
     finally:
         plt.close(fig)
+
+
+def test_a_draft_figure_is_small_and_skips_the_layout(data, tmp_path, monkeypatch):
+    """LABRIG_FIGURES=draft (the sheets' runs in the suite): the same figure saved at 40 dpi
+    without tight_layout's measuring; the full figure is laid out (its axes moved) and
+    saved at 110 dpi."""
+    from labrig.analysis.run_plots import plot_overview
+    from labrig.core import figures
+
+    _, _, runs, _ = data
+    sizes = {}
+    for mode in ("", "draft"):
+        monkeypatch.setenv("LABRIG_FIGURES", mode)
+        fig = plot_overview(runs)
+        box = fig.axes[0].get_position().bounds
+        path = figures.save(fig, tmp_path / f"run{mode}.png")
+        sizes[mode] = (plt.imread(path).shape[:2], box)
+    (h_full, w_full), box_full = sizes[""]
+    (h_draft, w_draft), box_draft = sizes["draft"]
+    assert w_draft == pytest.approx(w_full * 40 / 110, abs=2)
+    assert h_draft == pytest.approx(h_full * 40 / 110, abs=2)
+    assert box_draft != box_full   # tight_layout moved the full figure's axes, not the draft's

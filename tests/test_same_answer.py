@@ -216,7 +216,8 @@ def _end(runs, seed):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("seed", [None, 1, 2, 3, 4], ids=lambda s: f"seed {s}")
+@pytest.mark.parametrize("seed", [None, *(pytest.param(s, marks=pytest.mark.other_seed)
+                                          for s in (1, 2, 3, 4))], ids=lambda s: f"seed {s}")
 def test_the_step_by_step_loop_ends_the_same_for_every_seed(linear_axis_runs, seed):
     """Followed round by round (diagnose, then its recommended model), the loop ends with
     offset + Coulomb friction and the plant, within 1 %, for the default seed and four

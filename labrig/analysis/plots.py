@@ -18,7 +18,7 @@ from collections.abc import Mapping
 import matplotlib.pyplot as plt
 import numpy as np
 
-from labrig.core.figures import legend_outside, save_all
+from labrig.core.figures import legend_outside, save_all, tight_layout
 
 MAX_EDGES = 16  # per figure; more edges would make unreadable panels
 DPI = 110
@@ -108,7 +108,7 @@ def plot_edges(ra, ax=None):
     if ax is None:
         more = f" (first {MAX_EDGES} of {len(ra.edges)})" if len(ra.edges) > MAX_EDGES else ""
         fig.suptitle(f"{ra.name}: edges and first-order fits{more}", fontsize=10)
-        fig.tight_layout(rect=(0, 0.35 / (2.8 * axes.shape[0]), 1, 1))
+        tight_layout(fig, rect=(0, 0.35 / (2.8 * axes.shape[0]), 1, 1))
     return fig
 
 
@@ -165,7 +165,7 @@ def _result_plot(figsize):
             ax.grid(alpha=0.3)
             legend_outside(ax, "right")
             if own:
-                fig.tight_layout()
+                tight_layout(fig)
             return fig
 
         # not functools.wraps: the signature shown is this one, with ax optional

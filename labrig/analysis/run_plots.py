@@ -4,7 +4,7 @@ from __future__ import annotations
 import matplotlib.pyplot as plt
 import numpy as np
 
-from labrig.core.figures import legend_outside
+from labrig.core.figures import legend_outside, tight_layout
 
 
 def plot_overview(runs):
@@ -59,5 +59,5 @@ def plot_overview(runs):
         for ax in (top, bot):
             ax.grid(alpha=0.3)
         legend_outside(top, "right", fontsize=7, ncol=2 if len(rs) > 8 else 1)
-    fig.tight_layout()
+    tight_layout(fig)
     return fig

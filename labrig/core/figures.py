@@ -4,17 +4,40 @@ a command or report with many runs keeps one figure in memory."""
 from __future__ import annotations
 
 import io
+import os
 from pathlib import Path
 
 import matplotlib.pyplot as plt
 
 DPI = 110
+#: the resolution of a draft figure (see :func:`draft`)
+DRAFT_DPI = 40
+
+
+def draft() -> bool:
+    """Whether figures are drafts: ``LABRIG_FIGURES=draft`` in the environment.
+
+    A draft is saved at ``DRAFT_DPI`` and laid out without ``tight_layout``, whose
+    measuring of every text is most of a figure's cost (about a third of ``labrig
+    compare``'s whole process). For runs whose pictures nobody looks at: the test suite's
+    runs of the sheets, which check the numbers the commands print and write (those are
+    the same either way); the figures themselves are checked drawn in full
+    (tests/test_figures.py).
+    """
+    return os.environ.get("LABRIG_FIGURES", "").strip().lower() == "draft"
+
+
+def tight_layout(fig, **kw) -> None:
+    """``fig.tight_layout(**kw)``, left out for a draft (see :func:`draft`)."""
+    if not draft():
+        fig.tight_layout(**kw)
 
 
 def save(fig, path, dpi: int = DPI):
-    """Save ``fig`` to ``path`` and close it; returns the path."""
+    """Save ``fig`` to ``path`` and close it (at ``DRAFT_DPI`` for a draft); returns the
+    path."""
     try:
-        fig.savefig(path, dpi=dpi)
+        fig.savefig(path, dpi=DRAFT_DPI if draft() else dpi)
     finally:
         plt.close(fig)
     return path

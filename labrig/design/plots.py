@@ -5,7 +5,7 @@ from __future__ import annotations
 import matplotlib.pyplot as plt
 import numpy as np
 
-from labrig.core.figures import legend_outside
+from labrig.core.figures import legend_outside, tight_layout
 
 COLOURS = ("tab:blue", "tab:red")
 
@@ -61,5 +61,5 @@ def plot_proposal(prop, ax=None):
         fig.suptitle(f"{prop.pair[0]} or {prop.pair[1]}? {what}: {c.candidate.label}\n"
                      f"predicted separation after the rival re-fits {c.worst or 0.0:.2f} "
                      "(worse rmse/noise over better, minus one)", fontsize=10)
-        fig.tight_layout()
+        tight_layout(fig)
     return fig

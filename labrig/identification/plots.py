@@ -4,7 +4,7 @@ from __future__ import annotations
 import matplotlib.pyplot as plt
 import numpy as np
 
-from labrig.core.figures import legend_outside
+from labrig.core.figures import legend_outside, tight_layout
 
 
 def plot_convergence(results, ax=None):
@@ -29,7 +29,7 @@ def plot_convergence(results, ax=None):
     ax.set_title("Convergence of the identifiers")
     ax.grid(True, which="both", alpha=0.3)
     legend_outside(ax, "right")
-    fig.tight_layout()
+    tight_layout(fig)
     return fig
 
 
@@ -68,5 +68,5 @@ def plot_fit(ident, runs, ax=None, max_runs: int = 4):
     m = ident.metrics
     fig.suptitle(f"{ident.method}: {', '.join(ident.effects.names) or 'linear model'} — "
                  f"rmse/noise {m['rmse_over_noise']['overall']:.2f}", fontsize=10)
-    fig.tight_layout()
+    tight_layout(fig)
     return fig

@@ -10,7 +10,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from labrig.diagnosis.evidence.residuals import AXIS_UNITS, REGIME_TEXT
-from labrig.core.figures import legend_outside
+from labrig.core.figures import legend_outside, tight_layout
 
 REGIME_COLOURS = {"start": "tab:green", "reversal": "tab:red", "accel": "tab:orange",
                   "steady": "tab:blue", "coast": "tab:purple", "rest": "0.7"}
@@ -96,7 +96,7 @@ def plot_run_comparison(rr: dict, ax=None, title: str = ""):
                 "unmodelled dynamics)", fontsize=8)
     b.set_xlabel("lag (samples)")
     fig.suptitle(title or f"{rr['name']}: model vs measurement", fontsize=11)
-    fig.tight_layout()
+    tight_layout(fig)
     return fig
 
 
@@ -154,7 +154,7 @@ def plot_ladder(ladder, ax=None):
                     textcoords="offset points", xytext=(6, 6), fontsize=9)
     ax.grid(alpha=0.3, which="both")
     legend_outside(ax, "right")
-    fig.tight_layout()
+    tight_layout(fig)
     return fig
 
 
@@ -181,5 +181,5 @@ def plot_regimes(table: dict, ax=None, title="Where the model fails"):
             ax.annotate(f"{100 * regs[n]['share_of_time']:.0f}% of time", (i, vals[i]),
                         ha="center", fontsize=7, textcoords="offset points", xytext=(0, 3))
     fig.suptitle(title)
-    fig.tight_layout()
+    tight_layout(fig)
     return fig

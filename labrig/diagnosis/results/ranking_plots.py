@@ -5,6 +5,7 @@ from __future__ import annotations
 import matplotlib.pyplot as plt
 
 from labrig.diagnosis.results.plots import plot_regimes
+from labrig.core.figures import tight_layout
 
 
 def plot_ranking(diag, ax=None):
@@ -55,5 +56,5 @@ def plot_ranking(diag, ax=None):
         ax.set_xlim(0, top * 1.35)
     ax.set_title("candidates, best first (green: supported)", fontsize=9)
     ax.legend(fontsize=7, loc="lower right")
-    fig.tight_layout()
+    tight_layout(fig)
     return fig
