@@ -174,12 +174,15 @@ def record(note: str | None) -> dict:
 def markdown(res: dict) -> str:
     stages = " + ".join(f"{s['name']} {_mmss(s['seconds'])}" for s in res["stages"])
     tests = sum(s.get("tests", 0) for s in res["stages"])
-    lines = [f"The last full run (`python benchmarks/bench_suite.py record` after `.ci/run`, "
-             f"{res['when']}, {res['cpus']} cores, load {res['stages'][0]['load']} at the "
-             f"start): {stages} = **{_mmss(res['total_s'])}** "
-             f"({100 * res['total_s'] / CI_LIMIT_S:.0f} % of CI's 90 minutes; target "
-             f"{TARGET_S // 60} min: {'PASS' if res['total_s'] <= TARGET_S else 'MISS'}), "
-             f"{tests} test runs.", ""]
+    outcomes = {o: sum(s.get("outcomes", {}).get(o, 0) for s in res["stages"])
+                for o in ("passed", "failed", "error", "skipped")}
+    said = ", ".join(f"{n} {o}" for o, n in outcomes.items() if n)
+    lines = [f"The last recorded full run (`benchmarks/results_suite.json`, {res['when']}, "
+             f"{res['cpus']} cores, load {res['stages'][0]['load']} at the start): {stages} = "
+             f"**{_mmss(res['total_s'])}** ({100 * res['total_s'] / CI_LIMIT_S:.0f} % of "
+             f"CI's 90 minutes; target {TARGET_S // 60} min: "
+             f"{'PASS' if res['total_s'] <= TARGET_S else 'MISS'}), {tests} test runs ({said}).",
+             ""]
     prev = res.get("previous")
     if prev:
         stages_p = " + ".join(f"{s['name']} {_mmss(s['seconds'])}" for s in prev["stages"])

@@ -387,3 +387,50 @@ def test_a_password_file_spoilt_while_the_class_runs_refuses_logins_in_one_line(
         server.stop()
     log = server.log.read_text()
     assert "password file is not valid JSON" in log and "Traceback" not in log
+
+
+def test_the_class_pages_built_in_process_a_student_drives_an_instructor_watches(tmp_path):
+    """The class's pages as the server builds them, without a server or a browser (the
+    browser tests drive the same pages served): ana takes bench1 and her lab page drives
+    it; kim's page watches it read-only, his Stop on the watched page is refused and
+    logged, the rig untouched; a signed login cookie names its user, a forged or stale one
+    nobody."""
+    import time as _time
+
+    from tornado.web import create_signed_value
+
+    from labrig.classroom.roster import read_class
+    from labrig.lab.class_page import InstructorPage, StudentPage
+    from labrig.lab.class_server import ClassServer
+    from labrig.lab.login import user_of
+
+    lines = []
+    srv = ClassServer(read_class(write_class(tmp_path)), log=lines.append)
+    try:
+        ana = StudentPage(srv, "ana", "s-ana")
+        ana.bench_pick.value = "bench1"
+        ana.take_btn.clicks += 1
+        assert ana.lab is not None and ana.lab.owner, ana.error.object
+        ana.refresh()
+        assert ana.release_btn.disabled is False and ana.take_btn.disabled is True
+        kim = InstructorPage(srv, "kim", "s-kim")
+        kim.watch("bench1")
+        assert kim.watched is not None and not kim.watched.owner
+        kim.watched.stop.clicks += 1        # an edited page's click reaches the server
+        assert any("refused: kim asked to stop" in line for line in lines), lines
+        st = srv.station_of("ana")
+        assert st is not None and not st.sweeping
+        ana.refresh()
+        kim.refresh()
+        assert "ana" in ana.header.object and "kim" in kim.header.object
+    finally:
+        srv.close()
+
+    secret = "x" * 32
+    cookie = create_signed_value(secret, "user", "ana").decode()
+    assert user_of(cookie, secret, max_age_days=1) == "ana"
+    assert user_of(cookie, "y" * 32, max_age_days=1) is None          # forged
+    assert user_of(cookie[:-2] + "00", secret, max_age_days=1) is None
+    old = create_signed_value(secret, "user", "ana", clock=lambda: _time.time() - 3 * 86400)
+    assert user_of(old.decode(), secret, max_age_days=1) is None      # too old
+    assert user_of(None, secret, max_age_days=1) is None
