@@ -85,6 +85,7 @@ class LinkProxy:
         self.faults = defaultdict(int)
         self.frames = defaultdict(list)
         self.upstream_bad = 0
+        self.upstream_bad_frames: list = []
         self._lock = threading.Lock()
         self._stop = False
         self.thread = threading.Thread(target=self._pump, daemon=True)
@@ -97,8 +98,9 @@ class LinkProxy:
             return wire
         try:
             f = P.decode_frame(wire)
-        except P.FrameError:
+        except P.FrameError as exc:
             self.upstream_bad += 1   # damaged before the proxy (should not happen)
+            self.upstream_bad_frames.append((d, self.run, wire[:40], str(exc)))
             return wire
         if d == H2B and f.type == P.CONFIGURE and f.seq != self._cfg_seq:
             self._cfg_seq = f.seq

@@ -298,7 +298,7 @@ def test_sweep_through_faults_in_both_directions(tmp_path, emulators, rig):
     runs = {r.name: r for r in read_dataset(tmp_path / "ds")}
     assert list(runs) == sorted(e.name for e in plan)
     s = bridge_settings(rig)
-    assert proxy.upstream_bad == 0
+    assert proxy.upstream_bad == 0, proxy.upstream_bad_frames
     assert proxy.total(proxy.faults, B2H) > 50 and proxy.total(proxy.faults, H2B) >= 1
     report = []
     for k, exp in enumerate(plan, start=1):
