@@ -34,18 +34,18 @@ test: $(STAMP)          ## the whole test suite on both cores (firmware and brow
 # picks one at run time; OPENBLAS_CORETYPE forces it): the quoted figures, the same-answer
 # tests and the screen's equivalence tests must give the same answers under each. Measured
 # (tests/outputs_record.py): every one of them that fits ends a few 1e-7 apart between the
-# kernels, and the screen takes other paths (another count of candidates re-fitted to the
-# end), so all stay; the step-by-step loop's seeds 1-4 end bit for bit where the default
+# kernels, and the screen takes other paths through the candidates (another count of
+# values compared), so all stay; the step-by-step loop's seeds 1-4 end bit for bit where the default
 # seed does under each kernel, so only the default seed is re-run (other_seed)
 test-kernels: $(STAMP)  ## the kernels-marked tests under OpenBLAS's Prescott (SSE3, no FMA) and Nehalem kernels
 	OPENBLAS_CORETYPE=Prescott $(STAGE) kernels-prescott -- $(BIN)/python -m pytest -q -n 2 --dist worksteal -m "kernels and not firmware and not other_seed"
 	OPENBLAS_CORETYPE=Nehalem $(STAGE) kernels-nehalem -- $(BIN)/python -m pytest -q -n 2 --dist worksteal -m "kernels and not firmware and not other_seed"
 
 # the end-to-end loop files (diagnose, propose, plants, real rigs, sheets, report) are left
-# to `make test`; what is left runs in about two minutes on 2 cores
+# to `make test`; what is left runs in under three minutes on 2 cores (2:38 measured)
 QUICK_SKIP := $(foreach f,diagnose propose plants real_rigs recordings exercises report,--ignore=tests/test_$(f).py)
 
-test-quick: $(STAMP)    ## about two minutes: no slow, firmware, browser or end-to-end loop tests
+test-quick: $(STAMP)    ## under three minutes: no slow, firmware, browser or end-to-end loop tests
 	$(BIN)/python -m pytest -q -n 2 --dist worksteal -m "not slow and not firmware and not browser" $(QUICK_SKIP)
 
 # the quick subset under coverage: every module of labrig/ must be touched by it
