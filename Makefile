@@ -45,13 +45,15 @@ test-kernels: $(STAMP)  ## the kernels-marked tests under OpenBLAS's Prescott (S
 # to `make test`; what is left runs in under three minutes on 2 cores (2:38 measured)
 QUICK_SKIP := $(foreach f,diagnose propose plants real_rigs recordings exercises report,--ignore=tests/test_$(f).py)
 
+QUICK := -m "not slow and not firmware and not browser" $(QUICK_SKIP)
+
 test-quick: $(STAMP)    ## under three minutes: no slow, firmware, browser or end-to-end loop tests
-	$(BIN)/python -m pytest -q -n 2 --dist worksteal -m "not slow and not firmware and not browser" $(QUICK_SKIP)
+	$(BIN)/python -m pytest -q -n 2 --dist worksteal $(QUICK)
 
 # the quick subset under coverage: every module of labrig/ must be touched by it
 coverage-quick: $(STAMP) ## make test-quick's tests under coverage; lists the modules they leave untouched
 	mkdir -p .suite
-	$(BIN)/python -m pytest -q -n 2 --dist worksteal -m "not slow and not firmware and not browser" $(QUICK_SKIP) \
+	$(BIN)/python -m pytest -q -n 2 --dist worksteal $(QUICK) \
 	    --cov=labrig --cov-report=json:.suite/coverage-quick.json --cov-report=
 	$(BIN)/python benchmarks/bench_suite.py untouched .suite/coverage-quick.json
 

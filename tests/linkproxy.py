@@ -84,12 +84,16 @@ class LinkProxy:
         self.errors = defaultdict(int)
         self.faults = defaultdict(int)
         self.frames = defaultdict(list)
-        self.upstream_bad = 0
         self.upstream_bad_frames: list = []
         self._lock = threading.Lock()
         self._stop = False
         self.thread = threading.Thread(target=self._pump, daemon=True)
         self.thread.start()
+
+    @property
+    def upstream_bad(self) -> int:
+        """Frames damaged before the proxy (each kept in ``upstream_bad_frames``)."""
+        return len(self.upstream_bad_frames)
 
     # ---- one direction -------------------------------------------------------------
     def _original(self, d: str, wire: bytes) -> bytes:
@@ -99,7 +103,7 @@ class LinkProxy:
         try:
             f = P.decode_frame(wire)
         except P.FrameError as exc:
-            self.upstream_bad += 1   # damaged before the proxy (should not happen)
+            # damaged before the proxy (should not happen)
             self.upstream_bad_frames.append((d, self.run, wire[:40], str(exc)))
             return wire
         if d == H2B and f.type == P.CONFIGURE and f.seq != self._cfg_seq:
