@@ -85,6 +85,9 @@ class LinkProxy:
         self.faults = defaultdict(int)
         self.frames = defaultdict(list)
         self.upstream_bad_frames: list = []
+        #: frames already damaged when the port opened (before the first whole one)
+        self.opening_noise: list = []
+        self._intact = {B2H: False, H2B: False}
         self._lock = threading.Lock()
         self._stop = False
         self.thread = threading.Thread(target=self._pump, daemon=True)
@@ -103,9 +106,15 @@ class LinkProxy:
         try:
             f = P.decode_frame(wire)
         except P.FrameError as exc:
-            # damaged before the proxy (should not happen)
-            self.upstream_bad_frames.append((d, self.run, wire[:40], str(exc)))
+            if not self._intact[d]:
+                # before the first whole frame: the board's unsolicited greeting caught by
+                # the port's opening (its head gone, or sent before the proxy set the line
+                # speed, which the emulator garbles as a UART would), as any host meets it
+                self.opening_noise.append((d, wire[:40], str(exc)))
+            else:   # damaged before the proxy (should not happen)
+                self.upstream_bad_frames.append((d, self.run, wire[:40], str(exc)))
             return wire
+        self._intact[d] = True
         if d == H2B and f.type == P.CONFIGURE and f.seq != self._cfg_seq:
             self._cfg_seq = f.seq
             self.run += 1

@@ -300,14 +300,16 @@ def position_window_trip(runs: Path, rig, stderr: str, window: float) -> None:
             rig.sensors.encoder_counts_per_unit
     meta = json.loads((runs / "pd_3rad.json").read_text())
     k = meta["bridge"]["trip"]["after_sample"]
-    counts = pd.read_csv(runs / "pd_3rad.csv")["pos"].to_numpy()[:k + 1]
+    table = pd.read_csv(runs / "pd_3rad.csv")
+    counts = table["pos"].to_numpy()[:k + 1]
     edge = np.floor(window * rig.sensors.encoder_counts_per_unit)
     travel = counts - counts[0]
-    # the board counts from its START, a sample period before the first sample: a run that
-    # starts in the coast of the one before has moved by up to a first step since
-    slack = abs(int(counts[1]) - int(counts[0])) + 1
+    # the board counts from its START, a sample period before the first sample (its timer
+    # starts there): a run that starts in the coast of the one before has moved since by that
+    # period's step, which the coast's slowing makes up to twice the first step seen
+    slack = 2 * abs(int(counts[1]) - int(counts[0])) + 1
     assert np.abs(travel[-1]) > edge - slack and (np.abs(travel[:-1]) <= edge + slack).all(), \
-        (travel[-3:], edge, slack)
+        (travel[:6], travel[-3:], edge, slack, meta["bridge"])
 
 
 

@@ -14,7 +14,7 @@
 #include "src/lr_core.h"
 #include "src/lr_hal.h"
 
-#define FW_VERSION "2.4.0"
+#define FW_VERSION "2.4.1"
 #ifndef BAUD
 #define BAUD 500000UL   // make BAUD=250000 builds another (the host's --baud must match)
 #endif

@@ -20,7 +20,7 @@ from labrig.bridge import hbridge
 from labrig.core.errors import RigError, UserError
 
 #: the firmware this package's host code speaks to (the sketch's FW_VERSION; a test checks)
-FIRMWARE_VERSION = "2.4.0"
+FIRMWARE_VERSION = "2.4.1"
 #: the prebuilt images shipped in the package, one folder per rig build
 IMAGES = Path(__file__).with_name("images")
 AVRDUDE_APT = "apt-get install -y avrdude"

@@ -358,8 +358,12 @@ static void handle(const lr_frame_t *f)
         }
         start_seq = f->seq;
         start_seq_valid = 1;
-        send_ack(f->type, f->seq);   /* ack first: the first SAMPLES frame follows it */
+        /* the timer before the ack: the first sample is one period after START (where the
+         * count's origin was taken) however long the ack takes to leave (a host that drains
+         * its port late holds the UART); the ack still goes first, since only this loop
+         * sends the ring's SAMPLES */
         hal_timer_start(cfg.rate_hz);
+        send_ack(f->type, f->seq);
         break;
     case LR_STOP:
     case LR_ZERO:
