@@ -110,12 +110,13 @@ def _edges(log: Path):
 
 @pytest.fixture(scope="module")
 def played(tmp_path_factory):
-    """The shipped plan played through ``labrig sweep --port`` on the emulated board."""
+    """The design card's command on the emulated board: ``labrig sweep --port PORT --rig
+    RIG -o DIR`` with no plan plays the H-bridge family's default, the shipped PLAN."""
     tmp = tmp_path_factory.mktemp("hbridge")
     rig_file = _rig_with(tmp, HIDDEN)
     log = tmp / "emu.log"
     with Emulator("uno", load_rig(rig_file), dac_log=log) as emu:
-        r = _labrig("sweep", "--port", emu.pty, "--rig", rig_file, "--plan", PLAN, "-o", tmp / "runs")
+        r = _labrig("sweep", "--port", emu.pty, "--rig", rig_file, "-o", tmp / "runs")
         lag = emu.behind_s()
     assert r.returncode == 0, r.stderr
     return {"runs": tmp / "runs", "rig": rig_file, "log": log, "lag": lag}

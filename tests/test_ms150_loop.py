@@ -150,8 +150,10 @@ def test_gains_nothing_applies_are_refused_before_anything_plays(tmp_path):
                      'amplitudes_v = [1.0]\nduration_s = 1.0\n')
     patched = _rig(tmp_path, "rig_kp2.toml", loop_kp=2.0, loop_kv=0.15)
     default = ROOT / "configs" / "rig_default.toml"
-    cases = [(default, plan, 'write closed_by = "board" in the plan, or the gains as patched'),
-             (patched, asks4, "position_gain = 4, but the rig's loop is patched at 2"),
+    # (a closed loop that names no closer on a rig that names no patch is the board's on
+    # this firmware: test_the_design_cards_sweep_plays_the_default_plan_on_a_fresh_board;
+    # on a board that cannot close it, refused: test_sweep's the_rigs_way tests)
+    cases = [(patched, asks4, "position_gain = 4, but the rig's loop is patched at 2"),
              (patched, mixed, "mixes runs through the rig's analog loop")]
     with Emulator("uno", load_rig(patched)) as emu:
         for k, (rig_file, plan_file, words) in enumerate(cases):
@@ -160,6 +162,39 @@ def test_gains_nothing_applies_are_refused_before_anything_plays(tmp_path):
             assert r.returncode == 2 and words in r.stderr, r.stderr
             assert len(r.stderr.strip().splitlines()) == 1 and "Traceback" not in r.stderr
             assert not list((tmp_path / f"out{k}").glob("*.csv"))
+
+
+def test_the_design_cards_sweep_plays_the_default_plan_on_a_fresh_board(tmp_path):
+    """`labrig sweep --port PORT -o DIR` as the design card writes it (the default rig and
+    plan) on a freshly flashed Uno: every run plays, the closed-loop steps closed by the
+    board at the plan's gains (its firmware closes loops; the rig file names no patch) and
+    recorded so, the position following each step (within a quarter of it: the friction's
+    band at Kp 2 is what test_the_board_closes_the_loop_itself_and_a_gain_change_shows
+    measures); then `labrig identify DIR` fits the runs."""
+    from labrig.bridge.emulate import Emulator
+    from labrig.io.config import load_plan, load_rig
+
+    rig = load_rig(ROOT / "configs" / "rig_default.toml")
+    with Emulator("uno", rig) as emu:
+        r = _labrig("sweep", "--port", emu.pty, "-o", tmp_path / "runs")
+    assert r.returncode == 0, r.stderr
+    plan = load_plan(None, rig)
+    assert sorted(p.stem for p in (tmp_path / "runs").glob("*.csv")) == sorted(e.name for e in plan)
+    closed = [e for e in plan if e.loop == "closed"]
+    assert len(closed) == 2
+    for e in closed:
+        meta = json.loads((tmp_path / "runs" / f"{e.name}.json").read_text())
+        assert meta["experiment"]["closed_by"] == "board", meta["experiment"]
+        assert meta["experiment"]["position_gain"] == e.position_gain
+        d = pd.read_csv(tmp_path / "runs" / f"{e.name}.csv")
+        pos = (d["pos"] - rig.sensors.pos_offset_v) / rig.sensors.pos_v_per_rad
+        t = d["t"].to_numpy()
+        held = (t > e.lead_in_s + 1.5) & (t < e.lead_in_s + 2.0)   # late in the first half period
+        ref = d["u"].to_numpy()[held].mean()
+        assert abs(ref) > 0.1 and pos[held].mean() == pytest.approx(ref, rel=0.25), e.name
+    fit = _labrig("identify", tmp_path / "runs", "-o", tmp_path / "m.json")
+    assert fit.returncode == 0, fit.stderr
+    assert json.loads((tmp_path / "m.json").read_text())["params"]["R"] > 0
 
 
 def test_the_simulated_rig_takes_the_patched_gains_too(tmp_path):

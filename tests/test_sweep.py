@@ -291,3 +291,45 @@ def test_the_simulated_board_trips_as_the_board_does_and_the_run_stops_there(tmp
     assert "gap" not in run.data or run.data["gap"].sum() == 0   # nothing after the trip
     # the runs before it are whole
     assert len(read_run(tmp_path / "ds" / "sq_1.50V.csv").data) == 8500
+
+
+# -- who closes a plan's closed loops on a board, and each family's default plan -------------
+
+def test_a_closed_loop_that_names_no_closer_is_the_boards_where_its_firmware_closes_loops():
+    """On an MS150 board whose firmware closes loops (HELLO capability bit 5), the default
+    plan's closed-loop steps (no closed_by) are closed by the board at the plan's gains; on
+    a rig file that declares its patch they stay the patch's; on an older board they stay
+    unset and are refused before anything moves, with the fix."""
+    from dataclasses import replace
+
+    from labrig.bridge import protocol as P
+    from labrig.bridge.sweep import check_plan, the_rigs_way
+    from labrig.core.errors import UserError
+    from labrig.io.config import load_plan, load_rig
+
+    rig = load_rig(ROOT / "configs" / "rig_default.toml")
+    plan = load_plan(None, rig)
+    assert [e.closed_by for e in plan if e.loop == "closed"] == [None, None]
+    now = the_rigs_way(plan, rig, P.CAP_BOARD_LOOP | P.CAP_PWL)
+    assert [e.closed_by for e in now if e.loop == "closed"] == ["board", "board"]
+    assert [e.closed_by for e in now if e.loop == "open"] == [None] * 4
+    assert [(e.position_gain, e.velocity_gain) for e in now if e.loop == "closed"] == [(2.0, 0.15)] * 2
+    check_plan(now, rig, board=True)
+    old = the_rigs_way(plan, rig, P.CAP_PWL)
+    assert old == plan
+    with pytest.raises(UserError, match='write closed_by = "board" in the plan'):
+        check_plan(old, rig, board=True)
+    patched = replace(rig, bridge=replace(rig.bridge, loop_kp=2.0, loop_kv=0.15))
+    assert the_rigs_way(plan, patched, P.CAP_BOARD_LOOP) == plan
+
+
+def test_each_rig_family_sweeps_its_own_default_plan():
+    """Without --plan an MS150 plays configs/plan_default.toml, an H-bridge gear motor
+    configs/plan_arduino.toml (its supply's range at the sketch's 200 Hz)."""
+    from labrig.io.config import load_plan, load_rig
+
+    hb = load_plan(None, load_rig(ROOT / "configs" / "rig_arduino_hbridge.toml"))
+    assert [e.name for e in hb] == [e.name for e in load_plan(ROOT / "configs" / "plan_arduino.toml")]
+    assert {e.sample_rate_hz for e in hb} == {200.0} and max(e.amplitude_v for e in hb) == 12.0
+    ms = load_plan(None, load_rig(ROOT / "configs" / "rig_default.toml"))
+    assert [e.name for e in ms] == [e.name for e in load_plan(ROOT / "configs" / "plan_default.toml")]

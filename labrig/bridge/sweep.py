@@ -120,6 +120,39 @@ def check_gains_applied(exp: Experiment, rig) -> None:
             "or play the experiment at the patched gains")
 
 
+def the_rigs_way(plan: list[Experiment], rig, capabilities: int) -> list[Experiment]:
+    """Who closes each closed loop whose plan leaves it open (``closed_by`` unset) on an
+    MS150 board: the rig's patch panel where the rig file declares the patch (``[bridge]
+    loop_kp, loop_kv``), else the board itself where its firmware closes loops (HELLO
+    ``capabilities`` bit 5, firmware 2.4.0 on), with the plan's gains; otherwise they stay
+    unset and :func:`check_plan` refuses them with its fix. A freshly flashed board thus
+    plays the default plan's closed-loop steps as written; a sidecar records who closed
+    each run.
+
+    Parameters
+    ----------
+    plan : list of Experiment
+    rig : RigConfig
+    capabilities : int
+        The board's HELLO capability bits.
+
+    Returns
+    -------
+    list of Experiment
+        The plan, each such loop's ``closed_by`` set.
+    """
+    from dataclasses import replace
+
+    from labrig.bridge import protocol as P
+    from labrig.io.config import patched_gains
+
+    if rig.bridge.firmware != "ms150" or patched_gains(rig) is not None \
+            or not capabilities & P.CAP_BOARD_LOOP:
+        return list(plan)
+    return [replace(e, closed_by="board") if e.loop == "closed" and e.closed_by is None else e
+            for e in plan]
+
+
 def dac_step_v(rig) -> float:
     """One step of the bridge's output (V): the smallest change of the input it can make,
     recorded with each run (``diagnose`` calls no threshold smaller than it resolved)."""
@@ -209,6 +242,8 @@ def sweep(bridge: Bridge, plan: list[Experiment], rig, outdir: Path | str, *,
     try:
         bridge.open()
         if bridge.source == "serial":   # the board is there: what it cannot apply, refused now
+            caps = int(getattr(bridge, "hello", {}).get("capabilities", 0))
+            plan, todo = (the_rigs_way(p, rig, caps) for p in (plan, todo))
             check_plan(plan, rig, board=True)
         for exp in todo:
             if on_start:

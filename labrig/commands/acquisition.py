@@ -52,7 +52,8 @@ def _configure_sweep(p):
                      help="play it on the real firmware under simavr (the one --rig's [bridge] "
                           "names), against a plant of the rig file's values")
     p.add_argument("--rig", help="rig file (TOML or mystery rig); default configs/rig_default.toml")
-    p.add_argument("--plan", help="sweep plan (TOML); default configs/plan_default.toml")
+    p.add_argument("--plan", help="sweep plan (TOML); default: the rig family's, "
+                   "configs/plan_default.toml (MS150) or configs/plan_arduino.toml (H-bridge)")
     p.add_argument("-o", "--output", required=True, help="output folder for the runs")
     p.add_argument("--resume", action="store_true", help="skip runs already complete in -o")
     p.add_argument("--seed", type=int, help="noise seed of the simulated rig (default: rig file)")

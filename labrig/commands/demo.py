@@ -112,7 +112,8 @@ def cmd_demo(args):
 def _configure(p):
     p.add_argument("-o", "--output", default="demo_out", help="work folder (default demo_out)")
     p.add_argument("--rig", help="rig file (default: configs/rig_default.toml)")
-    p.add_argument("--plan", help="sweep plan (default: configs/plan_default.toml)")
+    p.add_argument("--plan", help="sweep plan (default: the rig family's, "
+                   "configs/plan_default.toml (MS150) or configs/plan_arduino.toml (H-bridge))")
     p.add_argument("--seed", type=int, default=1,
                    help="seed of the simulated rig's noise and of the fits (default 1)")
     p.add_argument("--quick", action="store_true", help="CO only, fewer iterations")

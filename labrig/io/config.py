@@ -388,10 +388,25 @@ _STEMS = {"square": "sq", "step": "step", "staircase": "stair", "constant": "con
           "pwl": "pwl"}
 
 
+#: each rig family's default plan (``rig.bridge.firmware`` -> a packaged plan): the MS150's
+#: is the seed paper's squares and closed-loop steps; an H-bridge gear motor's drives its
+#: supply's range at the sketch's 200 Hz (the MS150's +-2.5 V at 1 kHz would barely pass
+#: its dead zone, and its closed loops feed back a tacho such a rig does not have)
+DEFAULT_PLANS = {"ms150": "plan_default.toml", "hbridge": "plan_arduino.toml"}
+
+
+def default_plan(rig: RigConfig | None = None) -> Path:
+    """The plan a sweep plays when none is given: ``rig``'s family's
+    (:data:`DEFAULT_PLANS`); the MS150's without a rig."""
+    family = rig.bridge.firmware if rig is not None else "ms150"
+    return packaged_config(DEFAULT_PLANS.get(family, DEFAULT_PLANS["ms150"]))
+
+
 def load_plan(path: Path | str | None = None, rig: RigConfig | None = None) -> list[Experiment]:
     """Read a sweep plan: ``[[experiment]]`` tables; ``amplitudes_v = [...]`` expands
-    one table into one experiment per amplitude (schema :class:`labrig.core.schemas.PlanFile`)."""
-    path = Path(path) if path is not None else packaged_config("plan_default.toml")
+    one table into one experiment per amplitude (schema :class:`labrig.core.schemas.PlanFile`).
+    Without ``path``, the rig family's default plan (:func:`default_plan`)."""
+    path = Path(path) if path is not None else default_plan(rig)
     doc = read_toml(path, "plan")
     if "experiment" not in doc:
         raise ConfigError(f"{path}: no [[experiment]] tables; a plan needs at least one")
