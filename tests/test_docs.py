@@ -7,7 +7,8 @@ import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
 #: where users and readers of the code look; nothing here may point outside the repository
-SCANNED = [ROOT / "README.md", ROOT / "labrig", ROOT / "configs", ROOT / "data", ROOT / "docs"]
+SCANNED = [ROOT / "README.md", ROOT / "labrig", ROOT / "configs", ROOT / "data", ROOT / "docs",
+           ROOT / "CHANGELOG.md", ROOT / "CONTRIBUTING.md"]
 FORBIDDEN = ("../shared", "shared/design.md", "shared/physics.md")
 #: "docs/physics.md, 'Jellyfish Search'" (the section may wrap onto the next line)
 SECTION_REF = re.compile(r"docs/([\w-]+\.md)`?,\s+['\"]([^'\"]+)['\"]")
@@ -51,7 +52,8 @@ def test_nothing_points_outside_the_repository():
 
 def test_every_docs_path_in_readme_and_code_exists():
     missing = []
-    for p in _text_files([ROOT / "README.md", ROOT / "labrig"]):
+    for p in _text_files([ROOT / "README.md", ROOT / "labrig", ROOT / "CHANGELOG.md",
+                          ROOT / "CONTRIBUTING.md"]):
         for ref in sorted(set(DOC_PATH.findall(p.read_text(encoding="utf-8")))):
             if not (ROOT / ref).is_file():
                 missing.append(f"{p.relative_to(ROOT)}: {ref}")
@@ -61,6 +63,28 @@ def test_every_docs_path_in_readme_and_code_exists():
 @pytest.mark.parametrize("doc", ["design.md", "physics.md"])
 def test_the_reference_documents_exist(doc):
     assert (ROOT / "docs" / doc).is_file()
+
+
+def test_the_project_files_a_university_asks_for_agree_with_the_package():
+    """LICENSE is the licence pyproject declares; CITATION.cff cites this version and the
+    seed paper (its schema checked with `cffconvert --validate` when it was written);
+    CHANGELOG.md lists the firmware this labrig ships; CONTRIBUTING.md says how to run
+    the suites."""
+    import tomllib
+
+    from labrig.bridge.flash import FIRMWARE_VERSION
+    from labrig.core.version import __version__
+
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+    assert (ROOT / "LICENSE").read_text().startswith(f"{project['license']} License")
+    cff = (ROOT / "CITATION.cff").read_text()
+    assert re.search(rf"^version: {re.escape(__version__)}$", cff, re.M)
+    assert project["version"] == __version__
+    assert f"license: {project['license']}" in cff and "Nyong-Bassey" in cff
+    changes = (ROOT / "CHANGELOG.md").read_text()
+    assert f"**{FIRMWARE_VERSION}**" in changes and f"labrig {__version__}" in changes
+    contributing = (ROOT / "CONTRIBUTING.md").read_text()
+    assert all(f"make {t}" in contributing for t in ("test-quick", "test", "demo"))
 
 
 def test_every_named_section_exists():
