@@ -167,7 +167,7 @@ def test_counts_without_gear_ratio_warn_in_one_line(tmp_path, capsys):
     np.testing.assert_allclose(run.position, counts * 2 * math.pi / 1320, rtol=1e-6)
     assert run.gear_ratio == 1.0
     # the same with the gear ratio said: no warning
-    code, err, _ = _import(tmp_path, capsys, text, *args, "--gear-ratio", "30", "--overwrite",
+    code, err, _ = _import(tmp_path, capsys, text, *args, "--gear-ratio", "30", "--force",
                            name="enc.csv")
     assert code == 0 and err == "", err
 
@@ -190,3 +190,36 @@ def test_a_long_file_name_is_shortened_not_refused(tmp_path, capsys):
     _expect_user_error(capsys, ["import", tmp_path / (stems[0] + ".csv"), "--map",
                                 "t=Time,u=CH1,speed=CH2", "-o", tmp_path / "o2",
                                 "--name", "b" * 150], "--name")
+
+
+def test_a_fixed_rate_log_without_a_time_column_imports_at_its_rate(tmp_path, capsys):
+    """A sketch that prints ``u,count`` at 200 Hz has no time column: ``--rate 200`` puts
+    sample k at k/200 s. Without t= or --rate, with both, or with --time-unit beside
+    --rate: one line naming the options, exit 2. The run is replaced only with --force;
+    the old --overwrite still works and says once that it is --force's old spelling."""
+    counts = np.cumsum(np.r_[np.zeros(20), np.full(180, 3.0)]).astype(int)
+    text = "u,count\n" + "".join(f"{0.0 if k < 20 else 6.0:.2f},{c}\n"
+                                 for k, c in enumerate(counts))
+    args = ("u=u,pos=count", "--pos-unit", "counts:1320", "--gear-ratio", "30")
+    code, err, out = _import(tmp_path, capsys, text, *args, "--rate", "200", name="log.csv")
+    assert code == 0 and err == "", err
+    run = read_run(out / "log.csv")
+    np.testing.assert_allclose(run.t, np.arange(200) / 200.0, atol=1e-9)
+    np.testing.assert_allclose(run.position, counts * 2 * math.pi / 1320, rtol=1e-6)
+    for extra, words in ((("--force",), ("--map", "t=", "--rate")),
+                         (("--rate", "200", "--time-unit", "ms", "--force"), ("--time-unit",)),
+                         (("--rate", "0", "--force"), ("--rate", "sample rate"))):
+        code, err, _ = _import(tmp_path, capsys, text, *args, *extra, name="log.csv")
+        assert code == 2 and len(err.strip().splitlines()) == 1, err
+        assert "Traceback" not in err and all(w in err for w in words), err
+    both = "t,u,count\n" + "".join(f"{k / 200:.3f},1.0,{k}\n" for k in range(50))
+    code, err, _ = _import(tmp_path, capsys, both, "t=t,u=u,pos=count", "--pos-unit",
+                           "counts:1320", "--gear-ratio", "30", "--rate", "200", name="both.csv")
+    assert code == 2 and "--rate" in err and "t=t" in err, err
+    # an existing run: refused without --force, replaced with it or with the old spelling
+    code, err, _ = _import(tmp_path, capsys, text, *args, "--rate", "200", name="log.csv")
+    assert code == 2 and "already exists" in err and "add --force to replace it" in err, err
+    code, err, _ = _import(tmp_path, capsys, text, *args, "--rate", "100", "--overwrite",
+                           name="log.csv")
+    assert code == 0 and err.count("\n") == 1 and "--overwrite is the old spelling of --force" in err
+    assert read_run(out / "log.csv").t[1] == pytest.approx(0.01)

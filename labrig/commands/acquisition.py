@@ -113,13 +113,18 @@ def cmd_import(args):
     tacho=/pos= with gains; current= and, in closed loop, ref=. Choose the plant with
     --drive and --axis."""
 
+    if args.overwrite:   # the old spelling: still accepted, said once
+        _warn_line("--overwrite is the old spelling of --force (every command replaces "
+                   "files only with --force); it will go in a later release")
+        args.force = True
     output_folder(args.output)
     path = lr.import_run(args.src, args.output, args.map, speed_unit=args.speed_unit,
                       pos_unit=args.pos_unit, time_unit=args.time_unit,
                       tacho_gain=args.tacho_gain, pos_gain=args.pos_gain,
                       pos_offset=args.pos_offset, gear_ratio=args.gear_ratio,
                       amplifier_gain=args.amplifier_gain, name=args.name,
-                      waveform=args.waveform, loop=args.loop, overwrite=args.overwrite,
+                      waveform=args.waveform, loop=args.loop, overwrite=args.force,
+                      rate_hz=args.rate,
                       position_gain=args.position_gain, velocity_gain=args.velocity_gain,
                       drive=args.drive, axis=args.axis, input_gain=args.input_gain,
                       controller=args.controller,
@@ -161,6 +166,9 @@ def _configure_import(p):
                                       "per metre on a linear axis)")
     p.add_argument("--time-unit", help="s, ms or us (default: the unit row under the "
                                        "header if it names one, else s)")
+    p.add_argument("--rate", type=float_opt, metavar="HZ",
+                   help="a log with no time column (no t= in --map): it was sampled at HZ "
+                        "samples per second, sample k at k/HZ")
     p.add_argument("--tacho-gain", type=float_opt, help="V per rad/s, for tacho= in volts")
     p.add_argument("--pos-gain", type=float_opt, help="V per rad, for pos= in volts")
     p.add_argument("--pos-offset", type=float_opt, default=0.0, help="pot volts at 0 rad")
@@ -204,7 +212,9 @@ def _configure_import(p):
                    help="MS150 analog loop: amplifier volts per volt of position error")
     p.add_argument("--velocity-gain", type=float_opt, metavar="KV",
                    help="MS150 analog loop: amplifier volts per volt of tacho feedback")
-    p.add_argument("--overwrite", action="store_true", help="replace an existing run")
+    p.add_argument("--force", action="store_true", help="replace an existing run")
+    p.add_argument("--overwrite", action="store_true",
+                   help="the old spelling of --force (still accepted; says so)")
 
 
 cmd_import.configure = _configure_import

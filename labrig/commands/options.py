@@ -47,13 +47,14 @@ PARAM_OPTIONS: dict[str, str] = {
     "position_gain": "--position-gain",
     "velocity_gain": "--velocity-gain",
     "skip_rows": "--skip-rows",
+    "rate_hz": "--rate",
     # the rig and its board (sweep, flash, doctor)
     "port": "--port",
     "board": "--board",
     "board_id": "--board-id",
     "resume": "--resume",
     # mystery, batch, report
-    "overwrite": "--force",   # write_mystery's (import_run's --overwrite is named nowhere)
+    "overwrite": "--force",   # write_mystery's and import_run's
     "mystery": "--mystery",
     "scheduler": "--scheduler",
     "work": "--work",

@@ -57,8 +57,6 @@ def parse_map(text: str) -> dict[str, str]:
         if key not in MAP_TARGETS:
             raise UserError(f"`mapping`: unknown target '{key}'; expected one of {', '.join(MAP_TARGETS)}")
         out[key] = col
-    if "t" not in out:
-        raise UserError("`mapping`: 't=COLUMN' missing; t and u (or ref, in closed loop) are required")
     if "u" not in out and "ref" not in out:
         raise UserError("`mapping`: 'u=COLUMN' missing; t and u (or ref, in closed loop) are required")
     if not ({"speed", "tacho", "pos"} & set(out)):
@@ -211,6 +209,9 @@ class ImportOptions:
     start: str | None = None
     #: the input column is a measured torque or force (a current times its constant)
     input_measured: bool = False
+    #: samples per second of a log with no time column (a sketch printing ``u,count`` at a
+    #: fixed rate): sample k is at k / rate_hz
+    rate_hz: float | None = None
 
 
 def _find_count(src: Path, speed, fs: float, sensors: dict, notes: list) -> None:
@@ -317,13 +318,30 @@ def import_csv(src: Path | str, outdir: Path | str, mapping: dict[str, str],
         raise UserError("`pos_gain` is needed with raw-volt columns (tacho=...,pos=...)")
     if "tacho" in mapping and o.tacho_gain is None:
         raise UserError("`tacho_gain` (V per rad/s) is needed when mapping raw tacho volts")
+    if "t" not in mapping and o.rate_hz is None:
+        raise UserError("`mapping`: 't=COLUMN' missing; map the time column, or give "
+                        "`rate_hz=HZ` for a log at a fixed rate without one")
+    if o.rate_hz is not None:
+        if "t" in mapping:
+            raise UserError(f"`rate_hz`: the time column t={mapping['t']} gives the samples' "
+                            "times; give the column or the rate, not both")
+        if o.time_unit is not None:
+            raise UserError("`time_unit`: a log read at `rate_hz` has no time column to "
+                            "give a unit; drop `time_unit`")
+        if isinstance(o.rate_hz, bool) or not isinstance(o.rate_hz, (int, float)) \
+                or not math.isfinite(o.rate_hz) or not 0 < o.rate_hz <= 1e7:
+            raise UserError(f"`rate_hz`: {o.rate_hz!r} is not a sample rate in Hz "
+                            "(above 0, at most 1e7)")
     if o.skip_rows is not None and (isinstance(o.skip_rows, bool)
                                     or not isinstance(o.skip_rows, int)):
         raise UserError(f"`skip_rows`: {o.skip_rows!r} is not a number of lines")
     frame, layout = read_columns(src, list(mapping.values()), o.skip_rows)
     first_row = layout.first_row if layout is not None else 2  # the file's line of sample 0
-    t = frame[mapping["t"]] * time_factor(src, mapping["t"], layout, o.time_unit)
-    t = t - t[0]
+    if o.rate_hz is not None:   # a fixed-rate log: sample k at k / rate
+        t = np.arange(len(next(iter(frame.values())))) / float(o.rate_hz)
+    else:
+        t = frame[mapping["t"]] * time_factor(src, mapping["t"], layout, o.time_unit)
+        t = t - t[0]
     closed_ref = o.loop == "closed" and "ref" in mapping
     # in closed loop the run's u is the reference; a logged controller output is 'drive'
     cols = {"t": t, "u": frame[mapping["ref"] if closed_ref else mapping["u"]]}
@@ -392,6 +410,9 @@ def import_csv(src: Path | str, outdir: Path | str, mapping: dict[str, str],
                              imported_from=str(src.name)))
     # never write a run nobody can read back
     validate(Sidecar, run.meta, f"{src} (as imported)", RunFileError)
+    if not overwrite and (Path(outdir) / f"{name}.json").exists():
+        raise UserError(f"{Path(outdir) / name}.json: a run named '{name}' already exists; "
+                        "add `overwrite` to replace it, or choose another `name` or output folder")
     path = write_run(run, outdir, overwrite=overwrite)
     read_run(path)  # validate what we wrote, exactly as every reader will
     for text in notes:
