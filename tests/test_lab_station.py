@@ -288,3 +288,53 @@ def test_a_diagnosis_that_places_the_model_better_offers_that_model_as_the_next_
         assert page.refined_btn.visible == (st.diagnosis["refined"] is not None)
     finally:
         st.close()
+
+
+def test_the_station_says_what_its_folder_holds_and_plays_only_its_own_rig_into_it(tmp_path):
+    """A folder of imported recordings (a sketch's u,count log at 200 Hz): the page heads
+    itself with the runs' source file, drive and sensor, apart from the rig that would play;
+    a sweep into that folder is refused in one line before the rig moves (the folder's fit
+    would be of two systems), and nothing is written. A folder of this rig's own sweeps
+    plays on."""
+    import numpy as np
+
+    from conftest import labrig
+    from labrig.io.config import load_plan
+    from labrig.core.errors import UserError
+    from labrig.lab.page import LabPage
+    from labrig.lab.serve import make_station
+
+    folder = tmp_path / "imported"
+    log = tmp_path / "log.csv"
+    counts = np.cumsum(np.r_[np.zeros(40), np.full(360, 4)]).astype(int)
+    log.write_text("u,count\n" + "".join(f"{0 if k < 40 else 6.0},{c}\n"
+                                         for k, c in enumerate(counts)))
+    labrig("import", log, "--map", "u=u,pos=count", "--pos-unit", "counts:1320",
+           "--gear-ratio", "30", "--rate", "200", "-o", folder, check=0)
+    st = make_station(folder, realtime=False)
+    try:
+        said = st.holds()
+        assert said == ("1 run imported from log.csv (voltage drive, rotary; encoder, "
+                        "1320 counts per turn)"), said
+        why = st.foreign()
+        assert str(folder) in why and "another folder" in why and st.rig.name in why
+        with pytest.raises(UserError, match="holds runs this rig did not play"):
+            st.start_sweep(load_plan(None, st.rig)[:1])
+        assert not st.sweeping and sorted(p.name for p in folder.glob("*.csv")) == ["log.csv"]
+        page = LabPage(st, "s-1")
+        assert "imported from log.csv" in page.heading.object
+        assert f"rig that plays: {st.rig_name}" in page.heading.object
+        assert page.sweep_note.object == why
+        page._on_start(None)   # the button: the same line on the page, nothing played
+        assert "holds runs this rig did not play" in page._page_error and not st.sweeping
+    finally:
+        st.close()
+    own, plan = tmp_path / "own", tmp_path / "one.toml"
+    plan.write_text('[[experiment]]\nloop = "open"\nwaveform = "step"\namplitude_v = 1.5\n'
+                    'duration_s = 1.0\nsample_rate_hz = 200.0\n')
+    labrig("sweep", "--sim", "-o", own, "--plan", plan, check=0)
+    st = make_station(own, realtime=False)
+    try:
+        assert st.holds() == f"1 run swept on '{st.rig.name}'" and st.foreign() == ""
+    finally:
+        st.close()

@@ -315,7 +315,7 @@ def read_run(path: Path | str) -> Run:
                                "file with its .json sidecar (move it out of the folder)")
     if not csv_path.exists():
         raise RunFileError(f"{csv_path}: run file not found")
-    meta = _read_sidecar(json_path, csv_path)
+    meta = read_sidecar(json_path, csv_path)
     data = read_run_csv(csv_path, float(meta["sample_rate_hz"]))
     _check_against_sidecar(csv_path, json_path, data, meta)
     run = Run(name=csv_path.stem, data=data, meta=meta, path=csv_path)
@@ -355,7 +355,7 @@ def natural_key(name: str) -> tuple:
     return tuple((0, float(p), "") if k % 2 else (1, 0.0, p) for k, p in enumerate(parts))
 
 
-def _read_sidecar(json_path: Path, csv_path: Path) -> dict:
+def read_sidecar(json_path: Path, csv_path: Path) -> dict:
     # core.schemas brings pydantic (~0.07 s more to import): not for a module that only
     # needs Run (analysis, the sweep), only once a run is read
     from labrig.core.schemas import read_json, validate

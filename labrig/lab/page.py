@@ -53,18 +53,24 @@ class LabPage:
     def _build(self) -> None:
         st = self.st
         b = st.rig.bridge
-        limits = (f"rig: {st.rig_name} · bridge ±{b.output_limit_v:g} V, {b.sample_rate_hz:g} Hz"
-                  f" · folder: {st.folder}")
+        self._plays = (f"rig that plays: {st.rig_name} · bridge ±{b.output_limit_v:g} V, "
+                       f"{b.sample_rate_hz:g} Hz")
         self.banner = pn.pane.Alert(
             "Another page drives this rig: you are watching (read-only).",
             alert_type="warning", visible=not self.owner)
         self.error = pn.pane.Alert("", alert_type="danger", visible=False,
                                    css_classes=["lab-error"])
-        header = pn.Column(pn.pane.Markdown(f"## labrig lab\n{limits}"), self.banner, self.error)
+        self.heading = pn.pane.Markdown(self._heading(), css_classes=["lab-heading"])
+        header = pn.Column(self.heading, self.banner, self.error)
         self.tabs = pn.Tabs(("Acquire", self._acquire_tab()), ("The loop", self._loop_tab()),
                             ("Ask the rig", self._ask_tab()), dynamic=False)
         self.view = pn.Column(header, self.tabs, sizing_mode="stretch_width")
         self._set_owner(self.owner)
+
+    def _heading(self) -> str:
+        # what is looked at (the folder's runs, from their sidecars) apart from what plays
+        return (f"## labrig lab\nfolder: {self.st.folder} · {self.st.holds()}  \n"
+                f"{self._plays}")
 
     def _acquire_tab(self):
         self.form = PlanForm(self.st.rig, self.st.folder)
@@ -74,7 +80,7 @@ class LabPage:
         self.start.on_click(self._on_start)
         self.stop.on_click(lambda e: self._do(self.st.stop))
         self.counters = pn.pane.Markdown("", css_classes=["lab-counters"])
-        self.sweep_note = pn.pane.Markdown("", css_classes=["lab-sweep-note"])
+        self.sweep_note = pn.pane.Markdown(self.st.foreign(), css_classes=["lab-sweep-note"])
         self.runs_list = pn.pane.Markdown("", css_classes=["lab-runs"])
         self.src = ColumnDataSource({"t": [], "u": [], "speed": [], "pos": []})
         plots = []
@@ -280,10 +286,11 @@ class LabPage:
             f"**{live.name or 'no run yet'}** · samples {live.samples}/{live.n_planned} · gaps "
             f"{c.get('dropped_samples', 0)} · CRC errors {c.get('crc_errors', 0)} · "
             f"retries {c.get('retries', 0)}" + (" · **running**" if st.sweeping else "")))
-        set_text(self.sweep_note, st.sweep_note)
+        set_text(self.sweep_note, st.sweep_note or st.foreign())
         if self._ticks % 5 == 0:   # the folder's listing: twice a second is enough
             set_text(self.runs_list,
                      "runs in the folder: " + (", ".join(st.runs_on_disk()) or "none"))
+            set_text(self.heading, self._heading())
         self._ticks += 1
         if self.owner and st.poll():
             self._show_loop()

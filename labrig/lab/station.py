@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 import labrig.verbs as lr
-from labrig.core.errors import Interrupted, LabrigError
+from labrig.core.errors import Interrupted, LabrigError, UserError
 from labrig.lab import jobs
 from labrig.lab.live import Live
 from labrig.lab.worker import Worker
@@ -99,11 +99,39 @@ class Station:
         return sorted(p.stem for p in self.folder.glob("*.csv")
                       if p.with_suffix(".json").exists())
 
+    _origins: tuple = (None, None)
+
+    def origins(self) -> list:
+        """The folder's runs' origins (:func:`labrig.verbs.run_origins`), read again only
+        when its runs change (the page asks at every refresh)."""
+        names = tuple(self.runs_on_disk())
+        if names != self._origins[0]:
+            self._origins = (names, lr.run_origins(self.folder))
+        return self._origins[1]
+
+    def holds(self) -> str:
+        """What the station's folder holds, in a line."""
+        return self.origins().describe()
+
+    def foreign(self) -> str:
+        """Why this station's rig may not play into its folder ("" when it may): the folder
+        holds runs it did not play (imported recordings, another rig's sweeps), and a fit
+        of the folder would be of two systems at once."""
+        other = self.origins().not_played_by(self.rig.name)
+        if not other:
+            return ""
+        return (f"{self.folder} holds runs this rig did not play ({other.describe()}); "
+                f"play '{self.rig.name}' into another folder (labrig lab NEW_FOLDER)")
+
     def start_sweep(self, plan, into: Path | None = None) -> None:
         """Play ``plan`` (a list of Experiments) in a thread, writing to ``into`` (default
-        the station's folder) exactly as ``labrig sweep`` does."""
+        the station's folder) exactly as ``labrig sweep`` does; refused while the folder
+        holds runs another rig played or that were imported (:meth:`foreign`)."""
         if self.sweeping:
             raise LabrigError("a sweep is running; Stop it first")
+        why = self.foreign()
+        if why:
+            raise UserError(why)
         lr.check_plan(plan, self.rig)    # a bad plan is refused before the rig moves
         self._stop.clear()
         self.sweeping, self.sweep_note, self.written = True, "", []

@@ -35,7 +35,8 @@ from labrig.verbs.acquire import (board_id, doctor, emulator, find_board, flash,
 from labrig.verbs.data import (check_plan, drive_units, effect, effects, import_run,
                                load_identify_config,
                                load_model, load_plan, load_rig, model_from_json, model_of,
-                               parse_effects, plan_files, read_runs, runs_for_fit, runs_of)
+                               parse_effects, plan_files, read_runs, run_origins, runs_for_fit,
+                               runs_of)
 from labrig.verbs.fit import (add_effect, analyse, compare, identify, ladder, remove_effect,
                               set_by_hand, try_effect)
 from labrig.verbs.loop import (ask_until_sure, auto, auto_ladder, channel_weights,
@@ -48,7 +49,7 @@ __all__ = [
     # data
     "read_runs", "runs_of", "runs_for_fit", "import_run", "load_model", "model_from_json",
     "model_of", "effects", "effect", "parse_effects", "load_rig", "load_plan", "plan_files",
-    "check_plan", "load_identify_config", "drive_units",
+    "check_plan", "load_identify_config", "drive_units", "run_origins",
     # acquisition
     "sweep", "open_bridge", "live", "play", "emulator", "wiring", "ports", "find_board", "flash",
     "board_id", "format_board_id", "doctor",

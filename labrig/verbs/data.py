@@ -165,10 +165,45 @@ def load_rig(path=None):
 
 
 def load_plan(path=None, rig=None):
-    """A plan file's experiments, checked against ``rig``; default the lab's standard plan."""
+    """A plan file's experiments, checked against ``rig``; default the rig family's plan
+    (``configs/plan_default.toml`` for an MS150, ``configs/plan_arduino.toml`` for an
+    H-bridge gear motor)."""
     from labrig.io.config import load_plan as _load_plan
 
     return _load_plan(path, rig)
+
+
+def run_origins(folder) -> list:
+    """Where each run in ``folder`` comes from, read from the sidecars alone.
+
+    Parameters
+    ----------
+    folder : str or Path
+        A folder of runs (each ``NAME.csv`` beside its ``NAME.json``).
+
+    Returns
+    -------
+    Origins
+        A list of RunOrigin, per run: ``name``, ``source`` ("sim", "serial", "import",
+        ...), ``rig`` (the rig it was recorded on), ``imported_from``, ``drive``, ``axis``
+        and ``position`` (its sensor in words); ``.describe()`` says them in a line,
+        ``.not_played_by(rig_name)`` keeps the runs another rig played or that were
+        imported.
+
+    Raises
+    ------
+    RunFileError
+        A sidecar that does not validate (exit 2, naming the file).
+
+    Examples
+    --------
+    >>> import labrig.verbs as lv
+    >>> sorted({o.source for o in lv.run_origins("data/sweep_default")})
+    ['sim']
+    """
+    from labrig.io.origins import run_origins as _origins
+
+    return _origins(folder)
 
 
 def plan_files() -> list:
