@@ -84,7 +84,9 @@ def open_bridge(rig, *, port: str | None = None, emulate: bool = False, seed: in
                 lambda: (release(pty), emu.stop()))
     from labrig.bridge.sim import SimRig
 
-    return (lambda: SimRig(rig, seed=seed)), "simulated " + (rig.name or "MS150"), (lambda: None)
+    name = rig.name or "MS150"   # (a rig file's name may already say it is simulated)
+    name = name if "simulated" in name.lower() else f"simulated {name}"
+    return (lambda: SimRig(rig, seed=seed)), name, (lambda: None)
 
 
 def live(bridge, on_block=None, **options):
