@@ -1,6 +1,7 @@
 """What a newcomer types: every option of every subcommand says what it does, and method
 and effect names are taken in any case, on the command line and in the files labrig reads."""
 import argparse
+import re
 import json
 from pathlib import Path
 
@@ -141,3 +142,24 @@ def test_plan_keywords_in_any_case(tmp_path):
     p.write_text(p.read_text().replace("SQUARE", "Sine"))
     with pytest.raises(ConfigError, match="'square', 'step'"):
         load_plan(p)
+
+
+def test_the_seed_defaults_are_what_the_readme_says_and_no_help_quotes_a_time():
+    """Every subcommand's --seed defaults to labrig's SEED (0) except the whole-lab
+    commands demo, report and batch (1, the sheets' seed); sweep's is the rig file's and a
+    mystery's is required (the README's 'The same answer from the same files'). No help
+    text quotes a duration: times are measured by the benchmarks, and a machine's differ."""
+    from labrig.core.defaults import SEED
+
+    seeds = {p: a for p, a in _options(build_parser()) if "--seed" in a.option_strings}
+    assert SEED == 0
+    for path, action in seeds.items():
+        want = {"demo": 1, "report": 1, "batch": 1, "sweep": None}.get(path[1], SEED)
+        if path[1] == "mystery":
+            assert action.required, path
+        else:
+            assert action.default == want, (path, action.default)
+    timed = [f"{' '.join(p)} {'/'.join(a.option_strings) or a.dest}: {a.help}"
+             for p, a in _options(build_parser()) if a.help and
+             re.search(r"\b\d+(\.\d+)? ?(s|min|seconds?|minutes?)\b|few minutes", a.help)]
+    assert timed == []

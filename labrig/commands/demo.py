@@ -26,7 +26,7 @@ def _dump(obj, path):
     atomic_write(Path(path), json.dumps(obj, indent=2, default=json_default) + "\n")
 
 
-@command("demo", "the whole lab on the simulated rig: sweep to report, in a few minutes", fits=True)
+@command("demo", "the whole lab on the simulated rig: sweep to report", fits=True)
 def cmd_demo(args):
     """Run the main job on the simulated rig: sweep, analyse, identify with JFO, PSO and
     CO, diagnose what the model misses, add the recommended effect, compare, error

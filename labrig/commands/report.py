@@ -19,7 +19,7 @@ def cmd_report(args):
     diagnosis.json, model1.json, ladder.json, figures/) are read from the work folder
     (--work; default: the parent of DIR when it holds any, as `labrig demo -o OUT`
     leaves them); what is missing is computed: the analysis, a CO identification,
-    and -- unless --quick -- the diagnosis (about 30 s) and the ladder."""
+    and -- unless --quick -- the diagnosis and the ladder (the slow part)."""
     from labrig.report.html import build_report, find_work
 
     # before the analysis, identification and diagnosis (which can take a minute)
@@ -64,7 +64,7 @@ def _configure(p):
     p.add_argument("--no-work", action="store_true",
                    help="ignore any work folder: compute everything here")
     p.add_argument("--quick", action="store_true",
-                   help="do not compute the diagnosis and the ladder (about 30 s); "
+                   help="do not compute the diagnosis and the ladder (the slow part); "
                         "their JSON files are still used when present")
     p.add_argument("--seed", type=int, default=1,
                    help="seed of what the report identifies or diagnoses itself (default 1)")
