@@ -69,15 +69,27 @@ def build_parser() -> argparse.ArgumentParser:
     for name, (func, help_) in COMMANDS.items():
         sp = sub.add_parser(name, help=help_, description=(func.__doc__ or help_).strip())
         func.configure(sp)
-        # the options every command takes come last, after the command's own
-        sp.add_argument("--debug", action="store_true", help="show tracebacks")
-        sp.add_argument("--trust-code", action=_TrustCode, metavar="FILE.py",
-                        help="let the model, rig or config files this command reads name user "
-                             "effects from FILE.py. A user effect is Python code and runs "
-                             "with your rights: pass only files you have read (repeatable)")
+        _common_options(sp)
         _names_in_any_case(sp)
         sp.set_defaults(func=func)
     return p
+
+
+def _common_options(parser: argparse.ArgumentParser, nested: bool = False) -> None:
+    """The options every command takes, last in its help, after its own; a nested
+    subcommand (``class serve``) takes them too, and says them only when given there
+    (argparse's defaults of a nested parser would undo ``labrig class --debug serve``)."""
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for sub in action.choices.values():
+                _common_options(sub, nested=True)
+    unset = {"default": argparse.SUPPRESS} if nested else {}
+    parser.add_argument("--debug", action="store_true", help="show tracebacks", **unset)
+    parser.add_argument("--trust-code", action=_TrustCode, metavar="FILE.py",
+                        help="let the model, rig or config files this command reads name user "
+                             "effects from FILE.py. A user effect is Python code and runs "
+                             "with your rights: pass only files you have read (repeatable)",
+                        **unset)
 
 
 def _names_in_any_case(parser: argparse.ArgumentParser) -> None:

@@ -163,3 +163,20 @@ def test_the_seed_defaults_are_what_the_readme_says_and_no_help_quotes_a_time():
              for p, a in _options(build_parser()) if a.help and
              re.search(r"\b\d+(\.\d+)? ?(s|min|seconds?|minutes?)\b|few minutes", a.help)]
     assert timed == []
+
+
+def test_every_command_and_nested_command_takes_debug_and_trust_code():
+    """`labrig --help` says every command takes --debug and --trust-code: so do the nested
+    ones (class serve, mystery new), before or after the nested command's name."""
+    leaves = {}
+    for path, action in _options(build_parser()):
+        leaves.setdefault(path, set()).update(action.option_strings)
+    nested = [p for p in leaves if len(p) > 1 and not any(q[:len(p)] == p and q != p
+                                                          for q in leaves)]
+    assert ("labrig", "class", "serve") in nested and ("labrig", "mystery", "new") in nested
+    for path in nested:
+        assert {"--debug", "--trust-code"} <= leaves[path], path
+    for argv in (["class", "serve", "none.toml", "--debug"], ["class", "--debug", "serve", "none.toml"]):
+        args = build_parser().parse_args(argv)
+        assert args.debug is True, argv
+    assert build_parser().parse_args(["class", "serve", "none.toml"]).debug is False

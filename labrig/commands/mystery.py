@@ -1,7 +1,6 @@
 """``labrig mystery new | reveal | check``: simulated rigs with hidden physics for labs."""
 from __future__ import annotations
 
-import argparse
 
 from labrig.commands.registry import command, emit_json, float_opt, refuse_existing
 from labrig.core.errors import UserError
@@ -47,7 +46,6 @@ def cmd_mystery(args):
 def _configure(p):
 
     sub = p.add_subparsers(dest="action", metavar="ACTION")
-    dbg = dict(action="store_true", default=argparse.SUPPRESS, help="show tracebacks")
 
     pn = sub.add_parser("new", help="draw a mystery rig and write it (not plain text)")
     pn.add_argument("--seed", type=int, required=True, help="which mystery (same seed, same rig)")
@@ -55,12 +53,10 @@ def _configure(p):
     pn.add_argument("--rig", help="the rig to draw the mystery around (default the MS150; any "
                                   "plant and axis, e.g. configs/rig_linear_axis.toml)")
     pn.add_argument("--force", action="store_true", help="replace an existing file")
-    pn.add_argument("--debug", **dbg)
 
     pr = sub.add_parser("reveal", help="show the hidden truth (instructor)")
     pr.add_argument("file", help="a .mystery file")
     pr.add_argument("--json", action="store_true", help="print one JSON object")
-    pr.add_argument("--debug", **dbg)
 
     pc = sub.add_parser("check", help="grade a model.json against the hidden truth")
     pc.add_argument("file", help="a .mystery file")
@@ -70,7 +66,6 @@ def _configure(p):
                     help="student self-check: say how many effects are missing, not which")
     pc.add_argument("--tolerance", type=float_opt, default=20.0,
                     help="parameter error (%%) within which an effect passes (default 20)")
-    pc.add_argument("--debug", **dbg)
 
 
 cmd_mystery.configure = _configure
