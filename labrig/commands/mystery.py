@@ -1,7 +1,6 @@
 """``labrig mystery new | reveal | check``: simulated rigs with hidden physics for labs."""
 from __future__ import annotations
 
-
 from labrig.commands.registry import command, emit_json, float_opt, refuse_existing
 from labrig.core.errors import UserError
 import labrig.verbs as lr
