@@ -440,3 +440,35 @@ def test_the_class_pages_built_in_process_a_student_drives_an_instructor_watches
     old = create_signed_value(secret, "user", "ana", clock=lambda: _time.time() - 3 * 86400)
     assert user_of(old.decode(), secret, max_age_days=1) is None      # too old
     assert user_of(None, secret, max_age_days=1) is None
+
+
+def test_a_secret_is_never_readable_by_others_not_even_while_it_is_written(tmp_path, monkeypatch):
+    """The class's keys and password file are 0600 from the moment their file exists
+    (before its first byte, under any umask), and written whole or not at all; public
+    certificates 0644."""
+    import os
+    import stat
+
+    from labrig.classroom.certs import make_certs
+    from labrig.classroom.passwords import set_password
+    from labrig.core import fileio
+
+    modes = []
+    real = fileio.os.fdopen
+
+    def watched(fd, *a, **kw):
+        modes.append(stat.S_IMODE(fileio.os.fstat(fd).st_mode))
+        return real(fd, *a, **kw)
+
+    monkeypatch.setattr(fileio.os, "fdopen", watched)
+    old = os.umask(0)
+    try:
+        set_password(tmp_path / "passwords.json", "ana", "a good long password")
+        make_certs(tmp_path / "certs", ["bench1"], ["127.0.0.1"])
+    finally:
+        os.umask(old)
+    assert modes and set(modes) <= {0o600, 0o644}, modes
+    assert stat.S_IMODE((tmp_path / "passwords.json").stat().st_mode) == 0o600
+    for key in (tmp_path / "certs").glob("*.key"):
+        assert stat.S_IMODE(key.stat().st_mode) == 0o600, key
+    assert not list(tmp_path.rglob(".*.tmp"))

@@ -11,10 +11,10 @@ from __future__ import annotations
 
 import datetime as dt
 import ipaddress
-import os
 from pathlib import Path
 
 from labrig.core.errors import UserError
+from labrig.core.fileio import atomic_write
 
 #: how long the certificates last (a school year and a little)
 DAYS = 400
@@ -56,8 +56,8 @@ def _cert(subject: str, key, issuer: str, issuer_key, *, ca: bool, hosts=()):
 
 
 def _write(path: Path, data: bytes, secret: bool) -> None:
-    path.write_bytes(data)
-    os.chmod(path, 0o600 if secret else 0o644)
+    # a key is 0600 from its creation, never readable for a moment; written whole or not
+    atomic_write(path, data, mode=0o600 if secret else 0o644)
 
 
 def _pem(cert=None, key=None) -> bytes:

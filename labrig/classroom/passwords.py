@@ -96,6 +96,5 @@ def set_password(path: Path | str, user: str, password: str, *, force: bool = Fa
         raise UserError(f"{path}: {user} has a password already; give `force` to replace it")
     hashes[user] = hash_password(password)
     path.parent.mkdir(parents=True, exist_ok=True)
-    atomic_write(path, dumps(dict(sorted(hashes.items()))))
-    os.chmod(path, 0o600)
+    atomic_write(path, dumps(dict(sorted(hashes.items()))), mode=0o600)   # never readable by others
     return path

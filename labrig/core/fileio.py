@@ -69,16 +69,20 @@ def _umask() -> int:
     return old
 
 
-def atomic_write(path: Path | str, text: str) -> None:
-    """Write ``text`` to ``path`` via a temporary file and a rename: a reader never sees
-    a half-written file, and a crash leaves only a ``.NAME.*.tmp`` behind."""
+def atomic_write(path: Path | str, text: str | bytes, mode: int | None = None) -> None:
+    """Write ``text`` (or bytes) to ``path`` via a temporary file and a rename: a reader
+    never sees a half-written file, and a crash leaves only a ``.NAME.*.tmp`` behind.
+    ``mode`` (0o600 for a secret) is the file's from its creation, before its first byte;
+    None follows the umask."""
     path = Path(path)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
         # mkstemp makes 0600; a run or model on a shared lab drive must be readable
-        # like any other file the user writes, so follow the umask
-        os.fchmod(fd, 0o666 & ~_umask())
-        with os.fdopen(fd, "w", encoding="utf-8", newline="") as fh:
+        # like any other file the user writes, so follow the umask (a secret stays 0600)
+        os.fchmod(fd, 0o666 & ~_umask() if mode is None else mode)
+        binary = isinstance(text, bytes)
+        with os.fdopen(fd, "wb" if binary else "w", **({} if binary else
+                                                       {"encoding": "utf-8", "newline": ""})) as fh:
             fh.write(text)
             fh.flush()
             os.fsync(fh.fileno())
