@@ -34,6 +34,10 @@ from conftest import labrig
     ('[[bench]]\nname = "b1"\n[people]\ninstructors = ["kim"]\n[clas]\nname = "x"\n',
      "clas"),
     ('[[bench]]\nname = "b1"\n[people]\ninstructors = []\n', "people.instructors"),
+    ('[[bench]]\nname = "b1"\n[people]\ninstructors = ["kim"]\n[server]\nhost = "0.0.0.0"\n'
+     'behind_proxy = true\n', "forge the address it forwards"),
+    ('[[bench]]\nname = "b1"\n[people]\ninstructors = ["kim"]\n[server]\ncertfile = "c.pem"\n'
+     'keyfile = "c.key"\nbehind_proxy = true\n', "the proxy holds the TLS"),
 ])
 def test_a_bad_class_file_is_one_line_naming_the_key(tmp_path, body, words):
     f = tmp_path / "class.toml"
@@ -265,6 +269,34 @@ def test_strangers_forged_cookies_and_old_logins_are_refused_each_in_one_log_lin
     assert "ana logged in (student)" in log
     assert all(pw not in log for pw in PASSWORDS.values())
     assert "mallory" not in log          # an unknown name is not written down either
+
+
+def test_behind_a_proxy_the_login_cookie_is_https_only_and_the_log_names_the_forwarded_client(
+        tmp_path):
+    """`[server] behind_proxy = true` (the server on 127.0.0.1, an HTTPS proxy before it):
+    the login cookie is marked Secure, and the log names the client the proxy forwards
+    (X-Real-IP), not the proxy; without the key the cookie is not Secure and a forwarded
+    address is not believed."""
+    for proxy in (True, False):
+        folder = tmp_path / f"proxy_{proxy}"
+        f = write_class(folder, extra_server=f"behind_proxy = {str(proxy).lower()}")
+        server = ClassProc(f)
+        try:
+            s = requests.Session()
+            s.headers["X-Real-IP"] = "10.1.2.3"
+            form = s.get(f"{server.url}/login", timeout=30)
+            assert form.status_code == 200
+            r = s.post(f"{server.url}/login", data={"username": "ana", "password": "ana-secret-1",
+                                                    "_xsrf": s.cookies.get("_xsrf")},
+                       allow_redirects=False, timeout=30)
+            assert r.status_code == 302 and r.headers["Location"] == "/"
+            set_cookie = r.headers["Set-Cookie"]   # (the login's only cookie: the user's)
+            assert set_cookie.startswith("user=") and ("Secure" in set_cookie) is proxy, set_cookie
+        finally:
+            server.stop()
+        said = [line for line in server.log.read_text().splitlines() if "ana logged in" in line]
+        assert len(said) == 1, said
+        assert ("from 10.1.2.3" in said[0]) is proxy, said[0]
 
 
 # -- a bench on another PC -------------------------------------------------------------

@@ -92,12 +92,24 @@ class ServerSection(ClosedModel):
     dask_port: Annotated[int, Field(ge=1, le=65535)] = 8786
     #: the class's certificates (``labrig class certs``), relative to the class file
     certs: Annotated[str, Field(min_length=1, max_length=400)] = "certs"
+    #: an HTTPS reverse proxy on this machine serves the class: the login cookie is sent
+    #: over HTTPS only (``secure``), and the log names the client the proxy forwards
+    #: (X-Real-IP, X-Forwarded-For), which only a server listening on this machine alone
+    #: may believe
+    behind_proxy: bool = False
 
     @model_validator(mode="after")
     def _both_or_neither(self):
         if (self.certfile is None) != (self.keyfile is None):
             raise ValueError("give certfile and keyfile together (the server's TLS), or "
                              "neither (behind a reverse proxy, or this machine only)")
+        if self.behind_proxy and self.certfile is not None:
+            raise ValueError("behind_proxy: the proxy holds the TLS; remove certfile and "
+                             "keyfile, or behind_proxy")
+        if self.behind_proxy and self.host not in ("127.0.0.1", "localhost", "::1"):
+            raise ValueError(f"behind_proxy: host = {self.host!r} lets anyone reach the "
+                             "server past the proxy and forge the address it forwards; "
+                             "listen on 127.0.0.1 where the proxy reaches it")
         return self
 
 

@@ -89,9 +89,10 @@ class ClassLoginHandler(BasicLoginHandler):
         self.redirect("/login?error=Wrong+name+or+password.")
 
     def set_current_user(self, user):
-        # a session cookie (gone with the browser); its age is checked on every request
+        # a session cookie (gone with the browser); its age is checked on every request;
+        # behind an HTTPS proxy it never travels over plain HTTP
         self.set_secure_cookie("user", user, expires_days=None, httponly=True,
-                               samesite="Strict")
+                               samesite="Strict", secure=bool(self.room.server.behind_proxy))
 
 
 class ClassLogoutHandler(LogoutHandler):

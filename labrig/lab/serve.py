@@ -150,7 +150,8 @@ def class_app(server, *, log=None):
                    auth_provider=auth, cookie_secret=secret, xsrf_cookies=True,
                    sign_sessions=True, secret_key=secrets.token_urlsafe(48),
                    check_unused_sessions_milliseconds=CHECK_UNUSED_MS,
-                   unused_session_lifetime_milliseconds=UNUSED_LIFETIME_MS, **tls)
+                   unused_session_lifetime_milliseconds=UNUSED_LIFETIME_MS,
+                   use_xheaders=cfg.behind_proxy, **tls)
     shown = "127.0.0.1" if host in ("0.0.0.0", "::") else host
     return app, f"{'https' if tls else 'http'}://{shown}:{port}/"
 
