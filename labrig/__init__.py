@@ -24,7 +24,8 @@ keep_freed_memory()
 #: public name -> module that defines it
 _PUBLIC = {name: "labrig.verbs" for name in (
     "sweep", "read_runs", "analyse", "identify", "add_effect", "remove_effect", "diagnose",
-    "auto", "propose", "decide", "compare", "ladder", "effects", "load_model")}
+    "auto", "propose", "decide", "compare", "ladder", "effects", "load_model", "try_effect",
+    "set_by_hand", "ask_until_sure")}
 _PUBLIC.update({
     "Model": "labrig.model.model", "Run": "labrig.io.runs", "Effect": "labrig.model.effects",
     "Param": "labrig.model.effect_base",

@@ -153,7 +153,36 @@ def add_effect(source, model, effect, *, method: str = "co", seed: int | None = 
 def try_effect(source, model, effect: str):
     """``model`` with ``effect`` added at the size a fit would start from, nothing
     re-fitted: to see what the effect does to the curves before any fit says (the lab's
-    *Try an effect*; its sliders then set the size by hand)."""
+    *Try an effect*; its sliders then set the size by hand).
+
+    Parameters
+    ----------
+    source : folder, file, list of them, or runs
+        The runs the effect's starting size is guessed from.
+    model : Model, model file or fit
+        The model to add it to.
+    effect : str
+        A catalogue name (:func:`effects`) or ``FILE.py:Class`` of code you trust.
+
+    Returns
+    -------
+    Model
+        The model with the effect at its guessed size; compare it with
+        :func:`compare` before fitting it with :func:`identify`.
+
+    Raises
+    ------
+    UserError
+        An unknown effect (the catalogue listed), or one the model has already.
+
+    Examples
+    --------
+    >>> import labrig as lr
+    >>> m = lr.Model(params={"R": 8.0, "L": 0.01, "K": 0.05, "J": 1e-4, "B": 1e-5})
+    >>> t = lr.try_effect("data/sweep_default", m, "deadband")
+    >>> t.names, round(t.effect_params["deadband"]["d_v"], 3)
+    (['deadband'], 0.06)
+    """
     from labrig.model.effects import get_effect
 
     runs, m = read_runs(source), model_of(model)
@@ -165,10 +194,39 @@ def try_effect(source, model, effect: str):
 
 def set_by_hand(source, model, values: dict):
     """``model`` with parameters set by hand, nothing re-fitted (the lab's sliders;
-    ``labrig compare --set``): ``values`` maps a plant parameter (``"J"``) or an
-    effect's (``"coulomb_friction.tc_v"``, in the units :func:`effect` lists) to its
-    value. An effect the model lacks is added first, as :func:`try_effect` adds it.
-    A value outside the parameter's range is refused, naming the range."""
+    ``labrig compare --set``).
+
+    Parameters
+    ----------
+    source : folder, file, list of them, or runs
+        The runs an added effect's other parameters are guessed from.
+    model : Model, model file or fit
+        The model to change.
+    values : dict
+        A plant parameter (``"J"``) or an effect's (``"coulomb_friction.tc_v"``, in the
+        units :func:`effect` lists) to its value. An effect the model lacks is added
+        first, as :func:`try_effect` adds it.
+
+    Returns
+    -------
+    Model
+        The model with those values; :func:`compare` shows it on the runs, and
+        ``identify(..., model=it, starts=1)`` fits from there.
+
+    Raises
+    ------
+    UserError
+        A name that is not a parameter (its parameters listed), or a value outside the
+        parameter's range (the range named).
+
+    Examples
+    --------
+    >>> import labrig as lr
+    >>> m = lr.Model(params={"R": 8.0, "L": 0.01, "K": 0.05, "J": 1e-4, "B": 1e-5})
+    >>> h = lr.set_by_hand("data/sweep_default", m, {"coulomb_friction.tc_v": 0.13, "J": 2e-4})
+    >>> h.names, h.effect_params["coulomb_friction"], h.params["J"]
+    (['coulomb_friction'], {'tc_v': 0.13}, 0.0002)
+    """
     from labrig.model.effects import get_effect
 
     m = model_of(model)

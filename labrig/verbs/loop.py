@@ -234,12 +234,55 @@ def ask_until_sure(source, model, between: str, play, *, budget_s: float = 20.0,
                    through: str | None = "auto", rig_amplitude: bool = True, log=None,
                    loop: str = "open", progress=None, on_step=None):
     """Ask the rig until sure: experiments of at most ``step_s`` seconds, each the best
-    for the data so far, played one at a time by ``play(plan_toml, k) -> runs`` and
-    judged after each (the decision's fits and margin), until one explanation of
-    ``between`` (``"a,b"``) wins or ``budget_s`` seconds are spent. ``rig`` and
-    ``rig_amplitude`` and ``loop`` as :func:`propose`'s; ``on_step(step, runs)`` hears each step as
-    it is judged. Returns an :class:`~labrig.design.ask.Asking`: the steps, the rig
-    seconds used and the one-shot plan's."""
+    for the data so far, played one at a time and judged after each (the decision's fits
+    and margin), until one explanation wins, the budget is spent, or two steps in a row
+    show no difference (``labrig diagnose --auto --ask-rig --step-s S``).
+
+    Parameters
+    ----------
+    source : folder, file, list of them, or runs
+        The data so far.
+    model : Model, model file or fit
+        The model both explanations extend.
+    between : str
+        The two explanations, ``"a,b"`` (catalogue names).
+    play : callable
+        ``play(plan_toml, k) -> runs``: plays step ``k``'s plan on the rig and returns
+        its runs (a folder, files or runs).
+    budget_s, step_s : float
+        The rig seconds to spend at most, and each step's longest experiment.
+    seed : int
+        The fits' seed (default 0).
+    rig : RigConfig or rig file, optional
+        The rig's limits (its output limit bounds the input with ``rig_amplitude``).
+    through : str, optional
+        How closed-loop runs are fitted, as :func:`read_runs`'s.
+    rig_amplitude : bool
+        Bound the input by the rig's limit (else by the data's largest input).
+    log : callable, optional
+        Told each step in words.
+    loop : {"open", "closed", "any"}
+        As :func:`propose`'s.
+    progress : callable, optional
+        The verbs' progress hook.
+    on_step : callable, optional
+        ``on_step(step, runs)`` hears each step as it is judged.
+
+    Returns
+    -------
+    Asking
+        ``.steps``, ``.sure``, ``.leader``, ``.rig_seconds`` and ``.one_shot_s`` (the
+        one-shot plan's length).
+
+    Examples
+    --------
+    >>> import labrig as lr
+    >>> def play(plan_toml, k):  # the simulated rig plays each step into its own folder
+    ...     open(f"step{k}.toml", "w").write(plan_toml)
+    ...     return lr.sweep(f"asked/step{k}", plan=f"step{k}.toml")
+    >>> a = lr.ask_until_sure("runs", "m1.json", "deadband,coulomb_friction", play)  # doctest: +SKIP
+    >>> a.leader, a.rig_seconds  # doctest: +SKIP
+    """
     from labrig.design.ask import ask_until_sure as _ask
 
     rig, amax = _rig_limit(rig, rig_amplitude)
