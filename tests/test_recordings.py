@@ -430,3 +430,44 @@ def test_a_pair_warm_started_from_one_member_is_also_fitted_from_the_data():
     assert dz["dpos_v"] == pytest.approx(1.0, rel=0.05) and dz["dneg_v"] == pytest.approx(1.6, rel=0.05)
     assert fr["tc_v"] == pytest.approx(0.8, rel=0.05)
     assert res.ladder.steps[-1].rmse_over_noise["position"] <= 1.2
+
+
+def _as_pot_volts(srcs, folder):
+    """An encoder logger's exports with the count written as a pot would read it (0.5 V
+    per rad of the output shaft, -4 V at zero): an exact count, imported as volts, no
+    encoder declared."""
+    import pandas as pd
+
+    folder.mkdir(parents=True, exist_ok=True)
+    out = []
+    for src in srcs:
+        d = pd.read_csv(src)
+        d["pos_v"] = d["count"] * (2 * np.pi / 4000) * 0.5 - 4.0
+        path = folder / src.name
+        d[["t", "u", "pos_v"]].to_csv(path, index=False, float_format="%.9g")
+        out.append(path)
+    return out
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("offset_v", [0.0, 0.15])
+def test_a_counts_grain_is_not_an_input_offset_and_a_real_offset_is_still_found(tmp_path, offset_v):
+    """A position-only rig whose position is an exact count of the output shaft (4000 a
+    turn), imported as pot volts with its gain and offset, no encoder declared; the rail
+    hidden (and an input offset of 0.15 V in the second case). The count is a floor: while
+    the shaft moves, its reading is half a count below the truth on average. The loop adds
+    the rail, and an input offset only when there is one: an offset whose whole creep over
+    the runs stays inside one count is the count's grain, below the sensor's resolution."""
+    from labrig.diagnosis.loop.auto import auto_diagnose
+    from twin import Twin, encoder_squares
+
+    srcs = encoder_squares(Twin(rail=8.0, offset_v=offset_v), tmp_path / "logger", seed=1)
+    runs = _imported(_as_pot_volts(srcs, tmp_path / "volts"), tmp_path / "runs", "--map",
+                     "t=t,u=u,pos=pos_v", "--pos-gain", "0.5", "--pos-offset", "-4",
+                     "--gear-ratio", "30", "--amplifier-gain", "5", "--waveform", "square")
+    res = auto_diagnose(runs, seed=0)
+    want = ["offset", "saturation"] if offset_v else ["saturation"]
+    assert sorted(res.model.names) == want, [m.label for m in res.moves]
+    assert res.model.effect_params["saturation"]["vmax_v"] == pytest.approx(8.0, rel=0.02)
+    if offset_v:
+        assert res.model.effect_params["offset"]["u0_v"] == pytest.approx(offset_v, rel=0.1)

@@ -72,6 +72,7 @@ class Twin:
     smooth_rad_s: float = 0.05    # tanh smoothing of the sign of the speed
     gap_rad: float = 0.0          # half the gear's backlash, at the output shaft
     delay_s: float = 0.0
+    offset_v: float = 0.0         # an input offset: the amplifier sees u + offset_v
     tacho_noise_v: float = 0.010
     pot_noise_v: float = 0.004
     tacho_ripple: float = 0.0     # relative ripple of the tacho's gain ...
@@ -95,6 +96,7 @@ class Twin:
         return level * math.tanh(w / self.smooth_rad_s)
 
     def _armature(self, u: float) -> float:
+        u = u + self.offset_v
         d = self.deadzone_v
         v = math.copysign(max(abs(u) - d, 0.0), u) if d > 0.0 else u
         return min(max(self.Ka * v, -self.rail), self.rail)

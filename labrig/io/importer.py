@@ -26,7 +26,7 @@ import pandas as pd
 
 from labrig.core.errors import RunFileError, UserError
 from labrig.model.plants import AXES, check_axis
-from labrig.model.sensors import found_count
+from labrig.model.sensors import exact_grid, found_count
 from labrig.core.schemas import RUN_NAME_MAX, check_run_name, validate
 from labrig.core.sidecar_schema import Controller, Sidecar
 from labrig.io.exportfile import CsvLayout, read_export
@@ -214,6 +214,22 @@ class ImportOptions:
     rate_hz: float | None = None
 
 
+def _find_position_count(src: Path, position, unit: str, sensors: dict, notes: list) -> None:
+    """An undeclared position that is an exact count (:func:`labrig.model.sensors.
+    exact_grid`: every reading on one grid, and no noise flipping it up and down) is
+    modelled as the quantiser it is: its step is the position's quantum
+    (``pos_quantum``), so each run's start within a step is fitted and the count's own
+    bias (a count is a floor: half a step below the shaft while it moves) is not taken
+    for physics (an input offset creeping by half a count over a run)."""
+    q = exact_grid(np.asarray(position, float))
+    if not q:
+        return
+    sensors["pos_quantum"] = q
+    notes.append(f"{src.name}: the position reads whole steps of {q:.4g} {unit} with no "
+                 "noise at rest: taken as an exact count of that step (each run's start "
+                 "within a step is fitted); declare `pos_unit=counts:N` to say so")
+
+
 def _find_count(src: Path, speed, fs: float, sensors: dict, notes: list) -> None:
     """An undeclared speed that reads whole counts and stands at zero when still is a
     count, not an ADC's codes (:func:`labrig.model.sensors.found_count`): taken as counted
@@ -395,6 +411,10 @@ def import_csv(src: Path | str, outdir: Path | str, mapping: dict[str, str],
     check_ranges(src, pd.DataFrame(cols), mapping, first_row)  # before anything is written
     if "speed" in mapping and "pos" not in mapping and o.speed_window is None:
         _find_count(src, cols["speed"], fs, sensors, notes)
+    if "pos" in mapping and counts_per_unit is None:
+        k, off = sensors["pos_v_per_rad"], sensors["pos_offset_v"]
+        _find_position_count(src, (np.asarray(cols["pos"], float) - off) / k,
+                             "m" if axis == "linear" else "rad", sensors, notes)
     rig = {"gear_ratio": float(o.gear_ratio if o.gear_ratio is not None else 1.0),
            "amplifier_gain": float(o.amplifier_gain),
            "name": f"imported from {src.name}", "drive": o.drive, "axis": axis}

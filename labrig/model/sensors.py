@@ -118,3 +118,37 @@ def found_count(speeds) -> float:
         return 0.0
     q = count_quantum(np.concatenate(speeds))
     return q if q and still_reads_like_a_count(speeds, q) else 0.0
+
+
+def exact_grid(y: np.ndarray, flips: float = FLIPS) -> float:
+    """The step of ``y`` when it is an exact count (every reading within a hundredth of a
+    step of one grid, at least 20 moves between readings, and at most ``flips`` of its
+    successive moves reversing the one before: a count turns round only where the shaft
+    does, an ADC's noise flips about half its moves); 0 otherwise."""
+    y = np.asarray(y, float)
+    y = y[np.isfinite(y)]
+    if len(y) < 50:
+        return 0.0
+    # the step: the smallest gap between levels that recurs (a fast shaft skips counts
+    # between readings, but it starts from rest through single ones)
+    gaps = np.diff(np.unique(np.round(y, 12)))
+    gaps = np.sort(gaps[gaps > 1e-12])
+    q = next((float(g) for g in gaps if np.sum(np.abs(gaps - g) < 0.01 * g) >= 3), 0.0)
+    if q <= 0.0:
+        return 0.0
+    # the step refined over every move (a log's decimals round each level a little, and
+    # a run spans thousands of steps)
+    d = np.diff(y)
+    d = np.abs(d[np.abs(d) > 0.5 * q])
+    n = np.round(d / q)
+    if len(d) < 20 or np.any(n < 1):
+        return 0.0
+    q = float(np.sum(d) / np.sum(n))
+    k = (y - y[0]) / q
+    if np.mean(np.abs(k - np.round(k)) < 0.01) < 0.999:
+        return 0.0
+    d = np.diff(np.round(k))
+    s = np.sign(d[d != 0])
+    if len(s) < 20:
+        return 0.0
+    return float(q) if np.sum(s[1:] != s[:-1]) <= flips * (len(s) - 1) else 0.0
