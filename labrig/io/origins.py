@@ -5,6 +5,7 @@ runs with another rig's or with imported recordings (a fit of the folder would t
 of two systems at once)."""
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -38,7 +39,7 @@ def _position(sensors: dict, rig: dict) -> str | None:
         return None
     linear = rig.get("axis") == "linear"
     if sensors.get("pos_kind") == "encoder":
-        per = float(k) if linear else 6.283185307179586 * float(k)
+        per = float(k) if linear else math.tau * float(k)
         return f"encoder, {per:.6g} counts per {'metre' if linear else 'turn'}"
     if sensors.get("pos_kind") is None and float(k) == 1.0:   # imported in physical units
         return f"position in {'m' if linear else 'rad'}"

@@ -286,11 +286,11 @@ class LabPage:
             f"**{live.name or 'no run yet'}** · samples {live.samples}/{live.n_planned} · gaps "
             f"{c.get('dropped_samples', 0)} · CRC errors {c.get('crc_errors', 0)} · "
             f"retries {c.get('retries', 0)}" + (" · **running**" if st.sweeping else "")))
-        set_text(self.sweep_note, st.sweep_note or st.foreign())
         if self._ticks % 5 == 0:   # the folder's listing: twice a second is enough
             set_text(self.runs_list,
                      "runs in the folder: " + (", ".join(st.runs_on_disk()) or "none"))
-            set_text(self.heading, self._heading())
+            set_text(self.heading, self._heading()); self.sweep_note_foreign = st.foreign()  # noqa: E702
+        set_text(self.sweep_note, st.sweep_note or self.sweep_note_foreign)
         self._ticks += 1
         if self.owner and st.poll():
             self._show_loop()
