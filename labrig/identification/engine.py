@@ -66,9 +66,11 @@ def _run_co(obj, lo, hi, x0, o):
         # local's history is the mean square of the thinned residuals over all m: times m,
         # the mean square per residual (the fitness squared, on every k-th sample)
         stop = (lambda h: rule([float(np.sqrt(v * obj.m)) for v in h])) if rule else None
+        tol = o.get("tol")
         res = local(lambda x: obj.residuals(x, k), lo, hi, x0=x0, starts=1, seed=o["seed"],
                     jac_batch=lambda X: obj.residuals_jac_batch(X, k),
-                    max_nfev=o.get("max_nfev"), callback=root_cb, stop=stop)
+                    max_nfev=o.get("max_nfev"), callback=root_cb, stop=stop,
+                    options=None if tol is None else {"xtol": tol, "ftol": tol})
         res.fun = float(np.sqrt(res.fun))
         res.history = [float(np.sqrt(h)) for h in res.history]
         return res
@@ -128,6 +130,10 @@ class FitOptions:
     #: each run's start (labrig.model.start): "auto" (the run file, else its first
     #: samples), "rest" (every run from rest) or "estimate" (every run's fitted)
     start_state: str = "auto"
+    #: CO from a start on a subsample only: the trust region's tolerances on the step and
+    #: on the cost (scipy's ``xtol`` and ``ftol``; None: scipy's 1e-8), for fits whose
+    #: answer is needed to fewer digits (the cross-validation's fold fits)
+    tol: float | None = None
     #: CO from a start on a subsample only: ``stop(fitness history) -> bool`` after each
     #: iteration may end the fit there (the loop's screen of its candidates,
     #: :func:`labrig.diagnosis.evidence.criteria.screen`); the history is the fitness (root mean
@@ -247,7 +253,8 @@ def solve(problem: Problem, method: str = METHOD, *, seed: int | None = SEED,
     x0 = space.to_search(problem.initial_point(start))
     seed = int(np.random.default_rng().integers(2 ** 31)) if seed is None else int(seed)
     opts = {"pop": o.pop, "iters": o.iters, "seed": seed, "starts": o.starts, "callback": callback,
-            "max_nfev": o.max_nfev, "rule": o.rule, "subsample": o.subsample, "stop": o.stop}
+            "max_nfev": o.max_nfev, "rule": o.rule, "subsample": o.subsample, "stop": o.stop,
+            "tol": o.tol}
     mark("fit-start")
     try:
         res = METHODS[method](obj, lo, hi, x0 if (start or method == "co") else None, opts)

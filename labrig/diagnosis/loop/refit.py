@@ -59,13 +59,14 @@ POLISH_GAIN = 0.05
 
 
 def fit(runs, effects, start, fixed: dict, *, seed: int, weights: Weights,
-        reach, max_nfev: int = 60, masks=None, stop=None):
+        reach, max_nfev: int = 60, masks=None, stop=None, tol=None):
     """One CO fit from ``start`` (a Model or its flat values; bounds from ``reach``); ``stop``: a rule that may end
-    it early (:func:`labrig.diagnosis.evidence.criteria.screen`)."""
+    it early (:func:`labrig.diagnosis.evidence.criteria.screen`); ``tol``: the trust region's
+    tolerances (:class:`~labrig.identification.engine.FitOptions`)."""
     problem = Problem(runs, effects, fixed=fixed, reach=reach or Reach.of(runs),
                       weights=weights, masks=masks)
     return solve(problem, "co", seed=seed, start=start, starts=1, identifiability=False,
-                 max_nfev=max_nfev, subsample=SUBSAMPLE, stop=stop)
+                 max_nfev=max_nfev, subsample=SUBSAMPLE, stop=stop, tol=tol)
 
 
 def fresh_fit(runs, effects, *, seed: int, fixed: dict, weights: Weights, reach=None):
