@@ -6,12 +6,12 @@ STAMP := $(VENV)/.installed
 # the versions tested (CPython 3.11, Linux x86-64); `make lock` refreshes them
 LOCK := requirements/lock-py311-linux-x86_64.txt
 
-.PHONY: demo test test-quick test-kernels coverage-quick firmware clean lock
+.PHONY: demo test test-quick test-kernels coverage-quick firmware clean lock docs docs-student screenshots
 
 $(STAMP): pyproject.toml $(LOCK)
 	$(PY) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
-	$(BIN)/python -m pip install -q -c $(LOCK) -e '.[test]'
+	$(BIN)/python -m pip install -q -c $(LOCK) -e '.[test,docs]'
 	$(BIN)/labrig-warm   # compile the simulator now, not in the first command
 	touch $(STAMP)
 
@@ -57,6 +57,20 @@ coverage-quick: $(STAMP) ## make test-quick's tests under coverage; lists the mo
 	    --cov=labrig --cov-report=json:.suite/coverage-quick.json --cov-report=
 	$(BIN)/python benchmarks/bench_suite.py untouched .suite/coverage-quick.json
 
+# the documentation site, offline, every warning an error (docs/conf.py says how it is made);
+# the notebook runs in it, so its figures are the code's
+docs: $(STAMP)          ## the documentation site -> build/docs/index.html
+	$(BIN)/python -m sphinx -W --keep-going -q -b html docs build/docs
+
+docs-student: $(STAMP)  ## the same without the instructor notes -> build/docs-student
+	$(BIN)/python -m sphinx -W --keep-going -q -t student -b html docs build/docs-student
+
+# the lab page's screenshots in the site are the browser tests' own (tests/artefacts/, after
+# a run of tests/test_lab.py): copied, never drawn by hand
+screenshots:            ## copy the browser tests' screenshots the site shows into docs/figures
+	cp tests/artefacts/lab_loop_readme.png docs/figures/lab_loop.png
+	cp tests/artefacts/lab_search_climbing.png tests/artefacts/lab_ask_the_rig.png docs/figures/
+
 firmware:               ## build both boards and run the C unit tests
 	$(MAKE) -C firmware all test
 
@@ -66,7 +80,7 @@ lock:                   ## refresh requirements/lock-py311-linux-x86_64.txt
 	rm -rf .lock-venv
 	$(PY) -m venv .lock-venv
 	.lock-venv/bin/python -m pip install -q --upgrade pip
-	.lock-venv/bin/python -m pip install -q '.[test]'
+	.lock-venv/bin/python -m pip install -q '.[test,docs]'
 	{ echo "# The versions labrig is tested with: CPython 3.11 on Linux x86-64."; \
 	  echo "# make demo, make test and CI install from this file (pip install -c); make lock refreshes it."; \
 	  .lock-venv/bin/python -m pip freeze --exclude-editable | grep -v '^labrig'; } > $(LOCK)

@@ -118,6 +118,15 @@ def test_links_between_documents_resolve():
     assert not broken, "broken links:\n" + "\n".join(broken)
 
 
+#: where the benchmarks' records are quoted: the site's performance and test-suite pages
+RECORDS = [ROOT / "docs" / "project" / "performance.md", ROOT / "docs" / "project" / "tests.md",
+           ROOT / "docs" / "start" / "install.md"]
+
+
+def _records() -> str:
+    return "\n".join(p.read_text() for p in RECORDS)
+
+
 def _markdown(script: str) -> str:
     import subprocess
     import sys
@@ -132,7 +141,7 @@ def test_readme_quotes_the_recorded_whole_process_benchmark():
     reference's seconds per candidate."""
     import json
 
-    readme = (ROOT / "README.md").read_text()
+    readme = _records()
     for row in _markdown("bench_user.py").splitlines():
         assert row in readme, row
     rec = json.loads((ROOT / "benchmarks" / "results_user.json").read_text())
@@ -161,7 +170,7 @@ def test_readme_quotes_the_recorded_kernel_benchmark():
     and the run's date are those of benchmarks/results_kernel.json."""
     import json
 
-    readme = (ROOT / "README.md").read_text()
+    readme = _records()
     assert _markdown("bench_kernel.py") in readme
     rec = json.loads((ROOT / "benchmarks" / "results_kernel.json").read_text())
     assert f"{rec['peak_gflops_one_core']:.1f} GFLOP/s" in readme
@@ -174,27 +183,27 @@ def test_readme_quotes_the_recorded_kernel_benchmark():
 def test_readme_quotes_the_recorded_startup_benchmark():
     """The start-up paragraph (fitting's start against the floor numba sets) is the one
     benchmarks/bench_startup.py writes from benchmarks/results_startup.json."""
-    prose = " ".join((ROOT / "README.md").read_text().split())
+    prose = " ".join(_records().split())
     assert " ".join(_markdown("bench_startup.py").split()) in prose
 
 
 def test_readme_quotes_the_recorded_lab_benchmark():
     """The lab page's table is the one benchmarks/bench_lab.py writes from
     benchmarks/results_lab.json."""
-    assert _markdown("bench_lab.py") in (ROOT / "README.md").read_text()
+    assert _markdown("bench_lab.py") in _records()
 
 
 def test_readme_quotes_the_recorded_class_benchmark():
     """The class server's load table is the one benchmarks/bench_class.py writes from
     benchmarks/results_class.json, misses included."""
-    assert _markdown("bench_class.py") in (ROOT / "README.md").read_text()
+    assert _markdown("bench_class.py") in _records()
 
 
 def test_readme_quotes_the_recorded_sheet_and_peer_benchmarks():
     """The slowest commands of the sheets and the README's loop, the named targets, and
     the diagnose round against scipy are what benchmarks/bench_sheets.py and
     benchmarks/bench_peer.py write from their recorded runs."""
-    readme = (ROOT / "README.md").read_text()
+    readme = _records()
     assert _markdown("bench_sheets.py") in readme
     assert _markdown("bench_peer.py") in readme
 
@@ -202,20 +211,20 @@ def test_readme_quotes_the_recorded_sheet_and_peer_benchmarks():
 def test_readme_quotes_the_recorded_click_benchmark():
     """The loop's speed targets (a round, --auto, closed against open loops) are what
     benchmarks/bench_click.py writes from benchmarks/results_click.json, misses included."""
-    assert _markdown("bench_click.py") in (ROOT / "README.md").read_text()
+    assert _markdown("bench_click.py") in _records()
 
 
 def test_readme_quotes_the_recorded_long_record_benchmark():
     """`--auto` on long recordings against the README's default round is what
     benchmarks/bench_long.py writes from benchmarks/results_long.json, misses included."""
-    assert _markdown("bench_long.py") in (ROOT / "README.md").read_text()
+    assert _markdown("bench_long.py") in _records()
 
 
 def test_readme_quotes_the_recorded_seed_benchmark():
     """The loop's answer on the long axis records against the seed and the BLAS kernel is
     what benchmarks/bench_seeds.py writes from benchmarks/results_seeds.json, misses
     included."""
-    assert _markdown("bench_seeds.py") in (ROOT / "README.md").read_text()
+    assert _markdown("bench_seeds.py") in _records()
 
 
 def test_benchmarks_readme_quotes_the_recorded_walk():
@@ -236,4 +245,51 @@ def test_readme_quotes_the_recorded_suite_times():
     """The test suite's stage times and its slowest tests are what benchmarks/bench_suite.py
     writes from benchmarks/results_suite.json (the last full run of .ci/run), the miss of
     the 30-minute target included."""
-    assert _markdown("bench_suite.py") in (ROOT / "README.md").read_text()
+    assert _markdown("bench_suite.py") in _records()
+
+
+# -- the newcomer's page and the site ----------------------------------------------------
+
+def test_the_readme_is_a_newcomers_page():
+    """At most 150 lines (the rest lives in the site, docs/), with the two quick-start
+    commands, the tested platform, the licence and how to cite."""
+    text = (ROOT / "README.md").read_text()
+    assert len(text.splitlines()) <= 150, len(text.splitlines())
+    for must in ("make demo", "make test", "CPython 3.11", "LICENSE", "CITATION.cff"):
+        assert must in text, must
+
+
+def test_the_sites_screenshots_are_the_browser_tests():
+    """Every screenshot of the lab page in docs/figures is one `make screenshots` copies
+    from the browser tests' artefacts, and each is a shot a browser test takes."""
+    import re
+
+    make = (ROOT / "Makefile").read_text()
+    recipe = make[make.index("\nscreenshots:"):].split("\n\n")[0]
+    shots = set()
+    for test in ("test_lab.py", "test_class_browser.py"):
+        shots |= set(re.findall(r'\.shot\("(\w+)"\)', (ROOT / "tests" / test).read_text()))
+    copied = re.findall(r"tests/artefacts/lab_(\w+)\.png", recipe)
+    assert copied and set(copied) <= shots, (copied, shots)
+    for png in (ROOT / "docs" / "figures").glob("lab_*.png"):
+        assert png.name in recipe or f"lab_{png.stem[4:]}.png" in recipe, png.name
+
+
+@pytest.mark.slow
+def test_the_students_copy_of_the_site_has_no_instructor_notes(tmp_path):
+    """`make docs-student` (Sphinx's -t student) builds the site without the instructor
+    notes and without a warning; the notebook is not run here (`make docs` runs it, CI
+    builds it)."""
+    import subprocess
+    import sys
+
+    pytest.importorskip("sphinx")
+    out = tmp_path / "site"
+    proc = subprocess.run([sys.executable, "-m", "sphinx", "-W", "--keep-going", "-q",
+                           "-t", "student", "-D", "nb_execution_mode=off", "-b", "html",
+                           "-d", str(tmp_path / "doctrees"), str(ROOT / "docs"), str(out)],
+                          capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert (out / "index.html").is_file() and (out / "exercises" / "03_mystery_rig.html").is_file()
+    assert not (out / "instructor").exists()
+    assert "instructor/" not in (out / "index.html").read_text()

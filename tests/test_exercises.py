@@ -41,8 +41,12 @@ ROOT = Path(__file__).resolve().parent.parent
 SHEETS = sorted((ROOT / "docs" / "exercises").glob("[0-9]*.md"))
 FENCE = re.compile(r"^```\s*([A-Za-z0-9_+-]*)\s*(.*)$")
 EXPECT = re.compile(r"#\s*expect-exit:\s*(\d+)\s*$")
-#: README sections whose every decimal figure and percentage a check must declare
-README_MEASURED = ("The missing-physics loop", "Your rig is not an MS150")
+#: the site's pages that tell the loop's story with checked figures (they were the
+#: README's), and their sections whose every decimal figure and percentage a check must declare
+GUIDE = [ROOT / "docs" / "guide" / "loop.md", ROOT / "docs" / "project" / "validation.md",
+         ROOT / "docs" / "guide" / "your-rig.md"]
+GUIDE_MEASURED = ("The missing-physics loop", "What the loop can and cannot see",
+                  "Your rig is not an MS150")
 FORBIDDEN = {"|", "||", "&&", ";", ">", ">>", "<", "&", "2>", "2>&1"}
 
 
@@ -244,24 +248,24 @@ def test_quoted_figures_are_declared_beside_their_command():
 @pytest.mark.slow
 @pytest.mark.kernels
 def test_readme_figures(tmp_path):
-    """The README's loop story quotes what its commands give now."""
+    """The loop's story in the guide (once the README's), and the README's one figure,
+    quote what their commands give now."""
     setup_workdir(tmp_path)
-    readme = ROOT / "README.md"
-    problems = quoted.unchecked_figures(readme, README_MEASURED)
-    problems += check_quoted([readme], tmp_path, [], board=False)
-    assert not problems, "README figures out of date:\n" + "\n".join(problems)
+    problems = [p for doc in GUIDE for p in quoted.unchecked_figures(doc, GUIDE_MEASURED)]
+    problems += check_quoted(GUIDE + [ROOT / "README.md"], tmp_path, [], board=False)
+    assert not problems, "the guide's figures out of date:\n" + "\n".join(problems)
 
 
 @pytest.mark.firmware
 def test_readme_figures_of_the_emulated_board(tmp_path):
-    """The README's figures from runs played on the real firmware under simavr."""
+    """The guide's figures from runs played on the real firmware under simavr."""
     from labrig.bridge.emulate import missing_tools
 
     if missing_tools():
         pytest.skip(f"firmware toolchain missing: {', '.join(missing_tools())}")
     setup_workdir(tmp_path)
-    problems = check_quoted([ROOT / "README.md"], tmp_path, [], board=True)
-    assert not problems, "README figures out of date:\n" + "\n".join(problems)
+    problems = check_quoted(GUIDE, tmp_path, [], board=True)
+    assert not problems, "the guide's figures out of date:\n" + "\n".join(problems)
 
 
 @pytest.mark.kernels

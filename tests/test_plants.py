@@ -2,6 +2,7 @@
 the armature current as an output, closed-loop runs with their controller, physical
 results in the axis's units."""
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -100,8 +101,9 @@ def test_linear_axis_example_config_identifies_in_physical_units(tmp_path):
     assert ph["Fc"]["unit"] == "N" and ph["Fc"]["value"] == pytest.approx(8.0, rel=0.05)
     assert ph["F0"]["value"] == pytest.approx(1.0, rel=0.05)
     assert ph["M"]["interval95"][0] <= ph["M"]["value"] <= ph["M"]["interval95"][1]
-    # the README quotes these numbers ("Your rig is not an MS150")
-    readme = open("README.md", encoding="utf-8").read()
+    # the guide quotes these numbers ("Your rig is not an MS150")
+    readme = (Path(__file__).resolve().parent.parent / "docs" / "guide" / "your-rig.md").read_text(
+        encoding="utf-8")
     quoted = ", ".join(f"{k} = {ph[k]['value']:.4g} {u}" for k, u in
                        (("M", "kg"), ("Fv", "N s/m"), ("Fc", "N")))
     assert f"finds {quoted} and F0 = {ph['F0']['value']:.4g} N" in readme

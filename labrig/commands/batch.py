@@ -70,7 +70,7 @@ def _configure(p):
     p.add_argument("task", type=str.lower, choices=TASK_NAMES,
                    help="analyse | identify | diagnose (the --auto search) | check (a "
                         "hand-in's model against its .mystery file)")
-    p.add_argument("folders", nargs="+", help="run folders, e.g. handins/*/")
+    p.add_argument("folders", nargs="+", help="run folders, e.g. `handins/*/`")
     p.add_argument("-o", "--output", required=True,
                    help="folder for results.csv, results.json and one folder per run folder")
     p.add_argument("--jobs", type=int, default=1,

@@ -168,7 +168,7 @@ def _configure(p):
                         "fitted; default), rest (every run from rest), estimate (every run's "
                         "fitted)")
     p.add_argument("--rule", default="paper", choices=["paper", "reference"],
-                   help="JFO passive/active test: the paper's (|c|) or the authors' MATLAB "
+                   help="JFO passive/active test: the paper's (the magnitude of c) or the authors' MATLAB "
                         "code's (signed c, half the passive moves)")
     p.add_argument("--figures", help="folder for the convergence plot")
 
