@@ -378,3 +378,57 @@ def test_every_results_public_method_is_documented(name):
                     f"{where}: parameter {p!r} not in its Parameters section"
         if _returns_a_value(fn):
             assert re.search(r"^Returns\n-{7}$", doc, re.M), f"{where}: no Returns section"
+
+
+#: the order a student meets the public names in (each example may use the files the ones
+#: before it wrote: ``runs`` from sweep's, ``plan.toml`` from propose's)
+TOUR = ("sweep", "read_runs", "analyse", "identify", "add_effect", "remove_effect",
+        "diagnose", "auto", "compare", "ladder", "effects", "load_model", "try_effect",
+        "set_by_hand", "propose", "decide", "ask_until_sure", "Model", "Run", "Effect",
+        "Param", "AnalysisResult", "Identification", "Diagnosis", "AutoDiagnosis",
+        "Evaluation", "Ladder", "Proposal", "Catalogue", "LabrigError", "UserError")
+
+
+@pytest.mark.slow
+def test_every_public_names_example_runs(tmp_path, monkeypatch):
+    """Every example of every name ``import labrig as lr`` gives runs as a doctest, those
+    marked ``+SKIP`` for the quick run too (they fit for seconds), in a folder holding
+    what they name: the shipped sweep (``data/sweep_default``), a sweep of the simulated
+    rig (``runs``, made by sweep's own example), the linear model and one with Coulomb
+    friction (``m0.json``, ``m1.json``), and the runs a proposal's plan played
+    (``runs/new``)."""
+    import doctest
+    import inspect
+    import shutil
+
+    assert sorted(TOUR) == sorted(n for n in lr.__all__ if n != "__version__")
+    shutil.copytree(ROOT / "data" / "sweep_default", tmp_path / "data" / "sweep_default")
+    monkeypatch.chdir(tmp_path)
+    parser = doctest.DocTestParser()
+    runner = doctest.DocTestRunner(optionflags=doctest.ELLIPSIS | doctest.NORMALIZE_WHITESPACE)
+    failed, ran = [], 0
+    for name in TOUR:
+        if name == "identify":   # the models the later examples name
+            lr.identify("runs").model().save("m0.json")
+            lr.identify("runs", effects=["coulomb_friction"]).model().save("m1.json")
+        if name == "decide":     # the proposal's plan, played as `labrig sweep --plan` does
+            lr.sweep("runs/new", plan="plan.toml")
+        doc = inspect.getdoc(getattr(lr, name))
+        examples = doc[doc.index("Examples\n--------"):].replace("# doctest: +SKIP", "")
+        test = parser.get_doctest(examples, {}, f"lr.{name}", None, 0)
+        assert test.examples, f"lr.{name} has no example"
+        res = runner.run(test, out=lambda s: failed.append(s))
+        ran += res.attempted
+    assert not failed, "".join(failed)
+    assert ran >= 60
+
+
+@pytest.mark.parametrize("name", [n for n in lr.__all__ if n[:1].isupper()])
+def test_every_public_class_says_what_it_holds_and_shows_it(name):
+    """Each public class's docstring has numpydoc Attributes or Parameters (what it holds,
+    or what it is made from) and Examples."""
+    import inspect
+
+    doc = inspect.getdoc(getattr(lr, name))
+    sections = set(re.findall(r"^(\w+)\n-{3,}$", doc, re.M))
+    assert "Examples" in sections and sections & {"Attributes", "Parameters"}, (name, sections)

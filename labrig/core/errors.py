@@ -4,7 +4,23 @@ import signal
 
 
 class LabrigError(Exception):
-    """Base of every error labrig raises on purpose."""
+    """Base of every error labrig raises on purpose.
+
+    Attributes
+    ----------
+    exit_code : int
+        The command line's exit status for it: 1 (a rig or runtime fault) unless a
+        subclass says otherwise (:class:`UserError`: 2).
+
+    Examples
+    --------
+    >>> import labrig as lr
+    >>> try:
+    ...     lr.read_runs("no/such/folder")
+    ... except lr.LabrigError as exc:
+    ...     print(exc.exit_code)
+    2
+    """
 
     exit_code = 1
 
@@ -16,6 +32,20 @@ class UserError(LabrigError):
     "`method`: unknown method 'x'", or with its value, "only with `loop=closed`". The
     command line shows each as its option ("--method", "--loop closed"; see
     ``labrig.commands.options``), so a notebook reads Python and a terminal reads options.
+
+    Attributes
+    ----------
+    exit_code : int
+        2, the command line's status for bad input.
+
+    Examples
+    --------
+    >>> import labrig as lr
+    >>> try:
+    ...     lr.identify("data/sweep_default", method="newton")
+    ... except lr.UserError as exc:
+    ...     print(exc)
+    `method`: unknown method 'newton'; choose jfo, pso, co or all
     """
 
     exit_code = 2

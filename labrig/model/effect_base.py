@@ -13,7 +13,29 @@ STAGES = ("input", "drive", "friction", "output", "delay")
 
 @dataclass(frozen=True)
 class Param:
-    """One effect parameter: name, unit, physical bounds and a description."""
+    """One effect parameter: name, unit, physical bounds and a description.
+
+    Parameters
+    ----------
+    name : str
+        The parameter's name in the effect (``effect.name`` in a model: ``deadband.d_v``).
+    unit : str
+        Its unit, as tables and figures print it ("V", "s", "rad").
+    lower, upper : float
+        The physical range a fit searches (finite, ``lower < upper``).
+    doc : str
+        One line: what the parameter is in the rig.
+    log : bool
+        Search it in log space (positive values spanning decades); False for a value
+        that may be zero or negative (an offset).
+
+    Examples
+    --------
+    >>> import labrig as lr
+    >>> p = lr.Param("tc_v", "V", 1e-3, 2.0, "friction as the voltage that balances it")
+    >>> p.name, p.unit, p.upper
+    ('tc_v', 'V', 2.0)
+    """
 
     name: str
     unit: str
@@ -42,6 +64,37 @@ class Effect(abc.ABC):
 
     A user effect may subclass ``Effect`` directly with ``stage`` set (the small
     interface of the first exercise sheets) or a stage class.
+
+    Attributes
+    ----------
+    name : str
+        The effect's name in a model and on the command line (``--effects NAME``).
+    stage : {"input", "drive", "friction", "output", "delay"}
+        Where it acts in the servo: the hook a subclass implements.
+    params : tuple of Param
+        Its parameters, with their units and the ranges a fit searches.
+    summary, signature, experiment : str
+        What it is in the rig, where it shows in the residuals of a model without it,
+        and the experiment that confirms it (the catalogue's words).
+
+    Examples
+    --------
+    A dry friction of one's own, as sheet 3 asks (``labrig identify --effects
+    my_friction.py:MyCoulomb`` loads such a file):
+
+    >>> import labrig as lr
+    >>> class MyCoulomb(lr.Effect):
+    ...     'Dry friction: a constant torque against the motion.'
+    ...     name = "my_coulomb"
+    ...     stage = "friction"
+    ...     params = (lr.Param("tc_v", "V", 1e-3, 2.0, "friction as a voltage"),)
+    ...     def friction(self, plant, tc_v):
+    ...         t = tc_v * plant.Ka * plant.K / plant.R   # the stall torque of tc_v volts
+    ...         return t, t                               # (kinetic, breakaway)
+    ...     def initial_guess(self, runs, plant):
+    ...         return {"tc_v": 0.1}
+    >>> MyCoulomb().stage, [p.name for p in MyCoulomb.params]
+    ('friction', ['tc_v'])
     """
 
     name: str = "effect"

@@ -46,6 +46,7 @@ def sweep(output, plan=None, rig=None, *, port: str | None = None, seed: int | N
     >>> import labrig as lr
     >>> runs = lr.sweep("runs")  # doctest: +SKIP
     >>> [r.name for r in runs][:2]  # doctest: +SKIP
+    ['cl_sq_0.50V', 'cl_sq_0.60V']
     """
     from labrig.verbs.data import load_plan, load_rig
 

@@ -141,7 +141,7 @@ def load_model(path):
     >>> import labrig as lr
     >>> m = lr.load_model("m1.json")  # doctest: +SKIP
     >>> m.names  # doctest: +SKIP
-    ['deadband']
+    ['coulomb_friction']
     """
     from labrig.model.model import Model
 

@@ -54,6 +54,7 @@ class Diagnosis(Displayable, Record):
     >>> import labrig as lr
     >>> diag = lr.diagnose("data/sweep_default")  # doctest: +SKIP
     >>> [c.effect for c in diag.ranking[:2]]  # doctest: +SKIP
+    ['coulomb_friction', 'stiction']
     """
 
     # (a record read back may lack what it can do without: pydantic defaults)

@@ -69,7 +69,8 @@ class Ladder(Displayable, Record):
     --------
     >>> import labrig as lr
     >>> lad = lr.ladder("data/sweep_default", ["m0.json", "m1.json"])  # doctest: +SKIP
-    >>> lad.to_pandas()  # doctest: +SKIP
+    >>> list(lad.to_pandas()["step"])  # doctest: +SKIP
+    ['linear model', '+ coulomb_friction']
     """
 
     steps: list[LadderStep] = field(default_factory=list)
