@@ -97,3 +97,34 @@ def test_screened_search_ends_where_the_full_search_does(tmp_path):
     assert [m.label for m in a.moves] == [m.label for m in b.moves]
     assert [s.rmse_over_noise for s in a.ladder.steps] == [s.rmse_over_noise for s in b.ladder.steps]
     assert [s.cross_validated for s in a.ladder.steps] == [s.cross_validated for s in b.ladder.steps]
+
+
+@pytest.mark.parametrize("case", ["shipped sweep", "deadband + backlash", "saturation"])
+def test_a_candidate_out_of_reach_could_not_have_changed_the_answer(tmp_path, monkeypatch, case):
+    """A leader left without cross-validation because its in-sample error is already far
+    above what the best supported candidate predicts held out (criteria.out_of_reach):
+    cross-validated anyway, it predicts held-out data no better than it fits them, so it
+    is neither the recommendation nor undecided with it; the round recommends the same."""
+    import labrig.diagnosis.loop.round as round_module
+    from labrig.diagnosis.evidence.criteria import UNDECIDED, score
+
+    if case == "shipped sweep":
+        runs = read_dataset(ROOT / "data" / "sweep_default")
+    else:
+        effects, rate = CASES[case]
+        plan = square_plan(amps=(1.2, 1.8, 2.5), periods=1.5, rate=rate)
+        runs = read_dataset(sim_dataset(tmp_path, make_rig(effects=effects), plan))
+    lazy = diagnose(runs, seed=0)
+    monkeypatch.setattr(round_module, "out_of_reach", lambda c, best: False)
+    full = diagnose(runs, seed=0)
+    assert lazy.recommendation == full.recommendation
+    by_label = {c.label: c for c in full.ranking}
+    best = min(score(c) for c in full.ranking if c.supported) if lazy.recommendation else None
+    for c in lazy.ranking:
+        f = by_label[c.label]
+        if c.out_of_reach is None:
+            assert c.supported == f.supported, c.label
+            continue
+        assert c.cross_validated is None and f.cross_validated is not None, c.label
+        assert f.cross_validated["with_effect"] >= f.evaluation.fitness, c.label
+        assert score(f) > (1 + UNDECIDED) * best, c.label

@@ -22,6 +22,11 @@ FLOOR = 1.15
 CV_CANDIDATES = 4
 #: relative penalty per extra parameter when held-out errors are compared
 PARSIMONY = 0.02
+#: a candidate whose in-sample error (with the parsimony penalty) is more than this share
+#: above what the best supported candidate predicts held out is not cross-validated
+#: (:func:`out_of_reach`): a fit's held-out error is not below its in-sample error by
+#: that much (docs/physics.md, 'Diagnosis', has the measurement)
+CV_REACH = 0.25
 #: two supported explanations whose scores are this close are reported as undecided
 UNDECIDED = 0.02
 #: a base this much worse than a candidate with its effect switched off is refined ...
@@ -100,6 +105,16 @@ def score(c) -> float:
     data about as well ranks first (a symmetric dead zone over an asymmetric one that
     fits no better, Coulomb friction over stiction, a model without a useless effect)."""
     return c.cross_validated["with_effect"] * (1 + PARSIMONY * (c.extra_params - 1))
+
+
+def out_of_reach(c, best: float) -> bool:
+    """Whether candidate ``c`` cannot come near a supported candidate whose score is
+    ``best``: its in-sample error, scored as held-out errors are, is above ``best`` by
+    more than :data:`UNDECIDED` and :data:`CV_REACH` together. Its held-out error would be
+    higher still, so cross-validating it could change neither the recommendation nor
+    what is undecided."""
+    own = c.evaluation.fitness * (1 + PARSIMONY * (c.extra_params - 1))
+    return own > (1 + UNDECIDED) * (1 + CV_REACH) * best
 
 
 def undecided(a, b) -> bool:

@@ -18,6 +18,7 @@ from labrig.core.parallel import each
 from labrig.diagnosis.loop.baseline import at_bounds, balanced_weights, linear_model
 from labrig.diagnosis.loop.candidates import candidate_names, refinements
 from labrig.diagnosis.evidence.criteria import (CV_CANDIDATES, FLOOR, MIN_DBIC, MIN_GAIN, REFINE,
+                                       out_of_reach,
                                        SCREEN_AFTER, SIMPLER_MARGIN, SWAP_GAIN, UNDECIDED, bic,
                                        candidate_order, score, screen, supported)
 from labrig.diagnosis.evidence.crossval import CrossValidation, Folds, cross_validate, fold_evidence, \
@@ -280,11 +281,11 @@ class Round:
         criteria, best first; ``on_candidate(candidate, held_out_rmse)`` hears each
         cross-validation done."""
         by_fit = sorted(ranking, key=lambda c: -c.improvement)
-        to_cv = [c for c in by_fit if c.improvement >= MIN_GAIN][:CV_CANDIDATES]
+        adds = [c for c in by_fit if c.improvement >= MIN_GAIN][:CV_CANDIDATES]
         # (a simpler replacement is judged "about as good": cross-validated when its
         # in-sample fit is within that margin too)
-        to_cv += [c for c in revisions if c.move == "remove" or c.improvement >= SWAP_GAIN
-                  or (c.extra_params < 0 and c.improvement >= -SIMPLER_MARGIN)]
+        first = adds[:1] + [c for c in revisions if c.move == "remove" or c.improvement >= SWAP_GAIN
+                            or (c.extra_params < 0 and c.improvement >= -SIMPLER_MARGIN)]
         def held_out(c):
             cv = cross_validate(self.runs, c.model, self.folds, sigmas=self.ev0.sigmas,
                                 weights=self.weights, seed=self.seed, fixed=self.fixed,
@@ -293,13 +294,22 @@ class Round:
                 on_candidate(c, cv.rmse)
             return cv
 
-        cvs = each(held_out, to_cv)
-        for c, cv in zip(to_cv, cvs):
-            c.held_out = cv
-            c.cross_validated = fold_evidence(self.cv0, cv, c.model,
-                                              None if c.move == "remove" else c.effect)
-            c.unresolved = None if c.move == "remove" else c.unresolved or unresolved(
-                get_effect(c.effect), c.params, self.runs, _fold_sizes(cv, c))
+        def judged(batch):
+            for c, cv in zip(batch, each(held_out, batch)):
+                c.held_out = cv
+                c.cross_validated = fold_evidence(self.cv0, cv, c.model,
+                                                  None if c.move == "remove" else c.effect)
+                c.unresolved = None if c.move == "remove" else c.unresolved or unresolved(
+                    get_effect(c.effect), c.params, self.runs, _fold_sizes(cv, c))
+            return [score(c) for c in batch if supported(c)]
+
+        # the in-sample leader and the revisions first; the other leaders only where they
+        # can come near the best supported one (criteria.out_of_reach)
+        best = min(judged(first), default=None)
+        rest = [c for c in adds[1:] if best is None or not out_of_reach(c, best)]
+        for c in adds[1:]:
+            c.out_of_reach = None if any(c is r for r in rest) else best
+        judged(rest)
         ranking = ranking + revisions
         for c in ranking:
             c.supported = supported(c)

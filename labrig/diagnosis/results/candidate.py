@@ -105,6 +105,9 @@ class Candidate(Record):
     #: it improved, and the regimes that carry the gain
     cross_validated: Annotated[Optional[CrossValidated], Field(exclude_if=unset)] = None
     supported: bool = False
+    #: not cross-validated: its in-sample error is beyond reach of this held-out score of
+    #: the best supported candidate (criteria.out_of_reach); None: not so judged
+    out_of_reach: Annotated[Num, Field(exclude_if=unset)] = None
     explanation: str = ""
     #: parameters whose fit ended at a bound of the search space
     at_bound: list[str] = field(default_factory=list)

@@ -20,7 +20,7 @@ from labrig.core.display import Displayable
 from labrig.core.record import Num, Record, empty
 from labrig.diagnosis.results.candidate import Baseline, Candidate, Criteria, Regimes
 # how the diagnosis ranks and picks candidates, for the table's notes
-from labrig.diagnosis.evidence.criteria import (CV_CANDIDATES, PARSIMONY, SCREEN_AFTER, SCREEN_GAIN,
+from labrig.diagnosis.evidence.criteria import (CV_CANDIDATES, CV_REACH, PARSIMONY, SCREEN_AFTER, SCREEN_GAIN,
                                        SCREEN_STALL, SIMPLER_MARGIN, SWAP_GAIN)
 
 
@@ -213,6 +213,7 @@ class Diagnosis(Displayable, Record):
                                  f"{cv['folds_improved']}/{cv['folds']}" if cv else "-",
                                  ("yes" if c.supported else "no")
                                  + (" (screened out)" if c.screened is not None else "")
+                                 + (" (out of reach)" if c.out_of_reach is not None else "")
                                  + (" (size not resolved)" if c.unresolved else "")
                                  + (" (at bound)" if c.at_bound else "")])
         ranking.notes += self._ranking_rules()
@@ -255,7 +256,10 @@ class Diagnosis(Displayable, Record):
             f"cross-validated '-': not cross-validated (of the effects added, only the "
             f"{CV_CANDIDATES} largest gains of at least {gain} are; of the revisions, every "
             f"removal and each replacement that gains {100 * SWAP_GAIN:g} % or, simpler, fits "
-            f"within {100 * SIMPLER_MARGIN:g} %), hence not supported; a fold whose training "
+            f"within {100 * SIMPLER_MARGIN:g} %), hence not supported; '(out of reach)': an "
+            f"effect whose error on all runs is already more than {100 * CV_REACH:g} % above "
+            "what the best supported candidate predicts held out (a fit predicts held-out "
+            "data no better than it fits them), so it is not cross-validated; a fold whose training "
             "data do not "
             "pin the new threshold is not counted; '(at bound)': a fitted parameter ended at a "
             "bound of its search range (a warning: it does not enter the decision)",

@@ -123,6 +123,10 @@ def explain(entry, ev0, const: dict) -> str:
             held += " The held-out evidence is in the " + "; ".join(
                 f"{REGIME_TEXT[d['regime']]} of the {d['channel']} ({d['base']:.2f} -> "
                 f"{d['candidate']:.2f}, {100 * d['share_of_time']:.0f} % of the time)" for d in ev) + "."
+    elif entry.out_of_reach is not None:
+        held = (f" Not cross-validated: its error on all runs, {entry.rmse_over_noise:.2f}, is "
+                f"already well above what the best supported candidate predicts on held-out "
+                f"data ({entry.out_of_reach:.2f}).")
     else:
         held = " Not cross-validated (its in-sample gain is below the threshold)."
     bound = (" The fit ended at a bound: " + "; ".join(entry.at_bound) + ".") if entry.at_bound else ""
