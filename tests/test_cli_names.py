@@ -147,7 +147,7 @@ def test_plan_keywords_in_any_case(tmp_path):
 def test_the_seed_defaults_are_what_the_readme_says_and_no_help_quotes_a_time():
     """Every subcommand's --seed defaults to labrig's SEED (0) except the whole-lab
     commands demo, report and batch (1, the sheets' seed); sweep's is the rig file's and a
-    mystery's is required (the README's 'The same answer from the same files'). No help
+    mystery's is required (docs/project/validation.md, 'The same answer from the same files'). No help
     text quotes a duration: times are measured by the benchmarks, and a machine's differ."""
     from labrig.core.defaults import SEED
 

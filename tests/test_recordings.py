@@ -314,7 +314,7 @@ def test_a_drive_that_is_a_curve_of_the_command(tmp_path):
     curve's three knots cannot follow the shield's power law (their best miss at the
     levels is about 0.1 V, seven counts), so the loop goes on, and on commands of one sign
     an offset and a Coulomb friction shift the curve: it adds them and still does not
-    claim the floor (the README's 'and what it cannot'). Before the count was found the
+    claim the floor (docs/project/validation.md, 'and what it cannot'). Before the count was found the
     floor was the blocks' 4.9 rad/s, inflated by the 40 ms rises, and the loop stopped at
     the curve."""
     import pandas as pd
