@@ -43,7 +43,7 @@ if tags.has("student"):   # noqa: F821  (Sphinx's own name in conf.py)
     # the pages that list them (index, teaching) name excluded documents: not an error here
     suppress_warnings = ["toc.excluded", "myst.xref_missing"]
 
-source_suffix = {".md": "myst-nb", ".ipynb": "myst-nb"}
+source_suffix = {".rst": "restructuredtext", ".md": "myst-nb", ".ipynb": "myst-nb"}
 myst_enable_extensions = ["colon_fence", "deflist"]
 myst_heading_anchors = 3
 # the pages are also read on a forge and in a terminal: a link to a file of the repository

@@ -259,7 +259,7 @@ class Run:
 
     @property
     def amplitude(self) -> float:
-        """Largest |u| applied (V): the run's amplitude for grouping and reports."""
+        """Largest ``abs(u)`` applied (V): the run's amplitude for grouping and reports."""
         return float(np.max(np.abs(self.u)))
 
     # -- physical units -----------------------------------------------------
