@@ -257,6 +257,8 @@ def test_the_readme_is_a_newcomers_page():
     assert len(text.splitlines()) <= 150, len(text.splitlines())
     for must in ("make demo", "make test", "CPython 3.11", "LICENSE", "CITATION.cff"):
         assert must in text, must
+    quick = text.split("## Quick start\n", 1)[1].split("\n## ", 1)[0]
+    assert "make demo" in quick and "make test" in quick
 
 
 def test_the_sites_screenshots_are_the_browser_tests():
