@@ -12,7 +12,6 @@ gives its students.
 """
 from __future__ import annotations
 
-import os
 import sys
 from pathlib import Path
 
@@ -39,7 +38,7 @@ extensions = [
 
 exclude_patterns = ["_build", "_ext", "Thumbs.db", ".DS_Store", "**.ipynb_checkpoints"]
 if tags.has("student"):   # noqa: F821  (Sphinx's own name in conf.py)
-    exclude_patterns += ["instructor/**", "teaching/class.md"]
+    exclude_patterns += ["instructor/**"]
     # the pages that list them (index, teaching) name excluded documents: not an error here
     suppress_warnings = ["toc.excluded", "myst.xref_missing"]
 
@@ -66,9 +65,6 @@ numpydoc_xref_param_type = False
 
 html_theme = "furo"
 html_title = f"labrig {release}"
-html_static_path = []
 html_show_sourcelink = False
-
-# offline: nothing is fetched (no intersphinx), and a fit in the notebook is the
-# command line's (numpy's BLAS on one thread, as labrig sets it)
-os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+# offline: nothing is fetched (no intersphinx); importing labrig above held numpy's BLAS to
+# one thread, and the notebook's kernel inherits it, so its fits are the command line's

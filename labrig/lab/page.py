@@ -9,7 +9,6 @@ live samples and finished jobs onto the page, so the page never waits on the rig
 from __future__ import annotations
 
 import math
-
 import time
 
 import panel as pn
@@ -286,11 +285,11 @@ class LabPage:
             f"**{live.name or 'no run yet'}** · samples {live.samples}/{live.n_planned} · gaps "
             f"{c.get('dropped_samples', 0)} · CRC errors {c.get('crc_errors', 0)} · "
             f"retries {c.get('retries', 0)}" + (" · **running**" if st.sweeping else "")))
-        if self._ticks % 5 == 0:   # the folder's listing: twice a second is enough
-            set_text(self.runs_list,
-                     "runs in the folder: " + (", ".join(st.runs_on_disk()) or "none"))
-            set_text(self.heading, self._heading()); self.sweep_note_foreign = st.foreign()  # noqa: E702
-        set_text(self.sweep_note, st.sweep_note or self.sweep_note_foreign)
+        if self._ticks % 5 == 0:   # the folder's listing and what it holds: twice a second
+            set_text(self.runs_list, "runs in the folder: " + (", ".join(st.runs_on_disk()) or "none"))
+            set_text(self.heading, self._heading())
+            self._foreign = st.foreign()
+        set_text(self.sweep_note, st.sweep_note or self._foreign)
         self._ticks += 1
         if self.owner and st.poll():
             self._show_loop()
@@ -344,6 +343,7 @@ class LabPage:
     _live_shown = None
     _points = 0
     _ticks = 0
+    _foreign = ""   # why this rig may not play into the folder, as of the last listing
     _asked_drawn = None
 
     def _show_asked_step(self) -> None:

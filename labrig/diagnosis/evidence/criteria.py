@@ -104,7 +104,12 @@ def score(c) -> float:
     (a bonus per parameter it takes away), so a simpler model that predicts held-out
     data about as well ranks first (a symmetric dead zone over an asymmetric one that
     fits no better, Coulomb friction over stiction, a model without a useless effect)."""
-    return c.cross_validated["with_effect"] * (1 + PARSIMONY * (c.extra_params - 1))
+    return c.cross_validated["with_effect"] * _parsimony(c)
+
+
+def _parsimony(c) -> float:
+    """The factor :func:`score` puts on an error for the parameters the move adds."""
+    return 1 + PARSIMONY * (c.extra_params - 1)
 
 
 def out_of_reach(c, best: float) -> bool:
@@ -113,8 +118,7 @@ def out_of_reach(c, best: float) -> bool:
     more than :data:`UNDECIDED` and :data:`CV_REACH` together. Its held-out error would be
     higher still, so cross-validating it could change neither the recommendation nor
     what is undecided."""
-    own = c.evaluation.fitness * (1 + PARSIMONY * (c.extra_params - 1))
-    return own > (1 + UNDECIDED) * (1 + CV_REACH) * best
+    return c.evaluation.fitness * _parsimony(c) > (1 + UNDECIDED) * (1 + CV_REACH) * best
 
 
 def undecided(a, b) -> bool:

@@ -18,9 +18,8 @@ from labrig.core.parallel import each
 from labrig.diagnosis.loop.baseline import at_bounds, balanced_weights, linear_model
 from labrig.diagnosis.loop.candidates import candidate_names, refinements
 from labrig.diagnosis.evidence.criteria import (CV_CANDIDATES, FLOOR, MIN_DBIC, MIN_GAIN, REFINE,
-                                       out_of_reach,
                                        SCREEN_AFTER, SIMPLER_MARGIN, SWAP_GAIN, UNDECIDED, bic,
-                                       candidate_order, score, screen, supported)
+                                       candidate_order, out_of_reach, score, screen, supported)
 from labrig.diagnosis.evidence.crossval import CrossValidation, Folds, cross_validate, fold_evidence, \
     make_folds
 from labrig.diagnosis.evidence.evaluation import Evaluation, evaluate
@@ -306,10 +305,9 @@ class Round:
         # the in-sample leader and the revisions first; the other leaders only where they
         # can come near the best supported one (criteria.out_of_reach)
         best = min(judged(first), default=None)
-        rest = [c for c in adds[1:] if best is None or not out_of_reach(c, best)]
         for c in adds[1:]:
-            c.out_of_reach = None if any(c is r for r in rest) else best
-        judged(rest)
+            c.out_of_reach = best if best is not None and out_of_reach(c, best) else None
+        judged([c for c in adds[1:] if c.out_of_reach is None])
         ranking = ranking + revisions
         for c in ranking:
             c.supported = supported(c)
