@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import ast
+import fcntl
 import json
 import os
 import platform
@@ -52,10 +53,47 @@ def _read_stages() -> list[dict]:
 
 
 def _add_stage(entry: dict) -> None:
-    stages = [s for s in _read_stages() if s["name"] != entry["name"]] + [entry]
-    tmp = _stages_file().with_suffix(".tmp")
-    tmp.write_text(json.dumps(stages, indent=1) + "\n")
-    tmp.replace(_stages_file())
+    # two stages may run side by side (make test-kernels): one writer at a time
+    with open(suite_dir() / "stages.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        stages = [s for s in _read_stages() if s["name"] != entry["name"]] + [entry]
+        tmp = _stages_file().with_suffix(".tmp")
+        tmp.write_text(json.dumps(stages, indent=1) + "\n")
+        tmp.replace(_stages_file())
+
+
+def _wall(stages: list[dict]) -> float:
+    """The wall time the stages took together: stages run side by side count once (the
+    union of their intervals; a record without them is a sum)."""
+    if not all("t0" in s for s in stages):
+        return sum(s["seconds"] for s in stages)
+    total, end = 0.0, float("-inf")
+    for s in sorted(stages, key=lambda s: s["t0"]):
+        t0, t1 = s["t0"], s["t0"] + s["seconds"]
+        total += max(0.0, t1 - max(t0, end))
+        end = max(end, t1)
+    return total
+
+
+def _beside(stages: list[dict]) -> list[list[dict]]:
+    """The stages in the order they started, those that ran side by side grouped."""
+    groups: list[list[dict]] = []
+    end = float("-inf")
+    for s in sorted(stages, key=lambda s: s.get("t0", 0.0)):
+        if groups and "t0" in s and s["t0"] < end - 1.0:
+            groups[-1].append(s)
+        else:
+            groups.append([s])
+        end = max(end, s.get("t0", 0.0) + s["seconds"]) if "t0" in s else float("-inf")
+    return groups
+
+
+def _stages_text(stages: list[dict]) -> str:
+    parts = []
+    for g in _beside(stages):
+        one = " beside ".join(f"{s['name']} {_mmss(s['seconds'])}" for s in g)
+        parts.append(one if len(g) == 1 else f"({one})")
+    return " + ".join(parts)
 
 
 def stage(name: str, argv: list[str]) -> int:
@@ -66,11 +104,12 @@ def stage(name: str, argv: list[str]) -> int:
     if any("pytest" in a for a in argv[:3]):
         argv = [*argv, f"--junitxml={d / (name + '.xml')}", "-o", "junit_family=xunit1"]
     load = os.getloadavg()[0]
-    t0 = time.monotonic()
+    wall0, t0 = time.time(), time.monotonic()
     rc = subprocess.call(argv)
     seconds = time.monotonic() - t0
     _add_stage({"name": name, "seconds": round(seconds, 1), "rc": rc, "load": round(load, 2),
-                "started": time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime(time.time() - seconds))})
+                "t0": round(wall0, 1),
+                "started": time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime(wall0))})
     print(f"[suite] stage {name}: {_mmss(seconds)} (exit {rc})", flush=True)
     return rc
 
@@ -85,11 +124,13 @@ def summary() -> int:
     if not stages:
         print("[suite] no stage recorded")
         return 0
-    total = sum(s["seconds"] for s in stages)
+    total = _wall(stages)
     print("[suite] stage times (wall):")
-    for s in stages:
-        print(f"[suite]   {s['name']:<14} {_mmss(s['seconds']):>6}  (exit {s['rc']}, "
-              f"load {s['load']} at its start)")
+    for g in _beside(stages):
+        for k, s in enumerate(g):
+            side = f", beside {g[0]['name']}" if k else ""
+            print(f"[suite]   {s['name']:<16} {_mmss(s['seconds']):>6}  (exit {s['rc']}, "
+                  f"load {s['load']} at its start{side})")
     print(f"[suite]   {'total':<14} {_mmss(total):>6}  = {100 * total / CI_LIMIT_S:.0f} % of CI's "
           f"90-minute limit (target {TARGET_S // 60} min)", flush=True)
     return 0
@@ -148,7 +189,7 @@ def record(note: str | None) -> dict:
     docs: dict = {}
     every = []
     for s in stages:
-        entry = {k: s[k] for k in ("name", "seconds", "rc", "load")}
+        entry = {k: s[k] for k in ("name", "seconds", "rc", "load", "t0") if k in s}
         xml = d / f"{s['name']}.xml"
         if xml.is_file():
             cases = list(_cases(xml))
@@ -163,7 +204,7 @@ def record(note: str | None) -> dict:
             out["files"][s["name"]] = {f: round(t, 1) for f, t in
                                        sorted(by_file.items(), key=lambda kv: -kv[1])}
         out["stages"].append(entry)
-    out["total_s"] = round(sum(s["seconds"] for s in stages), 1)
+    out["total_s"] = round(_wall(stages), 1)
     for c in sorted(every, key=lambda c: -c["seconds"])[:SLOWEST]:
         out["slowest"].append({"test": c["nodeid"], "stage": c["stage"],
                                "seconds": round(c["seconds"], 1),
@@ -172,7 +213,7 @@ def record(note: str | None) -> dict:
 
 
 def markdown(res: dict) -> str:
-    stages = " + ".join(f"{s['name']} {_mmss(s['seconds'])}" for s in res["stages"])
+    stages = _stages_text(res["stages"])
     tests = sum(s.get("tests", 0) for s in res["stages"])
     outcomes = {o: sum(s.get("outcomes", {}).get(o, 0) for s in res["stages"])
                 for o in ("passed", "failed", "error", "skipped")}
@@ -185,7 +226,7 @@ def markdown(res: dict) -> str:
              ""]
     prev = res.get("previous")
     if prev:
-        stages_p = " + ".join(f"{s['name']} {_mmss(s['seconds'])}" for s in prev["stages"])
+        stages_p = _stages_text(prev["stages"])
         lines[-2:-1] = [lines[-2] + f" The run before it ({prev['when']}, load "
                         f"{prev['stages'][0]['load']} at the start): {stages_p} = "
                         f"{_mmss(prev['total_s'])}."]
@@ -246,7 +287,8 @@ def main() -> int:
         if args.output.is_file():   # the run before this one, in one line of the README
             old = json.loads(args.output.read_text())
             res["previous"] = {k: old[k] for k in ("when", "total_s")} | {
-                "stages": [{k: s[k] for k in ("name", "seconds", "load")} for s in old["stages"]]}
+                "stages": [{k: s[k] for k in ("name", "seconds", "load", "t0") if k in s}
+                           for s in old["stages"]]}
         args.output.write_text(json.dumps(res, indent=1) + "\n")
         print(markdown(res))
         return 0

@@ -6,6 +6,7 @@ from labrig.core.parallel import one_blas_thread
 one_blas_thread()  # as the command line does, before numpy is imported
 
 import copy  # noqa: E402
+import os
 import signal
 import subprocess
 import sys
@@ -37,6 +38,30 @@ if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
 
 def pytest_sessionfinish(session):
     outputs_record.write()
+
+
+# -- one share of the selected tests -----------------------------------------------------------
+# ``LABRIG_TEST_SHARE=I/N`` keeps every N-th of the selected tests (in node-id order),
+# starting at the I-th: `make test-kernels` runs the kernels-marked tests as two shares side
+# by side, one under each of two other OpenBLAS kernels, so every such test is run again
+# under one other rounding and the suite under two (the Makefile says why).
+
+@pytest.hookimpl(trylast=True)   # after -m and -k have deselected
+def pytest_collection_modifyitems(config, items):
+    share = os.environ.get("LABRIG_TEST_SHARE", "").strip()
+    if not share:
+        return
+    try:
+        i, n = (int(x) for x in share.split("/"))
+        if not 0 <= i < n:
+            raise ValueError
+    except ValueError:
+        raise pytest.UsageError(f"LABRIG_TEST_SHARE={share!r}: give I/N with 0 <= I < N, "
+                                f"e.g. 0/2") from None
+    order = sorted(range(len(items)), key=lambda k: items[k].nodeid)
+    keep = {k for rank, k in enumerate(order) if rank % n == i}
+    config.hook.pytest_deselected(items=[it for k, it in enumerate(items) if k not in keep])
+    items[:] = [it for k, it in enumerate(items) if k in keep]
 
 ROOT = Path(__file__).resolve().parent.parent
 

@@ -54,6 +54,11 @@ def test_the_avrdude_command_of_each_board():
             ["avrdude", *args, "-U", "flash:w:fw.hex:i"]
     assert F.avrdude_command("uno", None, hexfile, programmer="usbasp") == \
         ["avrdude", "-p", "atmega328p", "-c", "usbasp", "-U", "flash:w:fw.hex:i"]
+    # fewer tries only where the stk500v1 bootloader is reached (the Mega's wiring has none)
+    assert F.avrdude_command("nano", "/dev/ttyACM0", hexfile, attempts=3)[-4:-2] == \
+        ["-x", "attempts=3"]
+    assert "-x" not in F.avrdude_command("mega", "/dev/ttyACM0", hexfile, attempts=3)
+    assert "-x" not in F.avrdude_command("uno", None, hexfile, programmer="usbasp", attempts=3)
     assert not F.BOARDS["nano-old"].watchdog and all(
         b.watchdog for n, b in F.BOARDS.items() if n != "nano-old")
 
@@ -120,11 +125,14 @@ def test_a_real_upload_through_the_old_nano_bootloader_then_the_board_greets():
     """A Nano as it comes from the box (its bootloader, the flash erased) under simavr: the
     real avrdude writes and verifies the image through the real bootloader over the pty, the
     bootloader starts it, and it greets. The line judges the speed as a UART does: the new
-    bootloader's 115200 baud finds no bootloader, and the message names --board nano-old."""
+    bootloader's 115200 baud finds no bootloader, and the message names --board nano-old
+    after avrdude's three tries (``F.BOOTLOADER_ATTEMPTS``; its own ten took a minute)."""
     with Emulator("nano", bootloader=ATMEGABOOT) as emu:
         wrong = _labrig("flash", "--board", "nano", "--port", emu.pty)
         right = _labrig("flash", "--board", "nano-old", "--port", emu.pty)
     assert wrong.returncode == 1 and "not in sync" in wrong.stderr, wrong.stderr
+    if (F.avrdude_version() or (0, 0)) >= (7, 1):
+        assert "attempt 3 of 3" in wrong.stderr, wrong.stderr
     assert "--board nano-old" in wrong.stderr
     assert right.returncode == 0, right.stderr
     assert f"the board greets: labrig-fw {F.FIRMWARE_VERSION} nano ms150" in right.stdout

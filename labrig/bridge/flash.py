@@ -161,12 +161,20 @@ def firmware_image(board: str, rig=None, *, build: bool | None = None) -> tuple[
     return image, "packaged"
 
 
+#: how often avrdude tries to reach an stk500v1 bootloader (the Uno's and the Nanos'); its
+#: own default, 10, keeps a board at the wrong speed (a Nano clone with the old
+#: bootloader) silent for about a minute before the hint to try ``nano-old``; an auto-reset
+#: board answers the first or the second try
+BOOTLOADER_ATTEMPTS = 3
+
+
 def avrdude_command(board: str, port: str | None, image, *, programmer: str | None = None,
-                    avrdude: str = "avrdude") -> list[str]:
+                    avrdude: str = "avrdude", attempts: int | None = None) -> list[str]:
     """The avrdude command that writes ``image`` to ``board``.
 
     Through the board's bootloader (the default): its protocol and baud rate, no chip erase
-    (``-D``: the bootloader erases the pages it writes). Through another ``programmer``
+    (``-D``: the bootloader erases the pages it writes), and ``attempts`` tries to reach an
+    stk500v1 bootloader when given (avrdude 7.1 and later). Through another ``programmer``
     (an ISP such as ``usbasp``, or avrdude's ``dryrun``): no baud rate, the chip erased.
 
     Examples
@@ -180,7 +188,27 @@ def avrdude_command(board: str, port: str | None, image, *, programmer: str | No
         cmd += ["-P", str(port)]
     if programmer in (None, spec.programmer):
         cmd += ["-b", str(spec.baud), "-D"]
+        if attempts is not None and spec.programmer == "arduino":
+            cmd += ["-x", f"attempts={int(attempts)}"]
     return cmd + ["-U", f"flash:w:{image}:i"]
+
+
+def avrdude_version(avrdude: str = "avrdude") -> tuple[int, int] | None:
+    """avrdude's version as (major, minor), None when it does not say.
+
+    Examples
+    --------
+    >>> avrdude_version("/nonexistent/avrdude") is None
+    True
+    """
+    import re
+
+    try:
+        r = subprocess.run([avrdude, "-?"], capture_output=True, text=True, timeout=10)
+    except (OSError, subprocess.TimeoutExpired):
+        return None
+    m = re.search(r"version (\d+)\.(\d+)", r.stdout + r.stderr, re.I)
+    return (int(m.group(1)), int(m.group(2))) if m else None
 
 
 def _check_port(port: str) -> None:
@@ -261,7 +289,10 @@ def flash(board: str, rig=None, port: str | None = None, *, programmer: str | No
         raise RigError(f"avrdude not found; install it ({AVRDUDE_APT}), or upload the image "
                        "with arduino-cli (docs/hardware.md, 'Building and flashing')")
     image, source = firmware_image(board, rig, build=build)
-    cmd = avrdude_command(board, port, image, programmer=programmer, avrdude=exe)
+    # fewer tries where avrdude can be told (7.1 added -x attempts for stk500v1)
+    attempts = BOOTLOADER_ATTEMPTS if (avrdude_version(exe) or (0, 0)) >= (7, 1) else None
+    cmd = avrdude_command(board, port, image, programmer=programmer, avrdude=exe,
+                          attempts=attempts)
     try:
         r = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout)
     except subprocess.TimeoutExpired:
