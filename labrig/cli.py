@@ -185,8 +185,10 @@ def _main(argv=None) -> int:
 
             step_helper.start()
         return int(args.func(args) or 0)
-    except KeyboardInterrupt:
-        print("labrig: interrupted; finished runs are kept, the output is at 0 V", file=sys.stderr)
+    except KeyboardInterrupt as exc:
+        # (the output is at 0 V unless the sweep could not set it: then that is said)
+        print(f"labrig: interrupted; finished runs are kept, {_notes(exc) or 'the output is at 0 V'}",
+              file=sys.stderr)
         return 130
     except Interrupted as exc:   # SIGTERM/SIGHUP (errors.Terminated): one line, 128 + signal
         print(f"labrig: {_as_typed(exc)}", file=sys.stderr)
@@ -211,7 +213,13 @@ def _as_typed(exc: BaseException) -> str:
     ("`method`" -> "--method"; :func:`labrig.commands.options.translate`)."""
     from labrig.commands.options import translate
 
-    return translate(str(exc))
+    notes = _notes(exc)
+    return translate(f"{exc} -- {notes}" if notes else str(exc))
+
+
+def _notes(exc: BaseException) -> str:
+    """What was added to an error on its way out (a sweep's failed zero), on one line."""
+    return "; ".join(" ".join(str(n).split()) for n in getattr(exc, "__notes__", ()))
 
 
 def run() -> None:

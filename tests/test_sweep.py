@@ -57,6 +57,53 @@ def test_interrupted_sweep_keeps_finished_runs_and_zeroes(tmp_path):
         assert len(r) == 8500
 
 
+class DeadLink(Exploding):
+    """Interrupted mid-stream like :class:`Exploding`, on a link that then fails every
+    command: its zero breaks the never-raise contract of a bridge."""
+
+    closed = dead = False
+
+    def read(self, timeout=2.0):
+        try:
+            return super().read(timeout)
+        except KeyboardInterrupt:
+            self.dead = True
+            raise
+
+    def stop(self):
+        if self.dead:
+            raise OSError("write failed: the link is gone")
+        super().stop()
+
+    def zero(self):
+        if self.dead:
+            raise OSError("write failed: the link is gone")
+        super().zero()
+
+    def close(self):
+        self.closed = True
+
+
+def test_a_zero_that_fails_leaves_the_interrupt_the_error_and_the_link_released(tmp_path):
+    """A Ctrl-C in a run on a link that then dies: the interrupt is still the error (not
+    the zero's failure, which is said beside it), the link is released all the same, and
+    the finished runs are kept; with nothing else wrong, a failed zero is the error."""
+    from labrig.bridge.sweep import end_at_zero
+
+    rig = make_rig()
+    bridge = DeadLink(rig)
+    with pytest.raises(KeyboardInterrupt) as info:
+        sweep(bridge, square_plan(), rig, tmp_path / "ds")
+    assert bridge.closed
+    assert any("0 V afterwards failed too: write failed" in n for n in info.value.__notes__)
+    assert len(read_dataset(tmp_path / "ds")) == 2
+    quiet = DeadLink(rig)
+    quiet.dead = True
+    with pytest.raises(OSError, match="the link is gone"):
+        end_at_zero(quiet)
+    assert quiet.closed
+
+
 def test_plan_beyond_output_limit_refused(tmp_path):
     rig = make_rig()
     p = labrig("sweep", "--sim", "-o", tmp_path / "o", "--plan", tmp_path / "p.toml")

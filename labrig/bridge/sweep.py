@@ -239,6 +239,7 @@ def sweep(bridge: Bridge, plan: list[Experiment], rig, outdir: Path | str, *,
     remove_stale_tmp(outdir, [exp.name for exp in plan])
     written: list[Path] = []
     lossy, slipped = [], []
+    pending: BaseException | None = None
     try:
         bridge.open()
         if bridge.source == "serial":   # the board is there: what it cannot apply, refused now
@@ -263,20 +264,44 @@ def sweep(bridge: Bridge, plan: list[Experiment], rig, outdir: Path | str, *,
                 slipped.append((exp.name, problems))
             if on_done:
                 on_done(exp, run)
+    except BaseException as exc:   # (Ctrl-C too: it is the error the user must see)
+        pending = exc
+        raise
     finally:
         # every exit path: Ctrl-C, a rig fault, a full disk -- leave the output at 0 V
-        try:
-            bridge.stop()
-        except Exception:
-            pass
-        bridge.zero()
-        bridge.close()
+        end_at_zero(bridge, pending)
     if lossy:
         raise LossError(lossy, rig.bridge.max_lost_fraction, outdir,
                         also=EncoderError(slipped, outdir) if slipped else None)
     if slipped:
         raise EncoderError(slipped, outdir)
     return written
+
+
+def end_at_zero(bridge: Bridge, pending: BaseException | None = None) -> None:
+    """Stop ``bridge``, set its output to 0 V and release its link, whatever fails.
+
+    The link is released even when stopping or zeroing raises (a bridge that breaks its
+    never-raise contract must not keep the port held). A failure to zero is raised only
+    when no other error is ``pending``: a trip or a Ctrl-C stays the error the user sees,
+    and the zero's failure is added to it as a note."""
+    try:
+        try:
+            bridge.stop()
+        except Exception:   # a stop on a dead link: the zero below is what makes it safe
+            pass
+        bridge.zero()
+    except Exception as exc:
+        if pending is None:
+            raise
+        pending.add_note(f"and setting the output to 0 V afterwards failed too: {exc}")
+    finally:
+        try:
+            bridge.close()
+        except Exception as exc:
+            if pending is None:
+                raise
+            pending.add_note(f"and releasing the link failed: {exc}")
 
 
 class TripError(RigError):
