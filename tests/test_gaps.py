@@ -121,8 +121,8 @@ def test_a_subsample_of_the_residuals_is_the_same_samples(clean_and_lossy, strid
         obj = Objective(runs, [], build_space([]), p=0.6, q=1.4, masks=m)
         lo, hi = obj.space.search_bounds()
         X = lo + np.random.default_rng(1).random((3, lo.size)) * (hi - lo)
-        every = obj.residuals_jac_batch(X)
-        assert np.array_equal(obj.residuals_jac_batch(X, stride), every[:, ::stride])
+        every = obj.solver_residuals_batch(X)
+        assert np.array_equal(obj.solver_residuals_batch(X, stride), every[:, ::stride])
 
 
 @pytest.mark.parametrize("share,ok", [(0.45, True), (0.55, False), (1.0, False)])

@@ -72,6 +72,57 @@ def test_seed_reproduces(linear_data):
     assert a.params == b.params and a.result.seed == 7
 
 
+def test_one_meaning_of_a_fits_cost_whatever_the_method(linear_data):
+    """A fit's cost has one meaning on every path: the result's ``fun``, its history and
+    what the progress hook hears are the fitness (the weighted rmse over the noise), for
+    CO as for JFO and JFO polished (CO's were the fitness over sqrt(m), m the number of
+    residuals); the objective's two scales of residuals are named for what their squares
+    sum to."""
+    from labrig.identification.problem import Problem
+
+    _, runs = linear_data
+    for method, kw in (("co", {"starts": 2}), ("jfo", {"pop": 10, "iters": 5}),
+                       ("jfo", {"pop": 10, "iters": 5, "polish": True})):
+        heard = []
+        fit = identify(runs, method, seed=1, identifiability=False,
+                       callback=lambda k, f: heard.append(f), **kw)
+        assert fit.result.fun == pytest.approx(fit.fitness, rel=1e-6), (method, kw)
+        # (CO: the hook hears its starts, screened on a thinning; the history goes on
+        # with the best start's polish on every residual)
+        assert heard == pytest.approx(fit.result.history[:len(heard)], rel=1e-12)
+        if not kw.get("polish"):   # (a polished fit's history is its global search's)
+            assert min(fit.result.history) == pytest.approx(fit.fitness, rel=0.2), (method, kw)
+    problem = Problem(runs)
+    obj = problem.objective
+    x = problem.point(problem.initial_point())
+    R, r = obj.noise_residuals(x[None, :])[0], obj.solver_residuals(x)
+    f = obj.fitness_batch(x[None, :])[0]
+    assert np.sqrt(np.mean(R ** 2)) == pytest.approx(f, rel=1e-9)
+    assert np.sqrt(np.sum(r ** 2)) == pytest.approx(f, rel=1e-9)
+    assert obj.fitness_of_mean_square(np.mean(r ** 2)) == pytest.approx(f, rel=1e-9)
+
+
+def test_the_solvers_options_are_not_the_problems(linear_data):
+    """The channels' weights and the runs' start belong to the problem: identify takes
+    them as its own arguments, and the solver refuses them by name instead of ignoring
+    them; a problem cannot be changed under its cached space and objective."""
+    from labrig.identification.engine import FitOptions, solve
+    from labrig.identification.problem import Problem
+
+    _, runs = linear_data
+    problem = Problem(runs)
+    for name in ("p", "start_state"):
+        with pytest.raises(UserError, match=f"^`{name}`: .* belongs to the problem"):
+            solve(problem, "co", **{name: 0.5})
+    with pytest.raises(UserError, match="^`popsize`: not an option"):
+        FitOptions.of({"popsize": 3})
+    with pytest.raises(AttributeError, match="a problem is fixed once made"):
+        problem.weights = None
+    speed_only = identify(runs, "co", seed=0, starts=1, p=0.0, identifiability=False)
+    assert speed_only.fitness != pytest.approx(
+        identify(runs, "co", seed=0, starts=1, identifiability=False).fitness, rel=1e-3)
+
+
 def test_identifiability_flags_symmetry_and_fixing_R_L_cures_it(linear_data):
     rig, runs = linear_data
     free = identify(runs, "co", seed=1, starts=2)

@@ -6,6 +6,7 @@ with JFO, PSO or CO, then report fit quality and identifiability.
 """
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass
 
@@ -55,31 +56,35 @@ def _run_co(obj, lo, hi, x0, o):
     and the best start is then polished on all residuals, which also gives the
     covariance. (The trust region itself works on n + 1 reduced rows whatever the
     number of residuals: :func:`labrig.identification.local.reduced`.)"""
+    # local's fun and history are mean squares of the solver residuals; the callback,
+    # the stop rule and the result hear the fitness (Objective.fitness_of_mean_square)
+    fitness = obj.fitness_of_mean_square
     cb = o.get("callback")
-    root_cb = (lambda k, f: cb(k, float(np.sqrt(f)))) if cb else None
+    root_cb = (lambda k, f: cb(k, fitness(f))) if cb else None
     stride = max(1, obj.m // 8000)
     if o.get("subsample") and o["starts"] == 1:
         # the loop's many warm re-fits: every k-th residual (at 1 kHz neighbours are
         # strongly correlated, so the optimum barely moves; the residuals cost k times less)
         k = obj.thinning(o["subsample"])
         rule = o.get("stop")
-        # local's history is the mean square of the thinned residuals over all m: times m,
-        # the mean square per residual (the fitness squared, on every k-th sample)
-        stop = (lambda h: rule([float(np.sqrt(v * obj.m)) for v in h])) if rule else None
+        # (on every k-th residual: the fitness on that thinning)
+        stop = (lambda h: rule([fitness(v) for v in h])) if rule else None
         tol = o.get("tol")
-        res = local(lambda x: obj.residuals(x, k), lo, hi, x0=x0, starts=1, seed=o["seed"],
-                    jac_batch=lambda X: obj.residuals_jac_batch(X, k),
+        res = local(lambda x: obj.solver_residuals(x, k), lo, hi, x0=x0, starts=1,
+                    seed=o["seed"], jac_batch=lambda X: obj.solver_residuals_batch(X, k),
                     max_nfev=o.get("max_nfev"), callback=root_cb, stop=stop,
                     options=None if tol is None else {"xtol": tol, "ftol": tol})
-        res.fun = float(np.sqrt(res.fun))
-        res.history = [float(np.sqrt(h)) for h in res.history]
+        res.fun = fitness(res.fun)
+        res.history = [fitness(h) for h in res.history]
         return res
-    full = lambda x: local(obj.residuals, lo, hi, x0=x, starts=1, seed=o["seed"],  # noqa: E731
-                           jac_batch=obj.residuals_jac_batch, max_nfev=o.get("max_nfev"))
+    full = lambda x: local(obj.solver_residuals, lo, hi, x0=x, starts=1,  # noqa: E731
+                           seed=o["seed"], jac_batch=obj.solver_residuals_batch,
+                           max_nfev=o.get("max_nfev"))
     starts_nfev = o.get("max_nfev") or START_MAX_NFEV
     if o["starts"] > 1 and stride > 1:
-        screen = local(lambda x: obj.residuals(x, stride), lo, hi, x0=x0, starts=o["starts"],
-                       seed=o["seed"], jac_batch=lambda X: obj.residuals_jac_batch(X, stride),
+        screen = local(lambda x: obj.solver_residuals(x, stride), lo, hi, x0=x0,
+                       starts=o["starts"], seed=o["seed"],
+                       jac_batch=lambda X: obj.solver_residuals_batch(X, stride),
                        max_nfev=starts_nfev, callback=root_cb, threads=True)
         res = full(screen.x)
         res.nfev += screen.nfev
@@ -88,12 +93,11 @@ def _run_co(obj, lo, hi, x0, o):
         res.message = (f"best of {o['starts']} starts screened on every {stride}th residual, "
                        f"then polished on all: {res.message}")
     else:
-        res = local(obj.residuals, lo, hi, x0=x0, starts=o["starts"], seed=o["seed"],
-                    jac_batch=obj.residuals_jac_batch, callback=root_cb, threads=True,
+        res = local(obj.solver_residuals, lo, hi, x0=x0, starts=o["starts"], seed=o["seed"],
+                    jac_batch=obj.solver_residuals_batch, callback=root_cb, threads=True,
                     max_nfev=starts_nfev if o["starts"] > 1 else o.get("max_nfev"))
-    # local reports mean squares; the fitness (and its history) is the root
-    res.fun = float(np.sqrt(res.fun))
-    res.history = [float(np.sqrt(h)) for h in res.history]
+    res.fun = fitness(res.fun)
+    res.history = [fitness(h) for h in res.history]
     return res
 
 
@@ -103,23 +107,20 @@ METHODS = {"jfo": _run_jfo, "pso": _run_pso, "co": _run_co}
 
 @dataclass(frozen=True)
 class FitOptions:
-    """How hard and on what an identifier works (``labrig identify``'s tuning options).
+    """How hard an identifier works: the solver's side of a fit (``labrig identify``'s
+    tuning options). What is fitted -- the channels' weights, the runs' starts, the
+    folds -- is the :class:`~labrig.identification.problem.Problem`'s.
 
     ``pop``, ``iters``: population and iterations of JFO/PSO; ``starts``: CO's scanned
-    starts; ``polish``: finish JFO/PSO with CO; ``p``, ``q``, ``c``: weights of the
-    position, speed and (voltage plant, when measured) current channels, each already
-    divided by its noise level; ``rule``: JFO's time-control rule; ``max_nfev``: CO's
-    evaluation budget; ``subsample``: CO from a start on about this many residuals;
-    ``identifiability``: compute the intervals and warnings.
+    starts; ``polish``: finish JFO/PSO with CO; ``rule``: JFO's time-control rule;
+    ``max_nfev``: CO's evaluation budget; ``subsample``: CO from a start on about this
+    many residuals; ``identifiability``: compute the intervals and warnings.
     """
 
     pop: int = 50
     iters: int = 200
     starts: int = 8
     polish: bool = False
-    p: float = 1.0
-    q: float = 1.0
-    c: float = 1.0
     rule: str = "paper"
     max_nfev: int | None = None
     subsample: int | None = None
@@ -127,9 +128,6 @@ class FitOptions:
     #: end a local fit at the settled member of a family of equal fits
     #: (:mod:`labrig.identification.settle`)
     settle: bool = True
-    #: each run's start (labrig.model.start): "auto" (the run file, else its first
-    #: samples), "rest" (every run from rest) or "estimate" (every run's fitted)
-    start_state: str = "auto"
     #: CO from a start on a subsample only: the trust region's tolerances on the step and
     #: on the cost (scipy's ``xtol`` and ``ftol``; None: scipy's 1e-8), for fits whose
     #: answer is needed to fewer digits (the cross-validation's fold fits)
@@ -139,6 +137,28 @@ class FitOptions:
     #: :func:`labrig.diagnosis.evidence.criteria.screen`); the history is the fitness (root mean
     #: square, as :attr:`Identification.fitness`) at the start and after each iteration
     stop: object = None
+
+    @classmethod
+    def of(cls, settings: dict) -> "FitOptions":
+        """The options named in ``settings`` (keywords of :func:`identify` or
+        :func:`solve`); an unknown name, or one that belongs to the problem, is the
+        caller's mistake, said with its name."""
+        known = {f.name for f in dataclasses.fields(cls)}
+        for name in settings:
+            if name in PROBLEM_SETTINGS:
+                raise UserError(f"`{name}`: {PROBLEM_SETTINGS[name]} belongs to the problem "
+                                "(identify's own argument, or Problem's), not the solver's "
+                                "options")
+            if name not in known:
+                raise UserError(f"`{name}`: not an option of the identifiers; they take "
+                                f"{', '.join(sorted(known))}")
+        return cls(**settings)
+
+
+#: what a fit is asked that is not how hard it works: the Problem's (identify takes them)
+PROBLEM_SETTINGS = {"p": "the position channel's weight", "q": "the speed channel's weight",
+                    "c": "the current channel's weight", "start_state": "the runs' start",
+                    "masks": "the fold's samples", "weights": "the channels' weights"}
 
 
 def _channel_notes(obj, p: float, q: float, params: dict, constants: dict) -> dict | None:
@@ -170,7 +190,8 @@ def _channel_notes(obj, p: float, q: float, params: dict, constants: dict) -> di
 def identify(runs, method: str = METHOD, effects: list[Effect] = (), *, seed: int | None = SEED,
              bounds: dict | None = None, fixed: dict | None = None, start: dict | None = None,
              options: FitOptions | None = None, callback=None, dataset: dict | None = None,
-             masks=None, reach=None, **settings) -> Identification:
+             masks=None, reach=None, p: float = 1.0, q: float = 1.0, c: float = 1.0,
+             start_state: str = "auto", **settings) -> Identification:
     """Fit the servo model to ``runs``.
 
     Parameters
@@ -185,7 +206,13 @@ def identify(runs, method: str = METHOD, effects: list[Effect] = (), *, seed: in
         ``{name: (lower, upper)}`` and ``{name: value}``; names are R, L, J, B, K
         and ``effect.param``.
     options : FitOptions, optional
-        The tuning options; or give its fields as keywords (``settings``: ``pop=30``).
+        The solver's options; or give its fields as keywords (``settings``: ``pop=30``).
+    p, q, c : float
+        The position, speed and (voltage plant, when measured) current channels'
+        weights, each already divided by its noise level (the problem's).
+    start_state : {"auto", "rest", "estimate"}
+        Each run's start (:mod:`labrig.model.start`): the run file's, else its first
+        samples; every run from rest; every run's fitted.
     start : dict, optional
         Physical parameters to start from (a saved model): CO starts there, JFO and
         PSO are polished from the better of their result and the start.
@@ -196,15 +223,14 @@ def identify(runs, method: str = METHOD, effects: list[Effect] = (), *, seed: in
     subsample : int, optional
         CO from ``start`` with one start: fit on about this many residuals (every k-th).
     """
-    o = options if options is not None else FitOptions(**settings)
+    o = options if options is not None else FitOptions.of(settings)
     method = method.lower() if isinstance(method, str) else method  # "JFO" is jfo
     if method not in METHODS:
         raise UserError(f"`method`: unknown method '{method}'; choose {', '.join(METHODS)} or all")
     if not runs:
         raise UserError("the data set is empty: give a folder with at least one run")
     problem = Problem(runs, effects, fixed=fixed, bounds=bounds, reach=reach or Reach.of(runs),
-                      weights=Weights(p=o.p, q=o.q), masks=masks, c=o.c,
-                      start_state=o.start_state)
+                      weights=Weights(p=p, q=q), masks=masks, c=c, start_state=start_state)
     return solve(problem, method, seed=seed, start=start, options=o, callback=callback,
                  dataset=dataset)
 
@@ -218,16 +244,16 @@ def solve(problem: Problem, method: str = METHOD, *, seed: int | None = SEED,
     Parameters
     ----------
     problem : Problem
-        The runs, the structure, what is fixed, the weights, the folds' samples and the
-        reach. Its weights and start state are the fit's (``options``' ``p``, ``q``,
-        ``c`` and ``start_state`` are the problem's, not read here).
+        The runs, the structure, what is fixed, the weights, the runs' starts, the
+        folds' samples and the reach: what is fitted.
     method : {"jfo", "pso", "co"}
     seed : int or None
         As :func:`identify`'s.
     start : Model or dict, optional
         Where to start: a model, or its flat parameters.
     options : FitOptions, optional
-        The tuning options; or give its fields as keywords (``settings``).
+        The solver's options; or give its fields as keywords (``settings``; a weight or
+        a start state there is refused: they are the problem's).
     callback : callable, optional
         ``callback(iteration, fitness)`` as the optimiser goes.
     dataset : dict, optional
@@ -238,7 +264,7 @@ def solve(problem: Problem, method: str = METHOD, *, seed: int | None = SEED,
     Identification
         The fit; :meth:`Identification.model` is the fitted Model.
     """
-    o = options if options is not None else FitOptions(**settings)
+    o = options if options is not None else FitOptions.of(settings)
     method = method.lower() if isinstance(method, str) else method
     if method not in METHODS:
         raise UserError(f"`method`: unknown method '{method}'; choose {', '.join(METHODS)}")
@@ -264,18 +290,20 @@ def solve(problem: Problem, method: str = METHOD, *, seed: int | None = SEED,
     name = method
     if method != "co" and (o.polish or start):
         best = res
-        if start is not None and np.sqrt(np.mean(obj.residuals(x0) ** 2) * obj.m) < res.fun:
+        if start is not None and \
+                obj.fitness_of_mean_square(np.mean(obj.solver_residuals(x0) ** 2)) < res.fun:
             best = IdentResult(x=x0, fun=float(res.fun), nfev=res.nfev, nit=res.nit,
                                history=res.history, seed=res.seed, method=method)
-        res = _polish(best, obj.residuals, lo, hi, jac_batch=obj.residuals_jac_batch)
-        res.fun = float(np.sqrt(res.fun))  # polish keeps the global history (already a root)
+        res = _polish(best, obj.solver_residuals, lo, hi, jac_batch=obj.solver_residuals_batch)
+        # (polish keeps the global history: the fitness already)
+        res.fun = obj.fitness_of_mean_square(res.fun)
         name = f"{method}+co"
     if name.endswith("co") and not o.subsample and o.settle:
         # where the data leave the plant's parameters unpinned, the fit ends at the
         # family's settled member, not wherever the machine's rounding left it
         res = settle(res, obj, lo, hi)
-        if "settled" in (res.extra or {}):
-            res.fun = float(np.sqrt(res.fun))
+        if "settled" in (res.extra or {}):   # local's mean square again
+            res.fun = obj.fitness_of_mean_square(res.fun)
     mark("settle-end")
     res.nfev = max(int(res.nfev), obj.nfev)
     phys = space.to_physical(res.x[None, :])[0]

@@ -180,14 +180,14 @@ def analyse_identifiability(objective, x_search: np.ndarray, Ka: float) -> dict:
     for k in range(D):
         X[2 * k, k] += step[k]
         X[2 * k + 1, k] -= step[k]
-    R = objective.residuals_batch(X)
+    R = objective.noise_residuals(X)
     S = np.empty((R.shape[1], D))
     free_log = sp.log[sp.free_idx]
     for k in range(D):
         # search coordinates are log10 for log parameters: convert to d/d ln p
         scale = 1.0 / np.log(10.0) if free_log[k] else 1.0
         S[:, k] = (R[2 * k] - R[2 * k + 1]) / (2 * step[k]) * scale
-    r0 = objective.residuals_batch(x_search[None, :])[0]
+    r0 = objective.noise_residuals(x_search[None, :])[0]
     m = len(r0)
     U, sv, Vt = np.linalg.svd(S, full_matrices=False)
     rel = sv / sv[0] if sv[0] > 0 else sv

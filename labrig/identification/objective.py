@@ -289,9 +289,15 @@ class Objective:
             o += len(meas)
         return R
 
-    def residuals_batch(self, X: np.ndarray, stride: int = 1) -> np.ndarray:
-        """(P, D_free) search points -> (P, m) normalised residuals (every
-        ``stride``-th: the loop's re-fits see a subsample)."""
+    # Two scales of the same residuals, each named for what its squares sum to:
+    # noise_residuals, each in its channel's noise units (their root mean square over
+    # the m residuals is the fitness); solver_residuals, those divided by sqrt(m) (the sum
+    # of their squares is the fitness squared: what least squares minimises, and a
+    # solver's mean square of them, local's ``fun``, is the fitness squared over m).
+    def noise_residuals(self, X: np.ndarray, stride: int = 1) -> np.ndarray:
+        """(P, D_free) search points -> (P, m) residuals in noise units (every
+        ``stride``-th: the loop's re-fits see a subsample); their root mean square is
+        the fitness."""
         X = np.atleast_2d(X)
         self.nfev += X.shape[0]
         with np.errstate(all="ignore"):
@@ -299,17 +305,25 @@ class Objective:
         mark_once(FIRST_POPULATION)
         return R
 
-    def residuals(self, x: np.ndarray, stride: int = 1) -> np.ndarray:
-        return self.residuals_batch(x[None, :], stride)[0] / np.sqrt(self.m)
+    def solver_residuals(self, x: np.ndarray, stride: int = 1) -> np.ndarray:
+        """One search point -> (m,) residuals whose sum of squares is the fitness squared
+        (:meth:`noise_residuals` over sqrt(m), m all of them even when thinned)."""
+        return self.noise_residuals(x[None, :], stride)[0] / np.sqrt(self.m)
 
-    def residuals_jac_batch(self, X: np.ndarray, stride: int = 1) -> np.ndarray:
-        return self.residuals_batch(X, stride) / np.sqrt(self.m)
+    def solver_residuals_batch(self, X: np.ndarray, stride: int = 1) -> np.ndarray:
+        """(P, D_free) -> (P, m) :meth:`solver_residuals` (a Jacobian's rows)."""
+        return self.noise_residuals(X, stride) / np.sqrt(self.m)
+
+    def fitness_of_mean_square(self, mean_square: float) -> float:
+        """The fitness of a solver's mean square of :meth:`solver_residuals` (local's
+        ``fun`` and history): sqrt(mean square * m), thinned or not."""
+        return float(np.sqrt(mean_square * self.m))
 
     def fitness_batch(self, X: np.ndarray) -> np.ndarray:
         """(P, D_free) -> (P,) fitness; the fused kernel never stores trajectories."""
         X = np.atleast_2d(X)
         if self.masks is not None:  # a fold: the residuals of its samples
-            R = self.residuals_batch(X)
+            R = self.noise_residuals(X)
             f = np.sqrt(np.sum(R ** 2, axis=1) / self.m)
             return np.where(np.isfinite(f), f, np.inf)
         self.nfev += X.shape[0]

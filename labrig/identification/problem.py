@@ -109,6 +109,15 @@ class Problem:
         self._plant = plant
         self.c = c
         self.start_state = start_state
+        self._sealed = True
+
+    def __setattr__(self, name, value):
+        # the space and the objective are built from these once (cached): a problem
+        # changed afterwards would be fitted as it was. A new problem, not a changed one.
+        if getattr(self, "_sealed", False):
+            raise AttributeError(f"Problem.{name}: a problem is fixed once made (its space "
+                                 "and objective are built from it); make a new Problem")
+        object.__setattr__(self, name, value)
 
     @classmethod
     def of(cls, runs, model: Model, **kw) -> "Problem":
@@ -181,5 +190,5 @@ class Problem:
         """The fitness of ``values`` on every ``k``-th residual's thinning (what a re-fit on
         a subsample sees, :meth:`Objective.thinning`)."""
         stride = self.objective.thinning(k)
-        R = self.objective.residuals_batch(self.point(values)[None, :], stride)[0]
+        R = self.objective.noise_residuals(self.point(values)[None, :], stride)[0]
         return float(np.sqrt(np.mean(R ** 2)))

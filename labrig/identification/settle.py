@@ -120,8 +120,8 @@ def settle(result: IdentResult, objective, lower: np.ndarray, upper: np.ndarray)
     if not len(dirs):
         return result
     x0 = np.clip(np.asarray(result.x, float), lo, hi)
-    loc = local(objective.residuals, lo, hi, x0=x0, starts=1, seed=result.seed,
-                jac_batch=objective.residuals_jac_batch, prior=(centre, WEIGHT * dirs))
+    loc = local(objective.solver_residuals, lo, hi, x0=x0, starts=1, seed=result.seed,
+                jac_batch=objective.solver_residuals_batch, prior=(centre, WEIGHT * dirs))
     if not np.isfinite(loc.fun):
         return result
     return IdentResult(
