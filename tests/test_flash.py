@@ -160,9 +160,9 @@ def test_avrdudes_dry_run_programmer_takes_the_image(tmp_path):
     exe = shutil.which("avrdude")
     if exe is None:
         pytest.skip("avrdude not installed")
-    version = subprocess.run([exe, "-?"], capture_output=True, text=True).stderr
-    m = re.search(r"version (\d+)\.(\d+)", version, re.I)
-    if not m or (int(m.group(1)), int(m.group(2))) < (7, 2):
-        pytest.skip(f"avrdude {m.group(0) if m else '?'} has no dryrun programmer (7.2+)")
+    version = F.avrdude_version(exe)
+    if not version or version < (7, 2):
+        said = ".".join(map(str, version)) if version else "?"
+        pytest.skip(f"avrdude {said} has no dryrun programmer (7.2+)")
     r = _labrig("flash", "--board", "uno", "--programmer", "dryrun", "--build", "no")
     assert r.returncode == 0, r.stderr

@@ -10,6 +10,7 @@ build).
 from __future__ import annotations
 
 import os
+import re
 import shutil
 import stat
 import subprocess
@@ -201,8 +202,6 @@ def avrdude_version(avrdude: str = "avrdude") -> tuple[int, int] | None:
     >>> avrdude_version("/nonexistent/avrdude") is None
     True
     """
-    import re
-
     try:
         r = subprocess.run([avrdude, "-?"], capture_output=True, text=True, timeout=10)
     except (OSError, subprocess.TimeoutExpired):

@@ -74,9 +74,7 @@ def _run_co(obj, lo, hi, x0, o):
                     seed=o["seed"], jac_batch=lambda X: obj.solver_residuals_batch(X, k),
                     max_nfev=o.get("max_nfev"), callback=root_cb, stop=stop,
                     options=None if tol is None else {"xtol": tol, "ftol": tol})
-        res.fun = fitness(res.fun)
-        res.history = [fitness(h) for h in res.history]
-        return res
+        return _as_fitness(res, fitness)
     full = lambda x: local(obj.solver_residuals, lo, hi, x0=x, starts=1,  # noqa: E731
                            seed=o["seed"], jac_batch=obj.solver_residuals_batch,
                            max_nfev=o.get("max_nfev"))
@@ -96,6 +94,11 @@ def _run_co(obj, lo, hi, x0, o):
         res = local(obj.solver_residuals, lo, hi, x0=x0, starts=o["starts"], seed=o["seed"],
                     jac_batch=obj.solver_residuals_batch, callback=root_cb, threads=True,
                     max_nfev=starts_nfev if o["starts"] > 1 else o.get("max_nfev"))
+    return _as_fitness(res, fitness)
+
+
+def _as_fitness(res, fitness):
+    """A local fit's result with its fun and history (mean squares) as the fitness."""
     res.fun = fitness(res.fun)
     res.history = [fitness(h) for h in res.history]
     return res
