@@ -36,6 +36,7 @@
  * --eeprom FILE keeps the chip's EEPROM (the board's id) in FILE across runs: read at start
  * (a missing file: erased), written back when the harness ends. */
 #include <errno.h>
+#include <fcntl.h>
 #include <getopt.h>
 #include <math.h>
 #include <signal.h>
@@ -201,10 +202,43 @@ static int line_garbles(void)
 
 static uint8_t garbage(uint32_t b) { return (uint8_t)(b * 167u + 13u); }
 
+/* ---- board -> host. A real board's USB-serial chip hands its bytes to the host's USB
+ * stack, which polls whatever the reading program does and keeps them in the tty buffer.
+ * simavr's uart_pty instead keeps them in a 512-byte FIFO emptied by a thread polling
+ * every 500 us: a 56 ms gap in that thread's scheduling (a busy 2-core machine) wraps the
+ * FIFO, which then reads empty -- five SAMPLES frames gone without a trace -- and a short
+ * write to a full pty drops the rest of its chunk. So the harness keeps the chip's bytes
+ * in its own buffer (7 s of a 1 kHz run) and writes them to the pty master itself, from
+ * the simulation's loop, which must run anyway to keep real time; a byte that finds the
+ * buffer full (a host that stopped reading) is counted and said. */
+#define TO_HOST_SIZE 65536u
+static uint8_t to_host[TO_HOST_SIZE];
+static uint32_t to_host_r, to_host_w;   /* free-running; the difference is the fill */
+static unsigned long to_host_dropped, to_host_dropped_said;
+
 static void chip_to_host(struct avr_irq_t *irq, uint32_t value, void *param)
 {
     (void)irq; (void)param;
-    avr_raise_irq(pty.irq + IRQ_UART_PTY_BYTE_IN, line_garbles() ? garbage(value) : value);
+    if (to_host_w - to_host_r >= TO_HOST_SIZE) { to_host_dropped++; return; }
+    to_host[to_host_w++ % TO_HOST_SIZE] = line_garbles() ? garbage(value) : (uint8_t)value;
+}
+
+static void flush_to_host(void)
+{
+    while (to_host_w != to_host_r) {
+        uint32_t at = to_host_r % TO_HOST_SIZE;
+        uint32_t n = to_host_w - to_host_r;
+        if (n > TO_HOST_SIZE - at) n = TO_HOST_SIZE - at;
+        ssize_t k = write(pty.pty.s, to_host + at, n);   /* the master, non-blocking */
+        if (k <= 0) break;   /* the pty is full (or the host closed it): later */
+        to_host_r += (uint32_t)k;
+    }
+    if (to_host_dropped > to_host_dropped_said) {
+        fprintf(stderr, "labrig-emu: the host is not reading: %lu bytes to it dropped\n",
+                to_host_dropped);
+        fflush(stderr);
+        to_host_dropped_said = to_host_dropped;
+    }
 }
 
 static void host_to_chip(struct avr_irq_t *irq, uint32_t value, void *param)
@@ -616,6 +650,9 @@ int main(int argc, char **argv)
         avr_unconnect_irq(pty.irq + IRQ_UART_PTY_BYTE_OUT, dst);
         avr_irq_register_notify(src, chip_to_host, NULL);
         avr_irq_register_notify(pty.irq + IRQ_UART_PTY_BYTE_OUT, host_to_chip, NULL);
+        /* the chip's bytes go out through flush_to_host; uart_pty's thread only reads the
+         * master after select() says it can, so non-blocking costs it nothing */
+        fcntl(pty.pty.s, F_SETFL, fcntl(pty.pty.s, F_GETFL) | O_NONBLOCK);
     }
     if (link) {
         unlink(link);
@@ -636,11 +673,20 @@ int main(int argc, char **argv)
     struct timespec t0, tn;
     clock_gettime(CLOCK_MONOTONIC, &t0);
     uint64_t c0 = avr->cycle;
+    avr_cycle_count_t flushed_at = avr->cycle;
     double behind_said = 0.0;   /* the largest lag behind real time reported so far, s */
     int state = cpu_Running;
     while (!stop_flag && state != cpu_Done && state != cpu_Crashed) {
         for (int k = 0; k < 2000 && state != cpu_Done && state != cpu_Crashed; k++)
             state = avr_run(avr);
+        /* at most every 1 ms of the chip's time (uart_pty polled every 500 us), sooner
+         * when a frame's worth is waiting: a reply is late by under 1 ms, not a syscall
+         * per byte */
+        if (to_host_w - to_host_r >= 96 || avr->cycle - flushed_at >= 16000
+                || to_host_dropped > to_host_dropped_said) {
+            flush_to_host();
+            flushed_at = avr->cycle;
+        }
         if (speed > 0) {
             clock_gettime(CLOCK_MONOTONIC, &tn);
             double wall = (tn.tv_sec - t0.tv_sec) + (tn.tv_nsec - t0.tv_nsec) * 1e-9;
