@@ -37,17 +37,14 @@ test: $(STAMP)          ## the whole test suite on both cores (firmware and brow
 # apart between any two of the three kernels, and the screen takes other paths through the
 # candidates, so all stay; the step-by-step loop's seeds 1-4 end bit for bit where the
 # default seed does under each kernel, so only the default seed is re-run (other_seed).
-# Each test is run again under ONE of the two (alternate tests in node-id order,
-# LABRIG_TEST_SHARE), the two shares side by side, one process each: every test meets a
-# second rounding and the suite both, in half the time of running each test under both
-# (measured 7:32 for both kernels on every test)
-KERNELS := $(BIN)/python -m pytest -q -m "kernels and not firmware and not other_seed"
-test-kernels: $(STAMP)  ## the kernels-marked tests again, half under OpenBLAS's Prescott (SSE3, no FMA) kernel and half under Nehalem's
-	@log=$$(mktemp); \
-	OPENBLAS_CORETYPE=Prescott LABRIG_TEST_SHARE=0/2 $(STAGE) kernels-prescott -- $(KERNELS) >$$log 2>&1 & p=$$!; \
-	OPENBLAS_CORETYPE=Nehalem LABRIG_TEST_SHARE=1/2 $(STAGE) kernels-nehalem -- $(KERNELS); n=$$?; \
-	wait $$p; q=$$?; echo "-- the Prescott share, beside it:"; cat $$log; rm -f $$log; \
-	test $$n = 0 && test $$q = 0
+# Each test is run again under ONE of the two, on two workers, one per kernel
+# (pytest-xdist's --tx sets OPENBLAS_CORETYPE before the worker loads numpy): every test
+# meets a second rounding and the suite both, the workers stealing tests from each other
+# until both end (measured 7:32 for both kernels on every test; 3:02 beside 3:56 as two
+# fixed halves); which kernel each test met is in its JUnit record and counted at the end
+KERNELS_TX := --tx 'popen//env:OPENBLAS_CORETYPE=Prescott' --tx 'popen//env:OPENBLAS_CORETYPE=Nehalem'
+test-kernels: $(STAMP)  ## the kernels-marked tests again on two workers, one under OpenBLAS's Prescott (SSE3, no FMA) kernel, the other under Nehalem's
+	$(STAGE) kernels -- $(BIN)/python -m pytest -q --dist worksteal $(KERNELS_TX) -m "kernels and not firmware and not other_seed"
 
 # the end-to-end loop files (diagnose, propose, plants, real rigs, sheets, report) are left
 # to `make test`; what is left runs in under three minutes on 2 cores (2:38 measured)

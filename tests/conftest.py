@@ -5,6 +5,7 @@ from labrig.core.parallel import one_blas_thread
 
 one_blas_thread()  # as the command line does, before numpy is imported
 
+import collections  # noqa: E402
 import copy  # noqa: E402
 import os
 import signal
@@ -40,28 +41,28 @@ def pytest_sessionfinish(session):
     outputs_record.write()
 
 
-# -- one share of the selected tests -----------------------------------------------------------
-# ``LABRIG_TEST_SHARE=I/N`` keeps every N-th of the selected tests (in node-id order),
-# starting at the I-th: `make test-kernels` runs the kernels-marked tests as two shares side
-# by side, one under each of two other OpenBLAS kernels, so every such test is run again
-# under one other rounding and the suite under two (the Makefile says why).
+# -- the OpenBLAS kernel a test met ---------------------------------------------------------
+# `make test-kernels` re-runs the kernels-marked tests on two workers, each under another
+# OpenBLAS kernel (OPENBLAS_CORETYPE, set per worker): each test's JUnit record names the
+# kernel it met, and the end of the run counts them.
 
-@pytest.hookimpl(trylast=True)   # after -m and -k have deselected
-def pytest_collection_modifyitems(config, items):
-    share = os.environ.get("LABRIG_TEST_SHARE", "").strip()
-    if not share:
-        return
-    try:
-        i, n = (int(x) for x in share.split("/"))
-        if not 0 <= i < n:
-            raise ValueError
-    except ValueError:
-        raise pytest.UsageError(f"LABRIG_TEST_SHARE={share!r}: give I/N with 0 <= I < N, "
-                                f"e.g. 0/2") from None
-    order = sorted(range(len(items)), key=lambda k: items[k].nodeid)
-    keep = {k for rank, k in enumerate(order) if rank % n == i}
-    config.hook.pytest_deselected(items=[it for k, it in enumerate(items) if k not in keep])
-    items[:] = [it for k, it in enumerate(items) if k in keep]
+@pytest.fixture(autouse=True)
+def _openblas_kernel(record_property):
+    kernel = os.environ.get("OPENBLAS_CORETYPE")
+    if kernel:
+        record_property("openblas_coretype", kernel)
+
+
+def _kernels_met(terminalreporter):
+    met = collections.Counter(
+        dict(r.user_properties).get("openblas_coretype")
+        for key in ("passed", "failed") for r in terminalreporter.stats.get(key, [])
+        if getattr(r, "when", "call") == "call")
+    met.pop(None, None)
+    if met:
+        terminalreporter.write_line("OpenBLAS kernels met: " + ", ".join(
+            f"{k} {n} tests" for k, n in sorted(met.items())))
+
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -190,6 +191,7 @@ def pytest_runtest_makereport(item, call):
 
 
 def pytest_terminal_summary(terminalreporter):
+    _kernels_met(terminalreporter)
     if _LAGGED:
         terminalreporter.write_sep("-", "emulated boards behind real time")
         for nodeid, lag, outcome in _LAGGED:
