@@ -271,6 +271,54 @@ def test_strangers_forged_cookies_and_old_logins_are_refused_each_in_one_log_lin
     assert "mallory" not in log          # an unknown name is not written down either
 
 
+def test_a_login_flood_is_throttled_per_name_and_per_address_each_refusal_in_one_line(tmp_path):
+    """Past 5 failed logins for one name within a minute, that name's logins are refused
+    unheard, even with its right password, while another name still logs in from the same
+    address; past 20 failed logins from one address, every login from it is refused. Each
+    refusal is one line in the log, naming the rule; no password and no unknown name in it.
+    Of thirty logins posted at once, exactly as many are heard as the address had failures
+    left: each is counted before the next is checked."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from labrig.lab.login import FAILED_PER_ADDRESS, FAILED_PER_NAME
+
+    server = ClassProc(write_class(tmp_path))
+    url = server.url
+    try:
+        for _ in range(FAILED_PER_NAME):
+            _, r = _login(url, "ana", "not-her-password")
+            assert "Wrong+name+or+password" in r.headers["Location"]
+        s, r = _login(url, "ana", "ana-secret-1")          # right, but too late
+        assert "Too+many+failed+logins" in r.headers["Location"] and "user" not in s.cookies
+        s, r = _login(url, "ben", "ben-secret-2")          # another name, the same address
+        assert r.headers["Location"] == "/" and s.cookies.get("user")
+        sessions = [requests.Session() for _ in range(30)]
+        for sess in sessions:
+            sess.get(f"{url}/login", timeout=30)
+
+        def post(k):   # thirty at once, names the class does not have
+            sess = sessions[k]
+            return sess.post(f"{url}/login", data={"username": f"mallory{k}", "password": "x",
+                                                   "_xsrf": sess.cookies.get("_xsrf")},
+                             allow_redirects=False, timeout=60).headers["Location"]
+
+        with ThreadPoolExecutor(30) as pool:
+            answers = list(pool.map(post, range(30)))
+        assert all("error=" in a for a in answers)
+        heard = sum("Wrong+name" in a for a in answers)
+        assert heard == FAILED_PER_ADDRESS - FAILED_PER_NAME, answers   # the rest unheard
+        s, r = _login(url, "kim", "kim-secret-3")          # the address is now refused
+        assert "Too+many+failed+logins" in r.headers["Location"]
+    finally:
+        server.stop()
+    lines = server.log.read_text().splitlines()
+    assert sum("refused: a login for ana from " in x and "too many failed logins for ana "
+               "(5 in 60 s)" in x for x in lines) == 1
+    assert sum("too many failed logins from " in x for x in lines) == 30 - heard + 1
+    assert "ben logged in" in server.log.read_text()
+    assert not any("mallory" in x or "secret" in x or "not-her" in x for x in lines)
+
+
 def test_behind_a_proxy_the_login_cookie_is_https_only_and_the_log_names_the_forwarded_client(
         tmp_path):
     """`[server] behind_proxy = true` (the server on 127.0.0.1, an HTTPS proxy before it):
