@@ -522,6 +522,45 @@ def test_the_class_pages_built_in_process_a_student_drives_an_instructor_watches
     assert user_of(None, secret, max_age_days=1) is None
 
 
+def test_an_expired_page_stops_for_good_and_never_claims_the_bench_again(tmp_path):
+    """A student's login grows too old while her page drives a bench: the page stops its
+    refresh once, lets the rig go at 0 V and says so once in the log; however often its
+    callback would still fire, it never claims the bench again, and an action sent from
+    it (a take, a Start) is refused and logged. Her new login's page drives the bench."""
+    from labrig.classroom.roster import read_class
+    from labrig.lab.class_page import StudentPage
+    from labrig.lab.class_server import ClassServer
+
+    lines = []
+    srv = ClassServer(read_class(write_class(tmp_path)), log=lines.append)
+    try:
+        alive, stopped = [True], []
+        ana = StudentPage(srv, "ana", "s-old", lambda: alive[0])
+        ana.stop_refresh = lambda: stopped.append(1)
+        ana.bench_pick.value = "bench1"
+        ana.take_btn.clicks += 1
+        st = srv.station_of("ana")
+        assert ana.lab.owner and st.owner == "s-old"
+        alive[0] = False
+        for _ in range(12):
+            ana.refresh()
+        assert ana.expired and stopped == [1]
+        assert st.owner is None and not ana.lab.owner and not st.sweeping
+        ana.take_btn.clicks += 1        # sent from the old page: refused
+        ana.lab.start.clicks += 1
+        new = StudentPage(srv, "ana", "s-new")         # she logs in again
+        assert new.lab is not None and new.lab.owner and st.owner == "s-new"
+        for _ in range(12):
+            ana.refresh()
+        assert st.owner == "s-new" and not ana.lab.owner
+    finally:
+        srv.close()
+    assert sum("login expired; the page is closed" in x for x in lines) == 1, lines
+    assert any("refused: ana asked to take a bench after the login expired" in x
+               for x in lines), lines
+    assert any("refused: ana asked to start" in x for x in lines), lines
+
+
 def test_a_secret_is_never_readable_by_others_not_even_while_it_is_written(tmp_path, monkeypatch):
     """The class's keys and password file are 0600 from the moment their file exists
     (before its first byte, under any umask), and written whole or not at all; public

@@ -28,10 +28,14 @@ ANY_BENCH = "the first free bench"
 class _ClassView:
     """What both pages share: the header, one error line, a watched bench, the expiry."""
 
-    def __init__(self, server, user: str, session: str, alive):
+    def __init__(self, server, user: str, session: str, alive, stop_refresh=lambda: None):
         self.srv, self.user, self.session, self._alive = server, user, session, alive
         self.watched: LabPage | None = None
         self._tick = 0
+        #: the login grew too old: the page has stopped for good (:meth:`expire`)
+        self.expired = False
+        #: ends the page's periodic refresh (given by the server that added it)
+        self.stop_refresh = stop_refresh
         self.error = pn.pane.Alert("", alert_type="danger", visible=False,
                                    css_classes=["lab-class-error"])
         self.area = pn.Column(sizing_mode="stretch_width")
@@ -44,11 +48,21 @@ class _ClassView:
     def refused(self, what: str) -> None:
         self.srv.log(f"refused: {self.user} asked to {what} ({self.session[:8]})")
 
+    def _may_act(self, what: str) -> bool:
+        """False (refused, logged) once the login has expired: an action's message can
+        still come from a page that no longer shows its button."""
+        if self.expired or not self._alive():
+            self.refused(f"{what} after the login expired")
+            return False
+        return True
+
     def _say(self, text: str) -> None:
         self.error.object, self.error.visible = text, bool(text)
 
     def watch(self, bench: str | None) -> None:
         """Open ``bench``'s lab page below, read-only (its actions refused and logged)."""
+        if not self._may_act("watch a bench"):
+            return
         b = self.srv.benches.get(bench or "")
         if b is None or b.station is None:
             return self._say(f"{bench}: no one is on that bench now")
@@ -67,6 +81,8 @@ class _ClassView:
             self.watch_area.objects = []
 
     def refresh(self) -> None:
+        if self.expired:
+            return
         self._tick += 1
         if self._tick % SLOW_EVERY == 1 and not self._alive():
             return self.expire()
@@ -77,7 +93,12 @@ class _ClassView:
                 self.watched.refresh()
 
     def expire(self) -> None:
-        """The login is too old: the page stops acting (a rig it drove stops at 0 V)."""
+        """The login is too old: the page stops for good -- its refresh ended, its actions
+        refused, a rig it drove stopped at 0 V and let go, never claimed again from it."""
+        if self.expired:
+            return
+        self.expired = True
+        self.stop_refresh()
         self.srv.log(f"{self.user}'s login expired; the page is closed ({self.session[:8]})")
         self.closed()
         self.view.objects = [pn.pane.Alert("Your login has expired: [log in again](/login).",
@@ -116,6 +137,8 @@ class StudentPage(_ClassView):
         self._paint_seat()
 
     def _take(self, bench) -> None:
+        if not self._may_act("take a bench"):
+            return
         self._say("")
         try:
             st = self.srv.take(self.user, None if bench in (None, ANY_BENCH) else bench)
@@ -134,7 +157,7 @@ class StudentPage(_ClassView):
         self.area.objects = [self.lab.view]
 
     def _release(self) -> None:
-        if self.srv.seats.of(self.user) is None:
+        if not self._may_act("release the bench") or self.srv.seats.of(self.user) is None:
             return
         self.srv.release(self.user)
 
@@ -178,6 +201,8 @@ class StudentPage(_ClassView):
 
     def refresh(self) -> None:
         super().refresh()
+        if self.expired:   # (never opens, so never claims, the bench again)
+            return
         st = self.srv.station_of(self.user)
         if self.lab is not None and self.lab.st is not st:   # the booking ended
             self.lab = None
@@ -193,6 +218,8 @@ class StudentPage(_ClassView):
         super().closed()
         if self.lab is not None:   # the page that drove the rig is gone: stop at 0 V
             self.lab.st.release(self.session)
+            self.lab.may_drive = False    # and never claims it again from this page
+            self.lab.set_owner(False)
 
 
 class InstructorPage(_ClassView):
@@ -241,16 +268,18 @@ class InstructorPage(_ClassView):
         return name
 
     def _stop(self, name) -> None:
-        if self._bench(name):
+        if self._may_act("stop a bench") and self._bench(name):
             self.srv.stop_bench(name, by=self.user)
 
     def _end(self, name) -> None:
-        if self._bench(name):
+        if self._may_act("end a booking") and self._bench(name):
             booking = self.srv.seats.holder(name)
             if booking is not None:
                 self.srv.release(booking.student, why=f"ended by {self.user}")
 
     def _grade(self) -> None:
+        if not self._may_act("grade the class"):
+            return
         task = self.task.value if self.task.value in ("diagnose", "check") else "diagnose"
         self.srv.grade(task, by=self.user)
 
@@ -281,5 +310,5 @@ class InstructorPage(_ClassView):
 
     def refresh(self) -> None:
         super().refresh()
-        if self._tick % SLOW_EVERY == 1:
+        if not self.expired and self._tick % SLOW_EVERY == 1:
             self._paint()

@@ -64,7 +64,7 @@ class LabPage:
         self.tabs = pn.Tabs(("Acquire", self._acquire_tab()), ("The loop", self._loop_tab()),
                             ("Ask the rig", self._ask_tab()), dynamic=False)
         self.view = pn.Column(header, self.tabs, sizing_mode="stretch_width")
-        self._set_owner(self.owner)
+        self.set_owner(self.owner)
 
     def _heading(self) -> str:
         # what is looked at (the folder's runs, from their sidecars) apart from what plays
@@ -258,7 +258,7 @@ class LabPage:
         self.st.predict(self.which.value, self.why.value)
 
     # -- refresh ---------------------------------------------------------------------
-    def _set_owner(self, owner: bool) -> None:
+    def set_owner(self, owner: bool) -> None:
         self.owner = owner
         self.banner.visible = not owner
         for w in self._drivers:
@@ -267,7 +267,7 @@ class LabPage:
     def refresh(self) -> None:
         st = self.st
         if not self.owner and self.may_drive and st.claim(self.session):   # the owner left
-            self._set_owner(True)
+            self.set_owner(True)
         live = st.live
         # only what changed goes to the browser (a slider's move should not wait behind an
         # unchanged run): a new run whole, then only its new points, streamed (a class's

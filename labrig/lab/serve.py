@@ -133,7 +133,7 @@ def class_app(server, *, log=None):
         watch = pn.state.session_args.get("watch")
         if watch:
             view.watch(watch[0].decode("utf-8", "replace")[:40])
-        pn.state.add_periodic_callback(view.refresh, period=REFRESH_MS)
+        view.stop_refresh = pn.state.add_periodic_callback(view.refresh, period=REFRESH_MS).stop
         pn.state.on_session_destroyed(lambda _ctx: view.closed())
         return view.view
 
