@@ -152,7 +152,9 @@ def test_a_booking_that_ends_mid_run_stops_the_rig_and_keeps_the_finished_runs(t
         st.start_sweep(_plan(tmp_path, st.rig))
         _wait(lambda: len(st.written) == 1 and st.live.samples > 100, 30, "the second run")
         t[0] = srv.room.booking_minutes * 60          # the booking's time is up
-        srv.expire()
+        srv.start_timer(0.05)   # (as served: the expiry in the timer's thread, off the loop)
+        _wait(lambda: "the booking's time ended" in srv.benches["bench1"].note, 30,
+              "the timer's expiry")
         assert not st.sweeping and "0 V" in st.sweep_note, st.sweep_note
         assert srv.seats.of("ana") is None and srv.benches["bench1"].station is None
         assert "the booking's time ended; 1 run(s) kept" in srv.benches["bench1"].note

@@ -85,6 +85,8 @@ class ClassServer:
         self.graded = None          # the last BatchResult
         self.grade_note = ""
         self.scheduler = None
+        self._closing = threading.Event()
+        self._timer: threading.Thread | None = None
         try:
             if any(spec.rig == "remote" for spec in room.benches):
                 self.scheduler = _scheduler(room)
@@ -141,11 +143,28 @@ class ClassServer:
 
     def expire(self) -> None:
         """End the bookings whose time is up (the server's timer calls this), and pass
-        on the turns of fits whose page is gone."""
+        on the turns of fits whose page is gone. Under the server's lock from taking the
+        bookings out of the seats to their stations closed: no page takes a bench between."""
         self.turns.tick()
-        for booking in self.seats.expired():
-            with self._lock:
+        with self._lock:
+            for booking in self.seats.expired():
                 self._end(booking, "the booking's time ended")
+
+    def start_timer(self, period_s: float = 1.0) -> None:
+        """Every ``period_s``, in a thread of its own: the bookings' expiry (stopping a
+        station takes up to seconds, which the pages' event loop must not wait) and the
+        benches on other PCs asked of the scheduler (:meth:`online` only reads the
+        answer). Ended by :meth:`close`."""
+        def tick():
+            while not self._closing.wait(period_s):
+                try:
+                    self.expire()
+                    self._ask_online()
+                except Exception as exc:   # a tick's failure is said; the next one runs
+                    self.log(f"the server's timer: {type(exc).__name__}: {exc}")
+
+        self._timer = threading.Thread(target=tick, name="labrig-class-timer", daemon=True)
+        self._timer.start()
 
     def _end(self, booking: Booking, why: str) -> None:
         b = self.benches[booking.bench]
@@ -189,18 +208,22 @@ class ClassServer:
     _online: tuple = (0.0, set())
 
     def online(self) -> set:
-        """The benches on other PCs connected now (asked of the scheduler at most once a
-        second, however many pages look)."""
+        """The benches on other PCs connected now, as the scheduler last said (asked once
+        a second by the server's timer, :meth:`start_timer`; without one, asked here at
+        most once a second)."""
         if self.scheduler is None:
             return set()
-        t, names = self._online
-        if time.monotonic() - t > 1.0:
-            try:
-                names = self.scheduler.benches_online()
-            except Exception:   # the scheduler busy or closing: the last answer stands
-                pass
-            self._online = (time.monotonic(), names)
-        return names
+        if self._timer is None and time.monotonic() - self._online[0] > 1.0:
+            self._ask_online()
+        return self._online[1]
+
+    def _ask_online(self) -> None:
+        if self.scheduler is None:
+            return
+        try:
+            self._online = (time.monotonic(), self.scheduler.benches_online())
+        except Exception:   # the scheduler busy or closing: the last answer stands
+            pass
 
     def hand_ins(self) -> list:
         """Every student's bench folder that holds runs: what the grading reads."""
@@ -249,6 +272,9 @@ class ClassServer:
 
     def close(self) -> None:
         """Every station stopped at 0 V and closed; every bench let go (ports, emulators)."""
+        self._closing.set()
+        if self._timer is not None:
+            self._timer.join(timeout=30)
         for b in self.benches.values():
             if b.station is not None:
                 b.station.close()

@@ -161,16 +161,13 @@ def serve_class(server, *, open_browser: bool = False, log=None) -> None:
     until Ctrl-C or SIGTERM; on the way out every bench is left at 0 V."""
     import signal
 
-    from tornado.ioloop import PeriodicCallback
-
     log = log or server.log
     app, url = class_app(server, log=log)
     log(f"serving {server.room.name!r} on {url} ({len(server.benches)} benches; Ctrl-C stops "
         "it, every bench left at 0 V)")
     print(url, flush=True)
-    expiry = PeriodicCallback(server.expire, 1000)
-    expiry.start()
+    server.start_timer()   # expiry off the pages' event loop
     # SIGTERM (a service manager's stop) ends the server as Ctrl-C does: benches at 0 V
     signal.signal(signal.SIGTERM, lambda *_: app.io_loop.add_callback_from_signal(
         app.io_loop.stop))
-    run(app, url, open_browser, lambda: (expiry.stop(), server.close()))
+    run(app, url, open_browser, server.close)
