@@ -563,6 +563,63 @@ def test_an_expired_page_stops_for_good_and_never_claims_the_bench_again(tmp_pat
     assert any("refused: ana asked to start" in x for x in lines), lines
 
 
+def test_the_class_cores_are_shared_first_come_first_served_by_fits_and_grading(tmp_path):
+    """The class file's `cores` is the budget: a booking's fit process runs its fits and
+    numba's kernels on one thread; a grading holds two cores while it runs, waits for
+    both, and no fit asked after it overtakes it."""
+    import threading
+
+    import numba
+
+    from labrig.classroom.roster import read_class
+    from labrig.core.parallel import jobs
+    from labrig.lab.class_server import ClassServer, _Turn
+    from labrig.lab.turns import Turns
+
+    class Job:   # a job in the turns, running until told it is done
+        def __init__(self, cores=1):
+            self.busy, self.started, self.cores_held = True, False, cores
+            self.worker = self
+
+        def start_waiting(self):
+            self.started = True
+            return True
+
+    turns = Turns(2)
+    fit, grading, later = Job(), Job(2), Job()
+    for job in (fit, grading, later):
+        turns.ask(job)
+    assert fit.started and not grading.started and not later.started
+    fit.busy = False
+    turns.tick()
+    assert grading.started and not later.started and turns.ahead(later) == 1
+    grading.busy = False
+    turns.tick()
+    assert later.started
+    gate = threading.Event()        # the server's own grading turn: busy while it runs
+    turn = _Turn(gate.wait, 2)
+    assert not turn.busy and turn.start_waiting() and turn.busy and turn.cores_held == 2
+    gate.set()
+    _wait(lambda: not turn.busy, 10, "the grading's end")
+
+    srv = ClassServer(read_class(write_class(tmp_path, extra_server="cores = 3")),
+                      log=lambda line: None)
+    try:
+        assert srv.turns.slots == 3
+        st = srv.take("ana")
+
+        def result(name, fn):
+            st.worker.submit(name, fn)
+            got = []
+            _wait(lambda: got.append(st.worker.poll()) or got[-1] is not None, 60, name)
+            return got[-1][1]
+
+        assert result("fits at once", jobs) == 1
+        assert result("numba's threads", numba.get_num_threads) == 1
+    finally:
+        srv.close()
+
+
 def test_a_secret_is_never_readable_by_others_not_even_while_it_is_written(tmp_path, monkeypatch):
     """The class's keys and password file are 0600 from the moment their file exists
     (before its first byte, under any umask), and written whole or not at all; public

@@ -255,7 +255,8 @@ class BatchResult(Record):
 
 
 def run_batch(task: str, folders, *, options: dict | None = None, jobs: int = 1,
-              scheduler: str | None = None, progress=None) -> BatchResult:
+              scheduler: str | None = None, progress=None,
+              threads: int | None = None) -> BatchResult:
     """Run ``task`` on every folder.
 
     Parameters
@@ -274,6 +275,9 @@ def run_batch(task: str, folders, *, options: dict | None = None, jobs: int = 1,
         its workers instead (``jobs`` is then ignored).
     progress : callable, optional
         Called with each finished row, in the order they finish.
+    threads : int, optional
+        numba's threads in each process (default: the machine's cores shared among the
+        ``jobs``); a class server's grading gives 1, its share of the class's cores.
     """
     if not isinstance(task, Task) and task not in TASKS:
         raise UserError(f"batch: unknown task '{task}'; choose {', '.join(TASKS)}")
@@ -305,7 +309,8 @@ def run_batch(task: str, folders, *, options: dict | None = None, jobs: int = 1,
         n = os.cpu_count() or 1
         jobs = n if jobs in (-1, 0) else max(1, min(int(jobs), len(work) or 1))
         engine = f"joblib, {jobs} process{'es' if jobs > 1 else ''}"
-        for k, row in _joblib(jobs, task, work, options, threads=max(1, n // jobs)):
+        per = threads if threads else max(1, n // jobs)
+        for k, row in _joblib(jobs, task, work, options, threads=per):
             _finish(rows, k, folders, names, row, progress)
     spec = _task(task)
     return BatchResult(task=spec.name, rows=rows, engine=engine, figures=tuple(spec.figures))

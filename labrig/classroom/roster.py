@@ -97,6 +97,10 @@ class ServerSection(ClosedModel):
     #: (X-Real-IP, X-Forwarded-For), which only a server listening on this machine alone
     #: may believe
     behind_proxy: bool = False
+    #: the server's cores the class's fits and grading share, first come first served:
+    #: a booking's fit takes one (its numba and BLAS threads too), a grading two; default:
+    #: every core of the server
+    cores: Optional[Annotated[int, Field(ge=1, le=1024)]] = None
 
     @model_validator(mode="after")
     def _both_or_neither(self):

@@ -79,8 +79,9 @@ class ClassServer:
         self.seats = Seats([b.name for b in room.benches], room.booking_minutes, clock=clock)
         self.benches: dict[str, Bench] = {}
         self._lock = threading.RLock()
-        #: the stations' jobs take turns for the server's cores, first come first served
-        self.turns = Turns(os.cpu_count() or 1)
+        #: the cores the stations' fits and the grading share, first come first served
+        self.cores = room.server.cores or os.cpu_count() or 1
+        self.turns = Turns(self.cores)
         self.grading = False
         self.graded = None          # the last BatchResult
         self.grade_note = ""
@@ -123,7 +124,7 @@ class ClassServer:
                     shutil.copyfile(rig_file, folder / rig_file.name)
                 b.station = Station(folder, b.rig, b.make_bridge, rig_name=b.rig_name,
                                     realtime=self.realtime and b.kind == "sim",
-                                    remote=b.remote)
+                                    remote=b.remote, threads=1)   # one core a booking
                 b.station.cores = self.turns   # the class's fits take turns
                 b.booking, b.ended = booking, ()
                 self.log(f"{student} took {b.name} until "
@@ -237,21 +238,25 @@ class ClassServer:
 
     def grade(self, task: str = "diagnose", by: str = "") -> None:
         """The class's folders through the batch (``labrig batch diagnose``, or
-        ``check`` for mystery rigs), in the background: two processes (joblib), so the
-        benches' pages keep their pace. The result lands on :attr:`graded`."""
+        ``check`` for mystery rigs), in the background: two processes (joblib) of one
+        thread each, taking their turn for two of the class's cores like the benches'
+        fits, so the pages keep their pace. The result lands on :attr:`graded`."""
         with self._lock:
             if self.grading:
                 return
-            self.grading, self.grade_note = True, f"grading ({task})"
+            self.grading, self.grade_note = True, f"grading ({task}): waiting for its cores"
         folders = self.hand_ins()
         self.log(f"{by} graded {len(folders)} folder(s) with batch {task}")
+        jobs = min(2, self.cores)
 
         def work():
             try:
                 if not folders:
                     self.graded, self.grade_note = None, "no runs in any student's folder yet"
                     return
-                self.graded = run_batch(task, folders, options={"seed": 0}, jobs=2)
+                self.grade_note = f"grading ({task})"
+                self.graded = run_batch(task, folders, options={"seed": 0}, jobs=jobs,
+                                        threads=1)
                 self.grade_note = (f"{task}: {self.graded.folders - self.graded.failed} ok, "
                                    f"{self.graded.failed} failed")
             except Exception as exc:   # one line on the page, like any error of the batch
@@ -259,7 +264,7 @@ class ClassServer:
             finally:
                 self.grading = False
 
-        threading.Thread(target=work, name="labrig-grade", daemon=True).start()
+        self.turns.ask(_Turn(work, jobs))
 
     def grades(self):
         """The last grading as a table (pandas): a row per student and bench, the
@@ -282,6 +287,25 @@ class ClassServer:
             b.close()
         if self.scheduler is not None:
             self.scheduler.close()
+
+
+class _Turn:
+    """A job of the server's own (the grading) in the class's turns for the cores: it
+    holds ``cores_held`` while its thread runs (:class:`~labrig.lab.turns.Turns`)."""
+
+    def __init__(self, work, cores: int):
+        self.work, self.cores_held = work, cores
+        self._thread: threading.Thread | None = None
+        self.worker = self   # (the turns ask a job's worker whether it is busy)
+
+    @property
+    def busy(self) -> bool:
+        return self._thread is not None and self._thread.is_alive()
+
+    def start_waiting(self) -> bool:
+        self._thread = threading.Thread(target=self.work, name="labrig-grade", daemon=True)
+        self._thread.start()
+        return True
 
 
 def _scheduler(room: ClassRoom):

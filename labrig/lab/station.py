@@ -40,7 +40,7 @@ class Station:
     """
 
     def __init__(self, folder, rig, make_bridge, *, realtime: bool = True, rig_name: str = "",
-                 remote=None):
+                 remote=None, threads: int = 0):
         self.folder = Path(folder)
         #: a bench on another PC that plays the sweeps (``play(plan, outdir, ...)``), or None
         self.remote = remote
@@ -55,7 +55,7 @@ class Station:
         self.written: list[str] = []
         self._stop = threading.Event()
         self._thread = None
-        self.worker = Worker()
+        self.worker = Worker(threads)   # (0: every core; a class's station: 1)
         self.rungs: list[dict] = []        # fit() results, the ladder's rungs
         self.diagnosis: dict | None = None
         self.ladder: dict | None = None

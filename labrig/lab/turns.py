@@ -6,14 +6,16 @@ import threading
 
 
 class Turns:
-    """Stations taking turns for the server's cores, first come first served: at most
-    ``slots`` jobs run at once, the others wait in the order they were asked (a class's
-    fits queued fairly: no student's click waits behind another's next one).
+    """Stations taking turns for the server's cores, first come first served: the jobs
+    running hold at most ``slots`` cores, the others wait in the order they were asked (a
+    class's fits queued fairly: no student's click waits behind another's next one). A
+    job holds one core, or its ``cores_held`` (a grading's processes); the first waiting job
+    starts only when its cores are free, and none behind it overtakes it.
 
     Parameters
     ----------
     slots : int
-        Jobs run at once (the server's cores).
+        Cores the jobs share (the class file's ``cores``, or the server's).
     """
 
     def __init__(self, slots: int):
@@ -34,10 +36,15 @@ class Turns:
         timer and the pages call this; cheap)."""
         with self._lock:
             self._running = [s for s in self._running if s.worker.busy]
-            while len(self._running) < self.slots and self._waiting:
+            used = sum(self._cores(s) for s in self._running)
+            while self._waiting and used + self._cores(self._waiting[0]) <= self.slots:
                 st = self._waiting.popleft()
                 if st.start_waiting():
                     self._running.append(st)
+                    used += self._cores(st)
+
+    def _cores(self, job) -> int:
+        return min(max(1, int(getattr(job, "cores_held", 1))), self.slots)
 
     def ahead(self, station) -> int:
         """Jobs before ``station``'s: the running ones and those waiting before it."""

@@ -20,9 +20,16 @@ _LOG = None     # the worker's end of the log queue (set by _init in the worker)
 _REPLIES = None  # the page's answers to a job's requests of the rig
 
 
-def _init(queue, replies) -> None:
+def _init(queue, replies, threads: int = 0) -> None:
     global _LOG, _REPLIES
     _LOG, _REPLIES = queue, replies
+    if threads:   # a class's share of the server's cores: the fits' threads and numba's
+        import os
+
+        import numba
+
+        os.environ["LABRIG_THREADS"] = str(threads)
+        numba.set_num_threads(max(1, min(threads, numba.config.NUMBA_NUM_THREADS)))
     # a spawned process has the parent's environment (one BLAS thread) but not its
     # allocator setting: without it every fit's arrays are faulted in afresh, and the
     # page's fits ran up to twice as long as the command line's
@@ -65,9 +72,11 @@ def _warm() -> bool:
 
 
 class Worker:
-    """Runs one job at a time in a separate process."""
+    """Runs one job at a time in a separate process; ``threads``: the cores its fits use
+    (0: every core of the machine; numba's threads and labrig's parallel fits alike)."""
 
-    def __init__(self):
+    def __init__(self, threads: int = 0):
+        self.threads = threads
         self._ctx = multiprocessing.get_context("spawn")
         self._queue = self._ctx.Queue()
         self._replies = self._ctx.Queue()
@@ -78,7 +87,8 @@ class Worker:
         self._start()
 
     def _start(self) -> None:
-        self._pool = self._ctx.Pool(1, initializer=_init, initargs=(self._queue, self._replies))
+        self._pool = self._ctx.Pool(1, initializer=_init,
+                                    initargs=(self._queue, self._replies, self.threads))
         self._pool.apply_async(_warm)
 
     @property
