@@ -438,7 +438,8 @@ def test_a_bench_on_another_pc_plays_stops_and_goes_away_over_tls(tmp_path):
 
 def test_the_server_speaks_https_with_the_certificate_the_class_file_gives(tmp_path):
     """``[server] certfile/keyfile``: the login page and the websocket over TLS only,
-    the certificate checked by the client against the authority that signed it."""
+    the certificate checked by the client against the authority that signed it; the
+    login cookie marked Secure (never sent over plain HTTP)."""
     from labrig.classroom.certs import make_certs
 
     make_certs(tmp_path / "tls", [], ["127.0.0.1", "localhost"])
@@ -460,6 +461,7 @@ def test_the_server_speaks_https_with_the_certificate_the_class_file_gives(tmp_p
                                                 "_xsrf": s.cookies.get("_xsrf")},
                    allow_redirects=False, timeout=30, verify=ca)
         assert r.status_code == 302 and r.headers["Location"] == "/"
+        assert "Secure" in r.headers["Set-Cookie"], r.headers["Set-Cookie"]   # HTTPS only
     finally:
         server.stop()
 

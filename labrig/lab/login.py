@@ -176,9 +176,10 @@ class ClassLoginHandler(BasicLoginHandler):
 
     def set_current_user(self, user):
         # a session cookie (gone with the browser); its age is checked on every request;
-        # behind an HTTPS proxy it never travels over plain HTTP
+        # served over TLS, by the server or an HTTPS proxy, it never travels over plain HTTP
+        cfg = self.room.server
         self.set_secure_cookie("user", user, expires_days=None, httponly=True,
-                               samesite="Strict", secure=bool(self.room.server.behind_proxy))
+                               samesite="Strict", secure=bool(cfg.behind_proxy or cfg.certfile))
 
 
 class ClassLogoutHandler(LogoutHandler):
