@@ -7,6 +7,7 @@ from __future__ import annotations
 import copy
 import os
 import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -298,6 +299,38 @@ def test_sigterm_mid_run_stops_the_board_at_zero(tmp_path, emulators):
         st = bridge.board_status
     assert st["watchdog_trips"] == 0 and st["state"] in ("idle", "configured")
     assert st["dac_word"] == 2048
+
+
+def test_a_full_disk_mid_sweep_on_the_board_leaves_it_at_zero(tmp_path, emulators):
+    """The disk fills while the board's second run is written (files capped between the
+    first run's size and the second's): exit 1 with one line naming the file, the first
+    run whole, nothing half-written, and the host put the board's output at 0 V itself
+    (its DAC's last word mid-scale, no watchdog trip)."""
+    from test_sweep import GROWING_PLAN, _files_no_larger_than
+
+    from labrig.io.runs import read_dataset
+
+    log = tmp_path / "dac.log"
+    plan = tmp_path / "plan.toml"
+    plan.write_text(GROWING_PLAN)
+    emu = emulators("uno", dac_log=log, speed=1.0)
+    r = subprocess.run([sys.executable, "-m", "labrig", "sweep", "--port", emu.pty, "--plan",
+                        str(plan), "-o", str(tmp_path / "ds")], capture_output=True, text=True,
+                       timeout=120, preexec_fn=_files_no_larger_than(150_000))
+    assert r.returncode == 1, r.stderr
+    said = [x for x in r.stderr.strip().splitlines() if not x.startswith("wrote ")]
+    assert len(said) == 1 and "sq_2.00V.csv: cannot be written" in said[0], r.stderr
+    assert "the output is at 0 V" in said[0], said[0]
+    runs = read_dataset(tmp_path / "ds")
+    assert [x.name for x in runs] == ["sq_1.20V"] and len(runs[0]) == 1600
+    assert not [p for p in (tmp_path / "ds").iterdir() if p.suffix == ".tmp"]
+    s = bridge_settings(RIG)
+    words = [int(line.split()[1]) for line in log.read_text().split("\n") if line.strip()]
+    assert volts_to_dac_word(2.0, s) in words and words[-1] == 2048
+    time.sleep(0.5)   # past the watchdog time: the host zeroed it, not the watchdog
+    with SerialBridge(emu.pty, RIG) as bridge:
+        st = bridge.board_status
+    assert st["watchdog_trips"] == 0 and st["dac_word"] == 2048
 
 
 def test_emulator_ends_with_the_process_that_started_it():

@@ -104,6 +104,42 @@ def test_a_zero_that_fails_leaves_the_interrupt_the_error_and_the_link_released(
     assert quiet.closed
 
 
+def _files_no_larger_than(limit):
+    """A child process's files capped at ``limit`` bytes (RLIMIT_FSIZE): a write past it
+    fails as on a full disk (EFBIG; Python ignores SIGXFSZ)."""
+    import resource
+
+    return lambda: resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
+
+
+#: a plan whose second run's file is about three times the first's
+GROWING_PLAN = ("[defaults]\nlead_in_s = 0.1\n[[experiment]]\namplitudes_v = [1.2]\n"
+                "frequency_hz = 1.0\nperiods = 1.5\n[[experiment]]\namplitudes_v = [2.0]\n"
+                "frequency_hz = 1.0\nperiods = 5\n")
+
+
+def test_a_full_disk_mid_sweep_is_one_line_the_runs_before_it_whole(tmp_path):
+    """The disk fills while a run is written (here: files capped between the first run's
+    size and the second's): one line naming the file and the system's reason, exit 1, no
+    "internal error"; the first run whole, nothing half-written left, and the output
+    said at 0 V (the simulated rig; the emulated board's test reads its DAC)."""
+    plan = tmp_path / "plan.toml"
+    plan.write_text(GROWING_PLAN)
+    r = subprocess.run([sys.executable, "-m", "labrig", "sweep", "--sim", "--plan", str(plan),
+                        "-o", str(tmp_path / "ds")], capture_output=True, text=True,
+                       timeout=120, preexec_fn=_files_no_larger_than(150_000))
+    assert r.returncode == 1, r.stderr
+    lines = [x for x in r.stderr.strip().splitlines() if not x.startswith("wrote ")]
+    assert len(lines) == 1 and "internal error" not in r.stderr and "Traceback" not in r.stderr
+    assert lines[0].startswith("labrig: error: "), lines[0]
+    assert "sq_2.00V.csv: cannot be written (File too large)" in lines[0], lines[0]
+    assert "kept in" in lines[0] and "the output is at 0 V" in lines[0], lines[0]
+    runs = read_dataset(tmp_path / "ds")
+    assert [x.name for x in runs] == ["sq_1.20V"] and len(runs[0]) == 1600
+    assert sorted(p.name for p in (tmp_path / "ds").iterdir()) == ["sq_1.20V.csv",
+                                                                    "sq_1.20V.json"]
+
+
 def test_plan_beyond_output_limit_refused(tmp_path):
     rig = make_rig()
     p = labrig("sweep", "--sim", "-o", tmp_path / "o", "--plan", tmp_path / "p.toml")

@@ -15,7 +15,7 @@ import pandas as pd
 
 from labrig.bridge.base import Bridge
 from labrig.io.experiment import Experiment
-from labrig.core.errors import RigError, UserError
+from labrig.core.errors import RigError, UserError, WriteError
 from labrig.bridge.settings import board_law
 from labrig.io.bridge_record import encoder_problems
 from labrig.io.runs import Run, make_meta, run_exists, write_run
@@ -269,7 +269,9 @@ def sweep(bridge: Bridge, plan: list[Experiment], rig, outdir: Path | str, *,
         raise
     finally:
         # every exit path: Ctrl-C, a rig fault, a full disk -- leave the output at 0 V
-        end_at_zero(bridge, pending)
+        if end_at_zero(bridge, pending) and isinstance(pending, WriteError):
+            pending.add_note(f"the runs finished before it are kept in {outdir}; the "
+                             "output is at 0 V")
     if lossy:
         raise LossError(lossy, rig.bridge.max_lost_fraction, outdir,
                         also=EncoderError(slipped, outdir) if slipped else None)
@@ -278,19 +280,21 @@ def sweep(bridge: Bridge, plan: list[Experiment], rig, outdir: Path | str, *,
     return written
 
 
-def end_at_zero(bridge: Bridge, pending: BaseException | None = None) -> None:
+def end_at_zero(bridge: Bridge, pending: BaseException | None = None) -> bool:
     """Stop ``bridge``, set its output to 0 V and release its link, whatever fails.
 
     The link is released even when stopping or zeroing raises (a bridge that breaks its
     never-raise contract must not keep the port held). A failure to zero is raised only
     when no other error is ``pending``: a trip or a Ctrl-C stays the error the user sees,
-    and the zero's failure is added to it as a note."""
+    and the zero's failure is added to it as a note. True when the output was zeroed."""
+    zeroed = False
     try:
         try:
             bridge.stop()
         except Exception:   # a stop on a dead link: the zero below is what makes it safe
             pass
         bridge.zero()
+        zeroed = True
     except Exception as exc:
         if pending is None:
             raise
@@ -302,6 +306,7 @@ def end_at_zero(bridge: Bridge, pending: BaseException | None = None) -> None:
             if pending is None:
                 raise
             pending.add_note(f"and releasing the link failed: {exc}")
+    return zeroed
 
 
 class TripError(RigError):

@@ -69,6 +69,14 @@ class RigError(LabrigError):
     exit_code = 1
 
 
+class WriteError(LabrigError, OSError):
+    """A file could not be written (the disk full, a quota, no permission): one line naming
+    it, exit 1; what was written before it is whole, and no half-written file is left.
+    (An OSError too, for code that handles any failed write.)"""
+
+    exit_code = 1
+
+
 class Interrupted(LabrigError):
     """The user pressed Ctrl-C (exit 130)."""
 

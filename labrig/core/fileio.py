@@ -13,6 +13,8 @@ import stat
 
 import numpy as np
 
+from labrig.core.errors import WriteError
+
 
 def not_regular(path: Path | str) -> str | None:
     """What ``path`` is when it is not a regular file a reader can finish ("a folder", "a
@@ -75,7 +77,10 @@ def atomic_write(path: Path | str, text: str | bytes, mode: int | None = None) -
     ``mode`` (0o600 for a secret) is the file's from its creation, before its first byte;
     None follows the umask."""
     path = Path(path)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    except OSError as exc:
+        raise _cannot_write(path, exc) from exc
     try:
         # mkstemp makes 0600; a run or model on a shared lab drive must be readable
         # like any other file the user writes, so follow the umask (a secret stays 0600)
@@ -87,9 +92,17 @@ def atomic_write(path: Path | str, text: str | bytes, mode: int | None = None) -
             fh.flush()
             os.fsync(fh.fileno())
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as exc:
         Path(tmp).unlink(missing_ok=True)
+        if isinstance(exc, OSError) and not isinstance(exc, WriteError):
+            raise _cannot_write(path, exc) from exc
         raise
+
+
+def _cannot_write(path: Path, exc: OSError) -> WriteError:
+    """A failed write as one line: the file, the system's reason, what to do."""
+    return WriteError(f"{path}: cannot be written ({exc.strerror or exc}): free some space "
+                      "or write it elsewhere; nothing half-written was left")
 
 
 def json_default(o):
