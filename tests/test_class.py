@@ -548,8 +548,9 @@ def test_an_expired_page_stops_for_good_and_never_claims_the_bench_again(tmp_pat
         alive[0] = False
         for _ in range(12):
             ana.refresh()
-        assert ana.expired and stopped == [1]
-        assert st.owner is None and not ana.lab.owner and not st.sweeping
+        assert ana.expired and stopped == [1] and not ana.lab.owner
+        _wait(lambda: st.owner is None, 10, "the bench let go (on the server's change thread)")
+        assert not st.sweeping
         ana.take_btn.clicks += 1        # sent from the old page: refused
         ana.lab.start.clicks += 1
         new = StudentPage(srv, "ana", "s-new")         # she logs in again

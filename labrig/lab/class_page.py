@@ -159,7 +159,7 @@ class StudentPage(_ClassView):
     def _release(self) -> None:
         if not self._may_act("release the bench") or self.srv.seats.of(self.user) is None:
             return
-        self.srv.release(self.user)
+        self.srv.later(self.srv.release, self.user)   # (a station's stop: off the loop)
 
     def watch(self, bench) -> None:
         if not self.srv.room.watch:
@@ -217,9 +217,9 @@ class StudentPage(_ClassView):
     def closed(self) -> None:
         super().closed()
         if self.lab is not None:   # the page that drove the rig is gone: stop at 0 V
-            self.lab.st.release(self.session)
             self.lab.may_drive = False    # and never claims it again from this page
             self.lab.set_owner(False)
+            self.srv.later(self.lab.st.release, self.session)
 
 
 class InstructorPage(_ClassView):
@@ -269,13 +269,14 @@ class InstructorPage(_ClassView):
 
     def _stop(self, name) -> None:
         if self._may_act("stop a bench") and self._bench(name):
-            self.srv.stop_bench(name, by=self.user)
+            self.srv.later(self.srv.stop_bench, name, by=self.user)
 
     def _end(self, name) -> None:
         if self._may_act("end a booking") and self._bench(name):
             booking = self.srv.seats.holder(name)
             if booking is not None:
-                self.srv.release(booking.student, why=f"ended by {self.user}")
+                self.srv.later(self.srv.release, booking.student,
+                               why=f"ended by {self.user}")
 
     def _grade(self) -> None:
         if not self._may_act("grade the class"):

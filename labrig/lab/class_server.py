@@ -14,6 +14,7 @@ import os
 import shutil
 import sys
 import threading
+from concurrent.futures import ThreadPoolExecutor
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -88,6 +89,9 @@ class ClassServer:
         self.scheduler = None
         self._closing = threading.Event()
         self._timer: threading.Thread | None = None
+        #: the changes pages ask for that stop a station (up to a dead link's timeouts):
+        #: one thread, in the order asked, never the pages' event loop (:meth:`later`)
+        self._changes = ThreadPoolExecutor(1, thread_name_prefix="labrig-class-change")
         try:
             if any(spec.rig == "remote" for spec in room.benches):
                 self.scheduler = _scheduler(room)
@@ -275,9 +279,23 @@ class ClassServer:
         df.insert(1, "bench", [p[1] for p in seat])
         return df.drop(columns=["folder"])
 
+    def later(self, fn, *args, **kw) -> None:
+        """``fn(*args, **kw)`` on the server's change thread, after the changes asked
+        before it: a page's Release, an instructor's Stop or End stops a station at 0 V,
+        which must not hold the pages' event loop. A failure is one line in the log."""
+        def change():
+            try:
+                fn(*args, **kw)
+            except Exception as exc:
+                self.log(f"{getattr(fn, '__name__', 'a change')} failed: "
+                         f"{type(exc).__name__}: {exc}")
+
+        self._changes.submit(change)
+
     def close(self) -> None:
         """Every station stopped at 0 V and closed; every bench let go (ports, emulators)."""
         self._closing.set()
+        self._changes.shutdown(wait=True)   # (the changes asked before: done first)
         if self._timer is not None:
             self._timer.join(timeout=30)
         for b in self.benches.values():
