@@ -268,12 +268,28 @@ def test_cli_sweep_on_emulated_board_then_board_vanishes(tmp_path):
     assert res["km"] is not None and 80 < res["km"] < 115
 
 
+def _first_run_kept_and_the_host_zeroed_the_board(folder: Path, log: Path, emu) -> dict:
+    """A sweep of two runs (1.2 V, then 2.0 V) ended in its second: the first run whole in
+    ``folder``, nothing half-written, the DAC's last word (``log``) mid-scale after the
+    2 V run played; returns the board's status asked past its watchdog time (had the host
+    not zeroed it, the board would have tripped)."""
+    from labrig.io.runs import read_dataset
+
+    runs = read_dataset(folder)
+    assert [r.name for r in runs] == ["sq_1.20V"] and len(runs[0]) == 1600
+    assert not [p for p in folder.iterdir() if p.suffix == ".tmp"]
+    s = bridge_settings(RIG)
+    words = [int(line.split()[1]) for line in log.read_text().split("\n") if line.strip()]
+    assert volts_to_dac_word(2.0, s) in words and words[-1] == 2048
+    time.sleep(0.5)
+    with SerialBridge(emu.pty, RIG) as bridge:
+        return bridge.board_status
+
+
 def test_sigterm_mid_run_stops_the_board_at_zero(tmp_path, emulators):
     """Point 9 on the emulated board: SIGTERM by PID while a run streams -> exit 143, the
     finished run intact, and the host itself (not the watchdog) put the output at 0 V."""
     import signal
-
-    from labrig.io.runs import read_dataset
 
     log = tmp_path / "dac.log"
     plan = tmp_path / "plan.toml"
@@ -287,16 +303,7 @@ def test_sigterm_mid_run_stops_the_board_at_zero(tmp_path, emulators):
     assert proc.returncode == 143, err
     assert err.strip().splitlines()[-1] == ("labrig: terminated by SIGTERM; finished runs "
                                             "are kept, the output is at 0 V")
-    runs = read_dataset(tmp_path / "ds")
-    assert [r.name for r in runs] == ["sq_1.20V"] and len(runs[0]) == 1600
-    assert not [p for p in (tmp_path / "ds").iterdir() if p.suffix == ".tmp"]
-    s = bridge_settings(RIG)
-    words = [int(line.split()[1]) for line in log.read_text().split("\n") if line.strip()]
-    assert volts_to_dac_word(2.0, s) in words and words[-1] == 2048
-    # long past the watchdog time: had the host not stopped it, the board would have tripped
-    time.sleep(0.5)
-    with SerialBridge(emu.pty, RIG) as bridge:
-        st = bridge.board_status
+    st = _first_run_kept_and_the_host_zeroed_the_board(tmp_path / "ds", log, emu)
     assert st["watchdog_trips"] == 0 and st["state"] in ("idle", "configured")
     assert st["dac_word"] == 2048
 
@@ -307,8 +314,6 @@ def test_a_full_disk_mid_sweep_on_the_board_leaves_it_at_zero(tmp_path, emulator
     run whole, nothing half-written, and the host put the board's output at 0 V itself
     (its DAC's last word mid-scale, no watchdog trip)."""
     from test_sweep import GROWING_PLAN, _files_no_larger_than
-
-    from labrig.io.runs import read_dataset
 
     log = tmp_path / "dac.log"
     plan = tmp_path / "plan.toml"
@@ -321,15 +326,7 @@ def test_a_full_disk_mid_sweep_on_the_board_leaves_it_at_zero(tmp_path, emulator
     said = [x for x in r.stderr.strip().splitlines() if not x.startswith("wrote ")]
     assert len(said) == 1 and "sq_2.00V.csv: cannot be written" in said[0], r.stderr
     assert "the output is at 0 V" in said[0], said[0]
-    runs = read_dataset(tmp_path / "ds")
-    assert [x.name for x in runs] == ["sq_1.20V"] and len(runs[0]) == 1600
-    assert not [p for p in (tmp_path / "ds").iterdir() if p.suffix == ".tmp"]
-    s = bridge_settings(RIG)
-    words = [int(line.split()[1]) for line in log.read_text().split("\n") if line.strip()]
-    assert volts_to_dac_word(2.0, s) in words and words[-1] == 2048
-    time.sleep(0.5)   # past the watchdog time: the host zeroed it, not the watchdog
-    with SerialBridge(emu.pty, RIG) as bridge:
-        st = bridge.board_status
+    st = _first_run_kept_and_the_host_zeroed_the_board(tmp_path / "ds", log, emu)
     assert st["watchdog_trips"] == 0 and st["dac_word"] == 2048
 
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import inspect
 import multiprocessing
+import os
 import time
 
 from labrig.core.memory import keep_freed_memory
@@ -24,8 +25,6 @@ def _init(queue, replies, threads: int = 0) -> None:
     global _LOG, _REPLIES
     _LOG, _REPLIES = queue, replies
     if threads:   # a class's share of the server's cores: the fits' threads and numba's
-        import os
-
         import numba
 
         os.environ["LABRIG_THREADS"] = str(threads)
